@@ -1,0 +1,45 @@
+# Every target installs what it needs on a fresh machine and is quick when already installed.
+PY      ?= python3
+VENV    := .venv
+BIN     := $(VENV)/bin
+STAMP   := $(VENV)/.stamp-install
+APT_STAMP := $(VENV)/.stamp-apt
+
+.PHONY: demo test bench lint typecheck install apt clean
+
+$(BIN)/python:
+	$(PY) -m venv $(VENV)
+
+$(STAMP): pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	touch $@
+
+# iproute2 creates the veth pairs and namespaces of the EtherCAT wire tests.
+$(APT_STAMP): | $(BIN)/python
+	@if ! command -v ip >/dev/null 2>&1; then \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+	    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq iproute2 >/dev/null; \
+	  else echo "warning: 'ip' (iproute2) missing and cannot be installed; EtherCAT wire tests will skip"; fi; \
+	fi
+	touch $@
+
+install: $(STAMP) $(APT_STAMP)
+
+apt: $(APT_STAMP)
+
+demo: install
+	$(BIN)/python -m gatewaylab.rig.demo
+
+test: install
+	$(BIN)/python -m pytest -q
+
+bench: install
+	$(BIN)/python -m benchmarks
+
+lint: install
+	$(BIN)/ruff check gatewaylab tests benchmarks examples
+	$(BIN)/mypy
+
+clean:
+	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache

@@ -1,0 +1,3 @@
+"""gatewaylab: byte-exact emulators of industrial CAN gateways on shared virtual CAN buses."""
+
+__version__ = "0.1.0"

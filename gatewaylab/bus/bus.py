@@ -1,0 +1,516 @@
+"""Virtual CAN / CAN FD bus: arbitration, frame timing, ISO 11898-1 fault confinement, faults.
+
+Sans-I/O: the bus schedules everything on the injected :class:`~gatewaylab.common.clock.Clock`
+and talks to its users through callbacks. The model is documented in ``docs/bus.md``.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from enum import Enum
+
+from ..common.clock import Clock, TimerHandle
+from ..common.errors import ConfigError, FrameError, LocalError
+from .frame import CanFrame
+from .timing import (
+    BUS_OFF_RECOVERY_BITS,
+    ERROR_FRAME_BITS,
+    SUSPEND_TRANSMISSION_BITS,
+    arbitration_key,
+    frame_bits_until_ack,
+    frame_duration,
+)
+
+
+class ErrorState(Enum):
+    """Fault-confinement state of a controller (ISO 11898-1 clause 12)."""
+
+    ERROR_ACTIVE = "error-active"
+    ERROR_PASSIVE = "error-passive"
+    BUS_OFF = "bus-off"
+
+
+class ErrorKind(Enum):
+    """Why an error frame was sent."""
+
+    ACK = "ack"          # nobody acknowledged the frame
+    CRC = "crc"          # a receiver saw a corrupted frame (fault injection)
+    BIT = "bit"          # the controller's bit timing does not match the bus
+    FORM = "form"        # a frame sent at a foreign bit rate, seen as garbage
+
+
+@dataclass(frozen=True, slots=True)
+class ErrorFrameEvent:
+    """An error frame this controller took part in (as transmitter or receiver)."""
+
+    kind: ErrorKind
+    timestamp: float
+    transmitter: bool
+    frame: CanFrame | None
+
+
+@dataclass(frozen=True, slots=True)
+class StateChangeEvent:
+    old: ErrorState
+    new: ErrorState
+    tec: int
+    rec: int
+    timestamp: float
+
+
+@dataclass(frozen=True, slots=True)
+class TxDoneEvent:
+    """The frame was transmitted and acknowledged (or dropped by fault injection)."""
+
+    frame: CanFrame
+    timestamp: float
+
+
+@dataclass(frozen=True, slots=True)
+class TxAbortedEvent:
+    """A frame that was given up: single-shot mode after an error, or flushed at bus-off."""
+
+    frame: CanFrame
+    timestamp: float
+    reason: str
+
+
+BusEvent = ErrorFrameEvent | StateChangeEvent | TxDoneEvent | TxAbortedEvent
+FrameCallback = Callable[[CanFrame, float], None]
+EventCallback = Callable[[BusEvent], None]
+
+
+@dataclass(slots=True)
+class ControllerStats:
+    tx_frames: int = 0
+    rx_frames: int = 0
+    tx_bytes: int = 0
+    rx_bytes: int = 0
+    error_frames: int = 0
+    tx_retransmissions: int = 0
+
+
+@dataclass(slots=True)
+class BusStats:
+    frames: int = 0
+    bytes: int = 0
+    error_frames: int = 0
+    dropped_frames: int = 0
+    busy_time: float = 0.0
+    since: float = 0.0
+
+
+class Controller:
+    """One CAN controller attached to a :class:`VirtualBus`."""
+
+    def __init__(self, bus: VirtualBus, name: str, bitrate: int, data_bitrate: int | None,
+                 listen_only: bool, auto_retransmit: bool, receive_own: bool, fd: bool,
+                 auto_recover: bool, on_frame: FrameCallback | None,
+                 on_event: EventCallback | None) -> None:
+        self.bus = bus
+        self.name = name
+        self.bitrate = bitrate
+        self.data_bitrate = data_bitrate
+        self.listen_only = listen_only
+        self.auto_retransmit = auto_retransmit
+        self.receive_own = receive_own
+        self.fd = fd
+        self.auto_recover = auto_recover
+        self.on_frame = on_frame
+        self.on_event = on_event
+        self.tx_queue: deque[CanFrame] = deque()
+        self.tec = 0
+        self.rec = 0
+        self.state = ErrorState.ERROR_ACTIVE
+        self.connected = True
+        self.stats = ControllerStats()
+        self.synthetic = False
+        self._ready_at = 0.0
+        self._recovery: TimerHandle | None = None
+        self._mismatch_timer: TimerHandle | None = None
+
+    def __repr__(self) -> str:
+        return f"<Controller {self.bus.name}/{self.name} {self.state.value} TEC={self.tec} REC={self.rec}>"
+
+    @property
+    def timing_matches(self) -> bool:
+        """False when this controller's bit timing differs from the bus (it sees only errors)."""
+        bus = self.bus
+        if self.bitrate != bus.bitrate:
+            return False
+        return not (self.fd and bus.data_bitrate is not None and self.data_bitrate is not None
+                    and self.data_bitrate != bus.data_bitrate)
+
+    def send(self, frame: CanFrame) -> None:
+        """Queue a frame for transmission (FIFO per controller, like a SocketCAN tx queue)."""
+        if self.listen_only:
+            raise LocalError(f"{self.name}: a listen-only controller cannot send")
+        if frame.fd:
+            if not self.fd:
+                raise FrameError(f"{self.name}: controller is not CAN FD capable")
+            if self.bus.data_bitrate is None:
+                raise FrameError(f"bus {self.bus.name} is classic CAN (no data_bitrate): FD frame refused")
+        if self.state is ErrorState.BUS_OFF:
+            raise LocalError(f"{self.name}: controller is bus-off")
+        self.tx_queue.append(frame)
+        if not self.connected:
+            return
+        if self.timing_matches:
+            self.bus._kick()
+        elif self._mismatch_timer is None:
+            self._mismatch_timer = self.bus.clock.call_soon(self._mismatch_attempt)
+
+    def flush_tx(self) -> None:
+        self.tx_queue.clear()
+
+    # -- fault confinement ------------------------------------------------------------------
+    def _update_state(self) -> None:
+        old = self.state
+        if old is ErrorState.BUS_OFF:
+            return
+        if self.tec > 255:
+            new = ErrorState.BUS_OFF
+        elif self.tec > 127 or self.rec > 127:
+            new = ErrorState.ERROR_PASSIVE
+        else:
+            new = ErrorState.ERROR_ACTIVE
+        if new is not old:
+            self._set_state(new)
+
+    def _set_state(self, new: ErrorState) -> None:
+        old = self.state
+        self.state = new
+        clock = self.bus.clock
+        if new is ErrorState.BUS_OFF:
+            for frame in self.tx_queue:
+                self._emit(TxAbortedEvent(frame, clock.now(), "bus-off"))
+            self.tx_queue.clear()
+            if self.auto_recover:
+                self._recovery = clock.call_later(BUS_OFF_RECOVERY_BITS / self.bus.bitrate, self.recover)
+        self._emit(StateChangeEvent(old, new, self.tec, self.rec, clock.now()))
+
+    def recover(self) -> None:
+        """Leave bus-off (after 128 x 11 recessive bits when ``auto_recover``; or on request)."""
+        if self._recovery is not None:
+            self._recovery.cancel()
+            self._recovery = None
+        if self.state is ErrorState.BUS_OFF:
+            self.tec = self.rec = 0
+            self._set_state(ErrorState.ERROR_ACTIVE)
+
+    def _emit(self, event: BusEvent) -> None:
+        if self.on_event is not None:
+            self.on_event(event)
+
+    def _error(self, kind: ErrorKind, transmitter: bool, frame: CanFrame | None, t: float) -> None:
+        self.stats.error_frames += 1
+        if not self.listen_only:
+            if transmitter:
+                # ISO 11898-1 12.1.4.2 rule c) exception 1: an error-passive transmitter that
+                # detects an ACK error does not increase its TEC, so a lone sender stays passive.
+                if not (kind is ErrorKind.ACK and self.state is ErrorState.ERROR_PASSIVE):
+                    self.tec += 8
+            elif self.rec < 255:
+                self.rec += 1
+        self._emit(ErrorFrameEvent(kind, t, transmitter, frame))
+        self._update_state()
+
+    def _mismatch_attempt(self) -> None:
+        """A controller at the wrong bit rate can never send: every attempt is a bit error."""
+        self._mismatch_timer = None
+        if not self.tx_queue or not self.connected or self.state is ErrorState.BUS_OFF:
+            return
+        frame = self.tx_queue[0]
+        self._error(ErrorKind.BIT, True, frame, self.bus.clock.now())
+        if not self.auto_retransmit and self.tx_queue:
+            self.tx_queue.popleft()
+            self._emit(TxAbortedEvent(frame, self.bus.clock.now(), "single-shot"))
+        if self.tx_queue and self.state is not ErrorState.BUS_OFF:
+            self._mismatch_timer = self.bus.clock.call_later(
+                ERROR_FRAME_BITS / self.bitrate, self._mismatch_attempt)
+
+
+@dataclass(slots=True)
+class _InFlight:
+    sender: Controller
+    frame: CanFrame
+    outcome: str  # "ok" | "ack" | "crc" | "drop"
+    start: float
+    end: float
+
+
+@dataclass(slots=True)
+class _Load:
+    percent: float
+    frame: CanFrame
+    timer: TimerHandle | None = None
+    controller: Controller | None = field(default=None)
+
+
+class VirtualBus:
+    """A CAN or CAN FD bus segment; any number per process, any number of controllers each."""
+
+    def __init__(self, clock: Clock, name: str = "can0", bitrate: int = 1_000_000,
+                 data_bitrate: int | None = None, timing: bool = True) -> None:
+        if bitrate <= 0 or (data_bitrate is not None and data_bitrate <= 0):
+            raise ConfigError(f"bus {name}: bit rates must be positive")
+        self.clock = clock
+        self.name = name
+        self.bitrate = bitrate
+        self.data_bitrate = data_bitrate
+        #: False: frames take no time (ordering and arbitration still apply). For load tests.
+        self.timing = timing
+        self.controllers: list[Controller] = []
+        self.stats = BusStats(since=clock.now())
+        self._monitors: list[FrameCallback] = []
+        self._in_flight: _InFlight | None = None
+        self._arb_timer: TimerHandle | None = None
+        self._idle_at = clock.now()
+        self._drop_next = 0
+        self._corrupt_next = 0
+        self._load: _Load | None = None
+
+    def __repr__(self) -> str:
+        fd = f"/{self.data_bitrate}" if self.data_bitrate else ""
+        return f"<VirtualBus {self.name} {self.bitrate}{fd} bit/s, {len(self.controllers)} controllers>"
+
+    @property
+    def is_fd(self) -> bool:
+        return self.data_bitrate is not None
+
+    # -- attachment -------------------------------------------------------------------------
+    def attach(self, name: str = "", *, bitrate: int | None = None, data_bitrate: int | None = None,
+               listen_only: bool = False, auto_retransmit: bool = True, receive_own: bool = False,
+               fd: bool = True, auto_recover: bool = True, on_frame: FrameCallback | None = None,
+               on_event: EventCallback | None = None) -> Controller:
+        """Attach a controller. Its bit rates default to the bus's own."""
+        ctrl = Controller(self, name or f"ctrl{len(self.controllers)}", bitrate or self.bitrate,
+                          data_bitrate or self.data_bitrate, listen_only, auto_retransmit,
+                          receive_own, fd, auto_recover, on_frame, on_event)
+        self.controllers.append(ctrl)
+        return ctrl
+
+    def detach(self, ctrl: Controller) -> None:
+        if ctrl in self.controllers:
+            self.controllers.remove(ctrl)
+            ctrl.connected = False
+            ctrl.tx_queue.clear()
+
+    def add_monitor(self, callback: FrameCallback) -> None:
+        """Call ``callback(frame, t)`` for every frame that completes on the bus (for traces)."""
+        self._monitors.append(callback)
+
+    def remove_monitor(self, callback: FrameCallback) -> None:
+        if callback in self._monitors:
+            self._monitors.remove(callback)
+
+    @property
+    def busy(self) -> bool:
+        """True while a frame is on the wire or any connected controller has one queued."""
+        if self._in_flight is not None or self._arb_timer is not None:
+            return True
+        return any(c.tx_queue and c.connected and c.state is not ErrorState.BUS_OFF
+                   and c.timing_matches and not c.synthetic for c in self.controllers)
+
+    # -- fault injection ---------------------------------------------------------------------
+    def disconnect(self, ctrl: Controller) -> None:
+        """Unplug a controller: it neither sends nor receives; its queue waits for reconnect."""
+        ctrl.connected = False
+
+    def reconnect(self, ctrl: Controller) -> None:
+        ctrl.connected = True
+        if ctrl.tx_queue:
+            self._kick()
+
+    def force_bus_off(self, ctrl: Controller) -> None:
+        ctrl.tec = 256
+        ctrl._update_state()
+
+    def drop_next(self, n: int = 1) -> None:
+        """The next ``n`` frames vanish: the sender sees success, nobody receives them."""
+        self._drop_next += n
+
+    def corrupt_next(self, n: int = 1) -> None:
+        """The next ``n`` frames arrive corrupted: CRC error frame, counters, retransmission."""
+        self._corrupt_next += n
+
+    def set_load(self, percent: float, can_id: int = 0x7FF, length: int = 8) -> None:
+        """Add synthetic bus load from a phantom node sending ``can_id`` (0 disables)."""
+        if self._load is not None:
+            if self._load.timer is not None:
+                self._load.timer.cancel()
+            if self._load.controller is not None:
+                self.detach(self._load.controller)
+            self._load = None
+        if percent <= 0:
+            return
+        if percent >= 100:
+            raise ConfigError("synthetic load must be below 100 %")
+        frame = CanFrame(can_id, bytes(length))
+        load = _Load(percent, frame)
+        ctrl = self.attach("<load>", auto_recover=True)
+        ctrl.synthetic = True
+        load.controller = ctrl
+        self._load = load
+        self._load_tick()
+
+    def _load_tick(self) -> None:
+        load = self._load
+        if load is None or load.controller is None:
+            return
+        if not load.controller.tx_queue:
+            load.controller.send(load.frame)
+        period = frame_duration(load.frame, self.bitrate) * 100.0 / load.percent
+        load.timer = self.clock.call_later(period, self._load_tick)
+
+    # -- statistics --------------------------------------------------------------------------
+    def load_percent(self) -> float:
+        """Share of time the bus was busy since the statistics were reset."""
+        elapsed = self.clock.now() - self.stats.since
+        return 100.0 * self.stats.busy_time / elapsed if elapsed > 0 else 0.0
+
+    def reset_stats(self) -> None:
+        self.stats = BusStats(since=self.clock.now())
+        for c in self.controllers:
+            c.stats = ControllerStats()
+
+    # -- the arbitration engine --------------------------------------------------------------
+    def _kick(self) -> None:
+        if self._in_flight is None and self._arb_timer is None:
+            clock = self.clock
+            self._arb_timer = clock.call_at(max(clock.now(), self._idle_at), self._arbitrate)
+
+    def _arbitrate(self) -> None:
+        self._arb_timer = None
+        if self._in_flight is not None:
+            return
+        now = self.clock.now()
+        best: Controller | None = None
+        best_key = 0
+        wait_until: float | None = None
+        for c in self.controllers:
+            if not c.tx_queue or not c.connected or c.state is ErrorState.BUS_OFF or not c.timing_matches:
+                continue
+            if c._ready_at > now:
+                wait_until = c._ready_at if wait_until is None else min(wait_until, c._ready_at)
+                continue
+            key = arbitration_key(c.tx_queue[0])
+            if best is None or key < best_key:
+                best, best_key = c, key
+        if best is None:
+            if wait_until is not None:
+                self._arb_timer = self.clock.call_at(wait_until, self._arbitrate)
+            return
+        frame = best.tx_queue[0]
+        if best.synthetic:
+            outcome = "ok"
+        elif self._drop_next:
+            self._drop_next -= 1
+            outcome = "drop"
+        elif self._corrupt_next:
+            self._corrupt_next -= 1
+            outcome = "crc"
+        elif self._acknowledged(best, frame):
+            outcome = "ok"
+        else:
+            outcome = "ack"
+        if not self.timing:
+            duration = 0.0
+        elif outcome in ("ok", "drop"):
+            duration = frame_duration(frame, self.bitrate, self.data_bitrate)
+        else:
+            bits = ERROR_FRAME_BITS + (SUSPEND_TRANSMISSION_BITS if best.state is ErrorState.ERROR_PASSIVE else 0)
+            if frame.fd and frame.brs and self.data_bitrate:
+                until_ack = frame_duration(frame, self.bitrate, self.data_bitrate) - 12 / self.bitrate
+            else:
+                until_ack = frame_bits_until_ack(frame) / self.bitrate
+            duration = until_ack + bits / self.bitrate
+        end = now + duration
+        self._in_flight = _InFlight(best, frame, outcome, now, end)
+        if duration:
+            self.clock.call_at(end, self._end_of_frame)
+        else:
+            self._end_of_frame()
+
+    def _acknowledged(self, sender: Controller, frame: CanFrame) -> bool:
+        for c in self.controllers:
+            if (c is not sender and c.connected and not c.listen_only and not c.synthetic
+                    and c.state is not ErrorState.BUS_OFF and c.timing_matches
+                    and (c.fd or not frame.fd)):
+                return True
+        return False
+
+    def _end_of_frame(self) -> None:
+        flight = self._in_flight
+        assert flight is not None
+        self._in_flight = None
+        now = self.clock.now()
+        self._idle_at = now
+        stats = self.stats
+        stats.busy_time += flight.end - flight.start
+        sender, frame, outcome = flight.sender, flight.frame, flight.outcome
+        if outcome == "ok" or outcome == "drop":
+            sender.tx_queue.popleft()
+            n = len(frame.data)
+            st = sender.stats
+            st.tx_frames += 1
+            st.tx_bytes += n
+            if sender.tec:
+                sender.tec -= 1
+                if sender.state is not ErrorState.ERROR_ACTIVE:
+                    sender._update_state()
+            if outcome == "ok":
+                stats.frames += 1
+                stats.bytes += n
+                self._deliver(sender, frame, now)
+            else:
+                stats.dropped_frames += 1
+            if sender.on_event is not None:
+                sender.on_event(TxDoneEvent(frame, now))
+        else:
+            stats.error_frames += 1
+            kind = ErrorKind.ACK if outcome == "ack" else ErrorKind.CRC
+            sender.stats.tx_retransmissions += 1
+            sender._error(kind, True, frame, now)
+            sender._ready_at = now
+            if kind is ErrorKind.CRC:
+                for c in self.controllers:
+                    if (c is not sender and c.connected and c.state is not ErrorState.BUS_OFF
+                            and c.timing_matches and not c.synthetic):
+                        c._error(kind, False, frame, now)
+            if sender.state is not ErrorState.BUS_OFF and not sender.auto_retransmit and sender.tx_queue:
+                sender.tx_queue.popleft()
+                sender._emit(TxAbortedEvent(frame, now, "single-shot"))
+        self._foreign_errors(now)
+        self._arbitrate()
+
+    def _deliver(self, sender: Controller, frame: CanFrame, now: float) -> None:
+        fd = frame.fd
+        for c in self.controllers:
+            if c is sender:
+                if c.receive_own and c.on_frame is not None:
+                    c.on_frame(frame, now)
+                continue
+            if not c.connected or c.state is ErrorState.BUS_OFF or c.synthetic:
+                continue
+            if not c.timing_matches or (fd and not c.fd):
+                continue
+            st = c.stats
+            st.rx_frames += 1
+            st.rx_bytes += len(frame.data)
+            if c.rec:
+                c.rec = c.rec - 1 if c.rec <= 127 else 120
+                if c.state is not ErrorState.ERROR_ACTIVE:
+                    c._update_state()
+            if c.on_frame is not None:
+                c.on_frame(frame, now)
+        for monitor in self._monitors:
+            monitor(frame, now)
+
+    def _foreign_errors(self, now: float) -> None:
+        """Controllers at another bit rate see every frame as a form error (and nothing else)."""
+        for c in self.controllers:
+            if c.connected and not c.timing_matches and c.state is not ErrorState.BUS_OFF:
+                c._error(ErrorKind.FORM, False, None, now)

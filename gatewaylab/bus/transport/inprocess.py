@@ -1,0 +1,105 @@
+"""python-can ``BusABC`` on a :class:`~gatewaylab.bus.bus.VirtualBus` in the same process.
+
+``canopen.Network``, python-can notifiers, loggers and periodic tasks work unchanged on it.
+
+With a :class:`~gatewaylab.common.clock.SimulatedClock` nothing moves time on its own, so
+``send()`` runs the simulation until this bus is quiet again: the frame is arbitrated, takes
+its time on the wire, and every frame that the other participants answer with in the meantime
+is delivered. Time beyond that (heartbeats, timeouts) passes only when the owner calls
+``clock.advance()``. With a real-time clock, ``send()`` hands the frame to the thread that runs
+the clock.
+"""
+
+from __future__ import annotations
+
+import queue
+from contextlib import nullcontext
+import threading
+from typing import Any
+
+import can
+from can.bus import BusState, CanProtocol
+
+from ...common.clock import Clock, SimulatedClock
+from ..bus import Controller, ErrorState, VirtualBus
+from ..frame import CanFrame
+
+
+def install_lock(clock: Clock) -> None:
+    """Give a clock a real lock so several threads can drive the simulation safely."""
+    if isinstance(clock.lock, nullcontext):
+        clock.lock = threading.RLock()
+
+
+class InProcessBus(can.BusABC):
+    """A python-can bus attached to a gatewaylab virtual bus as one more controller."""
+
+    def __init__(self, channel: VirtualBus, *, name: str = "", receive_own_messages: bool = False,
+                 fd: bool | None = None, listen_only: bool = False,
+                 can_filters: can.typechecking.CanFilters | None = None, **kwargs: Any) -> None:
+        vbus = channel
+        self.vbus = vbus
+        self._queue: queue.SimpleQueue[can.Message] = queue.SimpleQueue()
+        self._fd = vbus.is_fd if fd is None else fd
+        self.channel_info = f"gatewaylab {vbus.name}"
+        clock = vbus.clock
+        self._simulated = isinstance(clock, SimulatedClock)
+        if self._simulated:
+            install_lock(clock)
+        with clock.lock:
+            self.controller: Controller = vbus.attach(
+                name or f"python-can{len(vbus.controllers)}", receive_own=receive_own_messages,
+                fd=self._fd, listen_only=listen_only, on_frame=self._on_frame)
+        super().__init__(channel=vbus.name, can_filters=can_filters, **kwargs)
+        self._can_protocol = CanProtocol.CAN_FD if self._fd else CanProtocol.CAN_20
+
+    def _on_frame(self, frame: CanFrame, t: float) -> None:
+        self._queue.put(frame.to_message(t, self.vbus.name))
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        frame = CanFrame.from_message(msg)
+        clock = self.vbus.clock
+        if self._simulated:
+            assert isinstance(clock, SimulatedClock)
+            with clock.lock:
+                self._send_checked(frame)
+                clock.run_while(lambda: self.vbus.busy)
+        else:
+            clock.call_soon_threadsafe(self._send_checked, frame)
+
+    def _send_checked(self, frame: CanFrame) -> None:
+        try:
+            self.controller.send(frame)
+        except Exception as exc:
+            raise can.CanOperationError(str(exc)) from exc
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        try:
+            if timeout is None:
+                return self._queue.get(), False
+            if timeout <= 0:
+                return self._queue.get_nowait(), False
+            return self._queue.get(timeout=timeout), False
+        except queue.Empty:
+            return None, False
+
+    @property
+    def state(self) -> BusState:
+        if self.controller.listen_only:
+            return BusState.PASSIVE
+        return BusState.ERROR if self.controller.state is ErrorState.BUS_OFF else BusState.ACTIVE
+
+    @state.setter
+    def state(self, new_state: BusState) -> None:
+        self.controller.listen_only = new_state is BusState.PASSIVE
+
+    def shutdown(self) -> None:
+        if not self._is_shutdown:
+            with self.vbus.clock.lock:
+                self.vbus.detach(self.controller)
+        super().shutdown()
+
+
+def python_can_bus(vbus: VirtualBus, **kwargs: Any) -> InProcessBus:
+    """A python-can ``BusABC`` on ``vbus`` (kwargs: name, receive_own_messages, fd, can_filters)."""
+    return InProcessBus(vbus, **kwargs)

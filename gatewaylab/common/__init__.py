@@ -1,0 +1,1 @@
+"""Shared building blocks: the injected clock, the error hierarchy, checksums."""

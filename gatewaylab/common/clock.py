@@ -1,0 +1,254 @@
+"""The one clock abstraction every protocol core schedules its timing on.
+
+Protocol code never reads the wall clock and never sleeps: it asks a :class:`Clock` for ``now()``
+and schedules callbacks with ``call_at``/``call_later``. Two implementations exist:
+
+* :class:`SimulatedClock` -- a discrete-event scheduler. Time moves only when the owner calls
+  :meth:`SimulatedClock.advance` or :meth:`SimulatedClock.run_until`; events due at the same
+  instant run in the order they were scheduled. Tests use it: faster than real time, reproducible.
+* :class:`RealTimeClock` -- the same event queue read against a monotonic wall clock. Something
+  outside the protocol code (the rig runtime's I/O loop) calls :meth:`RealTimeClock.run_due` and
+  waits until :meth:`Clock.next_deadline`; other threads hand work in with
+  :meth:`Clock.call_soon_threadsafe`.
+"""
+
+from __future__ import annotations
+
+import heapq
+import time
+from collections import deque
+from collections.abc import Callable
+from contextlib import AbstractContextManager, nullcontext
+from typing import Any
+
+from .errors import LocalError
+
+Callback = Callable[..., Any]
+
+
+class TimerHandle:
+    """A scheduled callback; ``cancel()`` it to stop it from running."""
+
+    __slots__ = ("when", "seq", "callback", "args", "cancelled")
+
+    def __init__(self, when: float, seq: int, callback: Callback, args: tuple[Any, ...]) -> None:
+        self.when = when
+        self.seq = seq
+        self.callback = callback
+        self.args = args
+        self.cancelled = False
+
+    def cancel(self) -> None:
+        self.cancelled = True
+
+    def __lt__(self, other: TimerHandle) -> bool:
+        # Heap order: time first, then scheduling order, so simultaneous events are stable.
+        return (self.when, self.seq) < (other.when, other.seq)
+
+    def __repr__(self) -> str:
+        name = getattr(self.callback, "__qualname__", repr(self.callback))
+        return f"<TimerHandle t={self.when:.9f} #{self.seq} {name}{' cancelled' if self.cancelled else ''}>"
+
+
+class Clock:
+    """Event queue shared by both clocks; subclasses decide what ``now`` means."""
+
+    def __init__(self) -> None:
+        self._heap: list[TimerHandle] = []
+        self._seq = 0
+        self._injected: deque[tuple[Callback, tuple[Any, ...]]] = deque()
+        #: Called (from any thread) after work was injected; the runtime sets it to wake its loop.
+        self.wakeup: Callable[[], None] | None = None
+        #: Serialises access to the protocol state when several threads touch it. The in-process
+        #: python-can adapter installs a real lock here; single-threaded use needs none.
+        self.lock: AbstractContextManager[Any] = nullcontext()
+
+    # -- time ---------------------------------------------------------------------------------
+    def now(self) -> float:
+        """Seconds since the clock's epoch."""
+        raise NotImplementedError
+
+    @property
+    def is_simulated(self) -> bool:
+        return False
+
+    # -- scheduling ---------------------------------------------------------------------------
+    def call_at(self, when: float, callback: Callback, *args: Any) -> TimerHandle:
+        """Run ``callback(*args)`` at time ``when`` (never before ``now()``)."""
+        self._seq += 1
+        handle = TimerHandle(when, self._seq, callback, args)
+        heapq.heappush(self._heap, handle)
+        return handle
+
+    def call_later(self, delay: float, callback: Callback, *args: Any) -> TimerHandle:
+        if delay < 0:
+            raise LocalError(f"negative delay {delay}")
+        return self.call_at(self.now() + delay, callback, *args)
+
+    def call_soon(self, callback: Callback, *args: Any) -> TimerHandle:
+        return self.call_at(self.now(), callback, *args)
+
+    def call_every(self, period: float, callback: Callback, *args: Any,
+                   first: float | None = None) -> PeriodicTimer:
+        """Run ``callback`` every ``period`` seconds without drift (next = previous + period)."""
+        if period <= 0:
+            raise LocalError(f"period must be > 0, got {period}")
+        return PeriodicTimer(self, period, callback, args, self.now() + (period if first is None else first))
+
+    def call_soon_threadsafe(self, callback: Callback, *args: Any) -> None:
+        """Hand work to the thread that runs the clock; safe from any thread."""
+        self._injected.append((callback, args))
+        wake = self.wakeup
+        if wake is not None:
+            wake()
+
+    def next_deadline(self) -> float | None:
+        """Time of the earliest pending event, or None when nothing is scheduled."""
+        heap = self._heap
+        while heap and heap[0].cancelled:
+            heapq.heappop(heap)
+        if self._injected:
+            return self.now()
+        return heap[0].when if heap else None
+
+    def pending(self) -> int:
+        return sum(1 for h in self._heap if not h.cancelled) + len(self._injected)
+
+    def _drain_injected(self) -> None:
+        injected = self._injected
+        while injected:
+            callback, args = injected.popleft()
+            self.call_soon(callback, *args)
+
+
+class PeriodicTimer:
+    """A drift-free repeating timer on a :class:`Clock`."""
+
+    __slots__ = ("clock", "period", "callback", "args", "_handle", "next_time")
+
+    def __init__(self, clock: Clock, period: float, callback: Callback, args: tuple[Any, ...],
+                 first: float) -> None:
+        self.clock = clock
+        self.period = period
+        self.callback = callback
+        self.args = args
+        self.next_time = first
+        self._handle: TimerHandle | None = clock.call_at(first, self._fire)
+
+    def _fire(self) -> None:
+        self.next_time += self.period
+        self._handle = self.clock.call_at(self.next_time, self._fire)
+        self.callback(*self.args)
+
+    def cancel(self) -> None:
+        if self._handle is not None:
+            self._handle.cancel()
+            self._handle = None
+
+    @property
+    def active(self) -> bool:
+        return self._handle is not None
+
+
+class SimulatedClock(Clock):
+    """Deterministic discrete-event clock: time jumps from event to event."""
+
+    def __init__(self, start: float = 0.0) -> None:
+        super().__init__()
+        self._now = start
+
+    def now(self) -> float:
+        return self._now
+
+    @property
+    def is_simulated(self) -> bool:
+        return True
+
+    def step(self) -> bool:
+        """Run the earliest event (advancing time to it); False when nothing is scheduled."""
+        with self.lock:
+            self._drain_injected()
+            heap = self._heap
+            while heap:
+                handle = heapq.heappop(heap)
+                if handle.cancelled:
+                    continue
+                if handle.when > self._now:
+                    self._now = handle.when
+                handle.callback(*handle.args)
+                return True
+            return False
+
+    def run_until(self, t: float) -> int:
+        """Run every event due at or before ``t`` and leave ``now() == t``; returns events run."""
+        count = 0
+        with self.lock:
+            if t < self._now:
+                raise LocalError(f"cannot run backwards to {t} from {self._now}")
+            heap = self._heap
+            while True:
+                self._drain_injected()
+                if not heap:
+                    break
+                handle = heap[0]
+                if handle.cancelled:
+                    heapq.heappop(heap)
+                    continue
+                if handle.when > t:
+                    break
+                heapq.heappop(heap)
+                if handle.when > self._now:
+                    self._now = handle.when
+                handle.callback(*handle.args)
+                count += 1
+            self._now = t
+        return count
+
+    def advance(self, dt: float) -> int:
+        """Let ``dt`` seconds of simulated time pass."""
+        if dt < 0:
+            raise LocalError(f"cannot advance by a negative time {dt}")
+        return self.run_until(self._now + dt)
+
+    def run_while(self, condition: Callable[[], bool], max_events: int = 1_000_000) -> int:
+        """Run events one by one while ``condition()`` holds (e.g. while a bus is busy)."""
+        count = 0
+        with self.lock:
+            while condition() and count < max_events:
+                if not self.step():
+                    break
+                count += 1
+        return count
+
+
+class RealTimeClock(Clock):
+    """The event queue against a monotonic wall clock; the rig runtime's loop drives it."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._t0 = time.monotonic()
+
+    def now(self) -> float:
+        return time.monotonic() - self._t0
+
+    def run_due(self) -> int:
+        """Run every event whose time has come; returns how many ran."""
+        count = 0
+        with self.lock:
+            self._drain_injected()
+            heap = self._heap
+            now = self.now()
+            while heap:
+                handle = heap[0]
+                if handle.cancelled:
+                    heapq.heappop(heap)
+                    continue
+                if handle.when > now:
+                    now = self.now()
+                    if handle.when > now:
+                        break
+                heapq.heappop(heap)
+                handle.callback(*handle.args)
+                count += 1
+                self._drain_injected()
+        return count
