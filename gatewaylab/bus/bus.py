@@ -382,11 +382,13 @@ class VirtualBus:
             clock = self.clock
             self._arb_timer = clock.call_at(max(clock.now(), self._idle_at), self._arbitrate)
 
-    def _arbitrate(self) -> None:
+    def _arbitrate(self, start: float | None = None) -> None:
+        """Start the next frame at ``start`` (default now): in real time a late wake-up must not
+        stretch the frame schedule, so back-to-back frames start at the previous frame's end."""
         self._arb_timer = None
         if self._in_flight is not None:
             return
-        now = self.clock.now()
+        now = self.clock.now() if start is None else start
         best: Controller | None = None
         best_key = 0
         wait_until: float | None = None
@@ -446,7 +448,7 @@ class VirtualBus:
         flight = self._in_flight
         assert flight is not None
         self._in_flight = None
-        now = self.clock.now()
+        now = flight.end
         self._idle_at = now
         stats = self.stats
         stats.busy_time += flight.end - flight.start
@@ -484,7 +486,7 @@ class VirtualBus:
                 sender.tx_queue.popleft()
                 sender._emit(TxAbortedEvent(frame, now, "single-shot"))
         self._foreign_errors(now)
-        self._arbitrate()
+        self._arbitrate(now)
 
     def _deliver(self, sender: Controller, frame: CanFrame, now: float) -> None:
         fd = frame.fd

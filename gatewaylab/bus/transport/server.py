@@ -1,0 +1,215 @@
+"""Cross-process endpoint of a virtual bus: a Unix-socket or 127.0.0.1 TCP server.
+
+Each connected client becomes one controller on the bus. Runs inside the rig runtime's loop
+(callbacks hold ``clock.lock``); the record format is :mod:`gatewaylab.bus.wire`.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import socket
+from collections.abc import Callable
+from pathlib import Path
+from typing import Protocol
+
+from ...common.errors import GatewaylabError, ProtocolError
+from .. import wire
+from ..bus import Controller, ErrorFrameEvent, ErrorState, StateChangeEvent, VirtualBus
+from ..bus import BusEvent
+from ..frame import CanFrame
+
+log = logging.getLogger(__name__)
+
+#: A client that lets this much unsent data pile up is too slow and is disconnected.
+MAX_BACKLOG = 8 * 1024 * 1024
+
+_STATE_CODES = {
+    ErrorState.ERROR_ACTIVE: wire.ControllerStateCode.ERROR_ACTIVE,
+    ErrorState.ERROR_PASSIVE: wire.ControllerStateCode.ERROR_PASSIVE,
+    ErrorState.BUS_OFF: wire.ControllerStateCode.BUS_OFF,
+}
+
+
+class Reactor(Protocol):
+    """What the server needs from the loop that runs it (the rig runtime)."""
+
+    def add_reader(self, fd: int, callback: Callable[[], None]) -> None: ...
+    def remove_reader(self, fd: int) -> None: ...
+    def add_writer(self, fd: int, callback: Callable[[], None]) -> None: ...
+    def remove_writer(self, fd: int) -> None: ...
+
+
+class _Client:
+    def __init__(self, server: BusServer, sock: socket.socket, peer: str) -> None:
+        self.server = server
+        self.sock = sock
+        self.peer = peer
+        self.decoder = wire.RecordDecoder()
+        self.controller: Controller | None = None
+        self.out = bytearray()
+        self.writing = False
+        self.closed = False
+
+    # bus -> client
+    def on_frame(self, frame: CanFrame, t: float) -> None:
+        self.write(wire.encode_frame(frame, t))
+
+    def on_event(self, ev: BusEvent) -> None:
+        if isinstance(ev, ErrorFrameEvent):
+            ctrl = self.controller
+            assert ctrl is not None
+            self.write(wire.encode_status(wire.StatusKind.ERROR_FRAME, _STATE_CODES[ctrl.state],
+                                          ctrl.tec, ctrl.rec, ev.timestamp))
+        elif isinstance(ev, StateChangeEvent):
+            self.write(wire.encode_status(wire.StatusKind.STATE, _STATE_CODES[ev.new], ev.tec, ev.rec,
+                                          ev.timestamp))
+
+    def write(self, data: bytes) -> None:
+        if self.closed:
+            return
+        if self.out:
+            self.out += data
+        else:
+            try:
+                sent = self.sock.send(data)
+            except BlockingIOError:
+                sent = 0
+            except OSError as exc:
+                self.server.drop(self, f"send failed: {exc}")
+                return
+            if sent < len(data):
+                self.out += data[sent:]
+        if self.out and not self.writing:
+            if len(self.out) > MAX_BACKLOG:
+                self.server.drop(self, f"client does not read: {len(self.out)} bytes backlog")
+                return
+            self.writing = True
+            self.server.reactor.add_writer(self.sock.fileno(), self.flush)
+
+    def flush(self) -> None:
+        try:
+            sent = self.sock.send(self.out)
+        except BlockingIOError:
+            return
+        except OSError as exc:
+            self.server.drop(self, f"send failed: {exc}")
+            return
+        del self.out[:sent]
+        if not self.out and self.writing:
+            self.writing = False
+            self.server.reactor.remove_writer(self.sock.fileno())
+
+    # client -> bus
+    def readable(self) -> None:
+        try:
+            data = self.sock.recv(65536)
+        except BlockingIOError:
+            return
+        except OSError as exc:
+            self.server.drop(self, f"receive failed: {exc}")
+            return
+        if not data:
+            self.server.drop(self, "client closed the connection", notify=False)
+            return
+        try:
+            records = self.decoder.feed(data)
+            for record in records:
+                self.handle(record)
+                if self.closed:
+                    return
+        except GatewaylabError as exc:
+            self.server.drop(self, f"malformed data: {exc}")
+
+    def handle(self, record: wire.Record) -> None:
+        if isinstance(record, wire.FrameRecord):
+            if self.controller is None:
+                raise ProtocolError("FRAME before HELLO")
+            self.controller.send(record.frame)
+        elif isinstance(record, wire.Hello):
+            if self.controller is not None:
+                raise ProtocolError("second HELLO")
+            if record.version != wire.VERSION:
+                raise ProtocolError(f"protocol version {record.version} not supported (need {wire.VERSION})")
+            bus = self.server.bus
+            self.controller = bus.attach(record.name or self.peer, receive_own=record.receive_own,
+                                         fd=record.fd, on_frame=self.on_frame, on_event=self.on_event)
+            self.write(wire.encode_welcome(bus.name, bus.bitrate, bus.data_bitrate))
+        elif isinstance(record, wire.Bye):
+            self.server.drop(self, f"client said bye: {record.reason}", notify=False)
+        else:
+            raise ProtocolError(f"{type(record).__name__} is not a client record")
+
+
+class BusServer:
+    """Serves one virtual bus to other processes."""
+
+    def __init__(self, bus: VirtualBus, reactor: Reactor, *, unix_path: Path | None = None,
+                 tcp_port: int | None = None) -> None:
+        if (unix_path is None) == (tcp_port is None):
+            raise ValueError("give exactly one of unix_path and tcp_port")
+        self.bus = bus
+        self.reactor = reactor
+        self.clients: list[_Client] = []
+        self.dropped: list[str] = []
+        self.unix_path = unix_path
+        if unix_path is not None:
+            self.listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            if unix_path.exists():
+                unix_path.unlink()
+            self.listener.bind(str(unix_path))
+            self.endpoint = f"unix:{unix_path}"
+        else:
+            self.listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+            self.listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            self.listener.bind(("127.0.0.1", tcp_port or 0))
+            self.endpoint = f"tcp:127.0.0.1:{self.listener.getsockname()[1]}"
+        self.listener.listen(16)
+        self.listener.setblocking(False)
+        reactor.add_reader(self.listener.fileno(), self._accept)
+
+    def _accept(self) -> None:
+        try:
+            sock, addr = self.listener.accept()
+        except BlockingIOError:
+            return
+        sock.setblocking(False)
+        if sock.family == socket.AF_INET:
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        peer = f"{addr[0]}:{addr[1]}" if isinstance(addr, tuple) else f"unix-client{len(self.clients)}"
+        client = _Client(self, sock, peer)
+        self.clients.append(client)
+        self.reactor.add_reader(sock.fileno(), client.readable)
+
+    def drop(self, client: _Client, reason: str, notify: bool = True, level: int = logging.WARNING) -> None:
+        """Disconnect one client with a logged reason; the bus and the other clients carry on."""
+        if client.closed:
+            return
+        log.log(level if notify else logging.INFO, "bus %s: disconnecting %s: %s", self.bus.name,
+                client.peer, reason)
+        if notify:
+            try:
+                client.sock.send(wire.encode_bye(reason))
+            except OSError:
+                pass
+        self.dropped.append(reason)
+        client.closed = True
+        fd = client.sock.fileno()
+        self.reactor.remove_reader(fd)
+        if client.writing:
+            self.reactor.remove_writer(fd)
+        client.sock.close()
+        if client.controller is not None:
+            self.bus.detach(client.controller)
+        self.clients.remove(client)
+
+    def close(self) -> None:
+        for client in list(self.clients):
+            self.drop(client, "rig shutting down", level=logging.INFO)
+        self.reactor.remove_reader(self.listener.fileno())
+        self.listener.close()
+        if self.unix_path is not None:
+            try:
+                os.unlink(self.unix_path)
+            except FileNotFoundError:
+                pass

@@ -1,0 +1,192 @@
+"""Sans-I/O codec of the cross-process bus protocol (documented in docs/bus-wire.md).
+
+A stream (Unix socket or TCP on 127.0.0.1) of records, each ``u16 length`` (bytes after the
+length field, little-endian) + ``u8 type`` + body. Reliable and ordered because the stream is.
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+from enum import IntEnum
+
+from ..common.errors import FrameError, ProtocolError
+from .frame import CanFrame
+
+VERSION = 1
+MAX_RECORD = 1 + 14 + 64 + 256  # the longest legal record body (a HELLO with a long name)
+
+LENGTH = struct.Struct("<H")
+HELLO = struct.Struct("<BB")           # version, options
+WELCOME = struct.Struct("<BBII")       # version, flags, bitrate, data_bitrate
+FRAME = struct.Struct("<IBBd")         # can_id, flags, dlc, timestamp
+STATUS = struct.Struct("<BBHHd")       # kind, state, tec, rec, timestamp
+
+
+class RecordType(IntEnum):
+    HELLO = 0x01     # client -> server: version, options (bit 0 receive own, bit 1 CAN FD), name
+    WELCOME = 0x02   # server -> client: version, flags (bit 0 FD bus), bitrates, bus name
+    FRAME = 0x03     # both ways: one CAN (FD) frame; the server fills in the bus time
+    STATUS = 0x04    # server -> client: an error frame or a controller state change
+    BYE = 0x05       # either way: the sender closes; body is the reason (UTF-8)
+
+
+class FrameFlags:
+    EXTENDED = 0x01
+    RTR = 0x02
+    FD = 0x04
+    BRS = 0x08
+    ESI = 0x10
+    ALL = 0x1F
+
+
+class StatusKind(IntEnum):
+    ERROR_FRAME = 1
+    STATE = 2
+
+
+class ControllerStateCode(IntEnum):
+    ERROR_ACTIVE = 0
+    ERROR_PASSIVE = 1
+    BUS_OFF = 2
+
+
+@dataclass(frozen=True, slots=True)
+class Hello:
+    version: int
+    receive_own: bool
+    fd: bool
+    name: str
+
+
+@dataclass(frozen=True, slots=True)
+class Welcome:
+    version: int
+    fd: bool
+    bitrate: int
+    data_bitrate: int
+    bus_name: str
+
+
+@dataclass(frozen=True, slots=True)
+class FrameRecord:
+    frame: CanFrame
+    timestamp: float
+
+
+@dataclass(frozen=True, slots=True)
+class Status:
+    kind: StatusKind
+    state: ControllerStateCode
+    tec: int
+    rec: int
+    timestamp: float
+
+
+@dataclass(frozen=True, slots=True)
+class Bye:
+    reason: str
+
+
+Record = Hello | Welcome | FrameRecord | Status | Bye
+
+
+def _record(rtype: RecordType, body: bytes) -> bytes:
+    return LENGTH.pack(len(body) + 1) + bytes((rtype,)) + body
+
+
+def encode_hello(name: str, receive_own: bool = False, fd: bool = True) -> bytes:
+    opts = (1 if receive_own else 0) | (2 if fd else 0)
+    return _record(RecordType.HELLO, HELLO.pack(VERSION, opts) + name.encode()[:255])
+
+
+def encode_welcome(bus_name: str, bitrate: int, data_bitrate: int | None) -> bytes:
+    body = WELCOME.pack(VERSION, 1 if data_bitrate else 0, bitrate, data_bitrate or 0)
+    return _record(RecordType.WELCOME, body + bus_name.encode()[:255])
+
+
+def encode_frame(frame: CanFrame, timestamp: float = 0.0) -> bytes:
+    flags = ((FrameFlags.EXTENDED if frame.extended else 0) | (FrameFlags.RTR if frame.rtr else 0)
+             | (FrameFlags.FD if frame.fd else 0) | (FrameFlags.BRS if frame.brs else 0)
+             | (FrameFlags.ESI if frame.esi else 0))
+    data = frame.data
+    return LENGTH.pack(FRAME.size + 1 + len(data)) + b"\x03" + FRAME.pack(
+        frame.can_id, flags, frame.dlc, timestamp) + data
+
+
+def encode_status(kind: StatusKind, state: ControllerStateCode, tec: int, rec: int, t: float) -> bytes:
+    return _record(RecordType.STATUS, STATUS.pack(kind, state, min(tec, 0xFFFF), min(rec, 0xFFFF), t))
+
+
+def encode_bye(reason: str) -> bytes:
+    return _record(RecordType.BYE, reason.encode()[:MAX_RECORD - 1])
+
+
+def decode_body(rtype: int, body: bytes) -> Record:
+    """Decode one record body; raises ProtocolError on anything malformed."""
+    try:
+        if rtype == RecordType.FRAME:
+            if len(body) < FRAME.size:
+                raise ProtocolError(f"FRAME record of {len(body)} bytes is too short")
+            can_id, flags, dlc, ts = FRAME.unpack_from(body)
+            if flags & ~FrameFlags.ALL:
+                raise ProtocolError(f"unknown frame flags 0x{flags:02X}")
+            rtr = bool(flags & FrameFlags.RTR)
+            frame = CanFrame(can_id, body[FRAME.size:], bool(flags & FrameFlags.EXTENDED), rtr,
+                             bool(flags & FrameFlags.FD), bool(flags & FrameFlags.BRS),
+                             bool(flags & FrameFlags.ESI), dlc)
+            return FrameRecord(frame, ts)
+        if rtype == RecordType.HELLO:
+            if len(body) < HELLO.size:
+                raise ProtocolError("HELLO record too short")
+            version, opts = HELLO.unpack_from(body)
+            return Hello(version, bool(opts & 1), bool(opts & 2), body[HELLO.size:].decode())
+        if rtype == RecordType.WELCOME:
+            if len(body) < WELCOME.size:
+                raise ProtocolError("WELCOME record too short")
+            version, flags, br, dbr = WELCOME.unpack_from(body)
+            return Welcome(version, bool(flags & 1), br, dbr, body[WELCOME.size:].decode())
+        if rtype == RecordType.STATUS:
+            if len(body) != STATUS.size:
+                raise ProtocolError("STATUS record has the wrong size")
+            kind, state, tec, rec, ts = STATUS.unpack(body)
+            return Status(StatusKind(kind), ControllerStateCode(state), tec, rec, ts)
+        if rtype == RecordType.BYE:
+            return Bye(body.decode(errors="replace"))
+    except FrameError as exc:
+        raise ProtocolError(f"invalid frame: {exc}") from None
+    except (UnicodeDecodeError, ValueError) as exc:
+        raise ProtocolError(f"malformed record: {exc}") from None
+    raise ProtocolError(f"unknown record type 0x{rtype:02X}")
+
+
+class RecordDecoder:
+    """Incremental decoder: feed bytes as they arrive, get whole records out."""
+
+    __slots__ = ("_buf",)
+
+    def __init__(self) -> None:
+        self._buf = bytearray()
+
+    def feed(self, data: bytes) -> list[Record]:
+        buf = self._buf
+        buf += data
+        out: list[Record] = []
+        pos = 0
+        n = len(buf)
+        while n - pos >= 3:
+            (length,) = LENGTH.unpack_from(buf, pos)
+            if length < 1 or length > MAX_RECORD:
+                raise ProtocolError(f"record length {length} out of 1..{MAX_RECORD}")
+            end = pos + 2 + length
+            if end > n:
+                break
+            out.append(decode_body(buf[pos + 2], bytes(buf[pos + 3:end])))
+            pos = end
+        if pos:
+            del buf[:pos]
+        return out
+
+    @property
+    def buffered(self) -> int:
+        return len(self._buf)

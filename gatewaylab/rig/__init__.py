@@ -1,0 +1,1 @@
+"""Rig files, the runtime that runs them, and the `gatewaylab` command line."""

@@ -1,0 +1,176 @@
+"""The ``gatewaylab`` command line."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import signal
+import sys
+from collections.abc import Callable
+from importlib import import_module
+from pathlib import Path
+from types import FrameType
+from typing import Any
+
+from .. import __version__
+from ..common.errors import GatewaylabError
+
+#: Sub-commands contributed by other parts of the package: module with ``add_subcommand(subparsers)``.
+EXTRA_SUBCOMMANDS = (
+    "gatewaylab.devices.maxon_idx.host.cli",
+    "gatewaylab.ethercat.net_cli",
+)
+
+RIG_HELP = """\
+A rig file (TOML) declares the clock mode, the buses and the simulated participants, e.g.:
+
+  clock = "realtime"
+  [[bus]]
+  name = "can0"
+  bitrate = 1000000
+  data_bitrate = 5000000      # optional: CAN FD
+  endpoint = "unix"           # unix (default) | tcp | none
+  [[drive]]
+  bus = "can0"
+  node_id = 2                 # omit: unconfigured until an LSS master assigns one
+  serial = 0x1002
+
+See docs/rig.md for every section.
+"""
+
+
+def _parse_trace(value: str) -> tuple[str, str]:
+    bus, sep, path = value.partition("=")
+    if not sep or not bus or not path:
+        raise argparse.ArgumentTypeError(f"--trace wants BUS=FILE, got {value!r}")
+    return bus, path
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from .runtime import Rig
+
+    rig = Rig.from_file(args.rig)
+    if not rig.realtime:
+        print("note: the rig file asks for a simulated clock; `gatewaylab run` always runs in real time",
+              file=sys.stderr)
+        rig.close()
+        from ..common.clock import RealTimeClock
+
+        rig = Rig.from_file(args.rig, clock=RealTimeClock())
+    try:
+        for bus_name, path in args.trace or []:
+            rig.add_trace(bus_name, path)
+        rig.start()
+        info = rig.ready_info()
+
+        def stop(signum: int, frame: FrameType | None) -> None:
+            rig.request_stop()
+
+        signal.signal(signal.SIGINT, stop)
+        signal.signal(signal.SIGTERM, stop)
+        print(f"gatewaylab rig {rig.config.source} running (pid {os.getpid()})")
+        for name, bus in info["buses"].items():
+            print(f"  bus {name}: {bus.get('endpoint', '(no endpoint)')}"
+                  f"  ->  can.Bus(interface='gatewaylab', channel={bus.get('endpoint', '')!r})")
+        for key, value in info.items():
+            if key not in ("pid", "buses"):
+                print(f"  {key}: {json.dumps(value)}")
+        sys.stdout.flush()
+        if args.ready_file:
+            tmp = Path(str(args.ready_file) + ".tmp")
+            tmp.write_text(json.dumps(info, indent=2))
+            tmp.replace(args.ready_file)
+        rig.run()
+    finally:
+        rig.close()
+        if args.ready_file:
+            try:
+                os.unlink(args.ready_file)
+            except FileNotFoundError:
+                pass
+    print("gatewaylab rig stopped")
+    return 0
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from .demo import main as demo_main
+
+    return demo_main([] if args.rig is None else [args.rig])
+
+
+def cmd_rig_show(args: argparse.Namespace) -> int:
+    from importlib import resources
+
+    if args.rig is None:
+        print(resources.files("gatewaylab.rig").joinpath("default.toml").read_text(), end="")
+    else:
+        print(Path(args.rig).read_text(), end="")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="gatewaylab",
+        description="Emulated industrial CAN gateways (ECAN-Lite, esd CAN-EtherCAT, maxon IDX) on virtual "
+                    "CAN / CAN FD buses with simulated CANopen drives.",
+        epilog="Run 'gatewaylab COMMAND --help' for the options of each command.")
+    parser.add_argument("--version", action="version", version=f"gatewaylab {__version__}")
+    parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages to stderr")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+
+    run = sub.add_parser(
+        "run", help="start a rig in real time and serve its buses to other processes",
+        description="Start a rig in real time. Prints the endpoint of every bus (for "
+                    "can.Bus(interface='gatewaylab', channel=ENDPOINT)) and runs until SIGINT/SIGTERM, "
+                    "then shuts down cleanly and removes its endpoints.",
+        epilog=RIG_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
+    run.add_argument("rig", nargs="?", help="rig file (TOML); default: the rig shipped in the package")
+    run.add_argument("--ready-file", metavar="PATH",
+                     help="write JSON {pid, buses: {NAME: {endpoint}}, ...} here once everything is up; "
+                          "removed again at shutdown")
+    run.add_argument("--trace", metavar="BUS=FILE", action="append", type=_parse_trace,
+                     help="record BUS to FILE with python-can's writer for its suffix (.log candump, .asc, "
+                          ".blf, .csv, .trc); may be repeated")
+    run.set_defaults(func=cmd_run)
+
+    demo = sub.add_parser("demo", help="run the scripted demo (what `make demo` does)",
+                          description="Start the default rig, drive real traffic on it and explain each step.")
+    demo.add_argument("rig", nargs="?", help="rig file; default: the rig shipped in the package")
+    demo.set_defaults(func=cmd_demo)
+
+    show = sub.add_parser("rig", help="print a rig file (the default one without an argument)",
+                          description="Print the default rig file, a starting point for your own.")
+    show.add_argument("rig", nargs="?", help="rig file to print")
+    show.set_defaults(func=cmd_rig_show)
+
+    for module_name in EXTRA_SUBCOMMANDS:
+        try:
+            add: Callable[[Any], None] = import_module(module_name).add_subcommand
+        except (ImportError, AttributeError):
+            continue
+        add(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.WARNING,
+                        format="%(levelname)s %(name)s: %(message)s")
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        result: int = args.func(args)
+        return result
+    except GatewaylabError as exc:
+        print(f"gatewaylab: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
