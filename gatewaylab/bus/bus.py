@@ -451,9 +451,15 @@ class VirtualBus:
         now = flight.end
         self._idle_at = now
         stats = self.stats
-        stats.busy_time += flight.end - flight.start
+        stats.busy_time += flight.end - max(flight.start, stats.since)
         sender, frame, outcome = flight.sender, flight.frame, flight.outcome
-        if outcome == "ok" or outcome == "drop":
+        if sender.tx_queue and sender.tx_queue[0] is frame:
+            pass
+        elif outcome in ("ok", "drop"):
+            outcome = "detached"  # the sender was detached mid-frame: the frame completes for nobody
+        if outcome == "detached":
+            pass
+        elif outcome == "ok" or outcome == "drop":
             sender.tx_queue.popleft()
             n = len(frame.data)
             st = sender.stats

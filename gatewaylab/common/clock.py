@@ -124,7 +124,7 @@ class Clock:
 class PeriodicTimer:
     """A drift-free repeating timer on a :class:`Clock`."""
 
-    __slots__ = ("clock", "period", "callback", "args", "_handle", "next_time")
+    __slots__ = ("clock", "period", "callback", "args", "_handle", "next_time", "_origin", "_count")
 
     def __init__(self, clock: Clock, period: float, callback: Callback, args: tuple[Any, ...],
                  first: float) -> None:
@@ -133,10 +133,14 @@ class PeriodicTimer:
         self.callback = callback
         self.args = args
         self.next_time = first
+        self._origin = first
+        self._count = 0
         self._handle: TimerHandle | None = clock.call_at(first, self._fire)
 
     def _fire(self) -> None:
-        self.next_time += self.period
+        # origin + k * period: no accumulated rounding error however long it runs.
+        self._count += 1
+        self.next_time = self._origin + self._count * self.period
         self._handle = self.clock.call_at(self.next_time, self._fire)
         self.callback(*self.args)
 

@@ -1,0 +1,73 @@
+"""The injected clock: deterministic ordering and time that moves only when told (DEVELOPERS.md, principle 2)."""
+
+import pytest
+
+from gatewaylab.common.clock import SimulatedClock
+from gatewaylab.common.errors import LocalError
+
+
+def test_simultaneous_events_run_in_scheduling_order() -> None:
+    clock = SimulatedClock()
+    seen: list[str] = []
+    clock.call_at(1.0, seen.append, "b1")
+    clock.call_at(0.5, seen.append, "a")
+    clock.call_at(1.0, seen.append, "b2")
+    clock.call_at(1.0, seen.append, "b3")
+    assert clock.advance(0.99) == 1
+    assert seen == ["a"]
+    clock.run_until(1.0)
+    assert seen == ["a", "b1", "b2", "b3"]
+    assert clock.now() == 1.0
+
+
+def test_events_scheduled_by_events_at_the_same_instant_run_after_the_earlier_ones() -> None:
+    clock = SimulatedClock()
+    seen: list[str] = []
+    clock.call_at(1.0, lambda: (seen.append("first"), clock.call_soon(seen.append, "nested")))
+    clock.call_at(1.0, seen.append, "second")
+    clock.advance(2.0)
+    assert seen == ["first", "second", "nested"]
+
+
+def test_cancelled_events_do_not_run_and_time_does_not_move_by_itself() -> None:
+    clock = SimulatedClock()
+    seen: list[int] = []
+    handle = clock.call_later(0.1, seen.append, 1)
+    clock.call_later(0.2, seen.append, 2)
+    handle.cancel()
+    assert clock.now() == 0.0
+    clock.advance(1.0)
+    assert seen == [2]
+
+
+def test_periodic_timer_does_not_drift() -> None:
+    clock = SimulatedClock()
+    times: list[float] = []
+    timer = clock.call_every(0.001, lambda: times.append(clock.now()))
+    clock.advance(1.0005)
+    timer.cancel()
+    clock.advance(1.0)
+    assert len(times) == 1000
+    assert times[-1] == pytest.approx(1.0, abs=1e-9)
+
+
+def test_run_while_stops_when_condition_clears() -> None:
+    clock = SimulatedClock()
+    state = {"n": 0}
+
+    def tick() -> None:
+        state["n"] += 1
+        clock.call_later(0.01, tick)
+
+    clock.call_soon(tick)
+    clock.run_while(lambda: state["n"] < 5)
+    assert state["n"] == 5
+    assert clock.now() == pytest.approx(0.04)
+
+
+def test_negative_time_is_local_misuse() -> None:
+    clock = SimulatedClock()
+    with pytest.raises(LocalError):
+        clock.advance(-1)
+    with pytest.raises(LocalError):
+        clock.call_later(-0.1, print)
