@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 from conftest import SlaveHarness
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from gatewaylab.devices.maxon_idx.codec import Frame, encode_frame
 from gatewaylab.devices.maxon_idx.commands import (
@@ -207,3 +209,21 @@ def test_read_lss_accepts_len_one_and_two(harness: SlaveHarness) -> None:
     ask(h, SendLss(bytes(8)))
     h.feed(encode_frame(Frame(0x7B, bytes([100, 0, 0, 0]))))
     assert h.gateway.lss_reads[-1][0] == 0.1
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.one_of(st.binary(max_size=30), st.sampled_from([GUIDE_REQUEST, b"\x90\x02", b"\x90"])),
+                max_size=15))
+def test_random_streams_get_only_spec_replies(chunks: list[bytes]) -> None:
+    """2.2.1/chapter 6: whatever the host sends, the slave never raises, and every byte it sends is a
+    CRC-valid OpCode 0x00 frame whose error DWORD is 0 or a table 6-20 code."""
+    h = SlaveHarness()
+    h.objects.add(0x30B0, 0, bytes(4), size=4)
+    for chunk in chunks:
+        h.slave.receive(chunk)
+    replies = h.collect()
+    assert len(replies) == h.slave.stats.replies
+    for frame in replies:
+        assert frame.opcode == 0 and frame.length >= 2
+        code = int.from_bytes(frame.data[:4], "little")
+        assert code == 0 or code in ErrorCode.__members__.values()
