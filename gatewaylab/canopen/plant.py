@@ -167,7 +167,7 @@ class Trapezoid:
         if v == target:
             self.acceleration = 0.0
         else:
-            speeding_up = abs(target) > abs(v) and (target >= 0) == (v >= 0) or v == 0.0
+            speeding_up = (abs(target) > abs(v) and (target >= 0) == (v >= 0)) or v == 0.0
             rate = (acc if speeding_up else dec) * dt
             nv = min(v + rate, target) if target > v else max(v - rate, target)
             self.acceleration = (nv - v) / dt
