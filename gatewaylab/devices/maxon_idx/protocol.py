@@ -149,8 +149,15 @@ class IdxSlave:
         self._queue: deque[DecoderEvent] = deque()
         self._pumping = False
         self._seg = _SegState()
-        self._pending_opcode = 0
         self._generation = 0
+
+    def close(self) -> None:
+        """The host went away: drop partial input, queued requests and any pending gateway answer."""
+        self.decoder.reset()
+        self._queue.clear()
+        self._seg = _SegState()
+        self._generation += 1
+        self.state = SlaveState.IDLE
 
     # -- input ------------------------------------------------------------------------------------
     def receive(self, data: bytes) -> None:

@@ -1,0 +1,112 @@
+"""Byte links from a host to an IDX: pyserial (virtual port, socket URL, real port) and pyusb."""
+
+from __future__ import annotations
+
+from typing import Any, Protocol
+
+from ....common.errors import ConfigError
+
+#: USB identities seen in public udev rules (not a maxon document; untested without hardware):
+#: EPOS2 enumerates as an FTDI chip 0403:A8B0; EPOS4/IDX as 24E7:3B01 (maxon's vendor id 0x24E7).
+USB_IDS: tuple[tuple[int, int], ...] = ((0x24E7, 0x3B01), (0x0403, 0xA8B0))
+
+
+class Link(Protocol):
+    def write(self, data: bytes) -> None: ...
+
+    def read(self, size: int, timeout: float) -> bytes:
+        """Up to ``size`` bytes; may return fewer (or none) once ``timeout`` seconds passed."""
+        ...
+
+    def reset_input(self) -> None: ...
+
+    def close(self) -> None: ...
+
+
+class SerialLink:
+    """pyserial: ``/dev/pts/N``, ``/dev/ttyACM0``, ``socket://127.0.0.1:PORT``, ``rfc2217://...``."""
+
+    def __init__(self, url: str, baudrate: int = 1_000_000) -> None:
+        import serial
+
+        self.url = url
+        self.port: Any = serial.serial_for_url(url, baudrate=baudrate, timeout=0.1)
+
+    def write(self, data: bytes) -> None:
+        self.port.write(data)
+        self.port.flush()
+
+    def read(self, size: int, timeout: float) -> bytes:
+        self.port.timeout = max(timeout, 0.0)
+        waiting = self.port.in_waiting
+        data: bytes = self.port.read(max(1, min(size, waiting)) if waiting else 1)
+        return data
+
+    def reset_input(self) -> None:
+        self.port.reset_input_buffer()
+
+    def close(self) -> None:
+        self.port.close()
+
+
+class UsbLink:
+    """pyusb bulk endpoints of a real IDX/EPOS4 (maxon's USB driver is a vendor-class device).
+
+    Untested: no hardware was available. The first bulk OUT and IN endpoints of the first
+    interface carry the same stuffed frames as the serial port.
+    """
+
+    def __init__(self, vendor: int | None = None, product: int | None = None) -> None:
+        import usb.core
+        import usb.util
+
+        ids = [(vendor, product)] if vendor is not None and product is not None else list(USB_IDS)
+        dev: Any = None
+        for vid, pid in ids:
+            dev = usb.core.find(idVendor=vid, idProduct=pid)
+            if dev is not None:
+                break
+        if dev is None:
+            looked = ", ".join(f"{v:04X}:{p:04X}" for v, p in ids)
+            raise ConfigError(f"no maxon USB device found (looked for {looked})")
+        dev.set_configuration()
+        intf = dev.get_active_configuration()[(0, 0)]
+
+        def direction(wanted: int) -> Any:
+            return usb.util.find_descriptor(
+                intf, custom_match=lambda e: usb.util.endpoint_direction(e.bEndpointAddress) == wanted)
+
+        self.dev = dev
+        self.ep_out = direction(usb.util.ENDPOINT_OUT)
+        self.ep_in = direction(usb.util.ENDPOINT_IN)
+        if self.ep_out is None or self.ep_in is None:
+            raise ConfigError("the USB device has no bulk IN/OUT endpoint pair")
+
+    def write(self, data: bytes) -> None:
+        self.ep_out.write(data)
+
+    def read(self, size: int, timeout: float) -> bytes:
+        import usb.core
+
+        try:
+            return bytes(self.ep_in.read(max(size, self.ep_in.wMaxPacketSize), int(timeout * 1000) or 1))
+        except usb.core.USBTimeoutError:
+            return b""
+
+    def reset_input(self) -> None:
+        pass
+
+    def close(self) -> None:
+        import usb.util
+
+        usb.util.dispose_resources(self.dev)
+
+
+def open_link(port: str) -> Link:
+    """``usb`` or ``usb:VID:PID`` -> pyusb; anything else is a pyserial port name or URL."""
+    if port == "usb" or port.startswith("usb:"):
+        parts = port.split(":")
+        if len(parts) == 3:
+            return UsbLink(int(parts[1], 16), int(parts[2], 16))
+        return UsbLink()
+    return SerialLink(port)

@@ -1,0 +1,97 @@
+"""A pseudo-terminal that any program opens like a real serial port (e.g. pyserial, minicom).
+
+The device keeps both ends open: the master end is read in the rig loop and fed to the protocol,
+the slave end (``path``, /dev/pts/N) is what the host opens. Keeping our own handle on the slave
+end means a host may close and reopen the port without the master end seeing EIO.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import termios
+import tty
+
+from ....common.clock import Clock
+from .base import Channel, ChannelFactory, Reactor
+
+#: Bytes kept for a host that does not read its replies before new ones are dropped.
+MAX_BACKLOG = 1 << 16
+
+
+class PtyPort:
+    """One virtual serial port carrying one IDX USB command channel.
+
+    ``latency`` > 0 delays every reply by that many seconds on the clock (a realistic USB
+    round trip is about 1 ms: one full-speed frame); 0 answers as fast as possible.
+    """
+
+    def __init__(self, reactor: Reactor, clock: Clock, make_channel: ChannelFactory,
+                 latency: float = 0.0) -> None:
+        self.reactor = reactor
+        self.clock = clock
+        self.latency = latency
+        self.master_fd, self.slave_fd = os.openpty()
+        tty.setraw(self.slave_fd, termios.TCSANOW)
+        os.set_blocking(self.master_fd, False)
+        self.path = os.ttyname(self.slave_fd)
+        self.rx_bytes = 0
+        self.tx_bytes = 0
+        self.dropped_bytes = 0
+        self._backlog = bytearray()
+        self._closed = False
+        self.channel: Channel = make_channel(self.send)
+        reactor.add_reader(self.master_fd, self._on_readable)
+
+    def _on_readable(self) -> None:
+        try:
+            data = os.read(self.master_fd, 4096)
+        except BlockingIOError:
+            return
+        except OSError as exc:
+            if exc.errno == errno.EIO:      # no opener on the slave side: nothing to read
+                return
+            raise
+        if self._backlog:
+            self._flush()
+        if data:
+            self.rx_bytes += len(data)
+            self.channel.receive(data)
+
+    def send(self, data: bytes) -> None:
+        """Reply bytes from the protocol, after the optional latency."""
+        if self.latency > 0:
+            self.clock.call_later(self.latency, self._write, data)
+        else:
+            self._write(data)
+
+    def _write(self, data: bytes) -> None:
+        if self._closed:
+            return
+        self._backlog += data
+        self._flush()
+
+    def _flush(self) -> None:
+        while self._backlog:
+            try:
+                n = os.write(self.master_fd, self._backlog)
+            except BlockingIOError:
+                break
+            except OSError:
+                self.dropped_bytes += len(self._backlog)
+                self._backlog.clear()
+                return
+            self.tx_bytes += n
+            del self._backlog[:n]
+        if len(self._backlog) > MAX_BACKLOG:
+            self.dropped_bytes += len(self._backlog)
+            self._backlog.clear()
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        self.reactor.remove_reader(self.master_fd)
+        self.channel.close()
+        os.close(self.master_fd)
+        os.close(self.slave_fd)

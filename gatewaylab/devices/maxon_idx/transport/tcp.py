@@ -1,0 +1,100 @@
+"""A TCP server on 127.0.0.1 that pyserial opens as ``socket://127.0.0.1:PORT``.
+
+Each connection gets its own protocol channel (decoder and segmented-transfer state); all of
+them share the device's object dictionary and CAN gateway.
+"""
+
+from __future__ import annotations
+
+import socket
+
+from ....common.clock import Clock
+from .base import Channel, ChannelFactory, Reactor
+
+
+class _Connection:
+    def __init__(self, server: TcpServer, sock: socket.socket) -> None:
+        self.server = server
+        self.sock = sock
+        self.fd = sock.fileno()
+        self.closed = False
+        self.channel: Channel = server.make_channel(self.send)
+
+    def send(self, data: bytes) -> None:
+        if self.server.latency > 0:
+            self.server.clock.call_later(self.server.latency, self._write, data)
+        else:
+            self._write(data)
+
+    def _write(self, data: bytes) -> None:
+        if self.closed:
+            return
+        try:
+            self.sock.sendall(data)
+        except OSError:
+            self.close()
+
+    def on_readable(self) -> None:
+        try:
+            data = self.sock.recv(4096)
+        except BlockingIOError:
+            return
+        except OSError:
+            data = b""
+        if not data:
+            self.close()
+            return
+        self.channel.receive(data)
+
+    def close(self) -> None:
+        if self.closed:
+            return
+        self.closed = True
+        self.server.reactor.remove_reader(self.fd)
+        self.channel.close()
+        self.sock.close()
+        self.server.connections.discard(self)
+
+
+class TcpServer:
+    """Listens on ``host:port`` (port 0 = a free one; see :attr:`port`)."""
+
+    def __init__(self, reactor: Reactor, clock: Clock, make_channel: ChannelFactory, port: int = 0,
+                 host: str = "127.0.0.1", latency: float = 0.0) -> None:
+        self.reactor = reactor
+        self.clock = clock
+        self.make_channel = make_channel
+        self.latency = latency
+        self.connections: set[_Connection] = set()
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        self.sock.bind((host, port))
+        self.sock.listen(4)
+        self.sock.setblocking(False)
+        self.host, self.port = self.sock.getsockname()[:2]
+        reactor.add_reader(self.sock.fileno(), self._accept)
+
+    @property
+    def url(self) -> str:
+        return f"socket://{self.host}:{self.port}"
+
+    @property
+    def address(self) -> str:
+        return f"{self.host}:{self.port}"
+
+    def _accept(self) -> None:
+        try:
+            sock, _ = self.sock.accept()
+        except BlockingIOError:
+            return
+        sock.setblocking(False)
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        conn = _Connection(self, sock)
+        self.connections.add(conn)
+        self.reactor.add_reader(conn.fd, conn.on_readable)
+
+    def close(self) -> None:
+        for conn in list(self.connections):
+            conn.close()
+        self.reactor.remove_reader(self.sock.fileno())
+        self.sock.close()
