@@ -1,0 +1,167 @@
+"""``gatewaylab idx ...``: talk to an IDX (emulated or real) over its USB command protocol.
+
+PORT is anything pyserial opens (``/dev/pts/N``, ``/dev/ttyACM0``, ``socket://127.0.0.1:PORT``)
+or ``usb`` / ``usb:VID:PID`` for pyusb.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Any
+
+from ..commands import NmtCommand
+from .client import IdxClient, IdxError
+
+_NMT = {
+    "start": NmtCommand.START_REMOTE_NODE,
+    "stop": NmtCommand.STOP_REMOTE_NODE,
+    "preop": NmtCommand.ENTER_PRE_OPERATIONAL,
+    "reset": NmtCommand.RESET_NODE,
+    "reset-comm": NmtCommand.RESET_COMMUNICATION,
+}
+_TYPES = ("u8", "u16", "u32", "i8", "i16", "i32", "str", "hex")
+
+
+def _int(text: str) -> int:
+    return int(text, 0)
+
+
+def _obj(args: argparse.Namespace) -> str:
+    return f"node {args.node} 0x{args.index:04X}:{args.sub:02X}"
+
+
+def cmd_read(args: argparse.Namespace) -> int:
+    with IdxClient(args.port, timeout=args.timeout) as client:
+        if args.type == "str":
+            print(f"{_obj(args)} = {client.read_string(args.node, args.index, args.sub)!r}")
+        elif args.type == "hex" or args.segmented:
+            data = (client.read_segmented(args.node, args.index, args.sub) if args.segmented
+                    else client.read_object(args.node, args.index, args.sub))
+            print(f"{_obj(args)} = {data.hex(' ').upper()} ({len(data)} bytes)")
+        else:
+            value = client.read(args.node, args.index, args.sub, args.type)
+            print(f"{_obj(args)} = {value} (0x{value & 0xFFFFFFFF:0{_width(args.type)}X})")
+    return 0
+
+
+def _width(type_: str) -> int:
+    return {"8": 2, "16": 4, "32": 8}[type_[1:]]
+
+
+def cmd_write(args: argparse.Namespace) -> int:
+    with IdxClient(args.port, timeout=args.timeout) as client:
+        if args.type in ("str", "hex"):
+            data = args.value.encode() if args.type == "str" else bytes.fromhex(args.value)
+            if len(data) <= 4 and not args.segmented:
+                client.write_object(args.node, args.index, args.sub, data)
+            else:
+                client.write_segmented(args.node, args.index, args.sub, data)
+        else:
+            client.write(args.node, args.index, args.sub, _int(args.value), args.type)
+        print(f"{_obj(args)} written")
+    return 0
+
+
+def cmd_nmt(args: argparse.Namespace) -> int:
+    with IdxClient(args.port, timeout=args.timeout) as client:
+        client.nmt(args.node, _NMT[args.command])
+    target = "all nodes" if args.node == 0 else f"node {args.node}"
+    print(f"NMT {args.command} ({int(_NMT[args.command])}) sent to {target}")
+    return 0
+
+
+def cmd_lss_scan(args: argparse.Namespace) -> int:
+    """Fastscan unconfigured drives one by one; assign node ids from --assign on."""
+    found = 0
+    with IdxClient(args.port, timeout=args.timeout) as client:
+        client.switch_state_global(False)
+        next_id = args.assign
+        while found < args.max:
+            address = client.fastscan(args.lss_timeout)
+            if address is None:
+                break
+            found += 1
+            line = (f"found vendor 0x{address.vendor_id:08X} product 0x{address.product_code:08X} "
+                    f"revision 0x{address.revision:08X} serial 0x{address.serial:08X}")
+            if next_id is None:
+                print(line)
+                client.switch_state_global(False)
+                break                      # without a node id it would answer every scan again
+            client.configure_node_id(next_id, args.lss_timeout)
+            if args.store:
+                client.store_configuration(args.lss_timeout)
+            client.switch_state_global(False)
+            print(f"{line} -> node id {next_id}{' (stored)' if args.store else ''}")
+            next_id += 1
+        if not found:
+            print("no unconfigured LSS slave answered")
+    return 0
+
+
+def _run(func: Any) -> Any:
+    def wrapper(args: argparse.Namespace) -> int:
+        try:
+            result: int = func(args)
+            return result
+        except IdxError as exc:
+            print(f"error 0x{exc.code:08X} ({exc.name}): {exc}", file=sys.stderr)
+            return 1
+    return wrapper
+
+
+def add_subcommand(subparsers: Any) -> None:
+    """Add ``idx`` with ``read``, ``write``, ``nmt`` and ``lss-scan`` to the gatewaylab CLI."""
+    idx = subparsers.add_parser("idx", help="maxon IDX USB client (read/write objects, NMT, LSS)",
+                                description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = idx.add_subparsers(dest="idx_command", required=True)
+
+    def common(p: argparse.ArgumentParser) -> None:
+        p.add_argument("port", metavar="PORT", help="/dev/pts/N, socket://127.0.0.1:PORT, or usb")
+        p.add_argument("--timeout", type=float, default=1.0, help="reply timeout in seconds")
+
+    def obj(p: argparse.ArgumentParser) -> None:
+        p.add_argument("node", metavar="NODE", type=_int, help="0 = the IDX itself, else a CAN node")
+        p.add_argument("index", metavar="INDEX", type=_int, help="object index, e.g. 0x6041")
+        p.add_argument("sub", metavar="SUB", type=_int, help="subindex")
+        p.add_argument("--type", "-t", choices=_TYPES, default="u32")
+        p.add_argument("--segmented", "-s", action="store_true", help="use the segmented commands")
+
+    p = sub.add_parser("read", help="read an object")
+    common(p)
+    obj(p)
+    p.set_defaults(func=_run(cmd_read))
+
+    p = sub.add_parser("write", help="write an object")
+    common(p)
+    obj(p)
+    p.add_argument("value", metavar="VALUE", help="integer (0x.. ok), text for str, hex bytes for hex")
+    p.set_defaults(func=_run(cmd_write))
+
+    p = sub.add_parser("nmt", help="send an NMT command")
+    common(p)
+    p.add_argument("node", metavar="NODE", type=_int, help="0 = all nodes")
+    p.add_argument("command", choices=sorted(_NMT))
+    p.set_defaults(func=_run(cmd_nmt))
+
+    p = sub.add_parser("lss-scan", help="find unconfigured drives by LSS fastscan (and configure them)")
+    common(p)
+    p.add_argument("--assign", type=_int, default=None, metavar="N",
+                   help="give the found drives node ids N, N+1, ...")
+    p.add_argument("--store", action="store_true", help="store the configuration in each drive")
+    p.add_argument("--max", type=int, default=127, help="stop after this many drives")
+    p.add_argument("--lss-timeout", type=int, default=20, metavar="MS", help="ReadLSS timeout per request")
+    p.set_defaults(func=_run(cmd_lss_scan))
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Stand-alone entry (``python -m gatewaylab.devices.maxon_idx.host.cli idx read ...``)."""
+    parser = argparse.ArgumentParser(prog="gatewaylab")
+    add_subcommand(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(argv)
+    result: int = args.func(args)
+    return result
+
+
+if __name__ == "__main__":
+    sys.exit(main())
