@@ -123,3 +123,34 @@ def harness() -> SlaveHarness:
     h.objects.add(0x2100, 1, bytes(600), size=None)
     h.objects.add(0x1011, 1, b"", size=4, access="wo")
     return h
+
+
+# -- real-time rig loop (transport and end-to-end tests) -------------------------------------------
+class RunningRig:
+    """A real-time Rig whose loop runs in a thread; setup happens under ``clock.lock``."""
+
+    def __init__(self, data: dict[str, object]) -> None:
+        from gatewaylab.common.clock import RealTimeClock
+        from gatewaylab.rig.config import parse_rig
+        from gatewaylab.rig.runtime import Rig
+
+        self.rig = Rig(parse_rig(data), clock=RealTimeClock(), endpoints=False)
+        self.thread: object = None
+
+    def start(self) -> None:
+        self.thread = self.rig.run_in_thread()
+
+    def close(self) -> None:
+        import threading
+
+        self.rig.request_stop()
+        if isinstance(self.thread, threading.Thread):
+            self.thread.join(5)
+        self.rig.close()
+
+
+@pytest.fixture
+def realtime_rig() -> object:
+    r = RunningRig({"clock": "realtime", "bus": [{"name": "can0", "endpoint": "none"}]})
+    yield r
+    r.close()

@@ -1,0 +1,99 @@
+"""pty and TCP transports with pyserial and the host client (IDX guide 2.2, 2.3.1), objects faked."""
+
+from __future__ import annotations
+
+import os
+
+import serial
+from conftest import DictObjects, RunningRig, ScriptedGateway
+
+from gatewaylab.devices.maxon_idx.commands import NmtCommand
+from gatewaylab.devices.maxon_idx.host.client import IdxClient, IdxError
+from gatewaylab.devices.maxon_idx.protocol import IdxSlave
+from gatewaylab.devices.maxon_idx.transport import PtyPort, TcpServer
+
+GUIDE_REQUEST = bytes([0x90, 0x02, 0x60, 0x02, 0x01, 0xB0, 0x30, 0x00, 0x2E, 0x62])
+GUIDE_RESPONSE = bytes([0x90, 0x02, 0x00, 0x04, 0x00, 0x00, 0x00, 0x00, 0x01, 0x90, 0x90, 0x00, 0x00,
+                        0x9A, 0x5C])
+
+
+def _factory(rr: RunningRig, objects: DictObjects, gateway: ScriptedGateway) -> object:
+    def make(send: object) -> IdxSlave:
+        return IdxSlave(rr.rig.clock, objects, gateway, lambda: 1, send)  # type: ignore[arg-type]
+    return make
+
+
+def _objects() -> DictObjects:
+    objects = DictObjects()
+    objects.add(0x30B0, 0, (0x9001).to_bytes(4, "little"), size=4)
+    objects.add(0x1008, 0, b"emulated IDX over a pseudo terminal " * 20, size=None)
+    objects.add(0x6040, 0, bytes(2), size=2)
+    return objects
+
+
+def test_pty_guide_bytes_with_plain_pyserial(realtime_rig: RunningRig) -> None:
+    """2.2.8 over a virtual serial port that pyserial opens like a real one: exact reply bytes."""
+    rr = realtime_rig
+    port = PtyPort(rr.rig, rr.rig.clock, _factory(rr, _objects(), ScriptedGateway()))  # type: ignore[arg-type]
+    rr.start()
+    try:
+        assert port.path.startswith("/dev/pts/") and os.path.exists(port.path)
+        with serial.Serial(port.path, 115200, timeout=2) as s:
+            s.write(GUIDE_REQUEST)
+            assert s.read(len(GUIDE_RESPONSE)) == GUIDE_RESPONSE
+            s.write(GUIDE_REQUEST[:4])      # byte stream in pieces
+            s.flush()
+            s.write(GUIDE_REQUEST[4:])
+            assert s.read(len(GUIDE_RESPONSE)) == GUIDE_RESPONSE
+        with serial.Serial(port.path, 115200, timeout=2) as s:   # reopen works (no EIO)
+            s.write(GUIDE_REQUEST)
+            assert s.read(len(GUIDE_RESPONSE)) == GUIDE_RESPONSE
+    finally:
+        with rr.rig.clock.lock:
+            port.close()
+
+
+def test_pty_client_segmented_and_errors(realtime_rig: RunningRig) -> None:
+    """2.1.1.2/2.1.2.2 through the client over the pty, with a realistic 1 ms latency per reply."""
+    rr = realtime_rig
+    objects = _objects()
+    port = PtyPort(rr.rig, rr.rig.clock, _factory(rr, objects, ScriptedGateway()),  # type: ignore[arg-type]
+                   latency=0.001)
+    rr.start()
+    try:
+        with IdxClient(port.path) as client:
+            assert client.read(1, 0x30B0, 0, "i32") == 0x9001
+            assert client.read_segmented(0, 0x1008, 0) == bytes(objects.values[(0x1008, 0)])
+            client.write_segmented(0, 0x1008, 0, b"x" * 700)
+            assert client.read_segmented(0, 0x1008, 0) == b"x" * 700
+            client.write(0, 0x6040, 0, 0x0F, "u16")
+            assert objects.values[(0x6040, 0)] == bytearray([0x0F, 0])
+            try:
+                client.read(0, 0x5000, 0)
+            except IdxError as exc:
+                assert exc.code == 0x06020000 and exc.name == "object does not exist"
+            else:
+                raise AssertionError("missing object read succeeded")
+    finally:
+        with rr.rig.clock.lock:
+            port.close()
+
+
+def test_tcp_socket_url(realtime_rig: RunningRig) -> None:
+    """The same protocol over socket://127.0.0.1:PORT; each connection has its own channel."""
+    rr = realtime_rig
+    gateway = ScriptedGateway()
+    server = TcpServer(rr.rig, rr.rig.clock, _factory(rr, _objects(), gateway))  # type: ignore[arg-type]
+    rr.start()
+    try:
+        assert server.url.startswith("socket://127.0.0.1:") and server.port > 0
+        with serial.serial_for_url(server.url, timeout=2) as s:
+            s.write(GUIDE_REQUEST)
+            assert s.read(len(GUIDE_RESPONSE)) == GUIDE_RESPONSE
+        with IdxClient(server.url) as a, IdxClient(server.url) as b:
+            assert a.read(0, 0x30B0, 0) == b.read(0, 0x30B0, 0) == 0x9001
+            a.nmt(0, NmtCommand.START_REMOTE_NODE)
+        assert gateway.nmt == [(0, 1)]
+    finally:
+        with rr.rig.clock.lock:
+            server.close()
