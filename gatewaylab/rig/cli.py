@@ -70,6 +70,10 @@ def cmd_run(args: argparse.Namespace) -> int:
 
         signal.signal(signal.SIGINT, stop)
         signal.signal(signal.SIGTERM, stop)
+        if args.ready_file:
+            tmp = Path(str(args.ready_file) + ".tmp")
+            tmp.write_text(json.dumps(info, indent=2))
+            tmp.replace(args.ready_file)
         print(f"gatewaylab rig {rig.config.source} running (pid {os.getpid()})")
         for name, bus in info["buses"].items():
             print(f"  bus {name}: {bus.get('endpoint', '(no endpoint)')}"
@@ -78,10 +82,6 @@ def cmd_run(args: argparse.Namespace) -> int:
             if key not in ("pid", "buses"):
                 print(f"  {key}: {json.dumps(value)}")
         sys.stdout.flush()
-        if args.ready_file:
-            tmp = Path(str(args.ready_file) + ".tmp")
-            tmp.write_text(json.dumps(info, indent=2))
-            tmp.replace(args.ready_file)
         rig.run()
     finally:
         rig.close()
