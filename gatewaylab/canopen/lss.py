@@ -410,6 +410,7 @@ class LssSlave:
                                        store.save if store is not None else None)
         self._timers: list[TimerHandle] = []
         node.add_frame_listener(self._on_frame)
+        node.on_reset(self._on_node_reset)
 
     @property
     def state(self) -> LssState:
@@ -446,8 +447,11 @@ class LssSlave:
         self.node.reset_communication()
         self.machine.node_reset(new)
 
+    def _on_node_reset(self, reset_node: bool) -> None:
+        self.on_reset_communication()
+
     def on_reset_communication(self) -> None:
-        """Call when NMT reset communication/node runs: the pending node-ID becomes active."""
+        """NMT reset communication/node runs: the pending node-ID becomes active (CiA 305)."""
         pending = self.machine.pending_node_id
         if pending != self.machine.active_node_id:
             self.node.node_id = None if pending == UNCONFIGURED else pending

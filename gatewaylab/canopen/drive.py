@@ -1,0 +1,651 @@
+"""The maxon IDX-like CiA 402 servo drive on the gatewaylab CANopen node stack.
+
+``Drive(clock, bus, node_id, serial, name="", store_path=None)`` builds the object dictionary
+(identity, CiA 402 objects, maxon objects 0x2006 / 0x30B0, a typical servo's default PDO
+mapping), a :class:`~gatewaylab.canopen.node.Node` on ``bus``, an LSS slave, the CiA 402 power
+state machine and a motion plant stepped every control period (1 ms) on the injected clock.
+
+Controlword writes are applied at once (SDO or RPDO reception), the motion runs in the control
+tick. Everything is documented in ``docs/canopen-drive.md``; choices the manuals leave open are
+listed in ``docs/decisions/canopen-drive.md``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from ..bus.bus import VirtualBus
+from ..common.clock import Clock, PeriodicTimer
+from ..common.errors import ConfigError
+from .cia402 import (
+    STATE_BITS,
+    SUPPORTED_MODES,
+    Command,
+    Cw,
+    OpMode,
+    PdsState,
+    Sw,
+    decode_command,
+    next_state,
+)
+from .communication import add_communication_objects, add_mapping
+from .emcy import ERR_PROFILE
+from .errors import VALUE_RANGE_EXCEEDED, SdoAbort
+from .homing import SUPPORTED_METHODS, HomingRun, HomingStatus
+from .lss import BIT_TIMING_TABLE, UNCONFIGURED, LssAddress, LssConfigStore, LssSlave
+from .node import Node
+from .od import Access, DataType, ObjectDictionary
+from .plant import AxisParams, ControlMode, Plant, Trapezoid
+
+MAXON_VENDOR_ID = 0x000000FB
+#: Product code of the emulated drive (the IDX guide gives none; see the decisions file).
+PRODUCT_CODE = 0x61500000
+REVISION = 0x00010000
+#: CiA 402 device type: profile 402 (0x0192) with 'servo drive' in the additional information.
+DEVICE_TYPE = 0x00020192
+DEVICE_NAME = "IDX 56 M CANopen (gatewaylab)"
+CONTROL_PERIOD = 0.001
+
+#: EMCY / 0x603F error code of a position following error (CiA 402 / maxon 0x8611).
+ERROR_FOLLOWING = 0x8611
+#: Error register 0x1001 bit set with it (plus 'generic', which the EMCY producer adds): profile.
+ERROR_REGISTER_FOLLOWING = ERR_PROFILE
+
+
+@dataclass(frozen=True, slots=True)
+class PdoDefault:
+    """One default PDO: mapped (index, sub, bits) and whether it is valid (COB-ID bit 31 = 0)."""
+
+    entries: tuple[tuple[int, int, int], ...]
+    enabled: bool = True
+
+
+#: Default mapping of a typical CiA 402 servo (RPDO1 controlword + target position, TPDO1
+#: statusword + position actual value, ...); all remappable per CiA 301.
+RPDO_DEFAULTS: tuple[PdoDefault, ...] = (
+    PdoDefault(((0x6040, 0, 16), (0x607A, 0, 32))),
+    PdoDefault(((0x6040, 0, 16), (0x60FF, 0, 32))),
+    PdoDefault(((0x6040, 0, 16), (0x6071, 0, 16))),
+    PdoDefault(((0x6060, 0, 8),)),
+)
+TPDO_DEFAULTS: tuple[PdoDefault, ...] = (
+    PdoDefault(((0x6041, 0, 16), (0x6064, 0, 32))),
+    PdoDefault(((0x6041, 0, 16), (0x606C, 0, 32)), enabled=False),
+    PdoDefault(((0x6041, 0, 16), (0x6077, 0, 16)), enabled=False),
+    PdoDefault(((0x6041, 0, 16), (0x6061, 0, 8), (0x60F4, 0, 32)), enabled=False),
+)
+
+
+def build_object_dictionary(serial: int, node_id: int | None, device_name: str = DEVICE_NAME,
+                            params: AxisParams | None = None) -> ObjectDictionary:
+    """The drive's object dictionary: identity, CiA 402 and maxon objects, default PDOs."""
+    p = params or AxisParams()
+    od = ObjectDictionary(node_id)
+    u8, u16, u32 = DataType.UNSIGNED8, DataType.UNSIGNED16, DataType.UNSIGNED32
+    i8, i16, i32 = DataType.INTEGER8, DataType.INTEGER16, DataType.INTEGER32
+    RO, RW, CONST = Access.RO, Access.RW, Access.CONST
+
+    def var(index: int, name: str, dt: DataType, access: Access, default: Any = None,
+            mappable: bool = False, low: float | None = None, high: float | None = None) -> None:
+        od.add_variable(index, name, dt, access, default, pdo_mappable=mappable, low=low, high=high)
+
+    var(0x1000, "Device type", u32, RO, DEVICE_TYPE)
+    var(0x1008, "Manufacturer device name", DataType.VISIBLE_STRING, CONST, device_name)
+    var(0x1009, "Manufacturer hardware version", DataType.VISIBLE_STRING, CONST, "6550h")
+    var(0x100A, "Manufacturer software version", DataType.VISIBLE_STRING, CONST, "0170h")
+    od.add_record(0x1018, "Identity object")
+    od.add_sub(0x1018, 1, "Vendor-ID", u32, RO, MAXON_VENDOR_ID)
+    od.add_sub(0x1018, 2, "Product code", u32, RO, PRODUCT_CODE)
+    od.add_sub(0x1018, 3, "Revision number", u32, RO, REVISION)
+    od.add_sub(0x1018, 4, "Serial number", u32, RO, serial)
+    for n, pdo in enumerate(RPDO_DEFAULTS):
+        od.add_record(0x1400 + n, f"RPDO{n + 1} communication parameter")
+        od.add_sub(0x1400 + n, 1, "COB-ID used by RPDO", u32, RW,
+                   (0x200 + 0x100 * n) | (0 if pdo.enabled else 0x80000000), nodeid_offset=True)
+        od.add_sub(0x1400 + n, 2, "Transmission type", u8, RW, 255)
+        add_mapping(od, 0x1600 + n, f"RPDO{n + 1} mapping parameter", pdo.entries)
+    for n, pdo in enumerate(TPDO_DEFAULTS):
+        idx = 0x1800 + n
+        od.add_record(idx, f"TPDO{n + 1} communication parameter")
+        od.add_sub(idx, 1, "COB-ID used by TPDO", u32, RW,
+                   (0x180 + 0x100 * n) | (0 if pdo.enabled else 0x80000000), nodeid_offset=True)
+        od.add_sub(idx, 2, "Transmission type", u8, RW, 255)
+        od.add_sub(idx, 3, "Inhibit time", u16, RW, 0)
+        od.add_sub(idx, 5, "Event timer", u16, RW, 0)
+        od.add_sub(idx, 6, "SYNC start value", u8, RW, 0)
+        add_mapping(od, 0x1A00 + n, f"TPDO{n + 1} mapping parameter", pdo.entries)
+    # maxon objects later issues rely on
+    var(0x2006, "USB frame timeout", u16, RW, 500)
+    var(0x30B0, "Home position", i32, RW, 0, mappable=True)
+    # CiA 402
+    var(0x603F, "Error code", u16, RO, 0, mappable=True)
+    var(0x6040, "Controlword", u16, RW, 0, mappable=True)
+    var(0x6041, "Statusword", u16, RO, 0, mappable=True)
+    var(0x605A, "Quick stop option code", i16, RW, 6, low=0, high=6)
+    var(0x6060, "Modes of operation", i8, RW, int(OpMode.PROFILE_POSITION), mappable=True)
+    var(0x6061, "Modes of operation display", i8, RO, int(OpMode.PROFILE_POSITION), mappable=True)
+    var(0x6062, "Position demand value", i32, RO, 0, mappable=True)
+    var(0x6064, "Position actual value", i32, RO, 0, mappable=True)
+    var(0x6065, "Following error window", u32, RW, 2000, mappable=True)
+    var(0x6066, "Following error time out", u16, RW, 50, mappable=True)
+    var(0x6067, "Position window", u32, RW, 10, mappable=True)
+    var(0x6068, "Position window time", u16, RW, 5, mappable=True)
+    var(0x606B, "Velocity demand value", i32, RO, 0, mappable=True)
+    var(0x606C, "Velocity actual value", i32, RO, 0, mappable=True)
+    var(0x606D, "Velocity window", u16, RW, 100, mappable=True)
+    var(0x606E, "Velocity window time", u16, RW, 5, mappable=True)
+    var(0x6071, "Target torque", i16, RW, 0, mappable=True)
+    var(0x6072, "Max torque", u16, RW, 3000, mappable=True, low=0)
+    var(0x6074, "Torque demand", i16, RO, 0, mappable=True)
+    var(0x6076, "Motor rated torque", u32, RO, round(p.rated_torque * 1000_000))  # uNm
+    var(0x6077, "Torque actual value", i16, RO, 0, mappable=True)
+    var(0x607A, "Target position", i32, RW, 0, mappable=True)
+    od.add_record(0x607D, "Software position limit")
+    od.add_sub(0x607D, 1, "Min position limit", i32, RW, -0x80000000, pdo_mappable=True)
+    od.add_sub(0x607D, 2, "Max position limit", i32, RW, 0x7FFFFFFF, pdo_mappable=True)
+    var(0x607F, "Max profile velocity", u32, RW, 409_600, mappable=True)
+    var(0x6080, "Max motor speed", u32, RW, 409_600, mappable=True)
+    var(0x6081, "Profile velocity", u32, RW, 40_960, mappable=True)
+    var(0x6083, "Profile acceleration", u32, RW, 409_600, mappable=True, low=1)
+    var(0x6084, "Profile deceleration", u32, RW, 409_600, mappable=True, low=1)
+    var(0x6085, "Quick stop deceleration", u32, RW, 4_096_000, mappable=True, low=1)
+    var(0x6086, "Motion profile type", i16, RW, 0, low=0, high=0)
+    var(0x608F, "Position encoder resolution", u32, RO, p.increments_per_rev)
+    var(0x6098, "Homing method", i8, RW, 37, mappable=True)
+    od.add_record(0x6099, "Homing speeds")
+    od.add_sub(0x6099, 1, "Speed for switch search", u32, RW, 20_480, pdo_mappable=True, low=1)
+    od.add_sub(0x6099, 2, "Speed for zero search", u32, RW, 2_048, pdo_mappable=True, low=1)
+    var(0x609A, "Homing acceleration", u32, RW, 409_600, mappable=True, low=1)
+    var(0x60B0, "Position offset", i32, RW, 0, mappable=True)
+    var(0x60B1, "Velocity offset", i32, RW, 0, mappable=True)
+    var(0x60B2, "Torque offset", i16, RW, 0, mappable=True)
+    od.add_record(0x60C2, "Interpolation time period")
+    od.add_sub(0x60C2, 1, "Interpolation time period value", u8, RW, 1)
+    od.add_sub(0x60C2, 2, "Interpolation time index", i8, RW, -3, low=-3, high=-3)
+    var(0x60F4, "Following error actual value", i32, RO, 0, mappable=True)
+    var(0x60FD, "Digital inputs", u32, RO, 0, mappable=True)
+    var(0x60FF, "Target velocity", i32, RW, 0, mappable=True)
+    var(0x6502, "Supported drive modes", u32, RO, SUPPORTED_MODES)
+    add_communication_objects(od)
+    return od
+
+
+def _clamp(value: float, low: float, high: float) -> float:
+    return low if value < low else high if value > high else value
+
+
+class Drive:
+    """A maxon IDX-like CiA 402 servo on a virtual CAN bus (see module docstring)."""
+
+    def __init__(self, clock: Clock, bus: VirtualBus, node_id: int | None, serial: int, name: str = "",
+                 store_path: Path | None = None, params: AxisParams | None = None) -> None:
+        if node_id is not None and not 1 <= node_id <= 127:
+            raise ConfigError(f"drive node_id {node_id} outside 1..127")
+        if not 0 <= serial <= 0xFFFFFFFF:
+            raise ConfigError(f"drive serial {serial} is not a u32")
+        self.clock = clock
+        self.bus = bus
+        self.name = name or f"drive{serial:x}"
+        self.serial = serial
+        self.store_path = store_path
+        lss_store = LssConfigStore(store_path.with_name(store_path.name + ".lss.json")) if store_path else None
+        stored = lss_store.load() if lss_store is not None else None
+        if stored is not None:
+            node_id = None if stored[0] == UNCONFIGURED else stored[0]
+        self.od = build_object_dictionary(serial, node_id, params=params)
+        self.node = Node(clock, bus, node_id, self.od, name=self.name, store_path=store_path)
+        if stored is not None:
+            rate = BIT_TIMING_TABLE[stored[1]] if stored[1] < len(BIT_TIMING_TABLE) else None
+            if rate is not None:
+                self.node.controller.bitrate = rate
+        self.lss = LssSlave(self.node, LssAddress(MAXON_VENDOR_ID, PRODUCT_CODE, REVISION, serial),
+                            store=lss_store)
+        self.plant = Plant(params or AxisParams())
+        self.period = CONTROL_PERIOD
+        self.faults = 0
+        self.active_errors: set[int] = set()
+        self._timer: PeriodicTimer | None = None
+        self._init_motion()
+        self.node.on_write(0x6040, self._on_controlword)
+        self.node.on_write(0x6060, self._on_mode)
+        self.node.on_write(0x6098, self._on_homing_method)
+        self.node.on_nmt_change(self._on_nmt_change)
+        self.node.on_reset(self._on_reset)
+
+    # -- life cycle -------------------------------------------------------------------------
+    def _init_motion(self) -> None:
+        self.state = PdsState.NOT_READY_TO_SWITCH_ON
+        self.controlword = 0
+        self.mode = OpMode(self.node.get(0x6061, 0))
+        #: user position = physical plant position + offset (homing moves the offset)
+        self.offset = 0.0
+        self.profile = Trapezoid()
+        self.demand = 0.0
+        self.demand_velocity = 0.0
+        self.target: float | None = None
+        self.pending_target: float | None = None
+        self.setpoint_ack = False
+        self.target_reached = False
+        self.internal_limit = False
+        self.fe_time = 0.0
+        self.fe_warning = False
+        self.in_window_time = 0.0
+        self.homing: HomingRun | None = None
+        self.homing_status = HomingStatus.IDLE
+        self.halted = False
+        self.prev_csp_target: float | None = None
+        self.stopping = False
+
+    def start(self) -> None:
+        """Power on: boot the node, leave 'not ready to switch on', start the control tick."""
+        self.node.start()
+        self.state = PdsState.SWITCH_ON_DISABLED   # transition 1 after the self-test
+        self._publish()
+        if self._timer is None:
+            self._timer = self.clock.call_every(self.period, self._tick)
+
+    def stop(self) -> None:
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+        self.lss.stop()
+        self.node.stop()
+
+    # -- object hooks -----------------------------------------------------------------------
+    def _on_mode(self, *args: Any) -> None:
+        mode = int(self.node.get(0x6060, 0))
+        try:
+            op = OpMode(mode)
+        except ValueError:
+            raise SdoAbort(VALUE_RANGE_EXCEEDED, f"mode {mode} not supported") from None
+        if op is not self.mode:
+            self.mode = op
+            self.node.set(0x6061, 0, int(op))
+            self._restart_motion()
+            self._publish()
+
+    @staticmethod
+    def _on_homing_method(index: int, sub: int, value: Any) -> None:
+        if int(value) not in SUPPORTED_METHODS:
+            raise SdoAbort(VALUE_RANGE_EXCEEDED, f"homing method {value} not supported")
+
+    def _on_nmt_change(self, old: Any, new: Any) -> None:
+        if new.name == "PRE_OPERATIONAL" and old.name == "INITIALISING":
+            # after a reset the mode object is back at its (or its stored) value
+            self._sync_mode()
+        self._publish()   # statusword bit 9 'remote' follows NMT Operational (IDX table 3-11)
+
+    def _on_reset(self, reset_node: bool) -> None:
+        if reset_node:
+            # IDX guide table 3-11: reset node = power cycle of the drive software; the axis stays
+            # where it is, the power stage switches off and homing is lost.
+            self.plant.state.velocity = 0.0
+            self.plant.reset_integrator()
+            self._clear_errors(send=False)
+            self._init_motion()
+            self.state = PdsState.SWITCH_ON_DISABLED
+            self.offset = 0.0
+
+    def _sync_mode(self) -> None:
+        try:
+            op = OpMode(int(self.node.get(0x6060, 0)))
+        except ValueError:
+            op = OpMode.NO_MODE
+        self.mode = op
+        self.node.set(0x6061, 0, int(op))
+
+    def _on_controlword(self, *args: Any) -> None:
+        cw = int(self.node.get(0x6040, 0))
+        prev, self.controlword = self.controlword, cw
+        command = decode_command(cw, prev)
+        hit = next_state(self.state, command)
+        if hit is not None:
+            new, transition = hit
+            if transition == 16 and int(self.node.get(0x605A, 0)) < 5:
+                hit = None   # CiA 402: transition 16 only with quick stop option codes 5..8
+            else:
+                self._enter(new, transition)
+        if self.state is PdsState.OPERATION_ENABLED:
+            self._mode_control(cw, prev)
+        self._publish()
+
+    def _enter(self, new: PdsState, transition: int) -> None:
+        old = self.state
+        self.state = new
+        if new is PdsState.OPERATION_ENABLED and old is not PdsState.QUICK_STOP_ACTIVE:
+            self._restart_motion()
+        elif new is PdsState.QUICK_STOP_ACTIVE:
+            self.stopping = True
+            self.profile.reset(self.demand, self.plant.state.velocity)
+        elif new is PdsState.SWITCH_ON_DISABLED and transition == 15:
+            self._clear_errors(send=True)
+
+    def _restart_motion(self) -> None:
+        """Take over the actual position as demand (enable, mode change)."""
+        x = self.plant.state.position + self.offset
+        self.demand = x
+        self.profile.reset(x, 0.0)
+        self.target = None
+        self.pending_target = None
+        self.target_reached = True
+        self.prev_csp_target = None
+        self.fe_time = 0.0
+        self.stopping = False
+        self.halted = False
+        self.homing = None
+        self.homing_status = HomingStatus.IDLE
+        self.plant.reset_integrator()
+
+    def _mode_control(self, cw: int, prev: int) -> None:
+        """Mode-specific controlword bits (4..6, 8) in Operation enabled."""
+        rising = cw & ~prev
+        self.halted = bool(cw & Cw.HALT)
+        mode = self.mode
+        if mode is OpMode.PROFILE_POSITION:
+            if rising & Cw.NEW_SETPOINT:
+                self._new_setpoint(cw)
+            elif not cw & Cw.NEW_SETPOINT:
+                self.setpoint_ack = False
+        elif mode is OpMode.HOMING:
+            if rising & Cw.NEW_SETPOINT:
+                self._start_homing()
+            run = self.homing
+            if self.halted and run is not None and self.homing_status in (
+                    HomingStatus.IN_PROGRESS, HomingStatus.ATTAINED):
+                run.halt()
+                self.homing_status = HomingStatus.INTERRUPTED
+                # ramp down from where the homing profile is, in user coordinates
+                self.profile.reset(run.profile.position + self.offset, run.profile.velocity)
+
+    def _soft_limits(self, x: float) -> float:
+        low = int(self.node.get(0x607D, 1))
+        high = int(self.node.get(0x607D, 2))
+        if low < high:
+            clamped = _clamp(x, low, high)
+            if clamped != x:
+                self.internal_limit = True
+            return clamped
+        return x
+
+    def _new_setpoint(self, cw: int) -> None:
+        target = float(int(self.node.get(0x607A, 0)))
+        if cw & Cw.RELATIVE:
+            base = self.target if self.target is not None else self.demand
+            target += base
+        self.internal_limit = False
+        target = self._soft_limits(target)
+        moving = self.target is not None and not self.target_reached
+        if moving and not cw & Cw.CHANGE_IMMEDIATELY:
+            if self.pending_target is not None:
+                return   # buffer full: no acknowledge (CiA 402 single set-point)
+            self.pending_target = target
+        else:
+            self.target = target
+            self.pending_target = None
+            self.target_reached = False
+            self.in_window_time = 0.0
+        self.setpoint_ack = True
+
+    def _start_homing(self) -> None:
+        method = int(self.node.get(0x6098, 0))
+        run = HomingRun(method, float(self.node.get(0x6099, 1)), float(self.node.get(0x6099, 2)),
+                        float(self.node.get(0x609A, 0)))
+        run.start(self.plant.state.position)
+        self.homing = run
+        self.homing_status = run.status
+        if run.home_physical is not None and run.status is HomingStatus.REACHED:
+            self._set_home(run.home_physical)   # methods 35/37: done at once
+
+    def _set_home(self, physical: float) -> None:
+        self.offset = float(int(self.node.get(0x30B0, 0))) - physical
+        self.demand = self.plant.state.position + self.offset
+        self.profile.reset(self.demand, 0.0)
+
+    # -- control tick -----------------------------------------------------------------------
+    def _tick(self) -> None:
+        dt = self.period
+        plant = self.plant
+        st = plant.state
+        state = self.state
+        node = self.node
+        max_torque = float(node.get(0x6072, 0))
+        check_fe = False
+        if state is PdsState.OPERATION_ENABLED and not self.stopping:
+            check_fe = self._run_mode(dt, max_torque)
+        elif state in (PdsState.QUICK_STOP_ACTIVE, PdsState.FAULT_REACTION_ACTIVE):
+            self._run_stop(dt, max_torque)
+        else:
+            plant.step(dt, ControlMode.OFF)
+            self.demand = st.position + self.offset
+        x = st.position + self.offset
+        fe = self.demand - x if check_fe else 0.0
+        self._following_error(fe, dt, check_fe)
+        self._publish_actuals(x, fe)
+
+    def _run_mode(self, dt: float, max_torque: float) -> bool:
+        """One period of the active mode; True when the following error is supervised."""
+        node = self.node
+        plant = self.plant
+        st = plant.state
+        mode = self.mode
+        prof = self.profile
+        vmax = float(min(int(node.get(0x607F, 0)), int(node.get(0x6080, 0))))
+        if mode is OpMode.PROFILE_POSITION:
+            if self.halted:
+                prof.to_velocity(0.0, 1.0, float(node.get(0x6084, 0)), dt)
+            elif self.target is not None and not self.target_reached:
+                vel = min(float(node.get(0x6081, 0)), vmax)
+                done = prof.to_position(self.target, vel, float(node.get(0x6083, 0)),
+                                        float(node.get(0x6084, 0)), dt)
+                if done:
+                    self._check_window(dt)
+            self.demand = prof.position
+            plant.step(dt, ControlMode.POSITION, position=prof.position - self.offset,
+                       velocity=prof.velocity, acceleration=prof.acceleration, max_torque=max_torque)
+            self.demand_velocity = prof.velocity
+            return True
+        if mode is OpMode.PROFILE_VELOCITY:
+            target = 0.0 if self.halted else _clamp(float(int(node.get(0x60FF, 0))), -vmax, vmax)
+            self.internal_limit = target != float(int(node.get(0x60FF, 0))) and not self.halted
+            prof.to_velocity(target, float(node.get(0x6083, 0)), float(node.get(0x6084, 0)), dt)
+            self.demand_velocity = prof.velocity
+            plant.step(dt, ControlMode.VELOCITY, velocity=prof.velocity, acceleration=prof.acceleration,
+                       max_torque=max_torque)
+            self.demand = st.position + self.offset
+            window = float(int(node.get(0x606D, 0)))
+            if abs(st.velocity - target) <= window:
+                self.in_window_time += dt
+            else:
+                self.in_window_time = 0.0
+            self.target_reached = self.in_window_time * 1000.0 >= int(node.get(0x606E, 0)) - 1e-9
+            return False
+        if mode is OpMode.HOMING:
+            run = self.homing
+            if run is not None and self.homing_status in (HomingStatus.IN_PROGRESS, HomingStatus.ATTAINED):
+                inputs = plant.digital_inputs()
+                found_before = run.home_physical
+                run.step(dt, inputs, st.position)
+                if found_before is None and run.home_physical is not None:
+                    # shift the user frame; the profile keeps running in physical coordinates
+                    self.offset = float(int(node.get(0x30B0, 0))) - run.home_physical
+                self.homing_status = run.status
+                phys = run.profile.position
+                self.demand = phys + self.offset
+                plant.step(dt, ControlMode.POSITION, position=phys, velocity=run.profile.velocity,
+                           acceleration=run.profile.acceleration, max_torque=max_torque)
+                self.demand_velocity = run.profile.velocity
+                if run.status is not HomingStatus.IN_PROGRESS and run.status is not HomingStatus.ATTAINED:
+                    self.profile.reset(self.demand, 0.0)   # hold the home position afterwards
+            else:
+                if self.halted or (run is not None and run.status is HomingStatus.INTERRUPTED):
+                    prof.to_velocity(0.0, 1.0, float(node.get(0x609A, 0)), dt)
+                self.demand = prof.position
+                plant.step(dt, ControlMode.POSITION, position=prof.position - self.offset,
+                           velocity=prof.velocity, acceleration=prof.acceleration, max_torque=max_torque)
+            return True
+        if mode is OpMode.CYCLIC_SYNC_POSITION:
+            self.internal_limit = False
+            target = self._soft_limits(float(int(node.get(0x607A, 0)) + int(node.get(0x60B0, 0))))
+            prev = self.prev_csp_target
+            v_ff = 0.0 if prev is None else (target - prev) / dt
+            v_ff += float(int(node.get(0x60B1, 0)))
+            self.prev_csp_target = target
+            self.demand = target
+            self.demand_velocity = v_ff
+            plant.step(dt, ControlMode.POSITION, position=target - self.offset, velocity=v_ff,
+                       max_torque=max_torque)
+            return True
+        if mode is OpMode.CYCLIC_SYNC_VELOCITY:
+            raw = float(int(node.get(0x60FF, 0)) + int(node.get(0x60B1, 0)))
+            target = _clamp(raw, -vmax, vmax)
+            self.internal_limit = target != raw
+            self.demand_velocity = target
+            plant.step(dt, ControlMode.VELOCITY, velocity=target, max_torque=max_torque)
+            self.demand = st.position + self.offset
+            return False
+        if mode is OpMode.CYCLIC_SYNC_TORQUE:
+            raw = float(int(node.get(0x6071, 0)) + int(node.get(0x60B2, 0)))
+            torque = _clamp(raw, -max_torque, max_torque)
+            self.internal_limit = torque != raw
+            plant.step(dt, ControlMode.TORQUE, torque=torque, max_torque=max_torque)
+            self.demand = st.position + self.offset
+            return False
+        # NO_MODE: hold the position
+        plant.step(dt, ControlMode.POSITION, position=self.demand - self.offset, max_torque=max_torque)
+        return True
+
+    def _check_window(self, dt: float) -> None:
+        """PP target reached: actual position within 0x6067 for 0x6068 ms after the profile ended."""
+        assert self.target is not None
+        x = self.plant.state.position + self.offset
+        if abs(self.target - x) <= int(self.node.get(0x6067, 0)):
+            self.in_window_time += dt
+        else:
+            self.in_window_time = 0.0
+        if self.in_window_time * 1000.0 >= int(self.node.get(0x6068, 0)) - 1e-9:
+            self.target_reached = True
+            if self.pending_target is not None:
+                self.target, self.pending_target = self.pending_target, None
+                self.target_reached = False
+                self.in_window_time = 0.0
+
+    def _run_stop(self, dt: float, max_torque: float) -> None:
+        """Quick stop / fault reaction: ramp to standstill, then the CiA 402 follow-up state."""
+        node = self.node
+        plant = self.plant
+        prof = self.profile
+        option = int(node.get(0x605A, 0))
+        fault = self.state is PdsState.FAULT_REACTION_ACTIVE
+        if not fault and option == 0:
+            plant.step(dt, ControlMode.OFF)
+            self.demand = plant.state.position + self.offset
+            self._enter(PdsState.SWITCH_ON_DISABLED, 12)
+            self._publish()
+            return
+        dec_index = 0x6084 if (not fault and option in (1, 5)) else 0x6085
+        stopped = prof.to_velocity(0.0, 1.0, float(node.get(dec_index, 0)), dt)
+        self.demand = prof.position
+        plant.step(dt, ControlMode.POSITION, position=prof.position - self.offset, velocity=prof.velocity,
+                   acceleration=prof.acceleration, max_torque=max_torque)
+        if stopped and abs(plant.state.velocity) < 1.0:
+            if fault:
+                self.state = PdsState.FAULT   # transition 14
+                self.stopping = False
+                self._publish()
+            elif option < 5:
+                self.state = PdsState.SWITCH_ON_DISABLED   # transition 12 after the ramp
+                self.stopping = False
+                self._publish()
+
+    def _following_error(self, fe: float, dt: float, supervised: bool) -> None:
+        window = int(self.node.get(0x6065, 0))
+        if not supervised or window == 0xFFFFFFFF or abs(fe) <= window:
+            self.fe_time = 0.0
+            self.fe_warning = False
+            return
+        self.fe_warning = True
+        self.fe_time += dt
+        if self.fe_time * 1000.0 > int(self.node.get(0x6066, 0)) + 1e-9 and self.state is PdsState.OPERATION_ENABLED:
+            self.fault(ERROR_FOLLOWING, ERROR_REGISTER_FOLLOWING)
+
+    def fault(self, error_code: int, error_register: int, data: bytes = b"") -> None:
+        """Enter 'fault reaction active' (transition 13): 0x603F, EMCY, then ramp down to FAULT."""
+        if self.state in (PdsState.FAULT, PdsState.FAULT_REACTION_ACTIVE):
+            return
+        self.faults += 1
+        self.node.set(0x603F, 0, error_code)
+        self._raise_error(error_code, error_register, data)
+        self.state = PdsState.FAULT_REACTION_ACTIVE
+        self.stopping = True
+        self.profile.reset(self.plant.state.position + self.offset, self.plant.state.velocity)
+        self.fe_time = 0.0
+        self._publish()
+
+    def _raise_error(self, error_code: int, error_register: int, data: bytes) -> None:
+        self.active_errors.add(error_code)
+        self.node.emcy.raise_error(error_code, error_register, data)
+
+    def _clear_errors(self, send: bool) -> None:
+        """Fault reset (transition 15): 0x603F cleared, EMCY 'error reset' for each drive error."""
+        self.node.set(0x603F, 0, 0)
+        for code in sorted(self.active_errors):
+            if send:
+                self.node.emcy.clear_error(code)
+            else:
+                self.node.emcy.active.pop(code, None)
+        self.active_errors.clear()
+
+    # -- outputs ----------------------------------------------------------------------------
+    def statusword(self) -> int:
+        sw = STATE_BITS[self.state]
+        if self.node.nmt_state.name == "OPERATIONAL":
+            sw |= Sw.REMOTE
+        if self.fe_warning:
+            sw |= Sw.WARNING
+        if self.internal_limit or self.plant.state.saturated:
+            sw |= Sw.INTERNAL_LIMIT
+        mode = self.mode
+        enabled = self.state is PdsState.OPERATION_ENABLED
+        if mode is OpMode.PROFILE_POSITION:
+            if self.target_reached or (self.halted and self.profile.velocity == 0.0):
+                sw |= Sw.TARGET_REACHED
+            if self.setpoint_ack:
+                sw |= Sw.OP_SPECIFIC_12
+            if self.fe_warning:
+                sw |= Sw.OP_SPECIFIC_13
+        elif mode is OpMode.PROFILE_VELOCITY:
+            if self.target_reached:
+                sw |= Sw.TARGET_REACHED
+            if abs(self.plant.state.velocity) < 1.0:
+                sw |= Sw.OP_SPECIFIC_12
+        elif mode is OpMode.HOMING:
+            sw |= self.homing_status.bits
+        elif mode is OpMode.CYCLIC_SYNC_POSITION:
+            if enabled:
+                sw |= Sw.OP_SPECIFIC_12
+            if self.fe_warning:
+                sw |= Sw.OP_SPECIFIC_13
+        elif mode in (OpMode.CYCLIC_SYNC_VELOCITY, OpMode.CYCLIC_SYNC_TORQUE) and enabled:
+            sw |= Sw.OP_SPECIFIC_12
+        return int(sw)
+
+    def _publish(self) -> None:
+        self.node.set(0x6041, 0, self.statusword())
+
+    def _publish_actuals(self, x: float, fe: float) -> None:
+        node = self.node
+        st = self.plant.state
+        node.set(0x6064, 0, round(_clamp(x, -0x80000000, 0x7FFFFFFF)))
+        node.set(0x606C, 0, round(_clamp(st.velocity, -0x80000000, 0x7FFFFFFF)))
+        node.set(0x6077, 0, round(_clamp(st.torque, -0x8000, 0x7FFF)))
+        node.set(0x6074, 0, round(_clamp(st.torque, -0x8000, 0x7FFF)))
+        node.set(0x6062, 0, round(_clamp(self.demand, -0x80000000, 0x7FFFFFFF)))
+        node.set(0x606B, 0, round(_clamp(self.demand_velocity, -0x80000000, 0x7FFFFFFF)))
+        node.set(0x60F4, 0, round(_clamp(fe, -0x80000000, 0x7FFFFFFF)))
+        node.set(0x60FD, 0, self.plant.digital_inputs())
+        self._publish()
+
+
+__all__ = ["DEVICE_TYPE", "MAXON_VENDOR_ID", "PRODUCT_CODE", "Command", "Drive", "build_object_dictionary"]
