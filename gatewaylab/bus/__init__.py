@@ -1,5 +1,9 @@
 """Virtual CAN / CAN FD buses and their python-can faces."""
 
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
 from .bus import (
     BusEvent,
     Controller,
@@ -14,6 +18,9 @@ from .bus import (
 from .frame import CanFrame, len_to_dlc
 from .timing import frame_duration
 
+if TYPE_CHECKING:
+    from .transport.inprocess import InProcessBus
+
 __all__ = [
     "BusEvent", "CanFrame", "Controller", "ErrorFrameEvent", "ErrorKind", "ErrorState",
     "StateChangeEvent", "TxAbortedEvent", "TxDoneEvent", "VirtualBus", "frame_duration",
@@ -21,8 +28,8 @@ __all__ = [
 ]
 
 
-def python_can_bus(vbus: VirtualBus, **kwargs: object) -> "InProcessBus":  # noqa: F821
+def python_can_bus(vbus: VirtualBus, **kwargs: Any) -> InProcessBus:
     """A python-can ``BusABC`` on ``vbus``; see :mod:`gatewaylab.bus.transport.inprocess`."""
     from .transport.inprocess import InProcessBus
 
-    return InProcessBus(vbus, **kwargs)  # type: ignore[arg-type]
+    return InProcessBus(vbus, **kwargs)

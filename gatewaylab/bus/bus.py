@@ -143,6 +143,10 @@ class Controller:
         return not (self.fd and bus.data_bitrate is not None and self.data_bitrate is not None
                     and self.data_bitrate != bus.data_bitrate)
 
+    @property
+    def bus_off(self) -> bool:
+        return self.state is ErrorState.BUS_OFF
+
     def send(self, frame: CanFrame) -> None:
         """Queue a frame for transmission (FIFO per controller, like a SocketCAN tx queue)."""
         if self.listen_only:
@@ -227,7 +231,7 @@ class Controller:
         if not self.auto_retransmit and self.tx_queue:
             self.tx_queue.popleft()
             self._emit(TxAbortedEvent(frame, self.bus.clock.now(), "single-shot"))
-        if self.tx_queue and self.state is not ErrorState.BUS_OFF:
+        if self.tx_queue and not self.bus_off:
             self._mismatch_timer = self.bus.clock.call_later(
                 ERROR_FRAME_BITS / self.bitrate, self._mismatch_attempt)
 

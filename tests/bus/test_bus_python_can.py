@@ -53,7 +53,7 @@ def test_canopen_reads_sdo_from_a_canopen_local_node(networks) -> None:
 
 
 def test_notifier_and_logger_record_the_traffic(networks, tmp_path: Path) -> None:
-    clock, vbus, server, client = networks
+    _, vbus, server, client = networks
     server.create_node(5, _od())
     remote = client.add_node(5, _od())
     logfile = tmp_path / "trace.log"

@@ -4,8 +4,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from gatewaylab.bus import CanFrame
-from gatewaylab.bus import wire
+from gatewaylab.bus import CanFrame, wire
 from gatewaylab.common.errors import ProtocolError
 
 

@@ -13,8 +13,8 @@ the clock.
 from __future__ import annotations
 
 import queue
-from contextlib import nullcontext
 import threading
+from contextlib import nullcontext
 from typing import Any
 
 import can

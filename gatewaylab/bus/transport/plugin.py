@@ -144,6 +144,10 @@ class GatewaylabBus(can.BusABC):
             return BusState.ERROR
         return BusState.ACTIVE
 
+    @state.setter
+    def state(self, new_state: BusState) -> None:
+        raise can.CanOperationError("the state of a gatewaylab bus connection is set by the rig")
+
     def shutdown(self) -> None:
         if not self._is_shutdown:
             try:

@@ -15,8 +15,7 @@ from typing import Protocol
 
 from ...common.errors import GatewaylabError, ProtocolError
 from .. import wire
-from ..bus import Controller, ErrorFrameEvent, ErrorState, StateChangeEvent, VirtualBus
-from ..bus import BusEvent
+from ..bus import BusEvent, Controller, ErrorFrameEvent, ErrorState, StateChangeEvent, VirtualBus
 from ..frame import CanFrame
 
 log = logging.getLogger(__name__)

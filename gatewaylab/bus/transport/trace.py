@@ -19,7 +19,7 @@ class Trace:
         self.path = path
         #: Wall-clock time of bus time 0, so absolute-time formats (ASC, BLF) carry a real date.
         self.epoch = time.time() - bus.clock.now() if epoch is None else epoch
-        self.writer: can.io.generic.MessageWriter = can.Logger(str(path))  # type: ignore[assignment]
+        self.writer: can.io.generic.MessageWriter = can.Logger(str(path))
         self.frames = 0
         bus.add_monitor(self._on_frame)
 
