@@ -42,7 +42,7 @@ class Narrator(can.Listener):
             if self.t0 is None:
                 self.t0 = msg.timestamp
             if not self.quiet:
-                print(f"    {msg.timestamp - self.t0:9.6f}  {str(frame):<26} {explain(frame)}", flush=True)
+                print(f"    {msg.timestamp - self.t0:9.6f}  {frame!s:<26} {explain(frame)}", flush=True)
 
 
 def _wait_ready(proc: subprocess.Popen[bytes], ready: Path, timeout: float = 30.0) -> dict[str, Any]:

@@ -93,7 +93,7 @@ def explain(frame: CanFrame) -> str:
             return f"LSS slave: {_LSS_MASTER[d[0]][8:]} = 0x{_U32.unpack_from(d, 1)[0]:X}"
         if d[0] in (0x11, 0x13, 0x17) and len(d) >= 2:
             return f"LSS slave: {_LSS_MASTER[d[0]]} answer, error code {d[1]}"
-        if 0x44 == d[0]:
+        if d[0] == 0x44:
             return "LSS slave: switch state selective answer (now in configuration state)"
         return f"LSS slave answer 0x{d[0]:02X}"
     return f"COB-ID 0x{cid:03X}: {d.hex(' ')}"
