@@ -1,0 +1,149 @@
+"""EtherCAT errors, each carrying its wire code (AL status code, SDO abort code, FoE error code)."""
+
+from __future__ import annotations
+
+import enum
+
+from ..common.errors import ConfigError, LocalError, ProtocolError, RemoteError
+
+
+class AlStatusCode(enum.IntEnum):
+    """AL status codes (register 0x0134), ETG.1000.6 table 'AL Status Codes'."""
+
+    NO_ERROR = 0x0000
+    UNSPECIFIED = 0x0001
+    NO_MEMORY = 0x0002
+    INVALID_DEVICE_SETUP = 0x0003
+    INVALID_STATE_CHANGE = 0x0011
+    UNKNOWN_STATE = 0x0012
+    BOOTSTRAP_NOT_SUPPORTED = 0x0013
+    NO_VALID_FIRMWARE = 0x0014
+    INVALID_MAILBOX_CONFIG_BOOT = 0x0015
+    INVALID_MAILBOX_CONFIG = 0x0016
+    INVALID_SM_CONFIG = 0x0017
+    NO_VALID_INPUTS = 0x0018
+    NO_VALID_OUTPUTS = 0x0019
+    SYNCHRONIZATION_ERROR = 0x001A
+    SM_WATCHDOG = 0x001B
+    INVALID_SM_TYPES = 0x001C
+    INVALID_OUTPUT_CONFIG = 0x001D
+    INVALID_INPUT_CONFIG = 0x001E
+    INVALID_WATCHDOG_CONFIG = 0x001F
+    NEEDS_COLD_START = 0x0020
+    NEEDS_INIT = 0x0021
+    NEEDS_PREOP = 0x0022
+    NEEDS_SAFEOP = 0x0023
+    INVALID_INPUT_MAPPING = 0x0024
+    INVALID_OUTPUT_MAPPING = 0x0025
+    INCONSISTENT_SETTINGS = 0x0026
+    FREERUN_NOT_SUPPORTED = 0x0027
+    SYNCMODE_NOT_SUPPORTED = 0x0028
+    INVALID_DC_SYNC_CONFIG = 0x0030
+    INVALID_DC_CYCLE_TIME = 0x0035
+    MBX_COE = 0x0043
+    MBX_FOE = 0x0044
+    EEPROM_NO_ACCESS = 0x0050
+    EEPROM_ERROR = 0x0051
+
+
+class SdoAbortCode(enum.IntEnum):
+    """CoE SDO abort codes (QEC master manual appendix A.5, from ETG.1000.6)."""
+
+    TOGGLE_BIT = 0x05030000
+    TIMEOUT = 0x05040000
+    COMMAND_SPECIFIER = 0x05040001
+    OUT_OF_MEMORY = 0x05040005
+    UNSUPPORTED_ACCESS = 0x06010000
+    WRITE_ONLY = 0x06010001
+    READ_ONLY = 0x06010002
+    SI0_MUST_BE_ZERO = 0x06010003
+    COMPLETE_ACCESS_NOT_SUPPORTED = 0x06010004
+    OBJECT_TOO_LONG = 0x06010005
+    MAPPED_TO_RXPDO = 0x06010006
+    OBJECT_DOES_NOT_EXIST = 0x06020000
+    CANNOT_BE_MAPPED = 0x06040041
+    PDO_LENGTH_EXCEEDED = 0x06040042
+    PARAMETER_INCOMPATIBLE = 0x06040043
+    INTERNAL_INCOMPATIBILITY = 0x06040047
+    HARDWARE_ERROR = 0x06060000
+    LENGTH_MISMATCH = 0x06070010
+    LENGTH_TOO_HIGH = 0x06070012
+    LENGTH_TOO_LOW = 0x06070013
+    SUBINDEX_DOES_NOT_EXIST = 0x06090011
+    VALUE_RANGE = 0x06090030
+    VALUE_TOO_HIGH = 0x06090031
+    VALUE_TOO_LOW = 0x06090032
+    MAX_LESS_THAN_MIN = 0x06090036
+    GENERAL = 0x08000000
+    CANNOT_STORE = 0x08000020
+    CANNOT_STORE_LOCAL = 0x08000021
+    CANNOT_STORE_STATE = 0x08000022
+    NO_OBJECT_DICTIONARY = 0x08000023
+
+
+class FoeErrorCode(enum.IntEnum):
+    """FoE error codes (ETG.1000.6 'FoE Error')."""
+
+    NOT_DEFINED = 0x8000
+    NOT_FOUND = 0x8001
+    ACCESS_DENIED = 0x8002
+    DISK_FULL = 0x8003
+    ILLEGAL = 0x8004
+    PACKET_NUMBER_WRONG = 0x8005
+    ALREADY_EXISTS = 0x8006
+    NO_USER = 0x8007
+    BOOTSTRAP_ONLY = 0x8008
+    NOT_BOOTSTRAP = 0x8009
+    NO_RIGHTS = 0x800A
+    PROGRAM_ERROR = 0x800B
+
+
+class MailboxErrorCode(enum.IntEnum):
+    """Mailbox error reply details (mailbox type 0, ETG.1000.4)."""
+
+    SYNTAX = 0x0001
+    UNSUPPORTED_PROTOCOL = 0x0002
+    INVALID_CHANNEL = 0x0003
+    SERVICE_NOT_SUPPORTED = 0x0004
+    INVALID_HEADER = 0x0005
+    SIZE_TOO_SHORT = 0x0006
+    NO_MORE_MEMORY = 0x0007
+    INVALID_SIZE = 0x0008
+
+
+class FrameFormatError(ProtocolError):
+    """A frame or datagram that cannot be parsed; the ESC drops it and counts it."""
+
+
+class AlStatusError(RemoteError):
+    """A state transition refused with an AL status code (register 0x0134)."""
+
+
+class SdoAbortError(RemoteError):
+    """An SDO transfer aborted with a CoE abort code (device side: the code sent; master side: received)."""
+
+    def __init__(self, message: str, code: int) -> None:
+        super().__init__(f"{message} (abort 0x{code:08X})", code)
+
+
+class FoeError(RemoteError):
+    """An FoE transfer ended by an FoE error packet."""
+
+    def __init__(self, message: str, code: int) -> None:
+        super().__init__(f"{message} (FoE error 0x{code:04X})", code)
+
+
+class MailboxError(RemoteError):
+    """A mailbox message the slave answered with a mailbox error reply."""
+
+
+class EtherCATConfigError(ConfigError):
+    """A device description or rig section that cannot describe a real slave."""
+
+
+class MasterError(LocalError):
+    """The in-process master was asked for something impossible (no such slave, not scanned...)."""
+
+
+class WorkingCounterError(RemoteError):
+    """A datagram came back with an unexpected working counter."""

@@ -1,0 +1,82 @@
+"""Several slaves in one line: a frame passes slave 0 first, then 1, ... and returns to the master.
+
+``process`` works in place on a received Ethernet frame and says whether to send it back.
+Malformed frames are counted and dropped (a real ESC forwards them with a broken FCS, which the
+master's NIC discards), and slave 0's invalid-frame counter (0x0300) goes up.
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+
+from .datagram import ETH_HEADER_LEN, ETHERTYPE_ETHERCAT, LEN_MASK, MORE
+from .esc import REG_RX_ERROR
+from .slave import Slave
+
+_U16 = struct.Struct("<H")
+_BE16 = struct.Struct("!H")
+_DG_HDR = struct.Struct("<B5xH")  # cmd, (idx + address skipped), len/flags
+
+
+@dataclass(slots=True)
+class SegmentStats:
+    frames: int = 0
+    bad_frames: int = 0
+    datagrams: int = 0
+
+
+class Segment:
+    """The slaves of one EtherCAT line, in position order."""
+
+    def __init__(self, slaves: list[Slave]) -> None:
+        self.slaves = list(slaves)
+        self.stats = SegmentStats()
+        self._escs = [s.esc for s in self.slaves]
+        n = len(self.slaves)
+        for i, esc in enumerate(self._escs):
+            esc.set_downstream(n - 1 - i)
+
+    def process(self, frame: bytearray) -> bool:
+        """Execute every datagram on every slave in place; False for a dropped (bad) frame."""
+        parsed = self._parse(frame)
+        if parsed is None:
+            self.stats.bad_frames += 1
+            if self._escs:
+                mem = self._escs[0].mem
+                mem[REG_RX_ERROR] = min(0xFF, mem[REG_RX_ERROR] + 1)
+            return False
+        self.stats.frames += 1
+        self.stats.datagrams += len(parsed)
+        for esc in self._escs:
+            pd = esc.process_datagram
+            for pos, cmd, dlen in parsed:
+                pd(frame, pos, cmd, dlen)
+        if len(frame) > ETH_HEADER_LEN:
+            frame[6] |= 0x02  # the ESC marks the source MAC as locally administered on the way back
+        return True
+
+    @staticmethod
+    def _parse(frame: bytearray) -> list[tuple[int, int, int]] | None:
+        n = len(frame)
+        if n < ETH_HEADER_LEN + 2 or _BE16.unpack_from(frame, 12)[0] != ETHERTYPE_ETHERCAT:
+            return None
+        hdr = _U16.unpack_from(frame, ETH_HEADER_LEN)[0]
+        if hdr >> 12 != 1:
+            return None
+        end = ETH_HEADER_LEN + 2 + (hdr & LEN_MASK)
+        if end > n:
+            return None
+        pos = ETH_HEADER_LEN + 2
+        out: list[tuple[int, int, int]] = []
+        while True:
+            if pos + 12 > end:
+                return None
+            cmd, flags = _DG_HDR.unpack_from(frame, pos)
+            dlen = flags & LEN_MASK
+            if pos + 12 + dlen > end or cmd > 14:
+                return None
+            out.append((pos, cmd, dlen))
+            pos += 12 + dlen
+            if not flags & MORE:
+                return out

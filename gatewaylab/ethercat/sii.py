@@ -1,0 +1,212 @@
+"""SII EEPROM image built from a device description, and a parser for it (ETG.2010 layout).
+
+Words 0..7 are the ESC configuration area (checksum in word 7), 8..0x0F the identity,
+0x14..0x1C the mailbox configuration, 0x3E/0x3F size and version; categories start at word
+0x40: Strings (10), General (30), FMMU (40), SyncManager (41), TxPDO (50), RxPDO (51), end 0xFFFF.
+"""
+
+from __future__ import annotations
+
+import enum
+import struct
+from dataclasses import dataclass
+
+from .description import DeviceDescription, Pdo
+from .errors import FrameFormatError
+from .esc import sii_checksum
+
+U16 = struct.Struct("<H")
+U32 = struct.Struct("<I")
+CATEGORY_HEADER = struct.Struct("<HH")
+GENERAL = struct.Struct("<BBBBBBBBBBBBhBBHH12x")
+SM_ENTRY = struct.Struct("<HHBBBB")
+PDO_HEADER = struct.Struct("<HBBBBH")
+PDO_ENTRY = struct.Struct("<HBBBBH")
+EEPROM_BYTES = 2048
+
+
+class Category(enum.IntEnum):
+    STRINGS = 10
+    DATA_TYPES = 20
+    GENERAL = 30
+    FMMU = 40
+    SYNC_MANAGER = 41
+    TXPDO = 50
+    RXPDO = 51
+    DC = 60
+    END = 0xFFFF
+
+
+class SmType(enum.IntEnum):
+    UNUSED = 0
+    MAILBOX_OUT = 1
+    MAILBOX_IN = 2
+    OUTPUTS = 3
+    INPUTS = 4
+
+
+class _Strings:
+    def __init__(self) -> None:
+        self.items: list[bytes] = []
+
+    def add(self, text: str) -> int:
+        """1-based string index; 0 means 'no string'."""
+        if not text:
+            return 0
+        raw = text.encode("latin-1", "replace")[:255]
+        if raw in self.items:
+            return self.items.index(raw) + 1
+        self.items.append(raw)
+        return len(self.items)
+
+    def encode(self) -> bytes:
+        out = bytearray([len(self.items)])
+        for s in self.items:
+            out.append(len(s))
+            out.extend(s)
+        return bytes(out)
+
+
+def _category(kind: int, data: bytes) -> bytes:
+    if len(data) % 2:
+        data += b"\x00"
+    return CATEGORY_HEADER.pack(kind, len(data) // 2) + data
+
+
+def _pdos(pdos: tuple[Pdo, ...], sm: int, strings: _Strings) -> bytes:
+    out = bytearray()
+    for pdo in pdos:
+        out += PDO_HEADER.pack(pdo.index, len(pdo.entries), sm, 0, strings.add(pdo.name), 0)
+        for e in pdo.entries:
+            out += PDO_ENTRY.pack(e.index, e.subindex, strings.add(e.name) if e.index else 0,
+                                  int(e.data_type) if e.index else 0, e.bit_length, 0)
+    return bytes(out)
+
+
+def build_sii(desc: DeviceDescription, alias: int = 0) -> bytes:
+    """The EEPROM content a real slave of this description would carry."""
+    img = bytearray(b"\xff" * EEPROM_BYTES)
+    cfg = bytearray(16)
+    U16.pack_into(cfg, 0, 0x0C08)  # PDI control: 16-bit uC async PDI, ESC config 0x0C (enhanced link)
+    U16.pack_into(cfg, 2, 0x0000)
+    U16.pack_into(cfg, 4, 0x0000)
+    U16.pack_into(cfg, 6, 0x0000)
+    U16.pack_into(cfg, 8, alias)
+    cfg[14] = sii_checksum(bytes(cfg[:14]))
+    img[0:16] = cfg
+    body = bytearray(0x80 - 0x10)
+    U32.pack_into(body, 0x00, desc.vendor_id)
+    U32.pack_into(body, 0x04, desc.product_code)
+    U32.pack_into(body, 0x08, desc.revision)
+    U32.pack_into(body, 0x0C, desc.serial)
+    if desc.bootstrap:
+        bo, bos, bi, bis = desc.bootstrap_mailbox
+        struct.pack_into("<HHHH", body, 0x28 - 0x10, bo, bos, bi, bis)
+    if desc.coe or desc.foe:
+        struct.pack_into("<HHHHH", body, 0x30 - 0x10,
+                         desc.mailbox_out[0], desc.mailbox_out[1],
+                         desc.mailbox_in[0], desc.mailbox_in[1], desc.mailbox_protocols)
+    U16.pack_into(body, 0x7C - 0x10, EEPROM_BYTES * 8 // 1024 - 1)
+    U16.pack_into(body, 0x7E - 0x10, 1)
+    img[0x10:0x80] = body
+
+    strings = _Strings()
+    name_idx = strings.add(desc.name)
+    group_idx = strings.add(desc.group)
+    order_idx = strings.add(desc.order_code or desc.name)
+    coe_details = (0x01 | 0x02 | 0x04 | 0x08 | 0x20) if desc.coe else 0  # SDO, SDO info, PDO assign/config, CA
+    general = GENERAL.pack(group_idx, 0, order_idx, name_idx, 0, coe_details, 1 if desc.foe else 0,
+                           0, 0, 0, 0, 0, 0, group_idx, 0, 0x0011, 0)
+    has_mbx = desc.coe or desc.foe
+    fmmu = bytes([1, 2, 3 if has_mbx else 0, 0])
+    sms = bytearray()
+    if has_mbx:
+        sms += SM_ENTRY.pack(desc.mailbox_out[0], desc.mailbox_out[1], DeviceDescription.SM0_CONTROL, 0, 1,
+                             SmType.MAILBOX_OUT)
+        sms += SM_ENTRY.pack(desc.mailbox_in[0], desc.mailbox_in[1], DeviceDescription.SM1_CONTROL, 0, 1,
+                             SmType.MAILBOX_IN)
+    sms += SM_ENTRY.pack(desc.outputs_start, desc.output_bytes, DeviceDescription.SM2_CONTROL, 0,
+                         1 if desc.output_bytes else 0, SmType.OUTPUTS)
+    sms += SM_ENTRY.pack(desc.inputs_start, desc.input_bytes, DeviceDescription.SM3_CONTROL, 0,
+                         1 if desc.input_bytes else 0, SmType.INPUTS)
+    sm_out = 2 if has_mbx else 0
+    txpdo = _pdos(desc.tx_pdos, sm_out + 1, strings)
+    rxpdo = _pdos(desc.rx_pdos, sm_out, strings)
+    cats = bytearray()
+    cats += _category(Category.STRINGS, strings.encode())
+    cats += _category(Category.GENERAL, general)
+    cats += _category(Category.FMMU, fmmu)
+    cats += _category(Category.SYNC_MANAGER, bytes(sms))
+    if txpdo:
+        cats += _category(Category.TXPDO, txpdo)
+    if rxpdo:
+        cats += _category(Category.RXPDO, rxpdo)
+    cats += U16.pack(Category.END)
+    if 0x80 + len(cats) > EEPROM_BYTES:
+        raise FrameFormatError(f"SII of {desc.name} does not fit {EEPROM_BYTES} bytes")
+    img[0x80:0x80 + len(cats)] = cats
+    return bytes(img)
+
+
+@dataclass(frozen=True, slots=True)
+class SiiInfo:
+    """What a master reads back from an SII image."""
+
+    vendor_id: int
+    product_code: int
+    revision: int
+    serial: int
+    alias: int
+    mailbox_out: tuple[int, int]
+    mailbox_in: tuple[int, int]
+    mailbox_protocols: int
+    strings: tuple[str, ...]
+    name: str
+    categories: tuple[int, ...]
+    sync_managers: tuple[tuple[int, int, int, int, int], ...]
+    coe_details: int
+    foe_details: int
+
+
+def parse_sii(img: bytes) -> SiiInfo:
+    """Decode identity, mailbox and categories (raises FrameFormatError on a broken image)."""
+    if len(img) < 0x82:
+        raise FrameFormatError("SII image shorter than its fixed header")
+    vendor, product, revision, serial = struct.unpack_from("<IIII", img, 0x10)
+    mo, mos, mi, mis, proto = struct.unpack_from("<HHHHH", img, 0x30)
+    pos = 0x80
+    strings: list[str] = []
+    cats: list[int] = []
+    sms: list[tuple[int, int, int, int, int]] = []
+    name = ""
+    coe = foe = 0
+    general: bytes | None = None
+    while pos + 4 <= len(img):
+        kind, words = CATEGORY_HEADER.unpack_from(img, pos)
+        if kind == Category.END:
+            break
+        data = img[pos + 4:pos + 4 + 2 * words]
+        if len(data) < 2 * words:
+            raise FrameFormatError("SII category runs past the image")
+        cats.append(kind)
+        if kind == Category.STRINGS:
+            n = data[0]
+            p = 1
+            for _ in range(n):
+                ln = data[p]
+                strings.append(bytes(data[p + 1:p + 1 + ln]).decode("latin-1"))
+                p += 1 + ln
+        elif kind == Category.GENERAL:
+            general = bytes(data)
+        elif kind == Category.SYNC_MANAGER:
+            for p in range(0, len(data) - 7, 8):
+                start, length, ctrl, _st, enable, smtype = SM_ENTRY.unpack_from(data, p)
+                sms.append((start, length, ctrl, enable, smtype))
+        pos += 4 + 2 * words
+    if general is not None:
+        name_idx = general[3]
+        coe, foe = general[5], general[6]
+        if 0 < name_idx <= len(strings):
+            name = strings[name_idx - 1]
+    return SiiInfo(vendor, product, revision, serial, U16.unpack_from(img, 8)[0], (mo, mos), (mi, mis), proto,
+                   tuple(strings), name, tuple(cats), tuple(sms), coe, foe)

@@ -1,0 +1,316 @@
+"""A complete emulated slave: ESC + SII + mailbox (CoE, FoE) + object dictionary + process image.
+
+Devices (the ``ethercat_io`` test device, ECAN-Lite, esd CAN-EtherCAT) are a
+:class:`DeviceDescription` plus a :class:`SlaveApplication` that refuses/acts on state
+transitions, consumes outputs and produces inputs each cycle, serves FoE files and reacts to SYNC0.
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+
+from ..common.clock import Clock
+from .coe import CoeServer, emergency_message
+from .description import DeviceDescription, Pdo
+from .errors import AlStatusCode, EtherCATConfigError, SdoAbortCode, SdoAbortError
+from .esc import AlState, Esc
+from .foe import FoeFiles, FoeHandler, FoeServer
+from .mailbox import MailboxEndpoint, MailboxMessage, MailboxType
+from .od import Access, DataType, Entry, ObjectDictionary, OdObject, decode, encode
+from .sii import build_sii
+
+U32 = struct.Struct("<I")
+
+
+class SlaveApplication:
+    """Hooks of a device behind the ESC; every method has a harmless default."""
+
+    def on_transition(self, slave: Slave, old: AlState, new: AlState) -> int:
+        """Return 0 to accept, or an AL status code to refuse the transition."""
+        return 0
+
+    def on_state(self, slave: Slave, old: AlState, new: AlState, code: int) -> None:
+        """The state changed (``code`` != 0 when the slave fell back by itself, e.g. 0x001B)."""
+
+    def on_outputs(self, slave: Slave, data: bytes) -> None:
+        """New outputs arrived in OP (called from the frame path: keep it short)."""
+
+    def on_inputs_read(self, slave: Slave) -> None:
+        """The master read the whole inputs buffer; refresh inputs for the next cycle here."""
+
+    def on_sync0(self, slave: Slave, t: float) -> None:
+        """A SYNC0 pulse (DC) at clock time ``t``."""
+
+
+@dataclass(frozen=True, slots=True)
+class MappedEntry:
+    """An object mapped in the process image at a bit offset."""
+
+    index: int
+    subindex: int
+    bit_offset: int
+    bit_length: int
+    data_type: DataType
+
+
+def _desc_entries(pdos: tuple[Pdo, ...]) -> list[MappedEntry]:
+    out: list[MappedEntry] = []
+    bit = 0
+    for pdo in pdos:
+        for e in pdo.entries:
+            if e.index:
+                out.append(MappedEntry(e.index, e.subindex, bit, e.bit_length, e.data_type))
+            bit += e.bit_length
+    return out
+
+
+class Slave:
+    """One slave in a segment: feed it datagrams through ``esc.process_datagram``."""
+
+    def __init__(self, clock: Clock, desc: DeviceDescription, app: SlaveApplication | None = None,
+                 foe: FoeHandler | None = None, *, name: str | None = None, alias: int = 0) -> None:
+        self.clock = clock
+        self.desc = desc
+        self.name = name or desc.name
+        self.app = app or SlaveApplication()
+        self.od = build_od(desc)
+        self.sii = build_sii(desc, alias)
+        self.esc = Esc(clock, self.sii, self, dc=desc.dc)
+        self.mailbox = MailboxEndpoint(lambda raw: self.esc.mailbox_put(1, raw))
+        mbx_size = desc.mailbox_in[1]
+        self.coe = CoeServer(self.od, mbx_size, lambda: self.esc.al_state)
+        self.foe_handler: FoeHandler = foe or FoeFiles()
+        self.foe = FoeServer(self.foe_handler, mbx_size)
+        if desc.coe:
+            self.mailbox.handlers[MailboxType.COE] = self._coe
+        if desc.foe:
+            self.mailbox.handlers[MailboxType.FOE] = self._foe
+        self.outputs_map: list[MappedEntry] = _desc_entries(desc.rx_pdos)
+        self.inputs_map: list[MappedEntry] = _desc_entries(desc.tx_pdos)
+        self.output_bytes = desc.output_bytes
+        self.input_bytes = desc.input_bytes
+        self._inputs = bytearray(self.input_bytes)
+        self._outputs = bytes(self.output_bytes)
+        self.outputs_valid = False
+        self.cycles = 0
+
+    # ------------------------------------------------------------------ EscApplication
+    def check_transition(self, old: AlState, new: AlState) -> int:
+        d = self.desc
+        if new == AlState.BOOT:
+            if not d.bootstrap:
+                return AlStatusCode.BOOTSTRAP_NOT_SUPPORTED
+            bo, bos, bi, bis = d.bootstrap_mailbox
+            if not self._sm_ok(0, bo, bos, 0x06) or not self._sm_ok(1, bi, bis, 0x02):
+                return AlStatusCode.INVALID_MAILBOX_CONFIG_BOOT
+        if old == AlState.INIT and new == AlState.PREOP and (d.coe or d.foe) and (
+                not self._sm_ok(0, *d.mailbox_out, 0x06) or not self._sm_ok(1, *d.mailbox_in, 0x02)):
+            return AlStatusCode.INVALID_MAILBOX_CONFIG
+        if old == AlState.PREOP and new == AlState.SAFEOP:
+            try:
+                self._compute_layout()
+            except SdoAbortError:
+                return AlStatusCode.INVALID_OUTPUT_MAPPING
+            if not self._pd_sm_ok(2, d.outputs_start, self.output_bytes, 0x04):
+                return AlStatusCode.INVALID_OUTPUT_CONFIG
+            if not self._pd_sm_ok(3, d.inputs_start, self.input_bytes, 0x00):
+                return AlStatusCode.INVALID_INPUT_CONFIG
+        return self.app.on_transition(self, old, new)
+
+    def _sm_ok(self, index: int, start: int, length: int, mode: int) -> bool:
+        sm = self.esc.sm_config(index)
+        return sm.enabled and sm.start == start and sm.length == length and (sm.control & 0x0F) == mode
+
+    def _pd_sm_ok(self, index: int, start: int, length: int, mode: int) -> bool:
+        sm = self.esc.sm_config(index)
+        if length == 0:
+            return not sm.enabled
+        return sm.enabled and sm.start == start and sm.length == length and (sm.control & 0x0F) == mode
+
+    def state_changed(self, old: AlState, new: AlState, code: int) -> None:
+        if new in (AlState.INIT, AlState.BOOT):
+            self.mailbox.reset()
+            self.foe.reset()
+            self.coe = CoeServer(self.od, self.desc.mailbox_in[1], lambda: self.esc.al_state)
+        if new in (AlState.SAFEOP, AlState.OP) and old in (AlState.PREOP, AlState.INIT):
+            self.esc.pdi_write(self.desc.inputs_start, bytes(self._inputs))
+        if new != AlState.OP and old == AlState.OP:
+            self._outputs = bytes(self.output_bytes)  # safe state
+            self.outputs_valid = False
+        self.app.on_state(self, old, new, code)
+
+    def mailbox_received(self, data: bytes) -> None:
+        self.esc.mailbox_clear(0)  # the PDI read the buffer
+        if self.esc.al_state == AlState.INIT:
+            return
+        self.mailbox.received(data)
+
+    def mailbox_read(self) -> None:
+        self.mailbox.pump()
+
+    def outputs_written(self, sm: int) -> None:
+        if sm != 2:
+            return
+        self.cycles += 1
+        if self.esc.al_state == AlState.OP:
+            self._outputs = self.esc.pdi_outputs[2][:self.output_bytes]
+            self.outputs_valid = True
+            self.app.on_outputs(self, self._outputs)
+
+    def inputs_read(self, sm: int) -> None:
+        if sm == 3:
+            self.app.on_inputs_read(self)
+
+    def sync0(self, t: float) -> None:
+        self.app.on_sync0(self, t)
+
+    # ------------------------------------------------------------------ mailbox protocols
+    def _coe(self, data: bytes) -> list[bytes]:
+        return self.coe.handle(data)
+
+    def _foe(self, data: bytes) -> list[bytes]:
+        return self.foe.handle(data)
+
+    def emergency(self, error_code: int, error_register: int = 0, data: bytes = b"") -> None:
+        """Send a CoE emergency message through the mailbox (ETG.1000.6 CoE emergency)."""
+        self.mailbox.send(MailboxMessage(MailboxType.COE, emergency_message(error_code, error_register, data)))
+
+    # ------------------------------------------------------------------ process data
+    @property
+    def state(self) -> AlState:
+        return self.esc.al_state
+
+    @property
+    def outputs(self) -> bytes:
+        """Outputs the device acts on: the master's in OP, the safe state (zeros) otherwise."""
+        return self._outputs
+
+    @property
+    def inputs(self) -> bytes:
+        return bytes(self._inputs)
+
+    def write_inputs(self, data: bytes, offset: int = 0) -> None:
+        self._inputs[offset:offset + len(data)] = data
+        self.esc.pdi_write(self.desc.inputs_start + offset, data)
+
+    def read_output(self, index: int, subindex: int) -> int | float | str | bytes:
+        m = self._find(self.outputs_map, index, subindex)
+        return decode(m.data_type, _get_bits(self._outputs, m.bit_offset, m.bit_length))
+
+    def write_input(self, index: int, subindex: int, value: int | float | str | bytes) -> None:
+        m = self._find(self.inputs_map, index, subindex)
+        raw = encode(m.data_type, value)
+        if m.bit_length % 8 == 0 and m.bit_offset % 8 == 0:
+            self.write_inputs(raw[:m.bit_length // 8], m.bit_offset // 8)
+        else:
+            _set_bits(self._inputs, m.bit_offset, m.bit_length, raw)
+            self.esc.pdi_write(self.desc.inputs_start, bytes(self._inputs))
+        if index in self.od and subindex in self.od.objects[index].entries:
+            self.od.objects[index].entries[subindex].raw = raw
+
+    @staticmethod
+    def _find(mapping: list[MappedEntry], index: int, subindex: int) -> MappedEntry:
+        for m in mapping:
+            if m.index == index and m.subindex == subindex:
+                return m
+        raise EtherCATConfigError(f"0x{index:04X}:{subindex} is not mapped")
+
+    def _compute_layout(self) -> None:
+        """Process image from 0x1C12/0x1C13 and the mapping objects (as the master configured them)."""
+        if not self.desc.coe:
+            return
+        self.outputs_map, out_bits = self._layout(0x1C12)
+        self.inputs_map, in_bits = self._layout(0x1C13)
+        self.output_bytes = (out_bits + 7) // 8
+        self.input_bytes = (in_bits + 7) // 8
+        self._inputs = self._inputs[:self.input_bytes].ljust(self.input_bytes, b"\0")
+        self._outputs = bytes(self.output_bytes)
+
+    def _layout(self, assign: int) -> tuple[list[MappedEntry], int]:
+        out: list[MappedEntry] = []
+        bit = 0
+        n = int(self.od.get(assign, 0))
+        for i in range(1, n + 1):
+            pdo = int(self.od.get(assign, i))
+            m = int(self.od.get(pdo, 0))
+            for j in range(1, m + 1):
+                value = int(self.od.get(pdo, j))
+                idx, sub, bits = value >> 16, (value >> 8) & 0xFF, value & 0xFF
+                if idx:
+                    dtype = self.od.entry(idx, sub).data_type
+                    out.append(MappedEntry(idx, sub, bit, bits, dtype))
+                bit += bits
+        return out, bit
+
+
+def _get_bits(buf: bytes, offset: int, length: int) -> bytes:
+    if offset % 8 == 0 and length % 8 == 0:
+        return bytes(buf[offset // 8:(offset + length) // 8])
+    value = int.from_bytes(buf, "little") >> offset & ((1 << length) - 1)
+    return value.to_bytes((length + 7) // 8, "little")
+
+
+def _set_bits(buf: bytearray, offset: int, length: int, raw: bytes) -> None:
+    whole = int.from_bytes(buf, "little")
+    mask = ((1 << length) - 1) << offset
+    value = (int.from_bytes(raw, "little") << offset) & mask
+    buf[:] = ((whole & ~mask) | value).to_bytes(len(buf), "little")
+
+
+def _mapping_write_guard(obj: OdObject) -> None:
+    """PDO mapping / assignment objects: entries may only change while sub 0 is 0 (ETG.1000.6)."""
+
+    def guard(entry: Entry, data: bytes) -> None:
+        if entry.subindex != 0 and obj.entries[0].raw[0] != 0:
+            raise SdoAbortError("sub 0 must be 0 to change the mapping", SdoAbortCode.SI0_MUST_BE_ZERO)
+
+    for e in obj.entries.values():
+        e.on_write = guard
+
+
+def build_od(desc: DeviceDescription) -> ObjectDictionary:
+    """Standard communication objects (0x1000..0x1C33) from the description, then device objects."""
+    od = ObjectDictionary()
+    od.add_var(0x1000, "Device type", DataType.UNSIGNED32, desc.device_type)
+    od.add_var(0x1008, "Manufacturer device name", DataType.VISIBLE_STRING, desc.name)
+    od.add_var(0x1009, "Manufacturer hardware version", DataType.VISIBLE_STRING, desc.hardware_version)
+    od.add_var(0x100A, "Manufacturer software version", DataType.VISIBLE_STRING, desc.software_version)
+    od.add_record(0x1018, "Identity", [
+        ("Vendor ID", DataType.UNSIGNED32, desc.vendor_id, Access.RO),
+        ("Product code", DataType.UNSIGNED32, desc.product_code, Access.RO),
+        ("Revision", DataType.UNSIGNED32, desc.revision, Access.RO),
+        ("Serial number", DataType.UNSIGNED32, desc.serial, Access.RO)])
+    has_mbx = desc.coe or desc.foe
+    od.add_array(0x1C00, "Sync manager type", DataType.UNSIGNED8, [1, 2, 3, 4] if has_mbx else [3, 4])
+    for pdos, assign in ((desc.rx_pdos, 0x1C12), (desc.tx_pdos, 0x1C13)):
+        for pdo in pdos:
+            obj = od.add_array(pdo.index, pdo.name, DataType.UNSIGNED32, [e.mapping for e in pdo.entries],
+                               Access.RW_PREOP, Access.RW_PREOP, length=max(8, len(pdo.entries)))
+            _mapping_write_guard(obj)
+        obj = od.add_array(assign, "RxPDO assign" if assign == 0x1C12 else "TxPDO assign", DataType.UNSIGNED16,
+                           [p.index for p in pdos], Access.RW_PREOP, Access.RW_PREOP, length=max(4, len(pdos)))
+        _mapping_write_guard(obj)
+    for index, name in ((0x1C32, "SM output parameter"), (0x1C33, "SM input parameter")):
+        sm_par = od.add_record(index, name, [
+            ("Sync mode", DataType.UNSIGNED16, 1, Access.RW_PREOP),
+            ("Cycle time", DataType.UNSIGNED32, 1_000_000, Access.RO),
+            ("Shift time", DataType.UNSIGNED32, 0, Access.RO),
+            ("Sync modes supported", DataType.UNSIGNED16, 0x0007, Access.RO),
+            ("Minimum cycle time", DataType.UNSIGNED32, 100_000, Access.RO),
+            ("Calc and copy time", DataType.UNSIGNED32, 10_000, Access.RO),
+        ])
+        for sub, ename, dtype in ((9, "Delay time", DataType.UNSIGNED32),
+                                  (11, "SM event missed", DataType.UNSIGNED16),
+                                  (12, "Cycle time too small", DataType.UNSIGNED16),
+                                  (32, "Sync error", DataType.BOOLEAN)):
+            sm_par.entries[sub] = Entry(index, sub, ename, dtype, encode(dtype, 0), Access.RO)
+        sm_par.entries[0].raw = bytes([32])
+    for o in desc.objects:
+        if o.subs:
+            od.add_record(o.index, o.name, list(o.subs))
+        else:
+            od.add_var(o.index, o.name, o.data_type, o.value, o.access)
+    if desc.extend_od is not None:
+        desc.extend_od(od)
+    return od
