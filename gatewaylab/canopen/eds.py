@@ -1,0 +1,219 @@
+"""EDS / DCF (CiA 306) export and import of an :class:`~gatewaylab.canopen.od.ObjectDictionary`.
+
+Export writes every object with ParameterName, ObjectType, DataType, AccessType, PDOMapping,
+limits and DefaultValue (COB-IDs that follow the node-id as ``$NODEID+0x...``); a DCF adds
+``ParameterValue`` with the present values and a [DeviceComissioning] section. Import reads VAR,
+DOMAIN, ARRAY (also ``CompactSubObj``) and RECORD objects; a DCF's ParameterValue becomes the
+value (the default stays the default).
+"""
+
+from __future__ import annotations
+
+import configparser
+import re
+from typing import Any
+
+from ..common.errors import ConfigError
+from .od import (
+    BYTES_TYPES,
+    FLOAT_TYPES,
+    STRING_TYPES,
+    Access,
+    DataType,
+    Entry,
+    ObjectCode,
+    ObjectDictionary,
+    coerce,
+    type_range,
+)
+
+_NODEID = re.compile(r"\$NODEID", re.IGNORECASE)
+
+
+def _fmt(entry: Entry, value: Any, *, relative: bool = False) -> str:
+    dt = entry.data_type
+    if dt in STRING_TYPES:
+        return str(value)
+    if dt in BYTES_TYPES:
+        return bytes(value).hex().upper()
+    if dt in FLOAT_TYPES:
+        return repr(float(value))
+    if dt is DataType.BOOLEAN:
+        return "1" if value else "0"
+    v = int(value)
+    text = f"0x{v:X}" if v >= 0 else str(v)
+    return f"$NODEID+{text}" if relative else text
+
+
+def _export_entry(lines: list[str], section: str, entry: Entry, od: ObjectDictionary, dcf: bool) -> None:
+    lines.append(f"[{section}]")
+    lines.append(f"ParameterName={entry.name}")
+    lines.append("ObjectType=0x7")
+    lines.append(f"DataType=0x{int(entry.data_type):04X}")
+    lines.append(f"AccessType={entry.access.value}")
+    default = entry.default_for(None)
+    lines.append(f"DefaultValue={_fmt(entry, coerce(entry, default), relative=entry.nodeid_offset)}")
+    lines.append(f"PDOMapping={1 if entry.pdo_mappable else 0}")
+    if entry.low is not None:
+        lines.append(f"LowLimit={_fmt(entry, entry.low)}")
+    if entry.high is not None:
+        lines.append(f"HighLimit={_fmt(entry, entry.high)}")
+    if dcf:
+        lines.append(f"ParameterValue={_fmt(entry, od.values[(entry.index, entry.sub)])}")
+    lines.append("")
+
+
+def export_eds(od: ObjectDictionary, *, dcf: bool = False, node_id: int | None = None) -> str:
+    """CiA 306 text for ``od``."""
+    info = od.device_info
+    ident = {sub: od.values.get((0x1018, sub), 0) for sub in (1, 2, 3)}
+    lines = ["[FileInfo]", f"FileName={info.get('FileName', 'gatewaylab.' + ('dcf' if dcf else 'eds'))}",
+             "FileVersion=1", "FileRevision=1", "EDSVersion=4.0",
+             f"Description={info.get('Description', 'exported by gatewaylab')}",
+             f"CreatedBy={info.get('CreatedBy', 'gatewaylab')}", "",
+             "[DeviceInfo]", f"VendorName={info.get('VendorName', '')}",
+             f"VendorNumber=0x{ident[1]:08X}", f"ProductName={info.get('ProductName', '')}",
+             f"ProductNumber=0x{ident[2]:08X}", f"RevisionNumber=0x{ident[3]:08X}",
+             f"OrderCode={info.get('OrderCode', '')}"]
+    for rate in (10, 20, 50, 125, 250, 500, 800, 1000):
+        lines.append(f"BaudRate_{rate}=1")
+    n_rx = sum(1 for i in range(0x1400, 0x1600) if i in od.objects)
+    n_tx = sum(1 for i in range(0x1800, 0x1A00) if i in od.objects)
+    lines += ["SimpleBootUpMaster=0", "SimpleBootUpSlave=1", "Granularity=8",
+              "DynamicChannelsSupported=0", "GroupMessaging=0", f"NrOfRXPDO={n_rx}", f"NrOfTXPDO={n_tx}",
+              f"LSS_Supported={info.get('LSS_Supported', '1')}", ""]
+    if dcf:
+        lines += ["[DeviceComissioning]", f"NodeID={node_id if node_id is not None else 0xFF}",
+                  f"NodeName={info.get('NodeName', '')}", "Baudrate=1000", ""]
+    lines += ["[DummyUsage]"] + [f"Dummy{i:04X}={1 if i >= 2 else 0}" for i in range(1, 8)] + [""]
+    mandatory = [i for i in (0x1000, 0x1001, 0x1018) if i in od.objects]
+    optional = [i for i in sorted(od.objects) if i not in mandatory and not 0x2000 <= i < 0x6000]
+    manufacturer = [i for i in sorted(od.objects) if 0x2000 <= i < 0x6000]
+    for title, group in (("MandatoryObjects", mandatory), ("OptionalObjects", optional),
+                         ("ManufacturerObjects", manufacturer)):
+        lines.append(f"[{title}]")
+        lines.append(f"SupportedObjects={len(group)}")
+        lines += [f"{n}=0x{index:04X}" for n, index in enumerate(group, 1)]
+        lines.append("")
+    for obj in od:
+        if obj.object_code is ObjectCode.VAR or obj.object_code is ObjectCode.DOMAIN:
+            _export_entry(lines, f"{obj.index:04X}", obj.entries[0], od, dcf)
+            continue
+        lines += [f"[{obj.index:04X}]", f"ParameterName={obj.name}",
+                  f"ObjectType=0x{int(obj.object_code):X}", f"SubNumber={len(obj.entries)}", ""]
+        for sub in sorted(obj.entries):
+            _export_entry(lines, f"{obj.index:04X}sub{sub:X}", obj.entries[sub], od, dcf)
+    return "\n".join(lines) + "\n"
+
+
+def _parse_value(dt: DataType, text: str) -> tuple[Any, bool]:
+    """(value, relative-to-node-id) of an EDS value string."""
+    text = text.strip()
+    if dt in STRING_TYPES:
+        return text, False
+    if dt in BYTES_TYPES:
+        return bytes.fromhex(text.replace(" ", "")) if text else b"", False
+    if not text:
+        return None, False
+    if dt in FLOAT_TYPES:
+        return float(text), False
+    compact = text.replace(" ", "")
+    relative = bool(_NODEID.search(compact))
+    if relative:
+        compact = _NODEID.sub("", compact).strip("+") or "0"
+    value = int(compact, 0)
+    rng = type_range(dt)
+    if rng is not None and rng[0] < 0 and value > rng[1]:
+        value -= 1 << (8 * ((rng[1].bit_length() + 1) // 8))   # two's complement hex of a signed limit
+    return value, relative
+
+
+def import_eds(text: str, node_id: int | None = None) -> ObjectDictionary:
+    """An ObjectDictionary from EDS/DCF text; ConfigError when the text is not a usable EDS."""
+    cp = configparser.RawConfigParser(inline_comment_prefixes=(";",), strict=False)
+    cp.optionxform = str  # type: ignore[assignment,method-assign]
+    try:
+        cp.read_string(text)
+    except configparser.Error as exc:
+        raise ConfigError(f"not an EDS/DCF: {exc}") from exc
+    if node_id is None and cp.has_section("DeviceComissioning"):
+        raw = cp.get("DeviceComissioning", "NodeID", fallback="")
+        if raw.strip():
+            nid = int(raw, 0)
+            node_id = nid if 1 <= nid <= 127 else None
+    od = ObjectDictionary(node_id)
+    if cp.has_section("DeviceInfo"):
+        for key in ("VendorName", "ProductName", "OrderCode", "LSS_Supported"):
+            if cp.has_option("DeviceInfo", key):
+                od.device_info[key] = cp.get("DeviceInfo", key)
+    sections = {s.upper(): s for s in cp.sections()}
+    parameter_values: list[tuple[int, int, str]] = []
+
+    def entry_args(section: str) -> tuple[dict[str, Any], str | None]:
+        get = cp.get
+        try:
+            dt = DataType(int(get(section, "DataType"), 0))
+        except (configparser.Error, ValueError) as exc:
+            raise ConfigError(f"[{section}]: bad or missing DataType") from exc
+        access_text = get(section, "AccessType", fallback="rw").strip().lower()
+        try:
+            access = Access(access_text)
+        except ValueError:
+            raise ConfigError(f"[{section}]: unknown AccessType {access_text!r}") from None
+        default, relative = _parse_value(dt, get(section, "DefaultValue", fallback=""))
+        low = high = None
+        if dt not in STRING_TYPES and dt not in BYTES_TYPES:
+            low = _parse_value(dt, get(section, "LowLimit", fallback=""))[0]
+            high = _parse_value(dt, get(section, "HighLimit", fallback=""))[0]
+        args = {"data_type": dt, "access": access, "default": default,
+                "pdo_mappable": bool(int(get(section, "PDOMapping", fallback="0") or "0", 0)),
+                "low": low, "high": high, "nodeid_offset": relative}
+        return args, (get(section, "ParameterValue") if cp.has_option(section, "ParameterValue") else None)
+
+    for upper, section in sorted(sections.items()):
+        if not re.fullmatch(r"[0-9A-F]{4}", upper):
+            continue
+        index = int(upper, 16)
+        if index < 0x1000 and index != 0:
+            continue    # data type definitions
+        name = cp.get(section, "ParameterName", fallback=f"Object {index:04X}")
+        code = ObjectCode(int(cp.get(section, "ObjectType", fallback="0x7") or "0x7", 0))
+        try:
+            if code in (ObjectCode.VAR, ObjectCode.DOMAIN):
+                args, pv = entry_args(section)
+                od.add_variable(index, name, **args)
+                if pv is not None:
+                    parameter_values.append((index, 0, pv))
+            elif code in (ObjectCode.ARRAY, ObjectCode.RECORD):
+                compact = int(cp.get(section, "CompactSubObj", fallback="0") or "0", 0)
+                od.add_record(index, name, code)
+                if compact:
+                    args, _ = entry_args(section)
+                    od.add_sub(index, 0, "Highest sub-index supported", DataType.UNSIGNED8, Access.RO, compact)
+                    names = f"{index:04X}NAME"
+                    for sub in range(1, compact + 1):
+                        label = cp.get(sections[names], str(sub), fallback=f"{name} {sub}") \
+                            if names in sections else f"{name} {sub}"
+                        od.add_sub(index, sub, label, **args)
+                    continue
+                pattern = re.compile(rf"{upper}SUB([0-9A-F]+)")
+                subs = sorted((int(m.group(1), 16), s) for u, s in sections.items() if (m := pattern.fullmatch(u)))
+                for sub, subsection in subs:
+                    args, pv = entry_args(subsection)
+                    od.add_sub(index, sub, cp.get(subsection, "ParameterName", fallback=f"Sub {sub}"), **args)
+                    if pv is not None:
+                        parameter_values.append((index, sub, pv))
+        except (ValueError, KeyError, TypeError) as exc:
+            raise ConfigError(f"[{section}]: {exc}") from exc
+    for index, sub, raw in parameter_values:
+        entry = od.entries[(index, sub)]
+        value, relative = _parse_value(entry.data_type, raw)
+        if value is None:
+            continue
+        if relative and node_id is not None:
+            value += node_id
+        try:
+            od.values[(index, sub)] = coerce(entry, value)
+        except ConfigError:
+            pass
+    return od

@@ -1,0 +1,381 @@
+"""Sans-I/O SDO client (CiA 301 7.2.4): expedited, segmented and block transfers.
+
+Requests go out through ``send``; answers come in through :meth:`SdoClient.on_frame`. One transfer
+per server node runs at a time, the others wait in a queue. A transfer ends with exactly one
+callback: the data (upload) or None (download) on success, :class:`SdoAbort` otherwise — the
+server's abort code, 0x05040000 when no answer came within ``timeout`` (the client then sends that
+abort to the server), or the code of the protocol error the client detected.
+"""
+
+from __future__ import annotations
+
+import struct
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from enum import Enum
+from typing import Any
+
+from ..bus.frame import CanFrame
+from ..common.clock import Clock, TimerHandle
+from ..common.errors import LocalError
+from .crc import crc16_ccitt
+from .errors import (
+    COMMAND_SPECIFIER_UNKNOWN,
+    CRC_ERROR,
+    INVALID_SEQUENCE_NUMBER,
+    LENGTH_MISMATCH,
+    SDO_PROTOCOL_TIMED_OUT,
+    TOGGLE_BIT_NOT_ALTERNATED,
+    SdoAbort,
+)
+
+SDO_HEADER = struct.Struct("<BHB")
+SDO_HEADER_U32 = struct.Struct("<BHBI")
+
+UploadCallback = Callable[[bytes | SdoAbort], None]
+DownloadCallback = Callable[[SdoAbort | None], None]
+
+
+class _Phase(Enum):
+    INITIATE = "initiate"
+    SEGMENTS = "segments"
+    BLOCK_SUB = "block sub-block"
+    BLOCK_END = "block end"
+
+
+@dataclass(slots=True)
+class _Transfer:
+    node_id: int
+    index: int
+    sub: int
+    upload: bool
+    callback: Callable[[Any], None]
+    data: bytes = b""
+    segmented: bool | None = None
+    block: bool = False
+    phase: _Phase = _Phase.INITIATE
+    buf: bytearray = field(default_factory=bytearray)
+    pos: int = 0
+    toggle: int = 0
+    size: int | None = None
+    crc: bool = False
+    blksize: int = 127
+    expected: int = 1
+    block_start: int = 0
+    sent: int = 0
+    last_sent: bool = False
+    timer: TimerHandle | None = None
+
+
+class SdoClient:
+    """An SDO client for any number of server nodes on one bus."""
+
+    def __init__(self, clock: Clock, send: Callable[[CanFrame], None], timeout: float = 0.5,
+                 block_size: int = 127) -> None:
+        self.clock = clock
+        self._send = send
+        self.timeout = timeout
+        self.block_size = block_size
+        self._active: dict[int, _Transfer] = {}
+        self._queues: dict[int, deque[_Transfer]] = {}
+        self._cob_ids: dict[int, tuple[int, int]] = {}
+        self._by_response: dict[int, int] = {}
+
+    # -- configuration ---------------------------------------------------------------------------
+    def set_cob_ids(self, node_id: int, request: int, response: int) -> None:
+        """Use other COB-IDs than 0x600/0x580 + node-id for ``node_id``'s server."""
+        self._cob_ids[node_id] = (request, response)
+
+    def _request_id(self, node_id: int) -> int:
+        return self._cob_ids.get(node_id, (0x600 + node_id, 0))[0]
+
+    def _response_id(self, node_id: int) -> int:
+        return self._cob_ids.get(node_id, (0, 0x580 + node_id))[1]
+
+    def busy(self, node_id: int) -> bool:
+        return node_id in self._active
+
+    # -- API -------------------------------------------------------------------------------------
+    def upload(self, node_id: int, index: int, sub: int, callback: UploadCallback, *,
+               segmented: bool | None = None, block: bool = False) -> None:
+        """Read (index, sub) of ``node_id``; the server chooses expedited or segmented."""
+        self._enqueue(_Transfer(node_id, index, sub, True, callback, segmented=segmented, block=block))
+
+    def download(self, node_id: int, index: int, sub: int, data: bytes, callback: DownloadCallback, *,
+                 segmented: bool | None = None, block: bool = False) -> None:
+        """Write ``data`` to (index, sub); expedited up to 4 bytes unless ``segmented`` or ``block``."""
+        self._enqueue(_Transfer(node_id, index, sub, False, callback, bytes(data), segmented, block))
+
+    def cancel_all(self) -> None:
+        """Forget every transfer without callbacks (the owner is shutting down)."""
+        for tr in self._active.values():
+            if tr.timer is not None:
+                tr.timer.cancel()
+        self._active.clear()
+        self._queues.clear()
+        self._by_response.clear()
+
+    def _enqueue(self, tr: _Transfer) -> None:
+        if not 1 <= tr.node_id <= 127 or not 0 <= tr.index <= 0xFFFF or not 0 <= tr.sub <= 0xFF:
+            raise LocalError(f"bad SDO address node {tr.node_id} 0x{tr.index:X}:{tr.sub:X}")
+        if tr.node_id in self._active:
+            self._queues.setdefault(tr.node_id, deque()).append(tr)
+            return
+        self._begin(tr)
+
+    def _begin(self, tr: _Transfer) -> None:
+        self._active[tr.node_id] = tr
+        self._by_response[self._response_id(tr.node_id)] = tr.node_id
+        if tr.upload:
+            if tr.block:
+                self._req(tr, SDO_HEADER.pack(0xA4, tr.index, tr.sub) + bytes((self.block_size, 0, 0, 0)))
+            else:
+                self._req(tr, SDO_HEADER_U32.pack(0x40, tr.index, tr.sub, 0))
+            return
+        data = tr.data
+        if tr.block:
+            tr.crc = True
+            self._req(tr, SDO_HEADER_U32.pack(0xC6, tr.index, tr.sub, len(data)))
+        elif len(data) <= 4 and data and not tr.segmented:
+            n = 4 - len(data)
+            self._req(tr, SDO_HEADER.pack(0x23 | (n << 2), tr.index, tr.sub) + data + bytes(n))
+        else:
+            self._req(tr, SDO_HEADER_U32.pack(0x21, tr.index, tr.sub, len(data)))
+
+    # -- plumbing --------------------------------------------------------------------------------
+    def _req(self, tr: _Transfer, payload: bytes, arm: bool = True) -> None:
+        if arm:
+            if tr.timer is not None:
+                tr.timer.cancel()
+            tr.timer = self.clock.call_later(self.timeout, self._timed_out, tr)
+        self._send(CanFrame(self._request_id(tr.node_id), payload))
+
+    def _finish(self, tr: _Transfer, result: Any) -> None:
+        if tr.timer is not None:
+            tr.timer.cancel()
+            tr.timer = None
+        if self._active.get(tr.node_id) is tr:
+            del self._active[tr.node_id]
+            self._by_response.pop(self._response_id(tr.node_id), None)
+        queue = self._queues.get(tr.node_id)
+        tr.callback(result)
+        if queue and tr.node_id not in self._active:
+            nxt = queue.popleft()
+            if not queue:
+                del self._queues[tr.node_id]
+            self._begin(nxt)
+
+    def _fail(self, tr: _Transfer, code: int, tell_server: bool = True) -> None:
+        if tell_server:
+            self._req(tr, SDO_HEADER_U32.pack(0x80, tr.index, tr.sub, code), arm=False)
+        self._finish(tr, SdoAbort(code))
+
+    def _timed_out(self, tr: _Transfer) -> None:
+        tr.timer = None
+        if self._active.get(tr.node_id) is tr:
+            self._fail(tr, SDO_PROTOCOL_TIMED_OUT)
+
+    # -- responses -------------------------------------------------------------------------------
+    def on_frame(self, frame: CanFrame, t: float) -> None:
+        node_id = self._by_response.get(frame.can_id)
+        if node_id is None or frame.rtr or frame.extended:
+            return
+        tr = self._active.get(node_id)
+        if tr is None:
+            return
+        data = frame.data
+        if len(data) != 8:
+            return
+        cs = data[0]
+        if tr.phase is _Phase.BLOCK_SUB and tr.upload:
+            self._block_upload_segment(tr, data)
+            return
+        if cs == 0x80:
+            self._finish(tr, SdoAbort(struct.unpack_from("<I", data, 4)[0]))
+            return
+        try:
+            if tr.upload:
+                if tr.block:
+                    self._block_upload_response(tr, data)
+                else:
+                    self._upload_response(tr, data)
+            elif tr.block:
+                self._block_download_response(tr, data)
+            else:
+                self._download_response(tr, data)
+        except SdoAbort as exc:
+            self._fail(tr, exc.code)
+
+    def _check_mux(self, tr: _Transfer, data: bytes) -> None:
+        _, index, sub = SDO_HEADER.unpack_from(data)
+        if index != tr.index or sub != tr.sub:
+            raise SdoAbort(COMMAND_SPECIFIER_UNKNOWN, "answer for another object")
+
+    def _upload_response(self, tr: _Transfer, data: bytes) -> None:
+        cs = data[0]
+        if tr.phase is _Phase.INITIATE:
+            if cs >> 5 != 2:
+                raise SdoAbort(COMMAND_SPECIFIER_UNKNOWN)
+            self._check_mux(tr, data)
+            if cs & 0x02:
+                n = (cs >> 2) & 0x03 if cs & 0x01 else 0
+                self._finish(tr, bytes(data[4:8 - n]))
+                return
+            tr.size = struct.unpack_from("<I", data, 4)[0] if cs & 0x01 else None
+            tr.phase = _Phase.SEGMENTS
+            tr.toggle = 0
+            self._req(tr, bytes((0x60,)) + bytes(7))
+            return
+        if cs >> 5 != 0:
+            raise SdoAbort(COMMAND_SPECIFIER_UNKNOWN)
+        if (cs >> 4) & 1 != tr.toggle:
+            raise SdoAbort(TOGGLE_BIT_NOT_ALTERNATED)
+        n = (cs >> 1) & 0x07
+        tr.buf += data[1:8 - n]
+        if cs & 0x01:
+            if tr.size is not None and len(tr.buf) != tr.size:
+                raise SdoAbort(LENGTH_MISMATCH)
+            self._finish(tr, bytes(tr.buf))
+            return
+        tr.toggle ^= 1
+        self._req(tr, bytes((0x60 | (tr.toggle << 4),)) + bytes(7))
+
+    def _download_response(self, tr: _Transfer, data: bytes) -> None:
+        cs = data[0]
+        if tr.phase is _Phase.INITIATE:
+            if cs != 0x60:
+                raise SdoAbort(COMMAND_SPECIFIER_UNKNOWN)
+            self._check_mux(tr, data)
+            if len(tr.data) <= 4 and tr.data and not tr.segmented:
+                self._finish(tr, None)
+                return
+            tr.phase = _Phase.SEGMENTS
+            tr.toggle = 0
+            tr.pos = 0
+            self._send_segment(tr)
+            return
+        if cs & 0xEF != 0x20:
+            raise SdoAbort(COMMAND_SPECIFIER_UNKNOWN)
+        if (cs >> 4) & 1 != tr.toggle:
+            raise SdoAbort(TOGGLE_BIT_NOT_ALTERNATED)
+        if tr.pos >= len(tr.data):
+            self._finish(tr, None)
+            return
+        tr.toggle ^= 1
+        self._send_segment(tr)
+
+    def _send_segment(self, tr: _Transfer) -> None:
+        chunk = tr.data[tr.pos:tr.pos + 7]
+        tr.pos += 7
+        last = tr.pos >= len(tr.data)
+        n = 7 - len(chunk)
+        self._req(tr, bytes(((tr.toggle << 4) | (n << 1) | (1 if last else 0),)) + chunk + bytes(n))
+        if last:
+            tr.pos = len(tr.data)
+
+    # -- block upload ----------------------------------------------------------------------------
+    def _block_upload_response(self, tr: _Transfer, data: bytes) -> None:
+        cs = data[0]
+        if tr.phase is _Phase.INITIATE:
+            if cs & 0xE3 != 0xC0:
+                raise SdoAbort(COMMAND_SPECIFIER_UNKNOWN)
+            self._check_mux(tr, data)
+            tr.crc = bool(cs & 0x04)
+            tr.size = struct.unpack_from("<I", data, 4)[0] if cs & 0x02 else None
+            tr.phase = _Phase.BLOCK_SUB
+            tr.blksize = self.block_size
+            tr.expected = 1
+            self._req(tr, bytes((0xA3,)) + bytes(7))
+            return
+        # block end
+        if cs & 0xE3 != 0xC1:
+            raise SdoAbort(COMMAND_SPECIFIER_UNKNOWN)
+        n = (cs >> 2) & 0x07
+        payload = bytes(tr.buf[:len(tr.buf) - n])
+        if tr.size is not None and len(payload) != tr.size:
+            raise SdoAbort(LENGTH_MISMATCH)
+        if tr.crc and crc16_ccitt(payload) != struct.unpack_from("<H", data, 1)[0]:
+            raise SdoAbort(CRC_ERROR)
+        self._req(tr, bytes((0xA1,)) + bytes(7), arm=False)
+        self._finish(tr, payload)
+
+    def _block_upload_segment(self, tr: _Transfer, data: bytes) -> None:
+        cs = data[0]
+        seq, last = cs & 0x7F, bool(cs & 0x80)
+        if seq == 0:
+            if cs == 0x80:          # the server aborted
+                self._finish(tr, SdoAbort(struct.unpack_from("<I", data, 4)[0]))
+            else:
+                self._fail(tr, INVALID_SEQUENCE_NUMBER)
+            return
+        if seq == tr.expected:
+            tr.expected += 1
+            tr.buf += data[1:8]
+        else:
+            last = False
+        if seq == tr.blksize or last or cs & 0x80:
+            ackseq = tr.expected - 1
+            tr.expected = 1
+            if last:
+                tr.phase = _Phase.BLOCK_END
+            self._req(tr, bytes((0xA2, ackseq, tr.blksize, 0, 0, 0, 0, 0)))
+        else:
+            self._arm(tr)
+
+    def _arm(self, tr: _Transfer) -> None:
+        if tr.timer is not None:
+            tr.timer.cancel()
+        tr.timer = self.clock.call_later(self.timeout, self._timed_out, tr)
+
+    # -- block download --------------------------------------------------------------------------
+    def _block_download_response(self, tr: _Transfer, data: bytes) -> None:
+        cs = data[0]
+        if tr.phase is _Phase.INITIATE:
+            if cs & 0xE3 != 0xA0:
+                raise SdoAbort(COMMAND_SPECIFIER_UNKNOWN)
+            self._check_mux(tr, data)
+            tr.crc = bool(cs & 0x04)
+            tr.blksize = data[4]
+            if not 1 <= tr.blksize <= 127:
+                raise SdoAbort(0x05040002)
+            tr.pos = 0
+            self._send_sub_block(tr)
+            return
+        if tr.phase is _Phase.BLOCK_SUB:
+            if cs & 0xE3 != 0xA2:
+                raise SdoAbort(COMMAND_SPECIFIER_UNKNOWN)
+            ackseq, blksize = data[1], data[2]
+            if ackseq > tr.sent:
+                raise SdoAbort(INVALID_SEQUENCE_NUMBER)
+            if not 1 <= blksize <= 127:
+                raise SdoAbort(0x05040002)
+            tr.blksize = blksize
+            tr.pos = min(tr.block_start + 7 * ackseq, len(tr.data))
+            if tr.last_sent and ackseq == tr.sent:
+                total = len(tr.data)
+                used = total - 7 * ((total - 1) // 7) if total else 0
+                crc = crc16_ccitt(tr.data) if tr.crc else 0
+                tr.phase = _Phase.BLOCK_END
+                self._req(tr, struct.pack("<BH5x", 0xC1 | ((7 - used) << 2), crc))
+                return
+            self._send_sub_block(tr)
+            return
+        if cs & 0xE3 != 0xA1:
+            raise SdoAbort(COMMAND_SPECIFIER_UNKNOWN)
+        self._finish(tr, None)
+
+    def _send_sub_block(self, tr: _Transfer) -> None:
+        tr.phase = _Phase.BLOCK_SUB
+        data = tr.data
+        pos = tr.block_start = tr.pos
+        seq = 0
+        last = False
+        while seq < tr.blksize and not last:
+            seq += 1
+            chunk = data[pos:pos + 7]
+            pos += 7
+            last = pos >= len(data)
+            self._req(tr, bytes(((0x80 if last else 0) | seq,)) + chunk + bytes(7 - len(chunk)))
+        tr.sent = seq
+        tr.last_sent = last
