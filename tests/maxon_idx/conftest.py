@@ -154,3 +154,36 @@ def realtime_rig() -> object:
     r = RunningRig({"clock": "realtime", "bus": [{"name": "can0", "endpoint": "none"}]})
     yield r
     r.close()
+
+
+class IdxRig(RunningRig):
+    """A real-time rig with the IDX (node 1, pty + TCP) from a rig-file dict, plus plain drives."""
+
+    def __init__(self, drives: list[tuple[int | None, int]], latency_ms: float = 0.0) -> None:
+        super().__init__({
+            "clock": "realtime",
+            "bus": [{"name": "can0", "bitrate": 1_000_000, "endpoint": "none"}],
+            "device": [{"kind": "maxon_idx", "name": "idx1", "bus": "can0", "node_id": 1, "serial": 0x2001,
+                        "usb": {"pty": True, "tcp_port": 0, "latency_ms": latency_ms}}],
+        })
+        from gatewaylab.bus import CanFrame
+        from gatewaylab.canopen.drive import Drive
+
+        rig = self.rig
+        self.bus = rig.buses["can0"]
+        self.frames: list[CanFrame] = []
+        self.bus.add_monitor(lambda frame, t: self.frames.append(frame))
+        with rig.clock.lock:
+            self.drives = [Drive(rig.clock, self.bus, node_id, serial, f"drive{serial:x}")
+                           for node_id, serial in drives]
+            for d in self.drives:
+                d.start()
+            rig.start()
+        self.idx = rig.participants[0]
+        self.info = rig.ready_info()
+        self.start()
+
+    def close(self) -> None:
+        super().close()
+        for d in self.drives:
+            d.stop()

@@ -60,7 +60,7 @@ class IdxDevice:
         self.segment_size = segment_size
         self.sdo = sdo if sdo is not None else _default_sdo_client(clock, self.node.send, sdo_timeout)
         self.gateway = CanGateway(clock, self.node.send, self.sdo, on_own_nmt=self._own_nmt,
-                                  own_node_id=lambda: self.node.node_id)
+                                  own_node_id=lambda: self.node.node_id, sdo_timeout=sdo_timeout)
         self.node.add_frame_listener(self.gateway.on_frame)
         self.objects = NodeObjects(self.node)
         self.channels: list[IdxSlave] = []

@@ -9,6 +9,7 @@ given timeout on the clock.
 
 from __future__ import annotations
 
+import struct
 from collections import deque
 from collections.abc import Callable
 from typing import Any, Protocol
@@ -21,6 +22,14 @@ from .errors import ErrorCode, IdxRemoteError
 LSS_MASTER_COB_ID = 0x7E5
 LSS_SLAVE_COB_ID = 0x7E4
 NMT_COB_ID = 0x000
+SDO_REQUEST_BASE = 0x600
+SDO_RESPONSE_BASE = 0x580
+#: CiA 301 expedited download, size not indicated (e=1, s=0): the server takes its object's size.
+SDO_DOWNLOAD_EXPEDITED_NO_SIZE = 0x22
+SDO_DOWNLOAD_RESPONSE = 0x60
+SDO_ABORT = 0x80
+_SDO = struct.Struct("<BHB4s")
+_SDO_ABORT = struct.Struct("<BHBI")
 #: LSS slave messages kept between SendLSS and ReadLSS (several slaves may answer one request).
 LSS_BACKLOG = 64
 
@@ -45,10 +54,15 @@ class CanGateway:
 
     def __init__(self, clock: Clock, send: Callable[[CanFrame], None], sdo: SdoClientLike,
                  on_own_nmt: Callable[[int], None] | None = None,
-                 own_node_id: Callable[[], int | None] = lambda: None) -> None:
+                 own_node_id: Callable[[], int | None] = lambda: None, sdo_timeout: float = 0.5) -> None:
         self.clock = clock
         self.send = send
         self.sdo = sdo
+        self.sdo_timeout = sdo_timeout
+        # Gateway SDO transfers run one at a time (several USB channels may ask at once).
+        self._ops: deque[Callable[[], None]] = deque()
+        self._op_running = False
+        self._download: tuple[int, int, int, DownloadCallback, TimerHandle] | None = None
         self.on_own_nmt = on_own_nmt
         self.own_node_id = own_node_id
         self.lss_armed = False
@@ -62,6 +76,10 @@ class CanGateway:
         if frame.can_id == LSS_SLAVE_COB_ID and not frame.rtr and not frame.extended:
             self._lss_frame(bytes(frame.data).ljust(8, b"\x00")[:8])
             return
+        dl = self._download
+        if dl is not None and frame.can_id == SDO_RESPONSE_BASE + dl[0] and len(frame.data) == 8:
+            self._download_answer(frame.data)
+            return
         self.sdo.on_frame(frame, t)
 
     # -- SDO ---------------------------------------------------------------------------------------
@@ -70,12 +88,73 @@ class CanGateway:
         """ReadObject -> SDO initiate upload (the server picks expedited for <= 4 bytes);
         InitiateSegmentedRead -> the same, accepting a segmented answer of any size."""
         self.sdo_requests += 1
-        self.sdo.upload(node_id, index, subindex, callback, segmented=None)
+
+        def done(result: Any) -> None:
+            self._op_done()
+            callback(result)
+
+        self._submit(lambda: self.sdo.upload(node_id, index, subindex, done, segmented=None))
 
     def download(self, node_id: int, index: int, subindex: int, data: bytes,
                  callback: DownloadCallback) -> None:
+        """WriteObject -> CiA 301 expedited download with the size *not* indicated: the USB
+        command always carries 4 bytes and only the server knows its object's size (2.1.2.1)."""
         self.sdo_requests += 1
-        self.sdo.download(node_id, index, subindex, data, callback)
+        self._submit(lambda: self._start_download(node_id, index, subindex, data, callback))
+
+    def _submit(self, op: Callable[[], None]) -> None:
+        self._ops.append(op)
+        if not self._op_running:
+            self._next_op()
+
+    def _next_op(self) -> None:
+        if self._ops:
+            self._op_running = True
+            self._ops.popleft()()
+        else:
+            self._op_running = False
+
+    def _op_done(self) -> None:
+        self.clock.call_soon(self._next_op)
+
+    def _start_download(self, node_id: int, index: int, subindex: int, data: bytes,
+                        callback: DownloadCallback) -> None:
+        timer = self.clock.call_later(self.sdo_timeout, self._download_timeout)
+        self._download = (node_id, index, subindex, callback, timer)
+        self.send(CanFrame(SDO_REQUEST_BASE + node_id,
+                           _SDO.pack(SDO_DOWNLOAD_EXPEDITED_NO_SIZE, index, subindex, data.ljust(4, b"\x00"))))
+
+    def _end_download(self, result: GatewaylabError | None) -> None:
+        dl, self._download = self._download, None
+        if dl is None:
+            return
+        dl[4].cancel()
+        self._op_done()
+        dl[3](result)
+
+    def _download_answer(self, data: bytes) -> None:
+        dl = self._download
+        assert dl is not None
+        cs, index, sub, value = _SDO_ABORT.unpack(data)
+        if (index, sub) != (dl[1], dl[2]):
+            return                      # an answer for another object: not ours
+        if cs == SDO_DOWNLOAD_RESPONSE:
+            self._end_download(None)
+        elif cs == SDO_ABORT:
+            self._end_download(IdxRemoteError(value, f"node {dl[0]} aborted with 0x{value:08X}"))
+        else:
+            self._abort_server(ErrorCode.COMMAND_UNKNOWN)
+            self._end_download(IdxRemoteError(ErrorCode.COMMAND_UNKNOWN, f"SDO answer cs 0x{cs:02X}"))
+
+    def _download_timeout(self) -> None:
+        if self._download is not None:
+            self._abort_server(ErrorCode.SDO_TIMEOUT)
+            self._end_download(IdxRemoteError(ErrorCode.SDO_TIMEOUT, f"node {self._download[0]} silent"))
+
+    def _abort_server(self, code: int) -> None:
+        dl = self._download
+        if dl is not None:
+            self.send(CanFrame(SDO_REQUEST_BASE + dl[0], _SDO_ABORT.pack(SDO_ABORT, dl[1], dl[2], code)))
 
     # -- NMT ---------------------------------------------------------------------------------------
     def send_nmt(self, node_id: int, command: int) -> None:
