@@ -110,7 +110,8 @@ bus.shutdown()
 
 def _start_rig(tmp: Path, timing: bool) -> tuple[subprocess.Popen[bytes], str]:
     rig = tmp / f"rig-{timing}.toml"
-    rig.write_text(f'[[bus]]\nname = "can0"\nbitrate = 1000000\ndata_bitrate = 8000000\ntiming = {str(timing).lower()}\n')
+    rig.write_text('[[bus]]\nname = "can0"\nbitrate = 1000000\ndata_bitrate = 8000000\n'
+                   f'timing = {str(timing).lower()}\n')
     ready = tmp / f"ready-{timing}.json"
     proc = subprocess.Popen([sys.executable, "-m", "gatewaylab", "run", str(rig), "--ready-file", str(ready)],
                             stdout=subprocess.PIPE)
@@ -153,13 +154,14 @@ def bench_cross_process(timing: bool, n: int = 40_000, fd: bool = False) -> None
                 bus.send(can.Message(arbitration_id=0x200 + (i & 0xFF), is_extended_id=False, **msg_kwargs))
             bus.send(can.Message(arbitration_id=0x7FF, is_extended_id=False))
             out, _ = counter.communicate(timeout=120)
-            received, span = out.split()
+            received, _span = out.split()
             elapsed = time.perf_counter() - t
             bus.shutdown()
         finally:
             rig.terminate()
             rig.wait(10)
-    label = f"{'1 Mbit/s timing on' if timing else 'timing off'}{', FD 0-byte BRS 8 Mbit/s' if fd else ', 8-byte frames'}"
+    label = ("1 Mbit/s timing on" if timing else "timing off") + (
+        ", FD 0-byte BRS 8 Mbit/s" if fd else ", 8-byte frames")
     print(f"  cross-process ({label}): {int(received)}/{n} frames received, lost {n - int(received)}, "
           f"{int(received) / elapsed:,.0f} frames/s sustained; round trip median "
           f"{statistics.median(rtts) * 1e6:.0f} us, p99 {rtts[int(len(rtts) * 0.99)] * 1e6:.0f} us")
