@@ -1,0 +1,82 @@
+"""`gatewaylab run` with a maxon_idx device and the `gatewaylab idx ...` commands (issue 4 CLI)."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from conftest import IdxRig
+
+from gatewaylab.rig.cli import main
+
+RIG_FILE = """\
+clock = "realtime"
+[[bus]]
+name = "can0"
+bitrate = 1000000
+endpoint = "none"
+[[device]]
+kind = "maxon_idx"
+name = "idx1"
+bus = "can0"
+node_id = 1
+serial = 0x2001
+usb = { pty = true, tcp_port = 0 }
+"""
+
+
+def test_run_ready_file_and_idx_commands(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 4: `gatewaylab run --ready-file` adds "usb": {"idx1": {"pty", "tcp"}}; `gatewaylab idx read/
+    write/nmt` work against that port (ReadObject 2.1.1.1, WriteObject 2.1.2.1, SendNMTService 2.1.2.4)."""
+    rig_file = tmp_path / "rig.toml"
+    rig_file.write_text(RIG_FILE)
+    ready = tmp_path / "ready.json"
+    proc = subprocess.Popen([sys.executable, "-m", "gatewaylab.rig.cli", "run", str(rig_file),
+                             "--ready-file", str(ready)], stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            if "running" in line:
+                break
+        info = json.loads(ready.read_text())
+        usb = info["usb"]["idx1"]
+        assert usb["pty"].startswith("/dev/pts/") and usb["tcp"].startswith("127.0.0.1:")
+        assert main(["idx", "read", usb["pty"], "0", "0x1018", "4"]) == 0
+        assert "node 0 0x1018:04 = 8193 (0x00002001)" in capsys.readouterr().out
+        assert main(["idx", "write", "socket://" + usb["tcp"], "1", "0x30B0", "0", "-5", "--type", "i32"]) == 0
+        assert main(["idx", "read", usb["pty"], "1", "0x30B0", "0", "-t", "i32"]) == 0
+        assert "= -5 (0xFFFFFFFB)" in capsys.readouterr().out
+        assert main(["idx", "read", usb["pty"], "0", "0x1008", "0", "-t", "str"]) == 0
+        assert "IDX" in capsys.readouterr().out
+        assert main(["idx", "read", usb["pty"], "0", "0x7000", "0"]) == 1
+        assert "0x06020000 (object does not exist)" in capsys.readouterr().err
+        assert main(["idx", "nmt", usb["pty"], "5", "start"]) == 0
+        assert "NMT start (1) sent to node 5" in capsys.readouterr().out
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(10)
+    assert proc.returncode == 0
+    assert not ready.exists()
+
+
+def test_lss_scan_assigns_node_id(capsys: pytest.CaptureFixture[str]) -> None:
+    """`gatewaylab idx lss-scan --assign 7`: fastscan via SendLSS/ReadLSS (2.1.3), configure node id
+    (3.5.2.3), back to waiting; the drive then answers SDO as node 7."""
+    r = IdxRig([(None, 0x3003)])
+    try:
+        pty = r.info["usb"]["idx1"]["pty"]
+        assert main(["idx", "lss-scan", pty, "--assign", "7"]) == 0
+        out = capsys.readouterr().out
+        assert "serial 0x00003003 -> node id 7" in out
+        with r.rig.clock.lock:
+            assert r.drives[0].node.node_id == 7
+        assert main(["idx", "read", pty, "7", "0x1018", "4"]) == 0
+        assert "= 12291 (0x00003003)" in capsys.readouterr().out
+        assert main(["idx", "lss-scan", pty]) == 0
+        assert "no unconfigured LSS slave answered" in capsys.readouterr().out
+    finally:
+        r.close()
