@@ -29,7 +29,7 @@ Callback = Callable[..., Any]
 class TimerHandle:
     """A scheduled callback; ``cancel()`` it to stop it from running."""
 
-    __slots__ = ("when", "seq", "callback", "args", "cancelled")
+    __slots__ = ("args", "callback", "cancelled", "seq", "when")
 
     def __init__(self, when: float, seq: int, callback: Callback, args: tuple[Any, ...]) -> None:
         self.when = when
@@ -124,7 +124,7 @@ class Clock:
 class PeriodicTimer:
     """A drift-free repeating timer on a :class:`Clock`."""
 
-    __slots__ = ("clock", "period", "callback", "args", "_handle", "next_time", "_origin", "_count")
+    __slots__ = ("_count", "_handle", "_origin", "args", "callback", "clock", "next_time", "period")
 
     def __init__(self, clock: Clock, period: float, callback: Callback, args: tuple[Any, ...],
                  first: float) -> None:
