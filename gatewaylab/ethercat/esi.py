@@ -1,0 +1,203 @@
+"""ESI (EtherCAT Slave Information, ETG.2000) XML export from a device description + dictionary.
+
+The same description feeds the SII image, so what a configuration tool imports matches what the
+slave reports online: identity, SyncManagers, FMMUs, PDOs, mailbox protocols, DC modes, the CoE
+dictionary (data types with sub-items for records/arrays) and the EEPROM configuration data.
+"""
+
+from __future__ import annotations
+
+import struct
+import xml.etree.ElementTree as ET
+
+from .description import DeviceDescription, Pdo
+from .od import TYPE_NAMES, Access, DataType, Entry, ObjectCode, ObjectDictionary, OdObject, type_size
+from .sii import build_sii
+
+
+def _hex(value: int, digits: int = 8) -> str:
+    return f"#x{value:0{digits}X}"
+
+
+def _sub(parent: ET.Element, tag: str, text: str | None = None, **attrs: str) -> ET.Element:
+    el = ET.SubElement(parent, tag, attrs)
+    if text is not None:
+        el.text = text
+    return el
+
+
+def _access(a: Access) -> str:
+    writable = a & (Access.WRITE_PREOP | Access.WRITE_SAFEOP | Access.WRITE_OP)
+    readable = a & (Access.READ_PREOP | Access.READ_SAFEOP | Access.READ_OP)
+    if writable and readable:
+        return "rw"
+    return "wo" if writable else "ro"
+
+
+def _type_name(e: Entry) -> str:
+    if e.data_type in (DataType.VISIBLE_STRING, DataType.OCTET_STRING, DataType.UNICODE_STRING):
+        return f"STRING({max(1, len(e.raw))})"
+    return TYPE_NAMES.get(e.data_type, "USINT")
+
+
+def _bits(e: Entry) -> int:
+    size = type_size(e.data_type)
+    if size is None:
+        return 8 * max(1, len(e.raw))
+    return 1 if e.data_type == DataType.BOOLEAN and e.bit_length == 1 else 8 * size
+
+
+def _flags(parent: ET.Element, e: Entry) -> None:
+    flags = _sub(parent, "Flags")
+    _sub(flags, "Access", _access(e.access))
+    if e.access & Access.RXPDO:
+        _sub(flags, "PdoMapping", "R")
+    elif e.access & Access.TXPDO:
+        _sub(flags, "PdoMapping", "T")
+
+
+def _pdo(parent: ET.Element, tag: str, pdo: Pdo, sm: int) -> None:
+    el = _sub(parent, tag, Fixed="0", Mandatory="1", Sm=str(sm))
+    _sub(el, "Index", _hex(pdo.index, 4))
+    _sub(el, "Name", pdo.name)
+    for e in pdo.entries:
+        entry = _sub(el, "Entry")
+        _sub(entry, "Index", _hex(e.index, 4))
+        if e.index:
+            _sub(entry, "SubIndex", str(e.subindex))
+        _sub(entry, "BitLen", str(e.bit_length))
+        if e.index:
+            _sub(entry, "Name", e.name)
+            _sub(entry, "DataType", TYPE_NAMES.get(e.data_type, "USINT"))
+
+
+def _dictionary(profile: ET.Element, od: ObjectDictionary) -> None:
+    dictionary = _sub(profile, "Dictionary")
+    types = _sub(dictionary, "DataTypes")
+    objects = _sub(dictionary, "Objects")
+    base_types: dict[str, int] = {}
+    for obj in od:
+        for e in obj.entries.values():
+            base_types[_type_name(e)] = _bits(e)
+    for name, bits in sorted(base_types.items()):
+        dt = _sub(types, "DataType")
+        _sub(dt, "Name", name)
+        _sub(dt, "BitSize", str(bits))
+    for obj in od:
+        _object(types, objects, obj)
+
+
+def _object(types: ET.Element, objects: ET.Element, obj: OdObject) -> None:
+    el = _sub(objects, "Object")
+    _sub(el, "Index", _hex(obj.index, 4))
+    _sub(el, "Name", obj.name)
+    if obj.code == ObjectCode.VAR:
+        e = obj.entries[0]
+        _sub(el, "Type", _type_name(e))
+        _sub(el, "BitSize", str(_bits(e)))
+        info = _sub(el, "Info")
+        if e.data_type == DataType.VISIBLE_STRING:
+            _sub(info, "DefaultString", e.raw.decode("latin-1"))
+        else:
+            _sub(info, "DefaultData", e.raw.hex().upper())
+        _flags(el, e)
+        return
+    type_name = f"DT{obj.index:04X}"
+    dt = _sub(types, "DataType")
+    _sub(dt, "Name", type_name)
+    offset = 0
+    subitems: list[tuple[Entry, int]] = []
+    for sub in sorted(obj.entries):
+        e = obj.entries[sub]
+        subitems.append((e, offset))
+        offset += 16 if sub == 0 else _bits(e)
+    _sub(dt, "BitSize", str(offset))
+    for e, off in subitems:
+        si = _sub(dt, "SubItem")
+        _sub(si, "SubIdx", str(e.subindex))
+        _sub(si, "Name", e.name)
+        _sub(si, "Type", _type_name(e))
+        _sub(si, "BitSize", str(_bits(e)))
+        _sub(si, "BitOffs", str(off))
+        _flags(si, e)
+    _sub(el, "Type", type_name)
+    _sub(el, "BitSize", str(offset))
+    info = _sub(el, "Info")
+    for e, _off in subitems:
+        si = _sub(info, "SubItem")
+        _sub(si, "Name", e.name)
+        sinfo = _sub(si, "Info")
+        if e.data_type == DataType.VISIBLE_STRING:
+            _sub(sinfo, "DefaultString", e.raw.decode("latin-1"))
+        else:
+            _sub(sinfo, "DefaultData", e.raw.hex().upper())
+    _flags(el, obj.entries[0])
+
+
+def export_esi(desc: DeviceDescription, od: ObjectDictionary | None = None) -> str:
+    """ESI XML text for one device type."""
+    if od is None:
+        from .slave import build_od  # late import: slave imports this package's codecs
+
+        od = build_od(desc)
+    root = ET.Element("EtherCATInfo", {"xmlns:xsi": "http://www.w3.org/2001/XMLSchema-instance",
+                                       "xsi:noNamespaceSchemaLocation": "EtherCATInfo.xsd", "Version": "1.6"})
+    vendor = _sub(root, "Vendor")
+    _sub(vendor, "Id", _hex(desc.vendor_id))
+    _sub(vendor, "Name", desc.vendor_name)
+    descriptions = _sub(root, "Descriptions")
+    group = _sub(_sub(descriptions, "Groups"), "Group")
+    _sub(group, "Type", desc.group)
+    _sub(group, "Name", desc.group)
+    device = _sub(_sub(descriptions, "Devices"), "Device", Physics="YY")
+    _sub(device, "Type", desc.order_code or desc.name, ProductCode=_hex(desc.product_code),
+         RevisionNo=_hex(desc.revision))
+    _sub(device, "Name", desc.name)
+    _sub(device, "GroupType", desc.group)
+    if desc.coe:
+        profile = _sub(device, "Profile")
+        _sub(profile, "ProfileNo", str(desc.device_type & 0xFFFF))
+        _sub(profile, "AddInfo", str(desc.device_type >> 16))
+        _dictionary(profile, od)
+    has_mbx = desc.coe or desc.foe
+    _sub(device, "Fmmu", "Outputs")
+    _sub(device, "Fmmu", "Inputs")
+    if has_mbx:
+        _sub(device, "Fmmu", "MBoxState")
+        for (start, size), ctrl, name in ((desc.mailbox_out, DeviceDescription.SM0_CONTROL, "MBoxOut"),
+                                          (desc.mailbox_in, DeviceDescription.SM1_CONTROL, "MBoxIn")):
+            _sub(device, "Sm", name, MinSize="34", MaxSize=str(size), DefaultSize=str(size),
+                 StartAddress=_hex(start, 4), ControlByte=_hex(ctrl, 2), Enable="1")
+    _sub(device, "Sm", "Outputs", DefaultSize=str(desc.output_bytes), StartAddress=_hex(desc.outputs_start, 4),
+         ControlByte=_hex(DeviceDescription.SM2_CONTROL, 2), Enable="1" if desc.output_bytes else "0")
+    _sub(device, "Sm", "Inputs", DefaultSize=str(desc.input_bytes), StartAddress=_hex(desc.inputs_start, 4),
+         ControlByte=_hex(DeviceDescription.SM3_CONTROL, 2), Enable="1" if desc.input_bytes else "0")
+    sm_out = 2 if has_mbx else 0
+    for pdo in desc.rx_pdos:
+        _pdo(device, "RxPdo", pdo, sm_out)
+    for pdo in desc.tx_pdos:
+        _pdo(device, "TxPdo", pdo, sm_out + 1)
+    if has_mbx:
+        mailbox = _sub(device, "Mailbox", DataLinkLayer="1")
+        if desc.coe:
+            _sub(mailbox, "CoE", SdoInfo="1", PdoAssign="1", PdoConfig="1", CompleteAccess="1")
+        if desc.foe:
+            _sub(mailbox, "FoE")
+    if desc.dc:
+        dc = _sub(device, "Dc")
+        for name, text, assign in (("SM", "SM-Synchron", 0), ("DC", "DC-Synchron", 0x300)):
+            mode = _sub(dc, "OpMode")
+            _sub(mode, "Name", name)
+            _sub(mode, "Desc", text)
+            _sub(mode, "AssignActivate", _hex(assign, 4))
+            if assign:
+                _sub(mode, "CycleTimeSync0", "0", Factor="1")
+                _sub(mode, "ShiftTimeSync0", "0")
+    eeprom = _sub(device, "Eeprom")
+    sii = build_sii(desc)
+    _sub(eeprom, "ByteSize", str(len(sii)))
+    _sub(eeprom, "ConfigData", sii[:14].hex().upper())
+    if desc.bootstrap:
+        _sub(eeprom, "BootStrap", struct.pack("<4H", *desc.bootstrap_mailbox).hex().upper())
+    ET.indent(root)
+    return '<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(root, encoding="unicode") + "\n"
