@@ -227,3 +227,12 @@ def test_random_streams_get_only_spec_replies(chunks: list[bytes]) -> None:
         assert frame.opcode == 0 and frame.length >= 2
         code = int.from_bytes(frame.data[:4], "little")
         assert code == 0 or code in ErrorCode.__members__.values()
+
+
+def test_host_decodes_len2_error_reply_for_any_command() -> None:
+    """2.2.2 Note: a CRC error answer is Len 2 whatever was asked; the host still gets the code."""
+    frame = StatusReply(ErrorCode.CRC_ERROR).to_frame()
+    for opcode, cls in ((0x60, ReadObjectReply), (0x81, InitiateSegmentedReadReply), (0x62, SegmentReadReply),
+                        (0x6A, SegmentWriteReply), (0x7B, ReadLssReply)):
+        reply = decode_reply(opcode, frame)
+        assert isinstance(reply, cls) and reply.error == 0x05040004

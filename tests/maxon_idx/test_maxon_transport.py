@@ -97,3 +97,31 @@ def test_tcp_socket_url(realtime_rig: RunningRig) -> None:
     finally:
         with rr.rig.clock.lock:
             server.close()
+
+
+class _Silent:
+    def receive(self, data: bytes) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
+def test_client_timeout_when_nothing_answers(realtime_rig: RunningRig) -> None:
+    """2.2.8 D: wait for the receive frame "or a timeout"; the client raises IdxTimeout (0x05040000)."""
+    from gatewaylab.devices.maxon_idx.host.client import IdxTimeout
+
+    rr = realtime_rig
+    port = PtyPort(rr.rig, rr.rig.clock, lambda send: _Silent())
+    rr.start()
+    try:
+        with IdxClient(port.path, timeout=0.2) as client:
+            try:
+                client.read(0, 0x1000, 0)
+            except IdxTimeout as exc:
+                assert exc.code == 0x05040000 and "ReadObject" in str(exc)
+            else:
+                raise AssertionError("no timeout")
+    finally:
+        with rr.rig.clock.lock:
+            port.close()
