@@ -116,3 +116,21 @@ def test_trace_files_are_written_with_python_can_writers(start_rig, tmp_path: Pa
     frames = list(can.LogReader(str(trace)))
     assert [m.arbitration_id for m in frames] == [0x100 + i for i in range(5)]
     assert json.dumps(rig.info)  # ready info stays JSON-serialisable
+
+
+def test_python_can_logger_tool_records_a_rig_bus(start_rig) -> None:
+    """python-can's own `can.logger` finds the interface through the `can.interface` entry point."""
+    rig = start_rig(RIG)
+    logger = subprocess.Popen([sys.executable, "-u", "-m", "can.logger", "-i", "gatewaylab", "-c",
+                               rig.endpoint("can0")], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        wait_for_line(logger, "Connected to")
+        with can.Bus(interface="gatewaylab", channel=rig.endpoint("can0")) as a:
+            for i in range(3):
+                a.send(can.Message(arbitration_id=0x700 + i, data=b"\x05", is_extended_id=False))
+            for i in range(3):
+                line = wait_for_line(logger, "ID:")
+                assert f"ID:      {0x700 + i:x}" in line and "DL:  1    05" in line
+    finally:
+        logger.send_signal(signal.SIGINT)
+        logger.wait(timeout=10)

@@ -146,7 +146,9 @@ class GatewaylabBus(can.BusABC):
 
     @state.setter
     def state(self, new_state: BusState) -> None:
-        raise can.CanOperationError("the state of a gatewaylab bus connection is set by the rig")
+        # python-can tools set ACTIVE by default; listen-only needs a rig-side controller option.
+        if new_state is not BusState.ACTIVE:
+            raise can.CanOperationError("a gatewaylab bus connection is always active (not listen-only)")
 
     def shutdown(self) -> None:
         if not self._is_shutdown:
