@@ -2,8 +2,9 @@
 
 Outputs (RxPDO 0x1600): 0x7000:01 digital outputs (U8), 0x7010:01/02 analog outputs (INT16).
 Inputs (TxPDO 0x1A00): 0x6000:01 digital inputs, 0x6010:01/02 analog inputs, 0x6020:01 cycle counter.
-The inputs echo the outputs of the previous cycle (a wired loop-back test box) and the counter
-counts output cycles, so a master can check both directions of process data.
+The inputs echo the outputs (a wired loop-back test box): the application runs on the SM2 write
+event, before the same LRW reads SM3, so one LRW returns its own outputs. The counter counts output
+cycles, so a master can check both directions of process data.
 """
 
 from __future__ import annotations

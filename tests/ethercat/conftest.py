@@ -1,0 +1,94 @@
+"""Fixtures of the EtherCAT tests: simulated segments of ``ethercat_io`` slaves, and a veth pair
+inside a network namespace the test creates and deletes (for SOEM through pysoem)."""
+
+from __future__ import annotations
+
+import itertools
+import os
+import shutil
+import subprocess
+import sys
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+from gatewaylab.common.clock import SimulatedClock
+from gatewaylab.ethercat.io_device import create_io_slave
+from gatewaylab.ethercat.master import Master
+from gatewaylab.ethercat.segment import Segment
+
+DRIVER = Path(__file__).with_name("ethercat_soem_driver.py")
+_counter = itertools.count()
+
+
+@pytest.fixture
+def clock() -> SimulatedClock:
+    return SimulatedClock()
+
+
+def make_segment(clock: SimulatedClock, n: int = 3) -> Segment:
+    """n I/O slaves with distinct names and revisions (SOEM copies SII info of identical neighbours)."""
+    return Segment([create_io_slave(clock, f"GL-IO #{i}", serial=1000 + i, revision=i + 1) for i in range(n)])
+
+
+@pytest.fixture
+def segment(clock: SimulatedClock) -> Segment:
+    return make_segment(clock)
+
+
+@pytest.fixture
+def master(clock: SimulatedClock, segment: Segment) -> Master:
+    m = Master(clock, segment)
+    m.scan()
+    return m
+
+
+def _net_capable() -> str | None:
+    """None when we may create namespaces and raw sockets, else the reason to skip."""
+    if not sys.platform.startswith("linux"):
+        return "EtherCAT wire tests need Linux AF_PACKET sockets"
+    if shutil.which("ip") is None:
+        return "the 'ip' tool (iproute2) is missing"
+    try:
+        status = Path("/proc/self/status").read_text()
+        cap_eff = int(next(line for line in status.splitlines() if line.startswith("CapEff:")).split()[1], 16)
+    except (OSError, StopIteration, ValueError):
+        return "cannot read process capabilities"
+    if not (cap_eff >> 12) & 1 or not (cap_eff >> 13) & 1:
+        return "process lacks CAP_NET_ADMIN/CAP_NET_RAW (run as root to create veth pairs)"
+    return None
+
+
+@dataclass(frozen=True)
+class VethNs:
+    """Emulator end in this namespace, master end inside ``namespace``."""
+
+    namespace: str
+    emulator_iface: str
+    master_iface: str
+
+    def run_master(self, *args: str, timeout: float = 120.0) -> subprocess.CompletedProcess[str]:
+        return subprocess.run(["ip", "netns", "exec", self.namespace, sys.executable, str(DRIVER),
+                               self.master_iface, *args], capture_output=True, text=True, timeout=timeout,
+                              check=False)
+
+
+@pytest.fixture(scope="module")
+def veth_ns() -> Iterator[VethNs]:
+    reason = _net_capable()
+    if reason is not None:
+        pytest.skip(reason)
+    tag = f"{os.getpid() % 100000}{next(_counter)}"
+    ns = f"gl-test-{tag}"
+    emu, mst = f"glt{tag}e", f"glt{tag}m"
+    subprocess.run(["ip", "netns", "add", ns], check=True)
+    try:
+        subprocess.run(["ip", "link", "add", emu, "type", "veth", "peer", "name", mst, "netns", ns], check=True)
+        subprocess.run(["ip", "link", "set", emu, "up"], check=True)
+        subprocess.run(["ip", "netns", "exec", ns, "ip", "link", "set", mst, "up"], check=True)
+        yield VethNs(ns, emu, mst)
+    finally:
+        subprocess.run(["ip", "link", "del", emu], check=False, capture_output=True)
+        subprocess.run(["ip", "netns", "del", ns], check=False)
