@@ -236,3 +236,12 @@ def test_host_decodes_len2_error_reply_for_any_command() -> None:
                         (0x6A, SegmentWriteReply), (0x7B, ReadLssReply)):
         reply = decode_reply(opcode, frame)
         assert isinstance(reply, cls) and reply.error == 0x05040004
+
+
+def test_segment_read_after_complete_initiate_gets_empty_last_segment(harness: SlaveHarness) -> None:
+    """2.1.1.2/2.1.1.3: a value that fit in the initiate reply; a host looping until the last-segment
+    bit gets one empty last segment, then the transfer is over."""
+    r = ask(harness, InitiateSegmentedRead(0, 0x30B0, 0))
+    assert r == InitiateSegmentedReadReply(0, 4, bytes([1, 0x90, 0, 0]))
+    assert ask(harness, SegmentRead(False)) == SegmentReadReply(0, False, True, b"")
+    assert ask(harness, SegmentRead(True)) == SegmentReadReply(ErrorCode.COMMAND_UNKNOWN)

@@ -279,10 +279,10 @@ class IdxSlave:
     # Segmented read (2.1.1.2, 2.1.1.3) ---------------------------------------------------------------
     def _start_read(self, req: InitiateSegmentedRead, value: bytes) -> InitiateSegmentedReadReply:
         n = min(len(value), self.segment_size)
-        seg = self._seg = _SegState(Transfer.SEGMENTED_READ, req.node_id, req.index, req.subindex,
-                                    bytearray(value), n, len(value), False)
-        if seg.offset >= seg.total:
-            self._seg = _SegState()
+        # Even when the initiate reply carried everything, one SegmentRead is still answered (an
+        # empty last segment) for hosts that loop until the last-segment bit.
+        self._seg = _SegState(Transfer.SEGMENTED_READ, req.node_id, req.index, req.subindex,
+                              bytearray(value), n, len(value), False)
         return InitiateSegmentedReadReply(0, len(value), value[:n])
 
     def _initiate_read(self, req: InitiateSegmentedRead) -> Reply | None:
