@@ -236,6 +236,9 @@ class Drive:
         self.homing_status = HomingStatus.IDLE
         self.halted = False
         self.prev_csp_target: float | None = None
+        self.csp_changed_at = 0.0
+        self.csp_span = CONTROL_PERIOD
+        self.csp_velocity = 0.0
         self.stopping = False
 
     def start(self) -> None:
@@ -488,10 +491,7 @@ class Drive:
         if mode is OpMode.CYCLIC_SYNC_POSITION:
             self.internal_limit = False
             target = self._soft_limits(float(int(node.get(0x607A, 0)) + int(node.get(0x60B0, 0))))
-            prev = self.prev_csp_target
-            v_ff = 0.0 if prev is None else (target - prev) / dt
-            v_ff += float(int(node.get(0x60B1, 0)))
-            self.prev_csp_target = target
+            v_ff = self._csp_feedforward(target, dt) + float(int(node.get(0x60B1, 0)))
             self.demand = target
             self.demand_velocity = v_ff
             plant.step(dt, ControlMode.POSITION, position=target - self.offset, velocity=v_ff,
@@ -515,6 +515,22 @@ class Drive:
         # NO_MODE: hold the position
         plant.step(dt, ControlMode.POSITION, position=self.demand - self.offset, max_torque=max_torque)
         return True
+
+    def _csp_feedforward(self, target: float, dt: float) -> float:
+        """Velocity feed-forward from the set-point stream: change / time between changes, held
+        until the next set-point is late (so master cycles other than 1 ms still run smoothly)."""
+        now = self.clock.now()
+        prev = self.prev_csp_target
+        self.prev_csp_target = target
+        if prev is None:
+            self.csp_changed_at, self.csp_span, self.csp_velocity = now, dt, 0.0
+        elif target != prev:
+            span = max(now - self.csp_changed_at, dt)
+            self.csp_velocity = (target - prev) / span
+            self.csp_changed_at, self.csp_span = now, span
+        elif now - self.csp_changed_at > self.csp_span + 0.5 * dt:
+            self.csp_velocity = 0.0
+        return self.csp_velocity
 
     def _check_window(self, dt: float) -> None:
         """PP target reached: actual position within 0x6067 for 0x6068 ms after the profile ended."""
@@ -549,7 +565,7 @@ class Drive:
         self.demand = prof.position
         plant.step(dt, ControlMode.POSITION, position=prof.position - self.offset, velocity=prof.velocity,
                    acceleration=prof.acceleration, max_torque=max_torque)
-        if stopped and abs(plant.state.velocity) < 1.0:
+        if stopped:   # the demand ramp has ended (the axis may still be pushed by a load)
             if fault:
                 self.state = PdsState.FAULT   # transition 14
                 self.stopping = False
