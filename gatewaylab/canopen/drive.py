@@ -249,6 +249,10 @@ class Drive:
         if self._timer is None:
             self._timer = self.clock.call_every(self.period, self._tick)
 
+    def ready_info(self) -> dict[str, Any]:
+        """Rig participant protocol: a drive publishes no endpoints."""
+        return {}
+
     def stop(self) -> None:
         if self._timer is not None:
             self._timer.cancel()
