@@ -363,7 +363,8 @@ class SdoServer:
         self._pos = 0
         self._blksize = blksize
         self.state = SdoServerState.BLOCK_UPLOAD_START
-        self._send(SDO_HEADER_U32.pack(0xC6, index, sub, len(value)))
+        # sc only when the client asked for CRCs: some clients check it whenever the server offers it.
+        self._send(SDO_HEADER_U32.pack(0xC2 | (0x04 if self._crc else 0), index, sub, len(value)))
         self._arm()
 
     def _block_upload_start(self, cs: int) -> None:
@@ -402,7 +403,7 @@ class SdoServer:
             total = len(self._data)
             used = total - 7 * ((total - 1) // 7) if total else 0
             n = 7 - used
-            crc = crc16_ccitt(self._data) if self._crc else 0
+            crc = crc16_ccitt(self._data)
             self.state = SdoServerState.BLOCK_UPLOAD_END
             self._send(struct.pack("<BH5x", 0xC1 | (n << 2), crc))
             self._arm()

@@ -113,6 +113,10 @@ class RawClient:
         assert len(answers) <= 1, answers
         return answers[0] if answers else None
 
+    def push(self, node_id: int, data: bytes | list[int]) -> None:
+        """Send one SDO request padded to 8 bytes without looking at the answers."""
+        self.send(0x600 + node_id, bytes(data).ljust(8, b"\x00"))
+
     def take(self, can_id: int) -> list[CanFrame]:
         got = [f for f in self.received if f.can_id == can_id]
         self.received = [f for f in self.received if f.can_id != can_id]

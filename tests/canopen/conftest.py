@@ -48,6 +48,7 @@ def make_node(clock: SimulatedClock, vbus: VirtualBus) -> Callable[..., Node]:
 def network(vbus: VirtualBus) -> Iterator[canopen.Network]:
     """A python-canopen network on the virtual bus (the independent client)."""
     net = canopen.Network(python_can_bus(vbus, name="python-canopen"))
+    net.NOTIFIER_CYCLE = 0.01       # the notifier thread's recv timeout: a quick disconnect
     net.connect()
     try:
         yield net
