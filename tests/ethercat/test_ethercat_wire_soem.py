@@ -96,7 +96,7 @@ def test_soem_foe_write_then_read(full_run: tuple[dict[str, Any], Segment]) -> N
     r, segment = full_run
     assert r["foe_roundtrip"] is True
     store = segment.slaves[0].foe_handler
-    assert getattr(store, "files")["config.bin"] == bytes(range(256)) * 3 + b"tail"
+    assert store.files["config.bin"] == bytes(range(256)) * 3 + b"tail"
 
 
 def test_soem_config_map_safeop_op(full_run: tuple[dict[str, Any], Segment]) -> None:
