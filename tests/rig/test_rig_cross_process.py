@@ -10,7 +10,7 @@ from pathlib import Path
 import can
 import canopen
 import pytest
-from conftest import wait_for_line
+from rig_testkit import wait_for_line
 
 RIG = """
 clock = "realtime"
