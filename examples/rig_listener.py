@@ -5,6 +5,7 @@ Run: gatewaylab run --ready-file ready.json &   then   python examples/rig_liste
 
 import json
 import sys
+from pathlib import Path
 
 import can
 
@@ -13,7 +14,7 @@ from gatewaylab.rig.explain import explain
 
 
 def main() -> None:
-    info = json.load(open(sys.argv[1] if len(sys.argv) > 1 else "ready.json"))
+    info = json.loads(Path(sys.argv[1] if len(sys.argv) > 1 else "ready.json").read_text())
     endpoint = info["buses"]["can0"]["endpoint"]
     with can.Bus(interface="gatewaylab", channel=endpoint, name="listener") as bus:
         for msg in bus:
