@@ -72,10 +72,10 @@ def test_lss_scan_assigns_node_id(capsys: pytest.CaptureFixture[str]) -> None:
         assert main(["idx", "lss-scan", pty, "--assign", "7"]) == 0
         out = capsys.readouterr().out
         assert "serial 0x00003003 -> node id 7" in out
+        assert main(["idx", "read", pty, "7", "0x1018", "4"]) == 0   # queued behind the LSS frames
+        assert "= 12291 (0x00003003)" in capsys.readouterr().out
         with r.rig.clock.lock:
             assert r.drives[0].node.node_id == 7
-        assert main(["idx", "read", pty, "7", "0x1018", "4"]) == 0
-        assert "= 12291 (0x00003003)" in capsys.readouterr().out
         assert main(["idx", "lss-scan", pty]) == 0
         assert "no unconfigured LSS slave answered" in capsys.readouterr().out
     finally:

@@ -103,12 +103,13 @@ def test_segmented_write_through_gateway_refused(rig: IdxRig, client: IdxClient)
 def test_nmt_start_stop_seen_on_bus(rig: IdxRig, client: IdxClient) -> None:
     """2.1.2.4 / table 3-12: SendNMTService puts CS + node id on COB-ID 0; the drive changes state."""
     client.nmt(2, NmtCommand.START_REMOTE_NODE)
-    client.read(0, 0x1018, 4)                   # a round trip: the frame has left the IDX by now
+    # Barrier: an SDO round trip to node 3 leaves the IDX's transmit FIFO after the NMT frame.
+    client.read(3, 0x1018, 4)
     assert CanFrame(0, bytes([0x01, 2])) in rig.frames
     with rig.rig.clock.lock:
         assert rig.drives[0].node.nmt_state is NmtState.OPERATIONAL
     client.nmt(2, NmtCommand.STOP_REMOTE_NODE)
-    client.read(0, 0x1018, 4)
+    client.read(3, 0x1018, 4)
     assert CanFrame(0, bytes([0x02, 2])) in rig.frames
     with rig.rig.clock.lock:
         assert rig.drives[0].node.nmt_state is NmtState.STOPPED
