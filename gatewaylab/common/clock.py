@@ -231,6 +231,9 @@ class RealTimeClock(Clock):
     def __init__(self) -> None:
         super().__init__()
         self._t0 = time.monotonic()
+        #: Called with the exception when a callback raises; None lets it propagate. A running rig
+        #: sets it so one faulty callback is logged instead of stopping every device.
+        self.on_error: Callable[[BaseException], None] | None = None
 
     def now(self) -> float:
         return time.monotonic() - self._t0
@@ -252,7 +255,12 @@ class RealTimeClock(Clock):
                     if handle.when > now:
                         break
                 heapq.heappop(heap)
-                handle.callback(*handle.args)
+                try:
+                    handle.callback(*handle.args)
+                except Exception as exc:
+                    if self.on_error is None:
+                        raise
+                    self.on_error(exc)
                 count += 1
                 self._drain_injected()
         return count

@@ -73,6 +73,7 @@ class Rig:
         self._readers: dict[int, Callable[[], None]] = {}
         self._writers: dict[int, Callable[[], None]] = {}
         self._stop = threading.Event()
+        self.callback_errors = 0
         self._wake_r, self._wake_w = socket.socketpair()
         self._wake_r.setblocking(False)
         self._wake_w.setblocking(False)
@@ -80,6 +81,8 @@ class Rig:
         if isinstance(clock.lock, contextlib.nullcontext):
             clock.lock = threading.RLock()
         clock.wakeup = self._wake
+        if isinstance(clock, RealTimeClock):
+            clock.on_error = self._callback_failed
         for bc in config.buses:
             self.buses[bc.name] = VirtualBus(clock, bc.name, bc.bitrate, bc.data_bitrate, bc.timing)
         with_endpoints = self.realtime if endpoints is None else endpoints
@@ -162,6 +165,11 @@ class Rig:
         elif registered:
             self._selector.unregister(fd)
 
+    def _callback_failed(self, exc: BaseException) -> None:
+        """A participant's callback raised: log it with its traceback and keep the rig running."""
+        self.callback_errors += 1
+        log.error("callback failed, rig keeps running: %r", exc, exc_info=exc)
+
     def _wake(self) -> None:
         try:
             self._wake_w.send(b"\0")
@@ -207,10 +215,13 @@ class Rig:
         for key, events in self._selector.select(timeout):
             fd = key.fd
             with clock.lock:
-                if events & selectors.EVENT_READ and fd in self._readers:
-                    self._readers[fd]()
-                if events & selectors.EVENT_WRITE and fd in self._writers:
-                    self._writers[fd]()
+                try:
+                    if events & selectors.EVENT_READ and fd in self._readers:
+                        self._readers[fd]()
+                    if events & selectors.EVENT_WRITE and fd in self._writers:
+                        self._writers[fd]()
+                except Exception as exc:
+                    self._callback_failed(exc)
         if isinstance(clock, RealTimeClock):
             clock.run_due()
 

@@ -98,3 +98,23 @@ def test_simulated_rig_from_python() -> None:
 def test_explainer_names_canopen_frames(frame: CanFrame, meaning: str) -> None:
     """CiA 301 predefined connection set / CiA 305 LSS ids, as a student would read them."""
     assert meaning in explain(frame)
+
+
+def test_a_failing_callback_is_logged_and_the_realtime_rig_keeps_running(caplog) -> None:
+    """Bad input never stops the emulator (DEVELOPERS.md, principle 4): the loop logs and carries on."""
+    from gatewaylab.common.clock import RealTimeClock
+
+    rig = Rig(parse_rig({"bus": [{"name": "can0", "endpoint": "none"}]}), clock=RealTimeClock())
+    done: list[bool] = []
+
+    def boom() -> None:
+        raise RuntimeError("participant bug")
+
+    try:
+        rig.clock.call_soon(boom)
+        rig.clock.call_later(0.001, done.append, True)
+        rig.run(until=lambda: bool(done))
+        assert done == [True] and rig.callback_errors == 1
+        assert "participant bug" in caplog.text
+    finally:
+        rig.close()

@@ -21,6 +21,7 @@ import can
 from can.bus import BusState, CanProtocol
 
 from ...common.clock import Clock, SimulatedClock
+from ...common.errors import GatewaylabError
 from ..bus import Controller, ErrorState, VirtualBus
 from ..frame import CanFrame
 
@@ -65,12 +66,16 @@ class InProcessBus(can.BusABC):
                 self._send_checked(frame)
                 clock.run_while(lambda: self.vbus.busy)
         else:
+            # Refuse here, in the caller's thread, what the controller would refuse in the loop's.
+            ctrl = self.controller
+            if ctrl.bus_off or ctrl.listen_only or (frame.fd and not (ctrl.fd and self.vbus.is_fd)):
+                self._send_checked(frame)
             clock.call_soon_threadsafe(self._send_checked, frame)
 
     def _send_checked(self, frame: CanFrame) -> None:
         try:
             self.controller.send(frame)
-        except Exception as exc:
+        except GatewaylabError as exc:
             raise can.CanOperationError(str(exc)) from exc
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
