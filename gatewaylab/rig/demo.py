@@ -77,7 +77,8 @@ def demo_drives(bus: can.BusABC, narrator: Narrator, drives: list[int]) -> None:
     network.nmt.send_command(0x82)
     time.sleep(0.3)
     for node_id in drives:
-        node = network.add_node(node_id, canopen.ObjectDictionary())
+        node = network.add_node(node_id)
+        assert isinstance(node, canopen.RemoteNode)
         step(f"SDO reads from node {node_id}: device type 0x1000, identity 0x1018, device name 0x1008")
         device_type = int.from_bytes(node.sdo.upload(0x1000, 0), "little")
         vendor = int.from_bytes(node.sdo.upload(0x1018, 1), "little")
@@ -86,9 +87,10 @@ def demo_drives(bus: can.BusABC, narrator: Narrator, drives: list[int]) -> None:
         print(f"  -> device type 0x{device_type:08X}, vendor 0x{vendor:08X}, serial 0x{serial:X}, name {name!r}")
     if drives:
         node_id = drives[0]
-        node = network.nodes[node_id]
+        first = network.nodes[node_id]
+        assert isinstance(first, canopen.RemoteNode)
         step(f"CiA 402 on node {node_id}: enable the drive (controlword 6, 7, 15) and move 1000 increments in PP")
-        sdo = node.sdo
+        sdo = first.sdo
         sdo.download(0x6060, 0, (1).to_bytes(1, "little", signed=True))
         for cw in (0x06, 0x07, 0x0F):
             sdo.download(0x6040, 0, cw.to_bytes(2, "little"))
@@ -112,12 +114,12 @@ def demo_idx(info: dict[str, Any]) -> None:
     if not usb:
         return
     try:
-        from ..devices.maxon_idx.host.client import IdxClient  # type: ignore[import-not-found]
+        from ..devices.maxon_idx.host.client import IdxClient
     except ImportError:
         return
     for name, ports in usb.items():
         step(f"maxon IDX '{name}' over its virtual USB port {ports.get('pty')}: ReadObject 0x1008 and a gateway read")
-        with IdxClient.open(ports["pty"]) as idx:
+        with IdxClient(ports["pty"]) as idx:
             print(f"  -> device name {idx.read_string(0, 0x1008, 0)!r}")
 
 
