@@ -527,6 +527,8 @@ class Esc:
             for f in hits:
                 if f.read and self._fmmu_read(f, buf, off, laddr, lend):
                     rd = True
+        if cmd == _LWR:
+            return 1 if wr else 0
         return (1 if rd else 0) + (2 if wr else 0)
 
     def _fmmu_write(self, f: _Fmmu, buf: bytearray, off: int, laddr: int, lend: int) -> bool:
