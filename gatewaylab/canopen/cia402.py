@@ -130,12 +130,12 @@ def decode_command(controlword: int, previous: int) -> Command | None:
     switch on + enable 0x1111, disable voltage 0xxx0x, quick stop 0xx01x, disable operation
     0x0111, enable operation 0x1111, fault reset 0->1 edge of bit 7.
     """
-    if controlword & Cw.FAULT_RESET:
-        return Command.FAULT_RESET if not previous & Cw.FAULT_RESET else None
+    if controlword & 0x80:                       # bit 7 fault reset
+        return Command.FAULT_RESET if not previous & 0x80 else None
     low = controlword & 0x0F
-    if not low & Cw.ENABLE_VOLTAGE:
+    if not low & 0x02:                           # bit 1 enable voltage
         return Command.DISABLE_VOLTAGE
-    if not low & Cw.QUICK_STOP:
+    if not low & 0x04:                           # bit 2 quick stop (active low)
         return Command.QUICK_STOP
     if low & 0x07 == 0x06:
         return Command.SHUTDOWN

@@ -35,6 +35,7 @@ from .emcy import ERR_PROFILE
 from .errors import VALUE_RANGE_EXCEEDED, SdoAbort
 from .homing import SUPPORTED_METHODS, HomingRun, HomingStatus
 from .lss import BIT_TIMING_TABLE, UNCONFIGURED, LssAddress, LssConfigStore, LssSlave
+from .nmt import NmtState
 from .node import Node
 from .od import Access, DataType, ObjectDictionary
 from .plant import AxisParams, ControlMode, Plant, Trapezoid
@@ -195,6 +196,8 @@ class Drive:
         if stored is not None:
             node_id = None if stored[0] == UNCONFIGURED else stored[0]
         self.od = build_object_dictionary(serial, node_id, params=params)
+        #: the dictionary's value table (typed values), read directly on the 1 kHz hot path
+        self._v: dict[tuple[int, int], Any] = self.od.values
         self.node = Node(clock, bus, node_id, self.od, name=self.name, store_path=store_path)
         if stored is not None:
             rate = BIT_TIMING_TABLE[stored[1]] if stored[1] < len(BIT_TIMING_TABLE) else None
@@ -218,7 +221,7 @@ class Drive:
     def _init_motion(self) -> None:
         self.state = PdsState.NOT_READY_TO_SWITCH_ON
         self.controlword = 0
-        self.mode = OpMode(self.node.get(0x6061, 0))
+        self.mode = OpMode(self._v[0x6061, 0])
         #: user position = physical plant position + offset (homing moves the offset)
         self.offset = 0.0
         self.profile = Trapezoid()
@@ -262,7 +265,7 @@ class Drive:
 
     # -- object hooks -----------------------------------------------------------------------
     def _on_mode(self, *args: Any) -> None:
-        mode = int(self.node.get(0x6060, 0))
+        mode = int(self._v[0x6060, 0])
         try:
             op = OpMode(mode)
         except ValueError:
@@ -297,20 +300,20 @@ class Drive:
 
     def _sync_mode(self) -> None:
         try:
-            op = OpMode(int(self.node.get(0x6060, 0)))
+            op = OpMode(int(self._v[0x6060, 0]))
         except ValueError:
             op = OpMode.NO_MODE
         self.mode = op
         self.node.set(0x6061, 0, int(op))
 
     def _on_controlword(self, *args: Any) -> None:
-        cw = int(self.node.get(0x6040, 0))
+        cw = int(self._v[0x6040, 0])
         prev, self.controlword = self.controlword, cw
         command = decode_command(cw, prev)
         hit = next_state(self.state, command)
         if hit is not None:
             new, transition = hit
-            if transition == 16 and int(self.node.get(0x605A, 0)) < 5:
+            if transition == 16 and int(self._v[0x605A, 0]) < 5:
                 hit = None   # CiA 402: transition 16 only with quick stop option codes 5..8
             else:
                 self._enter(new, transition)
@@ -348,15 +351,15 @@ class Drive:
     def _mode_control(self, cw: int, prev: int) -> None:
         """Mode-specific controlword bits (4..6, 8) in Operation enabled."""
         rising = cw & ~prev
-        self.halted = bool(cw & Cw.HALT)
+        self.halted = bool(cw & _CW_HALT)
         mode = self.mode
         if mode is OpMode.PROFILE_POSITION:
-            if rising & Cw.NEW_SETPOINT:
+            if rising & _CW_NEW_SETPOINT:
                 self._new_setpoint(cw)
-            elif not cw & Cw.NEW_SETPOINT:
+            elif not cw & _CW_NEW_SETPOINT:
                 self.setpoint_ack = False
         elif mode is OpMode.HOMING:
-            if rising & Cw.NEW_SETPOINT:
+            if rising & _CW_NEW_SETPOINT:
                 self._start_homing()
             run = self.homing
             if self.halted and run is not None and self.homing_status in (
@@ -367,8 +370,8 @@ class Drive:
                 self.profile.reset(run.profile.position + self.offset, run.profile.velocity)
 
     def _soft_limits(self, x: float) -> float:
-        low = int(self.node.get(0x607D, 1))
-        high = int(self.node.get(0x607D, 2))
+        low = int(self._v[0x607D, 1])
+        high = int(self._v[0x607D, 2])
         if low < high:
             clamped = _clamp(x, low, high)
             if clamped != x:
@@ -377,7 +380,7 @@ class Drive:
         return x
 
     def _new_setpoint(self, cw: int) -> None:
-        target = float(int(self.node.get(0x607A, 0)))
+        target = float(int(self._v[0x607A, 0]))
         if cw & Cw.RELATIVE:
             base = self.target if self.target is not None else self.demand
             target += base
@@ -396,9 +399,9 @@ class Drive:
         self.setpoint_ack = True
 
     def _start_homing(self) -> None:
-        method = int(self.node.get(0x6098, 0))
-        run = HomingRun(method, float(self.node.get(0x6099, 1)), float(self.node.get(0x6099, 2)),
-                        float(self.node.get(0x609A, 0)))
+        method = int(self._v[0x6098, 0])
+        run = HomingRun(method, float(self._v[0x6099, 1]), float(self._v[0x6099, 2]),
+                        float(self._v[0x609A, 0]))
         run.start(self.plant.state.position)
         self.homing = run
         self.homing_status = run.status
@@ -406,7 +409,7 @@ class Drive:
             self._set_home(run.home_physical)   # methods 35/37: done at once
 
     def _set_home(self, physical: float) -> None:
-        self.offset = float(int(self.node.get(0x30B0, 0))) - physical
+        self.offset = float(int(self._v[0x30B0, 0])) - physical
         self.demand = self.plant.state.position + self.offset
         self.profile.reset(self.demand, 0.0)
 
@@ -416,8 +419,7 @@ class Drive:
         plant = self.plant
         st = plant.state
         state = self.state
-        node = self.node
-        max_torque = float(node.get(0x6072, 0))
+        max_torque = float(self._v[0x6072, 0])
         check_fe = False
         if state is PdsState.OPERATION_ENABLED and not self.stopping:
             check_fe = self._run_mode(dt, max_torque)
@@ -433,19 +435,18 @@ class Drive:
 
     def _run_mode(self, dt: float, max_torque: float) -> bool:
         """One period of the active mode; True when the following error is supervised."""
-        node = self.node
         plant = self.plant
         st = plant.state
         mode = self.mode
         prof = self.profile
-        vmax = float(min(int(node.get(0x607F, 0)), int(node.get(0x6080, 0))))
+        vmax = float(min(int(self._v[0x607F, 0]), int(self._v[0x6080, 0])))
         if mode is OpMode.PROFILE_POSITION:
             if self.halted:
-                prof.to_velocity(0.0, 1.0, float(node.get(0x6084, 0)), dt)
+                prof.to_velocity(0.0, 1.0, float(self._v[0x6084, 0]), dt)
             elif self.target is not None and not self.target_reached:
-                vel = min(float(node.get(0x6081, 0)), vmax)
-                done = prof.to_position(self.target, vel, float(node.get(0x6083, 0)),
-                                        float(node.get(0x6084, 0)), dt)
+                vel = min(float(self._v[0x6081, 0]), vmax)
+                done = prof.to_position(self.target, vel, float(self._v[0x6083, 0]),
+                                        float(self._v[0x6084, 0]), dt)
                 if done:
                     self._check_window(dt)
             self.demand = prof.position
@@ -454,19 +455,19 @@ class Drive:
             self.demand_velocity = prof.velocity
             return True
         if mode is OpMode.PROFILE_VELOCITY:
-            target = 0.0 if self.halted else _clamp(float(int(node.get(0x60FF, 0))), -vmax, vmax)
-            self.internal_limit = target != float(int(node.get(0x60FF, 0))) and not self.halted
-            prof.to_velocity(target, float(node.get(0x6083, 0)), float(node.get(0x6084, 0)), dt)
+            target = 0.0 if self.halted else _clamp(float(int(self._v[0x60FF, 0])), -vmax, vmax)
+            self.internal_limit = target != float(int(self._v[0x60FF, 0])) and not self.halted
+            prof.to_velocity(target, float(self._v[0x6083, 0]), float(self._v[0x6084, 0]), dt)
             self.demand_velocity = prof.velocity
             plant.step(dt, ControlMode.VELOCITY, velocity=prof.velocity, acceleration=prof.acceleration,
                        max_torque=max_torque)
             self.demand = st.position + self.offset
-            window = float(int(node.get(0x606D, 0)))
+            window = float(int(self._v[0x606D, 0]))
             if abs(st.velocity - target) <= window:
                 self.in_window_time += dt
             else:
                 self.in_window_time = 0.0
-            self.target_reached = self.in_window_time * 1000.0 >= int(node.get(0x606E, 0)) - 1e-9
+            self.target_reached = self.in_window_time * 1000.0 >= int(self._v[0x606E, 0]) - 1e-9
             return False
         if mode is OpMode.HOMING:
             run = self.homing
@@ -476,7 +477,7 @@ class Drive:
                 run.step(dt, inputs, st.position)
                 if found_before is None and run.home_physical is not None:
                     # shift the user frame; the profile keeps running in physical coordinates
-                    self.offset = float(int(node.get(0x30B0, 0))) - run.home_physical
+                    self.offset = float(int(self._v[0x30B0, 0])) - run.home_physical
                 self.homing_status = run.status
                 phys = run.profile.position
                 self.demand = phys + self.offset
@@ -487,22 +488,22 @@ class Drive:
                     self.profile.reset(self.demand, 0.0)   # hold the home position afterwards
             else:
                 if self.halted or (run is not None and run.status is HomingStatus.INTERRUPTED):
-                    prof.to_velocity(0.0, 1.0, float(node.get(0x609A, 0)), dt)
+                    prof.to_velocity(0.0, 1.0, float(self._v[0x609A, 0]), dt)
                 self.demand = prof.position
                 plant.step(dt, ControlMode.POSITION, position=prof.position - self.offset,
                            velocity=prof.velocity, acceleration=prof.acceleration, max_torque=max_torque)
             return True
         if mode is OpMode.CYCLIC_SYNC_POSITION:
             self.internal_limit = False
-            target = self._soft_limits(float(int(node.get(0x607A, 0)) + int(node.get(0x60B0, 0))))
-            v_ff = self._csp_feedforward(target, dt) + float(int(node.get(0x60B1, 0)))
+            target = self._soft_limits(float(int(self._v[0x607A, 0]) + int(self._v[0x60B0, 0])))
+            v_ff = self._csp_feedforward(target, dt) + float(int(self._v[0x60B1, 0]))
             self.demand = target
             self.demand_velocity = v_ff
             plant.step(dt, ControlMode.POSITION, position=target - self.offset, velocity=v_ff,
                        max_torque=max_torque)
             return True
         if mode is OpMode.CYCLIC_SYNC_VELOCITY:
-            raw = float(int(node.get(0x60FF, 0)) + int(node.get(0x60B1, 0)))
+            raw = float(int(self._v[0x60FF, 0]) + int(self._v[0x60B1, 0]))
             target = _clamp(raw, -vmax, vmax)
             self.internal_limit = target != raw
             self.demand_velocity = target
@@ -510,7 +511,7 @@ class Drive:
             self.demand = st.position + self.offset
             return False
         if mode is OpMode.CYCLIC_SYNC_TORQUE:
-            raw = float(int(node.get(0x6071, 0)) + int(node.get(0x60B2, 0)))
+            raw = float(int(self._v[0x6071, 0]) + int(self._v[0x60B2, 0]))
             torque = _clamp(raw, -max_torque, max_torque)
             self.internal_limit = torque != raw
             plant.step(dt, ControlMode.TORQUE, torque=torque, max_torque=max_torque)
@@ -540,11 +541,11 @@ class Drive:
         """PP target reached: actual position within 0x6067 for 0x6068 ms after the profile ended."""
         assert self.target is not None
         x = self.plant.state.position + self.offset
-        if abs(self.target - x) <= int(self.node.get(0x6067, 0)):
+        if abs(self.target - x) <= int(self._v[0x6067, 0]):
             self.in_window_time += dt
         else:
             self.in_window_time = 0.0
-        if self.in_window_time * 1000.0 >= int(self.node.get(0x6068, 0)) - 1e-9:
+        if self.in_window_time * 1000.0 >= int(self._v[0x6068, 0]) - 1e-9:
             self.target_reached = True
             if self.pending_target is not None:
                 self.target, self.pending_target = self.pending_target, None
@@ -553,10 +554,9 @@ class Drive:
 
     def _run_stop(self, dt: float, max_torque: float) -> None:
         """Quick stop / fault reaction: ramp to standstill, then the CiA 402 follow-up state."""
-        node = self.node
         plant = self.plant
         prof = self.profile
-        option = int(node.get(0x605A, 0))
+        option = int(self._v[0x605A, 0])
         fault = self.state is PdsState.FAULT_REACTION_ACTIVE
         if not fault and option == 0:
             plant.step(dt, ControlMode.OFF)
@@ -565,7 +565,7 @@ class Drive:
             self._publish()
             return
         dec_index = 0x6084 if (not fault and option in (1, 5)) else 0x6085
-        stopped = prof.to_velocity(0.0, 1.0, float(node.get(dec_index, 0)), dt)
+        stopped = prof.to_velocity(0.0, 1.0, float(self._v[dec_index, 0]), dt)
         self.demand = prof.position
         plant.step(dt, ControlMode.POSITION, position=prof.position - self.offset, velocity=prof.velocity,
                    acceleration=prof.acceleration, max_torque=max_torque)
@@ -580,14 +580,14 @@ class Drive:
                 self._publish()
 
     def _following_error(self, fe: float, dt: float, supervised: bool) -> None:
-        window = int(self.node.get(0x6065, 0))
+        window = int(self._v[0x6065, 0])
         if not supervised or window == 0xFFFFFFFF or abs(fe) <= window:
             self.fe_time = 0.0
             self.fe_warning = False
             return
         self.fe_warning = True
         self.fe_time += dt
-        if self.fe_time * 1000.0 > int(self.node.get(0x6066, 0)) + 1e-9 and self.state is PdsState.OPERATION_ENABLED:
+        if self.fe_time * 1000.0 > int(self._v[0x6066, 0]) + 1e-9 and self.state is PdsState.OPERATION_ENABLED:
             self.fault(ERROR_FOLLOWING, ERROR_REGISTER_FOLLOWING)
 
     def fault(self, error_code: int, error_register: int, data: bytes = b"") -> None:
@@ -619,53 +619,86 @@ class Drive:
 
     # -- outputs ----------------------------------------------------------------------------
     def statusword(self) -> int:
-        sw = STATE_BITS[self.state]
-        if self.node.nmt_state.name == "OPERATIONAL":
-            sw |= Sw.REMOTE
+        """0x6041 from the FSA state, NMT state and the mode's bits (plain ints: 1 kHz path)."""
+        state = self.state
+        sw = STATE_BITS[state]
+        if self.node.nmt_state is NmtState.OPERATIONAL:
+            sw |= _SW_REMOTE
         if self.fe_warning:
-            sw |= Sw.WARNING
+            sw |= _SW_WARNING
         if self.internal_limit or self.plant.state.saturated:
-            sw |= Sw.INTERNAL_LIMIT
+            sw |= _SW_INTERNAL_LIMIT
         mode = self.mode
-        enabled = self.state is PdsState.OPERATION_ENABLED
-        if mode is OpMode.PROFILE_POSITION:
-            if self.target_reached or (self.halted and self.profile.velocity == 0.0):
-                sw |= Sw.TARGET_REACHED
-            if self.setpoint_ack:
-                sw |= Sw.OP_SPECIFIC_12
+        enabled = state is PdsState.OPERATION_ENABLED
+        if mode is OpMode.CYCLIC_SYNC_POSITION:
+            if enabled:
+                sw |= _SW_BIT12
             if self.fe_warning:
-                sw |= Sw.OP_SPECIFIC_13
+                sw |= _SW_BIT13
+        elif mode is OpMode.PROFILE_POSITION:
+            if self.target_reached or (self.halted and self.profile.velocity == 0.0):
+                sw |= _SW_TARGET_REACHED
+            if self.setpoint_ack:
+                sw |= _SW_BIT12
+            if self.fe_warning:
+                sw |= _SW_BIT13
         elif mode is OpMode.PROFILE_VELOCITY:
             if self.target_reached:
-                sw |= Sw.TARGET_REACHED
+                sw |= _SW_TARGET_REACHED
             if abs(self.plant.state.velocity) < 1.0:
-                sw |= Sw.OP_SPECIFIC_12
+                sw |= _SW_BIT12
         elif mode is OpMode.HOMING:
             sw |= self.homing_status.bits
-        elif mode is OpMode.CYCLIC_SYNC_POSITION:
-            if enabled:
-                sw |= Sw.OP_SPECIFIC_12
-            if self.fe_warning:
-                sw |= Sw.OP_SPECIFIC_13
-        elif mode in (OpMode.CYCLIC_SYNC_VELOCITY, OpMode.CYCLIC_SYNC_TORQUE) and enabled:
-            sw |= Sw.OP_SPECIFIC_12
-        return int(sw)
+        elif enabled and mode in (OpMode.CYCLIC_SYNC_VELOCITY, OpMode.CYCLIC_SYNC_TORQUE):
+            sw |= _SW_BIT12
+        return sw
 
     def _publish(self) -> None:
-        self.node.set(0x6041, 0, self.statusword())
+        self._put(_K_STATUSWORD, self.statusword())
+
+    def _put(self, key: tuple[int, int], value: int) -> None:
+        """``node.set`` for values the drive computes itself (already typed and in range):
+        store, and let event-driven TPDOs see a change."""
+        values = self._v
+        if values[key] != value:
+            values[key] = value
+            pdo = self.node.pdo
+            if key in pdo.watch:
+                pdo.value_changed(key)
 
     def _publish_actuals(self, x: float, fe: float) -> None:
-        node = self.node
         st = self.plant.state
-        node.set(0x6064, 0, round(_clamp(x, -0x80000000, 0x7FFFFFFF)))
-        node.set(0x606C, 0, round(_clamp(st.velocity, -0x80000000, 0x7FFFFFFF)))
-        node.set(0x6077, 0, round(_clamp(st.torque, -0x8000, 0x7FFF)))
-        node.set(0x6074, 0, round(_clamp(st.torque, -0x8000, 0x7FFF)))
-        node.set(0x6062, 0, round(_clamp(self.demand, -0x80000000, 0x7FFFFFFF)))
-        node.set(0x606B, 0, round(_clamp(self.demand_velocity, -0x80000000, 0x7FFFFFFF)))
-        node.set(0x60F4, 0, round(_clamp(fe, -0x80000000, 0x7FFFFFFF)))
-        node.set(0x60FD, 0, self.plant.digital_inputs())
-        self._publish()
+        put = self._put
+        put(_K_POSITION, round(_clamp(x, _I32_MIN, _I32_MAX)))
+        put(_K_VELOCITY, round(_clamp(st.velocity, _I32_MIN, _I32_MAX)))
+        torque = round(_clamp(st.torque, -0x8000, 0x7FFF))
+        put(_K_TORQUE, torque)
+        put(_K_TORQUE_DEMAND, torque)
+        put(_K_POSITION_DEMAND, round(_clamp(self.demand, _I32_MIN, _I32_MAX)))
+        put(_K_VELOCITY_DEMAND, round(_clamp(self.demand_velocity, _I32_MIN, _I32_MAX)))
+        put(_K_FOLLOWING_ERROR, round(_clamp(fe, _I32_MIN, _I32_MAX)))
+        put(_K_INPUTS, self.plant.digital_inputs())
+        put(_K_STATUSWORD, self.statusword())
+
+
+_CW_HALT = int(Cw.HALT)
+_CW_NEW_SETPOINT = int(Cw.NEW_SETPOINT)
+_SW_REMOTE = int(Sw.REMOTE)
+_SW_WARNING = int(Sw.WARNING)
+_SW_INTERNAL_LIMIT = int(Sw.INTERNAL_LIMIT)
+_SW_TARGET_REACHED = int(Sw.TARGET_REACHED)
+_SW_BIT12 = int(Sw.OP_SPECIFIC_12)
+_SW_BIT13 = int(Sw.OP_SPECIFIC_13)
+_I32_MIN, _I32_MAX = -0x80000000, 0x7FFFFFFF
+_K_STATUSWORD = (0x6041, 0)
+_K_POSITION = (0x6064, 0)
+_K_VELOCITY = (0x606C, 0)
+_K_TORQUE = (0x6077, 0)
+_K_TORQUE_DEMAND = (0x6074, 0)
+_K_POSITION_DEMAND = (0x6062, 0)
+_K_VELOCITY_DEMAND = (0x606B, 0)
+_K_FOLLOWING_ERROR = (0x60F4, 0)
+_K_INPUTS = (0x60FD, 0)
 
 
 __all__ = ["DEVICE_TYPE", "MAXON_VENDOR_ID", "PRODUCT_CODE", "Command", "Drive", "build_object_dictionary"]

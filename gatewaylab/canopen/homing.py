@@ -38,11 +38,14 @@ class HomingStatus(Enum):
 
     @property
     def bits(self) -> int:
-        return {
-            HomingStatus.IN_PROGRESS: 0x0000, HomingStatus.INTERRUPTED: 0x0400,
-            HomingStatus.ATTAINED: 0x1000, HomingStatus.REACHED: 0x1400,
-            HomingStatus.ERROR: 0x2000, HomingStatus.IDLE: 0x0000,
-        }[self]
+        return _HOMING_BITS[self]
+
+
+_HOMING_BITS: dict[HomingStatus, int] = {
+    HomingStatus.IN_PROGRESS: 0x0000, HomingStatus.INTERRUPTED: 0x0400,
+    HomingStatus.ATTAINED: 0x1000, HomingStatus.REACHED: 0x1400,
+    HomingStatus.ERROR: 0x2000, HomingStatus.IDLE: 0x0000,
+}
 
 
 class _Phase(Enum):
