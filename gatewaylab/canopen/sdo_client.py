@@ -278,7 +278,7 @@ class SdoClient:
     def _block_upload_response(self, tr: _Transfer, data: bytes) -> None:
         cs = data[0]
         if tr.phase is _Phase.INITIATE:
-            if cs & 0xE3 != 0xC0:
+            if cs & 0xE1 != 0xC0:
                 raise SdoAbort(COMMAND_SPECIFIER_UNKNOWN)
             self._check_mux(tr, data)
             tr.crc = bool(cs & 0x04)

@@ -37,8 +37,7 @@ def make_node(clock: SimulatedClock, vbus: VirtualBus) -> Callable[..., Node]:
         node = Node(clock, vbus, node_id, od if od is not None else sample_od(), **kwargs)
         if start:
             with clock.lock:
-                node.start()
-                clock.run_while(lambda: vbus.busy)
+                node.start()        # the boot-up goes out once another controller acknowledges it
         return node
 
     return make
