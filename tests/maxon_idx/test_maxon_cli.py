@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from conftest import IdxRig
+from maxon_helpers import IdxRig
 
 from gatewaylab.rig.cli import main
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 
 import pytest
-from conftest import IdxRig
+from maxon_helpers import IdxRig
 
 from gatewaylab.bus import CanFrame
 from gatewaylab.canopen.nmt import NmtState

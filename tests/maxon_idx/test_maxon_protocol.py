@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-from conftest import SlaveHarness
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from maxon_helpers import SlaveHarness
 
 from gatewaylab.devices.maxon_idx.codec import Frame, encode_frame
 from gatewaylab.devices.maxon_idx.commands import (

@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 
 import serial
-from conftest import DictObjects, RunningRig, ScriptedGateway
+from maxon_helpers import DictObjects, RunningRig, ScriptedGateway
 
 from gatewaylab.devices.maxon_idx.commands import NmtCommand
 from gatewaylab.devices.maxon_idx.host.client import IdxClient, IdxError
