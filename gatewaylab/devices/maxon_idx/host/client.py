@@ -95,6 +95,7 @@ class IdxClient:
         self.link: Link = open_link(link) if isinstance(link, str) else link
         self.timeout = timeout
         self._frames: list[Any] = []
+        self._stale = False
         self._decoder = FrameDecoder(RealTimeClock(), self._on_event, timeout=None)
 
     def __enter__(self) -> IdxClient:
@@ -115,11 +116,15 @@ class IdxClient:
         """Send ``request``, wait for its reply frame (guide 2.2.8 D: one request at a time)."""
         self._frames.clear()
         self._decoder.reset()
+        if self._stale:                  # a late reply to an earlier, timed-out request
+            self.link.reset_input()
+            self._stale = False
         self.link.write(encode_frame(request.to_frame()))
         deadline = time.monotonic() + (self.timeout if timeout is None else timeout)
         while not self._frames:
             left = deadline - time.monotonic()
             if left <= 0:
+                self._stale = True
                 raise IdxTimeout(type(request).__name__)
             self._decoder.feed(self.link.read(512, left))
         try:

@@ -38,6 +38,7 @@ class PtyPort:
         self.rx_bytes = 0
         self.tx_bytes = 0
         self.dropped_bytes = 0
+        self.read_errors = 0
         self._backlog = bytearray()
         self._closed = False
         self.channel: Channel = make_channel(self.send)
@@ -49,9 +50,9 @@ class PtyPort:
         except BlockingIOError:
             return
         except OSError as exc:
-            if exc.errno == errno.EIO:      # no opener on the slave side: nothing to read
-                return
-            raise
+            if exc.errno != errno.EIO:      # EIO: no opener on the slave side, nothing to read
+                self.read_errors += 1
+            return
         if self._backlog:
             self._flush()
         if data:
