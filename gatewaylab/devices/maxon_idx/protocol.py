@@ -19,7 +19,7 @@ from enum import Enum
 from typing import Protocol
 
 from ...common.clock import Clock
-from ...common.errors import GatewaylabError
+from ...common.errors import ConfigError, GatewaylabError
 from .codec import (
     DEFAULT_FRAME_TIMEOUT,
     CrcFailed,
@@ -136,7 +136,7 @@ class IdxSlave:
                  frame_timeout: Callable[[], float | None] | float | None = DEFAULT_FRAME_TIMEOUT,
                  segment_size: int = MAX_SEGMENT) -> None:
         if not 1 <= segment_size <= MAX_SEGMENT:
-            raise ValueError(f"segment size must be 1..{MAX_SEGMENT}")
+            raise ConfigError(f"segment size must be 1..{MAX_SEGMENT}")
         self.clock = clock
         self.objects = objects
         self.gateway = gateway

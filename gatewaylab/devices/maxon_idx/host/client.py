@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from ....common.clock import RealTimeClock
-from ....common.errors import GatewaylabError
+from ....common.errors import GatewaylabError, RemoteError
 from ..codec import DecoderEvent, FrameDecoder, FrameReceived, encode_frame
 from ..commands import (
     MAX_SEGMENT,
@@ -59,7 +59,7 @@ LSS_FASTSCAN = 0x51
 LSS_INQUIRE = {"vendor": 0x5A, "product": 0x5B, "revision": 0x5C, "serial": 0x5D, "node_id": 0x5E}
 
 
-class IdxError(GatewaylabError):
+class IdxError(RemoteError):
     """The IDX answered with a non-zero error code (or did not answer at all)."""
 
     def __init__(self, code: int, request: str = "") -> None:
