@@ -54,6 +54,9 @@ from .commands import (
 )
 from .errors import ErrorCode, IdxRemoteError
 
+#: Requests held while one executes (a host should wait for each answer, guide 2.2.8 D).
+MAX_QUEUED = 64
+
 UploadCallback = Callable[[bytes | GatewaylabError], None]
 DownloadCallback = Callable[[GatewaylabError | None], None]
 
@@ -113,6 +116,7 @@ class SlaveStats:
     error_replies: int = 0
     crc_errors: int = 0
     discarded_frames: int = 0
+    overflows: int = 0
     errors_by_code: dict[int, int] = field(default_factory=dict)
 
 
@@ -169,6 +173,9 @@ class IdxSlave:
             self.stats.discarded_frames += 1
             return
         # Requests that arrive while one executes wait their turn: never two answers at once.
+        if len(self._queue) >= MAX_QUEUED:
+            self.stats.overflows += 1         # a host ignoring 2.2.8 D; the IDX would lose it too
+            return
         self._queue.append(event)
         self._pump()
 
