@@ -37,6 +37,7 @@ class Setup:
         eds = tmp_path / "drive.eds"
         eds.write_text(self.drive.node.to_eds())
         self.network = canopen.Network(python_can_bus(self.bus))
+        self.network.NOTIFIER_CYCLE = 0.05   # quick shutdown of python-can's notifier thread
         self.network.connect()
         self.node = canopen.BaseNode402(NODE, str(eds))
         self.network.add_node(self.node)

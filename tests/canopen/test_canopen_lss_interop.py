@@ -59,9 +59,10 @@ def rig(tmp_path: Path) -> Rig:
 @pytest.fixture
 def network(rig: Rig) -> Iterator[canopen.Network]:
     net = canopen.Network(python_can_bus(rig.bus))
+    net.NOTIFIER_CYCLE = 0.05          # quick shutdown of python-can's notifier thread
     net.connect()
     # Answers arrive through python-can's notifier thread; a missing answer costs this timeout.
-    net.lss.RESPONSE_TIMEOUT = 0.1
+    net.lss.RESPONSE_TIMEOUT = 0.15
     try:
         yield net
     finally:
