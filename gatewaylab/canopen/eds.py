@@ -58,6 +58,8 @@ def _export_entry(lines: list[str], section: str, entry: Entry, od: ObjectDictio
         lines.append(f"LowLimit={_fmt(entry, entry.low)}")
     if entry.high is not None:
         lines.append(f"HighLimit={_fmt(entry, entry.high)}")
+    if entry.preop_only:
+        lines.append("GatewaylabPreOpOnly=1")     # not in CiA 306; other tools ignore unknown keys
     if dcf:
         lines.append(f"ParameterValue={_fmt(entry, od.values[(entry.index, entry.sub)])}")
     lines.append("")
@@ -167,7 +169,8 @@ def import_eds(text: str, node_id: int | None = None) -> ObjectDictionary:
             high = _parse_value(dt, get(section, "HighLimit", fallback=""))[0]
         args = {"data_type": dt, "access": access, "default": default,
                 "pdo_mappable": bool(int(get(section, "PDOMapping", fallback="0") or "0", 0)),
-                "low": low, "high": high, "nodeid_offset": relative}
+                "low": low, "high": high, "nodeid_offset": relative,
+                "preop_only": get(section, "GatewaylabPreOpOnly", fallback="0").strip() == "1"}
         return args, (get(section, "ParameterValue") if cp.has_option(section, "ParameterValue") else None)
 
     for upper, section in sorted(sections.items()):
