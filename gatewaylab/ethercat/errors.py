@@ -133,6 +133,16 @@ class FoeError(RemoteError):
         super().__init__(f"{message} (FoE error 0x{code:04X})", code)
 
 
+class FoeBusy(RemoteError):
+    """Raised by an FoE handler that needs time (flashing): the slave answers BUSY(done, entire)
+    and the master repeats its last DATA packet later."""
+
+    def __init__(self, done: int = 0, entire: int = 100) -> None:
+        super().__init__(f"busy {done}/{entire}")
+        self.done = done
+        self.entire = entire
+
+
 class MailboxError(RemoteError):
     """A mailbox message the slave answered with a mailbox error reply."""
 

@@ -454,8 +454,9 @@ class Esc:
             elif adp == 0:
                 inc = self._physical(buf, off, ado, dlen, cmd - _APRD)
         elif cmd <= _FPRW or cmd == _FRMW:
-            adp, ado = U32.unpack_from(buf, pos + 2)[0] & 0xFFFF, U16.unpack_from(buf, pos + 4)[0]
-            mine = adp == self.station_address
+            adp, ado = U16.unpack_from(buf, pos + 2)[0], U16.unpack_from(buf, pos + 4)[0]
+            mine = adp == self.station_address or (
+                bool(self.mem[REG_DL_CONTROL + 3] & 0x01) and adp == U16.unpack_from(self.mem, REG_STATION_ALIAS)[0])
             if cmd == _FRMW:
                 inc = self._rmw(buf, off, ado, dlen, mine)
             elif mine:

@@ -13,7 +13,7 @@ import struct
 from dataclasses import dataclass, field
 from typing import Protocol
 
-from .errors import FoeError, FoeErrorCode, FrameFormatError
+from .errors import FoeBusy, FoeError, FoeErrorCode, FrameFormatError
 
 FOE_HEADER = struct.Struct("<BBI")
 FOE_BUSY = struct.Struct("<BBHH")
@@ -83,11 +83,13 @@ class FoeServer:
         self._buf = bytearray()
         self._packet = 0
         self._last_len = 0
+        self._finishing = False
         self.errors_sent = 0
 
     def reset(self) -> None:
         self.mode = _Mode.IDLE
         self._buf = bytearray()
+        self._finishing = False
 
     def _error(self, code: int, text: str = "") -> list[bytes]:
         self.reset()
@@ -117,12 +119,18 @@ class FoeServer:
             if opcode == FoeOpcode.DATA:
                 if self.mode != _Mode.WRITING:
                     return self._error(FoeErrorCode.ILLEGAL, "no write in progress")
-                if word != self._packet + 1:
+                retry = self._finishing and word == self._packet
+                if not retry and word != self._packet + 1:
                     return self._error(FoeErrorCode.PACKET_NUMBER_WRONG, "packet number")
-                self._packet = word
-                self._buf.extend(rest)
+                if not retry:
+                    self._packet = word
+                    self._buf.extend(rest)
                 if len(rest) < self.max_data:
-                    self.handler.foe_write(self._name, self._password, bytes(self._buf))
+                    self._finishing = True
+                    try:
+                        self.handler.foe_write(self._name, self._password, bytes(self._buf))
+                    except FoeBusy as busy:
+                        return [FOE_BUSY.pack(FoeOpcode.BUSY, 0, busy.done & 0xFFFF, busy.entire & 0xFFFF)]
                     self.reset()
                 return [foe_packet(FoeOpcode.ACK, word)]
             if opcode == FoeOpcode.ACK:

@@ -108,6 +108,7 @@ class Master:
         self.segment = segment
         self.link = link
         self.timeout = timeout
+        self.foe_busy_timeout = 10.0
         self.slaves: list[SlaveInfo] = []
         self.frames = 0
         self.lost_frames = 0
@@ -427,6 +428,13 @@ class Master:
             pos += len(chunk)
             packet += 1
             opcode, word, _ = self._foe(position, foe_packet(FoeOpcode.DATA, packet, chunk))
+            deadline = self.clock.now() + self.foe_busy_timeout
+            while opcode == FoeOpcode.BUSY:  # the slave needs time: repeat the packet later
+                if self.clock.now() >= deadline:
+                    raise TimeoutError_("FoE slave stayed busy")
+                if isinstance(self.clock, SimulatedClock):
+                    self.clock.advance(0.01)
+                opcode, word, _ = self._foe(position, foe_packet(FoeOpcode.DATA, packet, chunk))
             if opcode != FoeOpcode.ACK or word != packet:
                 raise FoeError(f"data packet {packet} not acknowledged", 0x8005)
             if len(chunk) < max_data:

@@ -191,3 +191,12 @@ def test_malformed_frame_is_dropped_and_counted(segment: Segment) -> None:
     buf[14] = 0xFF
     assert not segment.process(buf)
     assert segment.stats.bad_frames == 1 and segment.slaves[0].esc.mem[0x0300] == 1
+
+
+def test_alias_addressing_only_when_enabled(segment: Segment) -> None:
+    """Configured station alias 0x0012 answers FPxx only with DL control 0x0100 bit 24 set."""
+    run(segment, phys(Command.APWR, -1, 0x0012, struct.pack("<H", 0x0777)))
+    assert run(segment, phys(Command.FPRD, 0x0777, 0x0000, b"\0"))[0].wkc == 0
+    run(segment, phys(Command.APWR, -1, 0x0100, struct.pack("<I", 0x01000001)))
+    hit = run(segment, phys(Command.FPRD, 0x0777, 0x0012, b"\0\0"))[0]
+    assert hit.wkc == 1 and hit.data == b"\x77\x07"

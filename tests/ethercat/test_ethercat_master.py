@@ -243,3 +243,35 @@ def test_emergency_arrives_in_the_mailbox(master: Master, segment: Segment) -> N
     msg = decode_mailbox(raw)
     assert msg.type == MailboxType.COE and msg.data[1] >> 4 == CoeService.EMERGENCY
     assert msg.data[2:10] == bytes.fromhex("3081 11 0102000000".replace(" ", ""))
+
+
+def test_foe_busy_then_ack(clock: SimulatedClock) -> None:
+    """FoE BUSY: a slave that needs time (flashing) answers the last DATA packet with BUSY(done,
+    entire); the master repeats that packet until the slave acknowledges it."""
+    from gatewaylab.ethercat.errors import FoeBusy
+    from gatewaylab.ethercat.io_device import create_io_slave
+
+    class Flash:
+        def __init__(self) -> None:
+            self.ready_at = 0.05
+            self.stored: bytes | None = None
+            self.busy_answers = 0
+
+        def foe_read(self, name: str, password: int) -> bytes:
+            raise FoeError("write only", FoeErrorCode.ACCESS_DENIED)
+
+        def foe_write(self, name: str, password: int, data: bytes) -> None:
+            if clock.now() < self.ready_at:
+                self.busy_answers += 1
+                raise FoeBusy(int(100 * clock.now() / self.ready_at), 100)
+            self.stored = data
+
+    flash = Flash()
+    m = Master(clock, Segment([create_io_slave(clock, foe=flash)]))
+    m.scan()
+    m.request_state(0, AlState.PREOP)
+    m.foe_write(0, "firmware.bin", b"\x5a" * 300)
+    assert flash.stored == b"\x5a" * 300 and flash.busy_answers >= 3
+    with pytest.raises(FoeError) as err:
+        m.foe_read(0, "firmware.bin")
+    assert err.value.code == FoeErrorCode.ACCESS_DENIED
