@@ -143,8 +143,8 @@ class SdoServer:
         cs = data[0]
         state = self.state
         if state is SdoServerState.BLOCK_DOWNLOAD:
-            if cs == 0x80 and data[1:4] == SDO_HEADER.pack(0, self.index, self.sub)[1:]:
-                self._reset()           # client abort during a sub-block
+            if cs == 0x80:
+                self._reset()           # client abort during a sub-block (sequence 0 is never a segment)
                 return
             self._block_segment(data)
             return
