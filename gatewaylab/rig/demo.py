@@ -67,66 +67,91 @@ def step(title: str) -> None:
     print(f"\n== {title}", flush=True)
 
 
-def demo_drives(bus: can.BusABC, narrator: Narrator, drives: list[int]) -> None:
+def _u(data: bytes, signed: bool = False) -> int:
+    return int.from_bytes(data, "little", signed=signed)
+
+
+def demo_canopen(bus: can.BusABC, narrator: Narrator, nodes: list[int], unconfigured: int) -> list[int]:
+    """NMT, SDO, LSS Fastscan and a CiA 402 move, as a CANopen master in another process sees them."""
     import canopen
 
     network = canopen.Network(bus)
-    network.notifier = can.Notifier(bus, [network.listeners[0] if network.listeners else
-                                          canopen.network.MessageListener(network), narrator], timeout=0.1)
-    step("NMT 'reset communication' to all nodes: every drive answers with a boot-up message")
-    network.nmt.send_command(0x82)
-    time.sleep(0.3)
-    for node_id in drives:
-        node = network.add_node(node_id)
-        assert isinstance(node, canopen.RemoteNode)
-        step(f"SDO reads from node {node_id}: device type 0x1000, identity 0x1018, device name 0x1008")
-        device_type = int.from_bytes(node.sdo.upload(0x1000, 0), "little")
-        vendor = int.from_bytes(node.sdo.upload(0x1018, 1), "little")
-        serial = int.from_bytes(node.sdo.upload(0x1018, 4), "little")
-        name = node.sdo.upload(0x1008, 0).decode(errors="replace")
-        print(f"  -> device type 0x{device_type:08X}, vendor 0x{vendor:08X}, serial 0x{serial:X}, name {name!r}")
-    if drives:
-        node_id = drives[0]
-        first = network.nodes[node_id]
-        assert isinstance(first, canopen.RemoteNode)
-        step(f"CiA 402 on node {node_id}: enable the drive (controlword 6, 7, 15) and move 1000 increments in PP")
-        sdo = first.sdo
-        sdo.download(0x6060, 0, (1).to_bytes(1, "little", signed=True))
-        for cw in (0x06, 0x07, 0x0F):
-            sdo.download(0x6040, 0, cw.to_bytes(2, "little"))
-        sdo.download(0x607A, 0, (1000).to_bytes(4, "little", signed=True))
-        sdo.download(0x6040, 0, (0x1F).to_bytes(2, "little"))
-        narrator.quiet = True
-        deadline = time.monotonic() + 5.0
-        position = 0
-        while time.monotonic() < deadline:
-            status = int.from_bytes(sdo.upload(0x6041, 0), "little")
-            position = int.from_bytes(sdo.upload(0x6064, 0), "little", signed=True)
-            if status & 0x0400 and position == 1000:
-                break
-        narrator.quiet = False
-        print(f"  -> target reached: statusword 0x{status:04X}, position actual {position}")
-    network.notifier.stop()
-
-
-def demo_idx(info: dict[str, Any]) -> None:
-    usb = info.get("usb", {})
-    if not usb:
-        return
+    # The narrator listens first, so each frame is printed before canopen acts on it.
+    network.notifier = can.Notifier(bus, [narrator, canopen.network.MessageListener(network)], timeout=0.05)
     try:
-        from ..devices.maxon_idx.host.client import IdxClient
-    except ImportError:
-        return
-    for name, ports in usb.items():
-        step(f"maxon IDX '{name}' over its virtual USB port {ports.get('pty')}: ReadObject 0x1008 and a gateway read")
+        step("NMT 'reset communication' to all nodes: every configured node answers with a boot-up message")
+        network.nmt.send_command(0x82)
+        time.sleep(0.2)
+        for node_id in nodes:
+            node = network.add_node(node_id)
+            assert isinstance(node, canopen.RemoteNode)
+            step(f"SDO reads from node {node_id}: device type 0x1000, identity 0x1018, device name 0x1008")
+            device_type = _u(node.sdo.upload(0x1000, 0))
+            vendor = _u(node.sdo.upload(0x1018, 1))
+            serial = _u(node.sdo.upload(0x1018, 4))
+            name = node.sdo.upload(0x1008, 0).decode(errors="replace")
+            print(f"  -> device type 0x{device_type:08X} (CiA 402 servo), vendor 0x{vendor:08X} (maxon), "
+                  f"serial 0x{serial:X}, name {name!r}")
+        if unconfigured:
+            new_id = max([*nodes, 3]) + 1
+            step(f"LSS Fastscan (CiA 305): find the {unconfigured} drive(s) without a node id and give one id {new_id}")
+            network.lss.RESPONSE_TIMEOUT = 0.02
+            narrator.quiet = True
+            found, address = network.lss.fast_scan()
+            narrator.quiet = False
+            if found:
+                print(f"  -> found vendor 0x{address[0]:X} product 0x{address[1]:X} revision 0x{address[2]:X} "
+                      f"serial 0x{address[3]:X} in {narrator.count} frames so far; it is now in LSS configuration "
+                      "state")
+                network.lss.configure_node_id(new_id)
+                network.lss.send_switch_state_global(network.lss.WAITING_STATE)
+                time.sleep(0.1)
+                nodes = [*nodes, new_id]
+        if len(nodes) > 1:
+            node_id = nodes[1]
+            first = network.add_node(node_id)
+            assert isinstance(first, canopen.RemoteNode)
+            step(f"CiA 402 on node {node_id}: Profile Position mode, enable (controlword 6, 7, 15), move to 1000")
+            sdo = first.sdo
+            sdo.download(0x6060, 0, (1).to_bytes(1, "little", signed=True))
+            for cw in (0x06, 0x07, 0x0F):
+                sdo.download(0x6040, 0, cw.to_bytes(2, "little"))
+            sdo.download(0x607A, 0, (1000).to_bytes(4, "little", signed=True))
+            sdo.download(0x6040, 0, (0x1F).to_bytes(2, "little"))
+            narrator.quiet = True
+            deadline = time.monotonic() + 10.0
+            status = position = 0
+            while time.monotonic() < deadline:
+                status = _u(sdo.upload(0x6041, 0))
+                position = _u(sdo.upload(0x6064, 0), signed=True)
+                if status & 0x0400 and position == 1000:
+                    break
+            narrator.quiet = False
+            print(f"  -> statusword 0x{status:04X} (operation enabled, target reached: {bool(status & 0x400)}), "
+                  f"position actual {position}")
+    finally:
+        network.notifier.stop()
+    return nodes
+
+
+def demo_idx(info: dict[str, Any], nodes: list[int]) -> None:
+    """The maxon IDX's USB protocol from a host program, through its virtual serial port."""
+    from ..devices.maxon_idx.host.client import IdxClient
+
+    for name, ports in info.get("usb", {}).items():
+        step(f"maxon IDX {name!r} over its virtual USB port {ports['pty']} (pyserial, DLE/STX frames, CRC-CCITT)")
         with IdxClient(ports["pty"]) as idx:
-            print(f"  -> device name {idx.read_string(0, 0x1008, 0)!r}")
+            print(f"  -> ReadObject 0x1008 on the IDX itself: {idx.read_string(0, 0x1008, 0)!r}")
+            for node_id in nodes[1:3]:
+                position = idx.read(node_id, 0x6064, 0, "i32")
+                print(f"  -> ReadObject 0x6064 of node {node_id} through the IDX's SDO gateway: {position}")
 
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     config = load_rig(argv[0] if argv else None)
-    drives = sorted(int(d["node_id"]) for d in config.drives if d.get("node_id") is not None)
+    nodes = sorted(int(d["node_id"]) for d in [*config.drives, *config.devices] if d.get("node_id") is not None)
+    unconfigured = sum(1 for d in config.drives if d.get("node_id") is None)
     with tempfile.TemporaryDirectory(prefix="gatewaylab-demo-") as tmp:
         ready = Path(tmp) / "ready.json"
         trace = Path(tmp) / "can0.log"
@@ -139,21 +164,20 @@ def main(argv: list[str] | None = None) -> int:
             endpoint = info["buses"]["can0"]["endpoint"]
             print(f"  ready file: {json.dumps(info)}")
             step(f"Connecting with python-can: can.Bus(interface='gatewaylab', channel='{endpoint}')")
-            bus = can.Bus(interface="gatewaylab", channel=endpoint, name="demo")
+            bus = can.Bus(interface="gatewaylab", channel=endpoint, name="demo", receive_own_messages=True)
             narrator = Narrator()
             try:
-                if drives:
-                    demo_drives(bus, narrator, drives)
+                if nodes:
+                    nodes = demo_canopen(bus, narrator, nodes, unconfigured)
                 else:
                     notifier = can.Notifier(bus, [narrator])
-                    step("No drives in this rig: sending a few frames of our own and watching them go round")
+                    step("No CANopen nodes in this rig: sending a few frames of our own and watching them go round")
                     with can.Bus(interface="gatewaylab", channel=endpoint, name="demo-peer") as peer:
                         for i in range(3):
                             peer.send(can.Message(arbitration_id=0x701 + i, data=b"\x05", is_extended_id=False))
-                        peer.send(can.Message(arbitration_id=0x080, data=b"", is_extended_id=False))
                         time.sleep(0.2)
                     notifier.stop()
-                demo_idx(info)
+                demo_idx(info, nodes)
             finally:
                 bus.shutdown()
             step(f"Stopping the rig (SIGTERM); {narrator.count} frames seen; trace written by python-can:")

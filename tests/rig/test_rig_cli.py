@@ -118,3 +118,14 @@ def test_a_failing_callback_is_logged_and_the_realtime_rig_keeps_running(caplog)
         assert "participant bug" in caplog.text
     finally:
         rig.close()
+
+
+def test_make_demo_runs_on_the_default_rig_and_explains_real_traffic() -> None:
+    """`make demo` (issue 2 §4): real traffic on the default rig, explained, exits by itself."""
+    out = subprocess.run([sys.executable, "-m", "gatewaylab.rig.demo"], capture_output=True, text=True,
+                         timeout=120, check=True).stdout
+    assert "NMT reset communication to all nodes" in out
+    assert "boot-up of node 2" in out and "boot-up of node 4" in out          # 4: assigned by LSS Fastscan
+    assert "serial 0x1004" in out and "LSS slave: configure node id answer, error code 0" in out
+    assert "target reached: True), position actual 1000" in out
+    assert "ReadObject 0x6064 of node 2 through the IDX's SDO gateway: 1000" in out
