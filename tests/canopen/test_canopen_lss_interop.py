@@ -235,7 +235,23 @@ def test_master_golden_frames(rig: Rig) -> None:
     m.inquire(Cs.INQUIRE_NODE_ID)
     m.identify_non_configured()
     m.fast_scan()
-    rig.clock.advance(1.0)
+    m.switch_state_selective(LssAddress(0xFB, 0x61500000, 0x00010000, 0x1002))
+    m.identify_remote_slave(0xFB, 0x61500000, 1, 2, 0x1000, 0x1FFF)
+    m.inquire(Cs.INQUIRE_VENDOR)
+    rig.clock.advance(5.0)
+    assert sent[-11:] == [
+        "7E5 40 FB 00 00 00 00 00 00",
+        "7E5 41 00 00 50 61 00 00 00",
+        "7E5 42 00 00 01 00 00 00 00",
+        "7E5 43 02 10 00 00 00 00 00",
+        "7E5 46 FB 00 00 00 00 00 00",
+        "7E5 47 00 00 50 61 00 00 00",
+        "7E5 48 01 00 00 00 00 00 00",
+        "7E5 49 02 00 00 00 00 00 00",
+        "7E5 4A 00 10 00 00 00 00 00",
+        "7E5 4B FF 1F 00 00 00 00 00",
+        "7E5 5A 00 00 00 00 00 00 00",
+    ]
     assert sent[:8] == [
         "7E5 04 01 00 00 00 00 00 00",
         "7E5 11 05 00 00 00 00 00 00",
