@@ -2,6 +2,7 @@
 
 Outputs (RxPDO 0x1600): 0x7000:01 digital outputs (U8), 0x7010:01/02 analog outputs (INT16).
 Inputs (TxPDO 0x1A00): 0x6000:01 digital inputs, 0x6010:01/02 analog inputs, 0x6020:01 cycle counter.
+Settings: 0x8000:01 description string (RW), 0x8000:02 scale (RW), 0x8001 emergency trigger (RW).
 The inputs echo the outputs (a wired loop-back test box): the application runs on the SM2 write
 event, before the same LRW reads SM3, so one LRW returns its own outputs. The counter counts output
 cycles, so a master can check both directions of process data.
@@ -15,7 +16,7 @@ from ..common.clock import Clock
 from .description import DeviceDescription, ObjectDef, Pdo, PdoEntry
 from .esc import AlState
 from .foe import FoeHandler
-from .od import Access, DataType
+from .od import Access, DataType, Entry
 from .slave import Slave, SlaveApplication
 
 VENDOR_ID = 0x47574C42  # 'GWLB', not an ETG-assigned id (see docs/decisions/ethercat.md)
@@ -49,6 +50,7 @@ def io_description(name: str = "GL-IO 8DIO 2AIO", serial: int = 0, revision: int
             ObjectDef(0x7000, "Digital outputs", subs=(("Digital outputs", DataType.UNSIGNED8, 0, rw_out),)),
             ObjectDef(0x7010, "Analog outputs", subs=(("Analog output 1", DataType.INTEGER16, 0, rw_out),
                                                       ("Analog output 2", DataType.INTEGER16, 0, rw_out))),
+            ObjectDef(0x8001, "Emergency trigger", DataType.UNSIGNED16, 0, Access.RW),
             ObjectDef(0x8000, "Settings", subs=(("Description", DataType.VISIBLE_STRING,
                                                  "generic loop-back I/O test box", Access.RW),
                                                 ("Scale", DataType.UNSIGNED32, 1, Access.RW))),
@@ -78,5 +80,16 @@ class IoApplication(SlaveApplication):
 
 def create_io_slave(clock: Clock, name: str = "GL-IO 8DIO 2AIO", serial: int = 0,
                     foe: FoeHandler | None = None, revision: int = 1) -> Slave:
-    """An ``ethercat_io`` slave ready to be put in a segment."""
-    return Slave(clock, io_description(name, serial, revision), IoApplication(), foe, name=name)
+    """An ``ethercat_io`` slave ready to be put in a segment.
+
+    Writing an error code to 0x8001 makes the box send that CoE emergency right after the SDO
+    response (fault injection for masters' emergency handling)."""
+    slave = Slave(clock, io_description(name, serial, revision), IoApplication(), foe, name=name)
+
+    def trigger(entry: Entry, data: bytes) -> None:
+        code = int.from_bytes(data[:2], "little")
+        if code:
+            clock.call_soon(slave.emergency, code, 0x01, b"GL-IO")
+
+    slave.od.entry(0x8001, 0).on_write = trigger
+    return slave

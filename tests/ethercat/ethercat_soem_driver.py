@@ -13,6 +13,10 @@ from typing import Any
 import pysoem
 
 
+def _text(value: Any) -> str:
+    return value.decode("latin-1") if isinstance(value, bytes) else str(value)
+
+
 def _open(iface: str) -> Any:
     master = pysoem.Master()
     master.open(iface)
@@ -70,9 +74,28 @@ def scenario_full(iface: str, cycles: int) -> dict[str, Any]:
         except pysoem.SdoError as exc:
             aborts[name] = exc.abort_code
     out["aborts"] = aborts
+    text = bytes(range(33, 127)) * 3 + b"END"
+    s0.sdo_write(0x8000, 1, text)  # 285 bytes: normal initiate + segments
+    out["segmented_roundtrip"] = s0.sdo_read(0x8000, 1, 512) == text
+    out["eeprom_vendor"] = int.from_bytes(s0.eeprom_read(0x0008), "little")
+    od = {obj.index: obj for obj in s0.od}
+    out["od_names"] = {hex(i): _text(od[i].name) for i in (0x1000, 0x1018, 0x1C12, 0x7010) if i in od}
+    out["od_count"] = len(od)
+    out["od_1018_entries"] = [_text(e.name) for e in od[0x1018].entries] if 0x1018 in od else []
+    emergencies: list[int] = []
+    s0.add_emergency_callback(lambda e: emergencies.append(e.error_code))
+    s0.sdo_write(0x8001, 0, (0x5432).to_bytes(2, "little"))
+    for _ in range(200):
+        if emergencies:
+            break
+        s0.mbx_receive()
+    out["emergencies"] = emergencies
     payload = bytes(range(256)) * 3 + b"tail"
     s0.foe_write("config.bin", 0, payload)
     out["foe_roundtrip"] = s0.foe_read("config.bin", 0, 4096) == payload
+    out["dc_slaves"] = master.config_dc()
+    for s in master.slaves:
+        s.dc_sync(True, 1_000_000)
     out.update(_to_op(master))
     bad = 0
     t0 = time.perf_counter()

@@ -129,3 +129,29 @@ def test_soem_stops_sm_watchdog_takes_slaves_to_safeop(full_run: tuple[dict[str,
     r, segment = full_run
     assert r["after_stop"] == [[0x14, 0x001B]] * 3
     assert all(s.outputs == bytes(5) for s in segment.slaves)
+
+
+def test_soem_segmented_sdo_eeprom_and_sdo_information(full_run: tuple[dict[str, Any], Segment]) -> None:
+    """A 285-byte string written and read back by segmented SDO; the SII read through SOEM's EEPROM
+    access (word 8 = vendor id); SOEM's object dictionary listing through SDO Information."""
+    r, _ = full_run
+    assert r["segmented_roundtrip"] is True
+    assert r["eeprom_vendor"] == VENDOR_ID
+    assert r["od_names"] == {"0x1000": "Device type", "0x1018": "Identity", "0x1c12": "RxPDO assign",
+                             "0x7010": "Analog outputs"}
+    assert r["od_count"] >= 19
+    assert r["od_1018_entries"] == ["SubIndex 000", "Vendor ID", "Product code", "Revision", "Serial number"]
+
+
+def test_soem_receives_coe_emergency(full_run: tuple[dict[str, Any], Segment]) -> None:
+    """CoE emergency (service 1) delivered through the mailbox reaches SOEM's emergency callback."""
+    r, _ = full_run
+    assert r["emergencies"] == [0x5432]
+
+
+def test_soem_dc_configuration_starts_sync0(full_run: tuple[dict[str, Any], Segment]) -> None:
+    """SOEM config_dc (receive-time latch 0x0900, offsets 0x0920, delays 0x0928) and dc_sync
+    (0x0990 start, 0x09A0 cycle, 0x0981 activation) -> the devices get SYNC0 events."""
+    r, segment = full_run
+    assert r["dc_slaves"]
+    assert all(getattr(s.app, "sync0_count", 0) > 10 for s in segment.slaves)
