@@ -281,8 +281,8 @@ class Drive:
         if int(value) not in SUPPORTED_METHODS:
             raise SdoAbort(VALUE_RANGE_EXCEEDED, f"homing method {value} not supported")
 
-    def _on_nmt_change(self, old: Any, new: Any) -> None:
-        if new.name == "PRE_OPERATIONAL" and old.name == "INITIALISING":
+    def _on_nmt_change(self, old: NmtState, new: NmtState) -> None:
+        if new is NmtState.PRE_OPERATIONAL and old is NmtState.INITIALISING:
             # after a reset the mode object is back at its (or its stored) value
             self._sync_mode()
         self._publish()   # statusword bit 9 'remote' follows NMT Operational (IDX table 3-11)

@@ -29,6 +29,7 @@ from typing import TYPE_CHECKING, Any
 from ..bus.frame import CanFrame
 from ..common.clock import Clock, TimerHandle
 from ..common.errors import LocalError, RemoteError, TimeoutError_
+from .nmt import NmtState
 
 if TYPE_CHECKING:
     from .node import Node
@@ -419,7 +420,7 @@ class LssSlave:
     def _serving(self) -> bool:
         if not self.nmt_gate or self.node.node_id is None:
             return True
-        return bool(self.node.nmt_state.name.upper() == "STOPPED")
+        return self.node.nmt_state is NmtState.STOPPED
 
     def _on_frame(self, frame: CanFrame, t: float) -> None:
         if frame.can_id != LSS_MASTER_COB_ID or frame.extended or frame.rtr or frame.fd:
