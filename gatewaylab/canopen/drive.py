@@ -425,6 +425,8 @@ class Drive:
             check_fe = self._run_mode(dt, max_torque)
         elif state in (PdsState.QUICK_STOP_ACTIVE, PdsState.FAULT_REACTION_ACTIVE):
             self._run_stop(dt, max_torque)
+        elif st.velocity == 0.0 and plant.external_torque == 0.0 and not self.fe_warning:
+            return   # power stage off and the axis at rest: nothing can change
         else:
             plant.step(dt, ControlMode.OFF)
             self.demand = st.position + self.offset
