@@ -386,7 +386,10 @@ class Esc:
         mem = self.mem
         if address < RAM_START:
             self._register_write(address, end, data)
-            return True
+            if end <= RAM_START:
+                return True
+            data = bytes(data[RAM_START - address:])
+            address = RAM_START
         hit: list[_Sm] | None = None
         for sm in self._ram_sms:
             if sm.start < end and address < sm.end:
@@ -440,6 +443,8 @@ class Esc:
     def process_datagram(self, buf: bytearray, pos: int, cmd: int, dlen: int) -> None:
         """Execute one datagram of a frame in place (auto-increment address, data, working counter)."""
         self.stats.datagrams += 1
+        if cmd == 0 or cmd > _FRMW:
+            return  # NOP (and anything unknown) passes untouched
         off = pos + 10
         wkc_at = off + dlen
         inc = 0

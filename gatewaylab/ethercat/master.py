@@ -56,6 +56,18 @@ class SlaveInfo:
     input_offset: int = 0
     input_bytes: int = 0
     mbx_counter: int = 0
+    boot: bool = False
+
+    @property
+    def mailbox_out(self) -> tuple[int, int]:
+        """The mailbox SM0 in use: the bootstrap one in BOOT, else the standard one."""
+        b = self.sii.bootstrap_mailbox
+        return (b[0], b[1]) if self.boot and b[1] else self.sii.mailbox_out
+
+    @property
+    def mailbox_in(self) -> tuple[int, int]:
+        b = self.sii.bootstrap_mailbox
+        return (b[2], b[3]) if self.boot and b[3] else self.sii.mailbox_in
 
     @property
     def name(self) -> str:
@@ -219,6 +231,7 @@ class Master:
             self._configure_mailbox(s, boot=state == AlState.BOOT)
         self.fpwr(s.station, REG_AL_CONTROL, U16.pack(int(state) | (0x10 if ack else 0)))
         status, code = self.al_status(position)
+        s.boot = (status & 0x0F) == AlState.BOOT
         if status & 0x10 or (status & 0x0F) != state:
             raise AlStatusError(f"slave {position} refused {state.name}: AL status 0x{status:02X}", code)
         return AlState(status & 0x0F)
@@ -230,7 +243,9 @@ class Master:
     def _configure_mailbox(self, s: SlaveInfo, boot: bool = False) -> None:
         if s.sii.mailbox_protocols == 0:
             return
-        (mo, mos), (mi, mis) = s.sii.mailbox_out, s.sii.mailbox_in
+        b = s.sii.bootstrap_mailbox
+        (mo, mos), (mi, mis) = ((b[0], b[1]), (b[2], b[3])) if boot and b[1] else (s.sii.mailbox_out,
+                                                                                    s.sii.mailbox_in)
         sms = SM_REG.pack(mo, mos, 0x26, 0, 1, 0) + SM_REG.pack(mi, mis, 0x22, 0, 1, 0)
         self.fpwr(s.station, REG_SM, sms)
 
@@ -247,7 +262,7 @@ class Master:
                          accept: Callable[[MailboxMessage], bool] | None = None) -> MailboxMessage:
         """Write a request into SM0 and return the first reply of the same type from SM1."""
         s = self.slave(position)
-        mo, mos = s.sii.mailbox_out
+        mo, mos = s.mailbox_out
         s.mbx_counter = s.mbx_counter % 7 + 1
         raw = encode_mailbox(MailboxMessage(mtype, data, s.mbx_counter))
         if len(raw) > mos:
@@ -309,12 +324,12 @@ class Master:
                                          int.from_bytes(data.ljust(4, b"\0"), "little")))
             return
         s = self.slave(position)
-        max_first = s.sii.mailbox_out[1] - 16
+        max_first = s.mailbox_out[1] - 16
         first = data[:max_first]
         self._sdo(position, SDO.pack(0x21 | ca, index, subindex, len(data)) + first)
         rest = data[len(first):]
         toggle = 0
-        max_seg = s.sii.mailbox_out[1] - 9
+        max_seg = s.mailbox_out[1] - 9
         while rest:
             chunk, rest = rest[:max_seg], rest[max_seg:]
             n = 7 - len(chunk) if len(chunk) < 7 else 0
@@ -374,7 +389,7 @@ class Master:
 
     def _next_mailbox(self, position: int, accept: Callable[[MailboxMessage], bool]) -> MailboxMessage:
         s = self.slave(position)
-        mi, mis = s.sii.mailbox_in
+        mi, mis = s.mailbox_in
         out: list[MailboxMessage] = []
 
         def poll() -> bool:
@@ -417,7 +432,7 @@ class Master:
 
     def foe_write(self, position: int, name: str, data: bytes, password: int = 0) -> None:
         s = self.slave(position)
-        max_data = s.sii.mailbox_out[1] - 12
+        max_data = s.mailbox_out[1] - 12
         opcode, word, _ = self._foe(position, foe_packet(FoeOpcode.WRQ, password, name.encode("latin-1")))
         if opcode != FoeOpcode.ACK or word != 0:
             raise FoeError("write request not acknowledged", 0x8000)
@@ -442,7 +457,7 @@ class Master:
 
     def foe_read(self, position: int, name: str, password: int = 0) -> bytes:
         s = self.slave(position)
-        max_data = s.sii.mailbox_in[1] - 12
+        max_data = s.mailbox_in[1] - 12
         out = bytearray()
         opcode, word, rest = self._foe(position, foe_packet(FoeOpcode.RRQ, password, name.encode("latin-1")))
         while True:
@@ -456,7 +471,7 @@ class Master:
 
     def _foe_ack_last(self, position: int, packet: int) -> None:
         s = self.slave(position)
-        mo, mos = s.sii.mailbox_out
+        mo, mos = s.mailbox_out
         s.mbx_counter = s.mbx_counter % 7 + 1
         raw = encode_mailbox(MailboxMessage(MailboxType.FOE, foe_packet(FoeOpcode.ACK, packet), s.mbx_counter))
         self._wait(lambda: self._phys(Command.FPWR, s.station, mo, raw.ljust(mos, b"\0")).wkc == 1)

@@ -166,6 +166,7 @@ class SiiInfo:
     sync_managers: tuple[tuple[int, int, int, int, int], ...]
     coe_details: int
     foe_details: int
+    bootstrap_mailbox: tuple[int, int, int, int] = (0, 0, 0, 0)
 
 
 def parse_sii(img: bytes) -> SiiInfo:
@@ -174,6 +175,7 @@ def parse_sii(img: bytes) -> SiiInfo:
         raise FrameFormatError("SII image shorter than its fixed header")
     vendor, product, revision, serial = struct.unpack_from("<IIII", img, 0x10)
     mo, mos, mi, mis, proto = struct.unpack_from("<HHHHH", img, 0x30)
+    boot = struct.unpack_from("<HHHH", img, 0x28)
     pos = 0x80
     strings: list[str] = []
     cats: list[int] = []
@@ -209,4 +211,5 @@ def parse_sii(img: bytes) -> SiiInfo:
         if 0 < name_idx <= len(strings):
             name = strings[name_idx - 1]
     return SiiInfo(vendor, product, revision, serial, U16.unpack_from(img, 8)[0], (mo, mos), (mi, mis), proto,
-                   tuple(strings), name, tuple(cats), tuple(sms), coe, foe)
+                   tuple(strings), name, tuple(cats), tuple(sms), coe, foe,
+                   boot if boot[1] not in (0, 0xFFFF) else (0, 0, 0, 0))

@@ -13,10 +13,10 @@ from dataclasses import dataclass
 from ..common.clock import Clock
 from .coe import CoeServer, emergency_message
 from .description import DeviceDescription, Pdo
-from .errors import AlStatusCode, EtherCATConfigError, SdoAbortCode, SdoAbortError
+from .errors import AlStatusCode, EtherCATConfigError, MailboxErrorCode, SdoAbortCode, SdoAbortError
 from .esc import AlState, Esc
 from .foe import FoeFiles, FoeHandler, FoeServer
-from .mailbox import MailboxEndpoint, MailboxMessage, MailboxType
+from .mailbox import MailboxEndpoint, MailboxMessage, MailboxType, error_reply
 from .od import Access, DataType, Entry, ObjectDictionary, OdObject, decode, encode
 from .sii import build_sii
 
@@ -131,7 +131,8 @@ class Slave:
     def state_changed(self, old: AlState, new: AlState, code: int) -> None:
         if new in (AlState.INIT, AlState.BOOT):
             self.mailbox.reset()
-            self.foe.reset()
+            size = self.desc.bootstrap_mailbox[3] if new == AlState.BOOT else self.desc.mailbox_in[1]
+            self.foe = FoeServer(self.foe_handler, size)
             self.coe = CoeServer(self.od, self.desc.mailbox_in[1], lambda: self.esc.al_state)
         if new in (AlState.SAFEOP, AlState.OP) and old in (AlState.PREOP, AlState.INIT):
             self.esc.pdi_write(self.desc.inputs_start, bytes(self._inputs))
@@ -142,7 +143,11 @@ class Slave:
 
     def mailbox_received(self, data: bytes) -> None:
         self.esc.mailbox_clear(0)  # the PDI read the buffer
-        if self.esc.al_state == AlState.INIT:
+        state = self.esc.al_state
+        if state == AlState.INIT:
+            return
+        if state == AlState.BOOT and (len(data) < 6 or data[5] & 0x0F != MailboxType.FOE):
+            self.mailbox.send(error_reply(MailboxErrorCode.UNSUPPORTED_PROTOCOL))  # BOOT: only FoE (IDX 4.2)
             return
         self.mailbox.received(data)
 

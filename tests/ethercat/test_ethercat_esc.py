@@ -200,3 +200,10 @@ def test_alias_addressing_only_when_enabled(segment: Segment) -> None:
     run(segment, phys(Command.APWR, -1, 0x0100, struct.pack("<I", 0x01000001)))
     hit = run(segment, phys(Command.FPRD, 0x0777, 0x0012, b"\0\0"))[0]
     assert hit.wkc == 1 and hit.data == b"\x77\x07"
+
+
+def test_nop_datagram_passes_untouched(segment: Segment) -> None:
+    """NOP (command 0): no slave reads, writes, increments ADP or the working counter."""
+    back = run(segment, phys(Command.NOP, 0, 0x0120, b"\x08\x00"))[0]
+    assert back.adp == 0 and back.wkc == 0
+    assert all(s.esc.al_state == AlState.INIT for s in segment.slaves)

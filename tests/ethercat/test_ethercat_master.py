@@ -275,3 +275,32 @@ def test_foe_busy_then_ack(clock: SimulatedClock) -> None:
     with pytest.raises(FoeError) as err:
         m.foe_read(0, "firmware.bin")
     assert err.value.code == FoeErrorCode.ACCESS_DENIED
+
+
+def test_bootstrap_allows_only_foe_with_the_bootstrap_mailbox(clock: SimulatedClock) -> None:
+    """IDX 4.2 table 4-16 'Bootstrap: only FoE is possible (Mailbox), firmware download via FoE';
+    table 4-17 IB/BI. The bootstrap mailbox (SII words 0x14..0x17) may be larger than the standard one."""
+    import dataclasses
+
+    from gatewaylab.ethercat.errors import FrameFormatError
+    from gatewaylab.ethercat.io_device import IoApplication, io_description
+    desc = dataclasses.replace(io_description(), bootstrap=True, bootstrap_mailbox=(0x1000, 512, 0x1200, 512))
+    files = FoeFiles()
+    m = Master(clock, Segment([Slave(clock, desc, IoApplication(), files)]))
+    m.scan()
+    assert m.slaves[0].sii.bootstrap_mailbox == (0x1000, 512, 0x1200, 512)
+    with pytest.raises(AlStatusError) as err:
+        m.request_state(0, AlState.SAFEOP)
+    assert err.value.code == AlStatusCode.INVALID_STATE_CHANGE
+    assert m.request_state(0, AlState.BOOT, ack=True) == AlState.BOOT
+    firmware = bytes(range(256)) * 8
+    m.foe_write(0, "firmware.efw", firmware)
+    assert files.files["firmware.efw"] == firmware
+    with pytest.raises(FrameFormatError):
+        m.sdo_upload32(0, 0x1018, 1)  # CoE in BOOT: mailbox error reply 'unsupported protocol'
+    with pytest.raises(AlStatusError) as err:
+        m.request_state(0, AlState.PREOP)
+    assert err.value.code == AlStatusCode.INVALID_STATE_CHANGE  # BOOT -> PREOP is not a transition
+    m.request_state(0, AlState.INIT, ack=True)
+    m.request_state(0, AlState.PREOP)
+    assert m.sdo_upload32(0, 0x1018, 1) == desc.vendor_id
