@@ -35,6 +35,9 @@ if TYPE_CHECKING:
 #: command byte, index, sub-index (CiA 301 figure 20 ff.)
 SDO_HEADER = struct.Struct("<BHB")
 SDO_HEADER_U32 = struct.Struct("<BHBI")
+#: Initiate upload response command byte for an expedited answer of n bytes, and its padding.
+_EXPEDITED_CS = (b"", b"\x4F", b"\x4B", b"\x47", b"\x43")
+_PAD = (b"", b"\x00\x00\x00", b"\x00\x00", b"\x00", b"")
 #: Largest object a segmented or block download may carry before "out of memory".
 MAX_TRANSFER = 1 << 20
 
@@ -78,6 +81,8 @@ class SdoServer:
         self._block_start = 0
         self._sent = 0
         self._last_sent = False
+        #: Expedited upload answers by payload: frames are immutable, polling repeats them.
+        self._frames: dict[bytes, CanFrame] = {}
         #: Counters: requests answered, aborts sent, frames ignored (wrong DLC or RTR).
         self.requests = 0
         self.aborts_sent = 0
@@ -132,12 +137,33 @@ class SdoServer:
             return
         self.requests += 1
         try:
+            if data[0] == 0x40 and self.state is SdoServerState.IDLE:
+                self._fast_upload(data)     # the most frequent request, kept short
+                return
             self._dispatch(data)
         except SdoAbort as exc:
             self._abort(exc.code)
         except Exception:  # device hook misbehaved: answer, never crash the bus
             self.node.stats["hook_errors"] = self.node.stats.get("hook_errors", 0) + 1
             self._abort(GENERAL_ERROR)
+
+    def _fast_upload(self, data: bytes) -> None:
+        index = data[1] | (data[2] << 8)
+        sub = data[3]
+        self.index, self.sub = index, sub
+        value = self.node.read(index, sub)
+        n = len(value)
+        if 0 < n <= 4:
+            payload = _EXPEDITED_CS[n] + data[1:4] + value + _PAD[n]
+            cache = self._frames
+            frame = cache.get(payload)
+            if frame is None or frame.can_id != self.tx_cob_id:
+                if len(cache) >= 512:
+                    cache.clear()
+                frame = cache[payload] = CanFrame(self.tx_cob_id, payload)
+            self.node.send(frame)
+        else:
+            self._start_upload(index, sub, value)
 
     def _dispatch(self, data: bytes) -> None:
         cs = data[0]
