@@ -186,7 +186,8 @@ class Tpdo(_Pdo):
         return bytes(out)
 
     def _active(self) -> bool:
-        return self.valid and self.node.nmt_state is NmtState.OPERATIONAL
+        """Valid, mapped (an empty mapping is no PDO) and the node Operational."""
+        return self.valid and bool(self.mapped) and self.node.nmt_state is NmtState.OPERATIONAL
 
     def transmit(self, data: bytes | None = None) -> None:
         """Send now (used for SYNC and RTR, which ignore the inhibit time)."""
@@ -230,6 +231,8 @@ class Tpdo(_Pdo):
             self.transmit()
 
     def on_sync(self, counter: int | None) -> None:
+        if not self.mapped:
+            return
         tt = self.trans_type
         if tt == 0:
             if self._pending_event:

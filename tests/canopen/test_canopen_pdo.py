@@ -167,6 +167,45 @@ def test_event_driven_with_event_timer_and_inhibit(make_node, raw, sniffer, cloc
     assert frames[1][0] >= 0.05 - 0.0002
 
 
+def test_event_reception_in_python_canopen(make_node, network, clock) -> None:
+    """IDX 3.3.3.1 a): python-canopen receives the event-timer TPDO when simulated time passes."""
+    node = make_node()
+    remote = remote_for(network, node)
+    remote.tpdo.read()
+    tpdo = remote.tpdo[2]
+    tpdo.clear()
+    tpdo.add_variable(0x2007)
+    tpdo.trans_type = 254
+    tpdo.event_timer = 20
+    tpdo.enabled = True
+    remote.tpdo.save()
+    remote.nmt.state = "OPERATIONAL"
+    node.set(0x2007, 0, -99)                  # an event at once
+
+    def later() -> None:
+        with clock.lock:
+            clock.advance(0.02)
+
+    barrier(remote)
+    assert tpdo.map[0].raw == -99
+    node.od.values[(0x2007, 0)] = 1234        # no event: only the timer sends it
+    stamp = while_waiting(tpdo.receive_condition, lambda: tpdo.wait_for_reception(5.0), later)
+    assert stamp is not None and tpdo.map[0].raw == 1234
+
+
+def test_empty_mapping_is_no_pdo(make_node, raw) -> None:
+    """CiA 301 7.5.2.36: with sub-index 0 = 0 the PDO is disabled: no frame on SYNC or RTR."""
+    make_node()
+    assert wr(raw, 0x1800, 1, 0x80000185) == 0
+    assert wr(raw, 0x1800, 2, 1, 1) == 0
+    assert wr(raw, 0x1800, 1, 0x185) == 0
+    raw.send(0, [0x01, 5])
+    raw.received.clear()
+    raw.send(0x80)
+    raw.send(0x185, rtr=True)
+    assert raw.take(0x185) == []
+
+
 def test_type_0_sends_on_sync_after_an_event(make_node, raw, sniffer) -> None:
     """CiA 301 7.2.2.2: type 0 (acyclic synchronous) sends at a SYNC only after an event."""
     node = make_node()
