@@ -111,8 +111,10 @@ class Controller:
                  on_event: EventCallback | None) -> None:
         self.bus = bus
         self.name = name
-        self.bitrate = bitrate
-        self.data_bitrate = data_bitrate
+        self._bitrate = bitrate
+        self._data_bitrate = data_bitrate
+        #: Cached: does this controller's bit timing match the bus? (hot path of every frame)
+        self.timing_matches = True
         self.listen_only = listen_only
         self.auto_retransmit = auto_retransmit
         self.receive_own = receive_own
@@ -135,13 +137,32 @@ class Controller:
         return f"<Controller {self.bus.name}/{self.name} {self.state.value} TEC={self.tec} REC={self.rec}>"
 
     @property
-    def timing_matches(self) -> bool:
-        """False when this controller's bit timing differs from the bus (it sees only errors)."""
+    def bitrate(self) -> int:
+        return self._bitrate
+
+    @bitrate.setter
+    def bitrate(self, value: int) -> None:
+        """Change the nominal bit rate (LSS activate bit timing); the bus re-checks the match."""
+        self._bitrate = value
+        self._check_timing()
+
+    @property
+    def data_bitrate(self) -> int | None:
+        return self._data_bitrate
+
+    @data_bitrate.setter
+    def data_bitrate(self, value: int | None) -> None:
+        self._data_bitrate = value
+        self._check_timing()
+
+    def _check_timing(self) -> None:
+        """False when this controller's bit timing differs from the bus (it then sees only errors)."""
         bus = self.bus
-        if self.bitrate != bus.bitrate:
-            return False
-        return not (self.fd and bus.data_bitrate is not None and self.data_bitrate is not None
-                    and self.data_bitrate != bus.data_bitrate)
+        self.timing_matches = self._bitrate == bus.bitrate and not (
+            self.fd and bus.data_bitrate is not None and self._data_bitrate is not None
+            and self._data_bitrate != bus.data_bitrate)
+        if self.timing_matches and self.tx_queue and self.connected:
+            bus._kick()
 
     @property
     def bus_off(self) -> bool:
@@ -262,8 +283,8 @@ class VirtualBus:
             raise ConfigError(f"bus {name}: bit rates must be positive")
         self.clock = clock
         self.name = name
-        self.bitrate = bitrate
-        self.data_bitrate = data_bitrate
+        self._bitrate = bitrate
+        self._data_bitrate = data_bitrate
         #: False: frames take no time (ordering and arbitration still apply). For load tests.
         self.timing = timing
         self.controllers: list[Controller] = []
@@ -282,7 +303,28 @@ class VirtualBus:
 
     @property
     def is_fd(self) -> bool:
-        return self.data_bitrate is not None
+        return self._data_bitrate is not None
+
+    @property
+    def bitrate(self) -> int:
+        return self._bitrate
+
+    @bitrate.setter
+    def bitrate(self, value: int) -> None:
+        """Re-time the whole segment (e.g. after an LSS bit-timing switch); controllers re-check."""
+        self._bitrate = value
+        for c in self.controllers:
+            c._check_timing()
+
+    @property
+    def data_bitrate(self) -> int | None:
+        return self._data_bitrate
+
+    @data_bitrate.setter
+    def data_bitrate(self, value: int | None) -> None:
+        self._data_bitrate = value
+        for c in self.controllers:
+            c._check_timing()
 
     # -- attachment -------------------------------------------------------------------------
     def attach(self, name: str = "", *, bitrate: int | None = None, data_bitrate: int | None = None,
@@ -294,6 +336,7 @@ class VirtualBus:
                           data_bitrate or self.data_bitrate, listen_only, auto_retransmit,
                           receive_own, fd, auto_recover, on_frame, on_event)
         self.controllers.append(ctrl)
+        ctrl._check_timing()
         return ctrl
 
     def detach(self, ctrl: Controller) -> None:
@@ -495,7 +538,9 @@ class VirtualBus:
             if sender.state is not ErrorState.BUS_OFF and not sender.auto_retransmit and sender.tx_queue:
                 sender.tx_queue.popleft()
                 sender._emit(TxAbortedEvent(frame, now, "single-shot"))
-        self._foreign_errors(now)
+            self._foreign_errors(now)
+        if outcome == "drop":
+            self._foreign_errors(now)
         self._arbitrate(now)
 
     def _deliver(self, sender: Controller, frame: CanFrame, now: float) -> None:
@@ -507,7 +552,10 @@ class VirtualBus:
                 continue
             if not c.connected or c.state is ErrorState.BUS_OFF or c.synthetic:
                 continue
-            if not c.timing_matches or (fd and not c.fd):
+            if not c.timing_matches:
+                c._error(ErrorKind.FORM, False, None, now)  # a foreign bit rate sees only garbage
+                continue
+            if fd and not c.fd:
                 continue
             st = c.stats
             st.rx_frames += 1

@@ -212,7 +212,8 @@ class SimulatedClock(Clock):
         """Let ``dt`` seconds of simulated time pass."""
         if dt < 0:
             raise LocalError(f"cannot advance by a negative time {dt}")
-        return self.run_until(self._now + dt)
+        with self.lock:  # read "now" under the lock: another thread may be running the clock
+            return self.run_until(self._now + dt)
 
     def run_while(self, condition: Callable[[], bool], max_events: int = 1_000_000) -> int:
         """Run events one by one while ``condition()`` holds (e.g. while a bus is busy)."""
