@@ -7,6 +7,7 @@ transitions, consumes outputs and produces inputs each cycle, serves FoE files a
 
 from __future__ import annotations
 
+import itertools
 import struct
 from dataclasses import dataclass
 
@@ -112,6 +113,8 @@ class Slave:
                 self._compute_layout()
             except SdoAbortError:
                 return AlStatusCode.INVALID_OUTPUT_MAPPING
+            if not self._sms_disjoint():
+                return AlStatusCode.INVALID_SM_CONFIG
             if not self._pd_sm_ok(2, d.outputs_start, self.output_bytes, 0x04):
                 return AlStatusCode.INVALID_OUTPUT_CONFIG
             if not self._pd_sm_ok(3, d.inputs_start, self.input_bytes, 0x00):
@@ -121,6 +124,18 @@ class Slave:
     def _sm_ok(self, index: int, start: int, length: int, mode: int) -> bool:
         sm = self.esc.sm_config(index)
         return sm.enabled and sm.start == start and sm.length == length and (sm.control & 0x0F) == mode
+
+    def _sms_disjoint(self) -> bool:
+        """Enabled SyncManagers must lie in the process RAM and must not overlap."""
+        ranges = []
+        for i in range(self.esc.n_sm):
+            sm = self.esc.sm_config(i)
+            if sm.enabled:
+                if sm.start < 0x1000 or sm.start + sm.length > len(self.esc.mem):
+                    return False
+                ranges.append((sm.start, sm.start + sm.length))
+        ranges.sort()
+        return all(a[1] <= b[0] for a, b in itertools.pairwise(ranges))
 
     def _pd_sm_ok(self, index: int, start: int, length: int, mode: int) -> bool:
         sm = self.esc.sm_config(index)
