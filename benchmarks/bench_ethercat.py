@@ -47,6 +47,9 @@ def _pace(rate: float, seconds: float, cycle: Any) -> dict[str, Any]:
     lost = 0
     t_next = time.perf_counter() + period
     for _ in range(n):
+        slack = t_next - time.perf_counter() - 0.0003
+        if slack > 0:
+            time.sleep(slack)  # the master sleeps between cycles like a real-time task would
         while time.perf_counter() < t_next:
             pass
         t_next += period

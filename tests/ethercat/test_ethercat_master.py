@@ -304,3 +304,33 @@ def test_bootstrap_allows_only_foe_with_the_bootstrap_mailbox(clock: SimulatedCl
     m.request_state(0, AlState.INIT, ack=True)
     m.request_state(0, AlState.PREOP)
     assert m.sdo_upload32(0, 0x1018, 1) == desc.vendor_id
+
+
+def test_overlapping_sync_managers_refused(master: Master) -> None:
+    """PREOP->SAFEOP with an SM overlapping the mailbox: AL status code 0x0017 invalid SM configuration."""
+    master.set_state(AlState.PREOP)
+    master.config_map()
+    s = master.slaves[0]
+    master.fpwr(s.station, REG_SM + 16, bytes.fromhex("4010 0500 64 00 01 00".replace(" ", "")))
+    with pytest.raises(AlStatusError) as err:
+        master.request_state(0, AlState.SAFEOP)
+    assert err.value.code == AlStatusCode.INVALID_SM_CONFIG
+
+
+def test_sdo_information_object_list_in_fragments(clock: SimulatedClock) -> None:
+    """SDO Information answers longer than one mailbox are sent in fragments (fragments-left count
+    down, 'incomplete' bit on all but the last)."""
+    import dataclasses
+
+    from gatewaylab.ethercat.description import ObjectDef
+    from gatewaylab.ethercat.io_device import IoApplication, io_description
+    base = io_description()
+    extra = tuple(ObjectDef(0x2000 + i, f"Parameter {i}", DataType.UNSIGNED16, i, Access.RW) for i in range(150))
+    desc = dataclasses.replace(base, objects=base.objects + extra)
+    m = Master(clock, Segment([Slave(clock, desc, IoApplication())]))
+    m.scan()
+    m.request_state(0, AlState.PREOP)
+    indexes = m.od_list(0)
+    assert len(indexes) == 19 + 150 and indexes[:3] == [0x1000, 0x1008, 0x1009]
+    assert [i for i in indexes if 0x2000 <= i < 0x3000] == [0x2000 + i for i in range(150)]
+    assert m.sdo_upload16(0, 0x2095) == 0x95

@@ -125,8 +125,10 @@ def test_soem_10000_process_data_cycles_both_ways(full_run: tuple[dict[str, Any]
 
 def test_soem_stops_sm_watchdog_takes_slaves_to_safeop(full_run: tuple[dict[str, Any], Segment]) -> None:
     """IDX table 4-16 SAFEOP 'using safe default values'; when the master stops, the SM watchdog
-    (100 ms default) expires and the slave reports SAFEOP + error with AL status code 0x001B."""
+    (set to 1 s by SOEM through 0x0420, read back through the same register) expires and the slave
+    reports SAFEOP + error with AL status code 0x001B."""
     r, segment = full_run
+    assert r["watchdog_ms"] == pytest.approx(1000.0)
     assert r["after_stop"] == [[0x14, 0x001B]] * 3
     assert all(s.outputs == bytes(5) for s in segment.slaves)
 
