@@ -126,7 +126,7 @@ class Controller:
         self.tec = 0
         self.rec = 0
         self.state = ErrorState.ERROR_ACTIVE
-        self.connected = True
+        self._connected = True
         self.stats = ControllerStats()
         self.synthetic = False
         self._ready_at = 0.0
@@ -135,6 +135,15 @@ class Controller:
 
     def __repr__(self) -> str:
         return f"<Controller {self.bus.name}/{self.name} {self.state.value} TEC={self.tec} REC={self.rec}>"
+
+    @property
+    def connected(self) -> bool:
+        return self._connected
+
+    @connected.setter
+    def connected(self, value: bool) -> None:
+        self._connected = value
+        self.bus._receivers = None
 
     @property
     def bitrate(self) -> int:
@@ -161,6 +170,7 @@ class Controller:
         self.timing_matches = self._bitrate == bus.bitrate and not (
             self.fd and bus.data_bitrate is not None and self._data_bitrate is not None
             and self._data_bitrate != bus.data_bitrate)
+        bus._receivers = None
         if self.timing_matches and self.tx_queue and self.connected:
             bus._kick()
 
@@ -207,6 +217,7 @@ class Controller:
     def _set_state(self, new: ErrorState) -> None:
         old = self.state
         self.state = new
+        self.bus._receivers = None
         clock = self.bus.clock
         if new is ErrorState.BUS_OFF:
             for frame in self.tx_queue:
@@ -288,6 +299,9 @@ class VirtualBus:
         #: False: frames take no time (ordering and arbitration still apply). For load tests.
         self.timing = timing
         self.controllers: list[Controller] = []
+        #: Cached (receivers, foreign-rate controllers); None = recompute. Reset by every change
+        #: that decides who hears a frame: attach/detach, (dis)connect, error state, bit timing.
+        self._receivers: tuple[list[Controller], list[Controller]] | None = None
         self.stats = BusStats(since=clock.now())
         self._monitors: list[FrameCallback] = []
         self._in_flight: _InFlight | None = None
@@ -343,6 +357,7 @@ class VirtualBus:
         if ctrl in self.controllers:
             self.controllers.remove(ctrl)
             ctrl.connected = False
+            self._receivers = None
             ctrl.tx_queue.clear()
 
     def add_monitor(self, callback: FrameCallback) -> None:
@@ -399,6 +414,7 @@ class VirtualBus:
         load = _Load(percent, frame)
         ctrl = self.attach("<load>", auto_recover=True)
         ctrl.synthetic = True
+        self._receivers = None
         load.controller = ctrl
         self._load = load
         self._load_tick()
@@ -543,34 +559,41 @@ class VirtualBus:
             self._foreign_errors(now)
         self._arbitrate(now)
 
+    def _audience(self) -> tuple[list[Controller], list[Controller]]:
+        """(controllers that hear frames, controllers at a foreign bit rate), cached."""
+        cached = self._receivers
+        if cached is None:
+            live = [c for c in self.controllers
+                    if c._connected and c.state is not ErrorState.BUS_OFF and not c.synthetic]
+            cached = ([c for c in live if c.timing_matches], [c for c in live if not c.timing_matches])
+            self._receivers = cached
+        return cached
+
     def _deliver(self, sender: Controller, frame: CanFrame, now: float) -> None:
         fd = frame.fd
-        for c in self.controllers:
-            if c is sender:
-                if c.receive_own and c.on_frame is not None:
-                    c.on_frame(frame, now)
-                continue
-            if not c.connected or c.state is ErrorState.BUS_OFF or c.synthetic:
-                continue
-            if not c.timing_matches:
-                c._error(ErrorKind.FORM, False, None, now)  # a foreign bit rate sees only garbage
-                continue
-            if fd and not c.fd:
+        n = len(frame.data)
+        receivers, foreign = self._audience()
+        if sender.receive_own and sender.on_frame is not None:
+            sender.on_frame(frame, now)
+        for c in receivers:
+            if c is sender or (fd and not c.fd):
                 continue
             st = c.stats
             st.rx_frames += 1
-            st.rx_bytes += len(frame.data)
+            st.rx_bytes += n
             if c.rec:
                 c.rec = c.rec - 1 if c.rec <= 127 else 120
                 if c.state is not ErrorState.ERROR_ACTIVE:
                     c._update_state()
-            if c.on_frame is not None:
-                c.on_frame(frame, now)
+            cb = c.on_frame
+            if cb is not None:
+                cb(frame, now)
+        for c in foreign:
+            c._error(ErrorKind.FORM, False, None, now)  # a foreign bit rate sees only garbage
         for monitor in self._monitors:
             monitor(frame, now)
 
     def _foreign_errors(self, now: float) -> None:
         """Controllers at another bit rate see every frame as a form error (and nothing else)."""
-        for c in self.controllers:
-            if c.connected and not c.timing_matches and c.state is not ErrorState.BUS_OFF:
-                c._error(ErrorKind.FORM, False, None, now)
+        for c in self._audience()[1]:
+            c._error(ErrorKind.FORM, False, None, now)
