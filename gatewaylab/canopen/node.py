@@ -66,6 +66,7 @@ class Node:
         self.stats: dict[str, int] = {}
         self._handlers: dict[int, FrameHandler] = {}
         self._listeners: list[FrameHandler] = []
+        self._id_listeners: dict[int, list[FrameHandler]] = {}
         self._write_hooks: dict[int, list[WriteHook]] = {}
         self._read_hooks: dict[int, list[ReadHook]] = {}
         self._nmt_hooks: list[NmtHook] = []
@@ -121,13 +122,22 @@ class Node:
         """``callback(counter, t)`` on every SYNC consumed (after sync RPDOs, before sync TPDOs)."""
         self.sync.listeners.append(callback)
 
-    def add_frame_listener(self, callback: FrameHandler) -> None:
-        """``callback(frame, t)`` for every frame this node's controller receives, in any state."""
-        self._listeners.append(callback)
+    def add_frame_listener(self, callback: FrameHandler, can_id: int | None = None) -> None:
+        """``callback(frame, t)`` for every frame this node's controller receives, in any state;
+        with ``can_id`` only for frames with that identifier (cheaper on a busy bus)."""
+        if can_id is None:
+            self._listeners.append(callback)
+        else:
+            self._id_listeners.setdefault(can_id, []).append(callback)
 
     def remove_frame_listener(self, callback: FrameHandler) -> None:
         if callback in self._listeners:
             self._listeners.remove(callback)
+        for can_id, listeners in list(self._id_listeners.items()):
+            if callback in listeners:
+                listeners.remove(callback)
+                if not listeners:
+                    del self._id_listeners[can_id]
 
     def add_validator(self, index: int, validator: Validator) -> None:
         """Internal: ``validator(entry, value)`` may refuse a remote write with SdoAbort."""
@@ -224,11 +234,18 @@ class Node:
             self.count("tx_errors")
 
     def _on_frame(self, frame: CanFrame, t: float) -> None:
-        for listener in self._listeners:
-            listener(frame, t)
+        if self._listeners:
+            for listener in self._listeners:
+                listener(frame, t)
+        can_id = frame.can_id
+        if self._id_listeners:
+            listeners = self._id_listeners.get(can_id)
+            if listeners is not None:
+                for listener in listeners:
+                    listener(frame, t)
         if frame.extended:
             return
-        handler = self._handlers.get(frame.can_id)
+        handler = self._handlers.get(can_id)
         if handler is not None:
             handler(frame, t)
 

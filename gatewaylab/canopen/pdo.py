@@ -87,6 +87,9 @@ class _Pdo:
             index, s, bits = value >> 16, (value >> 8) & 0xFF, value & 0xFF
             size = bits // 8
             entry = od.entries.get((index, s)) if index >= 0x1000 else None
+            if entry is not None and entry.bit_length != bits:
+                entry = None        # an inconsistent default/stored mapping acts like a dummy entry
+                self.node.count("pdo_mapping_errors")
             mapped.append(_Mapped(entry, (index, s) if entry is not None else None, offset, size))
             offset += size
         self.mapped = mapped
@@ -131,12 +134,18 @@ class Rpdo(_Pdo):
 
     def apply(self, data: bytes) -> None:
         node = self.node
+        store = node.store
         for m in self.mapped:
             entry = m.entry
             if entry is None:
                 continue        # dummy mapping
             try:
-                node.store(entry, decode(entry, data[m.offset:m.offset + m.size]))
+                codec = entry.codec
+                if codec is not None and not entry.limited:
+                    value = codec.unpack_from(data, m.offset)[0]
+                else:
+                    value = decode(entry, data[m.offset:m.offset + m.size])
+                store(entry, value)
             except SdoAbort:
                 node.count("rpdo_value_errors")
 
@@ -177,12 +186,16 @@ class Tpdo(_Pdo):
 
     def build(self) -> bytes:
         """Sample the mapped objects now."""
-        od = self.node.od
-        values = od.values
+        values = self.node.od.values
         out = bytearray(self.length)
         for m in self.mapped:
-            if m.key is not None and m.entry is not None:
-                out[m.offset:m.offset + m.size] = encode(m.entry, values[m.key])[:m.size]
+            entry = m.entry
+            if m.key is not None and entry is not None:
+                codec = entry.codec
+                if codec is not None:
+                    codec.pack_into(out, m.offset, values[m.key])
+                else:
+                    out[m.offset:m.offset + m.size] = encode(entry, values[m.key])[:m.size]
         return bytes(out)
 
     def _active(self) -> bool:
