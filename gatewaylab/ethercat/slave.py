@@ -15,7 +15,7 @@ from ..common.clock import Clock
 from .coe import CoeServer, emergency_message
 from .description import DeviceDescription, Pdo
 from .errors import AlStatusCode, EtherCATConfigError, MailboxErrorCode, SdoAbortCode, SdoAbortError
-from .esc import AlState, Esc
+from .esc import REG_AL_STATUS, AlState, Esc
 from .foe import FoeFiles, FoeHandler, FoeServer
 from .mailbox import MailboxEndpoint, MailboxMessage, MailboxType, error_reply
 from .od import Access, DataType, Entry, ObjectDictionary, OdObject, decode, encode
@@ -173,8 +173,9 @@ class Slave:
         if sm != 2:
             return
         self.cycles += 1
-        if self.esc.al_state == AlState.OP:
-            self._outputs = self.esc.pdi_outputs[2][:self.output_bytes]
+        if self.esc.mem[REG_AL_STATUS] & 0x0F == AlState.OP:  # hot path: no enum construction
+            out = self.esc.pdi_outputs[2]
+            self._outputs = out if len(out) == self.output_bytes else out[:self.output_bytes]
             self.outputs_valid = True
             self.app.on_outputs(self, self._outputs)
 
