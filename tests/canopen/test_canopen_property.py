@@ -11,7 +11,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from gatewaylab.bus import CanFrame, VirtualBus
-from gatewaylab.canopen.errors import ABORT_NAMES
+from gatewaylab.canopen.errors import ABORT_NAMES, SdoAbort
 from gatewaylab.canopen.node import Node
 from gatewaylab.common.clock import SimulatedClock
 
@@ -103,3 +103,29 @@ def test_random_nmt_sync_pdo_frames_never_crash(frames: list[tuple[int, bytes, b
             assert len(frame.data) == 1 and frame.data[0] & 0x7F in (0, 4, 5, 0x7F)
         if frame.can_id == 0x85:
             assert len(frame.data) == 8
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.sampled_from(["upload", "segmented", "block_up", "download", "seg_down", "block_down"]),
+       st.lists(st.binary(min_size=0, max_size=8), min_size=1, max_size=12))
+def test_sdo_client_survives_random_answers(kind: str, answers: list[bytes]) -> None:
+    """CiA 301 7.2.4 / table 6-20: whatever a server answers, the client ends every transfer with
+    exactly one callback (data, None or an SdoAbort) and never raises."""
+    from gatewaylab.canopen.sdo_client import SdoClient
+
+    clock = SimulatedClock()
+    sent: list[CanFrame] = []
+    client = SdoClient(clock, sent.append, timeout=0.5)
+    results: list[object] = []
+    if kind in ("upload", "segmented", "block_up"):
+        client.upload(5, 0x2000, 0, results.append, block=kind == "block_up")
+    else:
+        client.download(5, 0x2000, 0, b"x" * (3 if kind == "download" else 20), results.append,
+                        segmented=kind == "seg_down", block=kind == "block_down")
+    for data in answers:
+        client.on_frame(CanFrame(0x585, data), clock.now())
+    clock.advance(1.0)
+    assert len(results) == 1, results
+    assert results[0] is None or isinstance(results[0], (bytes, SdoAbort))   # a server's own code passes through
+    for frame in sent:
+        assert frame.can_id == 0x605 and len(frame.data) == 8
