@@ -350,3 +350,42 @@ def test_stopped_node_does_not_answer_sdo(make_node, raw) -> None:
     assert raw.sdo(5, [0x40, 0x00, 0x10, 0x00]) is None
     raw.send(0x000, [0x80, 5])
     assert raw.sdo(5, [0x40, 0x00, 0x10, 0x00]) is not None
+
+
+def test_block_transfer_timeouts(make_node, raw, clock) -> None:
+    """IDX table 6-20 0x05040000: a block upload waiting for the client's acknowledgement and a
+    block download waiting for the next segment are aborted when the server's timer expires."""
+    node = make_node()
+    raw.sdo(5, [0xA4, 0x01, 0x20, 0x00, 127, 0, 0, 0])
+    raw.push(5, [0xA3])
+    raw.received.clear()
+    clock.advance(node.sdo.timeout + 0.01)
+    assert [abort_code(f.data) for f in raw.take(0x585)] == [E.SDO_PROTOCOL_TIMED_OUT]
+    raw.sdo(5, [0xC6, 0x01, 0x20, 0x00, 30, 0, 0, 0])
+    raw.push(5, [0x01, *b"abcdefg"])
+    raw.received.clear()
+    clock.advance(node.sdo.timeout + 0.01)
+    assert [abort_code(f.data) for f in raw.take(0x585)] == [E.SDO_PROTOCOL_TIMED_OUT]
+    assert node.sdo.state.name == "IDLE"
+
+
+def test_node_read_write_api_is_the_sdo_view(make_node) -> None:
+    """Contract: node.read/write give exactly what an SDO client gets, with the same abort codes;
+    get/set are typed local access without checks."""
+    node = make_node()
+    assert node.read(0x2011, 0) == b"\x11\x11"
+    node.write(0x2011, 0, b"\x34\x12")
+    assert node.get(0x2011) == 0x1234
+    for call, code in [(lambda: node.read(0x2005, 0), E.WRITE_ONLY),
+                       (lambda: node.write(0x2004, 0, b"\x01"), E.READ_ONLY),
+                       (lambda: node.write(0x2003, 0, b"\x65\x00"), E.VALUE_RANGE_EXCEEDED),
+                       (lambda: node.write(0x2011, 0, b"\x01"), E.LENGTH_TOO_LOW),
+                       (lambda: node.read(0x4000, 0), E.OBJECT_DOES_NOT_EXIST)]:
+        with pytest.raises(SdoAbort) as info:
+            call()
+        assert info.value.code == code
+    node.set(0x2004, 0, 7)                   # read-only for SDO, settable by the device
+    assert node.read(0x2004, 0) == b"\x07"
+    refreshed: list[tuple[int, int]] = []
+    node.on_read(0x2004, lambda i, s: (refreshed.append((i, s)), node.set(0x2004, 0, 9)))
+    assert node.read(0x2004, 0) == b"\x09" and refreshed == [(0x2004, 0)]
