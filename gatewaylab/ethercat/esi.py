@@ -148,11 +148,11 @@ def export_esi(desc: DeviceDescription, od: ObjectDictionary | None = None) -> s
     descriptions = _sub(root, "Descriptions")
     group = _sub(_sub(descriptions, "Groups"), "Group")
     _sub(group, "Type", desc.group)
-    _sub(group, "Name", desc.group)
+    _sub(group, "Name", desc.group, LcId="1033")
     device = _sub(_sub(descriptions, "Devices"), "Device", Physics="YY")
     _sub(device, "Type", desc.order_code or desc.name, ProductCode=_hex(desc.product_code),
          RevisionNo=_hex(desc.revision))
-    _sub(device, "Name", desc.name)
+    _sub(device, "Name", desc.name, LcId="1033")
     _sub(device, "GroupType", desc.group)
     if desc.coe:
         profile = _sub(device, "Profile")
