@@ -13,11 +13,22 @@ import canopen
 import pytest
 from canopen.objectdictionary import ODArray, ODRecord, ODVariable
 from canopen_testkit import remote_for, sample_od
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from gatewaylab.canopen import errors as E
 from gatewaylab.canopen.errors import SdoAbort
 from gatewaylab.canopen.node import Node
-from gatewaylab.canopen.od import Access, DataType, Entry, ObjectCode, ObjectDictionary, decode, encode
+from gatewaylab.canopen.od import (
+    Access,
+    DataType,
+    Entry,
+    ObjectCode,
+    ObjectDictionary,
+    decode,
+    encode,
+    type_range,
+)
 from gatewaylab.common.errors import ConfigError
 
 
@@ -231,3 +242,29 @@ HighLimit=0x7FFFFFFF
     assert od.device_info["VendorName"] == "maxon"
     with pytest.raises(ConfigError):
         ObjectDictionary.from_eds("[2000]\nParameterName=x\nDataType=0x0099\nAccessType=rw\n")
+
+
+_INT_DTS = [dt for dt in DataType if type_range(dt) is not None and dt is not DataType.BOOLEAN]
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.sampled_from(_INT_DTS), st.data())
+def test_integer_codec_round_trip(dt: DataType, data: st.DataObject) -> None:
+    """CiA 301 7.1.4-7.1.5: every value of an integer type survives encode/decode, in size bytes."""
+    low, high = type_range(dt)  # type: ignore[misc]
+    value = data.draw(st.integers(low, high))
+    entry = Entry(0x2000, 0, "x", dt)
+    wire = encode(entry, value)
+    assert len(wire) == entry.size
+    assert decode(entry, wire) == value
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.binary(max_size=12), st.sampled_from(list(DataType)))
+def test_decode_never_raises_anything_but_sdo_abort(wire: bytes, dt: DataType) -> None:
+    """Table 6-20: bytes of any length for any type give a value or an SdoAbort, nothing else."""
+    entry = Entry(0x2000, 0, "x", dt, low=0 if dt in (DataType.INTEGER8, DataType.REAL32) else None)
+    try:
+        decode(entry, wire)
+    except SdoAbort as exc:
+        assert exc.code in (E.LENGTH_TOO_LOW, E.LENGTH_MISMATCH, E.VALUE_RANGE_EXCEEDED)
