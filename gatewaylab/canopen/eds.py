@@ -138,8 +138,9 @@ def import_eds(text: str, node_id: int | None = None) -> ObjectDictionary:
         cp.read_string(text)
     except configparser.Error as exc:
         raise ConfigError(f"not an EDS/DCF: {exc}") from exc
-    if node_id is None and cp.has_section("DeviceComissioning"):
-        raw = cp.get("DeviceComissioning", "NodeID", fallback="")
+    commissioning = next((sec for sec in ("DeviceComissioning", "DeviceCommissioning") if cp.has_section(sec)), None)
+    if node_id is None and commissioning is not None:
+        raw = cp.get(commissioning, "NodeID", fallback="")
         if raw.strip():
             nid = int(raw, 0)
             node_id = nid if 1 <= nid <= 127 else None
@@ -153,6 +154,9 @@ def import_eds(text: str, node_id: int | None = None) -> ObjectDictionary:
 
     def entry_args(section: str) -> tuple[dict[str, Any], str | None]:
         get = cp.get
+        if not cp.has_option(section, "DataType") and \
+                int(get(section, "ObjectType", fallback="0x7") or "0x7", 0) == ObjectCode.DOMAIN:
+            cp.set(section, "DataType", "0x000F")       # CiA 306: a DOMAIN object may omit it
         try:
             dt = DataType(int(get(section, "DataType"), 0))
         except (configparser.Error, ValueError) as exc:

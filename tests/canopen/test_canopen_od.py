@@ -268,3 +268,13 @@ def test_decode_never_raises_anything_but_sdo_abort(wire: bytes, dt: DataType) -
         decode(entry, wire)
     except SdoAbort as exc:
         assert exc.code in (E.LENGTH_TOO_LOW, E.LENGTH_MISMATCH, E.VALUE_RANGE_EXCEEDED)
+
+
+def test_dcf_spellings_and_domain_without_data_type() -> None:
+    """CiA 306: [DeviceComissioning] (the standard's spelling, also accepted corrected) and a
+    DOMAIN object (ObjectType 0x2) that omits DataType."""
+    for section in ("DeviceComissioning", "DeviceCommissioning"):
+        od = ObjectDictionary.from_eds(f"[{section}]\nNodeID=0x21\n[1F50]\nParameterName=Program\n"
+                                       "ObjectType=0x2\nAccessType=wo\n")
+        assert od.node_id == 0x21
+        assert od.entries[(0x1F50, 0)].data_type is DataType.DOMAIN
