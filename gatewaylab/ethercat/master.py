@@ -496,7 +496,7 @@ class Master:
             o_sm, i_sm = self._pd_sms(s)
             sms = SM_REG.pack(o_sm[0], s.output_bytes, 0x64, 0, 1 if s.output_bytes else 0, 0) + \
                 SM_REG.pack(i_sm[0], s.input_bytes, 0x20, 0, 1 if s.input_bytes else 0, 0)
-            self.fpwr(s.station, REG_SM + 16, sms)
+            self.fpwr(s.station, REG_SM + 8 * o_sm[1], sms)
             fmmus = FMMU_REG.pack(s.output_offset, s.output_bytes, 0, 7, o_sm[0], 0, 2,
                                   1 if s.output_bytes else 0) + \
                 FMMU_REG.pack(s.input_offset, s.input_bytes, 0, 7, i_sm[0], 0, 1, 1 if s.input_bytes else 0)
@@ -506,8 +506,9 @@ class Master:
 
     @staticmethod
     def _pd_sms(s: SlaveInfo) -> tuple[tuple[int, int], tuple[int, int]]:
-        outs = [(st, ln) for st, ln, _c, _e, t in s.sii.sync_managers if t == 3]
-        ins = [(st, ln) for st, ln, _c, _e, t in s.sii.sync_managers if t == 4]
+        """(start, SM index) of the outputs and inputs SyncManagers from the SII (types 3 and 4)."""
+        outs = [(sm[0], i) for i, sm in enumerate(s.sii.sync_managers) if sm[4] == 3]
+        ins = [(sm[0], i) for i, sm in enumerate(s.sii.sync_managers) if sm[4] == 4]
         if not outs or not ins:
             raise MasterError(f"slave {s.position} has no process data SyncManagers in its SII")
         return outs[0], ins[0]

@@ -87,6 +87,9 @@ class Slave:
             self.mailbox.handlers[MailboxType.COE] = self._coe
         if desc.foe:
             self.mailbox.handlers[MailboxType.FOE] = self._foe
+        #: Process data SyncManagers: 2/3 behind the mailbox SMs, 0/1 on a slave without mailbox.
+        self.sm_outputs = 2 if (desc.coe or desc.foe) else 0
+        self.sm_inputs = self.sm_outputs + 1
         self.outputs_map: list[MappedEntry] = _desc_entries(desc.rx_pdos)
         self.inputs_map: list[MappedEntry] = _desc_entries(desc.tx_pdos)
         self.output_bytes = desc.output_bytes
@@ -115,9 +118,9 @@ class Slave:
                 return AlStatusCode.INVALID_OUTPUT_MAPPING
             if not self._sms_disjoint():
                 return AlStatusCode.INVALID_SM_CONFIG
-            if not self._pd_sm_ok(2, d.outputs_start, self.output_bytes, 0x04):
+            if not self._pd_sm_ok(self.sm_outputs, d.outputs_start, self.output_bytes, 0x04):
                 return AlStatusCode.INVALID_OUTPUT_CONFIG
-            if not self._pd_sm_ok(3, d.inputs_start, self.input_bytes, 0x00):
+            if not self._pd_sm_ok(self.sm_inputs, d.inputs_start, self.input_bytes, 0x00):
                 return AlStatusCode.INVALID_INPUT_CONFIG
         return self.app.on_transition(self, old, new)
 
@@ -170,17 +173,17 @@ class Slave:
         self.mailbox.pump()
 
     def outputs_written(self, sm: int) -> None:
-        if sm != 2:
+        if sm != self.sm_outputs:
             return
         self.cycles += 1
         if self.esc.mem[REG_AL_STATUS] & 0x0F == AlState.OP:  # hot path: no enum construction
-            out = self.esc.pdi_outputs[2]
+            out = self.esc.pdi_outputs[sm]
             self._outputs = out if len(out) == self.output_bytes else out[:self.output_bytes]
             self.outputs_valid = True
             self.app.on_outputs(self, self._outputs)
 
     def inputs_read(self, sm: int) -> None:
-        if sm == 3:
+        if sm == self.sm_inputs:
             self.app.on_inputs_read(self)
 
     def sync0(self, t: float) -> None:

@@ -128,10 +128,30 @@ def scenario_full(iface: str, cycles: int) -> dict[str, Any]:
     return out
 
 
+def scenario_mixed(iface: str) -> dict[str, Any]:
+    """A CoE slave followed by a slave without mailbox (process data sizes from SII categories)."""
+    master = _open(iface)
+    out: dict[str, Any] = {"count": master.config_init()}
+    out["names"] = [s.name for s in master.slaves]
+    out["image"] = master.config_map()
+    out.update(_to_op(master))
+    master.slaves[1].output = b"\x0f"
+    wkcs = []
+    for _ in range(3):
+        master.send_processdata()
+        wkcs.append(master.receive_processdata(RX_TIMEOUT_US))
+    out["wkcs"] = wkcs
+    out["dio_input"] = master.slaves[1].input.hex()
+    master.close()
+    return out
+
+
 if __name__ == "__main__":
     iface, scenario = sys.argv[1], sys.argv[2]
     if scenario == "config":
         result = scenario_config(iface)
+    elif scenario == "mixed":
+        result = scenario_mixed(iface)
     else:
         result = scenario_full(iface, int(sys.argv[3]) if len(sys.argv) > 3 else 1000)
     print(json.dumps(result))

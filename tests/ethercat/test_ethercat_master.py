@@ -334,3 +334,26 @@ def test_sdo_information_object_list_in_fragments(clock: SimulatedClock) -> None
     assert len(indexes) == 19 + 150 and indexes[:3] == [0x1000, 0x1008, 0x1009]
     assert [i for i in indexes if 0x2000 <= i < 0x3000] == [0x2000 + i for i in range(150)]
     assert m.sdo_upload16(0, 0x2095) == 0x95
+
+
+def test_slave_without_mailbox_uses_sm0_sm1_for_process_data(clock: SimulatedClock) -> None:
+    """A simple I/O slave without CoE/FoE: no mailbox SMs, process data in SM0/SM1, sizes from the
+    SII PDO/SM categories (shared notes: SOEM reads the PDO categories when there is no CoE)."""
+    from gatewaylab.ethercat.description import DeviceDescription, Pdo, PdoEntry
+
+    class Echo(SlaveApplication):
+        def on_outputs(self, slave: Slave, data: bytes) -> None:
+            slave.write_inputs(bytes([data[0] ^ 0xFF]))
+
+    desc = DeviceDescription(name="GL-DIO 8", vendor_id=VENDOR_ID, product_code=0x00020001, coe=False, foe=False,
+                             rx_pdos=(Pdo(0x1600, "Out", (PdoEntry(0x7000, 1, 8, "DO"),)),),
+                             tx_pdos=(Pdo(0x1A00, "In", (PdoEntry(0x6000, 1, 8, "DI"),)),),
+                             outputs_start=0x1000, inputs_start=0x1080)
+    io = Slave(clock, desc, Echo())
+    m = Master(clock, Segment([io]))
+    m.bring_up()
+    assert m.slaves[0].sii.mailbox_protocols == 0 and (m.slaves[0].output_bytes, m.slaves[0].input_bytes) == (1, 1)
+    assert io.esc.sm_config(0).start == 0x1000 and io.esc.sm_config(1).start == 0x1080
+    m.pdo_write8(0, 0, 0x0F)
+    assert m.exchange_process_data() == 3
+    assert io.outputs == b"\x0f" and m.pdo_read8(0, 0) == 0xF0

@@ -18,9 +18,12 @@ pytestmark = [pytest.mark.net, pytest.mark.slow]
 CYCLES = 10_000
 
 
-def _serve(veth: Any, args: list[str], pcap: PcapWriter | None = None) -> tuple[dict[str, Any], Segment]:
-    clock = RealTimeClock()
-    segment = Segment([create_io_slave(clock, f"GL-IO #{i}", serial=1000 + i, revision=i + 1) for i in range(3)])
+def _serve(veth: Any, args: list[str], pcap: PcapWriter | None = None, segment: Segment | None = None,
+           clock: RealTimeClock | None = None) -> tuple[dict[str, Any], Segment]:
+    clock = clock or RealTimeClock()
+    if segment is None:
+        segment = Segment([create_io_slave(clock, f"GL-IO #{i}", serial=1000 + i, revision=i + 1)
+                           for i in range(3)])
     wire = WireTransport(segment, veth.emulator_iface, clock, drive_clock=True, pcap=pcap)
     wire.start()
     try:
@@ -157,3 +160,27 @@ def test_soem_dc_configuration_starts_sync0(full_run: tuple[dict[str, Any], Segm
     r, segment = full_run
     assert r["dc_slaves"]
     assert all(getattr(s.app, "sync0_count", 0) > 10 for s in segment.slaves)
+
+
+def test_soem_with_a_slave_without_mailbox(veth_ns: Any) -> None:
+    """A slave without CoE/FoE (no mailbox SMs; process data in SM0/SM1, sizes from the SII TxPDO/RxPDO
+    categories) next to a CoE slave: SOEM maps both and reaches OP with the expected working counter."""
+    from gatewaylab.ethercat.description import DeviceDescription, Pdo, PdoEntry
+    from gatewaylab.ethercat.slave import Slave, SlaveApplication
+
+    class Invert(SlaveApplication):
+        def on_outputs(self, slave: Slave, data: bytes) -> None:
+            slave.write_inputs(bytes([data[0] ^ 0xFF]))
+
+    clock = RealTimeClock()
+    desc = DeviceDescription(name="GL-DIO 8", vendor_id=VENDOR_ID, product_code=0x00020001, coe=False, foe=False,
+                             rx_pdos=(Pdo(0x1600, "Out", (PdoEntry(0x7000, 1, 8, "DO"),)),),
+                             tx_pdos=(Pdo(0x1A00, "In", (PdoEntry(0x6000, 1, 8, "DI"),)),),
+                             outputs_start=0x1000, inputs_start=0x1080)
+    segment = Segment([create_io_slave(clock, "GL-IO"), Slave(clock, desc, Invert())])
+    r, _ = _serve(veth_ns, ["mixed"], segment=segment, clock=clock)
+    assert r["count"] == 2 and r["names"] == ["GL-IO", "GL-DIO 8"]
+    assert r["image"] == 5 + 1 + 9 + 1
+    assert r["op"] == 8 and r["expected_wkc"] == 6
+    assert r["wkcs"] == [6, 6, 6]
+    assert r["dio_input"] == "f0"
