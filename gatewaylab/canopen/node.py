@@ -74,6 +74,11 @@ class Node:
         self._validators: dict[int, list[Validator]] = {}
         self._reactions: dict[int, list[Validator]] = {}
         self._commands: dict[int, Validator] = {}
+        #: Power-on values of the writable entries: what the dictionary held when the node was built
+        #: (defaults, or a DCF's configured values); node-id dependent entries follow the node-id.
+        self._power_on: dict[tuple[int, int], Any] = {
+            key: od.values[key] for key, entry in od.entries.items()
+            if (entry.access.writable or key == (0x1003, 0)) and not entry.nodeid_offset}
         self.controller: Controller = bus.attach(self.name, on_frame=self._on_frame)
         self.sdo = SdoServer(self, timeout=sdo_timeout)
         self.emcy = Emcy(self)
@@ -367,12 +372,19 @@ class Node:
         self.heartbeat.start()
 
     def _reset_values(self, area: range) -> None:
-        """Writable entries of ``area`` back to their defaults (read-only ones belong to the device)."""
+        """Writable entries of ``area`` back to their power-on values (read-only ones belong to the device)."""
         od = self.od
         node_id = self._node_id
         values = od.values
+        power_on = self._power_on
         for key, entry in od.entries.items():
-            if key[0] in area and (entry.access.writable or entry.nodeid_offset or key == (0x1003, 0)):
+            if key[0] not in area:
+                continue
+            if entry.nodeid_offset:
+                values[key] = coerce(entry, entry.default_for(node_id))
+            elif key in power_on:
+                values[key] = power_on[key]
+            elif entry.access.writable:
                 values[key] = coerce(entry, entry.default_for(node_id))
 
     def to_eds(self, *, dcf: bool = False) -> str:
@@ -380,7 +392,8 @@ class Node:
         return self.od.to_eds(dcf=dcf, node_id=self._node_id)
 
     @classmethod
-    def from_eds(cls, clock: Clock, bus: VirtualBus, node_id: int | None, text: str,
+    def from_eds(cls, clock: Clock, bus: VirtualBus, node_id: int | None, source: str | Path,
                  name: str = "", **kwargs: Any) -> Node:
-        """A node whose dictionary is built from EDS/DCF text."""
+        """A node whose dictionary is built from EDS/DCF text, or from the file at a Path."""
+        text = source.read_text(encoding="latin-1") if isinstance(source, Path) else source
         return cls(clock, bus, node_id, ObjectDictionary.from_eds(text, node_id), name, **kwargs)

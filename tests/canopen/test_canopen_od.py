@@ -194,6 +194,17 @@ def test_node_built_from_eds(clock, vbus, network) -> None:
     assert node.to_eds() == node.od.to_eds(node_id=12)
 
 
+def test_node_built_from_eds_file(clock, vbus, tmp_path) -> None:
+    """Issue: building a node from an EDS/DCF *file*; a DCF's node-id and values apply."""
+    path = tmp_path / "drive.dcf"
+    od = _node_with_comm(9)
+    od.set(0x2000, 0, 4711)
+    path.write_text(od.to_eds(dcf=True, node_id=9), encoding="latin-1")
+    node = Node.from_eds(clock, vbus, 9, path)
+    node.start()
+    assert node.get(0x2000) == 4711 and node.get(0x1400, 1) == 0x209
+
+
 def test_handwritten_eds_with_compact_sub_objects() -> None:
     """CiA 306 4.5.2: CompactSubObj arrays, $NODEID defaults, comments and signed hex limits."""
     text = """
