@@ -255,3 +255,20 @@ def test_python_canopen_nmt_broadcast(make_node, network) -> None:
     barrier(remote)
     assert a.nmt_state is b.nmt_state is NmtState.OPERATIONAL
     assert isinstance(network.nmt, canopen.nmt.NmtMaster)
+
+
+def test_guarding_from_python_canopen(make_node, network, sniffer) -> None:
+    """CiA 301 7.2.8.3.2.1 interop: python-canopen's node guarding (periodic remote frames) gets
+    our answers, which it decodes as the NMT state."""
+    node = make_node()
+    remote = remote_for(network, node)
+    remote.nmt.state = "OPERATIONAL"
+    remote.nmt.start_node_guarding(0.01)
+    try:
+        assert remote.nmt.wait_for_heartbeat(5.0) == "OPERATIONAL"
+    finally:
+        remote.nmt.stop_node_guarding()
+    answers = [f.data for _, f in sniffer.ids(0x705) if not f.rtr]
+    assert answers[:2] == [b"\x00", b"\x05"]          # boot-up, then the first guarding answer (toggle 0)
+    assert all(a[0] & 0x7F == 0x05 for a in answers[1:])
+    assert all((a[0] ^ b[0]) & 0x80 for a, b in itertools.pairwise(answers[1:]))
