@@ -65,6 +65,7 @@ class Node:
         #: Counters of things that went wrong without crashing (bad PDOs, hook errors, tx errors).
         self.stats: dict[str, int] = {}
         self._handlers: dict[int, FrameHandler] = {}
+        self._dispatch: dict[int, FrameHandler] = {}
         self._listeners: list[FrameHandler] = []
         self._id_listeners: dict[int, list[FrameHandler]] = {}
         self._write_hooks: dict[int, list[WriteHook]] = {}
@@ -129,11 +130,12 @@ class Node:
 
     def add_frame_listener(self, callback: FrameHandler, can_id: int | None = None) -> None:
         """``callback(frame, t)`` for every frame this node's controller receives, in any state;
-        with ``can_id`` only for frames with that identifier (cheaper on a busy bus)."""
+        with ``can_id`` only for standard frames with that identifier (cheaper on a busy bus)."""
         if can_id is None:
             self._listeners.append(callback)
         else:
             self._id_listeners.setdefault(can_id, []).append(callback)
+            self._merge_dispatch()
 
     def remove_frame_listener(self, callback: FrameHandler) -> None:
         if callback in self._listeners:
@@ -143,6 +145,7 @@ class Node:
                 listeners.remove(callback)
                 if not listeners:
                     del self._id_listeners[can_id]
+        self._merge_dispatch()
 
     def add_validator(self, index: int, validator: Validator) -> None:
         """Internal: ``validator(entry, value)`` may refuse a remote write with SdoAbort."""
@@ -239,20 +242,23 @@ class Node:
             self.count("tx_errors")
 
     def _on_frame(self, frame: CanFrame, t: float) -> None:
-        if self._listeners:
-            for listener in self._listeners:
+        # Called for every frame on the bus, by every node: keep it to one dict lookup.
+        listeners = self._listeners
+        if listeners:
+            for listener in listeners:
                 listener(frame, t)
-        can_id = frame.can_id
-        if self._id_listeners:
-            listeners = self._id_listeners.get(can_id)
-            if listeners is not None:
-                for listener in listeners:
-                    listener(frame, t)
-        if frame.extended:
-            return
-        handler = self._handlers.get(can_id)
-        if handler is not None:
+        handler = self._dispatch.get(frame.can_id)
+        if handler is not None and not frame.extended:
             handler(frame, t)
+
+    def _merge_dispatch(self) -> None:
+        """One table of id-filtered listeners (every state) and service handlers (by NMT state)."""
+        merged = dict(self._handlers)
+        for can_id, listeners in self._id_listeners.items():
+            for listener in reversed(listeners):
+                prev = merged.get(can_id)
+                merged[can_id] = listener if prev is None else _chain(listener, prev)
+        self._dispatch = merged
 
     def rebuild_dispatch(self) -> None:
         """Recompute which COB-IDs this node consumes in its present NMT state."""
@@ -273,6 +279,7 @@ class Node:
             if state is NmtState.OPERATIONAL:
                 self.pdo.register(add)
         self._handlers = handlers
+        self._merge_dispatch()
 
     # -- NMT ---------------------------------------------------------------------------------------
     def _on_nmt(self, frame: CanFrame, t: float) -> None:
@@ -323,6 +330,7 @@ class Node:
         self.running = False
         self.nmt_state = NmtState.INITIALISING
         self._handlers = {}
+        self._merge_dispatch()
         self.controller.flush_tx()
         self.bus.detach(self.controller)
 
@@ -348,6 +356,7 @@ class Node:
         self._halt()
         self.nmt_state = NmtState.INITIALISING
         self._handlers = {}
+        self._merge_dispatch()
         if old is not NmtState.INITIALISING:
             for hook in list(self._nmt_hooks):
                 hook(old, NmtState.INITIALISING)

@@ -272,3 +272,18 @@ def test_guarding_from_python_canopen(make_node, network, sniffer) -> None:
     assert answers[:2] == [b"\x00", b"\x05"]          # boot-up, then the first guarding answer (toggle 0)
     assert all(a[0] & 0x7F == 0x05 for a in answers[1:])
     assert all((a[0] ^ b[0]) & 0x80 for a, b in itertools.pairwise(answers[1:]))
+
+
+def test_id_filtered_frame_listener(make_node, raw, clock) -> None:
+    """Contract (LSS/gateway plug-in): a listener for one identifier sees those standard frames in
+    every NMT state, alongside the node's own services on the same identifier."""
+    node = make_node()
+    seen: list[CanFrame] = []
+    node.add_frame_listener(lambda f, t: seen.append(f), can_id=0x605)
+    raw.send(0x7E5, [0x04, 0x01])
+    raw.send(0x605, [0x40, 0x00, 0x10, 0x00, 0, 0, 0, 0])
+    assert raw.take(0x585) != []                     # the SDO server still answers
+    raw.send(0, [0x02, 5])
+    raw.send(0x605, [0x40, 0x00, 0x10, 0x00, 0, 0, 0, 0])
+    assert raw.take(0x585) == []                     # Stopped: no SDO, the listener still sees it
+    assert len(seen) == 2 and all(f.can_id == 0x605 for f in seen)
