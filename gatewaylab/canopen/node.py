@@ -207,7 +207,7 @@ class Node:
             try:
                 for hook in hooks:
                     hook(index, entry.sub, value)
-            except SdoAbort:
+            except Exception:
                 values[key] = old
                 raise
         reactions = self._reactions.get(index)

@@ -148,6 +148,8 @@ class Rpdo(_Pdo):
                 store(entry, value)
             except SdoAbort:
                 node.count("rpdo_value_errors")
+            except Exception:   # device hook misbehaved: count it, the bus carries on
+                node.count("hook_errors")
 
 
 class Tpdo(_Pdo):

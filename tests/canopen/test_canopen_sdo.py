@@ -178,6 +178,7 @@ def test_hook_abort_undoes_write_and_hook_crash_is_general_error(make_node, netw
         remote.sdo[0x2000].raw = 14
     assert info.value.code == E.GENERAL_ERROR
     assert node.stats["hook_errors"] == 1
+    assert node.get(0x2000) == 0x12345678                 # undone as well
     remote.sdo[0x2000].raw = 15
     assert node.get(0x2000) == 15
 
