@@ -113,13 +113,16 @@ class Master:
     """Drives a :class:`Segment` with real frames; ``link`` replaces the segment (e.g. a socket)."""
 
     def __init__(self, clock: Clock, segment: Segment | None = None,
-                 link: Callable[[bytes], bytes | None] | None = None, *, timeout: float = 0.1) -> None:
+                 link: Callable[[bytes], bytes | None] | None = None, *, timeout: float = 0.1,
+                 capture: Callable[[float, bytes], None] | None = None) -> None:
         if segment is None and link is None:
             raise MasterError("a master needs a segment or a link")
         self.clock = clock
         self.segment = segment
         self.link = link
         self.timeout = timeout
+        #: Called with (clock time, frame) for every frame out and back, e.g. ``PcapWriter.write``.
+        self.capture = capture
         self.foe_busy_timeout = 10.0
         self.slaves: list[SlaveInfo] = []
         self.frames = 0
@@ -136,6 +139,8 @@ class Master:
         """Send one frame and return its datagrams as they came back (working counters set)."""
         raw = encode_frame(Frame(tuple(datagrams)))
         self.frames += 1
+        if self.capture is not None:
+            self.capture(self.clock.now(), raw)
         if self.segment is not None:
             buf = bytearray(raw)
             back: bytes | None = bytes(buf) if self.segment.process(buf) else None
@@ -145,6 +150,8 @@ class Master:
         if back is None:
             self.lost_frames += 1
             raise TimeoutError_("frame lost")
+        if self.capture is not None:
+            self.capture(self.clock.now(), back)
         return decode_frame(back).datagrams
 
     def _one(self, command: Command, address: int, data: bytes) -> Datagram:

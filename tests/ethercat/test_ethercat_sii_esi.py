@@ -3,7 +3,12 @@
 from __future__ import annotations
 
 import io
+import shutil
+import subprocess
 import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import pytest
 
 from gatewaylab.ethercat.esc import sii_checksum
 from gatewaylab.ethercat.esi import export_esi
@@ -64,3 +69,38 @@ def test_pcap_writer_global_header_and_records() -> None:
     assert raw[:4] == bytes.fromhex("d4c3b2a1") and raw[20:24] == b"\x01\0\0\0"
     frames = read_pcap(raw)
     assert [t for t, _ in frames] == [1.5, 2.25] and len(frames[0][1]) == 60
+
+
+def test_wireshark_dissects_captures_as_ethercat(tmp_path: Path) -> None:
+    """Captures open in Wireshark's EtherCAT dissector: every frame is ECAT, the mailbox traffic of an
+    in-process session decodes as CoE SDO and FoE, nothing is malformed (checked with tshark)."""
+    tshark = shutil.which("tshark")
+    if tshark is None:
+        pytest.skip("tshark (Wireshark) is not installed")
+    from gatewaylab.common.clock import SimulatedClock
+    from gatewaylab.ethercat.esc import AlState
+    from gatewaylab.ethercat.io_device import create_io_slave
+    from gatewaylab.ethercat.master import Master
+    from gatewaylab.ethercat.segment import Segment
+
+    path = tmp_path / "inprocess.pcap"
+    pcap = PcapWriter(str(path))
+    clock = SimulatedClock(start=1_700_000_000.0)
+    m = Master(clock, Segment([create_io_slave(clock)]), capture=pcap.write)
+    m.bring_up()
+    m.set_state(AlState.PREOP)
+    m.sdo_upload_str(0, 0x1008)
+    m.foe_write(0, "a.bin", b"x" * 10)
+    pcap.close()
+
+    def fields(*names: str, display: str = "") -> list[str]:
+        cmd = [tshark, "-r", str(path), "-T", "fields"] + [arg for n in names for arg in ("-e", n)]
+        if display:
+            cmd += ["-Y", display]
+        return subprocess.run(cmd, capture_output=True, text=True, check=True).stdout.splitlines()
+
+    frames = fields("frame.protocols")
+    assert len(frames) == 2 * m.frames and all("ecat" in f for f in frames)
+    assert fields("frame.number", display="_ws.malformed") == []
+    assert fields("frame.number", display="ecat_mailbox.coe")
+    assert fields("frame.number", display="ecat_mailbox.foe")
