@@ -328,11 +328,14 @@ class Node:
             return
         self._halt()
         self.running = False
-        self.nmt_state = NmtState.INITIALISING
+        old, self.nmt_state = self.nmt_state, NmtState.INITIALISING
         self._handlers = {}
         self._merge_dispatch()
         self.controller.flush_tx()
         self.bus.detach(self.controller)
+        if old is not NmtState.INITIALISING:
+            for hook in list(self._nmt_hooks):
+                hook(old, NmtState.INITIALISING)
 
     def reset_node(self) -> None:
         """NMT reset node: application and communication parameters back to their power-on values."""
