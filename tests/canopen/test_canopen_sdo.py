@@ -390,3 +390,17 @@ def test_node_read_write_api_is_the_sdo_view(make_node) -> None:
     refreshed: list[tuple[int, int]] = []
     node.on_read(0x2004, lambda i, s: (refreshed.append((i, s)), node.set(0x2004, 0, 9)))
     assert node.read(0x2004, 0) == b"\x09" and refreshed == [(0x2004, 0)]
+
+
+def test_segmented_download_without_size_and_upload_golden(make_node, raw) -> None:
+    """CiA 301 7.2.4.3.4-7: initiate 0x20 (size not indicated) is accepted; a segmented upload
+    answers 0x41 + size, then 0x00/0x10 segments, the last with n unused bytes and c set."""
+    node = make_node()
+    assert raw.sdo(5, [0x20, 0x01, 0x20, 0x00]) == bytes([0x60, 0x01, 0x20, 0x00, 0, 0, 0, 0])
+    assert raw.sdo(5, [0x00 | (6 << 1) | 1, *b"z"]) == bytes([0x20]) + bytes(7)
+    assert node.get(0x2001) == "z"
+    node.set(0x2001, 0, "ABCDEFGHIJ")
+    assert raw.sdo(5, [0x40, 0x01, 0x20, 0x00]) == bytes([0x41, 0x01, 0x20, 0x00, 10, 0, 0, 0])
+    assert raw.sdo(5, [0x60]) == b"\x00ABCDEFG"
+    assert raw.sdo(5, [0x70]) == bytes([0x10 | (4 << 1) | 1]) + b"HIJ" + bytes(4)
+    assert node.sdo.state.name == "IDLE"
