@@ -22,6 +22,7 @@ from .od import Access, DataType, Entry, ObjectDictionary, OdObject, decode, enc
 from .sii import build_sii
 
 U32 = struct.Struct("<I")
+_RANK_ORDER = (AlState.INIT, AlState.PREOP, AlState.BOOT, AlState.SAFEOP, AlState.OP)
 
 
 class SlaveApplication:
@@ -199,6 +200,13 @@ class Slave:
     def emergency(self, error_code: int, error_register: int = 0, data: bytes = b"") -> None:
         """Send a CoE emergency message through the mailbox (ETG.1000.6 CoE emergency)."""
         self.mailbox.send(MailboxMessage(MailboxType.COE, emergency_message(error_code, error_register, data)))
+
+    def fault(self, code: int, state: AlState = AlState.SAFEOP) -> None:
+        """The device falls back by itself (e.g. CAN bus-off): ``state`` + error flag + AL status code;
+        the master must acknowledge (AL control bit 4) before it can go up again."""
+        current = self.esc.al_state
+        target = state if _RANK_ORDER.index(state) < _RANK_ORDER.index(current) else current
+        self.esc.force_state(target, code)
 
     # ------------------------------------------------------------------ process data
     @property

@@ -8,7 +8,11 @@ Regenerate (root) by serving make_segment()'s slaves with a PcapWriter while SOE
 
 from __future__ import annotations
 
+import shutil
+import subprocess
 from pathlib import Path
+
+import pytest
 
 from gatewaylab.common.clock import SimulatedClock
 from gatewaylab.ethercat.datagram import decode_frame
@@ -34,3 +38,14 @@ def test_soem_config_init_replays_byte_for_byte() -> None:
         commands.update(d.command.name for d in decode_frame(expected).datagrams)
     assert {"BRD", "BWR", "APRD", "APWR", "FPRD", "FPWR"} <= commands
     assert [s.esc.station_address for s in segment.slaves] == [0x1001, 0x1002, 0x1003]
+
+
+def test_golden_capture_is_wellformed_for_wireshark() -> None:
+    """The recorded capture opens in Wireshark's EtherCAT dissector with no malformed frame."""
+    tshark = shutil.which("tshark")
+    if tshark is None:
+        pytest.skip("tshark (Wireshark) is not installed")
+    out = subprocess.run([tshark, "-r", str(GOLDEN), "-T", "fields", "-e", "frame.protocols", "-e", "_ws.malformed"],
+                         capture_output=True, text=True, check=True).stdout.splitlines()
+    assert len(out) > 200
+    assert all(line.split("\t")[0].endswith("ecat") and not line.split("\t")[1] for line in out)

@@ -357,3 +357,15 @@ def test_slave_without_mailbox_uses_sm0_sm1_for_process_data(clock: SimulatedClo
     m.pdo_write8(0, 0, 0x0F)
     assert m.exchange_process_data() == 3
     assert io.outputs == b"\x0f" and m.pdo_read8(0, 0) == 0xF0
+
+
+def test_device_fault_falls_back_with_error_and_needs_acknowledge(master: Master, segment: Segment) -> None:
+    """A device error (e.g. CAN bus-off in a gateway) takes OP to SAFEOP with the error flag and an
+    AL status code; IDX table 4-18: the master acknowledges with bit 4 before requesting OP again."""
+    master.bring_up()
+    segment.slaves[1].fault(AlStatusCode.SYNCHRONIZATION_ERROR)
+    assert master.al_status(1) == (0x14, AlStatusCode.SYNCHRONIZATION_ERROR)
+    assert segment.slaves[1].outputs == bytes(5)
+    with pytest.raises(AlStatusError):
+        master.request_state(1, AlState.OP)  # ignored without acknowledge
+    assert master.request_state(1, AlState.OP, ack=True) == AlState.OP
