@@ -24,8 +24,8 @@ from gatewaylab.canopen.node import Node
 from gatewaylab.canopen.od import Access, DataType, ObjectDictionary
 from gatewaylab.common.clock import SimulatedClock
 
-ROUNDS = 5
-PER_ROUND = 400
+ROUNDS = 7
+PER_ROUND = 500
 TIMING = True
 
 
