@@ -120,9 +120,14 @@ def scenario_full(iface: str, cycles: int) -> dict[str, Any]:
     out["bad_wkc"] = bad
     out["inputs"] = [s.input.hex() for s in master.slaves]
     out["last_i"] = cycles - 1
-    # stop sending: the SM watchdog (1 s) takes the slaves to SAFEOP + error 0x001B
-    time.sleep(1.5)
-    master.read_state()
+    # stop sending: the SM watchdog (1 s) takes the slaves to SAFEOP + error 0x001B; poll the AL
+    # status (register reads do not trigger the process data watchdog) until it happened
+    stopped = time.monotonic()
+    while time.monotonic() - stopped < 5.0:
+        master.read_state()
+        if all(s.state & 0x10 for s in master.slaves):
+            break
+    out["fallback_after_s"] = time.monotonic() - stopped
     out["after_stop"] = [(s.state, s.al_status) for s in master.slaves]
     master.close()
     return out

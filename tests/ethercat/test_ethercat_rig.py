@@ -86,3 +86,31 @@ def test_realtime_rig_answers_soem(veth_ns: Any, tmp_path: Path) -> None:
     result = json.loads(proc.stdout.strip().splitlines()[-1])
     assert [s["name"] for s in result["slaves"]] == ["io-a", "io-b"]
     assert [s["rev"] for s in result["slaves"]] == [1, 2]
+
+
+@pytest.mark.net
+def test_gatewaylab_run_ready_file_and_soem(veth_ns: Any, tmp_path: Path) -> None:
+    """`gatewaylab run RIG --ready-file F` with an [ethercat] section: the ready file carries the
+    interface and the slaves; SOEM on the peer finds them; SIGTERM stops the rig."""
+    import signal
+    import sys
+
+    rig_file = tmp_path / "rig.toml"
+    rig_file.write_text(RIG.format(clock="realtime", iface=veth_ns.emulator_iface))
+    ready = tmp_path / "ready.json"
+    proc = subprocess.Popen([sys.executable, "-m", "gatewaylab.rig.cli", "run", str(rig_file), "--ready-file",
+                             str(ready)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None
+        line = proc.stdout.readline()  # printed once the ready file is in place
+        assert "running" in line, (line, proc.stderr.read() if proc.stderr else "")
+        info = json.loads(ready.read_text())["ethercat"]
+        assert info["interface"] == veth_ns.emulator_iface
+        assert [(s["name"], s["position"]) for s in info["slaves"]] == [("io-a", 0), ("io-b", 1)]
+        result = veth_ns.run_master("config")
+        assert result.returncode == 0, result.stderr[-2000:]
+        assert [s["name"] for s in json.loads(result.stdout.splitlines()[-1])["slaves"]] == ["io-a", "io-b"]
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(10)
+    assert proc.returncode == 0

@@ -184,3 +184,4 @@ def test_soem_with_a_slave_without_mailbox(veth_ns: Any) -> None:
     assert r["op"] == 8 and r["expected_wkc"] == 6
     assert r["wkcs"] == [6, 6, 6]
     assert r["dio_input"] == "f0"
+
