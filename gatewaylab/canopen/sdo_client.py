@@ -99,7 +99,11 @@ class SdoClient:
     # -- API -------------------------------------------------------------------------------------
     def upload(self, node_id: int, index: int, sub: int, callback: UploadCallback, *,
                segmented: bool | None = None, block: bool = False) -> None:
-        """Read (index, sub) of ``node_id``; the server chooses expedited or segmented."""
+        """Read (index, sub) of ``node_id``; ``block`` uses the block upload protocol.
+
+        ``segmented`` is accepted for symmetry with :meth:`download` but has no effect: in an
+        SDO upload the server chooses expedited or segmented (CiA 301 7.2.4.3.6).
+        """
         self._enqueue(_Transfer(node_id, index, sub, True, callback, segmented=segmented, block=block))
 
     def download(self, node_id: int, index: int, sub: int, data: bytes, callback: DownloadCallback, *,
