@@ -331,6 +331,9 @@ class PdoManager:
     def nmt_changed(self, old: NmtState, new: NmtState) -> None:
         if new is NmtState.OPERATIONAL:
             for tpdo in self.tpdo:
+                tpdo._sync_count = 0        # counting of SYNCs starts anew in Operational
+                tpdo._started = False
+                tpdo._pending_event = False
                 tpdo._arm_event_timer()
         elif old is NmtState.OPERATIONAL:
             self.halt()
