@@ -43,6 +43,13 @@ class Pdo:
         return sum(e.bit_length for e in self.entries)
 
 
+def _assigned(pdos: tuple[Pdo, ...], assign: tuple[int, ...] | None) -> tuple[Pdo, ...]:
+    if assign is None:
+        return pdos
+    by_index = {p.index: p for p in pdos}
+    return tuple(by_index[i] for i in assign)
+
+
 @dataclass(frozen=True, slots=True)
 class ObjectDef:
     """A device object added to the dictionary: VAR when ``subs`` is empty, else a RECORD."""
@@ -73,8 +80,16 @@ class DeviceDescription:
     mailbox_in: tuple[int, int] = (0x1080, 128)  # SM1: slave -> master
     outputs_start: int = 0x1100  # SM2
     inputs_start: int = 0x1400  # SM3
+    #: Process data SM control bytes (ET1100 0x0804): 0x64 = 3-buffer, ECAT writes, watchdog
+    #: trigger; 0x20 = 3-buffer, ECAT reads. 1-buffer (handshake) layouts use 0x66 / 0x22.
+    outputs_control: int = 0x64
+    inputs_control: int = 0x20
     rx_pdos: tuple[Pdo, ...] = ()
     tx_pdos: tuple[Pdo, ...] = ()
+    #: PDO indexes assigned by default (0x1C12 / 0x1C13); None = all of them. A master may assign
+    #: others (e.g. the first N of ECAN-Lite's 24 chunk PDOs) in PREOP.
+    rx_assign: tuple[int, ...] | None = None
+    tx_assign: tuple[int, ...] | None = None
     coe: bool = True
     foe: bool = True
     bootstrap: bool = False
@@ -91,14 +106,27 @@ class DeviceDescription:
                 raise EtherCATConfigError(f"{self.name}: mailbox at 0x{start:04X} size {size} is impossible")
         if not self.name:
             raise EtherCATConfigError("a device needs a name")
+        for pdos, assign in ((self.rx_pdos, self.rx_assign), (self.tx_pdos, self.tx_assign)):
+            known = {p.index for p in pdos}
+            if assign is not None and not set(assign) <= known:
+                raise EtherCATConfigError(f"{self.name}: assignment {assign} names PDOs that do not exist")
+
+    @property
+    def assigned_rx_pdos(self) -> tuple[Pdo, ...]:
+        return _assigned(self.rx_pdos, self.rx_assign)
+
+    @property
+    def assigned_tx_pdos(self) -> tuple[Pdo, ...]:
+        return _assigned(self.tx_pdos, self.tx_assign)
 
     @property
     def output_bytes(self) -> int:
-        return (sum(p.bit_length for p in self.rx_pdos) + 7) // 8
+        """Outputs (SM2) size with the default assignment."""
+        return (sum(p.bit_length for p in self.assigned_rx_pdos) + 7) // 8
 
     @property
     def input_bytes(self) -> int:
-        return (sum(p.bit_length for p in self.tx_pdos) + 7) // 8
+        return (sum(p.bit_length for p in self.assigned_tx_pdos) + 7) // 8
 
     @property
     def mailbox_protocols(self) -> int:
@@ -108,5 +136,3 @@ class DeviceDescription:
     # SyncManager control bytes the master must program (ET1100 0x0804).
     SM0_CONTROL = 0x26  # mailbox, ECAT writes, PDI interrupt
     SM1_CONTROL = 0x22  # mailbox, ECAT reads, PDI interrupt
-    SM2_CONTROL = 0x64  # 3-buffer, ECAT writes, watchdog trigger
-    SM3_CONTROL = 0x20  # 3-buffer, ECAT reads

@@ -109,10 +109,8 @@ class EscApplication(Protocol):
 
     def check_transition(self, old: AlState, new: AlState) -> int: ...
     def state_changed(self, old: AlState, new: AlState, code: int) -> None: ...
-    def mailbox_received(self, data: bytes) -> None: ...
-    def mailbox_read(self) -> None: ...
-    def outputs_written(self, sm: int) -> None: ...
-    def inputs_read(self, sm: int) -> None: ...
+    def sm_written(self, sm: int, data: bytes) -> None: ...
+    def sm_read(self, sm: int) -> None: ...
     def sync0(self, t: float) -> None: ...
 
 
@@ -193,7 +191,7 @@ class Esc:
     """One slave controller. ``app`` gets the PDI-side events; ``eeprom`` is the SII image."""
 
     def __init__(self, clock: Clock, eeprom: bytes, app: EscApplication, *, ram_size: int = 0x2000,
-                 fmmus: int = 16, sms: int = 16, dc: bool = True, eeprom_size: int = 2048) -> None:
+                 fmmus: int = 16, sms: int = 16, dc: bool = True, eeprom_size: int | None = None) -> None:
         self.clock = clock
         self.app = app
         self.stats = EscStats()
@@ -202,6 +200,8 @@ class Esc:
         self.n_fmmu = fmmus
         self.n_sm = sms
         self.dc = dc
+        if eeprom_size is None:
+            eeprom_size = max(2048, len(eeprom))
         image = bytearray(eeprom[:eeprom_size])
         image.extend(b"\xff" * (eeprom_size - len(image)))
         self.eeprom = image
@@ -237,7 +237,8 @@ class Esc:
         U16.pack_into(m, REG_WD_DIVIDER, 2498)  # 100 us watchdog tick
         U16.pack_into(m, REG_WD_TIME_PDI, 1000)
         U16.pack_into(m, REG_WD_TIME_SM, 1000)  # 100 ms
-        U16.pack_into(m, REG_SII_CONTROL, SII_READ8)
+        # 8-byte reads; 'two address bytes' (bit 7) for EEPROMs above 16 kbit
+        U16.pack_into(m, REG_SII_CONTROL, SII_READ8 | (0x0080 if len(self.eeprom) > 2048 else 0))
         for lo, hi in ((0x0000, 0x0010), (0x0110, 0x0112), (0x0130, 0x0138), (0x0140, 0x0142),
                        (0x0150, 0x0154), (0x0210, 0x0214), (0x0440, 0x0444), (0x0918, 0x0920),
                        (REG_DC_SYNC0_STATUS, REG_DC_SYNC0_STATUS + 2)):
@@ -331,6 +332,10 @@ class Esc:
         self._mbx_last = buf
         return True
 
+    def sm_set_full(self, sm_index: int) -> None:
+        """The PDI filled a 1-buffer SM (inputs written for the master to read)."""
+        self.mem[REG_SM + 8 * sm_index + 5] |= SM_STATUS_FULL
+
     def mailbox_full(self, sm_index: int) -> bool:
         return bool(self.mem[REG_SM + 8 * sm_index + 5] & SM_STATUS_FULL)
 
@@ -372,11 +377,9 @@ class Esc:
         if hit is not None:
             for sm in hit:
                 if not sm.ecat_writes and end >= sm.end:
-                    if sm.mailbox:
+                    if sm.mailbox:  # 1-buffer mode: the buffer is free again
                         mem[sm.status_addr] &= ~SM_STATUS_FULL & 0xFF
-                        self.app.mailbox_read()
-                    else:
-                        self.app.inputs_read(sm.index)
+                    self.app.sm_read(sm.index)
         return data
 
     def ecat_write(self, address: int, data: bytes | bytearray | memoryview) -> bool:
@@ -406,16 +409,15 @@ class Esc:
         if hit is not None:
             for sm in hit:
                 if sm.ecat_writes and end >= sm.end:
-                    if sm.mailbox:
-                        mem[sm.status_addr] |= SM_STATUS_FULL
-                        self.app.mailbox_received(bytes(mem[sm.start:sm.end]))
-                    else:
-                        mem[sm.status_addr] |= SM_STATUS_WRITE_EVENT
-                        self.pdi_outputs[sm.index] = bytes(mem[sm.start:sm.end])
-                        if sm.watchdog:
-                            self._wd_last = self.clock.now()
-                            self.mem[REG_WD_STATUS_SM] = 1
-                        self.app.outputs_written(sm.index)
+                    # The buffer is complete: 1-buffer mode marks it full until the PDI reads it,
+                    # 3-buffer mode hands the PDI the newest complete buffer.
+                    mem[sm.status_addr] |= SM_STATUS_FULL if sm.mailbox else SM_STATUS_WRITE_EVENT
+                    data_out = bytes(mem[sm.start:sm.end])
+                    self.pdi_outputs[sm.index] = data_out
+                    if sm.watchdog:
+                        self._wd_last = self.clock.now()
+                        self.mem[REG_WD_STATUS_SM] = 1
+                    self.app.sm_written(sm.index, data_out)
         return True
 
     def _register_write(self, address: int, end: int, data: bytes | bytearray | memoryview) -> None:

@@ -56,8 +56,12 @@ def _flags(parent: ET.Element, e: Entry) -> None:
         _sub(flags, "PdoMapping", "T")
 
 
-def _pdo(parent: ET.Element, tag: str, pdo: Pdo, sm: int) -> None:
-    el = _sub(parent, tag, Fixed="0", Mandatory="1", Sm=str(sm))
+def _pdo(parent: ET.Element, tag: str, pdo: Pdo, sm: int | None) -> None:
+    """A PDO; ``Sm`` only on the PDOs assigned by default (the others are optional)."""
+    attrs = {"Fixed": "0", "Mandatory": "0" if sm is None else "1"}
+    if sm is not None:
+        attrs["Sm"] = str(sm)
+    el = _sub(parent, tag, **attrs)
     _sub(el, "Index", _hex(pdo.index, 4))
     _sub(el, "Name", pdo.name)
     for e in pdo.entries:
@@ -169,14 +173,14 @@ def export_esi(desc: DeviceDescription, od: ObjectDictionary | None = None) -> s
             _sub(device, "Sm", name, MinSize="34", MaxSize=str(size), DefaultSize=str(size),
                  StartAddress=_hex(start, 4), ControlByte=_hex(ctrl, 2), Enable="1")
     _sub(device, "Sm", "Outputs", DefaultSize=str(desc.output_bytes), StartAddress=_hex(desc.outputs_start, 4),
-         ControlByte=_hex(DeviceDescription.SM2_CONTROL, 2), Enable="1" if desc.output_bytes else "0")
+         ControlByte=_hex(desc.outputs_control, 2), Enable="1" if desc.output_bytes else "0")
     _sub(device, "Sm", "Inputs", DefaultSize=str(desc.input_bytes), StartAddress=_hex(desc.inputs_start, 4),
-         ControlByte=_hex(DeviceDescription.SM3_CONTROL, 2), Enable="1" if desc.input_bytes else "0")
+         ControlByte=_hex(desc.inputs_control, 2), Enable="1" if desc.input_bytes else "0")
     sm_out = 2 if has_mbx else 0
     for pdo in desc.rx_pdos:
-        _pdo(device, "RxPdo", pdo, sm_out)
+        _pdo(device, "RxPdo", pdo, sm_out if pdo in desc.assigned_rx_pdos else None)
     for pdo in desc.tx_pdos:
-        _pdo(device, "TxPdo", pdo, sm_out + 1)
+        _pdo(device, "TxPdo", pdo, sm_out + 1 if pdo in desc.assigned_tx_pdos else None)
     if has_mbx:
         mailbox = _sub(device, "Mailbox", DataLinkLayer="1")
         if desc.coe:

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from ..common.clock import Clock, PeriodicTimer, SimulatedClock
 from ..common.errors import TimeoutError_
 from .coe import SDO, CoeService, InfoOpcode, coe_header
-from .datagram import Command, Datagram, Frame, decode_frame, encode_frame
+from .datagram import MAX_DATAGRAM_DATA, Command, Datagram, Frame, decode_frame, encode_frame
 from .errors import AlStatusError, FoeError, FrameFormatError, MasterError, SdoAbortError, WorkingCounterError
 from .esc import (
     REG_AL_CONTROL,
@@ -129,6 +129,7 @@ class Master:
         self.lost_frames = 0
         self._index = 0
         self.image = bytearray()
+        self.chunks: list[tuple[int, int]] = []
         self.outputs_size = 0
         self.expected_wkc = 0
         self.last_wkc = 0
@@ -188,7 +189,7 @@ class Master:
             self.slaves.append(SlaveInfo(pos, station, parse_sii(self.read_sii(station))))
         return self.slaves
 
-    def read_sii(self, station: int, max_bytes: int = 2048) -> bytes:
+    def read_sii(self, station: int, max_bytes: int = 65536) -> bytes:
         """The SII image up to the END category, 8 bytes per EEPROM read command."""
         out = bytearray()
         while len(out) < max_bytes:
@@ -501,14 +502,25 @@ class Master:
         self.expected_wkc = 0
         for s in self.slaves:
             o_sm, i_sm = self._pd_sms(s)
-            sms = SM_REG.pack(o_sm[0], s.output_bytes, 0x64, 0, 1 if s.output_bytes else 0, 0) + \
-                SM_REG.pack(i_sm[0], s.input_bytes, 0x20, 0, 1 if s.input_bytes else 0, 0)
+            o_ctrl = s.sii.sync_managers[o_sm[1]][2]
+            i_ctrl = s.sii.sync_managers[i_sm[1]][2]
+            sms = SM_REG.pack(o_sm[0], s.output_bytes, o_ctrl, 0, 1 if s.output_bytes else 0, 0) + \
+                SM_REG.pack(i_sm[0], s.input_bytes, i_ctrl, 0, 1 if s.input_bytes else 0, 0)
             self.fpwr(s.station, REG_SM + 8 * o_sm[1], sms)
             fmmus = FMMU_REG.pack(s.output_offset, s.output_bytes, 0, 7, o_sm[0], 0, 2,
                                   1 if s.output_bytes else 0) + \
                 FMMU_REG.pack(s.input_offset, s.input_bytes, 0, 7, i_sm[0], 0, 1, 1 if s.input_bytes else 0)
             self.fpwr(s.station, REG_FMMU, fmmus)
-            self.expected_wkc += (2 if s.output_bytes else 0) + (1 if s.input_bytes else 0)
+        # Images larger than one datagram go out as several LRW frames; each slave counts in every
+        # frame its outputs (+2) or inputs (+1) overlap.
+        self.chunks = [(a, min(MAX_DATAGRAM_DATA, len(self.image) - a))
+                       for a in range(0, len(self.image), MAX_DATAGRAM_DATA)]
+        for a, n in self.chunks:
+            for s in self.slaves:
+                if s.output_bytes and s.output_offset < a + n and a < s.output_offset + s.output_bytes:
+                    self.expected_wkc += 2
+                if s.input_bytes and s.input_offset < a + n and a < s.input_offset + s.input_bytes:
+                    self.expected_wkc += 1
         return len(self.image)
 
     @staticmethod
@@ -531,16 +543,22 @@ class Master:
         return (bits + 7) // 8
 
     def exchange_process_data(self) -> int:
-        """One LRW over the whole image; returns the working counter."""
-        self._index = (self._index + 1) & 0xFF
-        try:
-            d = self.exchange([Datagram(Command.LRW, self._index, 0, bytes(self.image))])[0]
-        except TimeoutError_:
-            self.last_wkc = 0
-            return 0
-        self.image[self.outputs_size:] = d.data[self.outputs_size:]
-        self.last_wkc = d.wkc
-        return d.wkc
+        """One LRW frame per image chunk (one frame for images up to 1486 bytes); returns the summed
+        working counter (compare with ``expected_wkc``)."""
+        total = 0
+        image = self.image
+        for a, n in self.chunks:
+            self._index = (self._index + 1) & 0xFF
+            try:
+                d = self.exchange([Datagram(Command.LRW, self._index, a, bytes(image[a:a + n]))])[0]
+            except TimeoutError_:
+                continue
+            lo = max(a, self.outputs_size)
+            if lo < a + n:
+                image[lo:a + n] = d.data[lo - a:]
+            total += d.wkc
+        self.last_wkc = total
+        return total
 
     def pdo_write(self, position: int, offset: int, data: bytes) -> None:
         s = self.slave(position)

@@ -23,6 +23,7 @@ SM_ENTRY = struct.Struct("<HHBBBB")
 PDO_HEADER = struct.Struct("<HBBBBH")
 PDO_ENTRY = struct.Struct("<HBBBBH")
 EEPROM_BYTES = 2048
+MAX_EEPROM_BYTES = 65536
 
 
 class Category(enum.IntEnum):
@@ -73,10 +74,12 @@ def _category(kind: int, data: bytes) -> bytes:
     return CATEGORY_HEADER.pack(kind, len(data) // 2) + data
 
 
-def _pdos(pdos: tuple[Pdo, ...], sm: int, strings: _Strings) -> bytes:
+def _pdos(pdos: tuple[Pdo, ...], assigned: tuple[Pdo, ...], sm: int, strings: _Strings) -> bytes:
+    """PDO category; PDOs not assigned by default carry SyncM 0xFF (not assigned)."""
     out = bytearray()
     for pdo in pdos:
-        out += PDO_HEADER.pack(pdo.index, len(pdo.entries), sm, 0, strings.add(pdo.name), 0)
+        out += PDO_HEADER.pack(pdo.index, len(pdo.entries), sm if pdo in assigned else 0xFF, 0,
+                               strings.add(pdo.name), 0)
         for e in pdo.entries:
             out += PDO_ENTRY.pack(e.index, e.subindex, strings.add(e.name) if e.index else 0,
                                   int(e.data_type) if e.index else 0, e.bit_length, 0)
@@ -85,7 +88,7 @@ def _pdos(pdos: tuple[Pdo, ...], sm: int, strings: _Strings) -> bytes:
 
 def build_sii(desc: DeviceDescription, alias: int = 0) -> bytes:
     """The EEPROM content a real slave of this description would carry."""
-    img = bytearray(b"\xff" * EEPROM_BYTES)
+    img = bytearray(b"\xff" * 0x80)
     cfg = bytearray(16)
     U16.pack_into(cfg, 0, 0x0C08)  # PDI control: 16-bit uC async PDI, ESC config 0x0C (enhanced link)
     U16.pack_into(cfg, 2, 0x0000)
@@ -106,7 +109,7 @@ def build_sii(desc: DeviceDescription, alias: int = 0) -> bytes:
         struct.pack_into("<HHHHH", body, 0x30 - 0x10,
                          desc.mailbox_out[0], desc.mailbox_out[1],
                          desc.mailbox_in[0], desc.mailbox_in[1], desc.mailbox_protocols)
-    U16.pack_into(body, 0x7C - 0x10, EEPROM_BYTES * 8 // 1024 - 1)
+    size_at = 0x7C - 0x10
     U16.pack_into(body, 0x7E - 0x10, 1)
     img[0x10:0x80] = body
 
@@ -125,13 +128,13 @@ def build_sii(desc: DeviceDescription, alias: int = 0) -> bytes:
                              SmType.MAILBOX_OUT)
         sms += SM_ENTRY.pack(desc.mailbox_in[0], desc.mailbox_in[1], DeviceDescription.SM1_CONTROL, 0, 1,
                              SmType.MAILBOX_IN)
-    sms += SM_ENTRY.pack(desc.outputs_start, desc.output_bytes, DeviceDescription.SM2_CONTROL, 0,
+    sms += SM_ENTRY.pack(desc.outputs_start, desc.output_bytes, desc.outputs_control, 0,
                          1 if desc.output_bytes else 0, SmType.OUTPUTS)
-    sms += SM_ENTRY.pack(desc.inputs_start, desc.input_bytes, DeviceDescription.SM3_CONTROL, 0,
+    sms += SM_ENTRY.pack(desc.inputs_start, desc.input_bytes, desc.inputs_control, 0,
                          1 if desc.input_bytes else 0, SmType.INPUTS)
     sm_out = 2 if has_mbx else 0
-    txpdo = _pdos(desc.tx_pdos, sm_out + 1, strings)
-    rxpdo = _pdos(desc.rx_pdos, sm_out, strings)
+    txpdo = _pdos(desc.tx_pdos, desc.assigned_tx_pdos, sm_out + 1, strings)
+    rxpdo = _pdos(desc.rx_pdos, desc.assigned_rx_pdos, sm_out, strings)
     cats = bytearray()
     cats += _category(Category.STRINGS, strings.encode())
     cats += _category(Category.GENERAL, general)
@@ -142,9 +145,15 @@ def build_sii(desc: DeviceDescription, alias: int = 0) -> bytes:
     if rxpdo:
         cats += _category(Category.RXPDO, rxpdo)
     cats += U16.pack(Category.END)
-    if 0x80 + len(cats) > EEPROM_BYTES:
-        raise FrameFormatError(f"SII of {desc.name} does not fit {EEPROM_BYTES} bytes")
-    img[0x80:0x80 + len(cats)] = cats
+    size = EEPROM_BYTES
+    while size < 0x80 + len(cats):
+        size *= 2  # the smallest EEPROM (2 KB = 16 kbit and up) that holds the categories
+    if size > MAX_EEPROM_BYTES:
+        raise FrameFormatError(f"SII of {desc.name} needs {0x80 + len(cats)} bytes, more than any EEPROM")
+    U16.pack_into(body, size_at, size * 8 // 1024 - 1)
+    img[0x10:0x80] = body
+    img += cats
+    img += b"\xff" * (size - len(img))
     return bytes(img)
 
 

@@ -15,7 +15,7 @@ from ..common.clock import Clock
 from .coe import CoeServer, emergency_message
 from .description import DeviceDescription, Pdo
 from .errors import AlStatusCode, EtherCATConfigError, MailboxErrorCode, SdoAbortCode, SdoAbortError
-from .esc import REG_AL_STATUS, AlState, Esc
+from .esc import REG_AL_STATUS, REG_SM, SM_STATUS_FULL, AlState, Esc
 from .foe import FoeFiles, FoeHandler, FoeServer
 from .mailbox import MailboxEndpoint, MailboxMessage, MailboxType, error_reply
 from .od import Access, DataType, Entry, ObjectDictionary, OdObject, decode, encode
@@ -89,15 +89,17 @@ class Slave:
         if desc.foe:
             self.mailbox.handlers[MailboxType.FOE] = self._foe
         #: Process data SyncManagers: 2/3 behind the mailbox SMs, 0/1 on a slave without mailbox.
-        self.sm_outputs = 2 if (desc.coe or desc.foe) else 0
+        self.has_mailbox = desc.coe or desc.foe
+        self.sm_outputs = 2 if self.has_mailbox else 0
         self.sm_inputs = self.sm_outputs + 1
-        self.outputs_map: list[MappedEntry] = _desc_entries(desc.rx_pdos)
-        self.inputs_map: list[MappedEntry] = _desc_entries(desc.tx_pdos)
+        self.outputs_map: list[MappedEntry] = _desc_entries(desc.assigned_rx_pdos)
+        self.inputs_map: list[MappedEntry] = _desc_entries(desc.assigned_tx_pdos)
         self.output_bytes = desc.output_bytes
         self.input_bytes = desc.input_bytes
         self._inputs = bytearray(self.input_bytes)
         self._outputs = bytes(self.output_bytes)
         self.outputs_valid = False
+        self._inputs_one_buffer = False
         self.cycles = 0
 
     # ------------------------------------------------------------------ EscApplication
@@ -119,9 +121,9 @@ class Slave:
                 return AlStatusCode.INVALID_OUTPUT_MAPPING
             if not self._sms_disjoint():
                 return AlStatusCode.INVALID_SM_CONFIG
-            if not self._pd_sm_ok(self.sm_outputs, d.outputs_start, self.output_bytes, 0x04):
+            if not self._pd_sm_ok(self.sm_outputs, d.outputs_start, self.output_bytes, d.outputs_control & 0x0F):
                 return AlStatusCode.INVALID_OUTPUT_CONFIG
-            if not self._pd_sm_ok(self.sm_inputs, d.inputs_start, self.input_bytes, 0x00):
+            if not self._pd_sm_ok(self.sm_inputs, d.inputs_start, self.input_bytes, d.inputs_control & 0x0F):
                 return AlStatusCode.INVALID_INPUT_CONFIG
         return self.app.on_transition(self, old, new)
 
@@ -154,11 +156,28 @@ class Slave:
             self.foe = FoeServer(self.foe_handler, size)
             self.coe = CoeServer(self.od, self.desc.mailbox_in[1], lambda: self.esc.al_state)
         if new in (AlState.SAFEOP, AlState.OP) and old in (AlState.PREOP, AlState.INIT):
-            self.esc.pdi_write(self.desc.inputs_start, bytes(self._inputs))
+            self._inputs_one_buffer = self.esc.sm_config(self.sm_inputs).mailbox
+            self.write_inputs(bytes(self._inputs))
+        elif new in (AlState.INIT, AlState.PREOP, AlState.BOOT):
+            self._inputs_one_buffer = False
         if new != AlState.OP and old == AlState.OP:
             self._outputs = bytes(self.output_bytes)  # safe state
             self.outputs_valid = False
         self.app.on_state(self, old, new, code)
+
+    def sm_written(self, sm: int, data: bytes) -> None:
+        if sm == 0 and self.has_mailbox:
+            self.mailbox_received(data)
+        elif sm == self.sm_outputs:
+            self.outputs_written(sm, data)
+
+    def sm_read(self, sm: int) -> None:
+        if sm == 1 and self.has_mailbox:
+            self.mailbox.pump()
+        elif sm == self.sm_inputs:
+            self.app.on_inputs_read(self)
+            if self.esc.sm_config(sm).mailbox:
+                self.esc.sm_set_full(sm)  # 1-buffer inputs: the application refreshes every cycle
 
     def mailbox_received(self, data: bytes) -> None:
         self.esc.mailbox_clear(0)  # the PDI read the buffer
@@ -170,22 +189,15 @@ class Slave:
             return
         self.mailbox.received(data)
 
-    def mailbox_read(self) -> None:
-        self.mailbox.pump()
-
-    def outputs_written(self, sm: int) -> None:
-        if sm != self.sm_outputs:
-            return
+    def outputs_written(self, sm: int, data: bytes) -> None:
+        esc = self.esc
+        if esc.mem[REG_SM + 8 * sm + 5] & SM_STATUS_FULL:
+            esc.mailbox_clear(sm)  # 1-buffer outputs: the PDI consumed them
         self.cycles += 1
-        if self.esc.mem[REG_AL_STATUS] & 0x0F == AlState.OP:  # hot path: no enum construction
-            out = self.esc.pdi_outputs[sm]
-            self._outputs = out if len(out) == self.output_bytes else out[:self.output_bytes]
+        if esc.mem[REG_AL_STATUS] & 0x0F == AlState.OP:  # hot path: no enum construction
+            self._outputs = data if len(data) == self.output_bytes else data[:self.output_bytes]
             self.outputs_valid = True
             self.app.on_outputs(self, self._outputs)
-
-    def inputs_read(self, sm: int) -> None:
-        if sm == self.sm_inputs:
-            self.app.on_inputs_read(self)
 
     def sync0(self, t: float) -> None:
         self.app.on_sync0(self, t)
@@ -225,6 +237,8 @@ class Slave:
     def write_inputs(self, data: bytes, offset: int = 0) -> None:
         self._inputs[offset:offset + len(data)] = data
         self.esc.pdi_write(self.desc.inputs_start + offset, data)
+        if self._inputs_one_buffer:
+            self.esc.sm_set_full(self.sm_inputs)
 
     def read_output(self, index: int, subindex: int) -> int | float | str | bytes:
         m = self._find(self.outputs_map, index, subindex)
@@ -315,13 +329,14 @@ def build_od(desc: DeviceDescription) -> ObjectDictionary:
         ("Serial number", DataType.UNSIGNED32, desc.serial, Access.RO)])
     has_mbx = desc.coe or desc.foe
     od.add_array(0x1C00, "Sync manager type", DataType.UNSIGNED8, [1, 2, 3, 4] if has_mbx else [3, 4])
-    for pdos, assign in ((desc.rx_pdos, 0x1C12), (desc.tx_pdos, 0x1C13)):
+    for pdos, assigned, assign in ((desc.rx_pdos, desc.assigned_rx_pdos, 0x1C12),
+                                   (desc.tx_pdos, desc.assigned_tx_pdos, 0x1C13)):
         for pdo in pdos:
             obj = od.add_array(pdo.index, pdo.name, DataType.UNSIGNED32, [e.mapping for e in pdo.entries],
                                Access.RW_PREOP, Access.RW_PREOP, length=max(8, len(pdo.entries)))
             _mapping_write_guard(obj)
         obj = od.add_array(assign, "RxPDO assign" if assign == 0x1C12 else "TxPDO assign", DataType.UNSIGNED16,
-                           [p.index for p in pdos], Access.RW_PREOP, Access.RW_PREOP, length=max(4, len(pdos)))
+                           [p.index for p in assigned], Access.RW_PREOP, Access.RW_PREOP, length=max(4, len(pdos)))
         _mapping_write_guard(obj)
     for index, name in ((0x1C32, "SM output parameter"), (0x1C33, "SM input parameter")):
         sm_par = od.add_record(index, name, [
