@@ -15,8 +15,10 @@ from pathlib import Path
 import pytest
 
 from gatewaylab.common.clock import SimulatedClock
-from gatewaylab.ethercat.io_device import create_io_slave
+from gatewaylab.ethercat.description import DeviceDescription, ObjectDef, Pdo, PdoEntry
+from gatewaylab.ethercat.io_device import VENDOR_ID, create_io_slave
 from gatewaylab.ethercat.master import Master
+from gatewaylab.ethercat.od import Access, DataType
 from gatewaylab.ethercat.segment import Segment
 
 DRIVER = Path(__file__).with_name("ethercat_soem_driver.py")
@@ -43,6 +45,27 @@ def master(clock: SimulatedClock, segment: Segment) -> Master:
     m = Master(clock, segment)
     m.scan()
     return m
+
+
+@pytest.fixture
+def chunked_description() -> DeviceDescription:
+    """ECAN-Lite-like layout (ECAN-Lite manual 5.x): 24 RxPDO / TxPDO chunk maps 0x1600..0x1617 /
+    0x1A00..0x1A17 of 8 x 16-byte entries (0x7000 + c*0x80 + u*0x10 / 0x6000 + ...), first 2 assigned."""
+
+    def chunk(base: int, map_index: int, c: int, access: Access) -> tuple[Pdo, list[ObjectDef]]:
+        entries = tuple(PdoEntry(base + c * 0x80 + u * 0x10, 1, 128, f"Chunk {c} unit {u}", DataType.OCTET_STRING)
+                        for u in range(8))
+        objs = [ObjectDef(e.index, e.name, subs=((e.name, DataType.OCTET_STRING, bytes(16), access),))
+                for e in entries]
+        return Pdo(map_index + c, f"Chunk {c}", entries), objs
+
+    rx = [chunk(0x7000, 0x1600, c, Access.RW | Access.RXPDO) for c in range(24)]
+    tx = [chunk(0x6000, 0x1A00, c, Access.RO | Access.TXPDO) for c in range(24)]
+    return DeviceDescription(
+        name="chunked", vendor_id=VENDOR_ID, product_code=0x00030001, outputs_start=0x1100, inputs_start=0x1D00,
+        rx_pdos=tuple(p for p, _ in rx), tx_pdos=tuple(p for p, _ in tx),
+        rx_assign=(0x1600, 0x1601), tx_assign=(0x1A00, 0x1A01),
+        objects=tuple(o for _, objs in rx + tx for o in objs))
 
 
 def _net_capable() -> str | None:

@@ -151,12 +151,36 @@ def scenario_mixed(iface: str) -> dict[str, Any]:
     return out
 
 
+def scenario_cycles(iface: str, cycles: int) -> dict[str, Any]:
+    """Map whatever the slaves offer, go to OP, run cycles writing a counter pattern to slave 1."""
+    master = _open(iface)
+    out: dict[str, Any] = {"count": master.config_init()}
+    out["names"] = [s.name for s in master.slaves]
+    out["image"] = master.config_map()
+    out.update(_to_op(master))
+    s0 = master.slaves[0]
+    size = len(s0.output)
+    bad = 0
+    for i in range(cycles):
+        s0.output = bytes([i & 0xFF]) * size
+        master.send_processdata()
+        if master.receive_processdata(RX_TIMEOUT_US) != master.expected_wkc:
+            bad += 1
+    out["bad_wkc"] = bad
+    out["input"] = s0.input.hex()
+    out["sizes"] = [len(s0.output), len(s0.input)]
+    master.close()
+    return out
+
+
 if __name__ == "__main__":
     iface, scenario = sys.argv[1], sys.argv[2]
     if scenario == "config":
         result = scenario_config(iface)
     elif scenario == "mixed":
         result = scenario_mixed(iface)
+    elif scenario == "cycles":
+        result = scenario_cycles(iface, int(sys.argv[3]))
     else:
         result = scenario_full(iface, int(sys.argv[3]) if len(sys.argv) > 3 else 1000)
     print(json.dumps(result))

@@ -6,6 +6,7 @@ import pytest
 
 from gatewaylab.common.clock import SimulatedClock
 from gatewaylab.ethercat.coe import CoeService
+from gatewaylab.ethercat.description import DeviceDescription
 from gatewaylab.ethercat.errors import AlStatusCode, AlStatusError, FoeError, FoeErrorCode, SdoAbortCode, SdoAbortError
 from gatewaylab.ethercat.esc import REG_SM, AlState
 from gatewaylab.ethercat.foe import FoeFiles
@@ -371,39 +372,17 @@ def test_device_fault_falls_back_with_error_and_needs_acknowledge(master: Master
     assert master.request_state(1, AlState.OP, ack=True) == AlState.OP
 
 
-def _chunked_description() -> object:
-    """ECAN-Lite-like layout (ECAN-Lite manual 5.x): 24 RxPDO / TxPDO chunk maps 0x1600..0x1617 /
-    0x1A00..0x1A17 of 8 x 16-byte entries (0x7000 + c*0x80 + u*0x10 / 0x6000 + ...), first 2 assigned."""
-    from gatewaylab.ethercat.description import DeviceDescription, ObjectDef, Pdo, PdoEntry
-
-    def chunk(base: int, map_index: int, c: int, access: Access) -> tuple[Pdo, list[ObjectDef]]:
-        entries = tuple(PdoEntry(base + c * 0x80 + u * 0x10, 1, 128, f"Chunk {c} unit {u}", DataType.OCTET_STRING)
-                        for u in range(8))
-        objs = [ObjectDef(e.index, e.name, subs=((e.name, DataType.OCTET_STRING, bytes(16), access),))
-                for e in entries]
-        return Pdo(map_index + c, f"Chunk {c}", entries), objs
-
-    rx = [chunk(0x7000, 0x1600, c, Access.RW | Access.RXPDO) for c in range(24)]
-    tx = [chunk(0x6000, 0x1A00, c, Access.RO | Access.TXPDO) for c in range(24)]
-    return DeviceDescription(
-        name="chunked", vendor_id=VENDOR_ID, product_code=0x00030001, outputs_start=0x1100, inputs_start=0x1D00,
-        rx_pdos=tuple(p for p, _ in rx), tx_pdos=tuple(p for p, _ in tx),
-        rx_assign=(0x1600, 0x1601), tx_assign=(0x1A00, 0x1A01),
-        objects=tuple(o for _, objs in rx + tx for o in objs))
-
-
-def test_dynamic_pdo_assignment_and_images_larger_than_a_frame(clock: SimulatedClock) -> None:
+def test_dynamic_pdo_assignment_and_images_larger_than_a_frame(clock: SimulatedClock,
+                                                               chunked_description: DeviceDescription) -> None:
     """PDO assignment 0x1C12/0x1C13 selects the first N chunk PDOs (written in PREOP with sub 0 = 0
     first); 12 x 128 B per direction exceeds one datagram, so the master sends two LRW frames and
     the expected working counter counts the slave in each."""
-    from gatewaylab.ethercat.description import DeviceDescription
-
     class Loop(SlaveApplication):
         def on_outputs(self, slave: Slave, data: bytes) -> None:
             slave.write_inputs(bytes(b ^ 0x5A for b in data))
 
-    desc = _chunked_description()
-    assert isinstance(desc, DeviceDescription) and desc.output_bytes == 256
+    desc = chunked_description
+    assert desc.output_bytes == 256
     m = Master(clock, Segment([Slave(clock, desc, Loop())]))
     m.scan()
     assert m.slaves[0].sii.sync_managers[2][1] == 256  # SII SM2 default size: two chunks
@@ -424,21 +403,18 @@ def test_dynamic_pdo_assignment_and_images_larger_than_a_frame(clock: SimulatedC
     assert m.pdo_read(0, 0, 1536) == bytes(b ^ 0x5A for b in pattern)
 
 
-def test_one_buffer_process_data_like_ecan_lite(clock: SimulatedClock) -> None:
+def test_one_buffer_process_data_like_ecan_lite(clock: SimulatedClock,
+                                                chunked_description: DeviceDescription) -> None:
     """ECAN-Lite manual 5.3: SM2 0x1100 / SM3 0x1D00, 3072 B, control bytes 0x66 / 0x22 (1-buffer
     handshake mode). The slave consumes each output buffer and refills its inputs every cycle, so
     every LRW gets the full working counter; the 48-PDO SII needs an EEPROM above 16 kbit."""
     import dataclasses
 
-    from gatewaylab.ethercat.description import DeviceDescription
-
     class Loop(SlaveApplication):
         def on_outputs(self, slave: Slave, data: bytes) -> None:
             slave.write_inputs(data)
 
-    base = _chunked_description()
-    assert isinstance(base, DeviceDescription)
-    desc = dataclasses.replace(base, outputs_control=0x66, inputs_control=0x22,
+    desc = dataclasses.replace(chunked_description, outputs_control=0x66, inputs_control=0x22,
                                rx_assign=tuple(range(0x1600, 0x1618)), tx_assign=tuple(range(0x1A00, 0x1A18)))
     slave = Slave(clock, desc, Loop())
     assert len(slave.sii) > 2048 and slave.esc.mem[0x0502] & 0x80  # 'two address bytes'

@@ -185,3 +185,26 @@ def test_soem_with_a_slave_without_mailbox(veth_ns: Any) -> None:
     assert r["wkcs"] == [6, 6, 6]
     assert r["dio_input"] == "f0"
 
+
+
+def test_soem_with_one_buffer_chunked_layout(veth_ns: Any, chunked_description: Any) -> None:
+    """ECAN-Lite manual 5.3 layout (SM2 0x1100 / SM3 0x1D00, control 0x66 / 0x22, first N = 3
+    chunks of 0x1600../0x1A00.. assigned, 48 PDOs in an SII above 16 kbit): SOEM maps 384 B each way
+    and every cycle of the 1-buffer handshake gets the expected working counter."""
+    import dataclasses
+
+    from gatewaylab.ethercat.slave import Slave, SlaveApplication
+
+    class Invert(SlaveApplication):
+        def on_outputs(self, slave: Slave, data: bytes) -> None:
+            slave.write_inputs(bytes(b ^ 0xFF for b in data))
+
+    clock = RealTimeClock()
+    desc = dataclasses.replace(chunked_description, outputs_control=0x66, inputs_control=0x22,
+                               rx_assign=(0x1600, 0x1601, 0x1602), tx_assign=(0x1A00, 0x1A01, 0x1A02))
+    r, segment = _serve(veth_ns, ["cycles", "500"], segment=Segment([Slave(clock, desc, Invert())]), clock=clock)
+    assert r["count"] == 1 and r["names"] == ["chunked"]
+    assert r["image"] == 768 and r["sizes"] == [384, 384]
+    assert r["op"] == 8 and r["expected_wkc"] == 3 and r["bad_wkc"] == 0
+    assert bytes.fromhex(r["input"]) == bytes([499 & 0xFF ^ 0xFF]) * 384
+    assert segment.slaves[0].esc.stats.refused_accesses == 0
