@@ -96,3 +96,36 @@ def test_random_mailbox_messages_never_break_the_mailbox(mtype: int, data: bytes
     slave.esc.mailbox_clear(1)
     slave.mailbox.queue.clear()
     assert m.sdo_upload32(0, 0x1018, 1) == slave.desc.vendor_id
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.binary(max_size=40), st.sampled_from([0x02, 0x08, 0x01, 0x03, 0x0F]))
+def test_coe_server_answers_only_spec_messages(body: bytes, service: int) -> None:
+    """Any CoE request yields either a mailbox error (FrameFormatError, too short) or well-formed CoE
+    replies: SDO responses, aborts with a QEC A.5 code, or SDO Information replies/errors."""
+    from gatewaylab.ethercat.coe import CoeServer, coe_header
+    from gatewaylab.ethercat.errors import SdoAbortCode
+    from gatewaylab.ethercat.io_device import io_description
+    from gatewaylab.ethercat.slave import build_od
+
+    server = CoeServer(build_od(io_description()), 128, lambda: 0x02)
+    codes = {int(c) for c in SdoAbortCode}
+    try:
+        replies = server.handle(coe_header(service) + body)
+    except FrameFormatError:
+        return
+    for reply in replies:
+        kind = reply[1] >> 4
+        assert kind in (2, 3, 8) and len(reply) <= 128 - 6
+        if kind == 2:
+            assert reply[2] == 0x80 and int.from_bytes(reply[6:10], "little") in codes
+        if kind == 8 and reply[2] & 0x7F == 7:
+            assert int.from_bytes(reply[6:10], "little") in codes
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(datagram, min_size=1, max_size=3), st.binary(max_size=30))
+def test_trailing_bytes_after_the_datagrams_are_ignored(dgs: list[Datagram], garbage: bytes) -> None:
+    """Ethernet padding (or anything) after the EtherCAT length does not change the datagrams."""
+    raw = encode_frame(Frame(tuple(dgs)))
+    assert decode_frame(raw + garbage).datagrams == decode_frame(raw).datagrams == tuple(dgs)
