@@ -121,6 +121,10 @@ class Controller:
         self.fd = fd
         self.auto_recover = auto_recover
         self.on_frame = on_frame
+        #: Optional acceptance filter: ``{can_id: callback}`` for standard-format frames. When set,
+        #: the bus calls the callback for that identifier instead of ``on_frame`` and hands this
+        #: controller no extended frames (the controller still receives and counts every frame).
+        self.rx_table: dict[int, FrameCallback] | None = None
         self.on_event = on_event
         self.tx_queue: deque[CanFrame] = deque()
         self.tec = 0
@@ -572,9 +576,11 @@ class VirtualBus:
     def _deliver(self, sender: Controller, frame: CanFrame, now: float) -> None:
         fd = frame.fd
         n = len(frame.data)
-        receivers, foreign = self._audience()
+        cached = self._receivers
+        receivers, foreign = cached if cached is not None else self._audience()
         if sender.receive_own and sender.on_frame is not None:
             sender.on_frame(frame, now)
+        can_id = -1 if frame.extended else frame.can_id
         for c in receivers:
             if c is sender or (fd and not c.fd):
                 continue
@@ -585,7 +591,8 @@ class VirtualBus:
                 c.rec = c.rec - 1 if c.rec <= 127 else 120
                 if c.state is not ErrorState.ERROR_ACTIVE:
                     c._update_state()
-            cb = c.on_frame
+            table = c.rx_table
+            cb = c.on_frame if table is None else table.get(can_id)
             if cb is not None:
                 cb(frame, now)
         for c in foreign:

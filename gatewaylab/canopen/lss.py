@@ -410,7 +410,7 @@ class LssSlave:
         self.machine = LssSlaveMachine(address, node.node_id, index,
                                        store.save if store is not None else None)
         self._timers: list[TimerHandle] = []
-        node.add_frame_listener(self._on_frame)
+        node.add_frame_listener(self._on_frame, can_id=LSS_MASTER_COB_ID)
         node.on_reset(self._on_node_reset)
 
     @property

@@ -135,7 +135,7 @@ class Node:
             self._listeners.append(callback)
         else:
             self._id_listeners.setdefault(can_id, []).append(callback)
-            self._merge_dispatch()
+        self._merge_dispatch()
 
     def remove_frame_listener(self, callback: FrameHandler) -> None:
         if callback in self._listeners:
@@ -259,6 +259,10 @@ class Node:
                 prev = merged.get(can_id)
                 merged[can_id] = listener if prev is None else _chain(listener, prev)
         self._dispatch = merged
+        # Without listeners for every frame the controller's acceptance filter is the table
+        # itself: the bus calls the handler of a frame's COB-ID directly (no call into the node
+        # for frames it does not consume; extended frames were never dispatched).
+        self.controller.rx_table = None if self._listeners else merged
 
     def rebuild_dispatch(self) -> None:
         """Recompute which COB-IDs this node consumes in its present NMT state."""
@@ -319,6 +323,7 @@ class Node:
             return
         if self.controller not in self.bus.controllers:
             self.controller = self.bus.attach(self.name, on_frame=self._on_frame)
+            self._merge_dispatch()
         self.running = True
         self._boot(reset_node=True)
 
