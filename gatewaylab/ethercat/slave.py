@@ -115,10 +115,9 @@ class Slave:
                 not self._sm_ok(0, *d.mailbox_out, 0x06) or not self._sm_ok(1, *d.mailbox_in, 0x02)):
             return AlStatusCode.INVALID_MAILBOX_CONFIG
         if old == AlState.PREOP and new == AlState.SAFEOP:
-            try:
-                self._compute_layout()
-            except SdoAbortError:
-                return AlStatusCode.INVALID_OUTPUT_MAPPING
+            code = self._compute_layout()
+            if code:
+                return code
             if not self._sms_disjoint():
                 return AlStatusCode.INVALID_SM_CONFIG
             if not self._pd_sm_ok(self.sm_outputs, d.outputs_start, self.output_bytes, d.outputs_control & 0x0F):
@@ -262,16 +261,25 @@ class Slave:
                 return m
         raise EtherCATConfigError(f"0x{index:04X}:{subindex} is not mapped")
 
-    def _compute_layout(self) -> None:
-        """Process image from 0x1C12/0x1C13 and the mapping objects (as the master configured them)."""
+    def _compute_layout(self) -> int:
+        """Process image from 0x1C12/0x1C13 and the mapping objects (as the master configured them);
+        an AL status code when a mapping names an object that does not exist."""
         if not self.desc.coe:
-            return
-        self.outputs_map, out_bits = self._layout(0x1C12)
-        self.inputs_map, in_bits = self._layout(0x1C13)
+            return 0
+        try:
+            outputs_map, out_bits = self._layout(0x1C12)
+        except SdoAbortError:
+            return AlStatusCode.INVALID_OUTPUT_MAPPING
+        try:
+            inputs_map, in_bits = self._layout(0x1C13)
+        except SdoAbortError:
+            return AlStatusCode.INVALID_INPUT_MAPPING
+        self.outputs_map, self.inputs_map = outputs_map, inputs_map
         self.output_bytes = (out_bits + 7) // 8
         self.input_bytes = (in_bits + 7) // 8
         self._inputs = self._inputs[:self.input_bytes].ljust(self.input_bytes, b"\0")
         self._outputs = bytes(self.output_bytes)
+        return 0
 
     def _layout(self, assign: int) -> tuple[list[MappedEntry], int]:
         out: list[MappedEntry] = []
@@ -304,12 +312,39 @@ def _set_bits(buf: bytearray, offset: int, length: int, raw: bytes) -> None:
     buf[:] = ((whole & ~mask) | value).to_bytes(len(buf), "little")
 
 
-def _mapping_write_guard(obj: OdObject) -> None:
-    """PDO mapping / assignment objects: entries may only change while sub 0 is 0 (ETG.1000.6)."""
+def _mapping_write_guard(obj: OdObject, od: ObjectDictionary, rx: bool, assignment: bool) -> None:
+    """PDO mapping / assignment objects: entries may only change while sub 0 is 0, mapping entries
+    must name a mappable object of the right direction and size (0x06040041), assignments an
+    existing PDO of the right range (0x06090030) (ETG.1000.6 PDO configuration; QEC A.5)."""
+
+    def check_mapping(value: int) -> None:
+        index, sub, bits = value >> 16, (value >> 8) & 0xFF, value & 0xFF
+        if index == 0:
+            return  # a gap of ``bits`` bits
+        try:
+            target = od.entry(index, sub)
+        except SdoAbortError:
+            raise SdoAbortError(f"0x{index:04X}:{sub} does not exist", SdoAbortCode.CANNOT_BE_MAPPED) from None
+        flag = Access.RXPDO if rx else Access.TXPDO
+        if not target.access & flag or target.bits != bits:
+            raise SdoAbortError(f"0x{index:04X}:{sub} cannot be mapped as {bits} bits",
+                                SdoAbortCode.CANNOT_BE_MAPPED)
+
+    def check_assignment(value: int) -> None:
+        lo = 0x1600 if rx else 0x1A00
+        if not lo <= value < lo + 0x200 or value not in od:
+            raise SdoAbortError(f"no PDO 0x{value:04X} to assign", SdoAbortCode.VALUE_RANGE)
 
     def guard(entry: Entry, data: bytes) -> None:
-        if entry.subindex != 0 and obj.entries[0].raw[0] != 0:
+        if entry.subindex == 0:
+            return
+        if obj.entries[0].raw[0] != 0:
             raise SdoAbortError("sub 0 must be 0 to change the mapping", SdoAbortCode.SI0_MUST_BE_ZERO)
+        value = int.from_bytes(data, "little")
+        if assignment:
+            check_assignment(value)
+        else:
+            check_mapping(value)
 
     for e in obj.entries.values():
         e.on_write = guard
@@ -334,10 +369,10 @@ def build_od(desc: DeviceDescription) -> ObjectDictionary:
         for pdo in pdos:
             obj = od.add_array(pdo.index, pdo.name, DataType.UNSIGNED32, [e.mapping for e in pdo.entries],
                                Access.RW_PREOP, Access.RW_PREOP, length=max(8, len(pdo.entries)))
-            _mapping_write_guard(obj)
+            _mapping_write_guard(obj, od, assign == 0x1C12, assignment=False)
         obj = od.add_array(assign, "RxPDO assign" if assign == 0x1C12 else "TxPDO assign", DataType.UNSIGNED16,
                            [p.index for p in assigned], Access.RW_PREOP, Access.RW_PREOP, length=max(4, len(pdos)))
-        _mapping_write_guard(obj)
+        _mapping_write_guard(obj, od, assign == 0x1C12, assignment=True)
     for index, name in ((0x1C32, "SM output parameter"), (0x1C33, "SM input parameter")):
         sm_par = od.add_record(index, name, [
             ("Sync mode", DataType.UNSIGNED16, 1, Access.RW_PREOP),

@@ -430,3 +430,33 @@ def test_one_buffer_process_data_like_ecan_lite(clock: SimulatedClock,
         m.pdo_write(0, 0, bytes([i]) * 3072)
         assert m.exchange_process_data() == m.expected_wkc
         assert m.pdo_read(0, 3071, 1) == bytes([i])
+
+
+def test_mapping_validation_and_refused_safeop(master: Master, segment: Segment) -> None:
+    """QEC A.5: mapping a missing object, an object of the wrong direction or with the wrong length
+    is refused with 0x06040041; assigning a missing PDO with 0x06090030. A mapping that still names a
+    missing object (changed by the device) refuses PREOP->SAFEOP with 0x0024 / 0x0025."""
+    master.set_state(AlState.PREOP)
+    master.config_map()
+    master.sdo_download8(0, 0x1A00, 0, 0)
+    for bad in (0x5FFF0108, 0x70000108, 0x60000110):
+        with pytest.raises(SdoAbortError) as abort:
+            master.sdo_download32(0, 0x1A00, 1, bad)
+        assert abort.value.code == SdoAbortCode.CANNOT_BE_MAPPED
+    master.sdo_download32(0, 0x1A00, 1, 0x00000008)  # a gap is fine
+    master.sdo_download8(0, 0x1C13, 0, 0)
+    with pytest.raises(SdoAbortError) as abort:
+        master.sdo_download16(0, 0x1C13, 1, 0x1A05)
+    assert abort.value.code == SdoAbortCode.VALUE_RANGE
+    master.sdo_download8(0, 0x1C13, 0, 1)
+    od = segment.slaves[0].od
+    od.set(0x1A00, 1, 0x5FFF0108)  # the device itself put a broken mapping in place
+    master.sdo_download8(0, 0x1A00, 0, 1)
+    with pytest.raises(AlStatusError) as err:
+        master.request_state(0, AlState.SAFEOP)
+    assert err.value.code == AlStatusCode.INVALID_INPUT_MAPPING
+    od.set(0x1A00, 1, 0x60000108)
+    od.set(0x1600, 1, 0x5FFE0108)
+    with pytest.raises(AlStatusError) as err:
+        master.request_state(0, AlState.SAFEOP, ack=True)
+    assert err.value.code == AlStatusCode.INVALID_OUTPUT_MAPPING
