@@ -53,7 +53,7 @@ def test_run_ready_file_and_idx_commands(tmp_path: Path, capsys: pytest.CaptureF
         assert main(["idx", "read", usb["pty"], "0", "0x1008", "0", "-t", "str"]) == 0
         assert "IDX" in capsys.readouterr().out
         assert main(["idx", "read", usb["pty"], "0", "0x7000", "0"]) == 1
-        assert "0x06020000 (object does not exist)" in capsys.readouterr().err
+        assert 'read node 0 0x7000:00: 0x06020000 "Object does not exist error"' in capsys.readouterr().err
         assert main(["idx", "nmt", usb["pty"], "5", "start"]) == 0
         assert "NMT start (1) sent to node 5" in capsys.readouterr().out
     finally:

@@ -71,7 +71,7 @@ def test_pty_client_segmented_and_errors(realtime_rig: RunningRig) -> None:
             try:
                 client.read(0, 0x5000, 0)
             except IdxError as exc:
-                assert exc.code == 0x06020000 and exc.name == "object does not exist"
+                assert exc.code == 0x06020000 and exc.name == "Object does not exist error"
             else:
                 raise AssertionError("missing object read succeeded")
     finally:

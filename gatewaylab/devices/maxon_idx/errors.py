@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from enum import IntEnum
 
+from ...canopen.errors import ABORT_NAMES
 from ...common.errors import RemoteError
 
 
@@ -41,12 +42,59 @@ class ErrorCode(IntEnum):
     WRONG_NMT_STATE = 0x0F00FFC0
 
 
+#: Table 6-20 word for word: code -> (Name, Cause).
+_TABLE_6_20: dict[int, tuple[str, str]] = {
+    ErrorCode.NO_ABORT: ("No abort", "Communication successful"),
+    ErrorCode.TOGGLE_ERROR: ("Toggle error", "Toggle bit not alternated"),
+    ErrorCode.SDO_TIMEOUT: ("SDO timeout", "SDO protocol timed out"),
+    ErrorCode.COMMAND_UNKNOWN: ("Command unknown", "Command specifier unknown"),
+    ErrorCode.CRC_ERROR: ("CRC error", "CRC check failed"),
+    ErrorCode.ACCESS_ERROR: ("Access error", "Unsupported access to an object"),
+    ErrorCode.WRITE_ONLY_ERROR: ("Write only error", "Read command to a write only object"),
+    ErrorCode.READ_ONLY_ERROR: ("Read only error", "Write command to a read only object"),
+    ErrorCode.SUBINDEX_CANNOT_BE_WRITTEN: (
+        "Subindex cannot be written",
+        'Subindex cannot be written, subindex 0 must be "0" (zero) for write access'),
+    ErrorCode.OBJECT_DOES_NOT_EXIST: (
+        "Object does not exist error", "Last read or write command had wrong object index or subindex"),
+    ErrorCode.PDO_MAPPING_ERROR: ("PDO mapping error", "Object is not mappable to the PDO"),
+    ErrorCode.PDO_LENGTH_ERROR: (
+        "PDO length error", "Number and length of objects to be mapped would exceed PDO length"),
+    ErrorCode.GENERAL_PARAMETER_ERROR: ("General parameter error", "General parameter incompatibility"),
+    ErrorCode.GENERAL_INTERNAL_INCOMPATIBILITY: (
+        "General internal incompatibility error", "General internal incompatibility in device"),
+    ErrorCode.HARDWARE_ERROR: ("Hardware error", "Access failed due to hardware error"),
+    ErrorCode.SERVICE_PARAMETER_ERROR: (
+        "Service parameter error", "Data type does not match, length or service parameter do not match"),
+    ErrorCode.SERVICE_PARAMETER_TOO_SHORT: (
+        "Service parameter too short error", "Data type does not match, length of service parameter too low"),
+    ErrorCode.SUBINDEX_ERROR: ("Subindex error", "Last read or write command had wrong object subindex"),
+    ErrorCode.VALUE_RANGE_ERROR: ("Value range error", "Value range of parameter exceeded"),
+    ErrorCode.GENERAL_ERROR: ("General error", "General error"),
+    ErrorCode.TRANSFER_OR_STORE_ERROR: ("Transfer or store error", "Data cannot be transferred or stored"),
+    ErrorCode.WRONG_DEVICE_STATE: (
+        "Wrong device state error",
+        "Data cannot be transferred or stored to application because of present device state"),
+    ErrorCode.PASSWORD_ERROR: ("Password error", "Password is incorrect"),
+    ErrorCode.ILLEGAL_COMMAND: ("Illegal command error", "Command code is illegal (does not exist)"),
+    ErrorCode.WRONG_NMT_STATE: ("Wrong NMT state error", "Device is in wrong NMT state"),
+}
+
+
 def error_name(code: int) -> str:
-    """Human name of a code: the table 6-20 name, or the hex value for codes outside it."""
-    try:
-        return ErrorCode(code).name.replace("_", " ").lower()
-    except ValueError:
-        return f"error 0x{code:08X}"
+    """The table 6-20 Name of a code exactly as the guide prints it (e.g. "SDO timeout"); for a
+    code outside the table (another node's abort passed through the gateway) its CiA 301 text,
+    else "error 0x........"."""
+    entry = _TABLE_6_20.get(code)
+    if entry is not None:
+        return entry[0]
+    return ABORT_NAMES.get(code, f"error 0x{code:08X}")
+
+
+def error_cause(code: int) -> str:
+    """The table 6-20 Cause of a code, "" for codes outside the table."""
+    entry = _TABLE_6_20.get(code)
+    return entry[1] if entry is not None else ""
 
 
 class IdxRemoteError(RemoteError):

@@ -37,7 +37,7 @@ from ..commands import (
     WriteObject,
     decode_reply,
 )
-from ..errors import ErrorCode, error_name
+from ..errors import ErrorCode, error_cause, error_name
 from .link import Link, open_link
 
 _TYPES: dict[str, struct.Struct] = {
@@ -60,21 +60,30 @@ LSS_INQUIRE = {"vendor": 0x5A, "product": 0x5B, "revision": 0x5C, "serial": 0x5D
 
 
 class IdxError(RemoteError):
-    """The IDX answered with a non-zero error code (or did not answer at all)."""
+    """The IDX answered with a non-zero error code (or did not answer at all).
 
-    def __init__(self, code: int, request: str = "") -> None:
+    ``code`` is the error DWORD, ``name`` and ``cause`` its table 6-20 Name and Cause columns,
+    ``request`` what was asked (e.g. "read node 2 0x6041:00").
+    """
+
+    def __init__(self, code: int, request: str = "", detail: str = "") -> None:
         self.code: int = code
         self.name = error_name(code)
+        self.cause = error_cause(code)
         self.request = request
-        super().__init__(f"{request}: {self.name} (0x{code:08X})" if request else
-                         f"{self.name} (0x{code:08X})", code)
+        text = f'0x{code:08X} "{self.name}"' + (f" ({self.cause})" if self.cause else "")
+        if detail:
+            text = f"{detail}; {text}"
+        super().__init__(f"{request}: {text}" if request else text, code)
 
 
 class IdxTimeout(IdxError):
-    """No reply frame within the client's timeout (reported as the SDO timeout code)."""
+    """No reply frame within the client's timeout (reported as the SDO timeout code): the port
+    is not an IDX, or the IDX is busy with someone else's request."""
 
-    def __init__(self, request: str = "") -> None:
-        super().__init__(ErrorCode.SDO_TIMEOUT, request)
+    def __init__(self, request: str = "", timeout: float | None = None, detail: str = "") -> None:
+        within = f" within {timeout:g} s" if timeout is not None else ""
+        super().__init__(ErrorCode.SDO_TIMEOUT, request, detail or f"no reply frame from the IDX{within}")
 
 
 @dataclass(frozen=True, slots=True)
@@ -112,7 +121,7 @@ class IdxClient:
             self._frames.append(event.frame)
 
     # -- one transaction ------------------------------------------------------------------------------
-    def transact(self, request: Request, timeout: float | None = None) -> Reply:
+    def transact(self, request: Request, timeout: float | None = None, what: str = "") -> Reply:
         """Send ``request``, wait for its reply frame (guide 2.2.8 D: one request at a time)."""
         self._frames.clear()
         self._decoder.reset()
@@ -125,7 +134,9 @@ class IdxClient:
             left = deadline - time.monotonic()
             if left <= 0:
                 self._stale = True
-                raise IdxTimeout(type(request).__name__)
+                waited = self.timeout if timeout is None else timeout
+                raise IdxTimeout(what or type(request).__name__, detail=(
+                    f"no reply frame from the IDX to {type(request).__name__} within {waited:g} s"))
             self._decoder.feed(self.link.read(512, left))
         try:
             return decode_reply(request.opcode, self._frames[0])
@@ -133,7 +144,7 @@ class IdxClient:
             raise IdxError(exc.code or ErrorCode.GENERAL_ERROR, type(request).__name__) from exc
 
     def _ok(self, request: Request, what: str, timeout: float | None = None) -> Any:
-        reply = self.transact(request, timeout)
+        reply = self.transact(request, timeout, what)
         if reply.error:
             raise IdxError(reply.error, what)
         return reply
@@ -241,7 +252,7 @@ class IdxClient:
         """3.5.2.3: error code 0 = success, 1 = node id out of range."""
         answer = self.lss_request(bytes([LSS_CONFIGURE_NODE_ID, node_id]), timeout_ms, LSS_CONFIGURE_NODE_ID)
         if answer is None:
-            raise IdxTimeout("LSS configure node id")
+            raise IdxTimeout("LSS configure node id", detail="no LSS slave answered")
         if answer[1]:
             raise IdxError(ErrorCode.VALUE_RANGE_ERROR, f"LSS configure node id {node_id}: error {answer[1]}")
 
@@ -249,7 +260,7 @@ class IdxClient:
         """3.5.2.6: error 0 ok, 1 not supported, 2 storage media access error."""
         answer = self.lss_request(bytes([LSS_STORE]), timeout_ms, LSS_STORE)
         if answer is None:
-            raise IdxTimeout("LSS store configuration")
+            raise IdxTimeout("LSS store configuration", detail="no LSS slave answered")
         if answer[1]:
             raise IdxError(ErrorCode.TRANSFER_OR_STORE_ERROR, f"LSS store configuration: error {answer[1]}")
 
