@@ -80,3 +80,34 @@ def test_lss_scan_assigns_node_id(capsys: pytest.CaptureFixture[str]) -> None:
         assert "no unconfigured LSS slave answered" in capsys.readouterr().out
     finally:
         r.close()
+
+
+def test_cli_errors_are_clear(capsys: pytest.CaptureFixture[str]) -> None:
+    """Chapter 6 names in the CLI: a missing node prints 0x05040000 "SDO timeout"; a port that does
+    not exist, an index that does not fit the WORD of 2.1.1.1 and a value that does not fit its type
+    are one-line errors, not tracebacks."""
+    r = IdxRig([])
+    try:
+        pty = r.info["usb"]["idx1"]["pty"]
+        assert main(["idx", "read", pty, "9", "0x1000", "0"]) == 1
+        err = capsys.readouterr().err
+        assert err.startswith("error: read node 9 0x1000:00: ") and '0x05040000 "SDO timeout"' in err
+        assert main(["idx", "read", "/dev/pts/nonexistent", "0", "0x1000", "0"]) == 1
+        err = capsys.readouterr().err
+        assert err.startswith("error: cannot open port /dev/pts/nonexistent") and "Traceback" not in err
+        assert main(["idx", "read", "socket://127.0.0.1:1", "0", "0x1000", "0"]) == 1
+        assert "cannot open port socket://127.0.0.1:1" in capsys.readouterr().err
+        for argv, message in ((["0", "0x10000", "0"], "index 0x10000 outside 0x0000..0xFFFF"),
+                              (["0", "0x1000", "256"], "subindex 256 outside 0..255"),
+                              (["128", "0x1000", "0"], "node id 128 outside 0..127"),
+                              (["0", "x", "0"], "index 'x' is not a number")):
+            with pytest.raises(SystemExit) as stop:
+                main(["idx", "read", pty, *argv])
+            assert stop.value.code == 2 and message in capsys.readouterr().err
+        assert main(["idx", "write", pty, "0", "0x6040", "0", "70000", "-t", "u16"]) == 2
+        assert "VALUE 70000 does not fit u16 (0..65535)" in capsys.readouterr().err
+        assert main(["idx", "read", pty, "0", "0x1008", "0"]) == 1      # a string via ReadObject
+        err = capsys.readouterr().err
+        assert '0x06070010 "Service parameter error"' in err and "add -s or -t str" in err
+    finally:
+        r.close()

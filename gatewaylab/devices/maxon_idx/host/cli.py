@@ -7,10 +7,14 @@ or ``usb`` / ``usb:VID:PID`` for pyusb.
 from __future__ import annotations
 
 import argparse
+import struct
 import sys
+from collections.abc import Callable
 from typing import Any
 
+from ....common.errors import ConfigError, LocalError
 from ..commands import NmtCommand
+from ..errors import ErrorCode
 from .client import IdxClient, IdxError
 
 _NMT = {
@@ -23,8 +27,25 @@ _NMT = {
 _TYPES = ("u8", "u16", "u32", "i8", "i16", "i32", "str", "hex")
 
 
-def _int(text: str) -> int:
-    return int(text, 0)
+def _ranged(what: str, low: int, high: int, fmt: str) -> Callable[[str], int]:
+    """An argparse type: an integer (0x.. ok) in low..high, with a message that says so."""
+    def parse(text: str) -> int:
+        try:
+            value = int(text, 0)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{what} {text!r} is not a number (e.g. {fmt.format(low)})") from None
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(
+                f"{what} {text} outside {fmt.format(low)}..{fmt.format(high)}")
+        return value
+    parse.__name__ = what
+    return parse
+
+
+#: Guide 2.1: Node-ID BYTE (0 = the IDX, 1..127 CAN nodes, 3.4), Index WORD, Subindex BYTE.
+_node = _ranged("node id", 0, 127, "{}")
+_index = _ranged("index", 0, 0xFFFF, "0x{:04X}")
+_sub = _ranged("subindex", 0, 0xFF, "{}")
 
 
 def _obj(args: argparse.Namespace) -> str:
@@ -49,6 +70,19 @@ def _width(type_: str) -> int:
     return {"8": 2, "16": 4, "32": 8}[type_[1:]]
 
 
+def _value(text: str, type_: str) -> int:
+    """VALUE of ``write`` as an integer that fits ``type_`` (u8..i32), else a clear ValueError."""
+    try:
+        value = int(text, 0)
+    except ValueError:
+        raise ValueError(f"VALUE {text!r} is not a number (use -t str or -t hex for bytes)") from None
+    bits = int(type_[1:])
+    low, high = (0, (1 << bits) - 1) if type_[0] == "u" else (-(1 << (bits - 1)), (1 << (bits - 1)) - 1)
+    if not low <= value <= high:
+        raise ValueError(f"VALUE {text} does not fit {type_} ({low}..{high})")
+    return value
+
+
 def cmd_write(args: argparse.Namespace) -> int:
     with IdxClient(args.port, timeout=args.timeout) as client:
         if args.type in ("str", "hex"):
@@ -58,7 +92,7 @@ def cmd_write(args: argparse.Namespace) -> int:
             else:
                 client.write_segmented(args.node, args.index, args.sub, data)
         else:
-            client.write(args.node, args.index, args.sub, _int(args.value), args.type)
+            client.write(args.node, args.index, args.sub, _value(args.value, args.type), args.type)
         print(f"{_obj(args)} written")
     return 0
 
@@ -105,8 +139,18 @@ def _run(func: Any) -> Any:
             result: int = func(args)
             return result
         except IdxError as exc:
-            print(f"error 0x{exc.code:08X} ({exc.name}): {exc}", file=sys.stderr)
+            hint = ""
+            if exc.code == ErrorCode.SERVICE_PARAMETER_ERROR and getattr(args, "idx_command", "") == "read" \
+                    and not args.segmented and args.type not in ("str",):
+                hint = "\nhint: an object longer than 4 bytes needs the segmented read: add -s or -t str"
+            print(f"error: {exc}{hint}", file=sys.stderr)
             return 1
+        except (OSError, ConfigError) as exc:        # serial.SerialException is an OSError
+            print(f"error: cannot open port {args.port}: {exc}", file=sys.stderr)
+            return 1
+        except (ValueError, struct.error, LocalError) as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
     return wrapper
 
 
@@ -121,9 +165,10 @@ def add_subcommand(subparsers: Any) -> None:
         p.add_argument("--timeout", type=float, default=1.0, help="reply timeout in seconds")
 
     def obj(p: argparse.ArgumentParser) -> None:
-        p.add_argument("node", metavar="NODE", type=_int, help="0 = the IDX itself, else a CAN node")
-        p.add_argument("index", metavar="INDEX", type=_int, help="object index, e.g. 0x6041")
-        p.add_argument("sub", metavar="SUB", type=_int, help="subindex")
+        p.add_argument("node", metavar="NODE", type=_node, help="0 = the IDX itself, 1..127 = a CAN node "
+                       "(the IDX's own id is local, others go through the gateway)")
+        p.add_argument("index", metavar="INDEX", type=_index, help="object index, e.g. 0x6041")
+        p.add_argument("sub", metavar="SUB", type=_sub, help="subindex, e.g. 0")
         p.add_argument("--type", "-t", choices=_TYPES, default="u32")
         p.add_argument("--segmented", "-s", action="store_true", help="use the segmented commands")
 
@@ -140,13 +185,13 @@ def add_subcommand(subparsers: Any) -> None:
 
     p = sub.add_parser("nmt", help="send an NMT command")
     common(p)
-    p.add_argument("node", metavar="NODE", type=_int, help="0 = all nodes")
+    p.add_argument("node", metavar="NODE", type=_node, help="0 = all nodes, else 1..127")
     p.add_argument("command", choices=sorted(_NMT))
     p.set_defaults(func=_run(cmd_nmt))
 
     p = sub.add_parser("lss-scan", help="find unconfigured drives by LSS fastscan (and configure them)")
     common(p)
-    p.add_argument("--assign", type=_int, default=None, metavar="N",
+    p.add_argument("--assign", type=_ranged("node id", 1, 127, "{}"), default=None, metavar="N",
                    help="give the found drives node ids N, N+1, ...")
     p.add_argument("--store", action="store_true", help="store the configuration in each drive")
     p.add_argument("--max", type=int, default=127, help="stop after this many drives")
