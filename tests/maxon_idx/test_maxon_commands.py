@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from maxon_helpers import SlaveHarness
 
+from gatewaylab.common.errors import LocalError
 from gatewaylab.devices.maxon_idx.codec import Frame, FrameDecoder, FrameReceived, encode_frame
 from gatewaylab.devices.maxon_idx.commands import (
     InitiateSegmentedRead,
@@ -117,3 +119,18 @@ def test_segmented_write_then_read_any_size(payload: bytes, host_segment: int, d
         assert seg.last == (len(data) == len(payload))
         toggle = not toggle
     assert bytes(data) == payload
+
+
+def test_fields_that_do_not_fit_are_refused_before_the_wire() -> None:
+    """2.1: Node-ID is a BYTE (a WORD in SendNMTService), Index a WORD, Subindex a BYTE, the total
+    length a DWORD, the ReadLSS timeout a WORD; a value that does not fit is a LocalError naming the
+    field, not a struct.error from deep inside the codec."""
+    cases = [(lambda: ReadObject(0, 0x10000, 0), "index"), (lambda: ReadObject(256, 0x1000, 0), "node id"),
+             (lambda: InitiateSegmentedRead(0, 0x1000, 256), "subindex"),
+             (lambda: WriteObject(-1, 0x1000, 0, bytes(4)), "node id"),
+             (lambda: InitiateSegmentedWrite(0, 0x1000, 0, 1 << 32), "total length"),
+             (lambda: SendNmtService(0x10000, 1), "node id"), (lambda: SendNmtService(0, -1), "command"),
+             (lambda: ReadLss(70000), "timeout")]
+    for make, field in cases:
+        with pytest.raises(LocalError, match=field):
+            make()

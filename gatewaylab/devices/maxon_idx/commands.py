@@ -70,6 +70,19 @@ def _need_len(frame: Frame, *allowed: int) -> None:
                              f"opcode 0x{frame.opcode:02X} with Len {frame.length}, expected {allowed}")
 
 
+def _check_field(name: str, value: int, bits: int) -> None:
+    """A request field must fit its BYTE / WORD / DWORD (guide 2.1); LocalError names the field."""
+    top = (1 << bits) - 1
+    if not 0 <= value <= top:
+        raise LocalError(f"{name} {value:#x} outside 0..{top:#x}")
+
+
+def _check_object(node_id: int, index: int, subindex: int) -> None:
+    _check_field("node id", node_id, 8)
+    _check_field("index", index, 16)
+    _check_field("subindex", subindex, 8)
+
+
 def _check_segment(data: bytes) -> None:
     if len(data) > MAX_SEGMENT:
         raise LocalError(f"a segment carries at most {MAX_SEGMENT} bytes, got {len(data)}")
@@ -84,6 +97,9 @@ class ReadObject:
     node_id: int
     index: int
     subindex: int
+
+    def __post_init__(self) -> None:
+        _check_object(self.node_id, self.index, self.subindex)
 
     def to_frame(self) -> Frame:
         return Frame(self.opcode, _OBJ.pack(self.node_id, self.index, self.subindex))
@@ -102,6 +118,9 @@ class InitiateSegmentedRead:
     node_id: int
     index: int
     subindex: int
+
+    def __post_init__(self) -> None:
+        _check_object(self.node_id, self.index, self.subindex)
 
     def to_frame(self) -> Frame:
         return Frame(self.opcode, _OBJ.pack(self.node_id, self.index, self.subindex))
@@ -140,6 +159,7 @@ class WriteObject:
     data: bytes
 
     def __post_init__(self) -> None:
+        _check_object(self.node_id, self.index, self.subindex)
         if len(self.data) != 4:
             raise LocalError("WriteObject carries exactly 4 data bytes (pad with zeros)")
 
@@ -161,6 +181,10 @@ class InitiateSegmentedWrite:
     index: int
     subindex: int
     total_length: int
+
+    def __post_init__(self) -> None:
+        _check_object(self.node_id, self.index, self.subindex)
+        _check_field("total length", self.total_length, 32)
 
     def to_frame(self) -> Frame:
         return Frame(self.opcode, _OBJ_LEN.pack(self.node_id, self.index, self.subindex, self.total_length))
@@ -204,6 +228,10 @@ class SendNmtService:
     node_id: int
     command: int
 
+    def __post_init__(self) -> None:
+        _check_field("node id", self.node_id, 16)
+        _check_field("command specifier", self.command, 16)
+
     def to_frame(self) -> Frame:
         return Frame(self.opcode, _NMT.pack(self.node_id, self.command))
 
@@ -239,6 +267,9 @@ class ReadLss:
 
     opcode: ClassVar[OpCode] = OpCode.READ_LSS
     timeout_ms: int
+
+    def __post_init__(self) -> None:
+        _check_field("timeout", self.timeout_ms, 16)
 
     def to_frame(self) -> Frame:
         return Frame(self.opcode, _U16.pack(self.timeout_ms))
