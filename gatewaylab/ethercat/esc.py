@@ -518,22 +518,18 @@ class Esc:
         return 1 if self.ecat_write(ado, bytes(buf[off:off + dlen])) else 0
 
     def _logical(self, buf: bytearray, off: int, laddr: int, dlen: int, cmd: int) -> int:
-        if not self._fmmus:
+        fmmus = self._fmmus
+        if not fmmus:
             return 0
         lend = laddr + dlen
         rd = wr = False
-        do_write = cmd != _LRD
-        do_read = cmd != _LWR
-        hits = [f for f in self._fmmus if f.lstart < lend and laddr < f.lend]
-        if not hits:
-            return 0
-        if do_write:
-            for f in hits:
-                if f.write and self._fmmu_write(f, buf, off, laddr, lend):
+        if cmd != _LRD:  # writes first: the frame's data as it arrived at this slave
+            for f in fmmus:
+                if f.write and f.lstart < lend and laddr < f.lend and self._fmmu_write(f, buf, off, laddr, lend):
                     wr = True
-        if do_read:
-            for f in hits:
-                if f.read and self._fmmu_read(f, buf, off, laddr, lend):
+        if cmd != _LWR:
+            for f in fmmus:
+                if f.read and f.lstart < lend and laddr < f.lend and self._fmmu_read(f, buf, off, laddr, lend):
                     rd = True
         if cmd == _LWR:
             return 1 if wr else 0

@@ -175,7 +175,7 @@ class Slave:
             self.mailbox.pump()
         elif sm == self.sm_inputs:
             self.app.on_inputs_read(self)
-            if self.esc.sm_config(sm).mailbox:
+            if self._inputs_one_buffer:
                 self.esc.sm_set_full(sm)  # 1-buffer inputs: the application refreshes every cycle
 
     def mailbox_received(self, data: bytes) -> None:
