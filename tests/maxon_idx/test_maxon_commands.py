@@ -46,7 +46,8 @@ requests = st.one_of(
 
 def test_request_lengths_match_the_guide() -> None:
     """2.1: Len of ReadObject 2, InitiateSegmentedRead 2, SegmentRead 1, WriteObject 4,
-    InitiateSegmentedWrite 4, SegmentWrite 1..129, SendNMTService 2, SendLSS 4, ReadLSS 1 word."""
+    InitiateSegmentedWrite 4, SegmentWrite 1..129, SendNMTService 2, SendLSS 4, ReadLSS 2 (a timeout
+    WORD; the second word is zero)."""
     assert ReadObject(1, 0x30B0, 0).to_frame().length == 2
     assert InitiateSegmentedRead(1, 0x1008, 0).to_frame().length == 2
     assert SegmentRead(True).to_frame() == Frame(0x62, bytes([0x01, 0x00]))
@@ -57,7 +58,7 @@ def test_request_lengths_match_the_guide() -> None:
     assert SegmentWrite(True, True, b"abc").to_frame() == Frame(0x6A, bytes([3, 0x03]) + b"abc" + b"\x00")
     assert SendNmtService(2, 1).to_frame() == Frame(0x70, bytes([2, 0, 1, 0]))
     assert SendLss(bytes(8)).to_frame().length == 4
-    assert ReadLss(100).to_frame() == Frame(0x7B, bytes([100, 0]))
+    assert ReadLss(100).to_frame() == Frame(0x7B, bytes([100, 0, 0, 0]))
 
 
 def test_reply_lengths_match_the_guide() -> None:

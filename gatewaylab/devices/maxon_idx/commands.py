@@ -272,7 +272,8 @@ class ReadLss:
         _check_field("timeout", self.timeout_ms, 16)
 
     def to_frame(self) -> Frame:
-        return Frame(self.opcode, _U16.pack(self.timeout_ms))
+        # Len 2 as the guide's table says: the timeout WORD and a zero WORD.
+        return Frame(self.opcode, _U16.pack(self.timeout_ms) + b"\x00\x00")
 
     @classmethod
     def from_frame(cls, frame: Frame) -> ReadLss:
