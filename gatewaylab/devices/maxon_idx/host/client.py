@@ -180,11 +180,16 @@ class IdxClient:
         while len(data) < first.total_length:
             seg: SegmentReadReply = self._ok(SegmentRead(toggle), what)
             if seg.toggle != toggle:
-                raise IdxError(ErrorCode.TOGGLE_ERROR, what)
+                raise IdxError(ErrorCode.TOGGLE_ERROR, what, "the reply's toggle bit did not alternate")
             data += seg.data
             toggle = not toggle
             if seg.last:
                 break
+            if not seg.data:        # would loop for ever on a device that sends nothing more
+                raise IdxError(ErrorCode.GENERAL_ERROR, what, "empty segment without the last-segment bit")
+        if len(data) != first.total_length:
+            raise IdxError(ErrorCode.SERVICE_PARAMETER_ERROR, what,
+                           f"{len(data)} bytes received, {first.total_length} announced")
         return bytes(data)
 
     def read_string(self, node_id: int, index: int, subindex: int) -> str:
