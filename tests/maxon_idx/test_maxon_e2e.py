@@ -40,7 +40,8 @@ def _error(call: object, *args: object) -> int:
 
 
 def test_ready_info_names_pty_and_tcp(rig: IdxRig) -> None:
-    """Issue 4 rig file: ready info {"usb": {"idx1": {"pty": "/dev/pts/N", "tcp": "127.0.0.1:PORT"}}}."""
+    """2.3.1 USB port, emulated: the rig ready info names it {"usb": {"idx1": {"pty": "/dev/pts/N",
+    "tcp": "127.0.0.1:PORT"}}} (issue 4 rig file)."""
     usb = rig.info["usb"]["idx1"]
     assert usb["pty"].startswith("/dev/pts/")
     assert usb["tcp"].startswith("127.0.0.1:") and int(usb["tcp"].split(":")[1]) > 0
@@ -59,7 +60,7 @@ def test_local_objects(rig: IdxRig, client: IdxClient) -> None:
 
 
 def test_tcp_url_reaches_same_device(rig: IdxRig) -> None:
-    """The TCP transport serves the same device: pyserial socket:// URL."""
+    """2.2 data link over the TCP transport (pyserial socket:// URL): the same device, its own 0x1018:04."""
     with IdxClient("socket://" + rig.info["usb"]["idx1"]["tcp"]) as c:
         assert c.read(0, 0x1018, 4) == 0x2001
 

@@ -80,7 +80,8 @@ def test_pty_client_segmented_and_errors(realtime_rig: RunningRig) -> None:
 
 
 def test_tcp_socket_url(realtime_rig: RunningRig) -> None:
-    """The same protocol over socket://127.0.0.1:PORT; each connection has its own channel."""
+    """2.2.8 bytes over socket://127.0.0.1:PORT; each connection is its own host (2.2.1: the slave
+    answers each request on the connection it came from)."""
     rr = realtime_rig
     gateway = ScriptedGateway()
     server = TcpServer(rr.rig, rr.rig.clock, _factory(rr, _objects(), gateway))  # type: ignore[arg-type]
