@@ -13,6 +13,10 @@ from enum import Enum, IntEnum, IntFlag
 class PdsState(Enum):
     """The eight states of the CiA 402 power drive system FSA."""
 
+    # Members are singletons compared by identity: hash them by identity too (C speed), the
+    # drive looks them up in its tables at 1 kHz.
+    __hash__ = object.__hash__
+
     NOT_READY_TO_SWITCH_ON = "NOT READY TO SWITCH ON"
     SWITCH_ON_DISABLED = "SWITCH ON DISABLED"
     READY_TO_SWITCH_ON = "READY TO SWITCH ON"
@@ -25,6 +29,8 @@ class PdsState(Enum):
 
 class Command(Enum):
     """Device control commands encoded in controlword bits 0-3 and 7 (CiA 402 table 'commands')."""
+
+    __hash__ = object.__hash__
 
     SHUTDOWN = "shutdown"
     SWITCH_ON = "switch on"
@@ -144,10 +150,7 @@ def decode_command(controlword: int, previous: int) -> Command | None:
     return Command.SWITCH_ON_ENABLE  # 0x0F: also 'enable operation'
 
 
-def next_state(state: PdsState, command: Command | None) -> tuple[PdsState, int] | None:
-    """(new state, transition number) for a controlword command, or None (no transition)."""
-    if command is None:
-        return None
+def _lookup(state: PdsState, command: Command) -> tuple[PdsState, int] | None:
     hit = TRANSITIONS.get((state, command))
     if hit is not None:
         return hit
@@ -156,6 +159,19 @@ def next_state(state: PdsState, command: Command | None) -> tuple[PdsState, int]
     if command is Command.SWITCH_ON_ENABLE:
         return TRANSITIONS.get((state, Command.ENABLE_OPERATION))
     return None
+
+
+#: next_state for every (state, command), the 'switch on' / 'switch on + enable' codings that
+#: mean 'disable operation' / 'enable operation' resolved in advance: one lookup per controlword.
+_NEXT: dict[tuple[PdsState, Command], tuple[PdsState, int] | None] = {
+    (state, command): _lookup(state, command) for state in PdsState for command in Command}
+
+
+def next_state(state: PdsState, command: Command | None) -> tuple[PdsState, int] | None:
+    """(new state, transition number) for a controlword command, or None (no transition)."""
+    if command is None:
+        return None
+    return _NEXT[state, command]
 
 
 def state_from_statusword(statusword: int) -> PdsState | None:

@@ -20,6 +20,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from enum import Enum
+from typing import Any
 
 
 @dataclass(frozen=True, slots=True)
@@ -59,6 +60,9 @@ class ControlMode(Enum):
     TORQUE = "torque"      # torque command in per mille
 
 
+_OFF, _POSITION, _VELOCITY, _TORQUE = ControlMode.OFF, ControlMode.POSITION, ControlMode.VELOCITY, ControlMode.TORQUE
+
+
 @dataclass(slots=True)
 class AxisState:
     position: float = 0.0      # inc
@@ -77,6 +81,7 @@ class Plant:
     state: AxisState = field(default_factory=AxisState)
     #: External load torque in per mille (fault injection / teaching: a blocked or loaded axis).
     external_torque: float = 0.0
+    _consts: tuple[Any, ...] | None = field(default=None, init=False, repr=False, compare=False)
 
     def reset_integrator(self) -> None:
         self.state.integral = 0.0
@@ -85,40 +90,49 @@ class Plant:
         """Redefine the current position (homing); the physics does not move."""
         self.state.position = position
 
+    def _constants(self) -> tuple[Any, ...]:
+        """Per-parameter constants of ``step`` (computed the same way as inline, cached)."""
+        p = self.params
+        return (p, p.accel_per_permille, p.kp, p.kv, p.ki, p.inc_per_rad, p.viscous_friction,
+                p.rated_torque, p.coulomb_friction / p.rated_torque * 1000.0, p.hard_stop_high,
+                p.hard_stop_low)
+
     def step(self, dt: float, mode: ControlMode, *, position: float = 0.0, velocity: float = 0.0,
              acceleration: float = 0.0, torque: float = 0.0, max_torque: float = 1000.0) -> None:
         """One control period: compute the motor torque for ``mode``, integrate the axis."""
-        p = self.params
+        c = self._consts
+        if c is None or c[0] is not self.params:
+            c = self._consts = self._constants()
+        _, k, kp, kv, ki, inc_per_rad, viscous_friction, rated_torque, coulomb, high, low = c
         st = self.state
-        k = p.accel_per_permille            # inc/s^2 per per mille
-        if mode is ControlMode.OFF:
+        v = st.velocity
+        # k: inc/s^2 per per mille
+        if mode is _OFF:
             cmd = 0.0
             st.integral = 0.0
-        elif mode is ControlMode.TORQUE:
+        elif mode is _TORQUE:
             cmd = torque
             st.integral = 0.0
         else:
             v_cmd = velocity
-            if mode is ControlMode.POSITION:
+            if mode is _POSITION:
                 # compare with where the axis will be at the end of this step, so that the
                 # actual position matches the set-point of the same instant (no one-step lead)
-                v_cmd += p.kp * (position - st.position - st.velocity * dt)
-            err = v_cmd - st.velocity
-            cmd = (p.kv * err + p.ki * (st.integral + err * dt) + acceleration) / k
+                v_cmd += kp * (position - st.position - v * dt)
+            err = v_cmd - v
+            cmd = (kv * err + ki * (st.integral + err * dt) + acceleration) / k
         limit = abs(max_torque)
         saturated = cmd > limit or cmd < -limit
         if saturated:
             cmd = limit if cmd > 0 else -limit
-        elif mode is ControlMode.POSITION or mode is ControlMode.VELOCITY:
+        elif mode is _POSITION or mode is _VELOCITY:
             # anti-windup: integrate only while the output is not saturated
-            st.integral += (v_cmd - st.velocity) * dt
+            st.integral += (v_cmd - v) * dt
         st.saturated = saturated
         st.torque = cmd
         # forces in per mille of rated torque
-        viscous = p.viscous_friction * (st.velocity / p.inc_per_rad) / p.rated_torque * 1000.0
-        coulomb = p.coulomb_friction / p.rated_torque * 1000.0
+        viscous = viscous_friction * (v / inc_per_rad) / rated_torque * 1000.0
         drive = cmd + self.external_torque - viscous
-        v = st.velocity
         if v == 0.0 and abs(drive) <= coulomb:
             acc = 0.0          # stiction holds the axis
         else:
@@ -128,11 +142,12 @@ class Plant:
         if v != 0.0 and (v_new > 0.0) != (v > 0.0) and abs(drive) <= coulomb:
             v_new = 0.0        # friction brings it to rest within the step, it does not reverse
         x_new = st.position + v_new * dt
-        st.at_stop = False
-        if p.hard_stop_high is not None and x_new >= p.hard_stop_high:
-            x_new, v_new, st.at_stop = p.hard_stop_high, min(v_new, 0.0), True
-        if p.hard_stop_low is not None and x_new <= p.hard_stop_low:
-            x_new, v_new, st.at_stop = p.hard_stop_low, max(v_new, 0.0), True
+        at_stop = False
+        if high is not None and x_new >= high:
+            x_new, v_new, at_stop = high, min(v_new, 0.0), True
+        if low is not None and x_new <= low:
+            x_new, v_new, at_stop = low, max(v_new, 0.0), True
+        st.at_stop = at_stop
         st.velocity = v_new
         st.position = x_new
 
