@@ -146,3 +146,15 @@ def test_lss_fastscan_finds_and_configures_unconfigured_drive() -> None:
             assert c.fastscan(timeout_ms=10) is None
     finally:
         r.close()
+
+
+def test_late_reply_after_client_timeout_is_not_taken_for_the_next_answer(rig: IdxRig) -> None:
+    """2.2.8 D "Do not send any data before the receive frame or a timeout is present": after the
+    client gave up on node 9 (0.2 s < the gateway's 0.5 s SDO timeout) the IDX still answers
+    0x05040000 late; the client drops that reply, so the next read gets its own value."""
+    with IdxClient(rig.info["usb"]["idx1"]["pty"], timeout=0.2) as c:
+        assert _error(c.read, 9, 0x1000, 0) == 0x05040000          # the client's own timeout
+        c.timeout = 2.0
+        assert c.read(0, 0x1018, 4) == 0x2001
+        assert c.read(2, 0x1018, 4) == 0x1002
+        assert c.late_replies_dropped == 1

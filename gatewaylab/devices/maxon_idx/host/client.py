@@ -98,11 +98,20 @@ class LssAddress:
 
 
 class IdxClient:
-    """One host's connection to one IDX; ``node_id`` 0 addresses the IDX itself."""
+    """One host's connection to one IDX; ``node_id`` 0 addresses the IDX itself.
 
-    def __init__(self, link: Link | str, timeout: float = 1.0) -> None:
+    ``timeout`` bounds each reply; keep it above the IDX's gateway SDO timeout (0.5 s) or a
+    silent node shows up as a client timeout. The protocol has no sequence numbers, so after a
+    client timeout the IDX may still answer the abandoned request: the next request first waits
+    up to ``late_reply_wait`` seconds for that late reply and drops it, so that it is never taken
+    for the next request's answer (guide 2.2.8 D: wait for "the receive frame or a timeout").
+    """
+
+    def __init__(self, link: Link | str, timeout: float = 1.0, late_reply_wait: float = 1.0) -> None:
         self.link: Link = open_link(link) if isinstance(link, str) else link
         self.timeout = timeout
+        self.late_reply_wait = late_reply_wait
+        self.late_replies_dropped = 0
         self._frames: list[Any] = []
         self._stale = False
         self._decoder = FrameDecoder(RealTimeClock(), self._on_event, timeout=None)
@@ -123,11 +132,10 @@ class IdxClient:
     # -- one transaction ------------------------------------------------------------------------------
     def transact(self, request: Request, timeout: float | None = None, what: str = "") -> Reply:
         """Send ``request``, wait for its reply frame (guide 2.2.8 D: one request at a time)."""
+        if self._stale:                  # an earlier request timed out: its reply may still come
+            self._drop_late_reply()
         self._frames.clear()
         self._decoder.reset()
-        if self._stale:                  # a late reply to an earlier, timed-out request
-            self.link.reset_input()
-            self._stale = False
         self.link.write(encode_frame(request.to_frame()))
         deadline = time.monotonic() + (self.timeout if timeout is None else timeout)
         while not self._frames:
@@ -142,6 +150,20 @@ class IdxClient:
             return decode_reply(request.opcode, self._frames[0])
         except GatewaylabError as exc:
             raise IdxError(exc.code or ErrorCode.GENERAL_ERROR, type(request).__name__) from exc
+
+    def _drop_late_reply(self) -> None:
+        """Wait up to ``late_reply_wait`` for the reply owed to a timed-out request and drop it."""
+        self._stale = False
+        self._frames.clear()
+        self._decoder.reset()
+        deadline = time.monotonic() + self.late_reply_wait
+        while not self._frames:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                break
+            self._decoder.feed(self.link.read(512, left))
+        self.late_replies_dropped += len(self._frames)
+        self.link.reset_input()
 
     def _ok(self, request: Request, what: str, timeout: float | None = None) -> Any:
         reply = self.transact(request, timeout, what)
