@@ -126,3 +126,52 @@ def test_client_timeout_when_nothing_answers(realtime_rig: RunningRig) -> None:
     finally:
         with rr.rig.clock.lock:
             port.close()
+
+
+class _StubServer:
+    """What a TCP connection needs of its server, without a listening socket or a rig loop."""
+
+    def __init__(self) -> None:
+        self.latency = 0.0
+        self.connections: set[object] = set()
+        self.readers: list[int] = []
+        self.sent: list[bytes] = []
+
+    def make_channel(self, send: object) -> _Silent:
+        self.send = send
+        return _Silent()
+
+    @property
+    def reactor(self) -> _StubServer:
+        return self
+
+    def remove_reader(self, fd: int) -> None:
+        self.readers.append(fd)
+
+
+def test_tcp_host_not_reading_keeps_its_connection() -> None:
+    """2.2.1 "All commands send an answer": a host that sends faster than it reads fills the socket
+    buffer; the replies wait (up to 64 KiB) instead of the connection being closed."""
+    import socket
+
+    from gatewaylab.devices.maxon_idx.transport.tcp import _Connection
+
+    ours, host = socket.socketpair()
+    ours.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 4096)
+    ours.setblocking(False)
+    server = _StubServer()
+    conn = _Connection(server, ours)  # type: ignore[arg-type]
+    reply = GUIDE_RESPONSE * 100
+    for _ in range(30):                         # 42 kB of replies, the host reads none of them
+        server.send(reply)  # type: ignore[operator]
+    assert not conn.closed and conn.tx_bytes < 30 * len(reply) and conn.dropped_bytes == 0
+    received = bytearray()
+    host.setblocking(False)
+    while len(received) < 30 * len(reply):
+        try:
+            received += host.recv(65536)
+        except BlockingIOError:
+            conn._flush()                       # what the next readable event does
+    assert bytes(received) == reply * 30
+    conn.close()
+    host.close()

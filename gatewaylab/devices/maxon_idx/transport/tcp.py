@@ -11,6 +11,9 @@ import socket
 from ....common.clock import Clock
 from .base import Channel, ChannelFactory, Reactor
 
+#: Reply bytes kept for a host that does not read them before new ones are dropped (as the pty).
+MAX_BACKLOG = 1 << 16
+
 
 class _Connection:
     def __init__(self, server: TcpServer, sock: socket.socket) -> None:
@@ -18,6 +21,9 @@ class _Connection:
         self.sock = sock
         self.fd = sock.fileno()
         self.closed = False
+        self.tx_bytes = 0
+        self.dropped_bytes = 0
+        self._backlog = bytearray()
         self.channel: Channel = server.make_channel(self.send)
 
     def send(self, data: bytes) -> None:
@@ -29,12 +35,29 @@ class _Connection:
     def _write(self, data: bytes) -> None:
         if self.closed:
             return
-        try:
-            self.sock.sendall(data)
-        except OSError:
-            self.close()
+        self._backlog += data
+        self._flush()
+
+    def _flush(self) -> None:
+        """Send what the socket takes now; a full send buffer (a host not reading its replies)
+        keeps the rest for the next readable event instead of closing the connection."""
+        while self._backlog:
+            try:
+                n = self.sock.send(self._backlog)
+            except BlockingIOError:
+                break
+            except OSError:
+                self.close()
+                return
+            self.tx_bytes += n
+            del self._backlog[:n]
+        if len(self._backlog) > MAX_BACKLOG:
+            self.dropped_bytes += len(self._backlog)
+            self._backlog.clear()
 
     def on_readable(self) -> None:
+        if self._backlog:
+            self._flush()
         try:
             data = self.sock.recv(4096)
         except BlockingIOError:
