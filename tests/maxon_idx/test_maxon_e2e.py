@@ -158,3 +158,20 @@ def test_late_reply_after_client_timeout_is_not_taken_for_the_next_answer(rig: I
         assert c.read(0, 0x1018, 4) == 0x2001
         assert c.read(2, 0x1018, 4) == 0x1002
         assert c.late_replies_dropped == 1
+
+
+def test_guide_example_bytes_against_the_emulated_idx(rig: IdxRig) -> None:
+    """2.2.8 end to end on the emulated IDX (not a fake dictionary): with Home Position 0x30B0 set to
+    36865 inc, the guide's request bytes get exactly the guide's reception bytes over plain pyserial,
+    on the pty and on the socket:// URL."""
+    import serial
+
+    request = bytes([0x90, 0x02, 0x60, 0x02, 0x01, 0xB0, 0x30, 0x00, 0x2E, 0x62])
+    response = bytes([0x90, 0x02, 0x00, 0x04, 0x00, 0x00, 0x00, 0x00, 0x01, 0x90, 0x90, 0x00, 0x00, 0x9A, 0x5C])
+    usb = rig.info["usb"]["idx1"]
+    with IdxClient(usb["pty"]) as c:
+        c.write(1, 0x30B0, 0, 36865, "i32")
+    for url in (usb["pty"], "socket://" + usb["tcp"]):
+        with serial.serial_for_url(url, timeout=2) as s:
+            s.write(request)
+            assert s.read(len(response)) == response, url
