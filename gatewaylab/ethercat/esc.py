@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import enum
 import struct
-from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -217,8 +216,6 @@ class Esc:
         self._sync0_cycle = 0.0
         self._mbx_last: bytes = b""
         self.pdi_outputs: dict[int, bytes] = {}
-        #: Called when the master reads SM status etc.; devices use ``mailbox_put``.
-        self.on_sync0: Callable[[float], None] | None = None
         self._reset_registers()
 
     # ------------------------------------------------------------------ reset / configuration
