@@ -252,3 +252,20 @@ def test_segment_read_after_complete_initiate_gets_empty_last_segment(harness: S
     assert r == InitiateSegmentedReadReply(0, 4, bytes([1, 0x90, 0, 0]))
     assert ask(harness, SegmentRead(False)) == SegmentReadReply(0, False, True, b"")
     assert ask(harness, SegmentRead(True)) == SegmentReadReply(ErrorCode.COMMAND_UNKNOWN)
+
+
+def test_requests_behind_a_running_one_are_answered_in_order_up_to_the_queue_depth(
+        harness: SlaveHarness) -> None:
+    """2.2.8 D "IDX cannot process data simultaneously": requests sent while a gateway read runs are
+    answered afterwards, in order, one reply each; beyond 64 waiting requests the rest are counted
+    as overflows and get no answer (docs/decisions/maxon_idx.md)."""
+    from gatewaylab.devices.maxon_idx.protocol import MAX_QUEUED
+
+    h = harness
+    assert h.feed(encode_frame(ReadObject(2, 0x6041, 0).to_frame())) == []
+    local = encode_frame(ReadObject(0, 0x30B0, 0).to_frame())
+    assert h.feed(local * (MAX_QUEUED + 3)) == []
+    assert h.slave.stats.overflows == 3
+    h.gateway.uploads[0][4](b"\x37\x02")
+    replies = [decode_reply(0x60, f) for f in h.collect()]
+    assert replies == [ReadObjectReply(0, b"\x37\x02\x00\x00")] + [ReadObjectReply(0, bytes([1, 0x90, 0, 0]))] * 64
