@@ -134,3 +134,15 @@ def test_two_hosts_share_the_gateway() -> None:
                               ReadObjectReply(0, (0x2001).to_bytes(4, "little"))]
     product = w.drive.node.get(0x1018, 2)
     assert other.replies == [ReadObjectReply(0, int(product).to_bytes(4, "little"))]
+
+
+def test_gateway_read_object_of_a_string_is_refused_after_one_sdo_exchange() -> None:
+    """2.1.1.1 (ReadObject: "an object with up to 4 bytes") through the gateway of chapter 5: the
+    drive answers the initiate upload of its 0x1008 name segmented; the IDX aborts with 0x06070010
+    on the bus, answers that code, and the drive serves the next request normally."""
+    w = World()
+    assert w.ask(ReadObject(2, 0x1008, 0)) == ReadObjectReply(0x06070010)
+    to_drive = [f for f in w.frames if f.can_id == 0x602]
+    assert [f.data[0] for f in to_drive] == [0x40, 0x80]
+    assert to_drive[1].data[4:] == (0x06070010).to_bytes(4, "little")
+    assert w.ask(ReadObject(2, 0x1018, 4)) == ReadObjectReply(0, (0x1002).to_bytes(4, "little"))

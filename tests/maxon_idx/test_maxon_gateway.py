@@ -105,5 +105,51 @@ def test_sdo_frames_routed_to_client() -> None:
     other.send(CanFrame(0x582, bytes([0x4B, 0x41, 0x60, 0, 0x37, 0x02, 0, 0])))
     clock.advance(0.01)
     assert sdo.frames and sdo.frames[0].can_id == 0x582
-    gw.upload(2, 0x6041, 0, lambda r: None, segmented=False)
-    assert sdo.calls == [("up", 2, 0x6041, 0, None)]
+    gw.upload(2, 0x1008, 0, lambda r: None, segmented=True)
+    assert sdo.calls == [("up", 2, 0x1008, 0, True)]
+
+
+def test_read_object_is_an_expedited_upload() -> None:
+    """Chapter 5 + notes ("maxon's own PC library performs ReadObject via an expedited upload"):
+    ReadObject to node 2 is a CiA 301 initiate upload 0x40 on 0x602; an expedited answer with the
+    size indicated gives exactly its bytes; an abort passes its code through."""
+    clock, _bus, gw, seen, (sdo, other), _own = make()
+    results: list[bytes | GatewaylabError] = []
+    gw.upload(2, 0x6041, 0, results.append, segmented=False)
+    clock.advance(0.001)
+    assert seen[-1] == CanFrame(0x602, bytes([0x40, 0x41, 0x60, 0, 0, 0, 0, 0]))
+    other.send(CanFrame(0x582, bytes([0x4B, 0x41, 0x60, 0, 0x37, 0x02, 0, 0])))    # 2 bytes (n = 2)
+    clock.advance(0.001)
+    assert results == [b"\x37\x02"] and sdo.calls == [] and sdo.frames == []
+    gw.upload(2, 0x6041, 0, results.append, segmented=False)
+    clock.advance(0.001)
+    other.send(CanFrame(0x582, bytes([0x80, 0x41, 0x60, 0, 0x00, 0x00, 0x02, 0x06])))
+    clock.advance(0.001)
+    assert isinstance(results[1], IdxRemoteError) and results[1].code == 0x06020000
+
+
+def test_read_object_of_a_long_object_aborts_the_segmented_answer() -> None:
+    """2.1.1.1 ReadObject reads "up to 4 bytes": when the node starts a segmented upload (cs 0x41,
+    e = 0) the gateway aborts it on the bus with 0x06070010 instead of fetching every segment, and
+    answers the same code."""
+    clock, _bus, gw, seen, (_sdo, other), _own = make()
+    results: list[bytes | GatewaylabError] = []
+    gw.upload(2, 0x1008, 0, results.append, segmented=False)
+    clock.advance(0.001)
+    other.send(CanFrame(0x582, bytes([0x41, 0x08, 0x10, 0, 29, 0, 0, 0])))
+    clock.advance(0.001)
+    assert seen[-1] == CanFrame(0x602, bytes([0x80, 0x08, 0x10, 0, 0x10, 0x00, 0x07, 0x06]))
+    assert isinstance(results[0], IdxRemoteError) and results[0].code == ErrorCode.SERVICE_PARAMETER_ERROR
+    assert [f for f in seen if f.can_id == 0x602 and f.data[0] & 0xE0 == 0x60] == []   # no segment request
+
+
+def test_read_object_of_a_silent_node_times_out() -> None:
+    """Chapter 6: no answer within the SDO timeout -> 0x05040000, and the transfer is aborted."""
+    clock, _bus, gw, seen, _x, _own = make()
+    results: list[bytes | GatewaylabError] = []
+    gw.upload(9, 0x1000, 0, results.append, segmented=False)
+    clock.advance(0.49)
+    assert results == []
+    clock.advance(0.02)
+    assert isinstance(results[0], IdxRemoteError) and results[0].code == 0x05040000
+    assert seen[-1] == CanFrame(0x609, bytes([0x80, 0x00, 0x10, 0, 0x00, 0x00, 0x04, 0x05]))

@@ -12,6 +12,7 @@ from __future__ import annotations
 import struct
 from collections import deque
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any, Protocol
 
 from ...bus.frame import CanFrame
@@ -27,6 +28,8 @@ SDO_RESPONSE_BASE = 0x580
 #: CiA 301 expedited download, size not indicated (e=1, s=0): the server takes its object's size.
 SDO_DOWNLOAD_EXPEDITED_NO_SIZE = 0x22
 SDO_DOWNLOAD_RESPONSE = 0x60
+SDO_UPLOAD_REQUEST = 0x40
+SDO_UPLOAD_RESPONSE = 0x40
 SDO_ABORT = 0x80
 _SDO = struct.Struct("<BHB4s")
 _SDO_ABORT = struct.Struct("<BHBI")
@@ -35,6 +38,18 @@ LSS_BACKLOG = 64
 
 UploadCallback = Callable[[bytes | GatewaylabError], None]
 DownloadCallback = Callable[[GatewaylabError | None], None]
+
+
+@dataclass(slots=True)
+class _Expedited:
+    """The gateway's own expedited transfer in flight (ReadObject upload or WriteObject download)."""
+
+    node_id: int
+    index: int
+    subindex: int
+    upload: bool
+    callback: Callable[[Any], None]
+    timer: TimerHandle
 
 
 class SdoClientLike(Protocol):
@@ -62,7 +77,7 @@ class CanGateway:
         # Gateway SDO transfers run one at a time (several USB channels may ask at once).
         self._ops: deque[Callable[[], None]] = deque()
         self._op_running = False
-        self._download: tuple[int, int, int, DownloadCallback, TimerHandle] | None = None
+        self._expedited: _Expedited | None = None
         self.on_own_nmt = on_own_nmt
         self.own_node_id = own_node_id
         self.lss_armed = False
@@ -76,31 +91,36 @@ class CanGateway:
         if frame.can_id == LSS_SLAVE_COB_ID and not frame.rtr and not frame.extended:
             self._lss_frame(bytes(frame.data).ljust(8, b"\x00")[:8])
             return
-        dl = self._download
-        if dl is not None and frame.can_id == SDO_RESPONSE_BASE + dl[0] and len(frame.data) == 8:
-            self._download_answer(frame.data)
+        ex = self._expedited
+        if ex is not None and frame.can_id == SDO_RESPONSE_BASE + ex.node_id and len(frame.data) == 8:
+            self._expedited_answer(bytes(frame.data))
             return
         self.sdo.on_frame(frame, t)
 
     # -- SDO ---------------------------------------------------------------------------------------
     def upload(self, node_id: int, index: int, subindex: int, callback: UploadCallback, *,
                segmented: bool) -> None:
-        """ReadObject -> SDO initiate upload (the server picks expedited for <= 4 bytes);
-        InitiateSegmentedRead -> the same, accepting a segmented answer of any size."""
+        """ReadObject (``segmented=False``) -> a CiA 301 initiate upload taking the expedited answer
+        only: a server that starts a segmented transfer (object > 4 bytes) is aborted with
+        0x06070010 at once, as maxon's own library reads by expedited upload (notes).
+        InitiateSegmentedRead -> the SDO client's upload, expedited or segmented, of any size."""
         self.sdo_requests += 1
+        if not segmented:
+            self._submit(lambda: self._start_expedited(node_id, index, subindex, None, callback))
+            return
 
         def done(result: Any) -> None:
             self._op_done()
             callback(result)
 
-        self._submit(lambda: self.sdo.upload(node_id, index, subindex, done, segmented=None))
+        self._submit(lambda: self.sdo.upload(node_id, index, subindex, done, segmented=True))
 
     def download(self, node_id: int, index: int, subindex: int, data: bytes,
                  callback: DownloadCallback) -> None:
         """WriteObject -> CiA 301 expedited download with the size *not* indicated: the USB
         command always carries 4 bytes and only the server knows its object's size (2.1.2.1)."""
         self.sdo_requests += 1
-        self._submit(lambda: self._start_download(node_id, index, subindex, data, callback))
+        self._submit(lambda: self._start_expedited(node_id, index, subindex, data, callback))
 
     def _submit(self, op: Callable[[], None]) -> None:
         self._ops.append(op)
@@ -117,44 +137,58 @@ class CanGateway:
     def _op_done(self) -> None:
         self.clock.call_soon(self._next_op)
 
-    def _start_download(self, node_id: int, index: int, subindex: int, data: bytes,
-                        callback: DownloadCallback) -> None:
-        timer = self.clock.call_later(self.sdo_timeout, self._download_timeout)
-        self._download = (node_id, index, subindex, callback, timer)
-        self.send(CanFrame(SDO_REQUEST_BASE + node_id,
-                           _SDO.pack(SDO_DOWNLOAD_EXPEDITED_NO_SIZE, index, subindex, data.ljust(4, b"\x00"))))
+    def _start_expedited(self, node_id: int, index: int, subindex: int, data: bytes | None,
+                         callback: Callable[[Any], None]) -> None:
+        """One expedited transfer: ``data`` None = initiate upload, else expedited download."""
+        timer = self.clock.call_later(self.sdo_timeout, self._expedited_timeout)
+        self._expedited = _Expedited(node_id, index, subindex, data is None, callback, timer)
+        if data is None:
+            payload = _SDO.pack(SDO_UPLOAD_REQUEST, index, subindex, bytes(4))
+        else:
+            payload = _SDO.pack(SDO_DOWNLOAD_EXPEDITED_NO_SIZE, index, subindex, data.ljust(4, b"\x00"))
+        self.send(CanFrame(SDO_REQUEST_BASE + node_id, payload))
 
-    def _end_download(self, result: GatewaylabError | None) -> None:
-        dl, self._download = self._download, None
-        if dl is None:
+    def _end_expedited(self, result: bytes | GatewaylabError | None) -> None:
+        ex, self._expedited = self._expedited, None
+        if ex is None:
             return
-        dl[4].cancel()
+        ex.timer.cancel()
         self._op_done()
-        dl[3](result)
+        ex.callback(result)
 
-    def _download_answer(self, data: bytes) -> None:
-        dl = self._download
-        assert dl is not None
+    def _expedited_answer(self, data: bytes) -> None:
+        ex = self._expedited
+        assert ex is not None
         cs, index, sub, value = _SDO_ABORT.unpack(data)
-        if (index, sub) != (dl[1], dl[2]):
+        if (index, sub) != (ex.index, ex.subindex):
             return                      # an answer for another object: not ours
-        if cs == SDO_DOWNLOAD_RESPONSE:
-            self._end_download(None)
-        elif cs == SDO_ABORT:
-            self._end_download(IdxRemoteError(value, f"node {dl[0]} aborted with 0x{value:08X}"))
+        if cs == SDO_ABORT:
+            self._end_expedited(IdxRemoteError(value, f"node {ex.node_id} aborted with 0x{value:08X}"))
+        elif not ex.upload and cs == SDO_DOWNLOAD_RESPONSE:
+            self._end_expedited(None)
+        elif ex.upload and cs & 0xE0 == SDO_UPLOAD_RESPONSE and cs & 0x02:      # expedited (e = 1)
+            n = (cs >> 2) & 0x03 if cs & 0x01 else 0                          # s = 1: 4 - n bytes
+            self._end_expedited(bytes(data[4:8 - n]))
+        elif ex.upload and cs & 0xE0 == SDO_UPLOAD_RESPONSE:                    # segmented (e = 0)
+            self._abort_server(ErrorCode.SERVICE_PARAMETER_ERROR)
+            self._end_expedited(IdxRemoteError(ErrorCode.SERVICE_PARAMETER_ERROR,
+                                               f"node {ex.node_id} 0x{index:04X}:{sub:02X} is longer than "
+                                               "4 bytes: use InitiateSegmentedRead"))
         else:
             self._abort_server(ErrorCode.COMMAND_UNKNOWN)
-            self._end_download(IdxRemoteError(ErrorCode.COMMAND_UNKNOWN, f"SDO answer cs 0x{cs:02X}"))
+            self._end_expedited(IdxRemoteError(ErrorCode.COMMAND_UNKNOWN, f"SDO answer cs 0x{cs:02X}"))
 
-    def _download_timeout(self) -> None:
-        if self._download is not None:
+    def _expedited_timeout(self) -> None:
+        ex = self._expedited
+        if ex is not None:
             self._abort_server(ErrorCode.SDO_TIMEOUT)
-            self._end_download(IdxRemoteError(ErrorCode.SDO_TIMEOUT, f"node {self._download[0]} silent"))
+            self._end_expedited(IdxRemoteError(ErrorCode.SDO_TIMEOUT, f"node {ex.node_id} silent"))
 
     def _abort_server(self, code: int) -> None:
-        dl = self._download
-        if dl is not None:
-            self.send(CanFrame(SDO_REQUEST_BASE + dl[0], _SDO_ABORT.pack(SDO_ABORT, dl[1], dl[2], code)))
+        ex = self._expedited
+        if ex is not None:
+            self.send(CanFrame(SDO_REQUEST_BASE + ex.node_id,
+                               _SDO_ABORT.pack(SDO_ABORT, ex.index, ex.subindex, code)))
 
     # -- NMT ---------------------------------------------------------------------------------------
     def send_nmt(self, node_id: int, command: int) -> None:
