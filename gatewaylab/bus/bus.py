@@ -32,6 +32,9 @@ class ErrorState(Enum):
     BUS_OFF = "bus-off"
 
 
+_BUS_OFF = ErrorState.BUS_OFF
+
+
 class ErrorKind(Enum):
     """Why an error frame was sent."""
 
@@ -194,10 +197,12 @@ class Controller:
         if self.state is ErrorState.BUS_OFF:
             raise LocalError(f"{self.name}: controller is bus-off")
         self.tx_queue.append(frame)
-        if not self.connected:
+        if not self._connected:
             return
         if self.timing_matches:
-            self.bus._kick()
+            bus = self.bus
+            if bus._in_flight is None and bus._arb_timer is None:
+                bus._kick()
         elif self._mismatch_timer is None:
             self._mismatch_timer = self.bus.clock.call_soon(self._mismatch_attempt)
 
@@ -314,6 +319,8 @@ class VirtualBus:
         self._drop_next = 0
         self._corrupt_next = 0
         self._load: _Load | None = None
+        #: (bit rate, durations of classic base data frames with 0..8 bytes) for that bit rate
+        self._classic_durations: tuple[int, tuple[float, ...]] | None = None
 
     def __repr__(self) -> str:
         fd = f"/{self.data_bitrate}" if self.data_bitrate else ""
@@ -460,12 +467,15 @@ class VirtualBus:
         best_key = 0
         wait_until: float | None = None
         for c in self.controllers:
-            if not c.tx_queue or not c.connected or c.state is ErrorState.BUS_OFF or not c.timing_matches:
+            queue = c.tx_queue
+            if not queue or not c._connected or c.state is _BUS_OFF or not c.timing_matches:
                 continue
             if c._ready_at > now:
                 wait_until = c._ready_at if wait_until is None else min(wait_until, c._ready_at)
                 continue
-            key = arbitration_key(c.tx_queue[0])
+            head = queue[0]
+            # arbitration_key(), inlined for base frames (the hot path)
+            key = arbitration_key(head) if head.extended else (head.can_id << 21) | (head.rtr << 20)
             if best is None or key < best_key:
                 best, best_key = c, key
         if best is None:
@@ -487,8 +497,16 @@ class VirtualBus:
             outcome = "ack"
         if not self.timing:
             duration = 0.0
-        elif outcome in ("ok", "drop"):
-            duration = frame_duration(frame, self.bitrate, self.data_bitrate)
+        elif outcome == "ok" or outcome == "drop":
+            if frame.fd or frame.extended:
+                duration = frame_duration(frame, self.bitrate, self.data_bitrate)
+            else:
+                durations = self._classic_durations
+                if durations is None or durations[0] != self._bitrate:
+                    durations = self._classic_durations = (
+                        self._bitrate, tuple(frame_duration(CanFrame(0, bytes(n)), self._bitrate)
+                                             for n in range(9)))
+                duration = durations[1][0 if frame.rtr else len(frame.data)]
         else:
             bits = ERROR_FRAME_BITS + (SUSPEND_TRANSMISSION_BITS if best.state is ErrorState.ERROR_PASSIVE else 0)
             if frame.fd and frame.brs and self.data_bitrate:
@@ -504,12 +522,11 @@ class VirtualBus:
             self._end_of_frame()
 
     def _acknowledged(self, sender: Controller, frame: CanFrame) -> bool:
-        for c in self.controllers:
-            if (c is not sender and c.connected and not c.listen_only and not c.synthetic
-                    and c.state is not ErrorState.BUS_OFF and c.timing_matches
-                    and (c.fd or not frame.fd)):
-                return True
-        return False
+        # the cached audience: connected, not bus-off, not synthetic, matching bit timing
+        cached = self._receivers
+        receivers = cached[0] if cached is not None else self._audience()[0]
+        fd = frame.fd
+        return any(c is not sender and not c.listen_only and (c.fd or not fd) for c in receivers)
 
     def _end_of_frame(self) -> None:
         flight = self._in_flight

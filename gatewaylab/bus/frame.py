@@ -42,6 +42,26 @@ class CanFrame:
     esi: bool = False
     dlc: int = -1
 
+    def __init__(self, can_id: int, data: bytes = b"", extended: bool = False, rtr: bool = False,
+                 fd: bool = False, brs: bool = False, esi: bool = False, dlc: int = -1) -> None:
+        # Written out (dataclass keeps an explicit __init__): the classic base data frame that
+        # nearly every protocol sends is checked and built in one step, everything else takes
+        # the full validation of __post_init__.
+        _set = object.__setattr__
+        _set(self, "can_id", can_id)
+        _set(self, "data", data)
+        _set(self, "extended", extended)
+        _set(self, "rtr", rtr)
+        _set(self, "fd", fd)
+        _set(self, "brs", brs)
+        _set(self, "esi", esi)
+        if (type(data) is bytes and dlc == -1 and not (extended or rtr or fd or brs or esi)
+                and type(can_id) is int and 0 <= can_id <= MAX_STD_ID and len(data) <= 8):
+            _set(self, "dlc", len(data))
+        else:
+            _set(self, "dlc", dlc)
+            self.__post_init__()
+
     def __post_init__(self) -> None:
         can_id, data = self.can_id, self.data
         if type(data) is not bytes:
