@@ -10,6 +10,7 @@ change of a mapped value or the event timer, limited by the inhibit time).
 
 from __future__ import annotations
 
+import struct
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
@@ -72,6 +73,9 @@ class _Pdo:
         self.trans_type = 255
         self.mapped: list[_Mapped] = []
         self.length = 0
+        self._whole: struct.Struct | None = None
+        self._keys: tuple[Key, ...] = ()
+        self._entries: tuple[Entry, ...] = ()
 
     def configure(self) -> None:
         od = self.node.od
@@ -94,6 +98,26 @@ class _Pdo:
             offset += size
         self.mapped = mapped
         self.length = offset
+        # One struct for the whole PDO when every mapped object has a fixed-size codec (dummy
+        # entries become pad bytes): a PDO is packed / unpacked in one call on the hot path.
+        fmt = "<"
+        keys: list[Key] = []
+        entries: list[Entry] = []
+        for m in mapped:
+            entry = m.entry
+            if m.key is None or entry is None:
+                fmt += f"{m.size}x"
+            elif entry.codec is not None and not entry.limited:
+                fmt += entry.codec.format[1:]
+                keys.append(m.key)
+                entries.append(entry)
+            else:
+                fmt = ""
+                break
+        whole = struct.Struct(fmt) if fmt and keys else None
+        self._whole = whole if whole is not None and whole.size == offset else None
+        self._keys = tuple(keys)
+        self._entries = tuple(entries)
 
 
 class Rpdo(_Pdo):
@@ -135,6 +159,16 @@ class Rpdo(_Pdo):
     def apply(self, data: bytes) -> None:
         node = self.node
         store = node.store
+        whole = self._whole
+        if whole is not None:   # unlimited fixed-size objects: decoding cannot fail
+            for entry, value in zip(self._entries, whole.unpack_from(data)):
+                try:
+                    store(entry, value)
+                except SdoAbort:
+                    node.count("rpdo_value_errors")
+                except Exception:   # device hook misbehaved: count it, the bus carries on
+                    node.count("hook_errors")
+            return
         for m in self.mapped:
             entry = m.entry
             if entry is None:
@@ -189,6 +223,9 @@ class Tpdo(_Pdo):
     def build(self) -> bytes:
         """Sample the mapped objects now."""
         values = self.node.od.values
+        whole = self._whole
+        if whole is not None:
+            return whole.pack(*[values[key] for key in self._keys])
         out = bytearray(self.length)
         for m in self.mapped:
             entry = m.entry
@@ -206,10 +243,12 @@ class Tpdo(_Pdo):
 
     def transmit(self, data: bytes | None = None) -> None:
         """Send now (used for SYNC and RTR, which ignore the inhibit time)."""
-        self.node.send(CanFrame(self.cob_id, self.build() if data is None else data))
+        node = self.node
+        node.send(CanFrame(self.cob_id, self.build() if data is None else data))
         self.sent += 1
-        self._last_tx = self.node.clock.now()
-        self._arm_event_timer()
+        self._last_tx = node.clock.now()
+        if self._event_timer is not None or self.event_time > 0:
+            self._arm_event_timer()
 
     def _arm_event_timer(self) -> None:
         if self._event_timer is not None:

@@ -116,7 +116,9 @@ class Sync:
         operational = node.nmt_state is NmtState.OPERATIONAL
         if operational:
             pdo.apply_sync_rpdos()
-        for listener in list(self.listeners):
-            listener(counter, t)
+        listeners = self.listeners
+        if listeners:
+            for listener in list(listeners):
+                listener(counter, t)
         if operational:
             pdo.on_sync(counter)
