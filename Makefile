@@ -15,12 +15,16 @@ $(STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet -e '.[dev]'
 	touch $@
 
-# iproute2 creates the veth pairs and namespaces of the EtherCAT wire tests.
+# Debian packages some tests need: iproute2 (veth pairs and namespaces of the EtherCAT wire tests)
+# and tshark (Wireshark's EtherCAT dissector reads our captures). Installed once, as root.
+APT_PACKAGES := iproute2:ip tshark:tshark
 $(APT_STAMP): | $(BIN)/python
-	@if ! command -v ip >/dev/null 2>&1; then \
+	@missing=""; for pc in $(APT_PACKAGES); do command -v $${pc#*:} >/dev/null 2>&1 || missing="$$missing $${pc%%:*}"; done; \
+	if [ -n "$$missing" ]; then \
 	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
-	    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq iproute2 >/dev/null; \
-	  else echo "warning: 'ip' (iproute2) missing and cannot be installed; EtherCAT wire tests will skip"; fi; \
+	    echo "installing Debian packages:$$missing"; \
+	    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $$missing >/dev/null; \
+	  else echo "warning: missing$$missing and cannot install them; the tests that need them skip"; fi; \
 	fi
 	touch $@
 

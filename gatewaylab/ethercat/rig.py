@@ -21,7 +21,7 @@ from typing import Any, Protocol
 
 from ..common.errors import ConfigError
 from .io_device import create_io_slave
-from .pcap_writer import PcapWriter
+from .wire_pcap import PcapWriter
 from .segment import Segment
 from .slave import Slave
 from .wire import WireTransport

@@ -19,7 +19,7 @@ from contextlib import nullcontext
 from ..common.clock import Clock, RealTimeClock
 from ..common.errors import ConfigError
 from .datagram import ETHERTYPE_ETHERCAT
-from .pcap_writer import PcapWriter
+from .wire_pcap import PcapWriter
 from .segment import Segment
 
 PACKET_OUTGOING = 4
