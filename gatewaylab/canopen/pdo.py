@@ -161,9 +161,9 @@ class Rpdo(_Pdo):
         store = node.store
         whole = self._whole
         if whole is not None:   # unlimited fixed-size objects: decoding cannot fail
-            for entry, value in zip(self._entries, whole.unpack_from(data)):
+            for target, value in zip(self._entries, whole.unpack_from(data)):
                 try:
-                    store(entry, value)
+                    store(target, value)
                 except SdoAbort:
                     node.count("rpdo_value_errors")
                 except Exception:   # device hook misbehaved: count it, the bus carries on
