@@ -48,6 +48,10 @@ class DictObjects:
     def value_size(self, index: int, subindex: int) -> int | None:
         return self.sizes[self._key(index, subindex)]
 
+    def check_write(self, index: int, subindex: int) -> None:
+        if self.access[self._key(index, subindex)] == "ro":
+            raise IdxRemoteError(ErrorCode.READ_ONLY_ERROR)
+
 
 @dataclass
 class ScriptedGateway:

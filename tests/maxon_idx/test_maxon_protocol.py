@@ -140,6 +140,13 @@ def test_segmented_write_toggle_and_length_errors(harness: SlaveHarness) -> None
     assert ask(harness, InitiateSegmentedWrite(0, 0x7777, 0, 4)) == StatusReply(0x06020000)
 
 
+def test_segmented_write_to_a_read_only_object_refused_at_initiate(harness: SlaveHarness) -> None:
+    """2.1.2.2 + chapter 6 0x06010002 "Write command to a read only object": refused when the
+    transfer starts, before the host sends any segment; no segment is then accepted."""
+    assert ask(harness, InitiateSegmentedWrite(0, 0x1008, 0, 300)) == StatusReply(0x06010002)
+    assert ask(harness, SegmentWrite(False, False, bytes(255))) == SegmentWriteReply(ErrorCode.COMMAND_UNKNOWN)
+
+
 def test_segmented_write_through_gateway_refused(harness: SlaveHarness) -> None:
     """2.1.2.2/2.1.2.3: "Note that gateway communication is not supported."""
     assert ask(harness, InitiateSegmentedWrite(5, 0x2100, 1, 10)) == StatusReply(ErrorCode.ACCESS_ERROR)

@@ -17,6 +17,7 @@ from ...canopen.nmt import NmtCommand
 from ...canopen.node import Node
 from ...common.clock import Clock
 from .commands import MAX_SEGMENT
+from .errors import ErrorCode, IdxRemoteError
 from .gateway import CanGateway, SdoClientLike
 from .protocol import IdxSlave
 
@@ -38,6 +39,10 @@ class NodeObjects:
 
     def value_size(self, index: int, subindex: int) -> int | None:
         return self.node.od.entry(index, subindex).size
+
+    def check_write(self, index: int, subindex: int) -> None:
+        if not self.node.od.entry(index, subindex).access.writable:
+            raise IdxRemoteError(ErrorCode.READ_ONLY_ERROR, f"0x{index:04X}:{subindex:02X} is read only")
 
 
 def _default_sdo_client(clock: Clock, send: Callable[..., None], timeout: float) -> SdoClientLike:

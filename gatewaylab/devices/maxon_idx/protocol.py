@@ -72,6 +72,10 @@ class ObjectAccess(Protocol):
         """Bytes of a fixed-size value, None for variable-size ones; raises if the object is missing."""
         ...
 
+    def check_write(self, index: int, subindex: int) -> None:
+        """Raise (with the chapter 6 code) when the object is missing or cannot be written."""
+        ...
+
 
 class Gateway(Protocol):
     """The CAN side (guide chapter 5): SDO client to other nodes, NMT and LSS master messages."""
@@ -348,7 +352,8 @@ class IdxSlave:
         if not self._is_local(req.node_id):
             # 2.1.2.2 "Note that gateway communication is not supported."
             raise IdxRemoteError(ErrorCode.ACCESS_ERROR, "segmented write through the gateway")
-        self.objects.value_size(req.index, req.subindex)   # 0x06020000 now rather than at the end
+        # 0x06020000 / 0x06010002 now, not after the host has sent every segment.
+        self.objects.check_write(req.index, req.subindex)
         self._seg = _SegState(Transfer.SEGMENTED_WRITE, req.node_id, req.index, req.subindex,
                               bytearray(), 0, req.total_length, False)
         return StatusReply()
