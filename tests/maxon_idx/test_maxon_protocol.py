@@ -147,6 +147,15 @@ def test_segmented_write_to_a_read_only_object_refused_at_initiate(harness: Slav
     assert ask(harness, SegmentWrite(False, False, bytes(255))) == SegmentWriteReply(ErrorCode.COMMAND_UNKNOWN)
 
 
+def test_segmented_write_of_the_wrong_length_to_a_fixed_size_object(harness: SlaveHarness) -> None:
+    """2.1.2.2 "Object Data Length (total number of bytes)" + chapter 6 0x06070010 "length or service
+    parameter do not match": 0x30B0 holds 4 bytes, announcing 6 is refused at once; 4 is taken."""
+    assert ask(harness, InitiateSegmentedWrite(0, 0x30B0, 0, 6)) == StatusReply(0x06070010)
+    assert ask(harness, InitiateSegmentedWrite(0, 0x30B0, 0, 4)) == StatusReply(0)
+    assert ask(harness, SegmentWrite(False, True, b"\x01\x02\x03\x04")) == SegmentWriteReply(0, 4, False)
+    assert harness.objects.values[(0x30B0, 0)] == bytearray(b"\x01\x02\x03\x04")
+
+
 def test_segmented_write_through_gateway_refused(harness: SlaveHarness) -> None:
     """2.1.2.2/2.1.2.3: "Note that gateway communication is not supported."""
     assert ask(harness, InitiateSegmentedWrite(5, 0x2100, 1, 10)) == StatusReply(ErrorCode.ACCESS_ERROR)

@@ -352,8 +352,12 @@ class IdxSlave:
         if not self._is_local(req.node_id):
             # 2.1.2.2 "Note that gateway communication is not supported."
             raise IdxRemoteError(ErrorCode.ACCESS_ERROR, "segmented write through the gateway")
-        # 0x06020000 / 0x06010002 now, not after the host has sent every segment.
+        # 0x06020000 / 0x06010002 / 0x06070010 now, not after the host has sent every segment.
         self.objects.check_write(req.index, req.subindex)
+        size = self.objects.value_size(req.index, req.subindex)
+        if size is not None and req.total_length != size:
+            raise IdxRemoteError(ErrorCode.SERVICE_PARAMETER_ERROR,
+                                 f"{req.total_length} bytes announced for an object of {size}")
         self._seg = _SegState(Transfer.SEGMENTED_WRITE, req.node_id, req.index, req.subindex,
                               bytearray(), 0, req.total_length, False)
         return StatusReply()
