@@ -66,6 +66,7 @@ class _Transfer:
     sent: int = 0
     last_sent: bool = False
     timer: TimerHandle | None = None
+    size_indicated: bool = True
 
 
 class SdoClient:
@@ -107,9 +108,16 @@ class SdoClient:
         self._enqueue(_Transfer(node_id, index, sub, True, callback, segmented=segmented, block=block))
 
     def download(self, node_id: int, index: int, sub: int, data: bytes, callback: DownloadCallback, *,
-                 segmented: bool | None = None, block: bool = False) -> None:
-        """Write ``data`` to (index, sub); expedited up to 4 bytes unless ``segmented`` or ``block``."""
-        self._enqueue(_Transfer(node_id, index, sub, False, callback, bytes(data), segmented, block))
+                 segmented: bool | None = None, block: bool = False, size_indicated: bool = True) -> None:
+        """Write ``data`` to (index, sub); expedited up to 4 bytes unless ``segmented`` or ``block``.
+
+        ``size_indicated=False`` leaves the size indicator (bit s) clear in the initiate request
+        (CiA 301 7.2.4.3.3): an expedited download is then ``0x22`` with the data padded to 4 bytes
+        with zeros (the server takes the object's own length), a segmented one ``0x20`` with no
+        size. Block downloads always indicate the size.
+        """
+        self._enqueue(_Transfer(node_id, index, sub, False, callback, bytes(data), segmented, block,
+                                size_indicated=size_indicated))
 
     def cancel_all(self) -> None:
         """Forget every transfer without callbacks (the owner is shutting down)."""
@@ -143,9 +151,12 @@ class SdoClient:
             self._req(tr, SDO_HEADER_U32.pack(0xC6, tr.index, tr.sub, len(data)))
         elif len(data) <= 4 and data and not tr.segmented:
             n = 4 - len(data)
-            self._req(tr, SDO_HEADER.pack(0x23 | (n << 2), tr.index, tr.sub) + data + bytes(n))
-        else:
+            cs = 0x23 | (n << 2) if tr.size_indicated else 0x22
+            self._req(tr, SDO_HEADER.pack(cs, tr.index, tr.sub) + data + bytes(n))
+        elif tr.size_indicated:
             self._req(tr, SDO_HEADER_U32.pack(0x21, tr.index, tr.sub, len(data)))
+        else:
+            self._req(tr, SDO_HEADER_U32.pack(0x20, tr.index, tr.sub, 0))
 
     # -- plumbing --------------------------------------------------------------------------------
     def _req(self, tr: _Transfer, payload: bytes, arm: bool = True) -> None:
