@@ -25,6 +25,14 @@ _NMT = {
     "reset-comm": NmtCommand.RESET_COMMUNICATION,
 }
 _TYPES = ("u8", "u16", "u32", "i8", "i16", "i32", "str", "hex")
+_DESCRIPTION = """\
+Talk to a maxon IDX (emulated or real) over its USB command protocol (IDX Communication Guide
+chapter 2); node ids other than 0 and the IDX's own go through its CAN gateway (chapter 5).
+
+PORT is anything pyserial opens (/dev/pts/N, /dev/ttyACM0, socket://127.0.0.1:PORT) or
+usb / usb:VID:PID for pyusb. Errors print the chapter 6 code, name and cause, e.g.
+  error: read node 9 0x1000:00: 0x05040000 "SDO timeout" (SDO protocol timed out)
+"""
 
 
 def _ranged(what: str, low: int, high: int, fmt: str) -> Callable[[str], int]:
@@ -157,7 +165,7 @@ def _run(func: Any) -> Any:
 def add_subcommand(subparsers: Any) -> None:
     """Add ``idx`` with ``read``, ``write``, ``nmt`` and ``lss-scan`` to the gatewaylab CLI."""
     idx = subparsers.add_parser("idx", help="maxon IDX USB client (read/write objects, NMT, LSS)",
-                                description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+                                description=_DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = idx.add_subparsers(dest="idx_command", required=True)
 
     def common(p: argparse.ArgumentParser) -> None:
@@ -169,7 +177,9 @@ def add_subcommand(subparsers: Any) -> None:
                        "(the IDX's own id is local, others go through the gateway)")
         p.add_argument("index", metavar="INDEX", type=_index, help="object index, e.g. 0x6041")
         p.add_argument("sub", metavar="SUB", type=_sub, help="subindex, e.g. 0")
-        p.add_argument("--type", "-t", choices=_TYPES, default="u32")
+        p.add_argument("--type", "-t", choices=_TYPES, default="u32",
+                       help="value type (default u32); str and hex are bytes: str always read segmented, "
+                            "hex with -s, writes of more than 4 bytes segmented")
         p.add_argument("--segmented", "-s", action="store_true", help="use the segmented commands")
 
     p = sub.add_parser("read", help="read an object")
