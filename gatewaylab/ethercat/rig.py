@@ -21,10 +21,10 @@ from typing import Any, Protocol
 
 from ..common.errors import ConfigError
 from .io_device import create_io_slave
-from .wire_pcap import PcapWriter
 from .segment import Segment
 from .slave import Slave
 from .wire import WireTransport
+from .wire_pcap import PcapWriter
 
 
 class EtherCATDevice(Protocol):

@@ -19,8 +19,8 @@ from contextlib import nullcontext
 from ..common.clock import Clock, RealTimeClock
 from ..common.errors import ConfigError
 from .datagram import ETHERTYPE_ETHERCAT
-from .wire_pcap import PcapWriter
 from .segment import Segment
+from .wire_pcap import PcapWriter
 
 PACKET_OUTGOING = 4
 

@@ -17,8 +17,8 @@ import pytest
 from gatewaylab.common.clock import SimulatedClock
 from gatewaylab.ethercat.datagram import decode_frame
 from gatewaylab.ethercat.io_device import create_io_slave
-from gatewaylab.ethercat.wire_pcap import read_pcap
 from gatewaylab.ethercat.segment import Segment
+from gatewaylab.ethercat.wire_pcap import read_pcap
 
 GOLDEN = Path(__file__).parent / "data" / "soem_config_init.pcap"
 

@@ -13,8 +13,8 @@ import pytest
 from gatewaylab.ethercat.esc import sii_checksum
 from gatewaylab.ethercat.esi import export_esi
 from gatewaylab.ethercat.io_device import PRODUCT_CODE, VENDOR_ID, io_description
-from gatewaylab.ethercat.wire_pcap import PcapWriter, read_pcap
 from gatewaylab.ethercat.sii import Category, build_sii, parse_sii
+from gatewaylab.ethercat.wire_pcap import PcapWriter, read_pcap
 
 
 def test_sii_layout_identity_mailbox_and_categories() -> None:

@@ -10,9 +10,9 @@ import pytest
 from gatewaylab.common.clock import RealTimeClock
 from gatewaylab.ethercat.errors import SdoAbortCode
 from gatewaylab.ethercat.io_device import PRODUCT_CODE, VENDOR_ID, create_io_slave
-from gatewaylab.ethercat.wire_pcap import PcapWriter, read_pcap
 from gatewaylab.ethercat.segment import Segment
 from gatewaylab.ethercat.wire import WireTransport
+from gatewaylab.ethercat.wire_pcap import PcapWriter, read_pcap
 
 pytestmark = [pytest.mark.net, pytest.mark.slow]
 CYCLES = 10_000
