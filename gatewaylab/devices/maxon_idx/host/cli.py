@@ -141,6 +141,17 @@ def cmd_lss_scan(args: argparse.Namespace) -> int:
     return 0
 
 
+def _reason(exc: Exception, port: str) -> str:
+    """pyserial's message without its own "could not open port PORT: " and errno prefixes."""
+    text = (exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)).strip()
+    for prefix in (f"could not open port {port}: ", "[Errno "):
+        if text.lower().startswith(prefix.lower()):
+            text = text[len(prefix):]
+            if prefix == "[Errno ":
+                text = text.split("] ", 1)[-1]
+    return text
+
+
 def _run(func: Any) -> Any:
     def wrapper(args: argparse.Namespace) -> int:
         try:
@@ -154,7 +165,7 @@ def _run(func: Any) -> Any:
             print(f"error: {exc}{hint}", file=sys.stderr)
             return 1
         except (OSError, ConfigError) as exc:        # serial.SerialException is an OSError
-            print(f"error: cannot open port {args.port}: {exc}", file=sys.stderr)
+            print(f"error: cannot open port {args.port}: {_reason(exc, args.port)}", file=sys.stderr)
             return 1
         except (ValueError, struct.error, LocalError) as exc:
             print(f"error: {exc}", file=sys.stderr)

@@ -63,7 +63,10 @@ class UsbLink:
         ids = [(vendor, product)] if vendor is not None and product is not None else list(USB_IDS)
         dev: Any = None
         for vid, pid in ids:
-            dev = usb.core.find(idVendor=vid, idProduct=pid)
+            try:
+                dev = usb.core.find(idVendor=vid, idProduct=pid)
+            except usb.core.NoBackendError as exc:
+                raise ConfigError("pyusb found no USB backend: install libusb-1.0") from exc
             if dev is not None:
                 break
         if dev is None:
