@@ -175,3 +175,23 @@ def test_tcp_host_not_reading_keeps_its_connection() -> None:
     assert bytes(received) == reply * 30
     conn.close()
     host.close()
+
+
+def test_rig_file_usb_settings_are_checked() -> None:
+    """2.3.1 USB port, emulated by the rig file's usb table: a TCP port outside 0..65535, a negative
+    latency or an unknown key is a ConfigError naming the device, not a traceback from bind()."""
+    import pytest
+
+    from gatewaylab.common.clock import RealTimeClock
+    from gatewaylab.common.errors import ConfigError
+    from gatewaylab.rig.config import parse_rig
+    from gatewaylab.rig.runtime import Rig
+
+    for usb, message in (({"tcp_port": 70000}, "tcp_port must be 0..65535"),
+                         ({"tcp_port": "x"}, "tcp_port must be 0..65535"),
+                         ({"latency_ms": -1}, "latency_ms must be a number >= 0"),
+                         ({"pyt": True}, "unknown usb keys")):
+        with pytest.raises(ConfigError, match=message):
+            Rig(parse_rig({"clock": "realtime", "bus": [{"name": "can0", "endpoint": "none"}],
+                           "device": [{"kind": "maxon_idx", "name": "idx1", "bus": "can0", "node_id": 1,
+                                       "usb": usb}]}), clock=RealTimeClock(), endpoints=False)

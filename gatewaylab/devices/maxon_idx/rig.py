@@ -40,8 +40,15 @@ class IdxParticipant:
             raise ConfigError(f"maxon_idx {self.name}: unknown usb keys {sorted(unknown)}")
         self.want_pty = bool(usb.get("pty", True))
         tcp = usb.get("tcp_port")
+        if tcp is not None and tcp is not False and (isinstance(tcp, bool) or not isinstance(tcp, int)
+                                                      or not 0 <= tcp <= 65535):
+            raise ConfigError(f"maxon_idx {self.name}: usb.tcp_port must be 0..65535 (0 = a free port), "
+                              f"got {tcp!r}")
         self.tcp_port: int | None = None if tcp is None or tcp is False else int(tcp)
-        self.latency = float(usb.get("latency_ms", 0.0)) / 1000.0
+        latency = usb.get("latency_ms", 0.0)
+        if isinstance(latency, bool) or not isinstance(latency, int | float) or latency < 0:
+            raise ConfigError(f"maxon_idx {self.name}: usb.latency_ms must be a number >= 0, got {latency!r}")
+        self.latency = float(latency) / 1000.0
         store = rig.state_dir / f"{self.name}.store" if cfg.get("store", False) else None
         self.device = IdxDevice(rig.clock, rig.bus(str(cfg.get("bus", "can0"))),
                                 None if node_id is None else int(node_id), int(cfg.get("serial", 0x2001)),
