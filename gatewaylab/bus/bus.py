@@ -319,6 +319,9 @@ class VirtualBus:
         self._drop_next = 0
         self._corrupt_next = 0
         self._load: _Load | None = None
+        #: True while _end_of_frame delivers (with timing): kicks are deferred to its arbitration
+        self._ending = False
+        self._kick_deferred = False
         #: (bit rate, durations of classic base data frames with 0..8 bytes) for that bit rate
         self._classic_durations: tuple[int, tuple[float, ...]] | None = None
 
@@ -453,6 +456,11 @@ class VirtualBus:
     # -- the arbitration engine --------------------------------------------------------------
     def _kick(self) -> None:
         if self._in_flight is None and self._arb_timer is None:
+            if self._ending:
+                # a frame sent while a completed frame is being delivered: _end_of_frame
+                # arbitrates right after the delivery, at this same instant
+                self._kick_deferred = True
+                return
             clock = self.clock
             self._arb_timer = clock.call_at(max(clock.now(), self._idle_at), self._arbitrate)
 
@@ -532,6 +540,32 @@ class VirtualBus:
         flight = self._in_flight
         assert flight is not None
         self._in_flight = None
+        if not self.timing:
+            self._complete(flight, True)
+            return
+        # With frame timing the next frame after this one always takes time on the wire, so an
+        # arbitration timer that a frame sent during the delivery would schedule for this instant
+        # could only find the bus busy: it is scheduled only when no frame follows at once.
+        self._ending = True
+        try:
+            self._complete(flight, False)
+        except BaseException:
+            self._ending = False
+            if self._kick_deferred:
+                self._kick_deferred = False
+                self._kick()
+            raise
+        self._ending = False
+        self._arbitrate(flight.end)
+        if self._kick_deferred:
+            self._kick_deferred = False
+            if self._in_flight is None:
+                clock = self.clock
+                clock.call_at(max(clock.now(), self._idle_at), self._arbitrate)
+
+    def _complete(self, flight: _InFlight, arbitrate: bool) -> None:
+        """Account for a finished frame (delivery, counters, retransmission), then arbitrate the
+        next one if ``arbitrate`` (else ``_end_of_frame`` does it)."""
         now = flight.end
         self._idle_at = now
         stats = self.stats
@@ -578,7 +612,8 @@ class VirtualBus:
             self._foreign_errors(now)
         if outcome == "drop":
             self._foreign_errors(now)
-        self._arbitrate(now)
+        if arbitrate:
+            self._arbitrate(now)
 
     def _audience(self) -> tuple[list[Controller], list[Controller]]:
         """(controllers that hear frames, controllers at a foreign bit rate), cached."""
