@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import pytest
 
 from gatewaylab.devices.maxon_idx.codec import encode_frame
@@ -12,8 +14,8 @@ from gatewaylab.devices.maxon_idx.host.client import IdxClient, IdxError
 class ScriptedLink:
     """A Link that answers each written request with the next scripted reply."""
 
-    def __init__(self, replies: list[Reply]) -> None:
-        self.replies = replies
+    def __init__(self, replies: Sequence[Reply]) -> None:
+        self.replies = list(replies)
         self.sent: list[bytes] = []
         self.pending = b""
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -126,7 +128,8 @@ def test_fields_that_do_not_fit_are_refused_before_the_wire() -> None:
     """2.1: Node-ID is a BYTE (a WORD in SendNMTService), Index a WORD, Subindex a BYTE, the total
     length a DWORD, the ReadLSS timeout a WORD; a value that does not fit is a LocalError naming the
     field, not a struct.error from deep inside the codec."""
-    cases = [(lambda: ReadObject(0, 0x10000, 0), "index"), (lambda: ReadObject(256, 0x1000, 0), "node id"),
+    cases: list[tuple[Callable[[], object], str]] = [
+        (lambda: ReadObject(0, 0x10000, 0), "index"), (lambda: ReadObject(256, 0x1000, 0), "node id"),
              (lambda: InitiateSegmentedRead(0, 0x1000, 256), "subindex"),
              (lambda: WriteObject(-1, 0x1000, 0, bytes(4)), "node id"),
              (lambda: InitiateSegmentedWrite(0, 0x1000, 0, 1 << 32), "total length"),
