@@ -83,7 +83,7 @@ def test_requests_round_trip_through_the_wire(request: Request) -> None:
     frames: list[Frame] = []
     from gatewaylab.common.clock import SimulatedClock
 
-    decoder = FrameDecoder(SimulatedClock(), lambda e: frames.append(e.frame)  # type: ignore[union-attr]
+    decoder = FrameDecoder(SimulatedClock(), lambda e: frames.append(e.frame)
                            if isinstance(e, FrameReceived) else None)
     decoder.feed(encode_frame(request.to_frame()))
     assert [decode_request(f) for f in frames] == [request]

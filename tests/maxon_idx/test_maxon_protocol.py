@@ -90,7 +90,7 @@ def test_segmented_read_local_string(harness: SlaveHarness) -> None:
     harness.slave.segment_size = 16
     r = ask(harness, InitiateSegmentedRead(0, 0x1008, 0))
     assert r == InitiateSegmentedReadReply(0, len(value), value[:16])
-    got, toggle = bytearray(r.data), False  # type: ignore[attr-defined]
+    got, toggle = bytearray(r.data), False
     while True:
         s = ask(harness, SegmentRead(toggle))
         assert isinstance(s, SegmentReadReply) and s.error == 0 and s.toggle == toggle
