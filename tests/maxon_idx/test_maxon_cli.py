@@ -69,6 +69,9 @@ def test_lss_scan_assigns_node_id(capsys: pytest.CaptureFixture[str]) -> None:
     r = IdxRig([(None, 0x3003)])
     try:
         pty = r.info["usb"]["idx1"]["pty"]
+        assert main(["idx", "lss-scan", pty]) == 0                     # find only, configure nothing
+        out = capsys.readouterr().out
+        assert "vendor 0x000000FB" in out and "serial 0x00003003" in out and "--assign N" in out
         assert main(["idx", "lss-scan", pty, "--assign", "7"]) == 0
         out = capsys.readouterr().out
         assert "serial 0x00003003 -> node id 7" in out

@@ -128,6 +128,8 @@ def cmd_lss_scan(args: argparse.Namespace) -> int:
                     f"revision 0x{address.revision:08X} serial 0x{address.serial:08X}")
             if next_id is None:
                 print(line)
+                print("(stopped at the first one: it keeps answering until it has a node id; "
+                      "--assign N configures the found drives as N, N+1, ...)")
                 client.switch_state_global(False)
                 break                      # without a node id it would answer every scan again
             client.configure_node_id(next_id, args.lss_timeout)
