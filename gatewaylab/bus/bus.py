@@ -118,7 +118,7 @@ class Controller:
         self._data_bitrate = data_bitrate
         #: Cached: does this controller's bit timing match the bus? (hot path of every frame)
         self.timing_matches = True
-        self.listen_only = listen_only
+        self._listen_only = listen_only
         self.auto_retransmit = auto_retransmit
         self.receive_own = receive_own
         self.fd = fd
@@ -150,6 +150,16 @@ class Controller:
     @connected.setter
     def connected(self, value: bool) -> None:
         self._connected = value
+        self.bus._receivers = None
+
+    @property
+    def listen_only(self) -> bool:
+        """Receives without acknowledging or sending (a monitor)."""
+        return self._listen_only
+
+    @listen_only.setter
+    def listen_only(self, value: bool) -> None:
+        self._listen_only = value
         self.bus._receivers = None
 
     @property
@@ -187,7 +197,7 @@ class Controller:
 
     def send(self, frame: CanFrame) -> None:
         """Queue a frame for transmission (FIFO per controller, like a SocketCAN tx queue)."""
-        if self.listen_only:
+        if self._listen_only:
             raise LocalError(f"{self.name}: a listen-only controller cannot send")
         if frame.fd:
             if not self.fd:
@@ -310,7 +320,7 @@ class VirtualBus:
         self.controllers: list[Controller] = []
         #: Cached (receivers, foreign-rate controllers); None = recompute. Reset by every change
         #: that decides who hears a frame: attach/detach, (dis)connect, error state, bit timing.
-        self._receivers: tuple[list[Controller], list[Controller]] | None = None
+        self._receivers: tuple[list[Controller], list[Controller], list[Controller]] | None = None
         self.stats = BusStats(since=clock.now())
         self._monitors: list[FrameCallback] = []
         self._in_flight: _InFlight | None = None
@@ -532,9 +542,11 @@ class VirtualBus:
     def _acknowledged(self, sender: Controller, frame: CanFrame) -> bool:
         # the cached audience: connected, not bus-off, not synthetic, matching bit timing
         cached = self._receivers
-        receivers = cached[0] if cached is not None else self._audience()[0]
-        fd = frame.fd
-        return any(c is not sender and not c.listen_only and (c.fd or not fd) for c in receivers)
+        acks = (cached if cached is not None else self._audience())[2]
+        if not frame.fd:
+            n = len(acks)
+            return n > 1 or (n == 1 and acks[0] is not sender)
+        return any(c is not sender and c.fd for c in acks)
 
     def _end_of_frame(self) -> None:
         flight = self._in_flight
@@ -615,13 +627,15 @@ class VirtualBus:
         if arbitrate:
             self._arbitrate(now)
 
-    def _audience(self) -> tuple[list[Controller], list[Controller]]:
-        """(controllers that hear frames, controllers at a foreign bit rate), cached."""
+    def _audience(self) -> tuple[list[Controller], list[Controller], list[Controller]]:
+        """(controllers that hear frames, controllers at a foreign bit rate, hearing controllers
+        that acknowledge: not listen-only), cached."""
         cached = self._receivers
         if cached is None:
             live = [c for c in self.controllers
                     if c._connected and c.state is not ErrorState.BUS_OFF and not c.synthetic]
-            cached = ([c for c in live if c.timing_matches], [c for c in live if not c.timing_matches])
+            hear = [c for c in live if c.timing_matches]
+            cached = (hear, [c for c in live if not c.timing_matches], [c for c in hear if not c._listen_only])
             self._receivers = cached
         return cached
 
@@ -629,7 +643,7 @@ class VirtualBus:
         fd = frame.fd
         n = len(frame.data)
         cached = self._receivers
-        receivers, foreign = cached if cached is not None else self._audience()
+        receivers, foreign, _ = cached if cached is not None else self._audience()
         if sender.receive_own and sender.on_frame is not None:
             sender.on_frame(frame, now)
         can_id = -1 if frame.extended else frame.can_id
