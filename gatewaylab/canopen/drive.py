@@ -677,30 +677,52 @@ class Drive:
                 pdo.value_changed(key)
 
     def _publish_actuals(self, x: float, fe: float) -> None:
-        """The actual values of this period into the dictionary (``_put`` inlined: 1 kHz path)."""
+        """The actual values of this period into the dictionary, in this order; ``_put`` written
+        out per value (the 1 kHz path): store a change, let event-driven TPDOs see it."""
         plant = self.plant
         st = plant.state
         lo, hi = _I32_MIN, _I32_MAX
-        velocity = st.velocity
-        torque = st.torque
-        torque_i = round(-0x8000 if torque < -0x8000 else 0x7FFF if torque > 0x7FFF else torque)
-        demand = self.demand
-        demand_velocity = self.demand_velocity
         values = self._v
         watch = self.node.pdo.watch
-        for key, value in (
-                (_K_POSITION, round(lo if x < lo else hi if x > hi else x)),
-                (_K_VELOCITY, round(lo if velocity < lo else hi if velocity > hi else velocity)),
-                (_K_TORQUE, torque_i),
-                (_K_TORQUE_DEMAND, torque_i),
-                (_K_POSITION_DEMAND, round(lo if demand < lo else hi if demand > hi else demand)),
-                (_K_VELOCITY_DEMAND, round(lo if demand_velocity < lo else hi if demand_velocity > hi
-                                           else demand_velocity)),
-                (_K_FOLLOWING_ERROR, round(lo if fe < lo else hi if fe > hi else fe))):
-            if values[key] != value:
-                values[key] = value
-                if key in watch:
-                    self.node.pdo.value_changed(key)
+        changed = self.node.pdo.value_changed
+        value = round(lo if x < lo else hi if x > hi else x)
+        if values[_K_POSITION] != value:
+            values[_K_POSITION] = value
+            if watch and _K_POSITION in watch:
+                changed(_K_POSITION)
+        v = st.velocity
+        value = round(lo if v < lo else hi if v > hi else v)
+        if values[_K_VELOCITY] != value:
+            values[_K_VELOCITY] = value
+            if watch and _K_VELOCITY in watch:
+                changed(_K_VELOCITY)
+        v = st.torque
+        torque = round(-0x8000 if v < -0x8000 else 0x7FFF if v > 0x7FFF else v)
+        if values[_K_TORQUE] != torque:
+            values[_K_TORQUE] = torque
+            if watch and _K_TORQUE in watch:
+                changed(_K_TORQUE)
+        if values[_K_TORQUE_DEMAND] != torque:
+            values[_K_TORQUE_DEMAND] = torque
+            if watch and _K_TORQUE_DEMAND in watch:
+                changed(_K_TORQUE_DEMAND)
+        v = self.demand
+        value = round(lo if v < lo else hi if v > hi else v)
+        if values[_K_POSITION_DEMAND] != value:
+            values[_K_POSITION_DEMAND] = value
+            if watch and _K_POSITION_DEMAND in watch:
+                changed(_K_POSITION_DEMAND)
+        v = self.demand_velocity
+        value = round(lo if v < lo else hi if v > hi else v)
+        if values[_K_VELOCITY_DEMAND] != value:
+            values[_K_VELOCITY_DEMAND] = value
+            if watch and _K_VELOCITY_DEMAND in watch:
+                changed(_K_VELOCITY_DEMAND)
+        value = round(lo if fe < lo else hi if fe > hi else fe)
+        if values[_K_FOLLOWING_ERROR] != value:
+            values[_K_FOLLOWING_ERROR] = value
+            if watch and _K_FOLLOWING_ERROR in watch:
+                changed(_K_FOLLOWING_ERROR)
         self._put(_K_INPUTS, plant.digital_inputs())
         self._put(_K_STATUSWORD, self.statusword())
 

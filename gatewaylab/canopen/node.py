@@ -75,6 +75,8 @@ class Node:
         self._validators: dict[int, list[Validator]] = {}
         self._reactions: dict[int, list[Validator]] = {}
         self._commands: dict[int, Validator] = {}
+        #: Indexes with a command, validator, write hook or reaction (others are stored directly).
+        self._intercepted: set[int] = set()
         #: Power-on values of the writable entries: what the dictionary held when the node was built
         #: (defaults, or a DCF's configured values); node-id dependent entries follow the node-id.
         self._power_on: dict[tuple[int, int], Any] = {
@@ -111,6 +113,7 @@ class Node:
         Raising :class:`SdoAbort` there undoes the write and the SDO client gets that code.
         """
         self._write_hooks.setdefault(index, []).append(callback)
+        self._intercepted.add(index)
 
     def on_read(self, index: int, callback: ReadHook) -> None:
         """``callback(index, sub)`` before an SDO read of ``index`` (refresh a value lazily)."""
@@ -150,14 +153,17 @@ class Node:
     def add_validator(self, index: int, validator: Validator) -> None:
         """Internal: ``validator(entry, value)`` may refuse a remote write with SdoAbort."""
         self._validators.setdefault(index, []).append(validator)
+        self._intercepted.add(index)
 
     def add_reaction(self, index: int, reaction: Validator) -> None:
         """Internal: ``reaction(entry, value)`` after a remote write was stored."""
         self._reactions.setdefault(index, []).append(reaction)
+        self._intercepted.add(index)
 
     def add_command(self, index: int, command: Validator) -> None:
         """Internal: writes to ``index`` run ``command(entry, value)`` and store nothing."""
         self._commands[index] = command
+        self._intercepted.add(index)
 
     def count(self, what: str) -> None:
         self.stats[what] = self.stats.get(what, 0) + 1
@@ -190,6 +196,14 @@ class Node:
     def store(self, entry: Entry, value: Any) -> None:
         """Internal: validators, store, reactions and hooks for a checked, decoded value."""
         index = entry.index
+        if index not in self._intercepted:    # a plain value (e.g. a PDO-mapped set-point)
+            key = (index, entry.sub)
+            values = self.od.values
+            old = values[key]
+            values[key] = value
+            if old != value and key in self.pdo.watch:
+                self.pdo.value_changed(key)
+            return
         command = self._commands.get(index)
         if command is not None:
             command(entry, value)
