@@ -66,13 +66,20 @@ def _layout(buses: int, per_bus: int, timing: bool, control: bool = True) -> tup
             d._timer.cancel()
     start = clock.now()
 
+    # the master's side: per drive its RPDO1 COB-ID and amplitude factor, computed once
+    plan = [(master, [(0x200 + d.node.node_id, 1 + d.serial % 3) for d in group])  # type: ignore[operator]
+            for master, group in masters]
+    sync = CanFrame(0x80, b"")
+    pack = RPDO.pack
+
     def cycle() -> None:
         t = clock.now() - start
-        for master, group in masters:
-            for d in group:
-                target = round(10_000 * (1.0 - math.cos(2 * math.pi * t)) * (1 + d.serial % 3))
-                master.send(CanFrame(0x200 + d.node.node_id, RPDO.pack(0x0F, target)))  # type: ignore[operator]
-            master.send(CanFrame(0x80, b""))
+        amplitude = 10_000 * (1.0 - math.cos(2 * math.pi * t))
+        for master, group in plan:
+            send = master.send
+            for cob_id, factor in group:
+                send(CanFrame(cob_id, pack(0x0F, round(amplitude * factor))))
+            send(sync)
 
     clock.call_every(PERIOD, cycle, first=0.0)
     wall0 = time.perf_counter()
