@@ -72,7 +72,7 @@ def _baseline(rig: Rig) -> tuple[float, float, float]:
 
     with rig.clock.lock:
         rig.add_reader(master, on_readable)
-    rig._wake()
+    rig.wake()
     import serial
 
     port = serial.Serial(os.ttyname(slave), timeout=1)

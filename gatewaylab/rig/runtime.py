@@ -80,7 +80,7 @@ class Rig:
         self.add_reader(self._wake_r.fileno(), self._drain_wakeups)
         if isinstance(clock.lock, contextlib.nullcontext):
             clock.lock = threading.RLock()
-        clock.wakeup = self._wake
+        clock.wakeup = self.wake
         if isinstance(clock, RealTimeClock):
             clock.on_error = self._callback_failed
         for bc in config.buses:
@@ -170,7 +170,8 @@ class Rig:
         self.callback_errors += 1
         log.error("callback failed, rig keeps running: %r", exc, exc_info=exc)
 
-    def _wake(self) -> None:
+    def wake(self) -> None:
+        """Interrupt the loop's wait (safe from any thread), e.g. after changing what it waits for."""
         try:
             self._wake_w.send(b"\0")
         except (BlockingIOError, OSError):
@@ -236,7 +237,7 @@ class Rig:
     def request_stop(self) -> None:
         """Ask :meth:`run` to return; safe from signal handlers and other threads."""
         self._stop.set()
-        self._wake()
+        self.wake()
 
     def run_in_thread(self) -> threading.Thread:
         """Run the real-time loop in a daemon thread (for tests and embedding)."""
