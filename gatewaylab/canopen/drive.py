@@ -454,8 +454,7 @@ class Drive:
             v_ff = self._csp_feedforward(target, dt) + float(int(values[0x60B1, 0]))
             self.demand = target
             self.demand_velocity = v_ff
-            plant.step(dt, _POSITION, position=target - self.offset, velocity=v_ff,
-                       max_torque=max_torque)
+            plant.step(dt, _POSITION, target - self.offset, v_ff, 0.0, 0.0, max_torque)
             return True
         prof = self.profile
         vmax = float(min(int(values[0x607F, 0]), int(values[0x6080, 0])))

@@ -97,9 +97,11 @@ class Plant:
                 p.rated_torque, p.coulomb_friction / p.rated_torque * 1000.0, p.hard_stop_high,
                 p.hard_stop_low)
 
-    def step(self, dt: float, mode: ControlMode, *, position: float = 0.0, velocity: float = 0.0,
+    def step(self, dt: float, mode: ControlMode, position: float = 0.0, velocity: float = 0.0,
              acceleration: float = 0.0, torque: float = 0.0, max_torque: float = 1000.0) -> None:
-        """One control period: compute the motor torque for ``mode``, integrate the axis."""
+        """One control period: compute the motor torque for ``mode``, integrate the axis.
+
+        The inputs may be passed by position (the drive's 1 kHz path does) or by keyword."""
         c = self._consts
         if c is None or c[0] is not self.params:
             c = self._consts = self._constants()
