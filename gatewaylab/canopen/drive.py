@@ -419,9 +419,48 @@ class Drive:
         plant = self.plant
         st = plant.state
         state = self.state
-        max_torque = float(self._v[0x6072, 0])
+        values = self._v
+        max_torque = float(values[0x6072, 0])
         check_fe = False
-        if state is PdsState.OPERATION_ENABLED and not self.stopping:
+        if state is _OPERATION_ENABLED and not self.stopping:
+            if self.mode is _CSP:
+                # _run_mode's CSP period with _csp_feedforward and _following_error written out
+                # (the 1 kHz path of every drive in a CSP system)
+                self.internal_limit = False
+                target = float(int(values[0x607A, 0]) + int(values[0x60B0, 0]))
+                low = int(values[0x607D, 1])
+                high = int(values[0x607D, 2])
+                if low < high:   # software position limits (as _soft_limits)
+                    clamped = _clamp(target, low, high)
+                    if clamped != target:
+                        self.internal_limit = True
+                    target = clamped
+                now = self.clock.now()
+                prev = self.prev_csp_target
+                self.prev_csp_target = target
+                if prev is None:
+                    self.csp_changed_at, self.csp_span, self.csp_velocity = now, dt, 0.0
+                elif target != prev:
+                    span = max(now - self.csp_changed_at, dt)
+                    self.csp_velocity = (target - prev) / span
+                    self.csp_changed_at, self.csp_span = now, span
+                elif now - self.csp_changed_at > self.csp_span + 0.5 * dt:
+                    self.csp_velocity = 0.0
+                v_ff = self.csp_velocity + float(int(values[0x60B1, 0]))
+                self.demand = target
+                self.demand_velocity = v_ff
+                offset = self.offset
+                plant.step(dt, _POSITION, target - offset, v_ff, 0.0, 0.0, max_torque)
+                x = st.position + offset
+                fe = target - x
+                window = int(values[0x6065, 0])
+                if window == 0xFFFFFFFF or abs(fe) <= window:
+                    self.fe_time = 0.0
+                    self.fe_warning = False
+                else:
+                    self._following_error(fe, dt, True)
+                self._publish_actuals(x, fe)
+                return
             check_fe = self._run_mode(dt, max_torque)
         elif state in (PdsState.QUICK_STOP_ACTIVE, PdsState.FAULT_REACTION_ACTIVE):
             self._run_stop(dt, max_torque)
@@ -736,6 +775,7 @@ _SW_BIT12 = int(Sw.OP_SPECIFIC_12)
 _SW_BIT13 = int(Sw.OP_SPECIFIC_13)
 _I32_MIN, _I32_MAX = -0x80000000, 0x7FFFFFFF
 _CSP = OpMode.CYCLIC_SYNC_POSITION
+_OPERATION_ENABLED = PdsState.OPERATION_ENABLED
 _POSITION = ControlMode.POSITION
 _K_STATUSWORD = (0x6041, 0)
 _K_POSITION = (0x6064, 0)
