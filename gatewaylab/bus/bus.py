@@ -395,10 +395,17 @@ class VirtualBus:
     @property
     def busy(self) -> bool:
         """True while a frame is on the wire or any connected controller has one queued."""
+        return self.is_busy()
+
+    def is_busy(self) -> bool:
+        """:attr:`busy` as a method (a cheap condition for ``clock.run_while``)."""
         if self._in_flight is not None or self._arb_timer is not None:
             return True
-        return any(c.tx_queue and c.connected and c.state is not ErrorState.BUS_OFF
-                   and c.timing_matches and not c.synthetic for c in self.controllers)
+        for c in self.controllers:
+            if (c.tx_queue and c._connected and c.state is not _BUS_OFF and c.timing_matches
+                    and not c.synthetic):
+                return True
+        return False
 
     # -- fault injection ---------------------------------------------------------------------
     def disconnect(self, ctrl: Controller) -> None:

@@ -128,6 +128,9 @@ class CanFrame:
         if msg.is_error_frame:
             raise FrameError("error frames cannot be sent; use the fault-injection API")
         data = bytes(msg.data) if msg.data is not None else b""
+        if not (msg.is_remote_frame or msg.is_extended_id or msg.is_fd or msg.bitrate_switch
+                or msg.error_state_indicator):
+            return cls(msg.arbitration_id, data)     # the common classic base data frame
         if msg.is_remote_frame:
             return cls(msg.arbitration_id, b"", msg.is_extended_id, True, msg.is_fd,
                        msg.bitrate_switch, msg.error_state_indicator, msg.dlc)

@@ -53,18 +53,24 @@ class InProcessBus(can.BusABC):
                 fd=self._fd, listen_only=listen_only, on_frame=self._on_frame)
         super().__init__(channel=vbus.name, can_filters=can_filters, **kwargs)
         self._can_protocol = CanProtocol.CAN_FD if self._fd else CanProtocol.CAN_20
+        self._put = self._queue.put
+        self._channel_name = vbus.name
 
     def _on_frame(self, frame: CanFrame, t: float) -> None:
-        self._queue.put(frame.to_message(t, self.vbus.name))
+        self._put(frame.to_message(t, self._channel_name))
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         frame = CanFrame.from_message(msg)
-        clock = self.vbus.clock
+        vbus = self.vbus
+        clock = vbus.clock
         if self._simulated:
             assert isinstance(clock, SimulatedClock)
             with clock.lock:
-                self._send_checked(frame)
-                clock.run_while(lambda: self.vbus.busy)
+                try:
+                    self.controller.send(frame)
+                except GatewaylabError as exc:
+                    raise can.CanOperationError(str(exc)) from exc
+                clock.run_while(vbus.is_busy)   # settle: the frame and every answer to it
         else:
             # Refuse here, in the caller's thread, what the controller would refuse in the loop's.
             ctrl = self.controller
@@ -77,6 +83,20 @@ class InProcessBus(can.BusABC):
             self.controller.send(frame)
         except GatewaylabError as exc:
             raise can.CanOperationError(str(exc)) from exc
+
+    def recv(self, timeout: float | None = None) -> can.Message | None:
+        """``BusABC.recv`` without its filter loop when no filters are set (every message the
+        controller receives is delivered; the notifier thread calls this once per frame)."""
+        if self._filters is not None:
+            return super().recv(timeout)
+        try:
+            if timeout is None:
+                return self._queue.get()
+            if timeout <= 0:
+                return self._queue.get_nowait()
+            return self._queue.get(timeout=timeout)
+        except queue.Empty:
+            return None
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
         try:
