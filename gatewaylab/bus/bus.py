@@ -287,13 +287,9 @@ class Controller:
                 ERROR_FRAME_BITS / self.bitrate, self._mismatch_attempt)
 
 
-@dataclass(slots=True)
-class _InFlight:
-    sender: Controller
-    frame: CanFrame
-    outcome: str  # "ok" | "ack" | "crc" | "drop"
-    start: float
-    end: float
+#: The frame on the wire: (sender, frame, outcome "ok" | "ack" | "crc" | "drop", start, end);
+#: a plain tuple, built once per frame.
+_InFlight = tuple[Controller, CanFrame, str, float, float]
 
 
 @dataclass(slots=True)
@@ -540,7 +536,7 @@ class VirtualBus:
                 until_ack = frame_bits_until_ack(frame) / self.bitrate
             duration = until_ack + bits / self.bitrate
         end = now + duration
-        self._in_flight = _InFlight(best, frame, outcome, now, end)
+        self._in_flight = (best, frame, outcome, now, end)
         if duration:
             self.clock.call_at(end, self._end_of_frame)
         else:
@@ -575,7 +571,7 @@ class VirtualBus:
                 self._kick()
             raise
         self._ending = False
-        self._arbitrate(flight.end)
+        self._arbitrate(flight[4])
         if self._kick_deferred:
             self._kick_deferred = False
             if self._in_flight is None:
@@ -585,11 +581,10 @@ class VirtualBus:
     def _complete(self, flight: _InFlight, arbitrate: bool) -> None:
         """Account for a finished frame (delivery, counters, retransmission), then arbitrate the
         next one if ``arbitrate`` (else ``_end_of_frame`` does it)."""
-        now = flight.end
+        sender, frame, outcome, start, now = flight
         self._idle_at = now
         stats = self.stats
-        stats.busy_time += flight.end - max(flight.start, stats.since)
-        sender, frame, outcome = flight.sender, flight.frame, flight.outcome
+        stats.busy_time += now - max(start, stats.since)
         if sender.tx_queue and sender.tx_queue[0] is frame:
             pass
         elif outcome in ("ok", "drop"):
