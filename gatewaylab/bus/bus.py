@@ -585,6 +585,26 @@ class VirtualBus:
         self._idle_at = now
         stats = self.stats
         stats.busy_time += now - max(start, stats.since)
+        queue = sender.tx_queue
+        if outcome == "ok" and queue and queue[0] is frame:
+            # the common case first: a frame sent and acknowledged (same steps as below)
+            queue.popleft()
+            n = len(frame.data)
+            st = sender.stats
+            st.tx_frames += 1
+            st.tx_bytes += n
+            if sender.tec:
+                sender.tec -= 1
+                if sender.state is not ErrorState.ERROR_ACTIVE:
+                    sender._update_state()
+            stats.frames += 1
+            stats.bytes += n
+            self._deliver(sender, frame, now)
+            if sender.on_event is not None:
+                sender.on_event(TxDoneEvent(frame, now))
+            if arbitrate:
+                self._arbitrate(now)
+            return
         if sender.tx_queue and sender.tx_queue[0] is frame:
             pass
         elif outcome in ("ok", "drop"):
