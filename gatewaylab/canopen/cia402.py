@@ -182,3 +182,18 @@ def state_from_statusword(statusword: int) -> PdsState | None:
         if statusword & mask == bits & mask:
             return state
     return None
+
+
+def _controlword_table(state: PdsState) -> tuple[tuple[PdsState, int] | None, ...]:
+    table: list[tuple[PdsState, int] | None] = []
+    for key in range(0x200):
+        cw, prev = key & 0x8F, (key >> 1) & 0x80
+        table.append(next_state(state, decode_command(cw, prev)))
+    return tuple(table)
+
+
+#: ``CONTROLWORD_NEXT[state][(cw & 0x8F) | ((previous & 0x80) << 1)]`` is
+#: ``next_state(state, decode_command(cw, previous))``: the command depends only on controlword
+#: bits 0-3 and 7 and on bit 7 of the previous controlword (fault-reset edge).
+CONTROLWORD_NEXT: dict[PdsState, tuple[tuple[PdsState, int] | None, ...]] = {
+    state: _controlword_table(state) for state in PdsState}

@@ -20,6 +20,7 @@ from ..bus.bus import VirtualBus
 from ..common.clock import Clock, PeriodicTimer
 from ..common.errors import ConfigError
 from .cia402 import (
+    CONTROLWORD_NEXT,
     STATE_BITS,
     SUPPORTED_MODES,
     Command,
@@ -27,8 +28,6 @@ from .cia402 import (
     OpMode,
     PdsState,
     Sw,
-    decode_command,
-    next_state,
 )
 from .communication import add_communication_objects, add_mapping
 from .emcy import ERR_PROFILE
@@ -309,17 +308,17 @@ class Drive:
     def _on_controlword(self, *args: Any) -> None:
         cw = int(self._v[0x6040, 0])
         prev, self.controlword = self.controlword, cw
-        command = decode_command(cw, prev)
-        hit = next_state(self.state, command)
+        # next_state(state, decode_command(cw, prev)) from one precomputed table (every SYNC)
+        hit = CONTROLWORD_NEXT[self.state][(cw & 0x8F) | ((prev & 0x80) << 1)]
         if hit is not None:
             new, transition = hit
             if transition == 16 and int(self._v[0x605A, 0]) < 5:
                 hit = None   # CiA 402: transition 16 only with quick stop option codes 5..8
             else:
                 self._enter(new, transition)
-        if self.state is PdsState.OPERATION_ENABLED:
+        if self.state is _OPERATION_ENABLED:
             self._mode_control(cw, prev)
-        self._publish()
+        self._put(_K_STATUSWORD, self.statusword())   # _publish
 
     def _enter(self, new: PdsState, transition: int) -> None:
         old = self.state

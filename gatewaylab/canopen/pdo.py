@@ -384,8 +384,10 @@ class PdoManager:
 
     def apply_sync_rpdos(self) -> None:
         for rpdo in self.rpdo:
-            if rpdo._pending is not None:
-                rpdo.apply_pending()
+            data = rpdo._pending
+            if data is not None:     # Rpdo.apply_pending, written out
+                rpdo._pending = None
+                rpdo.apply(data)
 
     def on_sync(self, counter: int | None) -> None:
         for tpdo in self.tpdo:
