@@ -760,8 +760,16 @@ class Drive:
             values[_K_FOLLOWING_ERROR] = value
             if watch and _K_FOLLOWING_ERROR in watch:
                 changed(_K_FOLLOWING_ERROR)
-        self._put(_K_INPUTS, plant.digital_inputs())
-        self._put(_K_STATUSWORD, self.statusword())
+        value = plant.digital_inputs()
+        if values[_K_INPUTS] != value:
+            values[_K_INPUTS] = value
+            if watch and _K_INPUTS in watch:
+                changed(_K_INPUTS)
+        value = self.statusword()
+        if values[_K_STATUSWORD] != value:
+            values[_K_STATUSWORD] = value
+            if watch and _K_STATUSWORD in watch:
+                changed(_K_STATUSWORD)
 
 
 _CW_HALT = int(Cw.HALT)

@@ -23,6 +23,7 @@ if TYPE_CHECKING:
     from .node import Node
 
 AddHandler = Callable[[int, Callable[[CanFrame, float], None]], None]
+_OPERATIONAL = NmtState.OPERATIONAL
 
 
 class Sync:
@@ -113,7 +114,7 @@ class Sync:
         if node.emcy.active and EMCY_UNEXPECTED_SYNC_LENGTH in node.emcy.active:
             node.emcy.clear_error(EMCY_UNEXPECTED_SYNC_LENGTH)
         pdo = node.pdo
-        operational = node.nmt_state is NmtState.OPERATIONAL
+        operational = node.nmt_state is _OPERATIONAL
         if operational:
             pdo.apply_sync_rpdos()
         listeners = self.listeners
@@ -121,4 +122,6 @@ class Sync:
             for listener in list(listeners):
                 listener(counter, t)
         if operational:
-            pdo.on_sync(counter)
+            for tpdo in pdo.tpdo:     # PdoManager.on_sync, written out (every SYNC, every node)
+                if tpdo.valid:
+                    tpdo.on_sync(counter)
