@@ -512,10 +512,14 @@ class VirtualBus:
         elif self._corrupt_next:
             self._corrupt_next -= 1
             outcome = "crc"
-        elif self._acknowledged(best, frame):
-            outcome = "ok"
         else:
-            outcome = "ack"
+            cached = self._receivers
+            acks = (cached if cached is not None else self._audience())[2]
+            if frame.fd:
+                acked = self._acknowledged(best, frame)
+            else:   # _acknowledged for a classic frame: anyone but the sender acknowledges
+                acked = len(acks) > 1 or (len(acks) == 1 and acks[0] is not best)
+            outcome = "ok" if acked else "ack"
         if not self.timing:
             duration = 0.0
         elif outcome == "ok" or outcome == "drop":
