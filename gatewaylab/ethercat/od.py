@@ -1,7 +1,8 @@
 """A small typed CoE object dictionary: rows bound to typed storage, with SDO access rules.
 
-``gatewaylab/canopen/od.py`` had not landed when this was written; this table is what the CoE
-server, SDO Information and the ESI export need. Values are stored encoded (little endian, as on
+The data types are CiA 301's (``gatewaylab.canopen.od.DataType``). The table itself differs from
+``gatewaylab.canopen.od`` where CoE differs from CANopen: access rights per EtherCAT state and
+per-entry read/write hooks; merging the two tables is a known follow-up. Values are stored encoded (little endian, as on
 the wire); typed ``get``/``set`` convert. Access is per EtherCAT state (ETG.1000.6 object access
 word: read/write in PREOP, SAFEOP, OP; RxPDO/TxPDO mappable).
 """
@@ -13,27 +14,11 @@ import struct
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 
+from ..canopen.od import DataType
 from .errors import EtherCATConfigError, SdoAbortCode, SdoAbortError
 
-
-class DataType(enum.IntEnum):
-    """CoE basic data types (QEC master manual appendix A.6)."""
-
-    BOOLEAN = 0x0001
-    INTEGER8 = 0x0002
-    INTEGER16 = 0x0003
-    INTEGER32 = 0x0004
-    UNSIGNED8 = 0x0005
-    UNSIGNED16 = 0x0006
-    UNSIGNED32 = 0x0007
-    REAL32 = 0x0008
-    VISIBLE_STRING = 0x0009
-    OCTET_STRING = 0x000A
-    UNICODE_STRING = 0x000B
-    DOMAIN = 0x000F
-    REAL64 = 0x0011
-    INTEGER64 = 0x0015
-    UNSIGNED64 = 0x001B
+# The CoE basic data types (QEC master manual appendix A.6) are CiA 301's, codes and all.
+__all__ = ["Access", "DataType", "Entry", "ObjectCode", "ObjectDictionary", "decode", "encode", "type_size"]
 
 
 _FIXED: dict[DataType, struct.Struct] = {
