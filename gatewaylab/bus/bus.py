@@ -484,67 +484,74 @@ class VirtualBus:
         if self._in_flight is not None:
             return
         now = self.clock.now() if start is None else start
-        best: Controller | None = None
-        best_key = 0
-        wait_until: float | None = None
-        for c in self.controllers:
-            queue = c.tx_queue
-            if not queue or not c._connected or c.state is _BUS_OFF or not c.timing_matches:
-                continue
-            if c._ready_at > now:
-                wait_until = c._ready_at if wait_until is None else min(wait_until, c._ready_at)
-                continue
-            head = queue[0]
-            # arbitration_key(), inlined for base frames (the hot path)
-            key = arbitration_key(head) if head.extended else (head.can_id << 21) | (head.rtr << 20)
-            if best is None or key < best_key:
-                best, best_key = c, key
-        if best is None:
-            if wait_until is not None:
-                self._arb_timer = self.clock.call_at(wait_until, self._arbitrate)
-            return
-        frame = best.tx_queue[0]
-        if best.synthetic:
-            outcome = "ok"
-        elif self._drop_next:
-            self._drop_next -= 1
-            outcome = "drop"
-        elif self._corrupt_next:
-            self._corrupt_next -= 1
-            outcome = "crc"
-        else:
-            cached = self._receivers
-            acks = (cached if cached is not None else self._audience())[2]
-            if frame.fd:
-                acked = self._acknowledged(best, frame)
-            else:   # _acknowledged for a classic frame: anyone but the sender acknowledges
-                acked = len(acks) > 1 or (len(acks) == 1 and acks[0] is not best)
-            outcome = "ok" if acked else "ack"
-        if not self.timing:
-            duration = 0.0
-        elif outcome == "ok" or outcome == "drop":
-            if frame.fd or frame.extended:
-                duration = frame_duration(frame, self.bitrate, self.data_bitrate)
+        while True:
+            best: Controller | None = None
+            best_key = 0
+            wait_until: float | None = None
+            for c in self.controllers:
+                queue = c.tx_queue
+                if not queue or not c._connected or c.state is _BUS_OFF or not c.timing_matches:
+                    continue
+                if c._ready_at > now:
+                    wait_until = c._ready_at if wait_until is None else min(wait_until, c._ready_at)
+                    continue
+                head = queue[0]
+                # arbitration_key(), inlined for base frames (the hot path)
+                key = arbitration_key(head) if head.extended else (head.can_id << 21) | (head.rtr << 20)
+                if best is None or key < best_key:
+                    best, best_key = c, key
+            if best is None:
+                if wait_until is not None:
+                    self._arb_timer = self.clock.call_at(wait_until, self._arbitrate)
+                return
+            frame = best.tx_queue[0]
+            if best.synthetic:
+                outcome = "ok"
+            elif self._drop_next:
+                self._drop_next -= 1
+                outcome = "drop"
+            elif self._corrupt_next:
+                self._corrupt_next -= 1
+                outcome = "crc"
             else:
-                durations = self._classic_durations
-                if durations is None or durations[0] != self._bitrate:
-                    durations = self._classic_durations = (
-                        self._bitrate, tuple(frame_duration(CanFrame(0, bytes(n)), self._bitrate)
-                                             for n in range(9)))
-                duration = durations[1][0 if frame.rtr else len(frame.data)]
-        else:
-            bits = ERROR_FRAME_BITS + (SUSPEND_TRANSMISSION_BITS if best.state is ErrorState.ERROR_PASSIVE else 0)
-            if frame.fd and frame.brs and self.data_bitrate:
-                until_ack = frame_duration(frame, self.bitrate, self.data_bitrate) - 12 / self.bitrate
+                cached = self._receivers
+                acks = (cached if cached is not None else self._audience())[2]
+                if frame.fd:
+                    acked = self._acknowledged(best, frame)
+                else:   # _acknowledged for a classic frame: anyone but the sender acknowledges
+                    acked = len(acks) > 1 or (len(acks) == 1 and acks[0] is not best)
+                outcome = "ok" if acked else "ack"
+            if not self.timing:
+                duration = 0.0
+            elif outcome == "ok" or outcome == "drop":
+                if frame.fd or frame.extended:
+                    duration = frame_duration(frame, self.bitrate, self.data_bitrate)
+                else:
+                    durations = self._classic_durations
+                    if durations is None or durations[0] != self._bitrate:
+                        durations = self._classic_durations = (
+                            self._bitrate, tuple(frame_duration(CanFrame(0, bytes(n)), self._bitrate)
+                                                 for n in range(9)))
+                    duration = durations[1][0 if frame.rtr else len(frame.data)]
             else:
-                until_ack = frame_bits_until_ack(frame) / self.bitrate
-            duration = until_ack + bits / self.bitrate
-        end = now + duration
-        self._in_flight = (best, frame, outcome, now, end)
-        if duration:
-            self.clock.call_at(end, self._end_of_frame)
-        else:
-            self._end_of_frame()
+                bits = ERROR_FRAME_BITS + (SUSPEND_TRANSMISSION_BITS if best.state is ErrorState.ERROR_PASSIVE else 0)
+                if frame.fd and frame.brs and self.data_bitrate:
+                    until_ack = frame_duration(frame, self.bitrate, self.data_bitrate) - 12 / self.bitrate
+                else:
+                    until_ack = frame_bits_until_ack(frame) / self.bitrate
+                duration = until_ack + bits / self.bitrate
+            end = now + duration
+            if duration:
+                self._in_flight = (best, frame, outcome, now, end)
+                self.clock.call_at(end, self._end_of_frame)
+                return
+            # no frame timing: the frame ends at once (what _end_of_frame does), then the next
+            # arbitration at the same instant (a loop instead of the recursion through _end_of_frame)
+            self._complete((best, frame, outcome, now, end), False)
+            self._arb_timer = None
+            if self._in_flight is not None:
+                return
+            now = end
 
     def _acknowledged(self, sender: Controller, frame: CanFrame) -> bool:
         # the cached audience: connected, not bus-off, not synthetic, matching bit timing
