@@ -89,14 +89,7 @@ class InProcessBus(can.BusABC):
         controller receives is delivered; the notifier thread calls this once per frame)."""
         if self._filters is not None:
             return super().recv(timeout)
-        try:
-            if timeout is None:
-                return self._queue.get()
-            if timeout <= 0:
-                return self._queue.get_nowait()
-            return self._queue.get(timeout=timeout)
-        except queue.Empty:
-            return None
+        return self._recv_internal(timeout)[0]   # it waits the whole timeout itself
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
         try:
