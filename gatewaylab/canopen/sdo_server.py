@@ -31,6 +31,7 @@ from .errors import (
 
 if TYPE_CHECKING:
     from .node import Node
+    from .od import Entry
 
 #: command byte, index, sub-index (CiA 301 figure 20 ff.)
 SDO_HEADER = struct.Struct("<BHB")
@@ -83,6 +84,8 @@ class SdoServer:
         self._last_sent = False
         #: Expedited upload answers by payload: frames are immutable, polling repeats them.
         self._frames: dict[bytes, CanFrame] = {}
+        #: (request, key, entry, value, answer) of the last expedited upload (see _fast_upload)
+        self._last_upload: tuple[bytes, tuple[int, int], Entry, int, CanFrame] | None = None
         #: Counters: requests answered, aborts sent, frames ignored (wrong DLC or RTR).
         self.requests = 0
         self.aborts_sent = 0
@@ -148,10 +151,24 @@ class SdoServer:
             self._abort(GENERAL_ERROR)
 
     def _fast_upload(self, data: bytes) -> None:
+        node = self.node
+        last = self._last_upload
+        if last is not None and last[0] == data:
+            # the same request as the last one (a polling master): answer with the same frame
+            # while the integer value, the entry and the COB-ID are unchanged and no read hook
+            # could refresh the value
+            _, key, entry, cached, answer = last
+            od = node.od
+            current = od.values[key]
+            if (type(current) is int and current == cached and answer.can_id == self.tx_cob_id
+                    and key[0] not in node._read_hooks and od.entries.get(key) is entry):
+                self.index, self.sub = key
+                node.send(answer)
+                return
         index = data[1] | (data[2] << 8)
         sub = data[3]
         self.index, self.sub = index, sub
-        value = self.node.read(index, sub)
+        value = node.read(index, sub)
         n = len(value)
         if 0 < n <= 4:
             payload = _EXPEDITED_CS[n] + data[1:4] + value + _PAD[n]
@@ -161,7 +178,10 @@ class SdoServer:
                 if len(cache) >= 512:
                     cache.clear()
                 frame = cache[payload] = CanFrame(self.tx_cob_id, payload)
-            self.node.send(frame)
+            key = (index, sub)
+            typed = node.od.values[key]
+            self._last_upload = (data, key, node.od.entries[key], typed, frame) if type(typed) is int else None
+            node.send(frame)
         else:
             self._start_upload(index, sub, value)
 
