@@ -54,6 +54,9 @@ class SdoServerState(Enum):
     BLOCK_UPLOAD_END = "block upload (wait for end)"
 
 
+_IDLE = SdoServerState.IDLE
+
+
 class SdoServer:
     """The default SDO server of a :class:`Node`."""
 
@@ -140,7 +143,21 @@ class SdoServer:
             return
         self.requests += 1
         try:
-            if data[0] == 0x40 and self.state is SdoServerState.IDLE:
+            if data[0] == 0x40 and self.state is _IDLE:
+                last = self._last_upload
+                if last is not None and last[0] == data:
+                    # the same request as the last one (a polling master): the same answer while
+                    # the integer value, the entry and the COB-ID are unchanged and no read hook
+                    # could refresh the value (what _fast_upload would send)
+                    _, key, entry, cached, answer = last
+                    node = self.node
+                    od = node.od
+                    current = od.values[key]
+                    if (type(current) is int and current == cached and answer.can_id == self.tx_cob_id
+                            and key[0] not in node._read_hooks and od.entries.get(key) is entry):
+                        self.index, self.sub = key
+                        node.send(answer)
+                        return
                 self._fast_upload(data)     # the most frequent request, kept short
                 return
             self._dispatch(data)
@@ -152,19 +169,6 @@ class SdoServer:
 
     def _fast_upload(self, data: bytes) -> None:
         node = self.node
-        last = self._last_upload
-        if last is not None and last[0] == data:
-            # the same request as the last one (a polling master): answer with the same frame
-            # while the integer value, the entry and the COB-ID are unchanged and no read hook
-            # could refresh the value
-            _, key, entry, cached, answer = last
-            od = node.od
-            current = od.values[key]
-            if (type(current) is int and current == cached and answer.can_id == self.tx_cob_id
-                    and key[0] not in node._read_hooks and od.entries.get(key) is entry):
-                self.index, self.sub = key
-                node.send(answer)
-                return
         index = data[1] | (data[2] << 8)
         sub = data[3]
         self.index, self.sub = index, sub
