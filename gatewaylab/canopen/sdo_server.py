@@ -31,7 +31,6 @@ from .errors import (
 
 if TYPE_CHECKING:
     from .node import Node
-    from .od import Entry
 
 #: command byte, index, sub-index (CiA 301 figure 20 ff.)
 SDO_HEADER = struct.Struct("<BHB")
@@ -87,8 +86,6 @@ class SdoServer:
         self._last_sent = False
         #: Expedited upload answers by payload: frames are immutable, polling repeats them.
         self._frames: dict[bytes, CanFrame] = {}
-        #: (request, key, entry, value, answer) of the last expedited upload (see _fast_upload)
-        self._last_upload: tuple[bytes, tuple[int, int], Entry, int, CanFrame] | None = None
         #: Counters: requests answered, aborts sent, frames ignored (wrong DLC or RTR).
         self.requests = 0
         self.aborts_sent = 0
@@ -144,20 +141,6 @@ class SdoServer:
         self.requests += 1
         try:
             if data[0] == 0x40 and self.state is _IDLE:
-                last = self._last_upload
-                if last is not None and last[0] == data:
-                    # the same request as the last one (a polling master): the same answer while
-                    # the integer value, the entry and the COB-ID are unchanged and no read hook
-                    # could refresh the value (what _fast_upload would send)
-                    _, key, entry, cached, answer = last
-                    node = self.node
-                    od = node.od
-                    current = od.values[key]
-                    if (type(current) is int and current == cached and answer.can_id == self.tx_cob_id
-                            and key[0] not in node._read_hooks and od.entries.get(key) is entry):
-                        self.index, self.sub = key
-                        node.send(answer)
-                        return
                 self._fast_upload(data)     # the most frequent request, kept short
                 return
             self._dispatch(data)
@@ -182,9 +165,6 @@ class SdoServer:
                 if len(cache) >= 512:
                     cache.clear()
                 frame = cache[payload] = CanFrame(self.tx_cob_id, payload)
-            key = (index, sub)
-            typed = node.od.values[key]
-            self._last_upload = (data, key, node.od.entries[key], typed, frame) if type(typed) is int else None
             node.send(frame)
         else:
             self._start_upload(index, sub, value)
