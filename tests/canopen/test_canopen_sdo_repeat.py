@@ -1,9 +1,9 @@
 """Repeated expedited SDO uploads (a polling master) always carry the current value.
 
 Manual: CiA 301 7.2.4.3.6 'Initiate SDO upload' (IDX Communication Guide 3.3.3.2): the server
-answers every initiate upload request with the object's value at that moment. The server
-re-sends its previous answer frame for an identical request only while nothing it depends on
-changed; these tests change each of those things between identical requests.
+answers every initiate upload request with the object's value at that moment, however often a
+polling master repeats the identical request; these tests change the value, the read hook and the
+entry between identical requests.
 """
 
 from __future__ import annotations
