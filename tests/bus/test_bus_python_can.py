@@ -1,5 +1,6 @@
 """python-can in process: canopen, notifiers and loggers work unchanged on python_can_bus (issue 2, section 3)."""
 
+import threading
 from pathlib import Path
 
 import can
@@ -59,8 +60,16 @@ def test_notifier_and_logger_record_the_traffic(networks, tmp_path: Path) -> Non
     logfile = tmp_path / "trace.log"
     spy_bus = python_can_bus(vbus, name="spy", listen_only=True)
     logger = can.Logger(str(logfile))
-    notifier = can.Notifier(spy_bus, [logger])
+    seen = threading.Semaphore(0)
+
+    class Counter(can.Listener):
+        def on_message_received(self, msg: can.Message) -> None:
+            seen.release()
+
+    notifier = can.Notifier(spy_bus, [logger, Counter()])
     assert remote.sdo[0x2000].raw == 0xCAFEBABE
+    # The notifier thread logs asynchronously: wait until it has handled request and answer.
+    assert seen.acquire(timeout=5) and seen.acquire(timeout=5)
     notifier.stop(timeout=1.0)
     logger.stop()
     spy_bus.shutdown()
