@@ -32,8 +32,9 @@ def networks():
     vbus = VirtualBus(clock, "can0", 1_000_000)
     server = canopen.Network(python_can_bus(vbus, name="local-node"))
     client = canopen.Network(python_can_bus(vbus, name="master"))
-    server.connect()
-    client.connect()
+    for network in (server, client):
+        network.NOTIFIER_CYCLE = 0.05  # its notifier thread notices a stop within 50 ms
+        network.connect()
     yield clock, vbus, server, client
     client.disconnect()
     server.disconnect()
@@ -66,7 +67,7 @@ def test_notifier_and_logger_record_the_traffic(networks, tmp_path: Path) -> Non
         def on_message_received(self, msg: can.Message) -> None:
             seen.release()
 
-    notifier = can.Notifier(spy_bus, [logger, Counter()])
+    notifier = can.Notifier(spy_bus, [logger, Counter()], timeout=0.05)
     assert remote.sdo[0x2000].raw == 0xCAFEBABE
     # The notifier thread logs asynchronously: wait until it has handled request and answer.
     assert seen.acquire(timeout=5) and seen.acquire(timeout=5)
