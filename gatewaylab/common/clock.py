@@ -41,10 +41,6 @@ class TimerHandle:
     def cancel(self) -> None:
         self.cancelled = True
 
-    def __lt__(self, other: TimerHandle) -> bool:
-        # Heap order: time first, then scheduling order, so simultaneous events are stable.
-        return (self.when, self.seq) < (other.when, other.seq)
-
     def __repr__(self) -> str:
         name = getattr(self.callback, "__qualname__", repr(self.callback))
         return f"<TimerHandle t={self.when:.9f} #{self.seq} {name}{' cancelled' if self.cancelled else ''}>"
@@ -54,7 +50,9 @@ class Clock:
     """Event queue shared by both clocks; subclasses decide what ``now`` means."""
 
     def __init__(self) -> None:
-        self._heap: list[TimerHandle] = []
+        #: (when, seq, handle): time first, then scheduling order, so simultaneous events are
+        #: stable; tuples compare in C, which matters at tens of thousands of events per second.
+        self._heap: list[tuple[float, int, TimerHandle]] = []
         self._seq = 0
         self._injected: deque[tuple[Callback, tuple[Any, ...]]] = deque()
         #: Called (from any thread) after work was injected; the runtime sets it to wake its loop.
@@ -75,9 +73,9 @@ class Clock:
     # -- scheduling ---------------------------------------------------------------------------
     def call_at(self, when: float, callback: Callback, *args: Any) -> TimerHandle:
         """Run ``callback(*args)`` at time ``when`` (never before ``now()``)."""
-        self._seq += 1
-        handle = TimerHandle(when, self._seq, callback, args)
-        heapq.heappush(self._heap, handle)
+        self._seq = seq = self._seq + 1
+        handle = TimerHandle(when, seq, callback, args)
+        heapq.heappush(self._heap, (when, seq, handle))
         return handle
 
     def call_later(self, delay: float, callback: Callback, *args: Any) -> TimerHandle:
@@ -105,14 +103,14 @@ class Clock:
     def next_deadline(self) -> float | None:
         """Time of the earliest pending event, or None when nothing is scheduled."""
         heap = self._heap
-        while heap and heap[0].cancelled:
+        while heap and heap[0][2].cancelled:
             heapq.heappop(heap)
         if self._injected:
             return self.now()
-        return heap[0].when if heap else None
+        return heap[0][0] if heap else None
 
     def pending(self) -> int:
-        return sum(1 for h in self._heap if not h.cancelled) + len(self._injected)
+        return sum(1 for _, _, h in self._heap if not h.cancelled) + len(self._injected)
 
     def _drain_injected(self) -> None:
         injected = self._injected
@@ -174,11 +172,11 @@ class SimulatedClock(Clock):
             self._drain_injected()
             heap = self._heap
             while heap:
-                handle = heapq.heappop(heap)
+                when, _, handle = heapq.heappop(heap)
                 if handle.cancelled:
                     continue
-                if handle.when > self._now:
-                    self._now = handle.when
+                if when > self._now:
+                    self._now = when
                 handle.callback(*handle.args)
                 return True
             return False
@@ -190,19 +188,22 @@ class SimulatedClock(Clock):
             if t < self._now:
                 raise LocalError(f"cannot run backwards to {t} from {self._now}")
             heap = self._heap
+            injected = self._injected
+            pop = heapq.heappop
             while True:
-                self._drain_injected()
+                if injected:
+                    self._drain_injected()
                 if not heap:
                     break
-                handle = heap[0]
+                when, _, handle = heap[0]
                 if handle.cancelled:
-                    heapq.heappop(heap)
+                    pop(heap)
                     continue
-                if handle.when > t:
+                if when > t:
                     break
-                heapq.heappop(heap)
-                if handle.when > self._now:
-                    self._now = handle.when
+                pop(heap)
+                if when > self._now:
+                    self._now = when
                 handle.callback(*handle.args)
                 count += 1
             self._now = t
@@ -247,13 +248,13 @@ class RealTimeClock(Clock):
             heap = self._heap
             now = self.now()
             while heap:
-                handle = heap[0]
+                when, _, handle = heap[0]
                 if handle.cancelled:
                     heapq.heappop(heap)
                     continue
-                if handle.when > now:
+                if when > now:
                     now = self.now()
-                    if handle.when > now:
+                    if when > now:
                         break
                 heapq.heappop(heap)
                 try:
