@@ -7,7 +7,7 @@ state machine and a motion plant stepped every control period (1 ms) on the inje
 
 Controlword writes are applied at once (SDO or RPDO reception), the motion runs in the control
 tick. Everything is documented in ``docs/canopen-drive.md``; choices the manuals leave open are
-listed in ``docs/decisions/canopen-drive.md``.
+listed in ``docs/decisions.md``.
 """
 
 from __future__ import annotations

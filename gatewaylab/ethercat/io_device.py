@@ -19,7 +19,7 @@ from .foe import FoeHandler
 from .od import Access, DataType, Entry
 from .slave import Slave, SlaveApplication
 
-VENDOR_ID = 0x47574C42  # 'GWLB', not an ETG-assigned id (see docs/decisions/ethercat.md)
+VENDOR_ID = 0x47574C42  # 'GWLB', not an ETG-assigned id (see docs/decisions.md)
 PRODUCT_CODE = 0x00010001
 _IN = struct.Struct("<BhhI")
 _OUT = struct.Struct("<Bhh")

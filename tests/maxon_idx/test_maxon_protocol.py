@@ -274,7 +274,7 @@ def test_requests_behind_a_running_one_are_answered_in_order_up_to_the_queue_dep
         harness: SlaveHarness) -> None:
     """2.2.8 D "IDX cannot process data simultaneously": requests sent while a gateway read runs are
     answered afterwards, in order, one reply each; beyond 64 waiting requests the rest are counted
-    as overflows and get no answer (docs/decisions/maxon_idx.md)."""
+    as overflows and get no answer (docs/decisions.md)."""
     from gatewaylab.devices.maxon_idx.protocol import MAX_QUEUED
 
     h = harness
