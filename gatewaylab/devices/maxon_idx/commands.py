@@ -10,7 +10,7 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass
 from enum import IntEnum
-from typing import ClassVar
+from typing import ClassVar, Self
 
 from ...common.errors import LocalError
 from .codec import Frame
@@ -90,10 +90,10 @@ def _check_segment(data: bytes) -> None:
 
 # -- requests ---------------------------------------------------------------------------------------
 @dataclass(frozen=True, slots=True)
-class ReadObject:
-    """2.1.1.1: read up to 4 bytes of an object."""
+class _ObjectRequest:
+    """A request that is only an object address: node (WORD low byte), index, subindex (2 words)."""
 
-    opcode: ClassVar[OpCode] = OpCode.READ_OBJECT
+    opcode: ClassVar[OpCode]
     node_id: int
     index: int
     subindex: int
@@ -105,30 +105,23 @@ class ReadObject:
         return Frame(self.opcode, _OBJ.pack(self.node_id, self.index, self.subindex))
 
     @classmethod
-    def from_frame(cls, frame: Frame) -> ReadObject:
+    def from_frame(cls, frame: Frame) -> Self:
         _need_len(frame, 2)
         return cls(*_OBJ.unpack(frame.data))
 
 
 @dataclass(frozen=True, slots=True)
-class InitiateSegmentedRead:
+class ReadObject(_ObjectRequest):
+    """2.1.1.1: read up to 4 bytes of an object."""
+
+    opcode: ClassVar[OpCode] = OpCode.READ_OBJECT
+
+
+@dataclass(frozen=True, slots=True)
+class InitiateSegmentedRead(_ObjectRequest):
     """2.1.1.2: start reading an object of any size."""
 
     opcode: ClassVar[OpCode] = OpCode.INITIATE_SEGMENTED_READ
-    node_id: int
-    index: int
-    subindex: int
-
-    def __post_init__(self) -> None:
-        _check_object(self.node_id, self.index, self.subindex)
-
-    def to_frame(self) -> Frame:
-        return Frame(self.opcode, _OBJ.pack(self.node_id, self.index, self.subindex))
-
-    @classmethod
-    def from_frame(cls, frame: Frame) -> InitiateSegmentedRead:
-        _need_len(frame, 2)
-        return cls(*_OBJ.unpack(frame.data))
 
 
 @dataclass(frozen=True, slots=True)
