@@ -7,6 +7,8 @@ from gatewaylab.common.errors import LocalError
 
 
 def test_simultaneous_events_run_in_scheduling_order() -> None:
+    """Simultaneous events run in the order they were scheduled (issue 2 §2 'stable ordering of simultaneous
+    events')."""
     clock = SimulatedClock()
     seen: list[str] = []
     clock.call_at(1.0, seen.append, "b1")
@@ -21,6 +23,7 @@ def test_simultaneous_events_run_in_scheduling_order() -> None:
 
 
 def test_events_scheduled_by_events_at_the_same_instant_run_after_the_earlier_ones() -> None:
+    """An event scheduled for 'now' by another event runs after the events already due at that instant (issue 2 §2)."""
     clock = SimulatedClock()
     seen: list[str] = []
     clock.call_at(1.0, lambda: (seen.append("first"), clock.call_soon(seen.append, "nested")))
@@ -30,6 +33,7 @@ def test_events_scheduled_by_events_at_the_same_instant_run_after_the_earlier_on
 
 
 def test_cancelled_events_do_not_run_and_time_does_not_move_by_itself() -> None:
+    """Simulated time moves only when the owner advances it; cancelled timers never fire (DEVELOPERS.md principle 2)."""
     clock = SimulatedClock()
     seen: list[int] = []
     handle = clock.call_later(0.1, seen.append, 1)
@@ -41,6 +45,8 @@ def test_cancelled_events_do_not_run_and_time_does_not_move_by_itself() -> None:
 
 
 def test_periodic_timer_does_not_drift() -> None:
+    """A 1 ms periodic timer fires exactly 1000 times in 1 s with no accumulated rounding (issue 2 §2: cycles on
+    the clock)."""
     clock = SimulatedClock()
     times: list[float] = []
     timer = clock.call_every(0.001, lambda: times.append(clock.now()))
@@ -52,6 +58,7 @@ def test_periodic_timer_does_not_drift() -> None:
 
 
 def test_run_while_stops_when_condition_clears() -> None:
+    """run_while runs events only as long as the condition holds (how the in-process adapter settles a bus)."""
     clock = SimulatedClock()
     state = {"n": 0}
 
@@ -66,6 +73,7 @@ def test_run_while_stops_when_condition_clears() -> None:
 
 
 def test_negative_time_is_local_misuse() -> None:
+    """Asking the clock to go backwards is local misuse: LocalError (DEVELOPERS.md principle 4)."""
     clock = SimulatedClock()
     with pytest.raises(LocalError):
         clock.advance(-1)

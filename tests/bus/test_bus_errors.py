@@ -1,4 +1,4 @@
-"""Fault confinement (ISO 11898-1 clause 12) and the fault-injection API (issue 2, section 3)."""
+"""Fault confinement (CAN 2.0 §8 'Fault Confinement') and the fault-injection API (issue 2, section 3)."""
 
 import pytest
 
@@ -9,7 +9,7 @@ from gatewaylab.common.errors import LocalError
 
 def test_lone_sender_goes_error_passive_and_stays_there(clock, bus, attach) -> None:
     """Nobody acknowledges: TEC += 8 per ACK error until 128 (error-passive); then the
-    ISO 11898-1 exception for ACK errors of a passive transmitter keeps it there, never bus-off."""
+    CAN 2.0 §8 rule 3 exception 1 for ACK errors of a passive transmitter keeps it there, never bus-off."""
     a, rec = attach("lone")
     a.send(CanFrame(0x100, b"\x01"))
     clock.advance(0.1)
@@ -21,6 +21,8 @@ def test_lone_sender_goes_error_passive_and_stays_there(clock, bus, attach) -> N
 
 
 def test_acknowledging_node_brings_lone_sender_back(clock, bus, attach) -> None:
+    """Once another node acknowledges, the frame completes and TEC decreases by 1 per success (CAN 2.0 §8 'Fault
+    Confinement' rule 7)."""
     a, _ = attach("lone")
     a.send(CanFrame(0x100, b"\x01"))
     clock.advance(0.1)
@@ -31,6 +33,7 @@ def test_acknowledging_node_brings_lone_sender_back(clock, bus, attach) -> None:
 
 
 def test_listen_only_receives_but_never_acknowledges(clock, bus, attach) -> None:
+    """Listen-only controllers receive but never acknowledge or send (issue 2 §3)."""
     a, _ = attach("tx")
     lo, lrx = attach("spy", listen_only=True)
     a.send(CanFrame(0x100, b"\x01"))
@@ -44,6 +47,7 @@ def test_listen_only_receives_but_never_acknowledges(clock, bus, attach) -> None
 
 
 def test_forced_bus_off_recovers_after_128_times_11_recessive_bits(clock, bus, attach) -> None:
+    """Bus-off recovery after 128 occurrences of 11 recessive bits (CAN 2.0 §8 'Fault Confinement'; issue 2 §3)."""
     a, rec = attach("a")
     attach("rx")
     bus.force_bus_off(a)
@@ -59,6 +63,8 @@ def test_forced_bus_off_recovers_after_128_times_11_recessive_bits(clock, bus, a
 
 
 def test_corrupted_frames_are_retransmitted_and_counted(clock, bus, attach) -> None:
+    """A CRC error: transmitter TEC += 8 (rule 3), receivers REC += 1 (rule 1), automatic retransmission (CAN 2.0
+    §8; issue 2 §3 fault injection)."""
     a, _ = attach("a")
     b, rx = attach("b")
     bus.corrupt_next(2)
@@ -71,6 +77,7 @@ def test_corrupted_frames_are_retransmitted_and_counted(clock, bus, attach) -> N
 
 
 def test_single_shot_controller_gives_up_after_an_error(clock, bus, attach) -> None:
+    """With auto-retransmission disabled a frame is given up after its first error (issue 2 §3)."""
     a, rec = attach("a", auto_retransmit=False)
     a.send(CanFrame(0x100, b"\x01"))
     clock.advance(0.01)
@@ -79,6 +86,7 @@ def test_single_shot_controller_gives_up_after_an_error(clock, bus, attach) -> N
 
 
 def test_dropped_frames_vanish_silently(clock, bus, attach) -> None:
+    """Fault injection 'drop the next N frames': the sender sees success, nobody receives (issue 2 §3)."""
     a, _ = attach("a")
     _, rx = attach("rx")
     bus.drop_next(1)
@@ -89,6 +97,8 @@ def test_dropped_frames_vanish_silently(clock, bus, attach) -> None:
 
 
 def test_wrong_bit_rate_sees_only_error_frames(clock, bus, attach) -> None:
+    """A controller at another bit rate sees error frames and receives nothing; its own sends fail with bit errors
+    until bus-off (issue 2 §3; docs/decisions.md)."""
     a, _ = attach("a")
     _, rx = attach("rx")
     slow, srx = attach("slow", bitrate=500_000)
@@ -108,6 +118,7 @@ def test_wrong_bit_rate_sees_only_error_frames(clock, bus, attach) -> None:
 
 
 def test_disconnected_controller_neither_sends_nor_receives(clock, bus, attach) -> None:
+    """Fault injection: disconnect / reconnect a controller; its queue waits (issue 2 §3)."""
     a, _ = attach("a")
     b, brx = attach("b")
     _, rx = attach("rx")
@@ -122,6 +133,7 @@ def test_disconnected_controller_neither_sends_nor_receives(clock, bus, attach) 
 
 
 def test_synthetic_load_occupies_the_requested_share(clock, bus, attach) -> None:
+    """Fault injection: synthetic bus load, measured by the bus load statistic (issue 2 §3)."""
     attach("rx")
     bus.set_load(30.0)
     clock.advance(1.0)

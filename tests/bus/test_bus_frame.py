@@ -22,11 +22,14 @@ from gatewaylab.common.errors import FrameError
     ({"can_id": 0x100, "data": b"\x01", "dlc": 2}, "does not match"),
 ])
 def test_impossible_frames_are_refused(kwargs: dict, message: str) -> None:
+    """Bad input at the API raises a clear error (issue 2 §3: DLC > 8 on classic CAN, no FD DLC for the length, id
+    out of range, RTR on FD)."""
     with pytest.raises(FrameError, match=message):
         CanFrame(**kwargs)
 
 
 def test_fd_frame_refused_on_a_classic_bus_and_bus_unharmed() -> None:
+    """An FD frame on a classic bus raises a clear error and never corrupts the bus (issue 2 §3)."""
     clock = SimulatedClock()
     bus = VirtualBus(clock, "classic", 500_000)
     got: list[CanFrame] = []
@@ -40,10 +43,12 @@ def test_fd_frame_refused_on_a_classic_bus_and_bus_unharmed() -> None:
 
 
 def test_fd_payload_lengths_map_to_dlc() -> None:
+    """CAN FD DLC 9..15 encode 12, 16, 20, 24, 32, 48, 64 bytes (ISO 11898-1:2015 DLC table; issue 2 §3)."""
     assert [CanFrame(1, bytes(n), fd=True).dlc for n in (8, 12, 16, 20, 24, 32, 48, 64)] == list(range(8, 16))
 
 
 def test_python_can_message_round_trip() -> None:
+    """Frames convert to python-can Messages and back without loss (FD flags, remote DLC)."""
     frame = CanFrame(0x1ABCDE, bytes(range(20)), extended=True, fd=True, brs=True, esi=True)
     assert CanFrame.from_message(frame.to_message(1.5)) == frame
     remote = CanFrame(0x7E5, rtr=True, dlc=8)

@@ -55,6 +55,8 @@ def test_canopen_reads_sdo_from_a_canopen_local_node(networks) -> None:
 
 
 def test_notifier_and_logger_record_the_traffic(networks, tmp_path: Path) -> None:
+    """python-can notifiers and loggers work unchanged on python_can_bus (issue 2 §3), recording CiA 301 SDO frames
+    0x605/0x585."""
     _, vbus, server, client = networks
     server.create_node(5, _od())
     remote = client.add_node(5, _od())

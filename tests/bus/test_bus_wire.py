@@ -15,12 +15,14 @@ def test_frame_record_golden_bytes() -> None:
 
 
 def test_hello_and_welcome_golden_bytes() -> None:
+    """docs/bus-wire.md HELLO and WELCOME layouts, byte for byte."""
     assert wire.encode_hello("ab", receive_own=True, fd=True) == bytes.fromhex("0500" "01" "01" "03" "6162")
     assert wire.encode_welcome("can0", 1_000_000, 5_000_000) == bytes.fromhex(
         "0F00" "02" "01" "01" "40420F00" "404B4C00" "63616E30")
 
 
 def test_records_survive_byte_by_byte_feeding() -> None:
+    """docs/bus-wire.md: the record stream decodes the same however it is split (byte-by-byte feeding)."""
     frames = [CanFrame(0x100 + i, bytes([i] * (i % 9))) for i in range(20)]
     frames.append(CanFrame(0x1, bytes(64), fd=True, brs=True))
     stream = b"".join(wire.encode_frame(f, i * 0.5) for i, f in enumerate(frames))
@@ -41,6 +43,8 @@ def test_records_survive_byte_by_byte_feeding() -> None:
     (bytes.fromhex("1800" "03" "23010000" "00" "09" "0000000000000000") + bytes(9), "DLC > 8"),
 ])
 def test_malformed_records_raise_protocol_error(garbage: bytes, reason: str) -> None:
+    """docs/bus-wire.md: malformed records (bad length, unknown type, impossible frame) raise ProtocolError, which
+    drops the client."""
     with pytest.raises(ProtocolError, match=reason):
         wire.RecordDecoder().feed(garbage)
 

@@ -22,6 +22,7 @@ def _subcommands() -> list[str]:
 
 
 def test_top_level_help_lists_every_subcommand() -> None:
+    """`gatewaylab --help` is complete: every sub-command is listed (issue 2 §4)."""
     out = subprocess.run([sys.executable, "-m", "gatewaylab", "--help"], capture_output=True, text=True,
                          check=True).stdout
     for name in _subcommands():
@@ -31,6 +32,7 @@ def test_top_level_help_lists_every_subcommand() -> None:
 
 @pytest.mark.parametrize("name", _subcommands())
 def test_every_subcommand_has_complete_help(name: str, capsys) -> None:
+    """Every sub-command's help is complete (issue 2 §4)."""
     with pytest.raises(SystemExit) as exc:
         main([name, "--help"])
     assert exc.value.code == 0
@@ -39,6 +41,7 @@ def test_every_subcommand_has_complete_help(name: str, capsys) -> None:
 
 
 def test_run_help_documents_ready_file_and_trace(capsys) -> None:
+    """`gatewaylab run --help` documents --ready-file, --trace BUS=FILE and the signals (issue 2 §4)."""
     with pytest.raises(SystemExit):
         main(["run", "--help"])
     out = capsys.readouterr().out
@@ -46,6 +49,7 @@ def test_run_help_documents_ready_file_and_trace(capsys) -> None:
 
 
 def test_default_rig_is_shipped_and_valid() -> None:
+    """Without a rig argument the default rig shipped in the package runs (issue 2 §4)."""
     cfg = load_rig(None)
     assert cfg.buses and cfg.buses[0].name == "can0"
 
@@ -60,11 +64,13 @@ def test_default_rig_is_shipped_and_valid() -> None:
     ({"bus": [{"name": "can0", "bitrate": 500_000, "data_bitrate": 100_000}]}, "data_bitrate"),
 ])
 def test_bad_rig_files_are_refused_with_a_clear_message(data: dict, message: str) -> None:
+    """A rig file that describes something impossible is refused with a ConfigError naming it (docs/rig.md)."""
     with pytest.raises(ConfigError, match=message):
         parse_rig(data)
 
 
 def test_run_reports_a_bad_rig_file_and_exits_nonzero(tmp_path: Path, capsys) -> None:
+    """`gatewaylab run` reports a bad rig file on stderr and exits 1, no traceback (docs/rig.md)."""
     rig = tmp_path / "bad.toml"
     rig.write_text("[[bus]]\nname = 'can0'\nbitrate = 'fast'\n")
     assert main(["run", str(rig)]) == 1
@@ -72,6 +78,7 @@ def test_run_reports_a_bad_rig_file_and_exits_nonzero(tmp_path: Path, capsys) ->
 
 
 def test_simulated_rig_from_python() -> None:
+    """A rig file with clock = 'simulated' builds buses on a SimulatedClock from Python (issue 2 §4, docs/rig.md)."""
     rig = Rig(parse_rig({"clock": "simulated", "bus": [{"name": "a"}, {"name": "b", "bitrate": 250_000}]}))
     try:
         assert isinstance(rig.clock, SimulatedClock) and not rig.servers

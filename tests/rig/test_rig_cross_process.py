@@ -26,6 +26,7 @@ endpoint = "tcp"
 
 
 def test_ready_file_lists_every_bus_endpoint(start_rig) -> None:
+    """--ready-file JSON: {pid, buses: {NAME: {endpoint}}} once everything is up (issue 2 §4)."""
     rig = start_rig(RIG)
     assert rig.info["pid"] == rig.proc.pid
     assert rig.endpoint("can0").startswith("unix:")
@@ -56,6 +57,7 @@ def test_canopen_in_another_process_reads_sdo_from_local_node_process(start_rig)
 
 
 def test_frames_between_plugin_clients_in_order_fd_included(start_rig) -> None:
+    """Across processes: reliable, ordered, CAN FD-capable (issue 2 §3), timestamps increasing."""
     rig = start_rig(RIG)
     with can.Bus(interface="gatewaylab", channel=rig.endpoint("can0")) as a, \
          can.Bus(interface="gatewaylab", channel=rig.endpoint("can0")) as b:
@@ -73,6 +75,8 @@ def test_frames_between_plugin_clients_in_order_fd_included(start_rig) -> None:
 
 
 def test_malformed_client_is_disconnected_and_others_carry_on(start_rig) -> None:
+    """A client that sends malformed data is disconnected with a logged reason; the bus and the other
+    clients carry on (issue 2 §3; docs/bus-wire.md BYE)."""
     rig = start_rig(RIG)
     path = rig.endpoint("can0")[len("unix:"):]
     with can.Bus(interface="gatewaylab", channel=rig.endpoint("can0")) as a, \
@@ -93,6 +97,7 @@ def test_malformed_client_is_disconnected_and_others_carry_on(start_rig) -> None
 
 
 def test_sigterm_shuts_down_cleanly_and_removes_endpoints(start_rig) -> None:
+    """SIGINT/SIGTERM shut the rig down cleanly and remove its endpoints and ready file (issue 2 §4)."""
     rig = start_rig(RIG)
     sock_path = Path(rig.endpoint("can0")[len("unix:"):])
     assert sock_path.exists() and rig.ready_file.exists()
@@ -103,6 +108,7 @@ def test_sigterm_shuts_down_cleanly_and_removes_endpoints(start_rig) -> None:
 
 @pytest.mark.parametrize("suffix", [".log", ".asc", ".blf"])
 def test_trace_files_are_written_with_python_can_writers(start_rig, tmp_path: Path, suffix: str) -> None:
+    """Traces with python-can's own writers (.log candump, .asc, .blf) from the CLI (issue 2 §3)."""
     trace = tmp_path / f"trace{suffix}"
     rig = start_rig(RIG, "--trace", f"can0={trace}")
     with can.Bus(interface="gatewaylab", channel=rig.endpoint("can0")) as a, \
