@@ -111,6 +111,8 @@ def test_bit_exact_fmmu_mapping(clock: SimulatedClock, segment: Segment) -> None
 
 
 def test_lrw_outside_any_fmmu_is_not_counted(segment: Segment) -> None:
+    """A logical access that hits no FMMU of any slave leaves the working counter at 0 (ETG.1000.4
+    logical addressing: only slaves whose FMMU maps the address take part)."""
     assert run(segment, Datagram(Command.LRW, 0, 0x9000, b"\x00\x00"))[0].wkc == 0
 
 
@@ -180,6 +182,8 @@ def test_sii_interface_read_write_reload(master: Master, segment: Segment) -> No
 @pytest.mark.parametrize("raw", [b"", b"\x0e", b"\x0e\x20" + bytes(14), b"\xff\x17" + bytes(20),
                                  b"\x0e\x10\x01\x00" + bytes(4)])
 def test_malformed_payloads_raise_frame_format_error(raw: bytes) -> None:
+    """Truncated headers, lengths past the payload and bad datagram chains are format errors, never
+    crashes (ETG.1000.4 datagram header: cmd, idx, address, len/flags, irq, data, WKC)."""
     with pytest.raises(FrameFormatError):
         decode_datagrams(raw)
 

@@ -52,6 +52,7 @@ def test_rig_segment_in_file_order_and_ready_info(tmp_path: Path) -> None:
 
 
 def test_rig_without_interface_is_refused(tmp_path: Path) -> None:
+    """An [ethercat] section must name its interface (issue 5: `[ethercat] interface = "NAME"`)."""
     path = tmp_path / "rig.toml"
     path.write_text('clock = "simulated"\n[[device]]\nkind = "ethercat_io"\n[ethercat]\npcap = "x"\n')
     with pytest.raises(Exception, match="interface"):
