@@ -7,9 +7,10 @@ and talks to its users through callbacks. The model is documented in ``docs/bus.
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from enum import Enum
+from types import MappingProxyType
 
 from ..common.clock import Clock, TimerHandle
 from ..common.errors import ConfigError, FrameError, LocalError
@@ -25,7 +26,7 @@ from .timing import (
 
 
 class ErrorState(Enum):
-    """Fault-confinement state of a controller (ISO 11898-1 clause 12)."""
+    """Fault-confinement state of a controller (CAN 2.0 §8 'Fault Confinement', carried into ISO 11898-1)."""
 
     ERROR_ACTIVE = "error-active"
     ERROR_PASSIVE = "error-passive"
@@ -121,20 +122,21 @@ class Controller:
         self._listen_only = listen_only
         self.auto_retransmit = auto_retransmit
         self.receive_own = receive_own
-        self.fd = fd
+        self._fd = fd
         self.auto_recover = auto_recover
-        self.on_frame = on_frame
-        #: Optional acceptance filter: ``{can_id: callback}`` for standard-format frames. When set,
-        #: the bus calls the callback for that identifier instead of ``on_frame`` and hands this
-        #: controller no extended frames (the controller still receives and counts every frame).
-        self.rx_table: dict[int, FrameCallback] | None = None
+        self._on_frame = on_frame
+        self._rx_table: dict[int, FrameCallback] | None = None
         self.on_event = on_event
         self.tx_queue: deque[CanFrame] = deque()
         self.tec = 0
         self.rec = 0
         self.state = ErrorState.ERROR_ACTIVE
         self._connected = True
-        self.stats = ControllerStats()
+        self._stats = ControllerStats()
+        #: frames (bytes) of this controller that the bus delivered in its present audience
+        #: epoch: a receiver does not count its own frames (see VirtualBus._settle_rx)
+        self._own_frames = 0
+        self._own_bytes = 0
         self.synthetic = False
         self._ready_at = 0.0
         self._recovery: TimerHandle | None = None
@@ -144,13 +146,60 @@ class Controller:
         return f"<Controller {self.bus.name}/{self.name} {self.state.value} TEC={self.tec} REC={self.rec}>"
 
     @property
+    def stats(self) -> ControllerStats:
+        """Frame and error counters (the bus counts received frames per audience and settles
+        them here when they are read)."""
+        self.bus._settle_rx()
+        return self._stats
+
+    @stats.setter
+    def stats(self, value: ControllerStats) -> None:
+        self.bus._settle_rx()
+        self._stats = value
+
+    @property
+    def on_frame(self) -> FrameCallback | None:
+        """``callback(frame, t)`` for every received frame (unless :attr:`rx_table` is set)."""
+        return self._on_frame
+
+    @on_frame.setter
+    def on_frame(self, value: FrameCallback | None) -> None:
+        self._on_frame = value
+        self.bus._routes = {}
+
+    @property
+    def rx_table(self) -> Mapping[int, FrameCallback] | None:
+        """Optional acceptance filter: ``{can_id: callback}`` for standard-format frames. When set,
+        the bus calls the callback for that identifier instead of ``on_frame`` and hands this
+        controller no extended frames (the controller still receives and counts every frame).
+        Assign a new table to change it: the bus keeps a copy (read back as a read-only view)."""
+        table = self._rx_table
+        return None if table is None else MappingProxyType(table)
+
+    @rx_table.setter
+    def rx_table(self, value: Mapping[int, FrameCallback] | None) -> None:
+        self._rx_table = None if value is None else dict(value)
+        self.bus._routes = {}
+
+    @property
+    def fd(self) -> bool:
+        """CAN FD capable: receives (and may send) FD frames."""
+        return self._fd
+
+    @fd.setter
+    def fd(self, value: bool) -> None:
+        self.bus._invalidate()
+        self._fd = value
+        self._check_timing()
+
+    @property
     def connected(self) -> bool:
         return self._connected
 
     @connected.setter
     def connected(self, value: bool) -> None:
+        self.bus._invalidate()
         self._connected = value
-        self.bus._receivers = None
 
     @property
     def listen_only(self) -> bool:
@@ -159,8 +208,8 @@ class Controller:
 
     @listen_only.setter
     def listen_only(self, value: bool) -> None:
+        self.bus._invalidate()
         self._listen_only = value
-        self.bus._receivers = None
 
     @property
     def bitrate(self) -> int:
@@ -184,10 +233,10 @@ class Controller:
     def _check_timing(self) -> None:
         """False when this controller's bit timing differs from the bus (it then sees only errors)."""
         bus = self.bus
+        bus._invalidate()
         self.timing_matches = self._bitrate == bus.bitrate and not (
-            self.fd and bus.data_bitrate is not None and self._data_bitrate is not None
+            self._fd and bus.data_bitrate is not None and self._data_bitrate is not None
             and self._data_bitrate != bus.data_bitrate)
-        bus._receivers = None
         if self.timing_matches and self.tx_queue and self.connected:
             bus._kick()
 
@@ -235,8 +284,8 @@ class Controller:
 
     def _set_state(self, new: ErrorState) -> None:
         old = self.state
+        self.bus._invalidate()
         self.state = new
-        self.bus._receivers = None
         clock = self.bus.clock
         if new is ErrorState.BUS_OFF:
             for frame in self.tx_queue:
@@ -260,15 +309,19 @@ class Controller:
             self.on_event(event)
 
     def _error(self, kind: ErrorKind, transmitter: bool, frame: CanFrame | None, t: float) -> None:
-        self.stats.error_frames += 1
+        self._stats.error_frames += 1
         if not self.listen_only:
             if transmitter:
-                # ISO 11898-1 12.1.4.2 rule c) exception 1: an error-passive transmitter that
+                # CAN 2.0 §8 rule 3, exception 1: an error-passive transmitter that
                 # detects an ACK error does not increase its TEC, so a lone sender stays passive.
                 if not (kind is ErrorKind.ACK and self.state is ErrorState.ERROR_PASSIVE):
                     self.tec += 8
             elif self.rec < 255:
                 self.rec += 1
+                if self.rec == 1 and self.timing_matches:
+                    # a receiver with REC > 0 counts it down with every frame it receives: the
+                    # bus delivers receiver by receiver while one is in its audience
+                    self.bus._invalidate()
         self._emit(ErrorFrameEvent(kind, t, transmitter, frame))
         self._update_state()
 
@@ -290,6 +343,19 @@ class Controller:
 #: The frame on the wire: (sender, frame, outcome "ok" | "ack" | "crc" | "drop", start, end);
 #: a plain tuple, built once per frame.
 _InFlight = tuple[Controller, CanFrame, str, float, float]
+
+
+#: (hearing controllers, controllers at a foreign bit rate, acknowledging controllers, whether a
+#: hearing controller has REC > 0)
+_Audience = tuple[list[Controller], list[Controller], list[Controller], bool]
+
+
+def _route_key(frame: CanFrame) -> int:
+    """Frames of one kind reach the same receivers: classic base frames by identifier; FD base
+    frames by identifier (in their own range); extended frames by format only."""
+    if frame.extended:
+        return -2 if frame.fd else -1
+    return frame.can_id + 0x800 if frame.fd else frame.can_id
 
 
 @dataclass(slots=True)
@@ -314,9 +380,18 @@ class VirtualBus:
         #: False: frames take no time (ordering and arbitration still apply). For load tests.
         self.timing = timing
         self.controllers: list[Controller] = []
-        #: Cached (receivers, foreign-rate controllers); None = recompute. Reset by every change
+        #: Cached audience (see _audience); None = recompute. Reset (_invalidate) by every change
         #: that decides who hears a frame: attach/detach, (dis)connect, error state, bit timing.
-        self._receivers: tuple[list[Controller], list[Controller], list[Controller]] | None = None
+        self._receivers: _Audience | None = None
+        #: Per frame kind (_route_key) the receivers of the audience that take such a frame and
+        #: their callbacks, built on first use; a new dict when the audience or a callback changes.
+        self._routes: dict[int, tuple[tuple[Controller, FrameCallback, int], ...]] = {}
+        #: Frames / bytes delivered in the present audience epoch (all, and those that were FD):
+        #: receive counters are settled from these (_settle_rx) instead of per receiver and frame.
+        self._ep_frames = 0
+        self._ep_bytes = 0
+        self._ep_fd_frames = 0
+        self._ep_fd_bytes = 0
         self.stats = BusStats(since=clock.now())
         self._monitors: list[FrameCallback] = []
         self._in_flight: _InFlight | None = None
@@ -330,6 +405,8 @@ class VirtualBus:
         self._kick_deferred = False
         #: (bit rate, durations of classic base data frames with 0..8 bytes) for that bit rate
         self._classic_durations: tuple[int, tuple[float, ...]] | None = None
+        #: The end of the frame on the wire (one at a time): one handle, queued again per frame.
+        self._eof_handle = TimerHandle(0.0, 0, self._end_of_frame, ())
 
     def __repr__(self) -> str:
         fd = f"/{self.data_bitrate}" if self.data_bitrate else ""
@@ -377,7 +454,7 @@ class VirtualBus:
         if ctrl in self.controllers:
             self.controllers.remove(ctrl)
             ctrl.connected = False
-            self._receivers = None
+            self._invalidate()
             ctrl.tx_queue.clear()
 
     def add_monitor(self, callback: FrameCallback) -> None:
@@ -440,8 +517,8 @@ class VirtualBus:
         frame = CanFrame(can_id, bytes(length))
         load = _Load(percent, frame)
         ctrl = self.attach("<load>", auto_recover=True)
+        self._invalidate()
         ctrl.synthetic = True
-        self._receivers = None
         load.controller = ctrl
         self._load = load
         self._load_tick()
@@ -463,8 +540,9 @@ class VirtualBus:
 
     def reset_stats(self) -> None:
         self.stats = BusStats(since=self.clock.now())
+        self._settle_rx()
         for c in self.controllers:
-            c.stats = ControllerStats()
+            c._stats = ControllerStats()
 
     # -- the arbitration engine --------------------------------------------------------------
     def _kick(self) -> None:
@@ -543,7 +621,7 @@ class VirtualBus:
             end = now + duration
             if duration:
                 self._in_flight = (best, frame, outcome, now, end)
-                self.clock.call_at(end, self._end_of_frame)
+                self.clock.reschedule(self._eof_handle, end)
                 return
             # no frame timing: the frame ends at once (what _end_of_frame does), then the next
             # arbitration at the same instant (a loop instead of the recursion through _end_of_frame)
@@ -601,7 +679,7 @@ class VirtualBus:
             # the common case first: a frame sent and acknowledged (same steps as below)
             queue.popleft()
             n = len(frame.data)
-            st = sender.stats
+            st = sender._stats
             st.tx_frames += 1
             st.tx_bytes += n
             if sender.tec:
@@ -625,7 +703,7 @@ class VirtualBus:
         elif outcome == "ok" or outcome == "drop":
             sender.tx_queue.popleft()
             n = len(frame.data)
-            st = sender.stats
+            st = sender._stats
             st.tx_frames += 1
             st.tx_bytes += n
             if sender.tec:
@@ -643,7 +721,7 @@ class VirtualBus:
         else:
             stats.error_frames += 1
             kind = ErrorKind.ACK if outcome == "ack" else ErrorKind.CRC
-            sender.stats.tx_retransmissions += 1
+            sender._stats.tx_retransmissions += 1
             sender._error(kind, True, frame, now)
             sender._ready_at = now
             if kind is ErrorKind.CRC:
@@ -660,44 +738,127 @@ class VirtualBus:
         if arbitrate:
             self._arbitrate(now)
 
-    def _audience(self) -> tuple[list[Controller], list[Controller], list[Controller]]:
+    def _audience(self) -> _Audience:
         """(controllers that hear frames, controllers at a foreign bit rate, hearing controllers
-        that acknowledge: not listen-only), cached."""
+        that acknowledge: not listen-only, whether a hearing controller has REC > 0), cached.
+        Building it starts a new epoch of receive counting."""
         cached = self._receivers
         if cached is None:
             live = [c for c in self.controllers
                     if c._connected and c.state is not ErrorState.BUS_OFF and not c.synthetic]
             hear = [c for c in live if c.timing_matches]
-            cached = (hear, [c for c in live if not c.timing_matches], [c for c in hear if not c._listen_only])
+            for c in hear:
+                c._own_frames = c._own_bytes = 0
+            self._ep_frames = self._ep_bytes = self._ep_fd_frames = self._ep_fd_bytes = 0
+            cached = (hear, [c for c in live if not c.timing_matches], [c for c in hear if not c._listen_only],
+                      any(c.rec for c in hear))
             self._receivers = cached
+            self._routes = {}
         return cached
 
-    def _deliver(self, sender: Controller, frame: CanFrame, now: float) -> None:
-        fd = frame.fd
-        n = len(frame.data)
+    def _invalidate(self) -> None:
+        """Who hears frames may change: settle the receive counters of the present audience,
+        forget it and the routes."""
+        if self._receivers is not None:
+            self._settle_rx()
+            self._receivers = None
+        self._routes = {}
+
+    def _settle_rx(self) -> None:
+        """Add the frames delivered in this audience epoch to each receiver's counters (all
+        frames to an FD controller, the classic ones to the others, never its own)."""
         cached = self._receivers
-        receivers, foreign, _ = cached if cached is not None else self._audience()
-        if sender.receive_own and sender.on_frame is not None:
-            sender.on_frame(frame, now)
+        frames = self._ep_frames
+        if cached is None or not frames:
+            return
+        nbytes = self._ep_bytes
+        fd_frames, fd_bytes = self._ep_fd_frames, self._ep_fd_bytes
+        for c in cached[0]:
+            st = c._stats
+            if c._fd:
+                st.rx_frames += frames - c._own_frames
+                st.rx_bytes += nbytes - c._own_bytes
+            else:
+                st.rx_frames += frames - fd_frames - c._own_frames
+                st.rx_bytes += nbytes - fd_bytes - c._own_bytes
+            c._own_frames = c._own_bytes = 0
+        self._ep_frames = self._ep_bytes = self._ep_fd_frames = self._ep_fd_bytes = 0
+
+    def _route(self, frame: CanFrame) -> tuple[tuple[Controller, FrameCallback, int], ...]:
+        """The receivers (in audience order, with their place in it) that get a callback for a
+        frame of this kind, and that callback; cached per _route_key."""
+        receivers = self._audience()[0]
+        fd = frame.fd
         can_id = -1 if frame.extended else frame.can_id
-        for c in receivers:
-            if c is sender or (fd and not c.fd):
+        route = []
+        for i, c in enumerate(receivers):
+            if fd and not c._fd:
                 continue
-            st = c.stats
-            st.rx_frames += 1
-            st.rx_bytes += n
-            if c.rec:
-                c.rec = c.rec - 1 if c.rec <= 127 else 120
-                if c.state is not ErrorState.ERROR_ACTIVE:
-                    c._update_state()
-            table = c.rx_table
-            cb = c.on_frame if table is None else table.get(can_id)
+            table = c._rx_table
+            cb = c._on_frame if table is None else table.get(can_id)
             if cb is not None:
-                cb(frame, now)
+                route.append((c, cb, i))
+        found = tuple(route)
+        self._routes[_route_key(frame)] = found
+        return found
+
+    def _deliver(self, sender: Controller, frame: CanFrame, now: float) -> None:
+        cached = self._receivers
+        receivers, foreign, _, eager = cached if cached is not None else self._audience()
+        n = len(frame.data)
+        self._ep_frames += 1
+        self._ep_bytes += n
+        fd = frame.fd
+        if fd:
+            self._ep_fd_frames += 1
+            self._ep_fd_bytes += n
+        sender._own_frames += 1
+        sender._own_bytes += n
+        if sender.receive_own and sender._on_frame is not None:
+            sender._on_frame(frame, now)
+        if eager:
+            self._deliver_each(sender, frame, now, receivers, 0)
+        else:
+            routes = self._routes
+            key = frame.can_id if not (fd or frame.extended) else _route_key(frame)
+            route = routes.get(key)
+            if route is None:
+                route = self._route(frame)
+                routes = self._routes
+            for c, cb, i in route:
+                if c is not sender:
+                    cb(frame, now)
+                    if self._routes is not routes:
+                        # a callback changed the audience or a callback: the rest of this
+                        # frame's receivers are served one by one, as they are now
+                        self._deliver_each(sender, frame, now, receivers, i + 1)
+                        break
         for c in foreign:
             c._error(ErrorKind.FORM, False, None, now)  # a foreign bit rate sees only garbage
         for monitor in self._monitors:
             monitor(frame, now)
+
+    def _deliver_each(self, sender: Controller, frame: CanFrame, now: float,
+                      receivers: list[Controller], first: int) -> None:
+        """Delivery to ``receivers[first:]`` one by one: a receiver with REC > 0 counts it down
+        (ISO 11898-1 fault confinement) before its callback runs."""
+        fd = frame.fd
+        can_id = -1 if frame.extended else frame.can_id
+        cleared = False
+        for c in receivers[first:]:
+            if c is sender or (fd and not c._fd):
+                continue
+            if c.rec:
+                c.rec = c.rec - 1 if c.rec <= 127 else 120
+                cleared = cleared or not c.rec
+                if c.state is not ErrorState.ERROR_ACTIVE:
+                    c._update_state()
+            table = c._rx_table
+            cb = c._on_frame if table is None else table.get(can_id)
+            if cb is not None:
+                cb(frame, now)
+        if cleared and self._receivers is not None and not any(c.rec for c in self._receivers[0]):
+            self._invalidate()   # nobody counts down any more: back to the routes
 
     def _foreign_errors(self, now: float) -> None:
         """Controllers at another bit rate see every frame as a form error (and nothing else)."""

@@ -78,6 +78,16 @@ class Clock:
         heapq.heappush(self._heap, (when, seq, handle))
         return handle
 
+    def reschedule(self, handle: TimerHandle, when: float) -> None:
+        """Queue a handle that has run (and is not queued any more) again for ``when``: a fresh
+        scheduling (it runs after the events already scheduled for that instant), no new handle.
+        For an owner that keeps at most one run of a callback pending (a bus's end of frame)."""
+        self._seq = seq = self._seq + 1
+        handle.when = when
+        handle.seq = seq
+        handle.cancelled = False
+        heapq.heappush(self._heap, (when, seq, handle))
+
     def call_later(self, delay: float, callback: Callback, *args: Any) -> TimerHandle:
         if delay < 0:
             raise LocalError(f"negative delay {delay}")
@@ -137,9 +147,17 @@ class PeriodicTimer:
 
     def _fire(self) -> None:
         # origin + k * period: no accumulated rounding error however long it runs.
-        self._count += 1
-        self.next_time = self._origin + self._count * self.period
-        self._handle = self.clock.call_at(self.next_time, self._fire)
+        self._count = count = self._count + 1
+        self.next_time = when = self._origin + count * self.period
+        # the handle that has just fired is queued again (clock.reschedule written out): one
+        # pending run per timer, so it needs no new handle per period
+        handle = self._handle
+        if handle is not None:
+            clock = self.clock
+            clock._seq = seq = clock._seq + 1
+            handle.when = when
+            handle.seq = seq
+            heapq.heappush(clock._heap, (when, seq, handle))
         self.callback(*self.args)
 
     def cancel(self) -> None:
@@ -195,13 +213,15 @@ class SimulatedClock(Clock):
                     self._drain_injected()
                 if not heap:
                     break
-                when, _, handle = heap[0]
+                # pop first (one heap operation per event); the one event beyond t goes back
+                # with its own (when, seq), so the queue order is unchanged
+                item = pop(heap)
+                when, _, handle = item
                 if handle.cancelled:
-                    pop(heap)
                     continue
                 if when > t:
+                    heapq.heappush(heap, item)
                     break
-                pop(heap)
                 if when > self._now:
                     self._now = when
                 handle.callback(*handle.args)
