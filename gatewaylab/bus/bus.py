@@ -345,9 +345,31 @@ class Controller:
 _InFlight = tuple[Controller, CanFrame, str, float, float]
 
 
-#: (hearing controllers, controllers at a foreign bit rate, acknowledging controllers, whether a
-#: hearing controller has REC > 0)
-_Audience = tuple[list[Controller], list[Controller], list[Controller], bool]
+class _Audience:
+    """Who takes part in frames while nothing changes on the bus (cached by the bus)."""
+
+    __slots__ = ("acks", "eager", "foreign", "hear", "many_acks", "senders", "sole_ack")
+
+    def __init__(self, controllers: list[Controller]) -> None:
+        #: connected, not bus-off, matching bit timing: the controllers that may win arbitration
+        self.senders = [c for c in controllers
+                        if c._connected and c.state is not _BUS_OFF and c.timing_matches]
+        live = [c for c in controllers if c._connected and c.state is not _BUS_OFF and not c.synthetic]
+        #: controllers that hear frames (in attachment order)
+        self.hear = [c for c in live if c.timing_matches]
+        #: controllers at a foreign bit rate: every frame is a form error to them
+        self.foreign = [c for c in live if not c.timing_matches]
+        #: hearing controllers that acknowledge (not listen-only)
+        self.acks = [c for c in self.hear if not c._listen_only]
+        #: a classic frame is acknowledged when two or more acknowledge, or one that is not its sender
+        self.many_acks = len(self.acks) > 1
+        self.sole_ack = self.acks[0] if len(self.acks) == 1 else None
+        #: a hearing controller has REC > 0: frames are delivered receiver by receiver
+        self.eager = any(c.rec for c in self.hear)
+
+
+#: receivers of a frame kind with their callbacks and their place in the audience
+_Route = tuple[tuple[Controller, FrameCallback, int], ...]
 
 
 def _route_key(frame: CanFrame) -> int:
@@ -385,7 +407,7 @@ class VirtualBus:
         self._receivers: _Audience | None = None
         #: Per frame kind (_route_key) the receivers of the audience that take such a frame and
         #: their callbacks, built on first use; a new dict when the audience or a callback changes.
-        self._routes: dict[int, tuple[tuple[Controller, FrameCallback, int], ...]] = {}
+        self._routes: dict[int, _Route] = {}
         #: Frames / bytes delivered in the present audience epoch (all, and those that were FD):
         #: receive counters are settled from these (_settle_rx) instead of per receiver and frame.
         self._ep_frames = 0
@@ -563,12 +585,16 @@ class VirtualBus:
             return
         now = self.clock.now() if start is None else start
         while True:
+            audience = self._receivers
+            if audience is None:
+                audience = self._audience()
             best: Controller | None = None
             best_key = 0
             wait_until: float | None = None
-            for c in self.controllers:
+            # the audience's senders: connected, not bus-off, matching bit timing
+            for c in audience.senders:
                 queue = c.tx_queue
-                if not queue or not c._connected or c.state is _BUS_OFF or not c.timing_matches:
+                if not queue:
                     continue
                 if c._ready_at > now:
                     wait_until = c._ready_at if wait_until is None else min(wait_until, c._ready_at)
@@ -591,14 +617,11 @@ class VirtualBus:
             elif self._corrupt_next:
                 self._corrupt_next -= 1
                 outcome = "crc"
-            else:
-                cached = self._receivers
-                acks = (cached if cached is not None else self._audience())[2]
-                if frame.fd:
-                    acked = self._acknowledged(best, frame)
-                else:   # _acknowledged for a classic frame: anyone but the sender acknowledges
-                    acked = len(acks) > 1 or (len(acks) == 1 and acks[0] is not best)
-                outcome = "ok" if acked else "ack"
+            elif frame.fd:
+                outcome = "ok" if self._acknowledged(best, frame) else "ack"
+            else:   # _acknowledged for a classic frame: anyone but the sender acknowledges
+                sole = audience.sole_ack
+                outcome = "ok" if audience.many_acks or (sole is not None and sole is not best) else "ack"
             if not self.timing:
                 duration = 0.0
             elif outcome == "ok" or outcome == "drop":
@@ -633,8 +656,8 @@ class VirtualBus:
 
     def _acknowledged(self, sender: Controller, frame: CanFrame) -> bool:
         # the cached audience: connected, not bus-off, not synthetic, matching bit timing
-        cached = self._receivers
-        acks = (cached if cached is not None else self._audience())[2]
+        audience = self._receivers
+        acks = (audience if audience is not None else self._audience()).acks
         if not frame.fd:
             n = len(acks)
             return n > 1 or (n == 1 and acks[0] is not sender)
@@ -673,7 +696,8 @@ class VirtualBus:
         sender, frame, outcome, start, now = flight
         self._idle_at = now
         stats = self.stats
-        stats.busy_time += now - max(start, stats.since)
+        since = stats.since
+        stats.busy_time += now - (since if since > start else start)   # max(start, since)
         queue = sender.tx_queue
         if outcome == "ok" and queue and queue[0] is frame:
             # the common case first: a frame sent and acknowledged (same steps as below)
@@ -688,7 +712,28 @@ class VirtualBus:
                     sender._update_state()
             stats.frames += 1
             stats.bytes += n
-            self._deliver(sender, frame, now)
+            audience = self._receivers
+            if (audience is None or audience.eager or frame.fd or frame.extended or sender.receive_own
+                    or audience.foreign or self._monitors):
+                self._deliver(sender, frame, now)
+            else:
+                # _deliver for a classic base frame on a bus without listeners to every frame,
+                # written out: count it for the epoch, call the route of its identifier
+                self._ep_frames += 1
+                self._ep_bytes += n
+                sender._own_frames += 1
+                sender._own_bytes += n
+                routes = self._routes
+                route = routes.get(frame.can_id)
+                if route is None:
+                    route = self._route(frame)
+                    routes = self._routes
+                for c, cb, i in route:
+                    if c is not sender:
+                        cb(frame, now)
+                        if self._routes is not routes:
+                            self._deliver_each(sender, frame, now, audience.hear, i + 1)
+                            break
             if sender.on_event is not None:
                 sender.on_event(TxDoneEvent(frame, now))
             if arbitrate:
@@ -739,22 +784,17 @@ class VirtualBus:
             self._arbitrate(now)
 
     def _audience(self) -> _Audience:
-        """(controllers that hear frames, controllers at a foreign bit rate, hearing controllers
-        that acknowledge: not listen-only, whether a hearing controller has REC > 0), cached.
-        Building it starts a new epoch of receive counting."""
-        cached = self._receivers
-        if cached is None:
-            live = [c for c in self.controllers
-                    if c._connected and c.state is not ErrorState.BUS_OFF and not c.synthetic]
-            hear = [c for c in live if c.timing_matches]
-            for c in hear:
+        """Who takes part in the next frames (see :class:`_Audience`), cached until something
+        changes it. Building it starts a new epoch of receive counting."""
+        audience = self._receivers
+        if audience is None:
+            audience = _Audience(self.controllers)
+            for c in audience.hear:
                 c._own_frames = c._own_bytes = 0
             self._ep_frames = self._ep_bytes = self._ep_fd_frames = self._ep_fd_bytes = 0
-            cached = (hear, [c for c in live if not c.timing_matches], [c for c in hear if not c._listen_only],
-                      any(c.rec for c in hear))
-            self._receivers = cached
+            self._receivers = audience
             self._routes = {}
-        return cached
+        return audience
 
     def _invalidate(self) -> None:
         """Who hears frames may change: settle the receive counters of the present audience,
@@ -767,13 +807,13 @@ class VirtualBus:
     def _settle_rx(self) -> None:
         """Add the frames delivered in this audience epoch to each receiver's counters (all
         frames to an FD controller, the classic ones to the others, never its own)."""
-        cached = self._receivers
+        audience = self._receivers
         frames = self._ep_frames
-        if cached is None or not frames:
+        if audience is None or not frames:
             return
         nbytes = self._ep_bytes
         fd_frames, fd_bytes = self._ep_fd_frames, self._ep_fd_bytes
-        for c in cached[0]:
+        for c in audience.hear:
             st = c._stats
             if c._fd:
                 st.rx_frames += frames - c._own_frames
@@ -784,10 +824,10 @@ class VirtualBus:
             c._own_frames = c._own_bytes = 0
         self._ep_frames = self._ep_bytes = self._ep_fd_frames = self._ep_fd_bytes = 0
 
-    def _route(self, frame: CanFrame) -> tuple[tuple[Controller, FrameCallback, int], ...]:
+    def _route(self, frame: CanFrame) -> _Route:
         """The receivers (in audience order, with their place in it) that get a callback for a
         frame of this kind, and that callback; cached per _route_key."""
-        receivers = self._audience()[0]
+        receivers = self._audience().hear
         fd = frame.fd
         can_id = -1 if frame.extended else frame.can_id
         route = []
@@ -803,8 +843,9 @@ class VirtualBus:
         return found
 
     def _deliver(self, sender: Controller, frame: CanFrame, now: float) -> None:
-        cached = self._receivers
-        receivers, foreign, _, eager = cached if cached is not None else self._audience()
+        audience = self._receivers
+        if audience is None:
+            audience = self._audience()
         n = len(frame.data)
         self._ep_frames += 1
         self._ep_bytes += n
@@ -816,8 +857,8 @@ class VirtualBus:
         sender._own_bytes += n
         if sender.receive_own and sender._on_frame is not None:
             sender._on_frame(frame, now)
-        if eager:
-            self._deliver_each(sender, frame, now, receivers, 0)
+        if audience.eager:
+            self._deliver_each(sender, frame, now, audience.hear, 0)
         else:
             routes = self._routes
             key = frame.can_id if not (fd or frame.extended) else _route_key(frame)
@@ -831,9 +872,9 @@ class VirtualBus:
                     if self._routes is not routes:
                         # a callback changed the audience or a callback: the rest of this
                         # frame's receivers are served one by one, as they are now
-                        self._deliver_each(sender, frame, now, receivers, i + 1)
+                        self._deliver_each(sender, frame, now, audience.hear, i + 1)
                         break
-        for c in foreign:
+        for c in audience.foreign:
             c._error(ErrorKind.FORM, False, None, now)  # a foreign bit rate sees only garbage
         for monitor in self._monitors:
             monitor(frame, now)
@@ -857,10 +898,11 @@ class VirtualBus:
             cb = c._on_frame if table is None else table.get(can_id)
             if cb is not None:
                 cb(frame, now)
-        if cleared and self._receivers is not None and not any(c.rec for c in self._receivers[0]):
+        audience = self._receivers
+        if cleared and audience is not None and not any(c.rec for c in audience.hear):
             self._invalidate()   # nobody counts down any more: back to the routes
 
     def _foreign_errors(self, now: float) -> None:
         """Controllers at another bit rate see every frame as a form error (and nothing else)."""
-        for c in self._audience()[1]:
+        for c in self._audience().foreign:
             c._error(ErrorKind.FORM, False, None, now)
