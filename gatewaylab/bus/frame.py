@@ -2,15 +2,16 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from collections.abc import Callable
+from dataclasses import dataclass, fields
+from typing import TYPE_CHECKING, Any
 
 from ..common.errors import FrameError
 
 if TYPE_CHECKING:
     import can
 
-#: CAN FD DLC -> payload length (ISO 11898-1:2015 table 5); DLC 0..8 mean 0..8 bytes.
+#: CAN FD DLC -> payload length (ISO 11898-1:2015); DLC 0..8 mean 0..8 bytes.
 FD_DLC_TO_LEN: tuple[int, ...] = (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64)
 FD_LEN_TO_DLC: dict[int, int] = {n: i for i, n in enumerate(FD_DLC_TO_LEN)}
 MAX_STD_ID = 0x7FF
@@ -46,20 +47,21 @@ class CanFrame:
                  fd: bool = False, brs: bool = False, esi: bool = False, dlc: int = -1) -> None:
         # Written out (dataclass keeps an explicit __init__): the classic base data frame that
         # nearly every protocol sends is checked and built in one step, everything else takes
-        # the full validation of __post_init__.
-        _set = object.__setattr__
-        _set(self, "can_id", can_id)
-        _set(self, "data", data)
-        _set(self, "extended", extended)
-        _set(self, "rtr", rtr)
-        _set(self, "fd", fd)
-        _set(self, "brs", brs)
-        _set(self, "esi", esi)
+        # the full validation of __post_init__. The fields are set through their slot
+        # descriptors (what object.__setattr__ ends in, without looking the name up).
+        set_id, set_data, set_ext, set_rtr, set_fd, set_brs, set_esi, set_dlc = _SLOT_SETTERS
+        set_id(self, can_id)
+        set_data(self, data)
+        set_ext(self, extended)
+        set_rtr(self, rtr)
+        set_fd(self, fd)
+        set_brs(self, brs)
+        set_esi(self, esi)
         if (type(data) is bytes and dlc == -1 and not (extended or rtr or fd or brs or esi)
                 and type(can_id) is int and 0 <= can_id <= MAX_STD_ID and len(data) <= 8):
-            _set(self, "dlc", len(data))
+            set_dlc(self, len(data))
         else:
-            _set(self, "dlc", dlc)
+            set_dlc(self, dlc)
             self.__post_init__()
 
     def __post_init__(self) -> None:
@@ -136,3 +138,8 @@ class CanFrame:
                        msg.bitrate_switch, msg.error_state_indicator, msg.dlc)
         return cls(msg.arbitration_id, data, msg.is_extended_id, False, msg.is_fd,
                    msg.bitrate_switch, msg.error_state_indicator)
+
+
+#: The setters of CanFrame's slots in field order (frozen: only __init__ / __post_init__ use them).
+_SLOT_SETTERS: tuple[Callable[[CanFrame, Any], None], ...] = tuple(
+    vars(CanFrame)[f.name].__set__ for f in fields(CanFrame))
