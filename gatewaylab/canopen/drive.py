@@ -429,8 +429,8 @@ class Drive:
                 target = float(int(values[0x607A, 0]) + int(values[0x60B0, 0]))
                 low = int(values[0x607D, 1])
                 high = int(values[0x607D, 2])
-                if low < high:   # software position limits (as _soft_limits)
-                    clamped = _clamp(target, low, high)
+                if low < high:   # software position limits (as _soft_limits, _clamp written out)
+                    clamped = low if target < low else high if target > high else target
                     if clamped != target:
                         self.internal_limit = True
                     target = clamped
@@ -720,8 +720,26 @@ class Drive:
         st = plant.state
         lo, hi = _I32_MIN, _I32_MAX
         values = self._v
-        watch = self.node.pdo.watch
-        changed = self.node.pdo.value_changed
+        pdo = self.node.pdo
+        watch = pdo.watch
+        if not watch:
+            # no event-driven TPDO watches any value: store them all (an unchanged value is
+            # stored as the same int), in the same order, from the same expressions as below
+            values[_K_POSITION] = round(lo if x < lo else hi if x > hi else x)
+            v = st.velocity
+            values[_K_VELOCITY] = round(lo if v < lo else hi if v > hi else v)
+            v = st.torque
+            values[_K_TORQUE] = values[_K_TORQUE_DEMAND] = round(
+                -0x8000 if v < -0x8000 else 0x7FFF if v > 0x7FFF else v)
+            v = self.demand
+            values[_K_POSITION_DEMAND] = round(lo if v < lo else hi if v > hi else v)
+            v = self.demand_velocity
+            values[_K_VELOCITY_DEMAND] = round(lo if v < lo else hi if v > hi else v)
+            values[_K_FOLLOWING_ERROR] = round(lo if fe < lo else hi if fe > hi else fe)
+            values[_K_INPUTS] = plant.digital_inputs()
+            values[_K_STATUSWORD] = self.statusword()
+            return
+        changed = pdo.value_changed
         value = round(lo if x < lo else hi if x > hi else x)
         if values[_K_POSITION] != value:
             values[_K_POSITION] = value
