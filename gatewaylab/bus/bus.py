@@ -253,7 +253,7 @@ class Controller:
                 raise FrameError(f"{self.name}: controller is not CAN FD capable")
             if self.bus.data_bitrate is None:
                 raise FrameError(f"bus {self.bus.name} is classic CAN (no data_bitrate): FD frame refused")
-        if self.state is ErrorState.BUS_OFF:
+        if self.state is _BUS_OFF:
             raise LocalError(f"{self.name}: controller is bus-off")
         self.tx_queue.append(frame)
         if not self._connected:

@@ -317,8 +317,19 @@ class Drive:
             else:
                 self._enter(new, transition)
         if self.state is _OPERATION_ENABLED:
-            self._mode_control(cw, prev)
-        self._put(_K_STATUSWORD, self.statusword())   # _publish
+            mode = self.mode
+            if mode is _PP or mode is _HOMING:
+                self._mode_control(cw, prev)
+            else:   # what _mode_control does in the other modes
+                self.halted = bool(cw & _CW_HALT)
+        # _publish (self._put written out: every SYNC of every drive)
+        sw = self.statusword()
+        values = self._v
+        if values[_K_STATUSWORD] != sw:
+            values[_K_STATUSWORD] = sw
+            pdo = self.node.pdo
+            if _K_STATUSWORD in pdo.watch:
+                pdo.value_changed(_K_STATUSWORD)
 
     def _enter(self, new: PdsState, transition: int) -> None:
         old = self.state
@@ -667,36 +678,37 @@ class Drive:
     # -- outputs ----------------------------------------------------------------------------
     def statusword(self) -> int:
         """0x6041 from the FSA state, NMT state and the mode's bits (plain ints: 1 kHz path)."""
+        # enum members through module constants: Enum class attribute access is slow in 3.11
         state = self.state
         sw = STATE_BITS[state]
-        if self.node.nmt_state is NmtState.OPERATIONAL:
+        if self.node.nmt_state is _NMT_OPERATIONAL:
             sw |= _SW_REMOTE
         if self.fe_warning:
             sw |= _SW_WARNING
         if self.internal_limit or self.plant.state.saturated:
             sw |= _SW_INTERNAL_LIMIT
         mode = self.mode
-        enabled = state is PdsState.OPERATION_ENABLED
-        if mode is OpMode.CYCLIC_SYNC_POSITION:
+        enabled = state is _OPERATION_ENABLED
+        if mode is _CSP:
             if enabled:
                 sw |= _SW_BIT12
             if self.fe_warning:
                 sw |= _SW_BIT13
-        elif mode is OpMode.PROFILE_POSITION:
+        elif mode is _PP:
             if self.target_reached or (self.halted and self.profile.velocity == 0.0):
                 sw |= _SW_TARGET_REACHED
             if self.setpoint_ack:
                 sw |= _SW_BIT12
             if self.fe_warning:
                 sw |= _SW_BIT13
-        elif mode is OpMode.PROFILE_VELOCITY:
+        elif mode is _PV:
             if self.target_reached:
                 sw |= _SW_TARGET_REACHED
             if abs(self.plant.state.velocity) < 1.0:
                 sw |= _SW_BIT12
-        elif mode is OpMode.HOMING:
+        elif mode is _HOMING:
             sw |= self.homing_status.bits
-        elif enabled and mode in (OpMode.CYCLIC_SYNC_VELOCITY, OpMode.CYCLIC_SYNC_TORQUE):
+        elif enabled and (mode is _CSV or mode is _CST):
             sw |= _SW_BIT12
         return sw
 
@@ -800,6 +812,12 @@ _SW_BIT12 = int(Sw.OP_SPECIFIC_12)
 _SW_BIT13 = int(Sw.OP_SPECIFIC_13)
 _I32_MIN, _I32_MAX = -0x80000000, 0x7FFFFFFF
 _CSP = OpMode.CYCLIC_SYNC_POSITION
+_PP = OpMode.PROFILE_POSITION
+_PV = OpMode.PROFILE_VELOCITY
+_HOMING = OpMode.HOMING
+_CSV = OpMode.CYCLIC_SYNC_VELOCITY
+_CST = OpMode.CYCLIC_SYNC_TORQUE
+_NMT_OPERATIONAL = NmtState.OPERATIONAL
 _OPERATION_ENABLED = PdsState.OPERATION_ENABLED
 _POSITION = ControlMode.POSITION
 _K_STATUSWORD = (0x6041, 0)

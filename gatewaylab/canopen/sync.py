@@ -116,7 +116,11 @@ class Sync:
         pdo = node.pdo
         operational = node.nmt_state is _OPERATIONAL
         if operational:
-            pdo.apply_sync_rpdos()
+            for rpdo in pdo.rpdo:     # PdoManager.apply_sync_rpdos, written out
+                data = rpdo._pending
+                if data is not None:
+                    rpdo._pending = None
+                    rpdo.apply(data)
         listeners = self.listeners
         if listeners:
             for listener in list(listeners):
