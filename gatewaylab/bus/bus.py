@@ -429,6 +429,8 @@ class VirtualBus:
         self._classic_durations: tuple[int, tuple[float, ...]] | None = None
         #: The end of the frame on the wire (one at a time): one handle, queued again per frame.
         self._eof_handle = TimerHandle(0.0, 0, self._end_of_frame, ())
+        #: The arbitration a sent frame asks for (_kick): one handle, queued again per kick.
+        self._arb_handle = TimerHandle(0.0, 0, self._arbitrate, ())
 
     def __repr__(self) -> str:
         fd = f"/{self.data_bitrate}" if self.data_bitrate else ""
@@ -575,7 +577,13 @@ class VirtualBus:
                 self._kick_deferred = True
                 return
             clock = self.clock
-            self._arb_timer = clock.call_at(max(clock.now(), self._idle_at), self._arbitrate)
+            now = clock.now()
+            idle_at = self._idle_at
+            # call_at(max(now, idle_at), self._arbitrate) with the bus's own handle: it is
+            # never cancelled, so it can be queued again however many runs of it are pending
+            handle = self._arb_handle
+            clock.reschedule(handle, idle_at if idle_at > now else now)
+            self._arb_timer = handle
 
     def _arbitrate(self, start: float | None = None) -> None:
         """Start the next frame at ``start`` (default now): in real time a late wake-up must not
