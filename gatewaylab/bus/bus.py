@@ -348,7 +348,7 @@ _InFlight = tuple[Controller, CanFrame, str, float, float]
 class _Audience:
     """Who takes part in frames while nothing changes on the bus (cached by the bus)."""
 
-    __slots__ = ("acks", "eager", "foreign", "hear", "many_acks", "senders", "sole_ack")
+    __slots__ = ("acks", "eager", "foreign", "hear", "many_acks", "plain", "senders", "sole_ack")
 
     def __init__(self, controllers: list[Controller]) -> None:
         #: connected, not bus-off, matching bit timing: the controllers that may win arbitration
@@ -366,6 +366,8 @@ class _Audience:
         self.sole_ack = self.acks[0] if len(self.acks) == 1 else None
         #: a hearing controller has REC > 0: frames are delivered receiver by receiver
         self.eager = any(c.rec for c in self.hear)
+        #: neither of these: a delivery is the route's callbacks and nothing else
+        self.plain = not self.eager and not self.foreign
 
 
 #: receivers of a frame kind with their callbacks and their place in the audience
@@ -721,8 +723,8 @@ class VirtualBus:
             stats.frames += 1
             stats.bytes += n
             audience = self._receivers
-            if (audience is None or audience.eager or frame.fd or frame.extended or sender.receive_own
-                    or audience.foreign or self._monitors):
+            if (audience is None or not audience.plain or frame.fd or frame.extended or sender.receive_own
+                    or self._monitors):
                 self._deliver(sender, frame, now)
             else:
                 # _deliver for a classic base frame on a bus without listeners to every frame,

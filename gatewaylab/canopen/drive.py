@@ -451,7 +451,9 @@ class Drive:
                 if prev is None:
                     self.csp_changed_at, self.csp_span, self.csp_velocity = now, dt, 0.0
                 elif target != prev:
-                    span = max(now - self.csp_changed_at, dt)
+                    span = now - self.csp_changed_at
+                    if dt > span:   # max(span, dt)
+                        span = dt
                     self.csp_velocity = (target - prev) / span
                     self.csp_changed_at, self.csp_span = now, span
                 elif now - self.csp_changed_at > self.csp_span + 0.5 * dt:
