@@ -261,7 +261,10 @@ class Controller:
         if self.timing_matches:
             bus = self.bus
             if bus._in_flight is None and bus._arb_timer is None:
-                bus._kick()
+                if bus._ending:
+                    bus._kick_deferred = True   # what _kick does while a frame is being delivered
+                else:
+                    bus._kick()
         elif self._mismatch_timer is None:
             self._mismatch_timer = self.bus.clock.call_soon(self._mismatch_attempt)
 
