@@ -148,14 +148,18 @@ class Controller:
     @property
     def stats(self) -> ControllerStats:
         """Frame and error counters (the bus counts received frames per audience and settles
-        them here when they are read)."""
-        self.bus._settle_rx()
+        them here when they are read; under the clock's lock, as deliveries run)."""
+        bus = self.bus
+        with bus.clock.lock:
+            bus._settle_rx()
         return self._stats
 
     @stats.setter
     def stats(self, value: ControllerStats) -> None:
-        self.bus._settle_rx()
-        self._stats = value
+        bus = self.bus
+        with bus.clock.lock:
+            bus._settle_rx()
+            self._stats = value
 
     @property
     def on_frame(self) -> FrameCallback | None:
