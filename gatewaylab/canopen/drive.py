@@ -471,24 +471,7 @@ class Drive:
                     self.fe_warning = False
                 else:
                     self._following_error(fe, dt, True)
-                if self.node.pdo.watch:
-                    self._publish_actuals(x, fe)
-                    return
-                # _publish_actuals without watched values, written out
-                lo, hi = _I32_MIN, _I32_MAX
-                values[_K_POSITION] = round(lo if x < lo else hi if x > hi else x)
-                v = st.velocity
-                values[_K_VELOCITY] = round(lo if v < lo else hi if v > hi else v)
-                v = st.torque
-                values[_K_TORQUE] = values[_K_TORQUE_DEMAND] = round(
-                    -0x8000 if v < -0x8000 else 0x7FFF if v > 0x7FFF else v)
-                v = self.demand
-                values[_K_POSITION_DEMAND] = round(lo if v < lo else hi if v > hi else v)
-                v = self.demand_velocity
-                values[_K_VELOCITY_DEMAND] = round(lo if v < lo else hi if v > hi else v)
-                values[_K_FOLLOWING_ERROR] = round(lo if fe < lo else hi if fe > hi else fe)
-                values[_K_INPUTS] = plant.digital_inputs()
-                values[_K_STATUSWORD] = self.statusword()
+                self._publish_actuals(x, fe)
                 return
             check_fe = self._run_mode(dt, max_torque)
         elif state in (PdsState.QUICK_STOP_ACTIVE, PdsState.FAULT_REACTION_ACTIVE):
