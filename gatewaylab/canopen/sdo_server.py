@@ -31,6 +31,7 @@ from .errors import (
 
 if TYPE_CHECKING:
     from .node import Node
+    from .od import Entry
 
 #: command byte, index, sub-index (CiA 301 figure 20 ff.)
 SDO_HEADER = struct.Struct("<BHB")
@@ -40,6 +41,18 @@ _EXPEDITED_CS = (b"", b"\x4F", b"\x4B", b"\x47", b"\x43")
 _PAD = (b"", b"\x00\x00\x00", b"\x00\x00", b"\x00", b"")
 #: Largest object a segmented or block download may carry before "out of memory".
 MAX_TRANSFER = 1 << 20
+
+
+def _announced_size(data: bytes, entry: Entry) -> int:
+    """The size a segmented or block download announces, checked against the object (CiA 301
+    7.2.4.3.3 / 7.2.4.3.9: too large for the server, or not the size of a fixed-size object)."""
+    size: int = struct.unpack_from("<I", data, 4)[0]
+    if size > MAX_TRANSFER:
+        raise SdoAbort(OUT_OF_MEMORY)
+    fixed = entry.size
+    if fixed is not None and size != fixed:
+        raise SdoAbort(LENGTH_TOO_LOW if size < fixed else LENGTH_MISMATCH)
+    return size
 
 
 class SdoServerState(Enum):
@@ -233,16 +246,7 @@ class SdoServer:
             node.write(index, sub, data[4:4 + size])
             self._send(SDO_HEADER_U32.pack(0x60, index, sub, 0))
             return
-        if cs & 0x01:
-            size = struct.unpack_from("<I", data, 4)[0]
-            if size > MAX_TRANSFER:
-                raise SdoAbort(OUT_OF_MEMORY)
-            fixed = entry.size
-            if fixed is not None and size != fixed:
-                raise SdoAbort(LENGTH_TOO_LOW if size < fixed else LENGTH_MISMATCH)
-            self._size = size
-        else:
-            self._size = None
+        self._size = _announced_size(data, entry) if cs & 0x01 else None
         self.state = SdoServerState.DOWNLOAD_SEGMENTED
         self._toggle = 0
         self._buf = bytearray()
@@ -316,16 +320,7 @@ class SdoServer:
             raise SdoAbort(COMMAND_SPECIFIER_UNKNOWN)
         entry = self.node.check_writable(index, sub)
         self._crc = bool(cs & 0x04)
-        if cs & 0x02:
-            size = struct.unpack_from("<I", data, 4)[0]
-            if size > MAX_TRANSFER:
-                raise SdoAbort(OUT_OF_MEMORY)
-            fixed = entry.size
-            if fixed is not None and size != fixed:
-                raise SdoAbort(LENGTH_TOO_LOW if size < fixed else LENGTH_MISMATCH)
-            self._size = size
-        else:
-            self._size = None
+        self._size = _announced_size(data, entry) if cs & 0x02 else None
         self.state = SdoServerState.BLOCK_DOWNLOAD
         self._buf = bytearray()
         self._sub_block = []
