@@ -132,6 +132,9 @@ class _StubServer:
     """What a TCP connection needs of its server, without a listening socket or a rig loop."""
 
     def __init__(self) -> None:
+        from gatewaylab.common.clock import SimulatedClock
+
+        self.clock = SimulatedClock()   # unused: latency 0 writes at once
         self.latency = 0.0
         self.connections: set[object] = set()
         self.readers: list[int] = []

@@ -13,13 +13,10 @@ import termios
 import tty
 
 from ....common.clock import Clock
-from .base import Channel, ChannelFactory, Reactor
-
-#: Bytes kept for a host that does not read its replies before new ones are dropped.
-MAX_BACKLOG = 1 << 16
+from .base import Channel, ChannelFactory, Reactor, ReplyWriter
 
 
-class PtyPort:
+class PtyPort(ReplyWriter):
     """One virtual serial port carrying one IDX USB command channel.
 
     ``latency`` > 0 delays every reply by that many seconds on the clock (a realistic USB
@@ -28,19 +25,14 @@ class PtyPort:
 
     def __init__(self, reactor: Reactor, clock: Clock, make_channel: ChannelFactory,
                  latency: float = 0.0) -> None:
+        super().__init__(clock, latency)
         self.reactor = reactor
-        self.clock = clock
-        self.latency = latency
         self.master_fd, self.slave_fd = os.openpty()
         tty.setraw(self.slave_fd, termios.TCSANOW)
         os.set_blocking(self.master_fd, False)
         self.path = os.ttyname(self.slave_fd)
         self.rx_bytes = 0
-        self.tx_bytes = 0
-        self.dropped_bytes = 0
         self.read_errors = 0
-        self._backlog = bytearray()
-        self._closed = False
         self.channel: Channel = make_channel(self.send)
         reactor.add_reader(self.master_fd, self._on_readable)
 
@@ -59,34 +51,8 @@ class PtyPort:
             self.rx_bytes += len(data)
             self.channel.receive(data)
 
-    def send(self, data: bytes) -> None:
-        """Reply bytes from the protocol, after the optional latency."""
-        if self.latency > 0:
-            self.clock.call_later(self.latency, self._write, data)
-        else:
-            self._write(data)
-
-    def _write(self, data: bytes) -> None:
-        if self._closed:
-            return
-        self._backlog += data
-        self._flush()
-
-    def _flush(self) -> None:
-        while self._backlog:
-            try:
-                n = os.write(self.master_fd, self._backlog)
-            except BlockingIOError:
-                break
-            except OSError:
-                self.dropped_bytes += len(self._backlog)
-                self._backlog.clear()
-                return
-            self.tx_bytes += n
-            del self._backlog[:n]
-        if len(self._backlog) > MAX_BACKLOG:
-            self.dropped_bytes += len(self._backlog)
-            self._backlog.clear()
+    def _write_now(self, data: bytearray) -> int:
+        return os.write(self.master_fd, data)
 
     def close(self) -> None:
         if self._closed:

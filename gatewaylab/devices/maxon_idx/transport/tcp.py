@@ -9,51 +9,22 @@ from __future__ import annotations
 import socket
 
 from ....common.clock import Clock
-from .base import Channel, ChannelFactory, Reactor
-
-#: Reply bytes kept for a host that does not read them before new ones are dropped (as the pty).
-MAX_BACKLOG = 1 << 16
+from .base import Channel, ChannelFactory, Reactor, ReplyWriter
 
 
-class _Connection:
+class _Connection(ReplyWriter):
     def __init__(self, server: TcpServer, sock: socket.socket) -> None:
+        super().__init__(server.clock, server.latency)
         self.server = server
         self.sock = sock
         self.fd = sock.fileno()
-        self.closed = False
-        self.tx_bytes = 0
-        self.dropped_bytes = 0
-        self._backlog = bytearray()
         self.channel: Channel = server.make_channel(self.send)
 
-    def send(self, data: bytes) -> None:
-        if self.server.latency > 0:
-            self.server.clock.call_later(self.server.latency, self._write, data)
-        else:
-            self._write(data)
+    def _write_now(self, data: bytearray) -> int:
+        return self.sock.send(data)
 
-    def _write(self, data: bytes) -> None:
-        if self.closed:
-            return
-        self._backlog += data
-        self._flush()
-
-    def _flush(self) -> None:
-        """Send what the socket takes now; a full send buffer (a host not reading its replies)
-        keeps the rest for the next readable event instead of closing the connection."""
-        while self._backlog:
-            try:
-                n = self.sock.send(self._backlog)
-            except BlockingIOError:
-                break
-            except OSError:
-                self.close()
-                return
-            self.tx_bytes += n
-            del self._backlog[:n]
-        if len(self._backlog) > MAX_BACKLOG:
-            self.dropped_bytes += len(self._backlog)
-            self._backlog.clear()
+    def _write_failed(self) -> None:
+        self.close()
 
     def on_readable(self) -> None:
         if self._backlog:
@@ -69,10 +40,14 @@ class _Connection:
             return
         self.channel.receive(data)
 
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
     def close(self) -> None:
-        if self.closed:
+        if self._closed:
             return
-        self.closed = True
+        self._closed = True
         self.server.reactor.remove_reader(self.fd)
         self.channel.close()
         self.sock.close()
