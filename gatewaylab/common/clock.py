@@ -60,6 +60,9 @@ class Clock:
         #: Serialises access to the protocol state when several threads touch it. The in-process
         #: python-can adapter installs a real lock here; single-threaded use needs none.
         self.lock: AbstractContextManager[Any] = nullcontext()
+        #: Unix time (seconds since the epoch) of clock time 0: an event at clock time ``t``
+        #: happened at ``wall_epoch + t``. The one time base of traces, client timestamps and the demo.
+        self.wall_epoch: float = time.time()
 
     # -- time ---------------------------------------------------------------------------------
     def now(self) -> float:
@@ -176,6 +179,7 @@ class SimulatedClock(Clock):
     def __init__(self, start: float = 0.0) -> None:
         super().__init__()
         self._now = start
+        self.wall_epoch -= start
 
     def now(self) -> float:
         return self._now
@@ -253,6 +257,7 @@ class RealTimeClock(Clock):
     def __init__(self) -> None:
         super().__init__()
         self._t0 = time.monotonic()
+        self.wall_epoch = time.time()
         #: Called with the exception when a callback raises; None lets it propagate. A running rig
         #: sets it so one faulty callback is logged instead of stopping every device.
         self.on_error: Callable[[BaseException], None] | None = None
