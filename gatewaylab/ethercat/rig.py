@@ -17,9 +17,10 @@ A simulated-clock rig builds the segment without a wire: drive it with the in-pr
 
 from __future__ import annotations
 
-from typing import Any, Protocol
+from collections.abc import Sequence
+from typing import Any, Protocol, cast
 
-from ..common.errors import ConfigError
+from ..rig.plugin import DeviceKind, Key, Participant, RigContext
 from .io_device import create_io_slave
 from .segment import Segment
 from .slave import Slave
@@ -35,18 +36,28 @@ class EtherCATDevice(Protocol):
     slave: Slave
 
 
+IO_KEYS: dict[str, Key] = {
+    "name": Key(str, "ethercat_io"),
+    "serial": Key(int, 0, min=0, max=0xFFFFFFFF, hex=True, help="the identity object's serial number"),
+    "revision": Key(int, 1, min=0, max=0xFFFFFFFF, hex=True),
+}
+SEGMENT_KEYS: dict[str, Key] = {
+    "interface": Key(str, required=True, help='one end of `gatewaylab net up NAME`, e.g. interface = "gl-ecat"'),
+    "pcap": Key(str),
+    "cpu": Key(int, min=0, help="pin the busy-polling wire thread to this CPU"),
+    "busy_poll": Key(bool, True),
+}
+
+
 class IoDevice:
     """``[[device]] kind = "ethercat_io"``: the generic loop-back I/O slave."""
 
     is_ethercat = True
 
-    def __init__(self, rig: Any, cfg: dict[str, Any]) -> None:
-        self.name = str(cfg.get("name", "ethercat_io"))
-        serial = cfg.get("serial", 0)
-        revision = cfg.get("revision", 1)
-        if not isinstance(serial, int) or not isinstance(revision, int):
-            raise ConfigError(f"[[device]] {self.name}: serial and revision must be integers")
-        self.slave = create_io_slave(rig.clock, self.name, serial=serial, revision=revision)
+    def __init__(self, rig: RigContext, cfg: dict[str, Any]) -> None:
+        cfg = IO_KIND.validate(cfg, f"[[device]] {cfg.get('name', 'ethercat_io')}")
+        self.name: str = cfg["name"]
+        self.slave = create_io_slave(rig.clock, self.name, serial=cfg["serial"], revision=cfg["revision"])
 
     def start(self) -> None:
         """Nothing to open: the segment owns the wire."""
@@ -58,8 +69,17 @@ class IoDevice:
         return {}
 
 
-def create_io_device(rig: Any, cfg: dict[str, Any]) -> IoDevice:
+def create_io_device(rig: RigContext, cfg: dict[str, Any]) -> IoDevice:
     return IoDevice(rig, cfg)
+
+
+def ethercat_devices(participants: Sequence[Participant]) -> list[EtherCATDevice]:
+    """The participants that join a segment (``is_ethercat`` and a ``slave``), in rig-file order."""
+    found: list[EtherCATDevice] = []
+    for p in participants:
+        if getattr(p, "is_ethercat", False) and isinstance(getattr(p, "slave", None), Slave):
+            found.append(cast(EtherCATDevice, p))
+    return found
 
 
 class SegmentParticipant:
@@ -67,21 +87,15 @@ class SegmentParticipant:
 
     name = "ethercat"
 
-    def __init__(self, rig: Any, cfg: dict[str, Any], devices: list[Any]) -> None:
-        interface = cfg.get("interface")
-        if not isinstance(interface, str) or not interface:
-            raise ConfigError('[ethercat] needs interface = "NAME" (create one with `gatewaylab net up NAME`)')
-        unknown = set(cfg) - {"interface", "pcap", "cpu", "busy_poll"}
-        if unknown:
-            raise ConfigError(f"[ethercat]: unknown keys {sorted(unknown)}")
-        self.interface = interface
+    def __init__(self, rig: RigContext, cfg: dict[str, Any], devices: Sequence[EtherCATDevice]) -> None:
+        cfg = SEGMENT_KIND.validate(cfg, "[ethercat]")
+        self.interface: str = cfg["interface"]
         self.rig = rig
         self.devices = list(devices)
         self.segment = Segment([d.slave for d in self.devices])
-        self.pcap_path = cfg.get("pcap")
-        cpu = cfg.get("cpu")
-        self.cpu = cpu if isinstance(cpu, int) else None
-        self.busy_poll = bool(cfg.get("busy_poll", True))
+        self.pcap_path: str | None = cfg["pcap"]
+        self.cpu: int | None = cfg["cpu"]
+        self.busy_poll: bool = cfg["busy_poll"]
         self.pcap: PcapWriter | None = None
         self.wire: WireTransport | None = None
 
@@ -108,5 +122,14 @@ class SegmentParticipant:
             for i, s in enumerate(self.segment.slaves)]}}
 
 
-def create_segment(rig: Any, cfg: dict[str, Any], devices: list[Any]) -> SegmentParticipant:
-    return SegmentParticipant(rig, cfg, devices)
+def create_segment(rig: RigContext, cfg: dict[str, Any],
+                   devices: Sequence[EtherCATDevice] | None = None) -> SegmentParticipant:
+    """The ``[ethercat]`` participant; without ``devices`` it takes the rig's EtherCAT devices built so far."""
+    return SegmentParticipant(rig, cfg, ethercat_devices(rig.participants) if devices is None else devices)
+
+
+IO_KIND = DeviceKind("ethercat_io", create_io_device, IO_KEYS,
+                     summary="the generic EtherCAT loop-back I/O slave (joins the [ethercat] segment)")
+SEGMENT_KIND = DeviceKind("ethercat", create_segment, SEGMENT_KEYS,
+                          summary="the EtherCAT segment: the rig's EtherCAT devices on a network interface",
+                          table="ethercat", single=True)

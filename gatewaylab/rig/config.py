@@ -9,6 +9,8 @@ from pathlib import Path
 from typing import Any
 
 from ..common.errors import ConfigError
+from . import kinds
+from .plugin import Key, section_error, validate_table
 
 CLOCK_MODES = ("realtime", "simulated")
 
@@ -34,53 +36,83 @@ class RigConfig:
     devices: tuple[dict[str, Any], ...] = ()
     ethercat: dict[str, Any] | None = None
     source: str = "<memory>"
+    #: Top-level sections of other installed kinds (a plugin's own ``[[name]]``), by name.
     extra: dict[str, Any] = field(default_factory=dict)
 
 
-_BUS_KEYS = {"name", "bitrate", "data_bitrate", "timing", "endpoint", "tcp_port"}
-_TOP_KEYS = {"clock", "bus", "drive", "device", "ethercat", "rig"}
+#: The keys of a ``[[bus]]`` section, checked by the same validator as every device section.
+BUS_KEYS: dict[str, Key] = {
+    "name": Key(str, required=True),
+    "bitrate": Key(int, 1_000_000, min=10_000, max=1_000_000, help="nominal bit rate in bit/s"),
+    "data_bitrate": Key(int, min=10_000, max=12_000_000, help="CAN FD data phase bit rate in bit/s"),
+    "timing": Key(bool, True),
+    "endpoint": Key(str, "unix", choices=("unix", "tcp", "none")),
+    "tcp_port": Key(int, 0, min=0, max=65535, help="0 = any free port"),
+}
+#: Top-level keys every rig file may have; kinds with a section of their own ([[drive]],
+#: [ethercat]) add theirs (gatewaylab.rig.kinds).
+_TOP_KEYS = {"clock", "bus", "device", "rig"}
 
 
-def _bus(raw: dict[str, Any], where: str) -> BusConfig:
-    unknown = set(raw) - _BUS_KEYS
-    if unknown:
-        raise ConfigError(f"{where}: unknown keys {sorted(unknown)} (allowed: {sorted(_BUS_KEYS)})")
-    if "name" not in raw or not isinstance(raw["name"], str):
-        raise ConfigError(f"{where}: every [[bus]] needs a name")
-    bitrate = raw.get("bitrate", 1_000_000)
-    data_bitrate = raw.get("data_bitrate")
-    if not isinstance(bitrate, int) or not 10_000 <= bitrate <= 1_000_000:
-        raise ConfigError(f"{where}: bitrate {bitrate!r} outside 10 kbit/s .. 1 Mbit/s")
-    if data_bitrate is not None and (not isinstance(data_bitrate, int) or not bitrate <= data_bitrate <= 12_000_000):
-        raise ConfigError(f"{where}: data_bitrate {data_bitrate!r} must be between bitrate and 12 Mbit/s")
-    endpoint = raw.get("endpoint", "unix")
-    if endpoint not in ("unix", "tcp", "none"):
-        raise ConfigError(f"{where}: endpoint must be 'unix', 'tcp' or 'none'")
-    return BusConfig(raw["name"], bitrate, data_bitrate, bool(raw.get("timing", True)), endpoint,
-                     int(raw.get("tcp_port", 0)))
+def _bus(raw: Any, where: str) -> BusConfig:
+    values = validate_table(raw, BUS_KEYS, where)
+    bitrate, data_bitrate = values["bitrate"], values["data_bitrate"]
+    if data_bitrate is not None and data_bitrate < bitrate:
+        raise section_error(where, f"data_bitrate {data_bitrate} must be between bitrate ({bitrate}) and 12 Mbit/s")
+    return BusConfig(values["name"], bitrate, data_bitrate, values["timing"], values["endpoint"],
+                     values["tcp_port"])
+
+
+def _where(source: str, section: str, index: int, raw: Any) -> str:
+    name = raw.get("name") if isinstance(raw, dict) else None
+    return f"{source} [[{section}]] #{index + 1}" + (f" ({name})" if isinstance(name, str) and name else "")
 
 
 def parse_rig(data: dict[str, Any], source: str = "<memory>") -> RigConfig:
-    """Validate a decoded rig file; raises ConfigError naming the offending section."""
-    unknown = set(data) - _TOP_KEYS
-    if unknown:
-        raise ConfigError(f"{source}: unknown top-level keys {sorted(unknown)}")
-    clock = data.get("clock", data.get("rig", {}).get("clock", "realtime"))
+    """Validate a decoded rig file completely (every section against its kind's keys, unique
+    names, node-IDs and LSS serials per bus); raises one ConfigError line naming file, section, key."""
+    extra: dict[str, Any] = {}
+    known: dict[str, Any] | None = None
+    for key in sorted(set(data) - _TOP_KEYS - {"drive", "ethercat"}):
+        known = kinds.registered() if known is None else known
+        if key not in known:
+            raise ConfigError(f"{source}: unknown top-level keys [{key!r}] (allowed: "
+                              f"{', '.join(sorted(_TOP_KEYS | {'drive', 'ethercat'}))})")
+        extra[key] = data[key]
+    rig_table = data.get("rig", {})
+    if not isinstance(rig_table, dict) or set(rig_table) - {"clock"}:
+        raise ConfigError(f"{source} [rig]: only clock = ... is allowed here")
+    clock = data.get("clock", rig_table.get("clock", "realtime"))
     if clock not in CLOCK_MODES:
         raise ConfigError(f"{source}: clock must be one of {CLOCK_MODES}, not {clock!r}")
-    buses = tuple(_bus(b, f"{source} [[bus]] #{i + 1}") for i, b in enumerate(data.get("bus", [])))
-    names = [b.name for b in buses]
-    if len(set(names)) != len(names):
-        raise ConfigError(f"{source}: bus names must be unique, got {names}")
+    raw_buses = data.get("bus", [])
+    if not isinstance(raw_buses, list):
+        raise ConfigError(f"{source}: [[bus]] must be an array of tables ([[bus]], not [bus])")
+    buses = tuple(_bus(b, _where(source, "bus", i, b)) for i, b in enumerate(raw_buses))
+    names: list[str] = []
+    for i, b in enumerate(buses):
+        if b.name in names:
+            raise section_error(_where(source, "bus", i, {"name": b.name}),
+                                f"name = {b.name!r} is not unique (bus names must be unique)")
+        names.append(b.name)
     for section in ("drive", "device"):
-        for i, entry in enumerate(data.get(section, [])):
+        entries = data.get(section, [])
+        if not isinstance(entries, list):
+            raise ConfigError(f"{source}: [[{section}]] must be an array of tables ([[{section}]], not [{section}])")
+        for i, entry in enumerate(entries):
+            where = _where(source, section, i, entry)
+            if not isinstance(entry, dict):
+                raise section_error(where, "must be a table")
             bus = entry.get("bus")
             if bus is not None and bus not in names:
-                raise ConfigError(f"{source} [[{section}]] #{i + 1}: unknown bus {bus!r} (buses: {names})")
+                raise section_error(where, f"bus = {bus!r} names an unknown bus "
+                                           f"(declared: {', '.join(names) or 'none'})")
             if section == "device" and "kind" not in entry:
-                raise ConfigError(f"{source} [[device]] #{i + 1}: needs a kind")
-    return RigConfig(clock, buses, tuple(data.get("drive", [])), tuple(data.get("device", [])),
-                     data.get("ethercat"), source)
+                raise section_error(where, "needs a kind (kind = \"...\", the device type)")
+    config = RigConfig(clock, buses, tuple(data.get("drive", [])), tuple(data.get("device", [])),
+                       data.get("ethercat"), source, extra)
+    kinds.plan(config)
+    return config
 
 
 def load_rig(path: str | Path | None = None) -> RigConfig:

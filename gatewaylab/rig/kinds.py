@@ -1,29 +1,153 @@
-"""Which factory builds which rig-file section (imported lazily: a rig pays only for what it uses)."""
+"""Which rig-file kinds exist (the ``gatewaylab.devices`` entry-point group) and the checked build plan.
+
+Built-in devices are registered through the same group as third-party ones (pyproject.toml), so a
+package outside this repository adds a ``[[device]] kind`` by declaring an entry point; nothing
+in gatewaylab names it. A kind's module is imported only when a rig file uses it.
+"""
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from importlib import import_module
-from typing import Any
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from importlib.metadata import EntryPoint, entry_points
+from typing import TYPE_CHECKING, Any
 
 from ..common.errors import ConfigError
+from .plugin import DeviceKind, section_error
 
-#: ``[[device]] kind`` -> "module:function"; each function is ``(rig, cfg) -> Participant``.
-DEVICE_FACTORIES: dict[str, str] = {
-    "maxon_idx": "gatewaylab.devices.maxon_idx.rig:create_device",
-    "ethercat_io": "gatewaylab.ethercat.rig:create_io_device",
-    "ecanlite": "gatewaylab.devices.ecanlite.rig:create_device",
-    "esd_can_ethercat": "gatewaylab.devices.esd_can_ethercat.rig:create_device",
-}
-DRIVE_FACTORY = "gatewaylab.canopen.rig:create_drive"
-SEGMENT_FACTORY = "gatewaylab.ethercat.rig:create_segment"
+if TYPE_CHECKING:
+    from .config import RigConfig
+
+#: The entry-point group a device package registers its :class:`DeviceKind` objects in.
+GROUP = "gatewaylab.devices"
 
 
-def resolve(spec: str, what: str) -> Callable[..., Any]:
-    module_name, _, attr = spec.partition(":")
+def registered() -> dict[str, EntryPoint]:
+    """Every installed kind by name (not imported yet)."""
+    found: dict[str, EntryPoint] = {}
+    for ep in entry_points(group=GROUP):
+        other = found.get(ep.name)
+        if other is not None and other.value != ep.value:
+            raise ConfigError(f"device kind {ep.name!r} is registered twice ({other.value} and {ep.value}); "
+                              f"uninstall one of the packages")
+        found[ep.name] = ep
+    return found
+
+
+def load(name: str, where: str = "", known: Mapping[str, EntryPoint] | None = None) -> DeviceKind:
+    """Import one kind; a ConfigError (naming ``where``) when it is not installed or broken."""
+    known = registered() if known is None else known
+    ep = known.get(name)
+    prefix = f"{where}: " if where else ""
+    if ep is None:
+        hint = ", ".join(sorted(known)) or "none: is gatewaylab installed (pip install -e .)?"
+        raise ConfigError(f"{prefix}kind = {name!r} is not installed (known kinds: {hint})")
     try:
-        module = import_module(module_name)
-        factory: Callable[..., Any] = getattr(module, attr)
-    except (ImportError, AttributeError) as exc:
-        raise ConfigError(f"{what} is not available in this version of gatewaylab ({spec}: {exc})") from None
-    return factory
+        obj = ep.load()
+    except Exception as exc:  # a broken plugin is the plugin's bug, reported in one line
+        raise ConfigError(f"{prefix}kind {name!r} ({ep.value}) cannot be loaded: {type(exc).__name__}: {exc}") \
+            from None
+    if not isinstance(obj, DeviceKind):
+        raise ConfigError(f"{prefix}kind {name!r}: {ep.value} is a {type(obj).__name__}, not a DeviceKind")
+    if obj.kind != name:
+        raise ConfigError(f"{prefix}kind {name!r}: {ep.value} calls itself {obj.kind!r}")
+    return obj
+
+
+@dataclass(frozen=True)
+class Section:
+    """One rig-file section, checked: which kind builds it, where it is, its validated keys."""
+
+    kind: DeviceKind
+    where: str
+    cfg: dict[str, Any]
+
+    @property
+    def name(self) -> str | None:
+        return self.kind.name_of(self.cfg)
+
+
+def _where(source: str, section: str, index: int | None, raw: Any) -> str:
+    text = f"{source} [{section}]" if index is None else f"{source} [[{section}]] #{index + 1}"
+    name = raw.get("name") if isinstance(raw, Mapping) else None
+    return f"{text} ({name})" if isinstance(name, str) and name else text
+
+
+def _short(where: str, source: str) -> str:
+    return where.removeprefix(f"{source} ")
+
+
+def plan(config: RigConfig) -> list[Section]:
+    """Every participant section of a rig, validated, in build order: ``[[drive]]``, other kinds'
+    own arrays, ``[[device]]`` in file order, then single tables such as ``[ethercat]`` (which
+    collect the devices built before them). Raises one ConfigError line naming file, section, key."""
+    source = config.source
+    buses = [b.name for b in config.buses]
+    known = registered()
+    tables: dict[str, Any] = {"drive": list(config.drives)} if config.drives else {}
+    tables.update(config.extra)
+    if config.ethercat is not None:
+        tables["ethercat"] = config.ethercat
+    arrays: list[tuple[str, int | None, Any, DeviceKind]] = []
+    singles: list[tuple[str, int | None, Any, DeviceKind]] = []
+    for table, value in tables.items():
+        kind = load(table, f"{source} [{table}]", known)
+        if kind.table != table:
+            raise ConfigError(f"{source}: [{table}] is not a section (use [[device]] kind = {table!r})")
+        if kind.single:
+            if not isinstance(value, Mapping):
+                raise ConfigError(f"{source}: [{table}] must be a single table ([{table}], not [[{table}]])")
+            singles.append((table, None, value, kind))
+        else:
+            if not isinstance(value, list):
+                raise ConfigError(f"{source}: [[{table}]] must be an array of tables ([[{table}]], not [{table}])")
+            arrays.extend((table, i, entry, kind) for i, entry in enumerate(value))
+    for i, entry in enumerate(config.devices):
+        where = _where(source, "device", i, entry)
+        if not isinstance(entry, Mapping) or "kind" not in entry:
+            raise section_error(where, "needs a kind (kind = \"...\", the device type)")
+        kind_name = entry["kind"]
+        if not isinstance(kind_name, str):
+            raise section_error(where, f"kind must be a string, got {kind_name!r}")
+        kind = load(kind_name, where, known)
+        if kind.single:
+            raise section_error(where, f"kind = {kind_name!r} is the [{kind.table}] section, not a [[device]]")
+        arrays.append(("device", i, entry, kind))
+
+    sections: list[Section] = []
+    names: dict[str, str] = {}
+    node_ids: dict[tuple[str, int], str] = {}
+    serials: dict[tuple[str, int], str] = {}
+    for table, index, raw, kind in [*arrays, *singles]:
+        where = _where(source, table, index, raw)
+        if not isinstance(raw, Mapping):
+            raise section_error(where, "must be a table")
+        cfg = kind.validate(raw, where, buses)
+        section = Section(kind, where, cfg)
+        here = _short(where, source)
+        name = section.name
+        if name is not None and not kind.single:
+            if name in names:
+                raise section_error(where, f"name = {name!r} is already used by {names[name]} "
+                                           f"(every device needs its own name)")
+            names[name] = here
+        if kind.canopen and isinstance(cfg.get("bus"), str):
+            bus = cfg["bus"]
+            node_id, serial = cfg.get("node_id"), cfg.get("serial")
+            if isinstance(node_id, int):
+                if (bus, node_id) in node_ids:
+                    raise section_error(where, f"node_id = {node_id} is already used on bus {bus!r} by "
+                                               f"{node_ids[bus, node_id]} (CANopen node-IDs are unique per bus)")
+                node_ids[bus, node_id] = here
+            if isinstance(serial, int):
+                if (bus, serial) in serials:
+                    raise section_error(where, f"serial = 0x{serial:X} is already used on bus {bus!r} by "
+                                               f"{serials[bus, serial]} (LSS serial numbers are unique per bus)")
+                serials[bus, serial] = here
+        sections.append(section)
+    return sections
+
+
+def known_kinds() -> Sequence[str]:
+    """The names of every installed kind (for help texts and errors)."""
+    return sorted(registered())

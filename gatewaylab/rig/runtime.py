@@ -4,41 +4,86 @@ In real time one thread (the one calling :meth:`Rig.run`) owns the clock and eve
 state; it waits in ``select`` until the next timer or until a file descriptor is ready, and
 holds ``clock.lock`` while it runs callbacks. With a simulated clock nothing runs by itself:
 the owner drives ``rig.clock`` (tests, teaching scripts).
+
+Every rig section is checked (``kinds.plan``) before anything is created; whatever was created is
+released on every exit path: a failed construction, :meth:`Rig.close` (or ``with Rig(...)``),
+and, for a rig nobody closed, its finaliser (which warns with ``ResourceWarning``). SIGINT and
+SIGTERM stop :meth:`Rig.run` within about a second whatever the loop is doing.
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import logging
 import os
 import selectors
 import shutil
+import signal
 import socket
 import tempfile
 import threading
+import warnings
+import weakref
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Protocol
+from types import FrameType
+from typing import Any
 
 from ..bus.bus import VirtualBus
 from ..bus.transport.server import BusServer
 from ..bus.transport.trace import Trace
 from ..common.clock import Clock, RealTimeClock, SimulatedClock
-from ..common.errors import ConfigError
+from ..common.errors import ConfigError, GatewaylabError
 from . import kinds
 from .config import RigConfig, load_rig
+from .plugin import Participant
+
+__all__ = ["GRACE", "Participant", "Rig", "RigStartError", "merge_info"]
 
 log = logging.getLogger(__name__)
 
 
-class Participant(Protocol):
-    """Anything a rig file section creates: drives, gateways, EtherCAT segments."""
+#: Seconds a loop asked to stop by SIGINT/SIGTERM gets to return by itself before it is
+#: interrupted wherever it is (a callback that never returns, a clock that never runs dry).
+GRACE = 0.75
 
-    name: str
 
-    def start(self) -> None: ...
-    def stop(self) -> None: ...
-    def ready_info(self) -> dict[str, Any]: ...
+class RigStartError(GatewaylabError):
+    """A participant could not open what it needs (a pty, a socket) when the rig started."""
+
+
+class _Interrupted(BaseException):
+    """Raised into a loop that did not stop within :data:`GRACE` of a signal (not an Exception,
+    so no participant's ``except Exception`` swallows it)."""
+
+
+class _Resources:
+    """What a rig must release even if nobody closes it; no reference to the rig itself, so the
+    finaliser holding it does not keep the rig alive."""
+
+    def __init__(self) -> None:
+        self.state_dir: Path | None = None
+        self.sockets: list[socket.socket] = []
+        self.selector: selectors.BaseSelector | None = None
+
+    def release(self) -> None:
+        for sock in self.sockets:
+            with contextlib.suppress(OSError):
+                sock.close()
+        self.sockets.clear()
+        if self.selector is not None:
+            self.selector.close()
+            self.selector = None
+        if self.state_dir is not None:
+            shutil.rmtree(self.state_dir, ignore_errors=True)
+            self.state_dir = None
+
+
+def _release_unclosed(resources: _Resources, what: str) -> None:
+    warnings.warn(f"{what} was not closed (use `with Rig(...)` or rig.close()); removing its endpoints "
+                  f"and temporary folder now", ResourceWarning, stacklevel=2)
+    resources.release()
 
 
 def merge_info(into: dict[str, Any], info: dict[str, Any]) -> None:
@@ -55,46 +100,98 @@ class Rig:
 
     def __init__(self, config: RigConfig, *, clock: Clock | None = None,
                  state_dir: Path | None = None, endpoints: bool | None = None) -> None:
+        # every section is checked before anything exists: a bad rig file leaves nothing behind
+        self._sections = kinds.plan(config)
         self.config = config
         if clock is None:
             clock = SimulatedClock() if config.clock == "simulated" else RealTimeClock()
         self.clock = clock
         self.realtime = not clock.is_simulated
-        self._own_state_dir = state_dir is None
-        self.state_dir = Path(tempfile.mkdtemp(prefix="gatewaylab-")) if state_dir is None else state_dir
-        self.state_dir.mkdir(parents=True, exist_ok=True)
         self.buses: dict[str, VirtualBus] = {}
         self.participants: list[Participant] = []
         self.servers: dict[str, BusServer] = {}
         self.traces: list[Trace] = []
+        self.callback_errors = 0
+        self._started = False
+        self._closed = False
+        self._loop_thread: int | None = None
+        self._wake_hook: Callable[[], None] | None = None
+        self._stop = threading.Event()
+        self._resources = res = _Resources()
         # select() waits with microsecond resolution; epoll/poll round up to whole milliseconds,
         # which would stretch every 100 us CAN frame to 1 ms.
-        self._selector = selectors.SelectSelector()
+        self._selector = res.selector = selectors.SelectSelector()
         self._readers: dict[int, Callable[[], None]] = {}
         self._writers: dict[int, Callable[[], None]] = {}
-        self._stop = threading.Event()
-        self.callback_errors = 0
         self._wake_r, self._wake_w = socket.socketpair()
-        self._wake_r.setblocking(False)
-        self._wake_w.setblocking(False)
-        self.add_reader(self._wake_r.fileno(), self._drain_wakeups)
+        res.sockets += [self._wake_r, self._wake_w]
+        self._finalizer = weakref.finalize(self, _release_unclosed, res, f"Rig({config.source})")
+        try:
+            self._own_state_dir = state_dir is None
+            if state_dir is None:
+                self.state_dir = res.state_dir = Path(tempfile.mkdtemp(prefix="gatewaylab-"))
+            else:
+                self.state_dir = state_dir
+                self.state_dir.mkdir(parents=True, exist_ok=True)
+            self._wake_r.setblocking(False)
+            self._wake_w.setblocking(False)
+            self.add_reader(self._wake_r.fileno(), self._drain_wakeups)
+            self._install_clock_hooks()
+            for bc in config.buses:
+                self.buses[bc.name] = VirtualBus(clock, bc.name, bc.bitrate, bc.data_bitrate, bc.timing)
+            with_endpoints = self.realtime if endpoints is None else endpoints
+            if with_endpoints:
+                self._open_endpoints()
+            self._build_participants()
+        except BaseException:
+            self.close()
+            raise
+
+    def _install_clock_hooks(self) -> None:
+        """Wake the loop when other threads inject work; log failing callbacks. Neither hook holds
+        a strong reference to the rig (a clock may outlive it)."""
+        clock = self.clock
         if isinstance(clock.lock, contextlib.nullcontext):
             clock.lock = threading.RLock()
-        clock.wakeup = self.wake
+        wake_w = self._wake_w
+
+        def wake() -> None:
+            try:
+                wake_w.send(b"\0")
+            except OSError:  # full (a wake-up is pending anyway) or closed with the rig
+                pass
+
+        clock.wakeup = wake
         if isinstance(clock, RealTimeClock):
-            clock.on_error = self._callback_failed
-        for bc in config.buses:
-            self.buses[bc.name] = VirtualBus(clock, bc.name, bc.bitrate, bc.data_bitrate, bc.timing)
-        with_endpoints = self.realtime if endpoints is None else endpoints
-        if with_endpoints:
-            for bc in config.buses:
+            rig = weakref.ref(self)
+
+            def failed(exc: BaseException) -> None:
+                owner = rig()
+                if owner is not None:
+                    owner._callback_failed(exc)
+                else:
+                    log.error("callback failed after its rig was closed: %r", exc, exc_info=exc)
+
+            clock.on_error = failed
+        self._wake_hook = wake
+
+    def _open_endpoints(self) -> None:
+        for i, bc in enumerate(self.config.buses):
+            where = f"{self.config.source} [[bus]] #{i + 1} ({bc.name})"
+            try:
                 if bc.endpoint == "unix":
-                    self.servers[bc.name] = BusServer(self.buses[bc.name], self,
-                                                      unix_path=self.state_dir / f"{bc.name}.sock")
+                    server = BusServer(self.buses[bc.name], self, unix_path=self.state_dir / f"{bc.name}.sock")
                 elif bc.endpoint == "tcp":
-                    self.servers[bc.name] = BusServer(self.buses[bc.name], self, tcp_port=bc.tcp_port)
-        self._build_participants()
-        self._started = False
+                    server = BusServer(self.buses[bc.name], self, tcp_port=bc.tcp_port)
+                else:
+                    continue
+            except OSError as exc:
+                if bc.endpoint == "tcp":
+                    raise ConfigError(f"{where}: tcp_port = {bc.tcp_port} cannot be used on 127.0.0.1 "
+                                      f"({exc.strerror or exc})") from None
+                raise RigStartError(f"{where}: cannot open the endpoint of bus {bc.name!r}: {exc}") from None
+            self.servers[bc.name] = server
+            self._resources.sockets.append(server.listener)
 
     @classmethod
     def from_file(cls, path: str | Path | None = None, **kwargs: Any) -> Rig:
@@ -102,24 +199,20 @@ class Rig:
 
     # -- construction -----------------------------------------------------------------------
     def _build_participants(self) -> None:
-        cfg = self.config
-        if cfg.drives:
-            create_drive = kinds.resolve(kinds.DRIVE_FACTORY, "[[drive]]")
-            for entry in cfg.drives:
-                self.participants.append(create_drive(self, dict(entry)))
-        ethercat_devices: list[Participant] = []
-        for entry in cfg.devices:
-            kind = entry["kind"]
-            spec = kinds.DEVICE_FACTORIES.get(kind)
-            if spec is None:
-                raise ConfigError(f"unknown device kind {kind!r} (known: {sorted(kinds.DEVICE_FACTORIES)})")
-            device = kinds.resolve(spec, f"device kind {kind!r}")(self, dict(entry))
-            self.participants.append(device)
-            if getattr(device, "is_ethercat", False):
-                ethercat_devices.append(device)
-        if cfg.ethercat is not None:
-            create_segment = kinds.resolve(kinds.SEGMENT_FACTORY, "[ethercat]")
-            self.participants.append(create_segment(self, dict(cfg.ethercat), ethercat_devices))
+        """One participant per checked section, in build order (``kinds.plan``)."""
+        for section in self._sections:
+            try:
+                participant = section.kind.create(self, dict(section.cfg))
+            except ConfigError as exc:
+                message = str(exc)
+                if not message.startswith(self.config.source):
+                    message = f"{section.where}: {message}"
+                raise ConfigError(message) from None
+            missing = [m for m in ("name", "start", "stop", "ready_info") if not hasattr(participant, m)]
+            if missing:
+                raise ConfigError(f"{section.where}: kind {section.kind.kind!r} built a "
+                                  f"{type(participant).__name__} without {', '.join(missing)} (not a participant)")
+            self.participants.append(participant)
 
     def bus(self, name: str) -> VirtualBus:
         try:
@@ -151,6 +244,8 @@ class Rig:
         self._update(fd)
 
     def _update(self, fd: int) -> None:
+        if self._resources.selector is None:  # closed: nothing waits any more
+            return
         events = (selectors.EVENT_READ if fd in self._readers else 0) | (
             selectors.EVENT_WRITE if fd in self._writers else 0)
         try:
@@ -185,13 +280,27 @@ class Rig:
             pass
 
     # -- life cycle ---------------------------------------------------------------------------
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
     def start(self) -> None:
+        """Start every participant (open ptys, TCP ports, wires); a RigStartError names the section
+        whose start failed (a port in use is a ConfigError: the rig file chose it)."""
+        if self._closed:
+            raise ConfigError("this rig is closed; build a new one")
         if self._started:
             return
         self._started = True
         with self.clock.lock:
-            for p in self.participants:
-                p.start()
+            for section, p in zip(self._sections, self.participants):
+                try:
+                    p.start()
+                except OSError as exc:
+                    if exc.errno in (errno.EADDRINUSE, errno.EACCES, errno.EADDRNOTAVAIL):
+                        raise ConfigError(f"{section.where}: cannot start {p.name}: "
+                                          f"{exc.strerror or exc} (choose another port)") from None
+                    raise RigStartError(f"{section.where}: cannot start {p.name}: {exc}") from None
 
     def ready_info(self) -> dict[str, Any]:
         info: dict[str, Any] = {"pid": os.getpid(), "buses": {}}
@@ -223,19 +332,61 @@ class Rig:
                         self._writers[fd]()
                 except Exception as exc:
                     self._callback_failed(exc)
-        if isinstance(clock, RealTimeClock):
+        if isinstance(clock, RealTimeClock) and not self._stop.is_set():
             clock.run_due()
 
-    def run(self, until: Callable[[], bool] | None = None) -> None:
-        """Run in real time until :meth:`request_stop` (or ``until()`` returns True)."""
+    def run(self, until: Callable[[], bool] | None = None, *, signals: bool = True) -> None:
+        """Run in real time until :meth:`request_stop` (or ``until()`` returns True).
+
+        On the main thread (and with ``signals``) SIGINT and SIGTERM stop it: the loop returns at
+        its next pass, and if it is stuck (a callback that never returns) it is interrupted
+        :data:`GRACE` seconds later; a second signal interrupts it at once. The previous handlers
+        are restored when it returns. The caller still calls :meth:`close`.
+        """
         if not self.realtime:
             raise ConfigError("Rig.run() needs a real-time clock; drive a simulated rig's clock yourself")
         self.start()
-        while not self._stop.is_set() and not (until is not None and until()):
-            self.poll(0.25)
+        previous = self._install_signals() if signals else None
+        try:
+            try:
+                self._loop_thread = threading.get_ident()
+                while not self._stop.is_set() and not (until is not None and until()):
+                    self.poll(0.25)
+            finally:
+                self._loop_thread = None  # first: from here on the handlers do not interrupt
+        except _Interrupted:
+            log.warning("the rig loop did not stop within %.2f s of the signal; interrupted it", GRACE)
+        finally:
+            if previous is not None:
+                self._restore_signals(previous)
+
+    def _install_signals(self) -> dict[int, Any] | None:
+        if threading.current_thread() is not threading.main_thread():
+            return None
+        previous: dict[int, Any] = {}
+        for signum, handler in ((signal.SIGINT, self._on_signal), (signal.SIGTERM, self._on_signal),
+                                (signal.SIGALRM, self._on_grace_expired)):
+            previous[signum] = signal.signal(signum, handler)
+        return previous
+
+    def _restore_signals(self, previous: dict[int, Any]) -> None:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+
+    def _on_signal(self, signum: int, frame: FrameType | None) -> None:
+        if self._stop.is_set() and self._loop_thread is not None:
+            raise _Interrupted  # asked twice: do not wait
+        log.info("signal %d: stopping the rig", signum)
+        self.request_stop()
+        signal.setitimer(signal.ITIMER_REAL, GRACE)
+
+    def _on_grace_expired(self, signum: int, frame: FrameType | None) -> None:
+        if self._loop_thread is not None:
+            raise _Interrupted
 
     def request_stop(self) -> None:
-        """Ask :meth:`run` to return; safe from signal handlers and other threads."""
+        """Ask :meth:`run` to return at its next pass; safe from signal handlers and other threads."""
         self._stop.set()
         self.wake()
 
@@ -246,25 +397,39 @@ class Rig:
         return thread
 
     def close(self) -> None:
-        """Stop participants, close endpoints and traces, remove the state folder."""
-        with self.clock.lock:
-            for p in reversed(self.participants):
-                try:
-                    p.stop()
-                except Exception:
-                    log.exception("stopping %s failed", getattr(p, "name", p))
-            for server in self.servers.values():
-                server.close()
-            for trace in self.traces:
-                trace.close()
-        self.remove_reader(self._wake_r.fileno())
-        self._wake_r.close()
-        self._wake_w.close()
-        self._selector.close()
-        if self._own_state_dir:
-            shutil.rmtree(self.state_dir, ignore_errors=True)
+        """Stop participants, close endpoints and traces, remove the state folder (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        self._stop.set()
+        self._finalizer.detach()
+        try:
+            with self.clock.lock:
+                for p in reversed(self.participants):
+                    try:
+                        p.stop()
+                    except Exception:
+                        log.exception("stopping %s failed", getattr(p, "name", p))
+                for server in self.servers.values():
+                    try:
+                        server.close()
+                    except Exception:
+                        log.exception("closing the endpoint of bus %s failed", server.bus.name)
+                for trace in self.traces:
+                    try:
+                        trace.close()
+                    except Exception:
+                        log.exception("closing a trace failed")
+        finally:
+            if self.clock.wakeup is self._wake_hook:
+                self.clock.wakeup = None
+            self._readers.clear()
+            self._writers.clear()
+            self._resources.release()
 
     def __enter__(self) -> Rig:
+        if self._closed:
+            raise ConfigError("this rig is closed; build a new one")
         return self
 
     def __exit__(self, *exc: object) -> None:

@@ -15,45 +15,43 @@ from __future__ import annotations
 
 from typing import Any
 
-from ...common.errors import ConfigError
+from ...rig.plugin import DeviceKind, Key, RigContext
+from .commands import MAX_SEGMENT
 from .device import IdxDevice
 from .transport.pty import PtyPort
 from .transport.tcp import TcpServer
 
-_KEYS = {"kind", "name", "bus", "node_id", "serial", "usb", "sdo_timeout", "segment_size", "store"}
-_USB_KEYS = {"pty", "tcp_port", "latency_ms"}
+USB_KEYS: dict[str, Key] = {
+    "pty": Key(bool, True),
+    "tcp_port": Key(int, min=0, max=65535, false_is_none=True, help="0 = a free port"),
+    "latency_ms": Key(float, 0.0, min=0),
+}
+KEYS: dict[str, Key] = {
+    "name": Key(str, "idx"),
+    "bus": Key(str, "can0", bus=True),
+    "node_id": Key(int, min=1, max=127, help="omit it for an unconfigured IDX"),
+    "serial": Key(int, 0x2001, min=0, max=0xFFFFFFFF, hex=True, help="the LSS serial number"),
+    "usb": Key(dict, keys=USB_KEYS),
+    "sdo_timeout": Key(float, 0.5, min=0.001, help="seconds"),
+    "segment_size": Key(int, MAX_SEGMENT, min=1, max=MAX_SEGMENT),
+    "store": Key(bool, False),
+}
 
 
 class IdxParticipant:
     """The rig participant: the device plus its USB transports."""
 
-    def __init__(self, rig: Any, cfg: dict[str, Any]) -> None:
-        unknown = set(cfg) - _KEYS
-        if unknown:
-            raise ConfigError(f"maxon_idx: unknown keys {sorted(unknown)} (known: {sorted(_KEYS)})")
+    def __init__(self, rig: RigContext, cfg: dict[str, Any]) -> None:
+        cfg = KIND.validate(cfg, f"maxon_idx {cfg.get('name', 'idx')}", list(rig.buses))
         self.rig = rig
-        self.name: str = str(cfg.get("name", "idx"))
-        node_id = cfg.get("node_id")
-        usb = dict(cfg.get("usb", {"pty": True}))
-        unknown = set(usb) - _USB_KEYS
-        if unknown:
-            raise ConfigError(f"maxon_idx {self.name}: unknown usb keys {sorted(unknown)}")
-        self.want_pty = bool(usb.get("pty", True))
-        tcp = usb.get("tcp_port")
-        if tcp is not None and tcp is not False and (isinstance(tcp, bool) or not isinstance(tcp, int)
-                                                      or not 0 <= tcp <= 65535):
-            raise ConfigError(f"maxon_idx {self.name}: usb.tcp_port must be 0..65535 (0 = a free port), "
-                              f"got {tcp!r}")
-        self.tcp_port: int | None = None if tcp is None or tcp is False else int(tcp)
-        latency = usb.get("latency_ms", 0.0)
-        if isinstance(latency, bool) or not isinstance(latency, int | float) or latency < 0:
-            raise ConfigError(f"maxon_idx {self.name}: usb.latency_ms must be a number >= 0, got {latency!r}")
-        self.latency = float(latency) / 1000.0
-        store = rig.state_dir / f"{self.name}.store" if cfg.get("store", False) else None
-        self.device = IdxDevice(rig.clock, rig.bus(str(cfg.get("bus", "can0"))),
-                                None if node_id is None else int(node_id), int(cfg.get("serial", 0x2001)),
-                                self.name, store_path=store, sdo_timeout=float(cfg.get("sdo_timeout", 0.5)),
-                                segment_size=int(cfg.get("segment_size", 255)))
+        self.name: str = cfg["name"]
+        usb = cfg["usb"]
+        self.want_pty: bool = usb["pty"]
+        self.tcp_port: int | None = usb["tcp_port"]
+        self.latency = usb["latency_ms"] / 1000.0
+        store = rig.state_dir / f"{self.name}.store" if cfg["store"] else None
+        self.device = IdxDevice(rig.clock, rig.bus(cfg["bus"]), cfg["node_id"], cfg["serial"], self.name,
+                                store_path=store, sdo_timeout=cfg["sdo_timeout"], segment_size=cfg["segment_size"])
         self.pty: PtyPort | None = None
         self.tcp: TcpServer | None = None
 
@@ -83,5 +81,9 @@ class IdxParticipant:
         return {"usb": {self.name: entry}}
 
 
-def create_device(rig: Any, cfg: dict[str, Any]) -> IdxParticipant:
+def create_device(rig: RigContext, cfg: dict[str, Any]) -> IdxParticipant:
     return IdxParticipant(rig, cfg)
+
+
+KIND = DeviceKind("maxon_idx", create_device, KEYS, summary="maxon IDX: USB command protocol and SDO gateway",
+                  canopen=True)
