@@ -125,12 +125,6 @@ def plan(config: RigConfig) -> list[Section]:
         cfg = kind.validate(raw, where, buses)
         section = Section(kind, where, cfg)
         here = _short(where, source)
-        name = section.name
-        if name is not None and not kind.single:
-            if name in names:
-                raise section_error(where, f"name = {name!r} is already used by {names[name]} "
-                                           f"(every device needs its own name)")
-            names[name] = here
         if kind.canopen and isinstance(cfg.get("bus"), str):
             bus = cfg["bus"]
             node_id, serial = cfg.get("node_id"), cfg.get("serial")
@@ -144,6 +138,13 @@ def plan(config: RigConfig) -> list[Section]:
                     raise section_error(where, f"serial = 0x{serial:X} is already used on bus {bus!r} by "
                                                f"{serials[bus, serial]} (LSS serial numbers are unique per bus)")
                 serials[bus, serial] = here
+        name = section.name
+        if name is not None and not kind.single:
+            if name in names:
+                given = "" if isinstance(raw.get("name"), str) else " (the default name)"
+                raise section_error(where, f"name = {name!r}{given} is already used by {names[name]} "
+                                           f"(every device needs its own name)")
+            names[name] = here
         sections.append(section)
     return sections
 

@@ -177,7 +177,8 @@ def _check(value: Any, key: Key, path: str, where: str, buses: Sequence[str] | N
     if not bad and kind in (int, float):
         bad = (key.min is not None and value < key.min) or (key.max is not None and value > key.max)
     if bad:
-        shown = f"0x{value:X}" if key.hex and isinstance(value, int) and not isinstance(value, bool) else repr(value)
+        hexa = key.hex and isinstance(value, int) and not isinstance(value, bool) and value >= 0
+        shown = f"0x{value:X}" if hexa else repr(value)
         raise section_error(where, f"{path} {_describe(key)}, got {shown}")
     if key.bus and buses is not None and value not in buses:
         raise section_error(where, f"{path} = {value!r} names an unknown bus (declared: "
@@ -204,7 +205,7 @@ def validate_table(raw: Mapping[str, Any], keys: Mapping[str, Key], where: str,
         if raw.get(name) is not None:  # TOML has no null: None is an already-validated absent key
             out[name] = _check(raw[name], key, path, where, buses)
         elif key.required:
-            raise section_error(where, f"{path} is required ({_describe(key).removeprefix('must be ')})")
+            raise section_error(where, f"{path} is required" + (f" ({key.help})" if key.help else ""))
         elif key.type is dict and key.keys is not None:
             default = key.default if isinstance(key.default, Mapping) else {}
             out[name] = validate_table(default, key.keys, where, buses, prefix=f"{path}.")

@@ -73,7 +73,11 @@ def start_rig(tmp_path: Path) -> Iterator:
         return RunningRig(proc, ready, json.loads(ready.read_text()))
 
     yield _start
-    for proc in procs:
+    for proc in procs:  # SIGTERM first: a rig removes its sockets and state folder (issue 15)
         if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+            proc.terminate()
+            try:
+                proc.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
