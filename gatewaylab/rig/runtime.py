@@ -46,7 +46,7 @@ log = logging.getLogger(__name__)
 
 #: Seconds a loop asked to stop by SIGINT/SIGTERM gets to return by itself before it is
 #: interrupted wherever it is (a callback that never returns, a clock that never runs dry).
-GRACE = 0.75
+GRACE = 0.5
 
 
 class RigStartError(GatewaylabError):

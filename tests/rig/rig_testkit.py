@@ -81,3 +81,6 @@ def start_rig(tmp_path: Path) -> Iterator:
             except subprocess.TimeoutExpired:
                 proc.kill()
                 proc.wait()
+        for pipe in (proc.stdout, proc.stderr):
+            if pipe is not None:
+                pipe.close()

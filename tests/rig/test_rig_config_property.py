@@ -47,14 +47,14 @@ def _check(data: dict[str, Any]) -> None:
             assert "\n" not in str(exc)
 
 
-@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(documents)
 def test_random_documents_give_only_config_errors(data: dict[str, Any]) -> None:
     """Any decoded document: a RigConfig or one ConfigError line, never another exception."""
     _check(data)
 
 
-@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(shaped)
 def test_section_shaped_documents_give_only_config_errors(data: dict[str, Any]) -> None:
     """Sections with random keys and values: a rig (built and closed) or one ConfigError line."""

@@ -208,9 +208,18 @@ def test_impossible_rigs_are_one_line_errors_naming_file_section_and_key(tmp_pat
     with pytest.raises(ConfigError) as err:
         load_rig(path)
     assert str(err.value).startswith(f"{path} {where}: {key}") and "\n" not in str(err.value)
-    result = _run(tmp_path, path.read_text())
+
+
+def test_gatewaylab_run_reports_a_duplicate_node_id_in_one_line(tmp_path: Path) -> None:
+    """Issue 15: the same check from `gatewaylab run`: one line on stderr, no traceback, non-zero exit
+    (the exit code itself, 2 for configuration errors, is the command line's: tests of rig/cli.py)."""
+    result = _run(tmp_path, '[[bus]]\nname = "can0"\n[[drive]]\nbus = "can0"\nnode_id = 2\nserial = 1\n'
+                            '[[drive]]\nbus = "can0"\nnode_id = 2\nserial = 2\n')
     assert result.returncode != 0 and "Traceback" not in result.stderr
-    assert f"{where}: {key}" in result.stderr
+    assert result.stderr.strip().splitlines() == [
+        f"gatewaylab: {tmp_path / 'rig.toml'} [[drive]] #2: node_id = 2 is already used on bus 'can0' by "
+        f"[[drive]] #1 (CANopen node-IDs are unique per bus)"]
+    assert _count(tmp_path) == 0
 
 
 def test_same_node_id_and_serial_on_two_buses_is_fine() -> None:
