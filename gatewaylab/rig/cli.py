@@ -58,12 +58,15 @@ def _check_rig_file(path: str | None) -> None:
     if path is None:
         return
     try:
-        with open(path, "rb"):
-            pass
+        with open(path, "rb") as f:
+            f.read().decode()
     except IsADirectoryError:
-        raise UsageError(f"rig file {path} is a directory") from None
+        raise UsageError(f"rig file {path} is a directory, not a TOML file") from None
     except OSError as exc:
         raise UsageError(f"cannot read rig file {path}: {exc.strerror or exc}") from None
+    except UnicodeDecodeError as exc:
+        raise UsageError(f"rig file {path} is not UTF-8 text (TOML): byte {exc.start} "
+                         f"is 0x{exc.object[exc.start]:02X}") from None
 
 
 def _check_writable(option: str, path: str) -> None:
