@@ -75,7 +75,8 @@ def cmd_read(args: argparse.Namespace) -> int:
             print(f"{_obj(args)} = {data.hex(' ').upper()} ({len(data)} bytes)")
         else:
             value = client.read(args.node, args.index, args.sub, args.type)
-            print(f"{_obj(args)} = {value} (0x{value & 0xFFFFFFFF:0{_width(args.type)}X})")
+            width = _width(args.type)
+            print(f"{_obj(args)} = {value} (0x{value & ((1 << 4 * width) - 1):0{width}X})")
     return 0
 
 
