@@ -1,1 +1,23 @@
-"""Rig files, the runtime that runs them, and the `gatewaylab` command line."""
+"""Rig files, the runtime that runs them, and the `gatewaylab` command line.
+
+``from gatewaylab.rig import Rig, load_rig, parse_rig`` (imported on first use, so the command
+line starts without loading every device).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+__all__ = ["Rig", "load_rig", "parse_rig"]
+
+
+def __getattr__(name: str) -> Any:
+    if name == "Rig":
+        from .runtime import Rig
+
+        return Rig
+    if name in ("load_rig", "parse_rig"):
+        from . import config
+
+        return getattr(config, name)
+    raise AttributeError(f"module 'gatewaylab.rig' has no attribute {name!r}")
