@@ -156,6 +156,7 @@ def cmd_rig_show(args: argparse.Namespace) -> int:
     if args.rig is None:
         print(resources.files("gatewaylab.rig").joinpath("default.toml").read_text(), end="")
     else:
+        _check_rig_file(args.rig)
         print(Path(args.rig).read_text(), end="")
     return 0
 

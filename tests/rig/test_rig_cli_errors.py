@@ -64,6 +64,13 @@ def test_missing_rig_file(tmp_path: Path) -> None:
     assert_error(gatewaylab("run", str(missing)), 2, f"cannot read rig file {missing}", "No such file")
 
 
+def test_rig_and_demo_with_a_missing_rig_file(tmp_path: Path) -> None:
+    """`gatewaylab rig FILE` and `gatewaylab demo FILE` report a missing file like `run` does."""
+    missing = tmp_path / "nope.toml"
+    assert_error(gatewaylab("rig", str(missing)), 2, f"cannot read rig file {missing}")
+    assert_error(gatewaylab("demo", str(missing)), 2, "cannot read rig file")
+
+
 def test_rig_file_is_a_directory_or_not_text(tmp_path: Path) -> None:
     """A folder or a binary file given as rig file: usage errors, no UnicodeDecodeError traceback."""
     assert_error(gatewaylab("run", str(tmp_path)), 2, "is a directory")
