@@ -105,6 +105,10 @@ def demo_canopen(bus: can.BusABC, narrator: Narrator, nodes: list[int], unconfig
             network.lss.RESPONSE_TIMEOUT = 0.02
             narrator.quiet = True
             found, address = network.lss.fast_scan()
+            if not found:
+                # a busy machine can miss a 20 ms answer window (each missed answer reads as a 1 bit)
+                network.lss.RESPONSE_TIMEOUT = 0.1
+                found, address = network.lss.fast_scan()
             narrator.quiet = False
             if found:
                 print(f"  -> found vendor 0x{address[0]:X} product 0x{address[1]:X} revision 0x{address[2]:X} "
