@@ -52,7 +52,9 @@ def _eventually(check: Callable[[], bool], proc: subprocess.Popen[str], timeout:
     return check()
 
 
-@pytest.mark.parametrize("suffix", [".log", ".asc", ".blf", ".csv", ".pcap", ".pcapng"])
+# one text writer of python-can (.asc, .csv, .trc flush the same way), its binary BLF (containers
+# and a header rewritten at every flush) and our own pcapng (.pcap is the same sink with another header)
+@pytest.mark.parametrize("suffix", [".log", ".blf", ".pcapng"])
 def test_trace_is_streamed_and_survives_sigkill(start_rig, tmp_path: Path, suffix: str) -> None:
     """Issue 15: "Stream them (flush at least every 100 ms); a kill -9 loses at most the last 100 ms".
     The file holds the frames before the rig stops, and still after SIGKILL."""
