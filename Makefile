@@ -10,9 +10,12 @@ APT_STAMP := $(VENV)/.stamp-apt
 $(BIN)/python:
 	$(PY) -m venv $(VENV)
 
-$(STAMP): pyproject.toml | $(BIN)/python
+# The example device plugin (docs/devices/writing-a-device.md) is installed too: tests and docs use it.
+EXAMPLE_DEVICE := examples/gatewaylab-example-device
+$(STAMP): pyproject.toml $(EXAMPLE_DEVICE)/pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	$(BIN)/python -m pip install --quiet --no-deps -e $(EXAMPLE_DEVICE)
 	touch $@
 
 # Debian packages some tests need: iproute2 (veth pairs and namespaces of the EtherCAT wire tests)

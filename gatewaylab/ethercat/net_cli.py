@@ -1,13 +1,9 @@
-"""``gatewaylab net up|down [NAME]``: a veth pair for a local EtherCAT master (needs root / CAP_NET_ADMIN).
-
-``up NAME`` creates NAME (give it to the rig file's ``[ethercat] interface``) and its peer NAME-m
-(give that to the master: SOEM, pysoem, IgH generic driver), brings both up and turns IPv6 off on
-them so the kernel does not send router solicitations into the EtherCAT line.
-"""
+"""``gatewaylab net up|down [NAME]``: a veth pair for a local EtherCAT master (needs root / CAP_NET_ADMIN)."""
 
 from __future__ import annotations
 
 import argparse
+import os
 import shutil
 import subprocess
 import sys
@@ -16,6 +12,33 @@ from typing import Any
 
 DEFAULT_NAME = "gl-ecat"
 MAX_IFNAME = 15
+CAP_NET_ADMIN = 12
+
+#: ``gatewaylab net --help``: plain text (argparse prints it as is).
+DESCRIPTION = """\
+Create or remove a veth pair for a local EtherCAT master. Needs root or CAP_NET_ADMIN.
+
+  up NAME    creates NAME (give it to the rig file's [ethercat] interface) and its peer NAME-m
+             (give that to the master: SOEM, pysoem, IgH generic driver), brings both up and
+             turns IPv6 off on them, so the kernel sends no router solicitations into the line.
+  down NAME  removes the pair again.
+
+Example:
+  sudo gatewaylab net up gl-ecat      # then: interface = "gl-ecat" in the rig file
+"""
+
+
+def has_net_admin(status: str | None = None) -> bool:
+    """Root or CAP_NET_ADMIN in the effective set (``CapEff`` of /proc/self/status)."""
+    if status is None:
+        try:
+            status = Path("/proc/self/status").read_text()
+        except OSError:
+            return os.geteuid() == 0
+    for line in status.splitlines():
+        if line.startswith("CapEff:"):
+            return bool(int(line.split()[1], 16) >> CAP_NET_ADMIN & 1)
+    return os.geteuid() == 0
 
 
 def peer_name(name: str) -> str:
@@ -56,8 +79,12 @@ def net_down(name: str) -> None:
 
 
 def _cmd(args: argparse.Namespace) -> int:
+    if not has_net_admin():
+        print(f"error: gatewaylab net {args.action} needs root or CAP_NET_ADMIN "
+              f"(try: sudo gatewaylab net {args.action} {args.name})", file=sys.stderr)
+        return 1
     if shutil.which("ip") is None:
-        print("error: the 'ip' tool (iproute2) is missing", file=sys.stderr)
+        print("error: the 'ip' tool (iproute2) is missing (apt-get install iproute2)", file=sys.stderr)
         return 1
     try:
         if args.action == "up":
@@ -67,15 +94,18 @@ def _cmd(args: argparse.Namespace) -> int:
         else:
             net_down(args.name)
             print(f"removed {args.name} and {peer_name(args.name)}")
-    except (OSError, ValueError) as exc:
-        print(f"error: {exc} (creating veth pairs needs root or CAP_NET_ADMIN)", file=sys.stderr)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        print(f"error: {' '.join(str(exc).split())}", file=sys.stderr)
         return 1
     return 0
 
 
 def add_subcommand(subparsers: Any) -> None:
     p = subparsers.add_parser("net", help="create/remove a veth pair for a local EtherCAT master",
-                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+                              description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("action", choices=["up", "down"])
     p.add_argument("name", nargs="?", default=DEFAULT_NAME,
                    help=f"emulator-side interface (default {DEFAULT_NAME}); the master side is NAME-m")

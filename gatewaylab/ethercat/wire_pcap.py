@@ -1,10 +1,18 @@
-"""pcap capture of EtherCAT frames (link type 1, Ethernet), readable by Wireshark's EtherCAT dissector."""
+"""pcap capture of EtherCAT frames (link type 1, Ethernet), readable by Wireshark's EtherCAT dissector.
+
+Timestamps are Unix time. The wire thread writes ``time.time()``; an in-process master writes its
+clock time, so give the writer that clock (``PcapWriter(path, clock=clock)``): it adds the clock's
+``wall_epoch`` (the Unix time of clock time 0, the one time base of traces, docs/rig.md).
+"""
 
 from __future__ import annotations
 
 import struct
 import threading
-from typing import BinaryIO
+from typing import TYPE_CHECKING, BinaryIO
+
+if TYPE_CHECKING:
+    from ..common.clock import Clock
 
 PCAP_GLOBAL = struct.Struct("<IHHiIII")
 PCAP_RECORD = struct.Struct("<IIII")
@@ -13,9 +21,18 @@ PCAP_MAGIC = 0xA1B2C3D4
 
 
 class PcapWriter:
-    """Appends frames with their timestamps; safe to call from the wire thread and others."""
+    """Appends frames with their timestamps; safe to call from the wire thread and others.
 
-    def __init__(self, out: BinaryIO | str, snaplen: int = 65535) -> None:
+    ``write(t, frame)`` records ``epoch + t``: ``epoch`` is 0 for Unix timestamps (the wire thread),
+    or ``clock.wall_epoch`` with ``clock`` given, for clock times (in-process masters). The file is
+    flushed at least every ``flush_period`` of timestamps, so a killed process leaves a readable capture.
+    """
+
+    def __init__(self, out: BinaryIO | str, snaplen: int = 65535, *, clock: Clock | None = None,
+                 epoch: float | None = None, flush_period: float = 0.1) -> None:
+        self.epoch = epoch if epoch is not None else (clock.wall_epoch if clock is not None else 0.0)
+        self.flush_period = flush_period
+        self._flushed_at: float | None = None
         self._own = isinstance(out, str)
         self._f: BinaryIO = open(out, "wb") if isinstance(out, str) else out  # noqa: SIM115
         self._lock = threading.Lock()
@@ -25,12 +42,18 @@ class PcapWriter:
     def write(self, t: float, frame: bytes | bytearray) -> None:
         sec = int(t)
         usec = round((t - sec) * 1e6)
-        if usec >= 1_000_000:
-            sec, usec = sec + 1, usec - 1_000_000
+        if self.epoch:
+            whole = int(self.epoch)
+            sec += whole
+            usec += round((self.epoch - whole) * 1e6)
+        sec, usec = sec + usec // 1_000_000, usec % 1_000_000
         with self._lock:
             self._f.write(PCAP_RECORD.pack(sec, usec, len(frame), len(frame)))
             self._f.write(frame)
             self.frames += 1
+            if self._flushed_at is None or not 0 <= t - self._flushed_at < self.flush_period:
+                self._flushed_at = t
+                self._f.flush()
 
     def flush(self) -> None:
         with self._lock:

@@ -1,7 +1,8 @@
 """Rig files, the runtime that runs them, the device plugin interface and the `gatewaylab` command line.
 
-``from gatewaylab.rig import Rig`` is the runtime (imported on first use, so a device module that
-imports :mod:`gatewaylab.rig.plugin` does not pull the runtime in).
+``from gatewaylab.rig import Rig, load_rig, parse_rig`` (imported on first use, so the command
+line starts without loading every device, and a device module that imports
+:mod:`gatewaylab.rig.plugin` does not pull the runtime in).
 """
 
 from __future__ import annotations
@@ -9,9 +10,10 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
+    from .config import load_rig, parse_rig
     from .runtime import Rig
 
-__all__ = ["Rig"]
+__all__ = ["Rig", "load_rig", "parse_rig"]
 
 
 def __getattr__(name: str) -> Any:
@@ -19,4 +21,8 @@ def __getattr__(name: str) -> Any:
         from .runtime import Rig
 
         return Rig
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    if name in ("load_rig", "parse_rig"):
+        from . import config
+
+        return getattr(config, name)
+    raise AttributeError(f"module 'gatewaylab.rig' has no attribute {name!r}")

@@ -15,7 +15,8 @@ from types import FrameType
 from typing import Any
 
 from .. import __version__
-from ..common.errors import GatewaylabError
+from ..bus.transport.trace import TRACE_FORMATS, check_trace_path
+from ..common.errors import ConfigError, GatewaylabError
 
 #: Sub-commands contributed by other parts of the package: module with ``add_subcommand(subparsers)``.
 EXTRA_SUBCOMMANDS = (
@@ -41,6 +42,10 @@ See docs/rig.md for every section.
 """
 
 
+class UsageError(GatewaylabError):
+    """The command line asks for something impossible (exit code 2, like argparse's own errors)."""
+
+
 def _parse_trace(value: str) -> tuple[str, str]:
     bus, sep, path = value.partition("=")
     if not sep or not bus or not path:
@@ -48,9 +53,49 @@ def _parse_trace(value: str) -> tuple[str, str]:
     return bus, path
 
 
+def _check_rig_file(path: str | None) -> None:
+    """A missing or unreadable rig file is the user's to fix: say which and why (exit 2)."""
+    if path is None:
+        return
+    try:
+        with open(path, "rb") as f:
+            f.read().decode()
+    except IsADirectoryError:
+        raise UsageError(f"rig file {path} is a directory, not a TOML file") from None
+    except OSError as exc:
+        raise UsageError(f"cannot read rig file {path}: {exc.strerror or exc}") from None
+    except UnicodeDecodeError as exc:
+        raise UsageError(f"rig file {path} is not UTF-8 text (TOML): byte {exc.start} "
+                         f"is 0x{exc.object[exc.start]:02X}") from None
+
+
+def _check_writable(option: str, path: str) -> None:
+    """The folder of an output file must exist before the rig starts (exit 2 otherwise)."""
+    folder = Path(path).resolve().parent
+    if not folder.is_dir():
+        raise UsageError(f"{option} {path}: folder {folder} does not exist")
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise UsageError(f"{option} {path}: folder {folder} is not writable")
+
+
+def _write_ready_file(path: str, info: dict[str, Any]) -> None:
+    tmp = Path(path + ".tmp")
+    try:
+        tmp.write_text(json.dumps(info, indent=2))
+        tmp.replace(path)
+    except OSError as exc:
+        raise UsageError(f"--ready-file {path}: {exc.strerror or exc}") from None
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     from .runtime import Rig
 
+    _check_rig_file(args.rig)
+    for _bus_name, path in args.trace or []:
+        check_trace_path(path)
+        _check_writable("--trace", path)
+    if args.ready_file:
+        _check_writable("--ready-file", args.ready_file)
     rig = Rig.from_file(args.rig)
     if not rig.realtime:
         print("note: the rig file asks for a simulated clock; `gatewaylab run` always runs in real time",
@@ -59,11 +104,17 @@ def cmd_run(args: argparse.Namespace) -> int:
         from ..common.clock import RealTimeClock
 
         rig = Rig.from_file(args.rig, clock=RealTimeClock())
+    ready_written = False
     try:
         for bus_name, path in args.trace or []:
-            rig.add_trace(bus_name, path)
+            try:
+                rig.add_trace(bus_name, path)
+            except OSError as exc:
+                raise UsageError(f"--trace {bus_name}={path}: {exc.strerror or exc}") from None
         rig.start()
         info = rig.ready_info()
+        #: Unix time of the rig's clock time 0: trace files and client timestamps count from it.
+        info.setdefault("wall_epoch", rig.clock.wall_epoch)
 
         def stop(signum: int, frame: FrameType | None) -> None:
             rig.request_stop()
@@ -71,9 +122,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         signal.signal(signal.SIGINT, stop)
         signal.signal(signal.SIGTERM, stop)
         if args.ready_file:
-            tmp = Path(str(args.ready_file) + ".tmp")
-            tmp.write_text(json.dumps(info, indent=2))
-            tmp.replace(args.ready_file)
+            _write_ready_file(args.ready_file, info)
+            ready_written = True
         print(f"gatewaylab rig {rig.config.source} running (pid {os.getpid()})")
         for name, bus in info["buses"].items():
             print(f"  bus {name}: {bus.get('endpoint', '(no endpoint)')}"
@@ -85,7 +135,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         rig.run()
     finally:
         rig.close()
-        if args.ready_file:
+        if ready_written:
             try:
                 os.unlink(args.ready_file)
             except FileNotFoundError:
@@ -106,6 +156,7 @@ def cmd_rig_show(args: argparse.Namespace) -> int:
     if args.rig is None:
         print(resources.files("gatewaylab.rig").joinpath("default.toml").read_text(), end="")
     else:
+        _check_rig_file(args.rig)
         print(Path(args.rig).read_text(), end="")
     return 0
 
@@ -131,8 +182,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help="write JSON {pid, buses: {NAME: {endpoint}}, ...} here once everything is up; "
                           "removed again at shutdown")
     run.add_argument("--trace", metavar="BUS=FILE", action="append", type=_parse_trace,
-                     help="record BUS to FILE with python-can's writer for its suffix (.log candump, .asc, "
-                          ".blf, .csv, .trc); may be repeated")
+                     help="record BUS to FILE, streamed (flushed every 100 ms), in the format of its suffix: "
+                          f"{', '.join(TRACE_FORMATS)}; may be repeated")
     run.set_defaults(func=cmd_run)
 
     demo = sub.add_parser("demo", help="run the scripted demo (what `make demo` does)",
@@ -154,6 +205,10 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split())
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -165,8 +220,15 @@ def main(argv: list[str] | None = None) -> int:
     try:
         result: int = args.func(args)
         return result
+    except (UsageError, ConfigError) as exc:
+        print(f"gatewaylab: {_one_line(exc)}", file=sys.stderr)
+        return 2
     except GatewaylabError as exc:
-        print(f"gatewaylab: {exc}", file=sys.stderr)
+        print(f"gatewaylab: {_one_line(exc)}", file=sys.stderr)
+        return 1
+    except OSError as exc:                 # e.g. a rig's TCP port already in use
+        where = f" ({exc.filename})" if exc.filename else ""
+        print(f"gatewaylab: {exc.strerror or exc}{where}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         return 130

@@ -25,10 +25,14 @@ from .explain import explain
 
 
 class Narrator(can.Listener):
-    """Prints every frame on the bus with what it means."""
+    """Prints every frame on the bus with what it means, at its time on the rig's clock.
 
-    def __init__(self) -> None:
-        self.t0: float | None = None
+    ``wall_epoch`` is the Unix time of the rig's clock time 0 (from the ready file): a frame's
+    ``Message.timestamp`` minus it is the time the trace files and the rig count from (docs/rig.md).
+    """
+
+    def __init__(self, wall_epoch: float = 0.0) -> None:
+        self.wall_epoch = wall_epoch
         self.count = 0
         self.quiet = False
         self.lock = threading.Lock()
@@ -39,10 +43,13 @@ class Narrator(can.Listener):
         frame = CanFrame.from_message(msg)
         with self.lock:
             self.count += 1
-            if self.t0 is None:
-                self.t0 = msg.timestamp
             if not self.quiet:
-                print(f"    {msg.timestamp - self.t0:9.6f}  {frame!s:<26} {explain(frame)}", flush=True)
+                print(f"    {self.clock_time(msg.timestamp):9.6f}  {frame!s:<26} {explain(frame)}", flush=True)
+
+    def clock_time(self, timestamp: float) -> float:
+        """Seconds since the rig's clock time 0 of a Unix ``timestamp``."""
+        # A rig older than the one time base sent clock times already (nothing before 1973 is Unix time).
+        return timestamp - self.wall_epoch if timestamp > 1e8 else timestamp
 
 
 def _wait_ready(proc: subprocess.Popen[bytes], ready: Path, timeout: float = 30.0) -> dict[str, Any]:
@@ -98,6 +105,10 @@ def demo_canopen(bus: can.BusABC, narrator: Narrator, nodes: list[int], unconfig
             network.lss.RESPONSE_TIMEOUT = 0.02
             narrator.quiet = True
             found, address = network.lss.fast_scan()
+            if not found:
+                # a busy machine can miss a 20 ms answer window (each missed answer reads as a 1 bit)
+                network.lss.RESPONSE_TIMEOUT = 0.1
+                found, address = network.lss.fast_scan()
             narrator.quiet = False
             if found:
                 print(f"  -> found vendor 0x{address[0]:X} product 0x{address[1]:X} revision 0x{address[2]:X} "
@@ -165,7 +176,10 @@ def main(argv: list[str] | None = None) -> int:
             print(f"  ready file: {json.dumps(info)}")
             step(f"Connecting with python-can: can.Bus(interface='gatewaylab', channel='{endpoint}')")
             bus = can.Bus(interface="gatewaylab", channel=endpoint, name="demo", receive_own_messages=True)
-            narrator = Narrator()
+            epoch = float(info.get("wall_epoch", 0.0))
+            print(f"  times below: seconds since the rig's clock time 0 (Unix time {epoch:.6f}); "
+                  "the trace file has the same instants as Unix time")
+            narrator = Narrator(epoch)
             try:
                 if nodes:
                     nodes = demo_canopen(bus, narrator, nodes, unconfigured)

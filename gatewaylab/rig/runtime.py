@@ -187,9 +187,10 @@ class Rig:
                     continue
             except OSError as exc:
                 if bc.endpoint == "tcp":
-                    raise ConfigError(f"{where}: tcp_port = {bc.tcp_port} cannot be used on 127.0.0.1 "
-                                      f"({exc.strerror or exc})") from None
-                raise RigStartError(f"{where}: cannot open the endpoint of bus {bc.name!r}: {exc}") from None
+                    raise RigStartError(f"{where}: tcp_port = {bc.tcp_port} cannot be used on 127.0.0.1 "
+                                        f"({exc.strerror or exc})") from None
+                raise RigStartError(f"{where}: cannot open the endpoint of bus {bc.name!r}: "
+                                    f"{exc.strerror or exc}") from None
             self.servers[bc.name] = server
             self._resources.sockets.append(server.listener)
 
@@ -285,8 +286,8 @@ class Rig:
         return self._closed
 
     def start(self) -> None:
-        """Start every participant (open ptys, TCP ports, wires); a RigStartError names the section
-        whose start failed (a port in use is a ConfigError: the rig file chose it)."""
+        """Start every participant (open ptys, TCP ports, wires); a RigStartError (a run-time failure,
+        exit 1 from `gatewaylab run`) names the section whose start failed, e.g. a port in use."""
         if self._closed:
             raise ConfigError("this rig is closed; build a new one")
         if self._started:
@@ -297,10 +298,9 @@ class Rig:
                 try:
                     p.start()
                 except OSError as exc:
-                    if exc.errno in (errno.EADDRINUSE, errno.EACCES, errno.EADDRNOTAVAIL):
-                        raise ConfigError(f"{section.where}: cannot start {p.name}: "
-                                          f"{exc.strerror or exc} (choose another port)") from None
-                    raise RigStartError(f"{section.where}: cannot start {p.name}: {exc}") from None
+                    hint = " (choose another port)" if exc.errno == errno.EADDRINUSE else ""
+                    raise RigStartError(f"{section.where}: cannot start {p.name}: "
+                                        f"{exc.strerror or exc}{hint}") from None
 
     def ready_info(self) -> dict[str, Any]:
         info: dict[str, Any] = {"pid": os.getpid(), "buses": {}}

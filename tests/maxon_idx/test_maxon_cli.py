@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 from maxon_helpers import IdxRig
 
+from gatewaylab.devices.maxon_idx.host.client import IdxClient, IdxValueError
 from gatewaylab.rig.cli import main
 
 RIG_FILE = """\
@@ -112,5 +113,41 @@ def test_cli_errors_are_clear(capsys: pytest.CaptureFixture[str]) -> None:
         assert main(["idx", "read", pty, "0", "0x1008", "0"]) == 1      # a string via ReadObject
         err = capsys.readouterr().err
         assert '0x06070010 "Service parameter error"' in err and "add -s or -t str" in err
+    finally:
+        r.close()
+
+
+def test_idx_accepts_every_endpoint_form_of_the_ready_file(capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 15, one endpoint syntax: the ready file's TCP port as printed (127.0.0.1:PORT), its canonical
+    form tcp:127.0.0.1:PORT and pyserial's socket:// URL all reach the IDX (ReadObject 2.1.1.1)."""
+    r = IdxRig([])
+    try:
+        hostport = r.info["usb"]["idx1"]["tcp"]
+        for port in (hostport, "tcp:" + hostport, "socket://" + hostport):
+            assert main(["idx", "read", port, "0", "0x1018", "4"]) == 0
+            assert "= 8193 (0x00002001)" in capsys.readouterr().out
+            with IdxClient(port) as client:
+                assert client.read(0, 0x1018, 4) == 0x2001
+    finally:
+        r.close()
+
+
+def test_typed_read_refuses_a_value_that_does_not_fit(capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 15: `idx read ... -t i16` of a value that does not fit reports an error (exit 2) instead of
+    truncating. ReadObject (2.1.1.1) carries 4 bytes; 0x1018:04 = 0x2001 does not fit u8 or i8."""
+    r = IdxRig([])
+    try:
+        pty = r.info["usb"]["idx1"]["pty"]
+        for type_ in ("u8", "i8"):
+            assert main(["idx", "read", pty, "0", "0x1018", "4", "-t", type_]) == 2
+            err = capsys.readouterr().err
+            assert f"the value 0x00002001 does not fit {type_}" in err and "Traceback" not in err
+        assert main(["idx", "read", pty, "0", "0x1018", "4", "-t", "i16"]) == 0
+        assert "= 8193 (0x2001)" in capsys.readouterr().out
+        assert main(["idx", "write", pty, "1", "0x30B0", "0", "-5", "-t", "i32"]) == 0
+        assert main(["idx", "read", pty, "1", "0x30B0", "0", "-t", "i16"]) == 0   # sign extension fits
+        assert "= -5 (0xFFFB)" in capsys.readouterr().out
+        with IdxClient(pty) as client, pytest.raises(IdxValueError):
+            client.read(0, 0x1018, 4, "u8")
     finally:
         r.close()

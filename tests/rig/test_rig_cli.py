@@ -70,10 +70,11 @@ def test_bad_rig_files_are_refused_with_a_clear_message(data: dict, message: str
 
 
 def test_run_reports_a_bad_rig_file_and_exits_nonzero(tmp_path: Path, capsys) -> None:
-    """`gatewaylab run` reports a bad rig file on stderr and exits 1, no traceback (docs/rig.md)."""
+    """`gatewaylab run` reports a bad rig file on stderr and exits non-zero, no traceback (docs/rig.md);
+    issue 15 "Errors a user can act on": a config error exits 2 (usage), runtime failures 1."""
     rig = tmp_path / "bad.toml"
     rig.write_text("[[bus]]\nname = 'can0'\nbitrate = 'fast'\n")
-    assert main(["run", str(rig)]) == 1
+    assert main(["run", str(rig)]) == 2
     assert "bitrate" in capsys.readouterr().err
 
 

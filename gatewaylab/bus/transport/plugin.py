@@ -17,24 +17,28 @@ from typing import Any
 import can
 from can.bus import BusState, CanProtocol
 
+from ...common.endpoint import EndpointError, EndpointKind, parse_endpoint
 from ...common.errors import GatewaylabError
 from .. import wire
 from ..frame import CanFrame
 
 
 def _connect(channel: str, timeout: float) -> socket.socket:
-    if channel.startswith("unix:") or channel.startswith("/"):
-        path = channel[5:] if channel.startswith("unix:") else channel
+    try:
+        ep = parse_endpoint(channel, bare_path=EndpointKind.UNIX)
+    except EndpointError as exc:
+        raise can.CanInitializationError(str(exc)) from None
+    if ep.kind is EndpointKind.UNIX:
         sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         sock.settimeout(timeout)
-        sock.connect(path)
-    else:
-        hostport = channel[4:] if channel.startswith("tcp:") else channel
-        host, _, port = hostport.rpartition(":")
-        if host not in ("127.0.0.1", "localhost", "::1", "[::1]"):
-            raise can.CanInitializationError(f"gatewaylab endpoints live on this host only, not {host!r}")
-        sock = socket.create_connection((host.strip("[]"), int(port)), timeout=timeout)
+        sock.connect(ep.path)
+    elif ep.kind is EndpointKind.TCP:
+        if not ep.is_local:
+            raise can.CanInitializationError(f"gatewaylab endpoints live on this host only, not {ep.host!r}")
+        sock = socket.create_connection((ep.host, ep.port), timeout=timeout)
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+    else:
+        raise can.CanInitializationError(f"{channel!r} is not a bus endpoint (unix:PATH or tcp:HOST:PORT)")
     return sock
 
 

@@ -1,7 +1,8 @@
 """``gatewaylab idx ...``: talk to an IDX (emulated or real) over its USB command protocol.
 
-PORT is anything pyserial opens (``/dev/pts/N``, ``/dev/ttyACM0``, ``socket://127.0.0.1:PORT``)
-or ``usb`` / ``usb:VID:PID`` for pyusb.
+PORT is an endpoint (docs/endpoints.md): a serial device (``/dev/pts/N``, ``/dev/ttyACM0``),
+``tcp:127.0.0.1:PORT`` (aliases ``socket://127.0.0.1:PORT``, ``127.0.0.1:PORT``), or ``usb`` /
+``usb:VID:PID`` for pyusb.
 """
 
 from __future__ import annotations
@@ -12,10 +13,11 @@ import sys
 from collections.abc import Callable
 from typing import Any
 
+from ....common.endpoint import EndpointError
 from ....common.errors import ConfigError, LocalError
 from ..commands import NmtCommand
 from ..errors import ErrorCode
-from .client import IdxClient, IdxError
+from .client import IdxClient, IdxError, IdxTimeout
 
 _NMT = {
     "start": NmtCommand.START_REMOTE_NODE,
@@ -29,9 +31,12 @@ _DESCRIPTION = """\
 Talk to a maxon IDX (emulated or real) over its USB command protocol (IDX Communication Guide
 chapter 2); node ids other than 0 and the IDX's own go through its CAN gateway (chapter 5).
 
-PORT is anything pyserial opens (/dev/pts/N, /dev/ttyACM0, socket://127.0.0.1:PORT) or
-usb / usb:VID:PID for pyusb. Errors print the chapter 6 code, name and cause, e.g.
+PORT is a serial device (/dev/pts/N, /dev/ttyACM0), tcp:127.0.0.1:PORT (what the rig's ready
+file lists; socket://127.0.0.1:PORT and 127.0.0.1:PORT are accepted too) or usb / usb:VID:PID
+for pyusb. Numbers (node ids, indexes, subindexes, values) are decimal or 0x hex. Errors print
+the chapter 6 code, name and cause, e.g.
   error: read node 9 0x1000:00: 0x05040000 "SDO timeout" (SDO protocol timed out)
+Exit codes: 0 ok, 1 the IDX or the port failed, 2 the command line is wrong.
 """
 
 
@@ -70,7 +75,8 @@ def cmd_read(args: argparse.Namespace) -> int:
             print(f"{_obj(args)} = {data.hex(' ').upper()} ({len(data)} bytes)")
         else:
             value = client.read(args.node, args.index, args.sub, args.type)
-            print(f"{_obj(args)} = {value} (0x{value & 0xFFFFFFFF:0{_width(args.type)}X})")
+            width = _width(args.type)
+            print(f"{_obj(args)} = {value} (0x{value & ((1 << 4 * width) - 1):0{width}X})")
     return 0
 
 
@@ -159,6 +165,13 @@ def _run(func: Any) -> Any:
         try:
             result: int = func(args)
             return result
+        except EndpointError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        except IdxTimeout as exc:
+            print(f"error: no reply from {args.port} within {args.timeout:g} s to {exc.request}: "
+                  "is it an IDX, and is no other program using it?", file=sys.stderr)
+            return 1
         except IdxError as exc:
             hint = ""
             if exc.code == ErrorCode.SERVICE_PARAMETER_ERROR and getattr(args, "idx_command", "") == "read" \
@@ -167,7 +180,10 @@ def _run(func: Any) -> Any:
             print(f"error: {exc}{hint}", file=sys.stderr)
             return 1
         except (OSError, ConfigError) as exc:        # serial.SerialException is an OSError
-            print(f"error: cannot open port {args.port}: {_reason(exc, args.port)}", file=sys.stderr)
+            reason = _reason(exc, args.port)
+            if "Inappropriate ioctl" in reason:
+                reason = "not a serial port (so not an IDX)"
+            print(f"error: cannot open port {args.port}: {reason}", file=sys.stderr)
             return 1
         except (ValueError, struct.error, LocalError) as exc:
             print(f"error: {exc}", file=sys.stderr)
@@ -182,7 +198,7 @@ def add_subcommand(subparsers: Any) -> None:
     sub = idx.add_subparsers(dest="idx_command", required=True)
 
     def common(p: argparse.ArgumentParser) -> None:
-        p.add_argument("port", metavar="PORT", help="/dev/pts/N, socket://127.0.0.1:PORT, or usb")
+        p.add_argument("port", metavar="PORT", help="/dev/pts/N, tcp:127.0.0.1:PORT, or usb")
         p.add_argument("--timeout", type=float, default=1.0, help="reply timeout in seconds")
 
     def obj(p: argparse.ArgumentParser) -> None:
@@ -217,8 +233,9 @@ def add_subcommand(subparsers: Any) -> None:
     p.add_argument("--assign", type=_ranged("node id", 1, 127, "{}"), default=None, metavar="N",
                    help="give the found drives node ids N, N+1, ...")
     p.add_argument("--store", action="store_true", help="store the configuration in each drive")
-    p.add_argument("--max", type=int, default=127, help="stop after this many drives")
-    p.add_argument("--lss-timeout", type=int, default=20, metavar="MS", help="ReadLSS timeout per request")
+    p.add_argument("--max", type=_ranged("count", 1, 127, "{}"), default=127, help="stop after this many drives")
+    p.add_argument("--lss-timeout", type=_ranged("timeout", 1, 0xFFFF, "{}"), default=20,
+                   metavar="MS", help="ReadLSS timeout per request")
     p.set_defaults(func=_run(cmd_lss_scan))
 
 

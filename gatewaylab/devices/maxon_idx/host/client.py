@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from ....common.clock import RealTimeClock
-from ....common.errors import GatewaylabError, RemoteError
+from ....common.errors import GatewaylabError, LocalError, RemoteError
 from ..codec import DecoderEvent, FrameDecoder, FrameReceived, encode_frame
 from ..commands import (
     MAX_SEGMENT,
@@ -75,6 +75,10 @@ class IdxError(RemoteError):
         if detail:
             text = f"{detail}; {text}"
         super().__init__(f"{request}: {text}" if request else text, code)
+
+
+class IdxValueError(LocalError, ValueError):
+    """A typed read asked for a type narrower than the object's value."""
 
 
 class IdxTimeout(IdxError):
@@ -186,9 +190,21 @@ class IdxClient:
                  f"write node {node_id} 0x{index:04X}:{subindex:02X}")
 
     def read(self, node_id: int, index: int, subindex: int, type_: str = "u32") -> int:
-        """Typed read: ``type_`` is one of u8 u16 u32 i8 i16 i32."""
+        """Typed read: ``type_`` is one of u8 u16 u32 i8 i16 i32.
+
+        ReadObject always carries 4 bytes, shorter objects zero-padded (2.1.1.1); bytes beyond the
+        type's width that are neither that padding nor the sign extension of a negative value
+        mean the object does not fit ``type_``: :class:`IdxValueError`, never a silent truncation.
+        """
         s = _TYPES[type_]
-        return int(s.unpack_from(self.read_object(node_id, index, subindex))[0])
+        data = self.read_object(node_id, index, subindex)
+        value = int(s.unpack_from(data)[0])
+        rest = data[s.size:]
+        if any(rest) and not (value < 0 and rest == b"\xff" * len(rest)):
+            whole = int.from_bytes(data, "little")
+            raise IdxValueError(f"read node {node_id} 0x{index:04X}:{subindex:02X}: the value 0x{whole:08X} "
+                                f"does not fit {type_}; read it as u32 or i32")
+        return value
 
     def write(self, node_id: int, index: int, subindex: int, value: int, type_: str = "u32") -> None:
         self.write_object(node_id, index, subindex, _TYPES[type_].pack(value))

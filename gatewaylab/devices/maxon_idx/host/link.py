@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Any, Protocol
 
+from ....common.endpoint import EndpointKind, parse_endpoint
 from ....common.errors import ConfigError
 
 #: USB identities seen in public udev rules (not a maxon document; untested without hardware):
@@ -106,10 +107,12 @@ class UsbLink:
 
 
 def open_link(port: str) -> Link:
-    """``usb`` or ``usb:VID:PID`` -> pyusb; anything else is a pyserial port name or URL."""
-    if port == "usb" or port.startswith("usb:"):
-        parts = port.split(":")
-        if len(parts) == 3:
-            return UsbLink(int(parts[1], 16), int(parts[2], 16))
-        return UsbLink()
-    return SerialLink(port)
+    """Any endpoint of :mod:`gatewaylab.common.endpoint`: ``usb`` / ``usb:VID:PID`` -> pyusb;
+    ``tcp:HOST:PORT`` (or ``socket://HOST:PORT``, ``HOST:PORT``), a serial device or another
+    pyserial URL -> pyserial."""
+    ep = parse_endpoint(port, bare_path=EndpointKind.SERIAL)
+    if ep.kind is EndpointKind.USB:
+        return UsbLink(ep.vendor, ep.product)
+    if ep.kind is EndpointKind.UNIX:
+        raise ConfigError(f"{port}: an IDX has no Unix-socket port (use its pty, tcp:HOST:PORT or usb)")
+    return SerialLink(ep.pyserial_url())
