@@ -3,6 +3,8 @@
 import json
 import os
 import selectors
+import shutil
+import signal
 import subprocess
 import sys
 import time
@@ -57,6 +59,7 @@ def wait_for_line(proc: "subprocess.Popen[str]", needle: str, timeout: float = 2
 @pytest.fixture
 def start_rig(tmp_path: Path) -> Iterator:
     procs: list[subprocess.Popen[str]] = []
+    state_dirs: dict[int, list[Path]] = {}
 
     def _start(rig_text: str | None, *extra: str) -> RunningRig:
         args = [sys.executable, "-m", "gatewaylab", "run"]
@@ -70,7 +73,10 @@ def start_rig(tmp_path: Path) -> Iterator:
                                 env={**os.environ, "PYTHONUNBUFFERED": "1"})
         procs.append(proc)
         wait_for_line(proc, "bus ")  # printed after the ready file was written
-        return RunningRig(proc, ready, json.loads(ready.read_text()))
+        info = json.loads(ready.read_text())
+        state_dirs[proc.pid] = [Path(bus["endpoint"][len("unix:"):]).parent for bus in info["buses"].values()
+                                if bus.get("endpoint", "").startswith("unix:")]
+        return RunningRig(proc, ready, info)
 
     yield _start
     for proc in procs:  # SIGTERM first: a rig removes its sockets and state folder (issue 15)
@@ -84,3 +90,7 @@ def start_rig(tmp_path: Path) -> Iterator:
         for pipe in (proc.stdout, proc.stderr):
             if pipe is not None:
                 pipe.close()
+        if proc.returncode == -signal.SIGKILL:  # killed on purpose: nothing in it could clean up
+            for folder in state_dirs.get(proc.pid, []):
+                if folder.name.startswith("gatewaylab-"):
+                    shutil.rmtree(folder, ignore_errors=True)
