@@ -14,9 +14,9 @@ from typing import TYPE_CHECKING, Any
 
 from ..bus.frame import CanFrame
 from ..common.clock import TimerHandle
+from ..od import Entry
 from .errors import VALUE_RANGE_EXCEEDED, SdoAbort
 from .nmt import NmtState
-from .od import Entry
 
 if TYPE_CHECKING:
     from .node import Node
@@ -77,7 +77,7 @@ class Emcy:
 
     @staticmethod
     def _validate_history(entry: Entry, value: Any) -> None:
-        if entry.sub == 0 and value != 0:
+        if entry.subindex == 0 and value != 0:
             raise SdoAbort(VALUE_RANGE_EXCEEDED, "0x1003:00 accepts only 0 (clear the history)")
 
     def _validate_cob_id(self, entry: Entry, value: Any) -> None:

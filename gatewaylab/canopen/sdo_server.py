@@ -30,8 +30,8 @@ from .errors import (
 )
 
 if TYPE_CHECKING:
+    from ..od import Entry
     from .node import Node
-    from .od import Entry
 
 #: command byte, index, sub-index (CiA 301 figure 20 ff.)
 SDO_HEADER = struct.Struct("<BHB")

@@ -16,9 +16,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ..common.errors import ConfigError
+from ..od import Entry, decode, encode
 from .communication import LOAD_SIGNATURE, SAVE_SIGNATURE
 from .errors import DATA_CANNOT_BE_STORED, SdoAbort
-from .od import Entry, decode, encode
 
 if TYPE_CHECKING:
     from .node import Node
@@ -57,7 +57,7 @@ class Storage:
     def _save(self, entry: Entry, value: Any) -> None:
         if value != SAVE_SIGNATURE:
             raise SdoAbort(DATA_CANNOT_BE_STORED, "0x1010 expects the signature 'save'")
-        areas = AREAS.get(entry.sub)
+        areas = AREAS.get(entry.subindex)
         if areas is None:
             raise SdoAbort(DATA_CANNOT_BE_STORED)
         od = self.node.od
@@ -69,7 +69,7 @@ class Storage:
     def _load(self, entry: Entry, value: Any) -> None:
         if value != LOAD_SIGNATURE:
             raise SdoAbort(DATA_CANNOT_BE_STORED, "0x1011 expects the signature 'load'")
-        areas = AREAS.get(entry.sub)
+        areas = AREAS.get(entry.subindex)
         if areas is None:
             raise SdoAbort(DATA_CANNOT_BE_STORED)
         self.stored = {k: v for k, v in self.stored.items() if not self._in(int(k[:4], 16), areas)}

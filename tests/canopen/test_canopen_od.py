@@ -17,9 +17,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from gatewaylab.canopen import errors as E
-from gatewaylab.canopen.errors import SdoAbort
+from gatewaylab.od import SdoAbort
 from gatewaylab.canopen.node import Node
-from gatewaylab.canopen.od import (
+from gatewaylab.common.errors import ConfigError
+from gatewaylab.od import (
     Access,
     DataType,
     Entry,
@@ -29,7 +30,6 @@ from gatewaylab.canopen.od import (
     encode,
     type_range,
 )
-from gatewaylab.common.errors import ConfigError
 
 
 @pytest.mark.parametrize(("dt", "value", "wire"), [

@@ -11,7 +11,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from gatewaylab.bus import CanFrame, VirtualBus
-from gatewaylab.canopen.errors import ABORT_NAMES, SdoAbort
+from gatewaylab.od import SdoAbort, SdoAbortCode
 from gatewaylab.canopen.node import Node
 from gatewaylab.common.clock import SimulatedClock
 
@@ -38,7 +38,7 @@ def _valid_response(data: bytes) -> bool:
     if len(data) != 8:
         return False
     if data[0] == 0x80:
-        return int.from_bytes(data[4:], "little") in ABORT_NAMES
+        return SdoAbortCode.known(int.from_bytes(data[4:], "little"))
     return True
 
 

@@ -12,7 +12,7 @@ import canopen
 
 from gatewaylab.bus import CanFrame
 from gatewaylab.canopen import errors as E
-from gatewaylab.canopen.errors import SdoAbort
+from gatewaylab.od import SdoAbort
 from gatewaylab.canopen.sdo_client import SdoClient
 
 
