@@ -17,7 +17,6 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from gatewaylab.canopen import errors as E
-from gatewaylab.od import SdoAbort
 from gatewaylab.canopen.node import Node
 from gatewaylab.common.errors import ConfigError
 from gatewaylab.od import (
@@ -26,6 +25,7 @@ from gatewaylab.od import (
     Entry,
     ObjectCode,
     ObjectDictionary,
+    SdoAbort,
     decode,
     encode,
     type_range,
