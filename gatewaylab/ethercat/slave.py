@@ -374,7 +374,7 @@ class Slave:
         return out, bit
 
 
-def _get_bits(buf: bytes, offset: int, length: int) -> bytes:
+def _get_bits(buf: bytes | bytearray, offset: int, length: int) -> bytes:
     if offset % 8 == 0 and length % 8 == 0:
         return bytes(buf[offset // 8:(offset + length) // 8])
     value = int.from_bytes(buf, "little") >> offset & ((1 << length) - 1)

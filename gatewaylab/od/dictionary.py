@@ -160,7 +160,7 @@ class ObjectDictionary:
             raise SdoAbort(SdoAbortCode.OBJECT_DOES_NOT_EXIST, f"0x{index:04X}")
         return obj
 
-    def __contains__(self, key: object) -> bool:
+    def __contains__(self, key: Any) -> bool:
         if isinstance(key, tuple):
             return key in self.entries
         return key in self.objects

@@ -14,7 +14,7 @@ from typing import ClassVar, Self
 
 from ...common.errors import LocalError
 from .codec import Frame
-from .errors import ErrorCode, IdxRemoteError
+from .errors import IdxRemoteError, SdoAbortCode
 
 RESPONSE_OPCODE = 0x00
 #: Largest data block of one segment (guide 2.1.1.2/2.1.1.3/2.1.2.3: "Length (max. 255 bytes)").
@@ -66,7 +66,7 @@ def _pad(data: bytes) -> bytes:
 
 def _need_len(frame: Frame, *allowed: int) -> None:
     if frame.length not in allowed:
-        raise IdxRemoteError(ErrorCode.SERVICE_PARAMETER_ERROR,
+        raise IdxRemoteError(SdoAbortCode.LENGTH_MISMATCH,
                              f"opcode 0x{frame.opcode:02X} with Len {frame.length}, expected {allowed}")
 
 
@@ -288,7 +288,7 @@ def decode_request(frame: Frame) -> Request:
     """The request in ``frame``; IdxRemoteError with the reply's code when it is not one."""
     cls = _REQUESTS.get(frame.opcode)
     if cls is None:
-        raise IdxRemoteError(ErrorCode.ILLEGAL_COMMAND, f"unknown opcode 0x{frame.opcode:02X}")
+        raise IdxRemoteError(SdoAbortCode.ILLEGAL_COMMAND, f"unknown opcode 0x{frame.opcode:02X}")
     return cls.from_frame(frame)
 
 
@@ -427,7 +427,7 @@ def error_reply(opcode: int, code: int) -> Reply:
 def decode_reply(opcode: int, frame: Frame) -> Reply:
     """Decode the reply to a request with ``opcode``; a Len 2 reply decodes to its error only."""
     if frame.opcode != RESPONSE_OPCODE:
-        raise IdxRemoteError(ErrorCode.GENERAL_ERROR, f"reply opcode 0x{frame.opcode:02X}, expected 0x00")
+        raise IdxRemoteError(SdoAbortCode.GENERAL_ERROR, f"reply opcode 0x{frame.opcode:02X}, expected 0x00")
     if frame.length < 2:
-        raise IdxRemoteError(ErrorCode.GENERAL_ERROR, f"reply of {frame.length} words has no error DWORD")
+        raise IdxRemoteError(SdoAbortCode.GENERAL_ERROR, f"reply of {frame.length} words has no error DWORD")
     return REPLY_TYPE.get(opcode, StatusReply).from_frame(frame)
