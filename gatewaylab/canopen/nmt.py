@@ -28,6 +28,11 @@ class NmtState(Enum):
     OPERATIONAL = 0x05
     PRE_OPERATIONAL = 0x7F
 
+    @property
+    def label(self) -> str:
+        """The state as CiA 301 writes it ("Pre-operational")."""
+        return self.name.replace("_", "-").capitalize()
+
 
 class NmtCommand(IntEnum):
     """NMT command specifiers (IDX guide table 3-12)."""
@@ -37,6 +42,17 @@ class NmtCommand(IntEnum):
     ENTER_PRE_OPERATIONAL = 0x80
     RESET_NODE = 0x81
     RESET_COMMUNICATION = 0x82
+
+    @property
+    def label(self) -> str:
+        """What the command does, for traces ("start (-> Operational)", "reset node")."""
+        if self is NmtCommand.START_REMOTE_NODE:
+            return f"start (-> {NmtState.OPERATIONAL.label})"
+        if self is NmtCommand.STOP_REMOTE_NODE:
+            return f"stop (-> {NmtState.STOPPED.label})"
+        if self is NmtCommand.ENTER_PRE_OPERATIONAL:
+            return f"enter {NmtState.PRE_OPERATIONAL.label}"
+        return self.name.replace("_", " ").lower()
 
 
 #: Slave transitions of IDX guide table 3-11 / CiA 301 figure 48 that only change the state.
