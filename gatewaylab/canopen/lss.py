@@ -17,7 +17,6 @@ Three layers, so that the protocol stays sans-I/O:
 
 from __future__ import annotations
 
-import json
 import struct
 from collections import deque
 from collections.abc import Callable, Generator
@@ -29,6 +28,7 @@ from typing import TYPE_CHECKING, Any
 from ..bus.frame import CanFrame
 from ..common.clock import Clock, TimerHandle
 from ..common.errors import LocalError, RemoteError, TimeoutError_
+from ..common.store import JsonFileStore, ParameterStore
 from .nmt import NmtState
 
 if TYPE_CHECKING:
@@ -368,15 +368,18 @@ def bit_timing_index(bitrate: int) -> int:
 
 
 class LssConfigStore:
-    """The LSS 'non-volatile memory': node-ID and bit timing index in a small JSON file."""
+    """The LSS 'non-volatile memory': node-ID and bit timing index in a :class:`ParameterStore`
+    (a JSON file when given a path)."""
 
-    def __init__(self, path: Path) -> None:
-        self.path = path
+    def __init__(self, store: ParameterStore | Path) -> None:
+        self.store: ParameterStore = JsonFileStore(store) if isinstance(store, Path) else store
 
     def load(self) -> tuple[int, int] | None:
         """(node_id, bit_timing_index) stored earlier, or None."""
         try:
-            raw = json.loads(self.path.read_text())
+            raw = self.store.load()
+            if raw is None:
+                return None
             return int(raw["node_id"]), int(raw["bit_timing"])
         except (OSError, ValueError, KeyError, TypeError):
             return None
@@ -384,8 +387,7 @@ class LssConfigStore:
     def save(self, node_id: int, bit_timing: int) -> int:
         """Store; returns the CiA 305 error code (0 ok, 2 storage media access error)."""
         try:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            self.path.write_text(json.dumps({"node_id": node_id, "bit_timing": bit_timing}))
+            self.store.save({"node_id": node_id, "bit_timing": bit_timing})
         except OSError:
             return 2
         return 0

@@ -17,6 +17,7 @@ from ..bus.bus import Controller, VirtualBus
 from ..bus.frame import CanFrame
 from ..common.clock import Clock
 from ..common.errors import ConfigError, LocalError
+from ..common.store import JsonFileStore, ParameterStore
 from ..od import Access, Entry, ObjectDictionary, ReadHook, SdoAbort, SdoAbortCode, Validator, WriteHook, coerce
 from .communication import add_communication_objects
 from .emcy import Emcy
@@ -67,7 +68,8 @@ class Node:
     """A CANopen slave: NMT, SDO server, 4 RPDO + 4 TPDO, SYNC, EMCY, heartbeat, store/restore."""
 
     def __init__(self, clock: Clock, bus: VirtualBus, node_id: int | None, od: ObjectDictionary,
-                 name: str = "", *, store_path: Path | None = None, sdo_timeout: float = 1.0) -> None:
+                 name: str = "", *, store_path: Path | None = None, sdo_timeout: float = 1.0,
+                 store: ParameterStore | None = None) -> None:
         if node_id is not None and not 1 <= node_id <= 127:
             raise ConfigError(f"node-id {node_id} out of 1..127 (None = unconfigured)")
         od.node_id = node_id
@@ -101,7 +103,9 @@ class Node:
         self.heartbeat = Heartbeat(self)
         self.sync = Sync(self)
         self.pdo = PdoManager(self)
-        self.storage = Storage(self, store_path)
+        #: Non-volatile memory of 0x1010/0x1011: ``store``, else a JSON file at ``store_path``, else memory.
+        self.storage = Storage(self, store if store is not None else
+                               JsonFileStore(store_path) if store_path is not None else None)
 
     # -- identity --------------------------------------------------------------------------------
     @property
