@@ -64,12 +64,14 @@ class Emcy:
         node.add_reaction(0x1015, lambda e, v: self.configure())
 
     def configure(self) -> None:
+        """Take the COB-ID and inhibit time from 0x1014/0x1015."""
         od = self.node.od
         cob = od.get(0x1014, 0)
         self.cob_id = 0 if cob & 0x80000000 else cob & 0x7FF
         self.inhibit = od.get(0x1015, 0) * 100e-6
 
     def halt(self) -> None:
+        """Cancel the inhibit timer (reset, stop)."""
         self._queue.clear()
         if self._timer is not None:
             self._timer.cancel()
@@ -118,6 +120,7 @@ class Emcy:
         self._emit(EMCY_NO_ERROR, b"")
 
     def clear_all(self, send: bool = True) -> None:
+        """Forget every active error (error register 0x1001 = 0); optionally send 'no error'."""
         had = bool(self.active)
         self.active.clear()
         self.node.od.values[(0x1001, 0)] = 0

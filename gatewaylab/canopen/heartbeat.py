@@ -51,6 +51,7 @@ class Heartbeat:
 
     # -- configuration -------------------------------------------------------------------------
     def configure(self) -> None:
+        """Start anew from the dictionary: heartbeat consumer times (0x1016), guarding state cleared."""
         self._toggle = False
         self.life_guarding_failed = False
         self._read_consumers()
@@ -87,6 +88,7 @@ class Heartbeat:
                 raise SdoAbort(GENERAL_PARAMETER_INCOMPATIBILITY, f"node {nid} already consumed")
 
     def register(self, add: AddHandler) -> None:
+        """Add the COB-IDs this node consumes (heartbeats, guarding RTR) to the dispatch table."""
         node_id = self.node.node_id
         assert node_id is not None
         add(HEARTBEAT_BASE + node_id, self._on_guard_request)
@@ -95,6 +97,7 @@ class Heartbeat:
                 add(HEARTBEAT_BASE + nid, self._on_heartbeat)
 
     def halt(self) -> None:
+        """Cancel the producer and consumer timers (reset, stop)."""
         if self._producer is not None:
             self._producer.cancel()
             self._producer = None

@@ -142,18 +142,23 @@ class NmtMaster:
         self._send(encode_nmt(command, node_id))
 
     def start(self, node_id: int = 0) -> None:
+        """NMT start remote node (0 = all nodes)."""
         self.send_command(NmtCommand.START_REMOTE_NODE, node_id)
 
     def stop(self, node_id: int = 0) -> None:
+        """NMT stop remote node (0 = all nodes)."""
         self.send_command(NmtCommand.STOP_REMOTE_NODE, node_id)
 
     def enter_pre_operational(self, node_id: int = 0) -> None:
+        """NMT enter pre-operational (0 = all nodes)."""
         self.send_command(NmtCommand.ENTER_PRE_OPERATIONAL, node_id)
 
     def reset_node(self, node_id: int = 0) -> None:
+        """NMT reset node (0 = all nodes)."""
         self.send_command(NmtCommand.RESET_NODE, node_id)
 
     def reset_communication(self, node_id: int = 0) -> None:
+        """NMT reset communication (0 = all nodes)."""
         self.send_command(NmtCommand.RESET_COMMUNICATION, node_id)
 
     def guard(self, node_id: int) -> None:
@@ -175,6 +180,7 @@ class NmtMaster:
         self._monitors[node_id] = (timeout, self.clock.call_later(timeout, self._timed_out, node_id))
 
     def unmonitor(self, node_id: int) -> None:
+        """Stop watching the heartbeat of ``node_id``."""
         entry = self._monitors.pop(node_id, None)
         if entry is not None and entry[1] is not None:
             entry[1].cancel()
@@ -186,6 +192,7 @@ class NmtMaster:
             cb(node_id)
 
     def on_frame(self, frame: CanFrame, t: float) -> None:
+        """A frame from the bus: heartbeats and boot-ups of the monitored nodes."""
         decoded = decode_error_control(frame)
         if decoded is None:
             return

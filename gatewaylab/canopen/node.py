@@ -115,6 +115,7 @@ class Node:
 
     @node_id.setter
     def node_id(self, value: int | None) -> None:
+        """1..127, or None while unconfigured (LSS node-id 0xFF)."""
         if value is not None and not 1 <= value <= 127:
             raise ConfigError(f"node-id {value} out of 1..127 (None = unconfigured)")
         self._node_id = value

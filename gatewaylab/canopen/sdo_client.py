@@ -86,6 +86,7 @@ class SdoClient:
         return self._cob_ids.get(node_id, (0, 0x580 + node_id))[1]
 
     def busy(self, node_id: int) -> bool:
+        """True while a transfer to ``node_id`` is in progress (later ones wait in its queue)."""
         return node_id in self._active
 
     # -- API -------------------------------------------------------------------------------------
@@ -182,6 +183,7 @@ class SdoClient:
 
     # -- responses -------------------------------------------------------------------------------
     def on_frame(self, frame: CanFrame, t: float) -> None:
+        """A frame from the bus: the answer of the server a transfer is waiting for."""
         node_id = self._by_response.get(frame.can_id)
         if node_id is None or frame.rtr or frame.extended:
             return

@@ -42,6 +42,7 @@ class Pdo:
 
     @property
     def bit_length(self) -> int:
+        """Bits of all its entries."""
         return sum(e.bit_length for e in self.entries)
 
 
@@ -121,10 +122,12 @@ class DeviceDescription:
 
     @property
     def assigned_rx_pdos(self) -> tuple[Pdo, ...]:
+        """RxPDOs assigned by default (0x1C12)."""
         return _assigned(self.rx_pdos, self.rx_assign)
 
     @property
     def assigned_tx_pdos(self) -> tuple[Pdo, ...]:
+        """TxPDOs assigned by default (0x1C13)."""
         return _assigned(self.tx_pdos, self.tx_assign)
 
     @property
@@ -134,6 +137,7 @@ class DeviceDescription:
 
     @property
     def input_bytes(self) -> int:
+        """Inputs (SM3) size with the default assignment."""
         return (sum(p.bit_length for p in self.assigned_tx_pdos) + 7) // 8
 
     @property

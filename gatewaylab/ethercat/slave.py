@@ -130,6 +130,7 @@ class Slave:
 
     # ------------------------------------------------------------------ EscApplication
     def check_transition(self, old: AlState, new: AlState) -> int:
+        """ESC callback: 0 to accept an AL state transition, else the AL status code."""
         d = self.desc
         if new == AlState.BOOT:
             if not d.bootstrap:
@@ -175,6 +176,7 @@ class Slave:
         return sm.enabled and sm.start == start and sm.length == length and (sm.control & 0x0F) == mode
 
     def state_changed(self, old: AlState, new: AlState, code: int) -> None:
+        """ESC callback after an AL state change: mailbox reset, safe outputs, application."""
         if new in (AlState.INIT, AlState.BOOT):
             self.mailbox.reset()
             size = self.desc.bootstrap_mailbox[3] if new == AlState.BOOT else self.desc.mailbox_in[1]
@@ -192,12 +194,14 @@ class Slave:
         self.app.on_state(self, old, new, code)
 
     def sm_written(self, sm: int, data: bytes) -> None:
+        """ESC callback: the master wrote a SyncManager buffer (mailbox or outputs)."""
         if sm == 0 and self.has_mailbox:
             self.mailbox_received(data)
         elif sm == self.sm_outputs:
             self.outputs_written(sm, data)
 
     def sm_read(self, sm: int) -> None:
+        """ESC callback: the master read a SyncManager buffer (mailbox or inputs)."""
         if sm == 1 and self.has_mailbox:
             self.mailbox.pump()
         elif sm == self.sm_inputs:
@@ -206,6 +210,7 @@ class Slave:
                 self.esc.sm_set_full(sm)  # 1-buffer inputs: the application refreshes every cycle
 
     def mailbox_received(self, data: bytes) -> None:
+        """A complete mailbox write from the master (discarded in INIT)."""
         self.esc.mailbox_clear(0)  # the PDI read the buffer
         state = self.esc.al_state
         if state == AlState.INIT:
@@ -216,6 +221,7 @@ class Slave:
         self.mailbox.received(data)
 
     def outputs_written(self, sm: int, data: bytes) -> None:
+        """A complete outputs buffer: stored into the mapped objects, then the application."""
         esc = self.esc
         if esc.mem[REG_SM + 8 * sm + 5] & SM_STATUS_FULL:
             esc.mailbox_clear(sm)  # 1-buffer outputs: the PDI consumed them
@@ -227,6 +233,7 @@ class Slave:
             self.app.on_outputs(self, self._outputs)
 
     def sync0(self, t: float) -> None:
+        """ESC callback: a SYNC0 pulse."""
         self.app.on_sync0(self, t)
 
     # ------------------------------------------------------------------ mailbox protocols
@@ -250,6 +257,7 @@ class Slave:
     # ------------------------------------------------------------------ process data
     @property
     def state(self) -> AlState:
+        """The present AL state."""
         return self.esc.al_state
 
     @property
@@ -259,9 +267,11 @@ class Slave:
 
     @property
     def inputs(self) -> bytes:
+        """The inputs image the master reads."""
         return bytes(self._inputs)
 
     def write_inputs(self, data: bytes, offset: int = 0) -> None:
+        """Raw bytes into the inputs image at ``offset`` (CoE reads decode them from there)."""
         self._inputs[offset:offset + len(data)] = data
         self.esc.pdi_write(self.desc.inputs_start + offset, data)
         if self._inputs_one_buffer:

@@ -55,13 +55,16 @@ class _Expedited:
 class SdoClientLike(Protocol):
     """What the gateway needs of :class:`gatewaylab.canopen.sdo_client.SdoClient`."""
 
-    def upload(self, node_id: int, index: int, sub: int, callback: Callable[[Any], None], *,
-               segmented: bool | None = None, block: bool = False) -> None: ...
+    def upload(self, node_id: int, index: int, subindex: int, callback: Callable[[Any], None], *,
+               segmented: bool | None = None, block: bool = False) -> None:
+        """Read an object of another node; the callback gets bytes or an SdoAbort."""
 
-    def download(self, node_id: int, index: int, sub: int, data: bytes,
-                 callback: Callable[[Any], None]) -> None: ...
+    def download(self, node_id: int, index: int, subindex: int, data: bytes,
+                 callback: Callable[[Any], None]) -> None:
+        """Write an object of another node; the callback gets None or an SdoAbort."""
 
-    def on_frame(self, frame: CanFrame, t: float) -> None: ...
+    def on_frame(self, frame: CanFrame, t: float) -> None:
+        """A frame from the bus for the client."""
 
 
 class CanGateway:

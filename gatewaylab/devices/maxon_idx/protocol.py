@@ -64,9 +64,11 @@ DownloadCallback = Callable[[GatewaylabError | None], None]
 class ObjectAccess(Protocol):
     """The IDX's own object dictionary, accessed exactly as an SDO client would."""
 
-    def read(self, index: int, subindex: int) -> bytes: ...
+    def read(self, index: int, subindex: int) -> bytes:
+        """The wire form of an object (raises with the chapter 6 code)."""
 
-    def write(self, index: int, subindex: int, data: bytes) -> None: ...
+    def write(self, index: int, subindex: int, data: bytes) -> None:
+        """Write the wire form of an object (raises with the chapter 6 code)."""
 
     def value_size(self, index: int, subindex: int) -> int | None:
         """Bytes of a fixed-size value, None for variable-size ones; raises if the object is missing."""
@@ -81,16 +83,21 @@ class Gateway(Protocol):
     """The CAN side (guide chapter 5): SDO client to other nodes, NMT and LSS master messages."""
 
     def upload(self, node_id: int, index: int, subindex: int, callback: UploadCallback, *,
-               segmented: bool) -> None: ...
+               segmented: bool) -> None:
+        """SDO upload from another node on CAN (guide chapter 5)."""
 
     def download(self, node_id: int, index: int, subindex: int, data: bytes,
-                 callback: DownloadCallback) -> None: ...
+                 callback: DownloadCallback) -> None:
+        """SDO download to another node on CAN (guide chapter 5)."""
 
-    def send_nmt(self, node_id: int, command: int) -> None: ...
+    def send_nmt(self, node_id: int, command: int) -> None:
+        """Send an NMT command on CAN."""
 
-    def send_lss(self, data: bytes) -> None: ...
+    def send_lss(self, data: bytes) -> None:
+        """Send an LSS master message on CAN."""
 
-    def read_lss(self, timeout: float, callback: UploadCallback) -> None: ...
+    def read_lss(self, timeout: float, callback: UploadCallback) -> None:
+        """Wait up to ``timeout`` for an LSS slave message."""
 
 
 class SlaveState(Enum):
@@ -101,6 +108,7 @@ class SlaveState(Enum):
 
 
 class Transfer(Enum):
+    """The segmented transfer a host has in progress."""
     NONE = "none"
     SEGMENTED_READ = "segmented-read"
     SEGMENTED_WRITE = "segmented-write"
@@ -115,6 +123,7 @@ _TRANSITIONS: dict[tuple[SlaveState, str], SlaveState] = {
 
 @dataclass(slots=True)
 class SlaveStats:
+    """Counters of the USB slave (requests, replies, error replies)."""
     requests: int = 0
     replies: int = 0
     error_replies: int = 0
