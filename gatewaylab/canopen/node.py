@@ -193,7 +193,7 @@ class Node:
 
     def read(self, index: int, subindex: int) -> bytes:
         """The value as an SDO upload returns it; SdoAbort on unknown or write-only objects."""
-        return self.od.read(index, subindex, self.access)
+        return self.od.read(index, subindex)    # CiA 301 reads need no state: the default rule (no WO)
 
     def write(self, index: int, subindex: int, data: bytes) -> None:
         """Write as an SDO download does: access rights, length, limits, service rules."""

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 
 from ..bus.frame import CanFrame
 from ..common.clock import TimerHandle
-from ..od import SdoAbort, SdoAbortCode
+from ..od import SdoAbort, SdoAbortCode, decode
 from ..od import sdo as codec
 from ..od.sdo import SDO_HEADER, SDO_HEADER_U32, BlockUploadSub, ClientCommand, SegmentedDownload, SegmentedUpload
 from .crc import crc16_ccitt
@@ -68,7 +68,9 @@ class SdoServer:
         self.timeout = timeout
         #: Block size the server asks for in block download (1..127).
         self.block_size = block_size
-        self.state = SdoServerState.IDLE
+        self._state = SdoServerState.IDLE
+        #: The dispatch table's row of the present state: handler by client command specifier.
+        self._row = _ROWS[SdoServerState.IDLE]
         self.rx_cob_id = 0
         self.tx_cob_id = 0
         self.index = 0
@@ -94,6 +96,16 @@ class SdoServer:
         self.requests = 0
         self.aborts_sent = 0
         self.ignored = 0
+
+    @property
+    def state(self) -> SdoServerState:
+        """Where the channel is in a transfer."""
+        return self._state
+
+    @state.setter
+    def state(self, state: SdoServerState) -> None:
+        self._state = state
+        self._row = _ROWS[state]
 
     # -- plumbing ------------------------------------------------------------------------------
     def _send(self, payload: bytes) -> None:
@@ -146,16 +158,17 @@ class SdoServer:
             return
         self.requests += 1
         try:
-            if data[0] == codec.CS_UPLOAD_REQUEST and self.state is _IDLE:
+            state = self._state
+            if data[0] == codec.CS_UPLOAD_REQUEST and state is _IDLE:
                 self._fast_upload(data)     # the most frequent request, kept short
                 return
-            if self.state is SdoServerState.BLOCK_DOWNLOAD:
+            if state is SdoServerState.BLOCK_DOWNLOAD:
                 if data[0] == codec.CS_ABORT:
                     self._reset()       # client abort during a sub-block (sequence 0 is never a segment)
                 else:
                     self._block_segment(data)
                 return
-            _DISPATCH.get((self.state, data[0] >> 5), SdoServer._unknown)(self, data)
+            self._row[data[0] >> 5](self, data)
         except SdoAbort as exc:
             self._abort(exc.code)
         except Exception:  # device hook misbehaved: answer, never crash the bus
@@ -207,7 +220,7 @@ class SdoServer:
             size = codec.expedited_size(cs)
             if size is None:
                 size = entry.size if entry.size is not None and entry.size <= 4 else 4
-            node.write(index, sub, data[4:4 + size])
+            node.store(entry, decode(entry, data[4:4 + size]))   # access already checked above
             self._send(codec.download_response(index, sub))
             return
         size = _announced_size(data, entry) if cs & 0x01 else None
@@ -396,7 +409,7 @@ class SdoServer:
         self._reset()
 
 
-_Handler = Callable[[SdoServer, bytes], None]
+_Handler = Callable[["SdoServer", bytes], None]
 
 
 def _dispatch_table() -> dict[tuple[SdoServerState, int], _Handler]:
@@ -415,3 +428,6 @@ def _dispatch_table() -> dict[tuple[SdoServerState, int], _Handler]:
 
 
 _DISPATCH = _dispatch_table()
+#: The table as one row per state, indexed by the command specifier (0..7): no hashing on the hot path.
+_ROWS: dict[SdoServerState, tuple[_Handler, ...]] = {
+    state: tuple(_DISPATCH.get((state, ccs), SdoServer._unknown) for ccs in range(8)) for state in SdoServerState}
