@@ -72,6 +72,10 @@ class Node:
                  store: ParameterStore | None = None) -> None:
         if node_id is not None and not 1 <= node_id <= 127:
             raise ConfigError(f"node-id {node_id} out of 1..127 (None = unconfigured)")
+        if od.owner is not None:
+            # Hooks (PDO rules, store/restore commands, device logic) now live in the dictionary.
+            raise ConfigError(f"this dictionary already belongs to {od.owner}; give each node its own (od.copy())")
+        od.owner = name or f"node {node_id}"
         od.node_id = node_id
         add_communication_objects(od)
         self.clock = clock

@@ -55,6 +55,8 @@ class ObjectDictionary:
         self.node_id = node_id
         #: Free-form [DeviceInfo] fields for EDS export (VendorName, ProductName, ...).
         self.device_info: dict[str, str] = {}
+        #: Name of the node or slave whose hooks this dictionary holds (one owner per dictionary).
+        self.owner: str | None = None
         self._listeners: dict[Key, list[Listener]] = {}
         self._validators: dict[int, list[Validator]] = {}
         self._reactions: dict[int, list[Validator]] = {}
