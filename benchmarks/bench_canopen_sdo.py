@@ -22,8 +22,8 @@ import canopen
 from gatewaylab.bus import VirtualBus
 from gatewaylab.bus.transport.inprocess import InProcessBus
 from gatewaylab.canopen.node import Node
-from gatewaylab.canopen.od import Access, DataType, ObjectDictionary
 from gatewaylab.common.clock import SimulatedClock
+from gatewaylab.od import Access, DataType, ObjectDictionary
 
 ROUNDS = 7
 PER_ROUND = 500

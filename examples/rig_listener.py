@@ -10,7 +10,7 @@ from pathlib import Path
 import can
 
 from gatewaylab.bus import CanFrame
-from gatewaylab.rig.explain import explain
+from gatewaylab.canopen.explain import explain
 
 
 def main() -> None:

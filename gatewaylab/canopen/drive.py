@@ -19,6 +19,7 @@ from typing import Any
 from ..bus.bus import VirtualBus
 from ..common.clock import Clock, PeriodicTimer
 from ..common.errors import ConfigError
+from ..od import Access, DataType, ObjectDictionary
 from .cia402 import (
     CONTROLWORD_NEXT,
     STATE_BITS,
@@ -36,7 +37,6 @@ from .homing import SUPPORTED_METHODS, HomingRun, HomingStatus
 from .lss import BIT_TIMING_TABLE, UNCONFIGURED, LssAddress, LssConfigStore, LssSlave
 from .nmt import NmtState
 from .node import Node
-from .od import Access, DataType, ObjectDictionary
 from .plant import AxisParams, ControlMode, Plant, Trapezoid
 
 MAXON_VENDOR_ID = 0x000000FB

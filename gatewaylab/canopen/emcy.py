@@ -14,9 +14,9 @@ from typing import TYPE_CHECKING, Any
 
 from ..bus.frame import CanFrame
 from ..common.clock import TimerHandle
+from ..od import Entry
 from .errors import VALUE_RANGE_EXCEEDED, SdoAbort
 from .nmt import NmtState
-from .od import Entry
 
 if TYPE_CHECKING:
     from .node import Node
@@ -64,12 +64,14 @@ class Emcy:
         node.add_reaction(0x1015, lambda e, v: self.configure())
 
     def configure(self) -> None:
+        """Take the COB-ID and inhibit time from 0x1014/0x1015."""
         od = self.node.od
         cob = od.get(0x1014, 0)
         self.cob_id = 0 if cob & 0x80000000 else cob & 0x7FF
         self.inhibit = od.get(0x1015, 0) * 100e-6
 
     def halt(self) -> None:
+        """Cancel the inhibit timer (reset, stop)."""
         self._queue.clear()
         if self._timer is not None:
             self._timer.cancel()
@@ -77,7 +79,7 @@ class Emcy:
 
     @staticmethod
     def _validate_history(entry: Entry, value: Any) -> None:
-        if entry.sub == 0 and value != 0:
+        if entry.subindex == 0 and value != 0:
             raise SdoAbort(VALUE_RANGE_EXCEEDED, "0x1003:00 accepts only 0 (clear the history)")
 
     def _validate_cob_id(self, entry: Entry, value: Any) -> None:
@@ -118,6 +120,7 @@ class Emcy:
         self._emit(EMCY_NO_ERROR, b"")
 
     def clear_all(self, send: bool = True) -> None:
+        """Forget every active error (error register 0x1001 = 0); optionally send 'no error'."""
         had = bool(self.active)
         self.active.clear()
         self.node.od.values[(0x1001, 0)] = 0

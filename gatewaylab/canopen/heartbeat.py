@@ -17,10 +17,10 @@ from typing import TYPE_CHECKING, Any
 
 from ..bus.frame import CanFrame
 from ..common.clock import PeriodicTimer, TimerHandle
+from ..od import Entry
 from .emcy import EMCY_LIFE_GUARD_HEARTBEAT, ERR_COMMUNICATION
 from .errors import GENERAL_PARAMETER_INCOMPATIBILITY, SdoAbort
 from .nmt import HEARTBEAT_BASE, encode_guard_response, encode_heartbeat
-from .od import Entry
 
 if TYPE_CHECKING:
     from .node import Node
@@ -51,6 +51,7 @@ class Heartbeat:
 
     # -- configuration -------------------------------------------------------------------------
     def configure(self) -> None:
+        """Start anew from the dictionary: heartbeat consumer times (0x1016), guarding state cleared."""
         self._toggle = False
         self.life_guarding_failed = False
         self._read_consumers()
@@ -75,7 +76,7 @@ class Heartbeat:
 
     def _validate_consumer(self, entry: Entry, value: Any) -> None:
         """CiA 301 7.5.2.20: two entries for one node-id with a time != 0 are refused."""
-        if entry.sub == 0:
+        if entry.subindex == 0:
             return
         nid, ms = (value >> 16) & 0xFF, value & 0xFFFF
         if not ms or not nid:
@@ -83,10 +84,11 @@ class Heartbeat:
         od = self.node.od
         for sub in range(1, od.get(0x1016, 0) + 1):
             other = od.values.get((0x1016, sub), 0)
-            if sub != entry.sub and (other >> 16) & 0xFF == nid and other & 0xFFFF:
+            if sub != entry.subindex and (other >> 16) & 0xFF == nid and other & 0xFFFF:
                 raise SdoAbort(GENERAL_PARAMETER_INCOMPATIBILITY, f"node {nid} already consumed")
 
     def register(self, add: AddHandler) -> None:
+        """Add the COB-IDs this node consumes (heartbeats, guarding RTR) to the dispatch table."""
         node_id = self.node.node_id
         assert node_id is not None
         add(HEARTBEAT_BASE + node_id, self._on_guard_request)
@@ -95,6 +97,7 @@ class Heartbeat:
                 add(HEARTBEAT_BASE + nid, self._on_heartbeat)
 
     def halt(self) -> None:
+        """Cancel the producer and consumer timers (reset, stop)."""
         if self._producer is not None:
             self._producer.cancel()
             self._producer = None

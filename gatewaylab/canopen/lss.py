@@ -17,7 +17,6 @@ Three layers, so that the protocol stays sans-I/O:
 
 from __future__ import annotations
 
-import json
 import struct
 from collections import deque
 from collections.abc import Callable, Generator
@@ -29,6 +28,7 @@ from typing import TYPE_CHECKING, Any
 from ..bus.frame import CanFrame
 from ..common.clock import Clock, TimerHandle
 from ..common.errors import LocalError, RemoteError, TimeoutError_
+from ..common.store import JsonFileStore, ParameterStore
 from .nmt import NmtState
 
 if TYPE_CHECKING:
@@ -113,11 +113,13 @@ class LssAddress:
     serial: int
 
     def part(self, sub: int) -> int:
+        """The 32-bit part ``sub`` (1 vendor, 2 product, 3 revision, 4 serial) of the address."""
         return (self.vendor_id, self.product_code, self.revision, self.serial)[sub]
 
 
 # -- codecs -----------------------------------------------------------------------------------
 def encode_switch_global(mode: LssState) -> bytes:
+    """Switch state global request (CiA 305): 1 = configuration, 0 = waiting."""
     return _CS_B_B.pack(Cs.SWITCH_STATE_GLOBAL, mode.value, 0)
 
 
@@ -127,18 +129,22 @@ def encode_u32(cs: int, value: int) -> bytes:
 
 
 def encode_cs(cs: int) -> bytes:
+    """A request with only a command specifier (inquire services, store, ...)."""
     return bytes((cs,)) + bytes(7)
 
 
 def encode_configure_node_id(node_id: int) -> bytes:
+    """Configure node-ID request (CiA 305; 0xFF = unconfigured)."""
     return _CS_B_B.pack(Cs.CONFIGURE_NODE_ID, node_id & 0xFF, 0)
 
 
 def encode_configure_bit_timing(index: int, selector: int = 0) -> bytes:
+    """Configure bit timing request: table selector 0, table index."""
     return _CS_B_B.pack(Cs.CONFIGURE_BIT_TIMING, selector & 0xFF, index & 0xFF)
 
 
 def encode_activate_bit_timing(delay_ms: int) -> bytes:
+    """Activate bit timing request with the switch delay in ms."""
     return _ACTIVATE.pack(Cs.ACTIVATE_BIT_TIMING, delay_ms & 0xFFFF)
 
 
@@ -148,6 +154,7 @@ def encode_result(cs: int, error: int, specific: int = 0) -> bytes:
 
 
 def encode_fastscan(id_number: int, bit_checked: int, lss_sub: int, lss_next: int) -> bytes:
+    """One Fastscan request: id bits, bit checked, LSS sub, LSS next (CiA 305)."""
     return _FASTSCAN.pack(Cs.FASTSCAN, id_number & 0xFFFFFFFF, bit_checked, lss_sub, lss_next)
 
 
@@ -181,6 +188,7 @@ StoreFunction = Callable[[int, int], int]
 
 @dataclass(slots=True)
 class LssSlaveStats:
+    """Counters of an LSS slave (requests served, ignored)."""
     requests: int = 0
     ignored: int = 0      # not allowed in the current state, or not addressed to us
     malformed: int = 0    # not 8 bytes, unknown cs, bad parameters
@@ -205,6 +213,7 @@ class LssSlaveMachine:
 
     @property
     def configured(self) -> bool:
+        """True once the slave has an active node-ID (not 0xFF)."""
         return self.active_node_id != UNCONFIGURED
 
     def node_reset(self, node_id: int | None) -> None:
@@ -368,15 +377,18 @@ def bit_timing_index(bitrate: int) -> int:
 
 
 class LssConfigStore:
-    """The LSS 'non-volatile memory': node-ID and bit timing index in a small JSON file."""
+    """The LSS 'non-volatile memory': node-ID and bit timing index in a :class:`ParameterStore`
+    (a JSON file when given a path)."""
 
-    def __init__(self, path: Path) -> None:
-        self.path = path
+    def __init__(self, store: ParameterStore | Path) -> None:
+        self.store: ParameterStore = JsonFileStore(store) if isinstance(store, Path) else store
 
     def load(self) -> tuple[int, int] | None:
         """(node_id, bit_timing_index) stored earlier, or None."""
         try:
-            raw = json.loads(self.path.read_text())
+            raw = self.store.load()
+            if raw is None:
+                return None
             return int(raw["node_id"]), int(raw["bit_timing"])
         except (OSError, ValueError, KeyError, TypeError):
             return None
@@ -384,8 +396,7 @@ class LssConfigStore:
     def save(self, node_id: int, bit_timing: int) -> int:
         """Store; returns the CiA 305 error code (0 ok, 2 storage media access error)."""
         try:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            self.path.write_text(json.dumps({"node_id": node_id, "bit_timing": bit_timing}))
+            self.store.save({"node_id": node_id, "bit_timing": bit_timing})
         except OSError:
             return 2
         return 0
@@ -415,6 +426,7 @@ class LssSlave:
 
     @property
     def state(self) -> LssState:
+        """The CiA 305 state (waiting / configuration)."""
         return self.machine.state
 
     def _serving(self) -> bool:
@@ -477,6 +489,7 @@ class LssSlave:
                         self.clock.call_later(2 * action.delay, resume)]
 
     def stop(self) -> None:
+        """Cancel the pending bit-timing switch timers (the node stops)."""
         for timer in self._timers:
             timer.cancel()
         self._timers = []
@@ -528,6 +541,7 @@ class LssMaster:
 
     # -- services -------------------------------------------------------------------------
     def switch_state_global(self, state: LssState, callback: ResultCallback | None = None) -> None:
+        """Switch state global: every slave to ``state`` (configuration or waiting)."""
         self._submit(self._single(encode_switch_global(state), None), callback)
 
     def switch_state_selective(self, address: LssAddress, callback: ResultCallback | None = None) -> None:
@@ -535,15 +549,19 @@ class LssMaster:
         self._submit(self._selective(address), callback)
 
     def configure_node_id(self, node_id: int, callback: ResultCallback | None = None) -> None:
+        """Give the selected slave a node-ID (0xFF = unconfigured)."""
         self._submit(self._configure(encode_configure_node_id(node_id)), callback)
 
     def configure_bit_timing(self, index: int, callback: ResultCallback | None = None) -> None:
+        """Select a CiA 305 bit timing table index in the selected slave."""
         self._submit(self._configure(encode_configure_bit_timing(index)), callback)
 
     def activate_bit_timing(self, delay_ms: int, callback: ResultCallback | None = None) -> None:
+        """Switch all slaves to the configured bit timing after ``delay_ms``."""
         self._submit(self._single(encode_activate_bit_timing(delay_ms), None), callback)
 
     def store_configuration(self, callback: ResultCallback | None = None) -> None:
+        """Ask the selected slave to store node-ID and bit timing."""
         self._submit(self._configure(encode_cs(Cs.STORE_CONFIGURATION)), callback)
 
     def inquire(self, cs: Cs, callback: ResultCallback | None = None) -> None:
@@ -633,6 +651,7 @@ class LssMaster:
     # -- engine ---------------------------------------------------------------------------
     @property
     def busy(self) -> bool:
+        """True while a request waits for its answer."""
         return self._proc is not None or bool(self._queue)
 
     def _submit(self, proc: _Proc, callback: ResultCallback | None) -> None:
@@ -708,6 +727,7 @@ class LssMaster:
         self._timer = self.clock.call_later(self.settle, self._advance, frame.data)
 
     def stop(self) -> None:
+        """Forget pending requests without callbacks (the owner shuts down)."""
         if self._timer is not None:
             self._timer.cancel()
             self._timer = None

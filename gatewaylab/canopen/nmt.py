@@ -28,6 +28,11 @@ class NmtState(Enum):
     OPERATIONAL = 0x05
     PRE_OPERATIONAL = 0x7F
 
+    @property
+    def label(self) -> str:
+        """The state as CiA 301 writes it ("Pre-operational")."""
+        return self.name.replace("_", "-").capitalize()
+
 
 class NmtCommand(IntEnum):
     """NMT command specifiers (IDX guide table 3-12)."""
@@ -37,6 +42,17 @@ class NmtCommand(IntEnum):
     ENTER_PRE_OPERATIONAL = 0x80
     RESET_NODE = 0x81
     RESET_COMMUNICATION = 0x82
+
+    @property
+    def label(self) -> str:
+        """What the command does, for traces ("start (-> Operational)", "reset node")."""
+        if self is NmtCommand.START_REMOTE_NODE:
+            return f"start (-> {NmtState.OPERATIONAL.label})"
+        if self is NmtCommand.STOP_REMOTE_NODE:
+            return f"stop (-> {NmtState.STOPPED.label})"
+        if self is NmtCommand.ENTER_PRE_OPERATIONAL:
+            return f"enter {NmtState.PRE_OPERATIONAL.label}"
+        return self.name.replace("_", " ").lower()
 
 
 #: Slave transitions of IDX guide table 3-11 / CiA 301 figure 48 that only change the state.
@@ -126,18 +142,23 @@ class NmtMaster:
         self._send(encode_nmt(command, node_id))
 
     def start(self, node_id: int = 0) -> None:
+        """NMT start remote node (0 = all nodes)."""
         self.send_command(NmtCommand.START_REMOTE_NODE, node_id)
 
     def stop(self, node_id: int = 0) -> None:
+        """NMT stop remote node (0 = all nodes)."""
         self.send_command(NmtCommand.STOP_REMOTE_NODE, node_id)
 
     def enter_pre_operational(self, node_id: int = 0) -> None:
+        """NMT enter pre-operational (0 = all nodes)."""
         self.send_command(NmtCommand.ENTER_PRE_OPERATIONAL, node_id)
 
     def reset_node(self, node_id: int = 0) -> None:
+        """NMT reset node (0 = all nodes)."""
         self.send_command(NmtCommand.RESET_NODE, node_id)
 
     def reset_communication(self, node_id: int = 0) -> None:
+        """NMT reset communication (0 = all nodes)."""
         self.send_command(NmtCommand.RESET_COMMUNICATION, node_id)
 
     def guard(self, node_id: int) -> None:
@@ -159,6 +180,7 @@ class NmtMaster:
         self._monitors[node_id] = (timeout, self.clock.call_later(timeout, self._timed_out, node_id))
 
     def unmonitor(self, node_id: int) -> None:
+        """Stop watching the heartbeat of ``node_id``."""
         entry = self._monitors.pop(node_id, None)
         if entry is not None and entry[1] is not None:
             entry[1].cancel()
@@ -170,6 +192,7 @@ class NmtMaster:
             cb(node_id)
 
     def on_frame(self, frame: CanFrame, t: float) -> None:
+        """A frame from the bus: heartbeats and boot-ups of the monitored nodes."""
         decoded = decode_error_control(frame)
         if decoded is None:
             return

@@ -17,21 +17,18 @@ from ..bus.bus import Controller, VirtualBus
 from ..bus.frame import CanFrame
 from ..common.clock import Clock
 from ..common.errors import ConfigError, LocalError
+from ..common.store import JsonFileStore, ParameterStore
+from ..od import Access, Entry, ObjectDictionary, ReadHook, SdoAbort, SdoAbortCode, Validator, WriteHook, coerce
 from .communication import add_communication_objects
 from .emcy import Emcy
-from .errors import READ_ONLY, WRITE_ONLY, WRONG_NMT_STATE, SdoAbort
 from .heartbeat import Heartbeat
 from .nmt import NMT_COB_ID, NMT_TRANSITIONS, NmtCommand, NmtState, decode_nmt, encode_heartbeat
-from .od import Access, Entry, ObjectDictionary, coerce, decode, encode
 from .pdo import PdoManager
 from .sdo_server import SdoServer
 from .storage import Storage
 from .sync import Sync
 
 FrameHandler = Callable[[CanFrame, float], None]
-WriteHook = Callable[[int, int, Any], None]
-ReadHook = Callable[[int, int], None]
-Validator = Callable[[Entry, Any], None]
 NmtHook = Callable[[NmtState, NmtState], None]
 
 COMMUNICATION_AREA = range(0x1000, 0x2000)
@@ -45,13 +42,40 @@ def _chain(first: FrameHandler, second: FrameHandler) -> FrameHandler:
     return both
 
 
+class CanopenAccess:
+    """CiA 301 SDO access rules: access type, and 'only outside Operational' entries (0x0F00FFC0)."""
+
+    __slots__ = ("node",)
+
+    def __init__(self, node: Node) -> None:
+        self.node = node
+
+    def check_read(self, entry: Entry) -> None:
+        """Write-only entries answer 0x06010001."""
+        if entry.access is Access.WO:
+            raise SdoAbort(SdoAbortCode.WRITE_ONLY, f"0x{entry.index:04X}:{entry.subindex:02X}")
+
+    def check_write(self, entry: Entry, data: bytes) -> None:
+        """Read-only entries answer 0x06010002, preop-only ones 0x0F00FFC0 in Operational."""
+        if not entry.access.writable:
+            raise SdoAbort(SdoAbortCode.READ_ONLY, f"0x{entry.index:04X}:{entry.subindex:02X}")
+        if entry.preop_only and self.node.nmt_state is NmtState.OPERATIONAL:
+            raise SdoAbort(SdoAbortCode.WRONG_NMT_STATE,
+                           f"0x{entry.index:04X}:{entry.subindex:02X} only outside Operational")
+
+
 class Node:
     """A CANopen slave: NMT, SDO server, 4 RPDO + 4 TPDO, SYNC, EMCY, heartbeat, store/restore."""
 
     def __init__(self, clock: Clock, bus: VirtualBus, node_id: int | None, od: ObjectDictionary,
-                 name: str = "", *, store_path: Path | None = None, sdo_timeout: float = 1.0) -> None:
+                 name: str = "", *, store_path: Path | None = None, sdo_timeout: float = 1.0,
+                 store: ParameterStore | None = None) -> None:
         if node_id is not None and not 1 <= node_id <= 127:
             raise ConfigError(f"node-id {node_id} out of 1..127 (None = unconfigured)")
+        if od.owner is not None:
+            # Hooks (PDO rules, store/restore commands, device logic) now live in the dictionary.
+            raise ConfigError(f"this dictionary already belongs to {od.owner}; give each node its own (od.copy())")
+        od.owner = name or f"node {node_id}"
         od.node_id = node_id
         add_communication_objects(od)
         self.clock = clock
@@ -68,15 +92,10 @@ class Node:
         self._dispatch: dict[int, FrameHandler] = {}
         self._listeners: list[FrameHandler] = []
         self._id_listeners: dict[int, list[FrameHandler]] = {}
-        self._write_hooks: dict[int, list[WriteHook]] = {}
-        self._read_hooks: dict[int, list[ReadHook]] = {}
         self._nmt_hooks: list[NmtHook] = []
         self._reset_hooks: list[Callable[[bool], None]] = []
-        self._validators: dict[int, list[Validator]] = {}
-        self._reactions: dict[int, list[Validator]] = {}
-        self._commands: dict[int, Validator] = {}
-        #: Indexes with a command, validator, write hook or reaction (others are stored directly).
-        self._intercepted: set[int] = set()
+        #: CiA 301 access rules of SDO transfers in the present NMT state.
+        self.access = CanopenAccess(self)
         #: Power-on values of the writable entries: what the dictionary held when the node was built
         #: (defaults, or a DCF's configured values); node-id dependent entries follow the node-id.
         self._power_on: dict[tuple[int, int], Any] = {
@@ -88,7 +107,9 @@ class Node:
         self.heartbeat = Heartbeat(self)
         self.sync = Sync(self)
         self.pdo = PdoManager(self)
-        self.storage = Storage(self, store_path)
+        #: Non-volatile memory of 0x1010/0x1011: ``store``, else a JSON file at ``store_path``, else memory.
+        self.storage = Storage(self, store if store is not None else
+                               JsonFileStore(store_path) if store_path is not None else None)
 
     # -- identity --------------------------------------------------------------------------------
     @property
@@ -98,6 +119,7 @@ class Node:
 
     @node_id.setter
     def node_id(self, value: int | None) -> None:
+        """1..127, or None while unconfigured (LSS node-id 0xFF)."""
         if value is not None and not 1 <= value <= 127:
             raise ConfigError(f"node-id {value} out of 1..127 (None = unconfigured)")
         self._node_id = value
@@ -107,17 +129,16 @@ class Node:
         return f"<Node {self.name} id={self._node_id} {self.nmt_state.name}>"
 
     # -- hooks -----------------------------------------------------------------------------------
-    def on_write(self, index: int, callback: WriteHook) -> None:
-        """``callback(index, sub, value)`` after an SDO/RPDO write to ``index`` was stored.
+    def on_write(self, index: int | range, callback: WriteHook) -> None:
+        """``callback(index, subindex, value)`` after an SDO/RPDO write to ``index`` was stored.
 
         Raising :class:`SdoAbort` there undoes the write and the SDO client gets that code.
         """
-        self._write_hooks.setdefault(index, []).append(callback)
-        self._intercepted.add(index)
+        self.od.on_write(index, callback)
 
-    def on_read(self, index: int, callback: ReadHook) -> None:
-        """``callback(index, sub)`` before an SDO read of ``index`` (refresh a value lazily)."""
-        self._read_hooks.setdefault(index, []).append(callback)
+    def on_read(self, index: int | range, callback: ReadHook) -> None:
+        """``callback(index, subindex)`` before an SDO read of ``index`` (refresh a value lazily)."""
+        self.od.on_read(index, callback)
 
     def on_nmt_change(self, callback: NmtHook) -> None:
         """``callback(old, new)`` on every NMT state change (the drive's statusword bit 9)."""
@@ -141,6 +162,7 @@ class Node:
         self._merge_dispatch()
 
     def remove_frame_listener(self, callback: FrameHandler) -> None:
+        """Undo :meth:`add_frame_listener`."""
         if callback in self._listeners:
             self._listeners.remove(callback)
         for can_id, listeners in list(self._id_listeners.items()):
@@ -150,102 +172,49 @@ class Node:
                     del self._id_listeners[can_id]
         self._merge_dispatch()
 
-    def add_validator(self, index: int, validator: Validator) -> None:
+    def add_validator(self, index: int | range, validator: Validator) -> None:
         """Internal: ``validator(entry, value)`` may refuse a remote write with SdoAbort."""
-        self._validators.setdefault(index, []).append(validator)
-        self._intercepted.add(index)
+        self.od.add_validator(index, validator)
 
-    def add_reaction(self, index: int, reaction: Validator) -> None:
+    def add_reaction(self, index: int | range, reaction: Validator) -> None:
         """Internal: ``reaction(entry, value)`` after a remote write was stored."""
-        self._reactions.setdefault(index, []).append(reaction)
-        self._intercepted.add(index)
+        self.od.add_reaction(index, reaction)
 
-    def add_command(self, index: int, command: Validator) -> None:
+    def add_command(self, index: int | range, command: Validator) -> None:
         """Internal: writes to ``index`` run ``command(entry, value)`` and store nothing."""
-        self._commands[index] = command
-        self._intercepted.add(index)
+        self.od.add_command(index, command)
 
     def count(self, what: str) -> None:
+        """Count something that went wrong without crashing (``stats``)."""
         self.stats[what] = self.stats.get(what, 0) + 1
 
     # -- object access as an SDO client sees it ------------------------------------------------
-    def check_writable(self, index: int, sub: int) -> Entry:
-        entry = self.od.entry(index, sub)
-        if not entry.access.writable:
-            raise SdoAbort(READ_ONLY, f"0x{index:04X}:{sub:02X}")
-        if entry.preop_only and self.nmt_state is NmtState.OPERATIONAL:
-            raise SdoAbort(WRONG_NMT_STATE, f"0x{index:04X}:{sub:02X} only outside Operational")
+    def check_writable(self, index: int, subindex: int) -> Entry:
+        """The entry, if an SDO download may write it in the present NMT state (else SdoAbort)."""
+        entry = self.od.entry(index, subindex)
+        self.access.check_write(entry, b"")
         return entry
 
-    def read(self, index: int, sub: int) -> bytes:
+    def read(self, index: int, subindex: int) -> bytes:
         """The value as an SDO upload returns it; SdoAbort on unknown or write-only objects."""
-        entry = self.od.entries.get((index, sub)) or self.od.entry(index, sub)
-        if entry.access is Access.WO:
-            raise SdoAbort(WRITE_ONLY, f"0x{index:04X}:{sub:02X}")
-        hooks = self._read_hooks.get(index)
-        if hooks is not None:
-            for hook in hooks:
-                hook(index, sub)
-        return encode(entry, self.od.values[(index, sub)])
+        return self.od.read(index, subindex)    # CiA 301 reads need no state: the default rule (no WO)
 
-    def write(self, index: int, sub: int, data: bytes) -> None:
+    def write(self, index: int, subindex: int, data: bytes) -> None:
         """Write as an SDO download does: access rights, length, limits, service rules."""
-        entry = self.check_writable(index, sub)
-        self.store(entry, decode(entry, bytes(data)))
+        self.od.write(index, subindex, data, self.access)
 
     def store(self, entry: Entry, value: Any) -> None:
         """Internal: validators, store, reactions and hooks for a checked, decoded value."""
-        index = entry.index
-        if index not in self._intercepted:    # a plain value (e.g. a PDO-mapped set-point)
-            key = (index, entry.sub)
-            values = self.od.values
-            old = values[key]
-            values[key] = value
-            if old != value and key in self.pdo.watch:
-                self.pdo.value_changed(key)
-            return
-        command = self._commands.get(index)
-        if command is not None:
-            command(entry, value)
-            return
-        validators = self._validators.get(index)
-        if validators is not None:
-            for validator in validators:
-                validator(entry, value)
-        key = (index, entry.sub)
-        values = self.od.values
-        old = values[key]
-        values[key] = value
-        hooks = self._write_hooks.get(index)
-        if hooks is not None:
-            try:
-                for hook in hooks:
-                    hook(index, entry.sub, value)
-            except Exception:
-                values[key] = old
-                raise
-        reactions = self._reactions.get(index)
-        if reactions is not None:
-            for reaction in reactions:
-                reaction(entry, value)
-        if old != value and key in self.pdo.watch:
-            self.pdo.value_changed(key)
+        self.od.store(entry, value)
 
     # -- typed local access for device code -----------------------------------------------------
-    def get(self, index: int, sub: int = 0) -> Any:
+    def get(self, index: int, subindex: int = 0) -> Any:
         """The typed value (no access checks)."""
-        return self.od.get(index, sub)
+        return self.od.get(index, subindex)
 
-    def set(self, index: int, sub: int, value: Any) -> None:
+    def set(self, index: int, subindex: int, value: Any) -> None:
         """Set a typed value (no access checks, no hooks); event-driven TPDOs see the change."""
-        key = (index, sub)
-        entry = self.od.entries.get(key) or self.od.entry(index, sub)
-        values = self.od.values
-        value = coerce(entry, value)
-        old = values[key]
-        values[key] = value
-        if old != value and key in self.pdo.watch:
-            self.pdo.value_changed(key)
+        self.od.put(index, subindex, value)
 
     # -- frames ------------------------------------------------------------------------------------
     def send(self, frame: CanFrame) -> None:

@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any
 from ..bus.frame import CanFrame
 from ..common.clock import TimerHandle
 from ..common.errors import LocalError
+from ..od import DataType, Entry, decode, encode, type_size
 from .communication import MAX_MAPPED, N_PDO
 from .emcy import EMCY_PDO_LENGTH, EMCY_PDO_LENGTH_EXCEEDED, ERR_COMMUNICATION
 from .errors import (
@@ -29,7 +30,6 @@ from .errors import (
     SdoAbort,
 )
 from .nmt import NmtState
-from .od import DataType, Entry, decode, encode, type_size
 
 if TYPE_CHECKING:
     from .node import Node
@@ -331,6 +331,7 @@ class PdoManager:
         self.tpdo = [Tpdo(self, n) for n in range(N_PDO)]
         #: (index, sub) -> TPDOs (type 0 / 254 / 255) that a change of that value triggers.
         self.watch: dict[Key, list[Tpdo]] = {}
+        self._unsubscribe: list[Callable[[], None]] = []
         for n in range(N_PDO):
             for comm, mapping, receive in ((0x1400 + n, 0x1600 + n, True), (0x1800 + n, 0x1A00 + n, False)):
                 node.add_validator(comm, self._comm_validator(comm, receive))
@@ -349,6 +350,13 @@ class PdoManager:
                     if m.key is not None:
                         watch.setdefault(m.key, []).append(tpdo)
         self.watch = watch
+        for unsubscribe in self._unsubscribe:
+            unsubscribe()
+        od = self.node.od
+        self._unsubscribe = [od.subscribe(key, self._on_change) for key in watch]
+
+    def _on_change(self, key: Key, value: Any) -> None:
+        self.value_changed(key)
 
     def reconfigure(self) -> None:
         self.halt()

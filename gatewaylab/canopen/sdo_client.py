@@ -19,19 +19,10 @@ from typing import Any
 from ..bus.frame import CanFrame
 from ..common.clock import Clock, TimerHandle
 from ..common.errors import LocalError
+from ..od import SdoAbort, SdoAbortCode
+from ..od import sdo as codec
+from ..od.sdo import SDO_HEADER, SDO_HEADER_U32, ClientCommand, ServerCommand
 from .crc import crc16_ccitt
-from .errors import (
-    COMMAND_SPECIFIER_UNKNOWN,
-    CRC_ERROR,
-    INVALID_SEQUENCE_NUMBER,
-    LENGTH_MISMATCH,
-    SDO_PROTOCOL_TIMED_OUT,
-    TOGGLE_BIT_NOT_ALTERNATED,
-    SdoAbort,
-)
-
-SDO_HEADER = struct.Struct("<BHB")
-SDO_HEADER_U32 = struct.Struct("<BHBI")
 
 UploadCallback = Callable[[bytes | SdoAbort], None]
 DownloadCallback = Callable[[SdoAbort | None], None]
@@ -48,7 +39,7 @@ class _Phase(Enum):
 class _Transfer:
     node_id: int
     index: int
-    sub: int
+    subindex: int
     upload: bool
     callback: Callable[[Any], None]
     data: bytes = b""
@@ -95,28 +86,29 @@ class SdoClient:
         return self._cob_ids.get(node_id, (0, 0x580 + node_id))[1]
 
     def busy(self, node_id: int) -> bool:
+        """True while a transfer to ``node_id`` is in progress (later ones wait in its queue)."""
         return node_id in self._active
 
     # -- API -------------------------------------------------------------------------------------
-    def upload(self, node_id: int, index: int, sub: int, callback: UploadCallback, *,
+    def upload(self, node_id: int, index: int, subindex: int, callback: UploadCallback, *,
                segmented: bool | None = None, block: bool = False) -> None:
-        """Read (index, sub) of ``node_id``; ``block`` uses the block upload protocol.
+        """Read (index, subindex) of ``node_id``; ``block`` uses the block upload protocol.
 
         ``segmented`` is accepted for symmetry with :meth:`download` but has no effect: in an
         SDO upload the server chooses expedited or segmented (CiA 301 7.2.4.3.6).
         """
-        self._enqueue(_Transfer(node_id, index, sub, True, callback, segmented=segmented, block=block))
+        self._enqueue(_Transfer(node_id, index, subindex, True, callback, segmented=segmented, block=block))
 
-    def download(self, node_id: int, index: int, sub: int, data: bytes, callback: DownloadCallback, *,
+    def download(self, node_id: int, index: int, subindex: int, data: bytes, callback: DownloadCallback, *,
                  segmented: bool | None = None, block: bool = False, size_indicated: bool = True) -> None:
-        """Write ``data`` to (index, sub); expedited up to 4 bytes unless ``segmented`` or ``block``.
+        """Write ``data`` to (index, subindex); expedited up to 4 bytes unless ``segmented`` or ``block``.
 
         ``size_indicated=False`` leaves the size indicator (bit s) clear in the initiate request
         (CiA 301 7.2.4.3.3): an expedited download is then ``0x22`` with the data padded to 4 bytes
         with zeros (the server takes the object's own length), a segmented one ``0x20`` with no
         size. Block downloads always indicate the size.
         """
-        self._enqueue(_Transfer(node_id, index, sub, False, callback, bytes(data), segmented, block,
+        self._enqueue(_Transfer(node_id, index, subindex, False, callback, bytes(data), segmented, block,
                                 size_indicated=size_indicated))
 
     def cancel_all(self) -> None:
@@ -129,8 +121,8 @@ class SdoClient:
         self._by_response.clear()
 
     def _enqueue(self, tr: _Transfer) -> None:
-        if not 1 <= tr.node_id <= 127 or not 0 <= tr.index <= 0xFFFF or not 0 <= tr.sub <= 0xFF:
-            raise LocalError(f"bad SDO address node {tr.node_id} 0x{tr.index:X}:{tr.sub:X}")
+        if not 1 <= tr.node_id <= 127 or not 0 <= tr.index <= 0xFFFF or not 0 <= tr.subindex <= 0xFF:
+            raise LocalError(f"bad SDO address node {tr.node_id} 0x{tr.index:X}:{tr.subindex:X}")
         if tr.node_id in self._active:
             self._queues.setdefault(tr.node_id, deque()).append(tr)
             return
@@ -141,22 +133,20 @@ class SdoClient:
         self._by_response[self._response_id(tr.node_id)] = tr.node_id
         if tr.upload:
             if tr.block:
-                self._req(tr, SDO_HEADER.pack(0xA4, tr.index, tr.sub) + bytes((self.block_size, 0, 0, 0)))
+                self._req(tr, SDO_HEADER.pack(0xA4, tr.index, tr.subindex) + bytes((self.block_size, 0, 0, 0)))
             else:
-                self._req(tr, SDO_HEADER_U32.pack(0x40, tr.index, tr.sub, 0))
+                self._req(tr, SDO_HEADER_U32.pack(codec.CS_UPLOAD_REQUEST, tr.index, tr.subindex, 0))
             return
         data = tr.data
         if tr.block:
             tr.crc = True
-            self._req(tr, SDO_HEADER_U32.pack(0xC6, tr.index, tr.sub, len(data)))
+            self._req(tr, SDO_HEADER_U32.pack(0xC6, tr.index, tr.subindex, len(data)))
         elif len(data) <= 4 and data and not tr.segmented:
-            n = 4 - len(data)
-            cs = 0x23 | (n << 2) if tr.size_indicated else 0x22
-            self._req(tr, SDO_HEADER.pack(cs, tr.index, tr.sub) + data + bytes(n))
+            self._req(tr, codec.expedited_download_request(tr.index, tr.subindex, data, tr.size_indicated))
         elif tr.size_indicated:
-            self._req(tr, SDO_HEADER_U32.pack(0x21, tr.index, tr.sub, len(data)))
+            self._req(tr, SDO_HEADER_U32.pack(0x21, tr.index, tr.subindex, len(data)))
         else:
-            self._req(tr, SDO_HEADER_U32.pack(0x20, tr.index, tr.sub, 0))
+            self._req(tr, SDO_HEADER_U32.pack(0x20, tr.index, tr.subindex, 0))
 
     # -- plumbing --------------------------------------------------------------------------------
     def _req(self, tr: _Transfer, payload: bytes, arm: bool = True) -> None:
@@ -183,16 +173,17 @@ class SdoClient:
 
     def _fail(self, tr: _Transfer, code: int, tell_server: bool = True) -> None:
         if tell_server:
-            self._req(tr, SDO_HEADER_U32.pack(0x80, tr.index, tr.sub, code), arm=False)
+            self._req(tr, codec.abort(tr.index, tr.subindex, code), arm=False)
         self._finish(tr, SdoAbort(code))
 
     def _timed_out(self, tr: _Transfer) -> None:
         tr.timer = None
         if self._active.get(tr.node_id) is tr:
-            self._fail(tr, SDO_PROTOCOL_TIMED_OUT)
+            self._fail(tr, SdoAbortCode.SDO_PROTOCOL_TIMED_OUT)
 
     # -- responses -------------------------------------------------------------------------------
     def on_frame(self, frame: CanFrame, t: float) -> None:
+        """A frame from the bus: the answer of the server a transfer is waiting for."""
         node_id = self._by_response.get(frame.can_id)
         if node_id is None or frame.rtr or frame.extended:
             return
@@ -206,7 +197,7 @@ class SdoClient:
         if tr.phase is _Phase.BLOCK_SUB and tr.upload:
             self._block_upload_segment(tr, data)
             return
-        if cs == 0x80:
+        if cs == codec.CS_ABORT:
             self._finish(tr, SdoAbort(struct.unpack_from("<I", data, 4)[0]))
             return
         try:
@@ -223,15 +214,15 @@ class SdoClient:
             self._fail(tr, exc.code)
 
     def _check_mux(self, tr: _Transfer, data: bytes) -> None:
-        _, index, sub = SDO_HEADER.unpack_from(data)
-        if index != tr.index or sub != tr.sub:
-            raise SdoAbort(COMMAND_SPECIFIER_UNKNOWN, "answer for another object")
+        _, index, subindex = SDO_HEADER.unpack_from(data)
+        if index != tr.index or subindex != tr.subindex:
+            raise SdoAbort(SdoAbortCode.COMMAND_SPECIFIER_UNKNOWN, "answer for another object")
 
     def _upload_response(self, tr: _Transfer, data: bytes) -> None:
         cs = data[0]
         if tr.phase is _Phase.INITIATE:
-            if cs >> 5 != 2:
-                raise SdoAbort(COMMAND_SPECIFIER_UNKNOWN)
+            if cs >> 5 != ServerCommand.INITIATE_UPLOAD:
+                raise SdoAbort(SdoAbortCode.COMMAND_SPECIFIER_UNKNOWN)
             self._check_mux(tr, data)
             if cs & 0x02:
                 n = (cs >> 2) & 0x03 if cs & 0x01 else 0
@@ -240,27 +231,26 @@ class SdoClient:
             tr.size = struct.unpack_from("<I", data, 4)[0] if cs & 0x01 else None
             tr.phase = _Phase.SEGMENTS
             tr.toggle = 0
-            self._req(tr, bytes((0x60,)) + bytes(7))
+            self._req(tr, codec.segment_ack(ClientCommand.UPLOAD_SEGMENT << 5, 0))
             return
-        if cs >> 5 != 0:
-            raise SdoAbort(COMMAND_SPECIFIER_UNKNOWN)
+        if cs >> 5 != ServerCommand.UPLOAD_SEGMENT:
+            raise SdoAbort(SdoAbortCode.COMMAND_SPECIFIER_UNKNOWN)
         if (cs >> 4) & 1 != tr.toggle:
-            raise SdoAbort(TOGGLE_BIT_NOT_ALTERNATED)
-        n = (cs >> 1) & 0x07
-        tr.buf += data[1:8 - n]
+            raise SdoAbort(SdoAbortCode.TOGGLE_BIT_NOT_ALTERNATED)
+        tr.buf += codec.segment_data(data)
         if cs & 0x01:
             if tr.size is not None and len(tr.buf) != tr.size:
-                raise SdoAbort(LENGTH_MISMATCH)
+                raise SdoAbort(SdoAbortCode.LENGTH_MISMATCH)
             self._finish(tr, bytes(tr.buf))
             return
         tr.toggle ^= 1
-        self._req(tr, bytes((0x60 | (tr.toggle << 4),)) + bytes(7))
+        self._req(tr, codec.segment_ack(ClientCommand.UPLOAD_SEGMENT << 5, tr.toggle))
 
     def _download_response(self, tr: _Transfer, data: bytes) -> None:
         cs = data[0]
         if tr.phase is _Phase.INITIATE:
             if cs != 0x60:
-                raise SdoAbort(COMMAND_SPECIFIER_UNKNOWN)
+                raise SdoAbort(SdoAbortCode.COMMAND_SPECIFIER_UNKNOWN)
             self._check_mux(tr, data)
             if len(tr.data) <= 4 and tr.data and not tr.segmented:
                 self._finish(tr, None)
@@ -270,10 +260,10 @@ class SdoClient:
             tr.pos = 0
             self._send_segment(tr)
             return
-        if cs & 0xEF != 0x20:
-            raise SdoAbort(COMMAND_SPECIFIER_UNKNOWN)
+        if cs & 0xEF != ServerCommand.DOWNLOAD_SEGMENT << 5:
+            raise SdoAbort(SdoAbortCode.COMMAND_SPECIFIER_UNKNOWN)
         if (cs >> 4) & 1 != tr.toggle:
-            raise SdoAbort(TOGGLE_BIT_NOT_ALTERNATED)
+            raise SdoAbort(SdoAbortCode.TOGGLE_BIT_NOT_ALTERNATED)
         if tr.pos >= len(tr.data):
             self._finish(tr, None)
             return
@@ -284,8 +274,7 @@ class SdoClient:
         chunk = tr.data[tr.pos:tr.pos + 7]
         tr.pos += 7
         last = tr.pos >= len(tr.data)
-        n = 7 - len(chunk)
-        self._req(tr, bytes(((tr.toggle << 4) | (n << 1) | (1 if last else 0),)) + chunk + bytes(n))
+        self._req(tr, codec.segment(ClientCommand.DOWNLOAD_SEGMENT << 5, tr.toggle, chunk, last))
         if last:
             tr.pos = len(tr.data)
 
@@ -294,25 +283,25 @@ class SdoClient:
         cs = data[0]
         if tr.phase is _Phase.INITIATE:
             if cs & 0xE1 != 0xC0:
-                raise SdoAbort(COMMAND_SPECIFIER_UNKNOWN)
+                raise SdoAbort(SdoAbortCode.COMMAND_SPECIFIER_UNKNOWN)
             self._check_mux(tr, data)
             tr.crc = bool(cs & 0x04)
             tr.size = struct.unpack_from("<I", data, 4)[0] if cs & 0x02 else None
             tr.phase = _Phase.BLOCK_SUB
             tr.blksize = self.block_size
             tr.expected = 1
-            self._req(tr, bytes((0xA3,)) + bytes(7))
+            self._req(tr, bytes((codec.CS_BLOCK_UPLOAD_START,)) + bytes(7))
             return
         # block end
         if cs & 0xE3 != 0xC1:
-            raise SdoAbort(COMMAND_SPECIFIER_UNKNOWN)
+            raise SdoAbort(SdoAbortCode.COMMAND_SPECIFIER_UNKNOWN)
         n = (cs >> 2) & 0x07
         payload = bytes(tr.buf[:len(tr.buf) - n])
         if tr.size is not None and len(payload) != tr.size:
-            raise SdoAbort(LENGTH_MISMATCH)
+            raise SdoAbort(SdoAbortCode.LENGTH_MISMATCH)
         if tr.crc and crc16_ccitt(payload) != struct.unpack_from("<H", data, 1)[0]:
-            raise SdoAbort(CRC_ERROR)
-        self._req(tr, bytes((0xA1,)) + bytes(7), arm=False)
+            raise SdoAbort(SdoAbortCode.CRC_ERROR)
+        self._req(tr, bytes((codec.CS_BLOCK_END_RESPONSE,)) + bytes(7), arm=False)
         self._finish(tr, payload)
 
     def _block_upload_segment(self, tr: _Transfer, data: bytes) -> None:
@@ -322,7 +311,7 @@ class SdoClient:
             if cs == 0x80:          # the server aborted
                 self._finish(tr, SdoAbort(struct.unpack_from("<I", data, 4)[0]))
             else:
-                self._fail(tr, INVALID_SEQUENCE_NUMBER)
+                self._fail(tr, SdoAbortCode.INVALID_SEQUENCE_NUMBER)
             return
         if seq == tr.expected:
             tr.expected += 1
@@ -334,7 +323,7 @@ class SdoClient:
             tr.expected = 1
             if last:
                 tr.phase = _Phase.BLOCK_END
-            self._req(tr, bytes((0xA2, ackseq, tr.blksize, 0, 0, 0, 0, 0)))
+            self._req(tr, codec.block_ack(ackseq, tr.blksize))
         else:
             self._arm(tr)
 
@@ -348,36 +337,34 @@ class SdoClient:
         cs = data[0]
         if tr.phase is _Phase.INITIATE:
             if cs & 0xE3 != 0xA0:
-                raise SdoAbort(COMMAND_SPECIFIER_UNKNOWN)
+                raise SdoAbort(SdoAbortCode.COMMAND_SPECIFIER_UNKNOWN)
             self._check_mux(tr, data)
             tr.crc = bool(cs & 0x04)
             tr.blksize = data[4]
             if not 1 <= tr.blksize <= 127:
-                raise SdoAbort(0x05040002)
+                raise SdoAbort(SdoAbortCode.INVALID_BLOCK_SIZE)
             tr.pos = 0
             self._send_sub_block(tr)
             return
         if tr.phase is _Phase.BLOCK_SUB:
             if cs & 0xE3 != 0xA2:
-                raise SdoAbort(COMMAND_SPECIFIER_UNKNOWN)
+                raise SdoAbort(SdoAbortCode.COMMAND_SPECIFIER_UNKNOWN)
             ackseq, blksize = data[1], data[2]
             if ackseq > tr.sent:
-                raise SdoAbort(INVALID_SEQUENCE_NUMBER)
+                raise SdoAbort(SdoAbortCode.INVALID_SEQUENCE_NUMBER)
             if not 1 <= blksize <= 127:
-                raise SdoAbort(0x05040002)
+                raise SdoAbort(SdoAbortCode.INVALID_BLOCK_SIZE)
             tr.blksize = blksize
             tr.pos = min(tr.block_start + 7 * ackseq, len(tr.data))
             if tr.last_sent and ackseq == tr.sent:
-                total = len(tr.data)
-                used = total - 7 * ((total - 1) // 7) if total else 0
                 crc = crc16_ccitt(tr.data) if tr.crc else 0
                 tr.phase = _Phase.BLOCK_END
-                self._req(tr, struct.pack("<BH5x", 0xC1 | ((7 - used) << 2), crc))
+                self._req(tr, codec.block_end(0xC1, len(tr.data), crc))
                 return
             self._send_sub_block(tr)
             return
         if cs & 0xE3 != 0xA1:
-            raise SdoAbort(COMMAND_SPECIFIER_UNKNOWN)
+            raise SdoAbort(SdoAbortCode.COMMAND_SPECIFIER_UNKNOWN)
         self._finish(tr, None)
 
     def _send_sub_block(self, tr: _Transfer) -> None:
@@ -391,6 +378,6 @@ class SdoClient:
             chunk = data[pos:pos + 7]
             pos += 7
             last = pos >= len(data)
-            self._req(tr, bytes(((0x80 if last else 0) | seq,)) + chunk + bytes(7 - len(chunk)))
+            self._req(tr, codec.block_segment(seq, chunk, last))
         tr.sent = seq
         tr.last_sent = last

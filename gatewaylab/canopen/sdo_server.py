@@ -9,33 +9,21 @@ the access rights, lengths and limits that the contract promises.
 from __future__ import annotations
 
 import struct
+from collections.abc import Callable
 from enum import Enum
 from typing import TYPE_CHECKING
 
 from ..bus.frame import CanFrame
 from ..common.clock import TimerHandle
+from ..od import SdoAbort, SdoAbortCode, decode
+from ..od import sdo as codec
+from ..od.sdo import SDO_HEADER, SDO_HEADER_U32, BlockUploadSub, ClientCommand, SegmentedDownload, SegmentedUpload
 from .crc import crc16_ccitt
-from .errors import (
-    COMMAND_SPECIFIER_UNKNOWN,
-    CRC_ERROR,
-    GENERAL_ERROR,
-    INVALID_BLOCK_SIZE,
-    INVALID_SEQUENCE_NUMBER,
-    LENGTH_MISMATCH,
-    LENGTH_TOO_LOW,
-    OUT_OF_MEMORY,
-    SDO_PROTOCOL_TIMED_OUT,
-    TOGGLE_BIT_NOT_ALTERNATED,
-    SdoAbort,
-)
 
 if TYPE_CHECKING:
+    from ..od import Entry
     from .node import Node
-    from .od import Entry
 
-#: command byte, index, sub-index (CiA 301 figure 20 ff.)
-SDO_HEADER = struct.Struct("<BHB")
-SDO_HEADER_U32 = struct.Struct("<BHBI")
 #: Initiate upload response command byte for an expedited answer of n bytes, and its padding.
 _EXPEDITED_CS = (b"", b"\x4F", b"\x4B", b"\x47", b"\x43")
 _PAD = (b"", b"\x00\x00\x00", b"\x00\x00", b"\x00", b"")
@@ -48,14 +36,15 @@ def _announced_size(data: bytes, entry: Entry) -> int:
     7.2.4.3.3 / 7.2.4.3.9: too large for the server, or not the size of a fixed-size object)."""
     size: int = struct.unpack_from("<I", data, 4)[0]
     if size > MAX_TRANSFER:
-        raise SdoAbort(OUT_OF_MEMORY)
-    fixed = entry.size
-    if fixed is not None and size != fixed:
-        raise SdoAbort(LENGTH_TOO_LOW if size < fixed else LENGTH_MISMATCH)
+        raise SdoAbort(SdoAbortCode.OUT_OF_MEMORY)
+    if entry.size is not None:
+        codec.check_size(size, entry.size)
     return size
 
 
 class SdoServerState(Enum):
+    """Where a server channel is in a transfer (the rows of the dispatch table)."""
+
     IDLE = "idle"
     DOWNLOAD_SEGMENTED = "download segmented"
     UPLOAD_SEGMENTED = "upload segmented"
@@ -70,7 +59,8 @@ _IDLE = SdoServerState.IDLE
 
 
 class SdoServer:
-    """The default SDO server of a :class:`Node`."""
+    """The default SDO server of a :class:`Node`: a (state, client command specifier) table
+    dispatches every request; segments go through the codec shared with the client and CoE."""
 
     def __init__(self, node: Node, timeout: float = 1.0, block_size: int = 127) -> None:
         self.node = node
@@ -78,18 +68,21 @@ class SdoServer:
         self.timeout = timeout
         #: Block size the server asks for in block download (1..127).
         self.block_size = block_size
-        self.state = SdoServerState.IDLE
+        self._state = SdoServerState.IDLE
+        #: The dispatch table's row of the present state: handler by client command specifier.
+        self._row = _ROWS[SdoServerState.IDLE]
         self.rx_cob_id = 0
         self.tx_cob_id = 0
         self.index = 0
-        self.sub = 0
+        self.subindex = 0
+        self._download: SegmentedDownload | None = None
+        self._upload: SegmentedUpload | None = None
+        self._timer: TimerHandle | None = None
+        # block transfers
         self._buf = bytearray()
         self._data = b""
         self._pos = 0
         self._size: int | None = None
-        self._toggle = 0
-        self._timer: TimerHandle | None = None
-        # block transfers
         self._crc = False
         self._blksize = 127
         self._ackseq = 0
@@ -104,18 +97,29 @@ class SdoServer:
         self.aborts_sent = 0
         self.ignored = 0
 
+    @property
+    def state(self) -> SdoServerState:
+        """Where the channel is in a transfer."""
+        return self._state
+
+    @state.setter
+    def state(self, state: SdoServerState) -> None:
+        self._state = state
+        self._row = _ROWS[state]
+
     # -- plumbing ------------------------------------------------------------------------------
     def _send(self, payload: bytes) -> None:
         self.node.send(CanFrame(self.tx_cob_id, payload))
 
-    def _abort(self, code: int, index: int | None = None, sub: int | None = None) -> None:
+    def _abort(self, code: int) -> None:
         self._reset()
         self.aborts_sent += 1
-        self._send(SDO_HEADER_U32.pack(0x80, self.index if index is None else index,
-                                       self.sub if sub is None else sub, code))
+        self._send(codec.abort(self.index, self.subindex, code))
 
     def _reset(self) -> None:
         self.state = SdoServerState.IDLE
+        self._download = None
+        self._upload = None
         self._buf = bytearray()
         self._data = b""
         self._sub_block = []
@@ -143,31 +147,39 @@ class SdoServer:
     def _timed_out(self) -> None:
         self._timer = None
         if self.state is not SdoServerState.IDLE:
-            self._abort(SDO_PROTOCOL_TIMED_OUT)
+            self._abort(SdoAbortCode.SDO_PROTOCOL_TIMED_OUT)
 
     # -- entry point ---------------------------------------------------------------------------
     def on_frame(self, frame: CanFrame, t: float) -> None:
+        """One request frame from the client (COB-ID 0x600 + node-id by default)."""
         data = frame.data
         if frame.rtr or len(data) != 8:
             self.ignored += 1     # CiA 301: SDO frames have DLC 8; shorter ones are not answered
             return
         self.requests += 1
         try:
-            if data[0] == 0x40 and self.state is _IDLE:
+            state = self._state
+            if data[0] == codec.CS_UPLOAD_REQUEST and state is _IDLE:
                 self._fast_upload(data)     # the most frequent request, kept short
                 return
-            self._dispatch(data)
+            if state is SdoServerState.BLOCK_DOWNLOAD:
+                if data[0] == codec.CS_ABORT:
+                    self._reset()       # client abort during a sub-block (sequence 0 is never a segment)
+                else:
+                    self._block_segment(data)
+                return
+            self._row[data[0] >> 5](self, data)
         except SdoAbort as exc:
             self._abort(exc.code)
         except Exception:  # device hook misbehaved: answer, never crash the bus
-            self.node.stats["hook_errors"] = self.node.stats.get("hook_errors", 0) + 1
-            self._abort(GENERAL_ERROR)
+            self.node.count("hook_errors")
+            self._abort(SdoAbortCode.GENERAL_ERROR)
 
     def _fast_upload(self, data: bytes) -> None:
         node = self.node
         index = data[1] | (data[2] << 8)
         sub = data[3]
-        self.index, self.sub = index, sub
+        self.index, self.subindex = index, sub
         value = node.read(index, sub)
         n = len(value)
         if 0 < n <= 4:
@@ -182,56 +194,20 @@ class SdoServer:
         else:
             self._start_upload(index, sub, value)
 
-    def _dispatch(self, data: bytes) -> None:
-        cs = data[0]
-        state = self.state
-        if state is SdoServerState.BLOCK_DOWNLOAD:
-            if cs == 0x80:
-                self._reset()           # client abort during a sub-block (sequence 0 is never a segment)
-                return
-            self._block_segment(data)
-            return
-        ccs = cs >> 5
-        if ccs == 4:                    # abort from the client: no answer
-            self._reset()
-            return
-        if ccs == 1:
-            self._initiate_download(data)
-        elif ccs == 2:
-            self._initiate_upload(data)
-        elif ccs == 0:
-            self._download_segment(data)
-        elif ccs == 3:
-            self._upload_segment(data)
-        elif ccs == 6:
-            if cs & 0x01:
-                self._block_download_end(data)
-            else:
-                self._block_download_initiate(data)
-        elif ccs == 5:
-            sub_cmd = cs & 0x03
-            if sub_cmd == 0:
-                self._block_upload_initiate(data)
-            elif sub_cmd == 3:
-                self._block_upload_start(cs)
-            elif sub_cmd == 2:
-                self._block_upload_ack(data)
-            else:
-                self._block_upload_end(cs)
-        else:
-            self._unknown(data)
-
     def _unknown(self, data: bytes) -> None:
         if self.state is SdoServerState.IDLE:
             _, index, sub = SDO_HEADER.unpack_from(data)
-            self.index, self.sub = index, sub
-        raise SdoAbort(COMMAND_SPECIFIER_UNKNOWN)
+            self.index, self.subindex = index, sub
+        raise SdoAbort(SdoAbortCode.COMMAND_SPECIFIER_UNKNOWN)
+
+    def _client_abort(self, data: bytes) -> None:
+        self._reset()       # abort from the client: no answer
 
     def _begin(self, data: bytes) -> tuple[int, int]:
         """A new initiate request ends any transfer in progress (CiA 301: the new one wins)."""
         _, index, sub = SDO_HEADER.unpack_from(data)
         self._reset()
-        self.index, self.sub = index, sub
+        self.index, self.subindex = index, sub
         return index, sub
 
     # -- expedited / segmented download --------------------------------------------------------
@@ -241,40 +217,29 @@ class SdoServer:
         node = self.node
         entry = node.check_writable(index, sub)
         if cs & 0x02:                                   # expedited
-            unspecified = entry.size if entry.size is not None and entry.size <= 4 else 4
-            size = 4 - ((cs >> 2) & 0x03) if cs & 0x01 else unspecified
-            node.write(index, sub, data[4:4 + size])
-            self._send(SDO_HEADER_U32.pack(0x60, index, sub, 0))
+            size = codec.expedited_size(cs)
+            if size is None:
+                size = entry.size if entry.size is not None and entry.size <= 4 else 4
+            node.store(entry, decode(entry, data[4:4 + size]))   # access already checked above
+            self._send(codec.download_response(index, sub))
             return
-        self._size = _announced_size(data, entry) if cs & 0x01 else None
+        size = _announced_size(data, entry) if cs & 0x01 else None
+        self._download = SegmentedDownload(index, sub, size, MAX_TRANSFER)
         self.state = SdoServerState.DOWNLOAD_SEGMENTED
-        self._toggle = 0
-        self._buf = bytearray()
-        self._send(SDO_HEADER_U32.pack(0x60, index, sub, 0))
+        self._send(codec.download_response(index, sub))
         self._arm()
 
     def _download_segment(self, data: bytes) -> None:
-        if self.state is not SdoServerState.DOWNLOAD_SEGMENTED:
-            self._unknown(data)
-        cs = data[0]
-        toggle = (cs >> 4) & 1
-        if toggle != self._toggle:
-            raise SdoAbort(TOGGLE_BIT_NOT_ALTERNATED)
-        n = (cs >> 1) & 0x07
-        self._buf += data[1:8 - n]
-        if len(self._buf) > MAX_TRANSFER:
-            raise SdoAbort(OUT_OF_MEMORY)
-        if cs & 0x01:
-            payload = bytes(self._buf)
-            if self._size is not None and len(payload) != self._size:
-                raise SdoAbort(LENGTH_TOO_LOW if len(payload) < self._size else LENGTH_MISMATCH)
-            index, sub = self.index, self.sub
+        transfer = self._download
+        assert transfer is not None
+        toggle, last = transfer.segment(data)
+        if last:
+            codec.check_size(len(transfer.buf), transfer.size)
             self._reset()
-            self.node.write(index, sub, payload)
+            self.node.write(transfer.index, transfer.subindex, bytes(transfer.buf))
         else:
-            self._toggle ^= 1
             self._arm()
-        self._send(bytes((0x20 | (toggle << 4), 0, 0, 0, 0, 0, 0, 0)))
+        self._send(codec.segment_ack(0x20, toggle))
 
     # -- expedited / segmented upload ----------------------------------------------------------
     def _initiate_upload(self, data: bytes) -> None:
@@ -285,39 +250,37 @@ class SdoServer:
     def _start_upload(self, index: int, sub: int, value: bytes) -> None:
         n = len(value)
         if 0 < n <= 4:
-            self._send(SDO_HEADER.pack(0x43 | ((4 - n) << 2), index, sub) + value + bytes(4 - n))
+            self._send(codec.expedited_upload_response(index, sub, value))
             return
         self.state = SdoServerState.UPLOAD_SEGMENTED
-        self._data = value
-        self._pos = 0
-        self._toggle = 0
-        self._send(SDO_HEADER_U32.pack(0x41, index, sub, n))
+        self._upload = SegmentedUpload(index, sub, value)
+        self._send(SDO_HEADER_U32.pack(codec.CS_UPLOAD_SEGMENTED_RESPONSE, index, sub, n))
         self._arm()
 
     def _upload_segment(self, data: bytes) -> None:
-        if self.state is not SdoServerState.UPLOAD_SEGMENTED:
-            self._unknown(data)
-        toggle = (data[0] >> 4) & 1
-        if toggle != self._toggle:
-            raise SdoAbort(TOGGLE_BIT_NOT_ALTERNATED)
-        pos = self._pos
-        chunk = self._data[pos:pos + 7]
-        self._pos = pos + len(chunk)
-        last = self._pos >= len(self._data)
-        n = 7 - len(chunk)
+        transfer = self._upload
+        assert transfer is not None
+        reply, last = transfer.segment(data[0])
         if last:
             self._reset()
         else:
-            self._toggle ^= 1
             self._arm()
-        self._send(bytes(((toggle << 4) | (n << 1) | (1 if last else 0),)) + chunk + bytes(n))
+        self._send(reply)
 
     # -- block download ------------------------------------------------------------------------
+    def _block_download(self, data: bytes) -> None:
+        if data[0] & 0x01:
+            if self.state is not SdoServerState.BLOCK_DOWNLOAD_END:
+                self._unknown(data)
+            self._block_download_end(data)
+        else:
+            self._block_download_initiate(data)
+
     def _block_download_initiate(self, data: bytes) -> None:
         cs = data[0]
         index, sub = self._begin(data)
         if cs & 0x18:       # bits 4..3 are reserved
-            raise SdoAbort(COMMAND_SPECIFIER_UNKNOWN)
+            raise SdoAbort(SdoAbortCode.COMMAND_SPECIFIER_UNKNOWN)
         entry = self.node.check_writable(index, sub)
         self._crc = bool(cs & 0x04)
         self._size = _announced_size(data, entry) if cs & 0x02 else None
@@ -326,7 +289,8 @@ class SdoServer:
         self._sub_block = []
         self._ackseq = 0
         self._blksize = self.block_size
-        self._send(SDO_HEADER.pack(0xA4, index, sub) + bytes((self._blksize, 0, 0, 0)))
+        self._send(SDO_HEADER.pack(codec.CS_BLOCK_DOWNLOAD_INITIATE_RESPONSE, index, sub)
+                   + bytes((self._blksize, 0, 0, 0)))
         self._arm()
 
     def _block_segment(self, data: bytes) -> None:
@@ -334,7 +298,7 @@ class SdoServer:
         seq = cs & 0x7F
         last = bool(cs & 0x80)
         if seq == 0 or seq > self._blksize:
-            raise SdoAbort(INVALID_SEQUENCE_NUMBER)
+            raise SdoAbort(SdoAbortCode.INVALID_SEQUENCE_NUMBER)
         if seq == self._ackseq + 1:
             self._ackseq = seq
             self._sub_block.append(data[1:8])
@@ -344,40 +308,48 @@ class SdoServer:
             for seg in self._sub_block:
                 self._buf += seg
             if len(self._buf) > MAX_TRANSFER:
-                raise SdoAbort(OUT_OF_MEMORY)
+                raise SdoAbort(SdoAbortCode.OUT_OF_MEMORY)
             self._sub_block = []
             ackseq = self._ackseq
             self._ackseq = 0
             if last:
                 self.state = SdoServerState.BLOCK_DOWNLOAD_END
-            self._send(bytes((0xA2, ackseq, self._blksize, 0, 0, 0, 0, 0)))
+            self._send(codec.block_ack(ackseq, self._blksize))
         self._arm()
 
     def _block_download_end(self, data: bytes) -> None:
-        if self.state is not SdoServerState.BLOCK_DOWNLOAD_END:
-            self._unknown(data)
         n = (data[0] >> 2) & 0x07
         payload = bytes(self._buf[:len(self._buf) - n])
-        if self._size is not None and len(payload) != self._size:
-            raise SdoAbort(LENGTH_TOO_LOW if len(payload) < self._size else LENGTH_MISMATCH)
+        codec.check_size(len(payload), self._size)
         if self._crc:
             client_crc = struct.unpack_from("<H", data, 1)[0]
             if crc16_ccitt(payload) != client_crc:
-                raise SdoAbort(CRC_ERROR)
-        index, sub = self.index, self.sub
+                raise SdoAbort(SdoAbortCode.CRC_ERROR)
+        index, sub = self.index, self.subindex
         self._reset()
         self.node.write(index, sub, payload)
-        self._send(bytes((0xA1, 0, 0, 0, 0, 0, 0, 0)))
+        self._send(bytes((codec.CS_BLOCK_END_RESPONSE, 0, 0, 0, 0, 0, 0, 0)))
 
     # -- block upload --------------------------------------------------------------------------
+    def _block_upload(self, data: bytes) -> None:
+        sub_cmd = data[0] & 0x03
+        if sub_cmd == BlockUploadSub.INITIATE:
+            self._block_upload_initiate(data)
+        elif sub_cmd == BlockUploadSub.START:
+            self._block_upload_start(data[0])
+        elif sub_cmd == BlockUploadSub.ACK:
+            self._block_upload_ack(data)
+        else:
+            self._block_upload_end(data[0])
+
     def _block_upload_initiate(self, data: bytes) -> None:
         cs = data[0]
         index, sub = self._begin(data)
         blksize, pst = data[4], data[5]
         if cs & 0x18:
-            raise SdoAbort(COMMAND_SPECIFIER_UNKNOWN)
+            raise SdoAbort(SdoAbortCode.COMMAND_SPECIFIER_UNKNOWN)
         if not 1 <= blksize <= 127:
-            raise SdoAbort(INVALID_BLOCK_SIZE)
+            raise SdoAbort(SdoAbortCode.INVALID_BLOCK_SIZE)
         value = self.node.read(index, sub)
         if pst and len(value) <= pst:
             # Protocol switch threshold: answer with the normal upload protocol (CiA 301 7.2.4.3.13)
@@ -393,8 +365,8 @@ class SdoServer:
         self._arm()
 
     def _block_upload_start(self, cs: int) -> None:
-        if self.state is not SdoServerState.BLOCK_UPLOAD_START or cs != 0xA3:
-            raise SdoAbort(COMMAND_SPECIFIER_UNKNOWN)
+        if self.state is not SdoServerState.BLOCK_UPLOAD_START or cs != codec.CS_BLOCK_UPLOAD_START:
+            raise SdoAbort(SdoAbortCode.COMMAND_SPECIFIER_UNKNOWN)
         self._send_sub_block()
 
     def _send_sub_block(self) -> None:
@@ -409,35 +381,53 @@ class SdoServer:
             chunk = data[pos:pos + 7]
             pos += 7
             last = pos >= total
-            self._send(bytes(((0x80 if last else 0) | seq,)) + chunk + bytes(7 - len(chunk)))
+            self._send(codec.block_segment(seq, chunk, last))
         self._sent = seq
         self._last_sent = last
         self._arm()
 
     def _block_upload_ack(self, data: bytes) -> None:
         if self.state is not SdoServerState.BLOCK_UPLOAD:
-            raise SdoAbort(COMMAND_SPECIFIER_UNKNOWN)
+            raise SdoAbort(SdoAbortCode.COMMAND_SPECIFIER_UNKNOWN)
         ackseq, blksize = data[1], data[2]
         if ackseq > self._sent:
-            raise SdoAbort(INVALID_SEQUENCE_NUMBER)
+            raise SdoAbort(SdoAbortCode.INVALID_SEQUENCE_NUMBER)
         if not 1 <= blksize <= 127:
-            raise SdoAbort(INVALID_BLOCK_SIZE)
+            raise SdoAbort(SdoAbortCode.INVALID_BLOCK_SIZE)
         self._blksize = blksize
         self._pos = min(self._block_start + 7 * ackseq, len(self._data))
         if self._last_sent and ackseq == self._sent:
-            total = len(self._data)
-            used = total - 7 * ((total - 1) // 7) if total else 0
-            n = 7 - used
-            crc = crc16_ccitt(self._data)
             self.state = SdoServerState.BLOCK_UPLOAD_END
-            self._send(struct.pack("<BH5x", 0xC1 | (n << 2), crc))
+            self._send(codec.block_end(0xC1, len(self._data), crc16_ccitt(self._data)))
             self._arm()
             return
         self._send_sub_block()
 
     def _block_upload_end(self, cs: int) -> None:
-        if self.state is not SdoServerState.BLOCK_UPLOAD_END or cs != 0xA1:
-            raise SdoAbort(COMMAND_SPECIFIER_UNKNOWN)
+        if self.state is not SdoServerState.BLOCK_UPLOAD_END or cs != codec.CS_BLOCK_END_RESPONSE:
+            raise SdoAbort(SdoAbortCode.COMMAND_SPECIFIER_UNKNOWN)
         self._reset()
 
 
+_Handler = Callable[["SdoServer", bytes], None]
+
+
+def _dispatch_table() -> dict[tuple[SdoServerState, int], _Handler]:
+    """(state, client command specifier) -> handler; anything missing is 'command unknown'.
+    Initiate requests are valid in every state (a new transfer ends the one in progress)."""
+    table: dict[tuple[SdoServerState, int], _Handler] = {}
+    for state in SdoServerState:
+        table[(state, ClientCommand.INITIATE_DOWNLOAD)] = SdoServer._initiate_download
+        table[(state, ClientCommand.INITIATE_UPLOAD)] = SdoServer._initiate_upload
+        table[(state, ClientCommand.BLOCK_DOWNLOAD)] = SdoServer._block_download
+        table[(state, ClientCommand.BLOCK_UPLOAD)] = SdoServer._block_upload
+        table[(state, ClientCommand.ABORT)] = SdoServer._client_abort
+    table[(SdoServerState.DOWNLOAD_SEGMENTED, ClientCommand.DOWNLOAD_SEGMENT)] = SdoServer._download_segment
+    table[(SdoServerState.UPLOAD_SEGMENTED, ClientCommand.UPLOAD_SEGMENT)] = SdoServer._upload_segment
+    return table
+
+
+_DISPATCH = _dispatch_table()
+#: The table as one row per state, indexed by the command specifier (0..7): no hashing on the hot path.
+_ROWS: dict[SdoServerState, tuple[_Handler, ...]] = {
+    state: tuple(_DISPATCH.get((state, ccs), SdoServer._unknown) for ccs in range(8)) for state in SdoServerState}

@@ -3,22 +3,20 @@
 Writing the signature "save" (0x65766173) to 0x1010 sub 1 (all), 2 (communication 0x1000-0x1FFF)
 or 3 (application 0x6000-0x9FFF) records the present values of the writable entries of that area;
 "load" (0x64616F6C) to 0x1011 forgets them, so the defaults come back with the next reset. A
-wrong signature is refused with 0x08000020. The records live in a JSON file (hex of the wire
-form per entry) when the node has a ``store_path``, so they survive a node reset and a restart of
-the emulator; without a path they survive node resets only.
+wrong signature is refused with 0x08000020. The records (hex of the wire form per entry) go to
+the :class:`~gatewaylab.common.store.ParameterStore` the node is given: a JSON file
+(:class:`~gatewaylab.common.store.JsonFileStore`, survives a restart of the emulator) or memory
+(survives node resets only). This module never opens a file itself.
 """
 
 from __future__ import annotations
 
-import json
-import os
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ..common.errors import ConfigError
+from ..common.store import MemoryStore, ParameterStore
+from ..od import Entry, SdoAbort, SdoAbortCode, decode, encode
 from .communication import LOAD_SIGNATURE, SAVE_SIGNATURE
-from .errors import DATA_CANNOT_BE_STORED, SdoAbort
-from .od import Entry, decode, encode
 
 if TYPE_CHECKING:
     from .node import Node
@@ -36,17 +34,17 @@ NOT_STORED = frozenset({0x1003, 0x1010, 0x1011})
 class Storage:
     """Non-volatile parameter memory of a :class:`Node`."""
 
-    def __init__(self, node: Node, path: Path | None) -> None:
+    def __init__(self, node: Node, store: ParameterStore | None = None) -> None:
         self.node = node
-        self.path = Path(path) if path is not None else None
-        #: "IIIISS" (hex index+sub) -> hex of the stored wire value
+        self.store: ParameterStore = store if store is not None else MemoryStore()
+        #: "IIIISS" (hex index+subindex) -> hex of the stored wire value
         self.stored: dict[str, str] = {}
-        if self.path is not None and self.path.exists():
-            try:
-                raw = json.loads(self.path.read_text())
+        try:
+            raw = self.store.load()
+            if raw is not None:
                 self.stored = {str(k): str(v) for k, v in raw.get("values", {}).items()}
-            except (OSError, ValueError, AttributeError) as exc:
-                raise ConfigError(f"cannot read stored parameters {self.path}: {exc}") from exc
+        except (OSError, ValueError, AttributeError) as exc:
+            raise ConfigError(f"cannot read stored parameters {self.store!r}: {exc}") from exc
         node.add_command(0x1010, self._save)
         node.add_command(0x1011, self._load)
 
@@ -56,10 +54,10 @@ class Storage:
 
     def _save(self, entry: Entry, value: Any) -> None:
         if value != SAVE_SIGNATURE:
-            raise SdoAbort(DATA_CANNOT_BE_STORED, "0x1010 expects the signature 'save'")
-        areas = AREAS.get(entry.sub)
+            raise SdoAbort(SdoAbortCode.DATA_CANNOT_BE_STORED, "0x1010 expects the signature 'save'")
+        areas = AREAS.get(entry.subindex)
         if areas is None:
-            raise SdoAbort(DATA_CANNOT_BE_STORED)
+            raise SdoAbort(SdoAbortCode.DATA_CANNOT_BE_STORED)
         od = self.node.od
         for key, e in od.entries.items():
             if e.access.writable and key[0] not in NOT_STORED and self._in(key[0], areas):
@@ -68,23 +66,18 @@ class Storage:
 
     def _load(self, entry: Entry, value: Any) -> None:
         if value != LOAD_SIGNATURE:
-            raise SdoAbort(DATA_CANNOT_BE_STORED, "0x1011 expects the signature 'load'")
-        areas = AREAS.get(entry.sub)
+            raise SdoAbort(SdoAbortCode.DATA_CANNOT_BE_STORED, "0x1011 expects the signature 'load'")
+        areas = AREAS.get(entry.subindex)
         if areas is None:
-            raise SdoAbort(DATA_CANNOT_BE_STORED)
+            raise SdoAbort(SdoAbortCode.DATA_CANNOT_BE_STORED)
         self.stored = {k: v for k, v in self.stored.items() if not self._in(int(k[:4], 16), areas)}
         self._persist()
 
     def _persist(self) -> None:
-        if self.path is None:
-            return
-        tmp = self.path.with_suffix(self.path.suffix + ".tmp")
         try:
-            tmp.write_text(json.dumps({"format": "gatewaylab-canopen-store/1", "values": self.stored},
-                                      indent=1, sort_keys=True))
-            os.replace(tmp, self.path)
+            self.store.save({"format": "gatewaylab-canopen-store/1", "values": self.stored})
         except OSError as exc:
-            raise SdoAbort(DATA_CANNOT_BE_STORED, f"{self.path}: {exc}") from exc
+            raise SdoAbort(SdoAbortCode.DATA_CANNOT_BE_STORED, f"{self.store!r}: {exc}") from exc
 
     def apply(self, area: range) -> None:
         """Load the stored values of ``area`` into the dictionary (at power-on and resets)."""

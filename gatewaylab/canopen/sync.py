@@ -14,10 +14,10 @@ from typing import TYPE_CHECKING, Any
 
 from ..bus.frame import CanFrame
 from ..common.clock import PeriodicTimer
+from ..od import Entry
 from .emcy import EMCY_UNEXPECTED_SYNC_LENGTH, ERR_COMMUNICATION
 from .errors import DATA_CANNOT_BE_STORED_DEVICE_STATE, VALUE_RANGE_EXCEEDED, SdoAbort
 from .nmt import NmtState
-from .od import Entry
 
 if TYPE_CHECKING:
     from .node import Node

@@ -1,17 +1,19 @@
 """Device description: everything a slave shows a master (identity, mailbox, SMs, PDOs, objects).
 
-One frozen description feeds the SII EEPROM image (``sii.py``), the standard CoE objects
-(``slave.py``) and the ESI XML (``esi.py``), so the three can never disagree. The ECAN-Lite and
-esd CAN-EtherCAT devices build their own description and add device objects with ``objects``.
+One frozen description feeds the SII EEPROM image (``sii.py``), the object dictionary
+(:func:`build_od`: standard CoE objects plus the device's) and the ESI XML (``esi.py``), so the
+three can never disagree. The ECAN-Lite and esd CAN-EtherCAT devices build their own description
+and add device objects with ``objects``.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
+from ..od import Access, DataType, Entry, ObjectCode, ObjectDictionary, SdoAbort, SdoAbortCode
 from .errors import EtherCATConfigError
-from .od import Access, DataType, ObjectDictionary
 
 
 @dataclass(frozen=True, slots=True)
@@ -40,6 +42,7 @@ class Pdo:
 
     @property
     def bit_length(self) -> int:
+        """Bits of all its entries."""
         return sum(e.bit_length for e in self.entries)
 
 
@@ -52,7 +55,11 @@ def _assigned(pdos: tuple[Pdo, ...], assign: tuple[int, ...] | None) -> tuple[Pd
 
 @dataclass(frozen=True, slots=True)
 class ObjectDef:
-    """A device object added to the dictionary: VAR when ``subs`` is empty, else a RECORD."""
+    """A device object added to the dictionary: VAR when ``subs`` is empty, else a RECORD.
+
+    ``pdo_mappable`` applies to the VAR or to every entry of the RECORD; the direction follows the
+    access (RO: TxPDO, RWW: RxPDO, RW: both). ``preop_only``: writable in PREOP only.
+    """
 
     index: int
     name: str
@@ -60,6 +67,8 @@ class ObjectDef:
     value: int | float | str | bytes = 0
     access: Access = Access.RO
     subs: tuple[tuple[str, DataType, int | float | str | bytes, Access], ...] = ()
+    pdo_mappable: bool = False
+    preop_only: bool = False
 
 
 @dataclass(frozen=True, slots=True)
@@ -113,10 +122,12 @@ class DeviceDescription:
 
     @property
     def assigned_rx_pdos(self) -> tuple[Pdo, ...]:
+        """RxPDOs assigned by default (0x1C12)."""
         return _assigned(self.rx_pdos, self.rx_assign)
 
     @property
     def assigned_tx_pdos(self) -> tuple[Pdo, ...]:
+        """TxPDOs assigned by default (0x1C13)."""
         return _assigned(self.tx_pdos, self.tx_assign)
 
     @property
@@ -126,6 +137,7 @@ class DeviceDescription:
 
     @property
     def input_bytes(self) -> int:
+        """Inputs (SM3) size with the default assignment."""
         return (sum(p.bit_length for p in self.assigned_tx_pdos) + 7) // 8
 
     @property
@@ -136,3 +148,100 @@ class DeviceDescription:
     # SyncManager control bytes the master must program (ET1100 0x0804).
     SM0_CONTROL = 0x26  # mailbox, ECAT writes, PDI interrupt
     SM1_CONTROL = 0x22  # mailbox, ECAT reads, PDI interrupt
+
+
+def _mapping_validators(od: ObjectDictionary, index: int, rx: bool, assignment: bool) -> None:
+    """PDO mapping / assignment objects: entries may only change while subindex 0 is 0, mapping
+    entries must name a mappable object of the right direction and size (0x06040041), assignments
+    an existing PDO of the right range (0x06090030) (ETG.1000.6 PDO configuration; QEC A.5)."""
+
+    def check_mapping(value: int) -> None:
+        target, sub, bits = value >> 16, (value >> 8) & 0xFF, value & 0xFF
+        if target == 0:
+            return  # a gap of ``bits`` bits
+        try:
+            entry = od.entry(target, sub)
+        except SdoAbort:
+            raise SdoAbort(SdoAbortCode.OBJECT_NOT_MAPPABLE, f"0x{target:04X}:{sub} does not exist") from None
+        mappable = entry.rx_pdo if rx else entry.tx_pdo
+        if not mappable or od.bit_length(target, sub) != bits:
+            raise SdoAbort(SdoAbortCode.OBJECT_NOT_MAPPABLE, f"0x{target:04X}:{sub} cannot be mapped as {bits} bits")
+
+    def check_assignment(value: int) -> None:
+        lo = 0x1600 if rx else 0x1A00
+        if not lo <= value < lo + 0x200 or value not in od:
+            raise SdoAbort(SdoAbortCode.VALUE_RANGE_EXCEEDED, f"no PDO 0x{value:04X} to assign")
+
+    def validator(entry: Entry, value: Any) -> None:
+        if entry.subindex == 0:
+            return
+        if od.values[(index, 0)] != 0:
+            raise SdoAbort(SdoAbortCode.SUBINDEX_CANNOT_BE_WRITTEN, "subindex 0 must be 0 to change the mapping")
+        if assignment:
+            check_assignment(int(value))
+        else:
+            check_mapping(int(value))
+
+    od.add_validator(index, validator)
+
+
+def _record(od: ObjectDictionary, index: int, name: str,
+            entries: list[tuple[int, str, DataType, Any, Access]], *, pdo_mappable: bool = False,
+            preop_only: bool = False, code: ObjectCode = ObjectCode.RECORD) -> None:
+    """A RECORD whose subindex 0 ("SubIndex 000", as CoE masters show it) holds the highest subindex."""
+    od.add_record(index, name, code)
+    for sub, ename, dtype, value, access in entries:
+        od.add_sub(index, sub, ename, dtype, access, value, pdo_mappable=pdo_mappable, preop_only=preop_only,
+                   sub0_name="SubIndex 000")
+
+
+def build_od(desc: DeviceDescription) -> ObjectDictionary:
+    """The slave's dictionary: standard communication objects (0x1000..0x1C33) from the
+    description, then the device objects, then ``desc.extend_od`` (hooks, arrays)."""
+    od = ObjectDictionary()
+    u8, u16, u32 = DataType.UNSIGNED8, DataType.UNSIGNED16, DataType.UNSIGNED32
+    ro = Access.RO
+    od.add_variable(0x1000, "Device type", u32, ro, desc.device_type)
+    od.add_variable(0x1008, "Manufacturer device name", DataType.VISIBLE_STRING, ro, desc.name)
+    od.add_variable(0x1009, "Manufacturer hardware version", DataType.VISIBLE_STRING, ro, desc.hardware_version)
+    od.add_variable(0x100A, "Manufacturer software version", DataType.VISIBLE_STRING, ro, desc.software_version)
+    _record(od, 0x1018, "Identity", [
+        (1, "Vendor ID", u32, desc.vendor_id, ro), (2, "Product code", u32, desc.product_code, ro),
+        (3, "Revision", u32, desc.revision, ro), (4, "Serial number", u32, desc.serial, ro)])
+    types = [1, 2, 3, 4] if desc.coe or desc.foe else [3, 4]
+    od.add_array(0x1C00, "Sync manager type", u8, len(types), ro, defaults=types, sub0_name="SubIndex 000",
+                 sub_names=[f"SubIndex {i:03d}" for i in range(1, len(types) + 1)])
+    for pdos, assigned, assign in ((desc.rx_pdos, desc.assigned_rx_pdos, 0x1C12),
+                                   (desc.tx_pdos, desc.assigned_tx_pdos, 0x1C13)):
+        for pdo in pdos:
+            n = max(8, len(pdo.entries))
+            od.add_array(pdo.index, pdo.name, u32, n, Access.RW, defaults=[e.mapping for e in pdo.entries],
+                         sub0_access=Access.RW, sub0_default=len(pdo.entries), preop_only=True,
+                         sub0_name="SubIndex 000", sub_names=[f"SubIndex {i:03d}" for i in range(1, n + 1)])
+            _mapping_validators(od, pdo.index, assign == 0x1C12, assignment=False)
+        n = max(4, len(pdos))
+        od.add_array(assign, "RxPDO assign" if assign == 0x1C12 else "TxPDO assign", u16, n, Access.RW,
+                     defaults=[p.index for p in assigned], sub0_access=Access.RW, sub0_default=len(assigned),
+                     preop_only=True, sub0_name="SubIndex 000",
+                     sub_names=[f"SubIndex {i:03d}" for i in range(1, n + 1)])
+        _mapping_validators(od, assign, assign == 0x1C12, assignment=True)
+    for index, name in ((0x1C32, "SM output parameter"), (0x1C33, "SM input parameter")):
+        od.add_record(index, name)
+        od.add_sub(index, 1, "Sync mode", u16, Access.RW, 1, preop_only=True, sub0_name="SubIndex 000")
+        for sub, ename, dtype, value in ((2, "Cycle time", u32, 1_000_000), (3, "Shift time", u32, 0),
+                                         (4, "Sync modes supported", u16, 0x0007),
+                                         (5, "Minimum cycle time", u32, 100_000),
+                                         (6, "Calc and copy time", u32, 10_000),
+                                         (9, "Delay time", u32, 0), (11, "SM event missed", u16, 0),
+                                         (12, "Cycle time too small", u16, 0), (32, "Sync error", DataType.BOOLEAN, 0)):
+            od.add_sub(index, sub, ename, dtype, ro, value)
+    for o in desc.objects:
+        if o.subs:
+            _record(od, o.index, o.name, [(i, *sub) for i, sub in enumerate(o.subs, start=1)],
+                    pdo_mappable=o.pdo_mappable, preop_only=o.preop_only)
+        else:
+            od.add_variable(o.index, o.name, o.data_type, o.access, o.value, pdo_mappable=o.pdo_mappable,
+                            preop_only=o.preop_only)
+    if desc.extend_od is not None:
+        desc.extend_od(od)
+    return od

@@ -1,10 +1,16 @@
-"""EtherCAT errors, each carrying its wire code (AL status code, SDO abort code, FoE error code)."""
+"""EtherCAT errors, each carrying its wire code (AL status code, SDO abort code, FoE error code).
+
+CoE SDO aborts are the object dictionary's one :class:`SdoAbort` / :class:`SdoAbortCode`
+(re-exported here for the EtherCAT modules and their users).
+"""
 
 from __future__ import annotations
 
 import enum
 
 from ..common.errors import ConfigError, LocalError, ProtocolError, RemoteError
+from ..od.aborts import SdoAbort as SdoAbort
+from ..od.aborts import SdoAbortCode as SdoAbortCode
 
 
 class AlStatusCode(enum.IntEnum):
@@ -46,41 +52,6 @@ class AlStatusCode(enum.IntEnum):
     EEPROM_ERROR = 0x0051
 
 
-class SdoAbortCode(enum.IntEnum):
-    """CoE SDO abort codes (QEC master manual appendix A.5, from ETG.1000.6)."""
-
-    TOGGLE_BIT = 0x05030000
-    TIMEOUT = 0x05040000
-    COMMAND_SPECIFIER = 0x05040001
-    OUT_OF_MEMORY = 0x05040005
-    UNSUPPORTED_ACCESS = 0x06010000
-    WRITE_ONLY = 0x06010001
-    READ_ONLY = 0x06010002
-    SI0_MUST_BE_ZERO = 0x06010003
-    COMPLETE_ACCESS_NOT_SUPPORTED = 0x06010004
-    OBJECT_TOO_LONG = 0x06010005
-    MAPPED_TO_RXPDO = 0x06010006
-    OBJECT_DOES_NOT_EXIST = 0x06020000
-    CANNOT_BE_MAPPED = 0x06040041
-    PDO_LENGTH_EXCEEDED = 0x06040042
-    PARAMETER_INCOMPATIBLE = 0x06040043
-    INTERNAL_INCOMPATIBILITY = 0x06040047
-    HARDWARE_ERROR = 0x06060000
-    LENGTH_MISMATCH = 0x06070010
-    LENGTH_TOO_HIGH = 0x06070012
-    LENGTH_TOO_LOW = 0x06070013
-    SUBINDEX_DOES_NOT_EXIST = 0x06090011
-    VALUE_RANGE = 0x06090030
-    VALUE_TOO_HIGH = 0x06090031
-    VALUE_TOO_LOW = 0x06090032
-    MAX_LESS_THAN_MIN = 0x06090036
-    GENERAL = 0x08000000
-    CANNOT_STORE = 0x08000020
-    CANNOT_STORE_LOCAL = 0x08000021
-    CANNOT_STORE_STATE = 0x08000022
-    NO_OBJECT_DICTIONARY = 0x08000023
-
-
 class FoeErrorCode(enum.IntEnum):
     """FoE error codes (ETG.1000.6 'FoE Error')."""
 
@@ -117,13 +88,6 @@ class FrameFormatError(ProtocolError):
 
 class AlStatusError(RemoteError):
     """A state transition refused with an AL status code (register 0x0134)."""
-
-
-class SdoAbortError(RemoteError):
-    """An SDO transfer aborted with a CoE abort code (device side: the code sent; master side: received)."""
-
-    def __init__(self, message: str, code: int) -> None:
-        super().__init__(f"{message} (abort 0x{code:08X})", code)
 
 
 class FoeError(RemoteError):

@@ -10,8 +10,9 @@ from __future__ import annotations
 import struct
 import xml.etree.ElementTree as ET
 
-from .description import DeviceDescription, Pdo
-from .od import TYPE_NAMES, Access, DataType, Entry, ObjectCode, ObjectDictionary, OdObject, type_size
+from ..od import ESI_TYPE_NAMES, ObjectDictionary
+from ..od.esi import esi_dictionary
+from .description import DeviceDescription, Pdo, build_od
 from .sii import build_sii
 
 
@@ -24,36 +25,6 @@ def _sub(parent: ET.Element, tag: str, text: str | None = None, **attrs: str) ->
     if text is not None:
         el.text = text
     return el
-
-
-def _access(a: Access) -> str:
-    writable = a & (Access.WRITE_PREOP | Access.WRITE_SAFEOP | Access.WRITE_OP)
-    readable = a & (Access.READ_PREOP | Access.READ_SAFEOP | Access.READ_OP)
-    if writable and readable:
-        return "rw"
-    return "wo" if writable else "ro"
-
-
-def _type_name(e: Entry) -> str:
-    if e.data_type in (DataType.VISIBLE_STRING, DataType.OCTET_STRING, DataType.UNICODE_STRING):
-        return f"STRING({max(1, len(e.raw))})"
-    return TYPE_NAMES.get(e.data_type, "USINT")
-
-
-def _bits(e: Entry) -> int:
-    size = type_size(e.data_type)
-    if size is None:
-        return 8 * max(1, len(e.raw))
-    return 1 if e.data_type == DataType.BOOLEAN and e.bit_length == 1 else 8 * size
-
-
-def _flags(parent: ET.Element, e: Entry) -> None:
-    flags = _sub(parent, "Flags")
-    _sub(flags, "Access", _access(e.access))
-    if e.access & Access.RXPDO:
-        _sub(flags, "PdoMapping", "R")
-    elif e.access & Access.TXPDO:
-        _sub(flags, "PdoMapping", "T")
 
 
 def _pdo(parent: ET.Element, tag: str, pdo: Pdo, sm: int | None) -> None:
@@ -72,77 +43,12 @@ def _pdo(parent: ET.Element, tag: str, pdo: Pdo, sm: int | None) -> None:
         _sub(entry, "BitLen", str(e.bit_length))
         if e.index:
             _sub(entry, "Name", e.name)
-            _sub(entry, "DataType", TYPE_NAMES.get(e.data_type, "USINT"))
-
-
-def _dictionary(profile: ET.Element, od: ObjectDictionary) -> None:
-    dictionary = _sub(profile, "Dictionary")
-    types = _sub(dictionary, "DataTypes")
-    objects = _sub(dictionary, "Objects")
-    base_types: dict[str, int] = {}
-    for obj in od:
-        for e in obj.entries.values():
-            base_types[_type_name(e)] = _bits(e)
-    for name, bits in sorted(base_types.items()):
-        dt = _sub(types, "DataType")
-        _sub(dt, "Name", name)
-        _sub(dt, "BitSize", str(bits))
-    for obj in od:
-        _object(types, objects, obj)
-
-
-def _object(types: ET.Element, objects: ET.Element, obj: OdObject) -> None:
-    el = _sub(objects, "Object")
-    _sub(el, "Index", _hex(obj.index, 4))
-    _sub(el, "Name", obj.name)
-    if obj.code == ObjectCode.VAR:
-        e = obj.entries[0]
-        _sub(el, "Type", _type_name(e))
-        _sub(el, "BitSize", str(_bits(e)))
-        info = _sub(el, "Info")
-        if e.data_type == DataType.VISIBLE_STRING:
-            _sub(info, "DefaultString", e.raw.decode("latin-1"))
-        else:
-            _sub(info, "DefaultData", e.raw.hex().upper())
-        _flags(el, e)
-        return
-    type_name = f"DT{obj.index:04X}"
-    dt = _sub(types, "DataType")
-    _sub(dt, "Name", type_name)
-    offset = 0
-    subitems: list[tuple[Entry, int]] = []
-    for sub in sorted(obj.entries):
-        e = obj.entries[sub]
-        subitems.append((e, offset))
-        offset += 16 if sub == 0 else _bits(e)
-    _sub(dt, "BitSize", str(offset))
-    for e, off in subitems:
-        si = _sub(dt, "SubItem")
-        _sub(si, "SubIdx", str(e.subindex))
-        _sub(si, "Name", e.name)
-        _sub(si, "Type", _type_name(e))
-        _sub(si, "BitSize", str(_bits(e)))
-        _sub(si, "BitOffs", str(off))
-        _flags(si, e)
-    _sub(el, "Type", type_name)
-    _sub(el, "BitSize", str(offset))
-    info = _sub(el, "Info")
-    for e, _off in subitems:
-        si = _sub(info, "SubItem")
-        _sub(si, "Name", e.name)
-        sinfo = _sub(si, "Info")
-        if e.data_type == DataType.VISIBLE_STRING:
-            _sub(sinfo, "DefaultString", e.raw.decode("latin-1"))
-        else:
-            _sub(sinfo, "DefaultData", e.raw.hex().upper())
-    _flags(el, obj.entries[0])
+            _sub(entry, "DataType", ESI_TYPE_NAMES.get(e.data_type, "USINT"))
 
 
 def export_esi(desc: DeviceDescription, od: ObjectDictionary | None = None) -> str:
     """ESI XML text for one device type."""
     if od is None:
-        from .slave import build_od  # late import: slave imports this package's codecs
-
         od = build_od(desc)
     root = ET.Element("EtherCATInfo", {"xmlns:xsi": "http://www.w3.org/2001/XMLSchema-instance",
                                        "xsi:noNamespaceSchemaLocation": "EtherCATInfo.xsd", "Version": "1.6"})
@@ -162,7 +68,7 @@ def export_esi(desc: DeviceDescription, od: ObjectDictionary | None = None) -> s
         profile = _sub(device, "Profile")
         _sub(profile, "ProfileNo", str(desc.device_type & 0xFFFF))
         _sub(profile, "AddInfo", str(desc.device_type >> 16))
-        _dictionary(profile, od)
+        esi_dictionary(profile, od)
     has_mbx = desc.coe or desc.foe
     _sub(device, "Fmmu", "Outputs")
     _sub(device, "Fmmu", "Inputs")

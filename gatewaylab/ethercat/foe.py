@@ -20,6 +20,7 @@ FOE_BUSY = struct.Struct("<BBHH")
 
 
 class FoeOpcode(enum.IntEnum):
+    """FoE opcodes (ETG.1000.6)."""
     RRQ = 1
     WRQ = 2
     DATA = 3
@@ -29,14 +30,17 @@ class FoeOpcode(enum.IntEnum):
 
 
 def foe_packet(opcode: int, word: int, rest: bytes = b"") -> bytes:
+    """An FoE packet: opcode, reserved, password/packet number/error code, rest."""
     return FOE_HEADER.pack(opcode, 0, word & 0xFFFFFFFF) + rest
 
 
 class FoeHandler(Protocol):
     """What a device does with files; raise FoeError with an FoE error code to refuse."""
 
-    def foe_read(self, name: str, password: int) -> bytes: ...
-    def foe_write(self, name: str, password: int, data: bytes) -> None: ...
+    def foe_read(self, name: str, password: int) -> bytes:
+        """The file's contents (FoeError to refuse)."""
+    def foe_write(self, name: str, password: int, data: bytes) -> None:
+        """Store a received file (FoeError to refuse, FoeBusy to ask for time)."""
 
 
 @dataclass
@@ -53,12 +57,14 @@ class FoeFiles:
             raise FoeError(f"wrong password for {name!r}", FoeErrorCode.NO_RIGHTS)
 
     def foe_read(self, name: str, password: int) -> bytes:
+        """The stored file, FoE 'not found' otherwise."""
         self._check(name, password)
         if name not in self.files:
             raise FoeError(f"no file {name!r}", FoeErrorCode.NOT_FOUND)
         return self.files[name]
 
     def foe_write(self, name: str, password: int, data: bytes) -> None:
+        """Keep the file in memory."""
         self._check(name, password)
         if len(data) > self.max_size:
             raise FoeError(f"{name!r} too large", FoeErrorCode.DISK_FULL)
@@ -87,6 +93,7 @@ class FoeServer:
         self.errors_sent = 0
 
     def reset(self) -> None:
+        """Forget a transfer in progress (mailbox reset)."""
         self.mode = _Mode.IDLE
         self._buf = bytearray()
         self._finishing = False
@@ -97,6 +104,7 @@ class FoeServer:
         return [foe_packet(FoeOpcode.ERR, code, text.encode("latin-1", "replace"))]
 
     def handle(self, data: bytes) -> list[bytes]:
+        """One FoE mailbox message in, the replies out."""
         if len(data) < FOE_HEADER.size:
             raise FrameFormatError("FoE header missing")
         opcode, _res, word = FOE_HEADER.unpack_from(data, 0)

@@ -22,6 +22,7 @@ MBX_ERROR = struct.Struct("<HH")
 
 
 class MailboxType(enum.IntEnum):
+    """Mailbox protocol types (ETG.1000.4 mailbox header)."""
     ERROR = 0
     AOE = 1
     EOE = 2
@@ -33,6 +34,7 @@ class MailboxType(enum.IntEnum):
 
 @dataclass(frozen=True, slots=True)
 class MailboxMessage:
+    """One mailbox message to send (type and payload)."""
     type: int
     data: bytes
     counter: int = 0
@@ -42,6 +44,7 @@ class MailboxMessage:
 
 
 def encode_mailbox(msg: MailboxMessage) -> bytes:
+    """A mailbox message with its 6-byte header."""
     return MBX_HEADER.pack(len(msg.data), msg.address, (msg.channel & 0x3F) | ((msg.priority & 3) << 6),
                            (msg.type & 0x0F) | ((msg.counter & 7) << 4)) + msg.data
 
@@ -68,6 +71,7 @@ Handler = Callable[[bytes], list[bytes]]
 
 @dataclass(slots=True)
 class MailboxStats:
+    """Counters of a mailbox endpoint."""
     received: int = 0
     sent: int = 0
     repeated: int = 0
@@ -91,6 +95,7 @@ class MailboxEndpoint:
         self._last_counter = 0
 
     def received(self, buf: bytes) -> None:
+        """A mailbox write from the master: decode, check the counter, dispatch."""
         self.stats.received += 1
         try:
             msg = decode_mailbox(buf)

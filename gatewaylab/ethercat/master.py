@@ -16,7 +16,7 @@ from ..common.clock import Clock, PeriodicTimer, SimulatedClock
 from ..common.errors import TimeoutError_
 from .coe import SDO, CoeService, InfoOpcode, coe_header
 from .datagram import MAX_DATAGRAM_DATA, Command, Datagram, Frame, decode_frame, encode_frame
-from .errors import AlStatusError, FoeError, FrameFormatError, MasterError, SdoAbortError, WorkingCounterError
+from .errors import AlStatusError, FoeError, FrameFormatError, MasterError, SdoAbort, SdoAbortCode, WorkingCounterError
 from .esc import (
     REG_AL_CONTROL,
     REG_AL_STATUS,
@@ -296,7 +296,7 @@ class Master:
             raise FrameFormatError("SDO response too short")
         cmd, index, sub, word = SDO.unpack_from(body, 0)
         if cmd == 0x80:
-            raise SdoAbortError(f"SDO 0x{index:04X}:{sub} aborted", word)
+            raise SdoAbort(word, f"SDO 0x{index:04X}:{sub} aborted")
         return body
 
     def sdo_upload(self, position: int, index: int, subindex: int = 0, complete: bool = False) -> bytes:
@@ -314,7 +314,7 @@ class Master:
             seg = self._sdo(position, bytes([0x60 | toggle]) + bytes(7))
             scmd = seg[0]
             if (scmd & 0x10) != toggle:
-                raise SdoAbortError("toggle bit in segment response", 0x05030000)
+                raise SdoAbort(SdoAbortCode.TOGGLE_BIT_NOT_ALTERNATED, "toggle bit in segment response")
             chunk = seg[1:] if len(seg) > 8 else seg[1:8 - ((scmd >> 1) & 7)]
             data += chunk
             toggle ^= 0x10
@@ -389,7 +389,7 @@ class Master:
         while True:
             op, frags_left = msg.data[2] & 0x7F, U16.unpack_from(msg.data, 4)[0]
             if op == InfoOpcode.ERROR:
-                raise SdoAbortError("SDO information error", U32.unpack_from(msg.data, 6)[0])
+                raise SdoAbort(U32.unpack_from(msg.data, 6)[0], "SDO information error")
             frags.append(msg.data[6:])
             if not frags_left:
                 return frags

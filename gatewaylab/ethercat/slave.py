@@ -2,24 +2,33 @@
 
 Devices (the ``ethercat_io`` test device, ECAN-Lite, esd CAN-EtherCAT) are a
 :class:`DeviceDescription` plus a :class:`SlaveApplication` that refuses/acts on state
-transitions, consumes outputs and produces inputs each cycle, serves FoE files and reacts to SYNC0.
+transitions, consumes outputs and produces inputs each cycle, serves FoE files, reacts to SYNC0
+and binds object hooks (:meth:`SlaveApplication.setup_od`: read/write hooks, validators, apply
+commands). The process image is backed by the dictionary, as SOES binds object rows to process
+variables: outputs received in OP are stored into their mapped objects, a change of a mapped
+input object (``od.put``) is packed into the inputs at once, and a CoE read of a mapped input
+returns what the master reads.
 """
 
 from __future__ import annotations
 
 import itertools
 import struct
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 from ..common.clock import Clock
+from ..od import DataType, Entry, ObjectDictionary, SdoAbort, decode, encode
 from .coe import CoeServer, emergency_message
-from .description import DeviceDescription, Pdo
-from .errors import AlStatusCode, EtherCATConfigError, MailboxErrorCode, SdoAbortCode, SdoAbortError
+from .description import DeviceDescription, Pdo, build_od
+from .errors import AlStatusCode, EtherCATConfigError, MailboxErrorCode
 from .esc import REG_AL_STATUS, REG_SM, SM_STATUS_FULL, AlState, Esc
 from .foe import FoeFiles, FoeHandler, FoeServer
 from .mailbox import MailboxEndpoint, MailboxMessage, MailboxType, error_reply
-from .od import Access, DataType, Entry, ObjectDictionary, OdObject, decode, encode
 from .sii import build_sii
+
+__all__ = ["MappedEntry", "Slave", "SlaveApplication", "build_od"]
 
 U32 = struct.Struct("<I")
 _RANK_ORDER = (AlState.INIT, AlState.PREOP, AlState.BOOT, AlState.SAFEOP, AlState.OP)
@@ -27,6 +36,11 @@ _RANK_ORDER = (AlState.INIT, AlState.PREOP, AlState.BOOT, AlState.SAFEOP, AlStat
 
 class SlaveApplication:
     """Hooks of a device behind the ESC; every method has a harmless default."""
+
+    def setup_od(self, slave: Slave, od: ObjectDictionary) -> None:
+        """Bind the device's object hooks once the dictionary exists: ``od.on_read`` (status
+        objects, counters), ``od.on_write`` / ``od.add_reaction`` ("apply" commands),
+        ``od.add_validator`` (refuse values with an SDO abort), per index or per index range."""
 
     def on_transition(self, slave: Slave, old: AlState, new: AlState) -> int:
         """Return 0 to accept, or an AL status code to refuse the transition."""
@@ -54,6 +68,11 @@ class MappedEntry:
     bit_offset: int
     bit_length: int
     data_type: DataType
+
+    @property
+    def key(self) -> tuple[int, int]:
+        """(index, subindex) of the mapped object."""
+        return (self.index, self.subindex)
 
 
 def _desc_entries(pdos: tuple[Pdo, ...]) -> list[MappedEntry]:
@@ -101,9 +120,17 @@ class Slave:
         self.outputs_valid = False
         self._inputs_one_buffer = False
         self.cycles = 0
+        self._unbind: list[Callable[[], None]] = []
+        self._input_by_key: dict[tuple[int, int], MappedEntry] = {}
+        self._bind_image()
+        for obj in self.od:
+            if any(e.tx_pdo or e.rx_pdo for e in obj.entries.values()):
+                self.od.on_read(obj.index, self._refresh_mapped)
+        self.app.setup_od(self, self.od)
 
     # ------------------------------------------------------------------ EscApplication
     def check_transition(self, old: AlState, new: AlState) -> int:
+        """ESC callback: 0 to accept an AL state transition, else the AL status code."""
         d = self.desc
         if new == AlState.BOOT:
             if not d.bootstrap:
@@ -149,6 +176,7 @@ class Slave:
         return sm.enabled and sm.start == start and sm.length == length and (sm.control & 0x0F) == mode
 
     def state_changed(self, old: AlState, new: AlState, code: int) -> None:
+        """ESC callback after an AL state change: mailbox reset, safe outputs, application."""
         if new in (AlState.INIT, AlState.BOOT):
             self.mailbox.reset()
             size = self.desc.bootstrap_mailbox[3] if new == AlState.BOOT else self.desc.mailbox_in[1]
@@ -162,15 +190,18 @@ class Slave:
         if new != AlState.OP and old == AlState.OP:
             self._outputs = bytes(self.output_bytes)  # safe state
             self.outputs_valid = False
+            self._store_outputs()
         self.app.on_state(self, old, new, code)
 
     def sm_written(self, sm: int, data: bytes) -> None:
+        """ESC callback: the master wrote a SyncManager buffer (mailbox or outputs)."""
         if sm == 0 and self.has_mailbox:
             self.mailbox_received(data)
         elif sm == self.sm_outputs:
             self.outputs_written(sm, data)
 
     def sm_read(self, sm: int) -> None:
+        """ESC callback: the master read a SyncManager buffer (mailbox or inputs)."""
         if sm == 1 and self.has_mailbox:
             self.mailbox.pump()
         elif sm == self.sm_inputs:
@@ -179,6 +210,7 @@ class Slave:
                 self.esc.sm_set_full(sm)  # 1-buffer inputs: the application refreshes every cycle
 
     def mailbox_received(self, data: bytes) -> None:
+        """A complete mailbox write from the master (discarded in INIT)."""
         self.esc.mailbox_clear(0)  # the PDI read the buffer
         state = self.esc.al_state
         if state == AlState.INIT:
@@ -189,6 +221,7 @@ class Slave:
         self.mailbox.received(data)
 
     def outputs_written(self, sm: int, data: bytes) -> None:
+        """A complete outputs buffer: stored into the mapped objects, then the application."""
         esc = self.esc
         if esc.mem[REG_SM + 8 * sm + 5] & SM_STATUS_FULL:
             esc.mailbox_clear(sm)  # 1-buffer outputs: the PDI consumed them
@@ -196,9 +229,11 @@ class Slave:
         if esc.mem[REG_AL_STATUS] & 0x0F == AlState.OP:  # hot path: no enum construction
             self._outputs = data if len(data) == self.output_bytes else data[:self.output_bytes]
             self.outputs_valid = True
+            self._store_outputs()
             self.app.on_outputs(self, self._outputs)
 
     def sync0(self, t: float) -> None:
+        """ESC callback: a SYNC0 pulse."""
         self.app.on_sync0(self, t)
 
     # ------------------------------------------------------------------ mailbox protocols
@@ -222,6 +257,7 @@ class Slave:
     # ------------------------------------------------------------------ process data
     @property
     def state(self) -> AlState:
+        """The present AL state."""
         return self.esc.al_state
 
     @property
@@ -231,28 +267,77 @@ class Slave:
 
     @property
     def inputs(self) -> bytes:
+        """The inputs image the master reads."""
         return bytes(self._inputs)
 
     def write_inputs(self, data: bytes, offset: int = 0) -> None:
+        """Raw bytes into the inputs image at ``offset`` (CoE reads decode them from there)."""
         self._inputs[offset:offset + len(data)] = data
         self.esc.pdi_write(self.desc.inputs_start + offset, data)
         if self._inputs_one_buffer:
             self.esc.sm_set_full(self.sm_inputs)
 
-    def read_output(self, index: int, subindex: int) -> int | float | str | bytes:
+    def read_output(self, index: int, subindex: int) -> Any:
+        """The typed value of a mapped output as the device acts on it."""
         m = self._find(self.outputs_map, index, subindex)
-        return decode(m.data_type, _get_bits(self._outputs, m.bit_offset, m.bit_length))
+        return decode(self._entry(m), _get_bits(self._outputs, m.bit_offset, m.bit_length))
 
-    def write_input(self, index: int, subindex: int, value: int | float | str | bytes) -> None:
+    def write_input(self, index: int, subindex: int, value: Any) -> None:
+        """Set a mapped input: stored in its object and packed into the inputs at once."""
         m = self._find(self.inputs_map, index, subindex)
-        raw = encode(m.data_type, value)
+        if m.key not in self.od.entries or not self.od.put(index, subindex, value):
+            self._pack_input(m, self._entry(m), value)
+
+    # ------------------------------------------------------------------ dictionary-backed image
+    def _entry(self, m: MappedEntry) -> Entry:
+        entry = self.od.entries.get(m.key)
+        return entry if entry is not None else Entry(m.index, m.subindex, "", m.data_type)
+
+    def _pack_input(self, m: MappedEntry, entry: Entry, value: Any) -> None:
+        raw = encode(entry, value)
         if m.bit_length % 8 == 0 and m.bit_offset % 8 == 0:
-            self.write_inputs(raw[:m.bit_length // 8], m.bit_offset // 8)
+            self.write_inputs(raw[:m.bit_length // 8].ljust(m.bit_length // 8, b"\0"), m.bit_offset // 8)
         else:
             _set_bits(self._inputs, m.bit_offset, m.bit_length, raw)
             self.esc.pdi_write(self.desc.inputs_start, bytes(self._inputs))
-        if index in self.od and subindex in self.od.objects[index].entries:
-            self.od.objects[index].entries[subindex].raw = raw
+            if self._inputs_one_buffer:
+                self.esc.sm_set_full(self.sm_inputs)
+
+    def _input_changed(self, key: tuple[int, int], value: Any) -> None:
+        m = self._input_by_key[key]
+        self._pack_input(m, self.od.entries[key], value)
+
+    def _bind_image(self) -> None:
+        """Subscribe to the mapped input objects (after every layout change)."""
+        for unsubscribe in self._unbind:
+            unsubscribe()
+        self._input_by_key = {m.key: m for m in self.inputs_map}
+        self._unbind = [self.od.subscribe(key, self._input_changed)
+                        for key in self._input_by_key if key in self.od.entries]
+
+    def _store_outputs(self) -> None:
+        """The outputs the device acts on, into their mapped objects."""
+        od = self.od
+        data = self._outputs
+        for m in self.outputs_map:
+            entry = od.entries.get(m.key)
+            if entry is not None and m.bit_offset + m.bit_length <= 8 * len(data):
+                try:
+                    od.put(m.index, m.subindex, decode(entry, _get_bits(data, m.bit_offset, m.bit_length)))
+                except SdoAbort:
+                    pass  # a value the object cannot hold (e.g. a BOOLEAN of 2): keep the last one
+
+    def _refresh_mapped(self, index: int, subindex: int) -> None:
+        """Read hook of mapped objects: an input written as raw bytes (``write_inputs``) is
+        decoded from the image, so a CoE read returns what the master reads."""
+        m = self._input_by_key.get((index, subindex))
+        if m is None or m.bit_offset + m.bit_length > 8 * len(self._inputs):
+            return
+        entry = self.od.entries[m.key]
+        try:
+            self.od.values[m.key] = decode(entry, _get_bits(self._inputs, m.bit_offset, m.bit_length))
+        except SdoAbort:
+            pass
 
     @staticmethod
     def _find(mapping: list[MappedEntry], index: int, subindex: int) -> MappedEntry:
@@ -268,13 +353,14 @@ class Slave:
             return 0
         try:
             outputs_map, out_bits = self._layout(0x1C12)
-        except SdoAbortError:
+        except SdoAbort:
             return AlStatusCode.INVALID_OUTPUT_MAPPING
         try:
             inputs_map, in_bits = self._layout(0x1C13)
-        except SdoAbortError:
+        except SdoAbort:
             return AlStatusCode.INVALID_INPUT_MAPPING
         self.outputs_map, self.inputs_map = outputs_map, inputs_map
+        self._bind_image()
         self.output_bytes = (out_bits + 7) // 8
         self.input_bytes = (in_bits + 7) // 8
         self._inputs = self._inputs[:self.input_bytes].ljust(self.input_bytes, b"\0")
@@ -298,7 +384,7 @@ class Slave:
         return out, bit
 
 
-def _get_bits(buf: bytes, offset: int, length: int) -> bytes:
+def _get_bits(buf: bytes | bytearray, offset: int, length: int) -> bytes:
     if offset % 8 == 0 and length % 8 == 0:
         return bytes(buf[offset // 8:(offset + length) // 8])
     value = int.from_bytes(buf, "little") >> offset & ((1 << length) - 1)
@@ -310,89 +396,3 @@ def _set_bits(buf: bytearray, offset: int, length: int, raw: bytes) -> None:
     mask = ((1 << length) - 1) << offset
     value = (int.from_bytes(raw, "little") << offset) & mask
     buf[:] = ((whole & ~mask) | value).to_bytes(len(buf), "little")
-
-
-def _mapping_write_guard(obj: OdObject, od: ObjectDictionary, rx: bool, assignment: bool) -> None:
-    """PDO mapping / assignment objects: entries may only change while sub 0 is 0, mapping entries
-    must name a mappable object of the right direction and size (0x06040041), assignments an
-    existing PDO of the right range (0x06090030) (ETG.1000.6 PDO configuration; QEC A.5)."""
-
-    def check_mapping(value: int) -> None:
-        index, sub, bits = value >> 16, (value >> 8) & 0xFF, value & 0xFF
-        if index == 0:
-            return  # a gap of ``bits`` bits
-        try:
-            target = od.entry(index, sub)
-        except SdoAbortError:
-            raise SdoAbortError(f"0x{index:04X}:{sub} does not exist", SdoAbortCode.CANNOT_BE_MAPPED) from None
-        flag = Access.RXPDO if rx else Access.TXPDO
-        if not target.access & flag or target.bits != bits:
-            raise SdoAbortError(f"0x{index:04X}:{sub} cannot be mapped as {bits} bits",
-                                SdoAbortCode.CANNOT_BE_MAPPED)
-
-    def check_assignment(value: int) -> None:
-        lo = 0x1600 if rx else 0x1A00
-        if not lo <= value < lo + 0x200 or value not in od:
-            raise SdoAbortError(f"no PDO 0x{value:04X} to assign", SdoAbortCode.VALUE_RANGE)
-
-    def guard(entry: Entry, data: bytes) -> None:
-        if entry.subindex == 0:
-            return
-        if obj.entries[0].raw[0] != 0:
-            raise SdoAbortError("sub 0 must be 0 to change the mapping", SdoAbortCode.SI0_MUST_BE_ZERO)
-        value = int.from_bytes(data, "little")
-        if assignment:
-            check_assignment(value)
-        else:
-            check_mapping(value)
-
-    for e in obj.entries.values():
-        e.on_write = guard
-
-
-def build_od(desc: DeviceDescription) -> ObjectDictionary:
-    """Standard communication objects (0x1000..0x1C33) from the description, then device objects."""
-    od = ObjectDictionary()
-    od.add_var(0x1000, "Device type", DataType.UNSIGNED32, desc.device_type)
-    od.add_var(0x1008, "Manufacturer device name", DataType.VISIBLE_STRING, desc.name)
-    od.add_var(0x1009, "Manufacturer hardware version", DataType.VISIBLE_STRING, desc.hardware_version)
-    od.add_var(0x100A, "Manufacturer software version", DataType.VISIBLE_STRING, desc.software_version)
-    od.add_record(0x1018, "Identity", [
-        ("Vendor ID", DataType.UNSIGNED32, desc.vendor_id, Access.RO),
-        ("Product code", DataType.UNSIGNED32, desc.product_code, Access.RO),
-        ("Revision", DataType.UNSIGNED32, desc.revision, Access.RO),
-        ("Serial number", DataType.UNSIGNED32, desc.serial, Access.RO)])
-    has_mbx = desc.coe or desc.foe
-    od.add_array(0x1C00, "Sync manager type", DataType.UNSIGNED8, [1, 2, 3, 4] if has_mbx else [3, 4])
-    for pdos, assigned, assign in ((desc.rx_pdos, desc.assigned_rx_pdos, 0x1C12),
-                                   (desc.tx_pdos, desc.assigned_tx_pdos, 0x1C13)):
-        for pdo in pdos:
-            obj = od.add_array(pdo.index, pdo.name, DataType.UNSIGNED32, [e.mapping for e in pdo.entries],
-                               Access.RW_PREOP, Access.RW_PREOP, length=max(8, len(pdo.entries)))
-            _mapping_write_guard(obj, od, assign == 0x1C12, assignment=False)
-        obj = od.add_array(assign, "RxPDO assign" if assign == 0x1C12 else "TxPDO assign", DataType.UNSIGNED16,
-                           [p.index for p in assigned], Access.RW_PREOP, Access.RW_PREOP, length=max(4, len(pdos)))
-        _mapping_write_guard(obj, od, assign == 0x1C12, assignment=True)
-    for index, name in ((0x1C32, "SM output parameter"), (0x1C33, "SM input parameter")):
-        sm_par = od.add_record(index, name, [
-            ("Sync mode", DataType.UNSIGNED16, 1, Access.RW_PREOP),
-            ("Cycle time", DataType.UNSIGNED32, 1_000_000, Access.RO),
-            ("Shift time", DataType.UNSIGNED32, 0, Access.RO),
-            ("Sync modes supported", DataType.UNSIGNED16, 0x0007, Access.RO),
-            ("Minimum cycle time", DataType.UNSIGNED32, 100_000, Access.RO),
-            ("Calc and copy time", DataType.UNSIGNED32, 10_000, Access.RO),
-        ])
-        for sub, ename, dtype in ((9, "Delay time", DataType.UNSIGNED32),
-                                  (11, "SM event missed", DataType.UNSIGNED16),
-                                  (12, "Cycle time too small", DataType.UNSIGNED16),
-                                  (32, "Sync error", DataType.BOOLEAN)):
-            sm_par.entries[sub] = Entry(index, sub, ename, dtype, encode(dtype, 0), Access.RO)
-        sm_par.entries[0].raw = bytes([32])
-    for o in desc.objects:
-        if o.subs:
-            od.add_record(o.index, o.name, list(o.subs))
-        else:
-            od.add_var(o.index, o.name, o.data_type, o.value, o.access)
-    if desc.extend_od is not None:
-        desc.extend_od(od)
-    return od

@@ -20,8 +20,8 @@ from typing import Any
 import can
 
 from ..bus.frame import CanFrame
+from ..canopen.explain import explain
 from .config import load_rig
-from .explain import explain
 
 
 class Narrator(can.Listener):

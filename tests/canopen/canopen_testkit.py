@@ -11,8 +11,8 @@ import canopen
 
 from gatewaylab.bus import CanFrame, VirtualBus
 from gatewaylab.canopen.node import Node
-from gatewaylab.canopen.od import Access, DataType, ObjectDictionary
 from gatewaylab.common.clock import SimulatedClock
+from gatewaylab.od import Access, DataType, ObjectDictionary
 
 
 def sample_od() -> ObjectDictionary:

@@ -14,8 +14,8 @@ from canopen_testkit import RawClient, Sniffer, sample_od
 
 from gatewaylab.bus import VirtualBus, python_can_bus
 from gatewaylab.canopen.node import Node
-from gatewaylab.canopen.od import ObjectDictionary
 from gatewaylab.common.clock import SimulatedClock
+from gatewaylab.od import ObjectDictionary
 
 
 @pytest.fixture

@@ -17,9 +17,9 @@ from gatewaylab.canopen.cia402 import (
     state_from_statusword,
 )
 from gatewaylab.canopen.drive import Drive
-from gatewaylab.canopen.errors import SdoAbort
 from gatewaylab.canopen.nmt import NmtCommand
 from gatewaylab.common.clock import SimulatedClock
+from gatewaylab.od import SdoAbort
 
 
 class Axis:

@@ -155,3 +155,20 @@ def test_sync_producer(make_node, raw, sniffer, clock) -> None:
     clock.advance(0.055)
     assert [f.data for _, f in sniffer.ids(0x80)] == [b"\x01", b"\x02", b"\x03", b"\x01", b"\x02"]
     assert node.sync.received == 5
+
+
+def test_store_object_replaces_the_file(make_node, raw, clock, vbus) -> None:
+    """CiA 301 7.5.2.13: 'save' keeps the parameters in the node's store object (here memory, no
+    file); a new node given the same store comes back with them."""
+    from gatewaylab.common.store import MemoryStore
+
+    store = MemoryStore()
+    node = make_node(store=store)
+    assert sdo_code(raw.sdo(5, [0x2B, 0x17, 0x10, 0x00, 0xE8, 0x03])) == 0       # 0x1017 = 1000
+    assert _save(raw, 2) == 0
+    saved = store.load()
+    assert saved is not None and saved["values"]["101700"] == "e803"
+    node.stop()
+    again = Node(clock, vbus, 5, sample_od(), store=store)
+    again.start()
+    assert again.get(0x1017) == 1000

@@ -17,19 +17,19 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from gatewaylab.canopen import errors as E
-from gatewaylab.canopen.errors import SdoAbort
 from gatewaylab.canopen.node import Node
-from gatewaylab.canopen.od import (
+from gatewaylab.common.errors import ConfigError
+from gatewaylab.od import (
     Access,
     DataType,
     Entry,
     ObjectCode,
     ObjectDictionary,
+    SdoAbort,
     decode,
     encode,
     type_range,
 )
-from gatewaylab.common.errors import ConfigError
 
 
 @pytest.mark.parametrize(("dt", "value", "wire"), [

@@ -11,9 +11,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from gatewaylab.bus import CanFrame, VirtualBus
-from gatewaylab.canopen.errors import ABORT_NAMES, SdoAbort
 from gatewaylab.canopen.node import Node
 from gatewaylab.common.clock import SimulatedClock
+from gatewaylab.od import SdoAbort, SdoAbortCode
 
 #: Commands that make the random walk reach every server state, plus anything at all.
 _SDO_CS = st.sampled_from([0x00, 0x01, 0x10, 0x11, 0x21, 0x22, 0x23, 0x2B, 0x2F, 0x40, 0x60, 0x70, 0x80,
@@ -38,7 +38,7 @@ def _valid_response(data: bytes) -> bool:
     if len(data) != 8:
         return False
     if data[0] == 0x80:
-        return int.from_bytes(data[4:], "little") in ABORT_NAMES
+        return SdoAbortCode.known(int.from_bytes(data[4:], "little"))
     return True
 
 

@@ -14,7 +14,7 @@ from canopen_testkit import barrier, remote_for
 
 from gatewaylab.canopen import errors as E
 from gatewaylab.canopen.crc import crc16_ccitt
-from gatewaylab.canopen.errors import SdoAbort
+from gatewaylab.od import SdoAbort
 
 
 def abort_code(answer: bytes | None) -> int:

@@ -12,8 +12,8 @@ import canopen
 
 from gatewaylab.bus import CanFrame
 from gatewaylab.canopen import errors as E
-from gatewaylab.canopen.errors import SdoAbort
 from gatewaylab.canopen.sdo_client import SdoClient
+from gatewaylab.od import SdoAbort
 
 
 class Harness:

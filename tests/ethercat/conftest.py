@@ -18,8 +18,8 @@ from gatewaylab.common.clock import SimulatedClock
 from gatewaylab.ethercat.description import DeviceDescription, ObjectDef, Pdo, PdoEntry
 from gatewaylab.ethercat.io_device import VENDOR_ID, create_io_slave
 from gatewaylab.ethercat.master import Master
-from gatewaylab.ethercat.od import Access, DataType
 from gatewaylab.ethercat.segment import Segment
+from gatewaylab.od import Access, DataType
 
 DRIVER = Path(__file__).with_name("ethercat_soem_driver.py")
 _counter = itertools.count()
@@ -55,12 +55,12 @@ def chunked_description() -> DeviceDescription:
     def chunk(base: int, map_index: int, c: int, access: Access) -> tuple[Pdo, list[ObjectDef]]:
         entries = tuple(PdoEntry(base + c * 0x80 + u * 0x10, 1, 128, f"Chunk {c} unit {u}", DataType.OCTET_STRING)
                         for u in range(8))
-        objs = [ObjectDef(e.index, e.name, subs=((e.name, DataType.OCTET_STRING, bytes(16), access),))
-                for e in entries]
+        objs = [ObjectDef(e.index, e.name, subs=((e.name, DataType.OCTET_STRING, bytes(16), access),),
+                          pdo_mappable=True) for e in entries]
         return Pdo(map_index + c, f"Chunk {c}", entries), objs
 
-    rx = [chunk(0x7000, 0x1600, c, Access.RW | Access.RXPDO) for c in range(24)]
-    tx = [chunk(0x6000, 0x1A00, c, Access.RO | Access.TXPDO) for c in range(24)]
+    rx = [chunk(0x7000, 0x1600, c, Access.RWW) for c in range(24)]
+    tx = [chunk(0x6000, 0x1A00, c, Access.RO) for c in range(24)]
     return DeviceDescription(
         name="chunked", vendor_id=VENDOR_ID, product_code=0x00030001, outputs_start=0x1100, inputs_start=0x1D00,
         rx_pdos=tuple(p for p, _ in rx), tx_pdos=tuple(p for p, _ in tx),

@@ -5,17 +5,17 @@ from __future__ import annotations
 import pytest
 
 from gatewaylab.common.clock import SimulatedClock
-from gatewaylab.ethercat.coe import CoeService
+from gatewaylab.ethercat.coe import CoeAccessBits, CoeService
 from gatewaylab.ethercat.description import DeviceDescription
-from gatewaylab.ethercat.errors import AlStatusCode, AlStatusError, FoeError, FoeErrorCode, SdoAbortCode, SdoAbortError
+from gatewaylab.ethercat.errors import AlStatusCode, AlStatusError, FoeError, FoeErrorCode, SdoAbort, SdoAbortCode
 from gatewaylab.ethercat.esc import REG_SM, AlState
 from gatewaylab.ethercat.foe import FoeFiles
 from gatewaylab.ethercat.io_device import PRODUCT_CODE, VENDOR_ID
 from gatewaylab.ethercat.mailbox import MailboxType, decode_mailbox
 from gatewaylab.ethercat.master import Master
-from gatewaylab.ethercat.od import Access, DataType
 from gatewaylab.ethercat.segment import Segment
 from gatewaylab.ethercat.slave import Slave, SlaveApplication
+from gatewaylab.od import Access, DataType
 
 
 def test_scan_reads_identity_and_names_from_sii(master: Master) -> None:
@@ -61,12 +61,12 @@ def test_complete_access_record_upload_and_download(master: Master) -> None:
     (lambda m: m.sdo_download8(0, 0x8000, 2, 5), SdoAbortCode.LENGTH_TOO_LOW),
     (lambda m: m.sdo_download(0, 0x1018, 1, b"\0" * 6), SdoAbortCode.READ_ONLY),
     (lambda m: m.sdo_download16(0, 0x1600, 1, 0), SdoAbortCode.LENGTH_TOO_LOW),
-    (lambda m: m.sdo_download32(0, 0x1600, 1, 0x70000108), SdoAbortCode.SI0_MUST_BE_ZERO),
+    (lambda m: m.sdo_download32(0, 0x1600, 1, 0x70000108), SdoAbortCode.SUBINDEX_CANNOT_BE_WRITTEN),
 ])
 def test_sdo_abort_codes(master: Master, call: object, code: int) -> None:
     """QEC appendix A.5: the slave answers misuse with the ETG.1000.6 abort code."""
     master.request_state(0, AlState.PREOP)
-    with pytest.raises(SdoAbortError) as err:
+    with pytest.raises(SdoAbort) as err:
         call(master)  # type: ignore[operator]
     assert err.value.code == code
 
@@ -76,9 +76,9 @@ def test_pdo_assignment_is_preop_only(master: Master) -> None:
     master.set_state(AlState.PREOP)
     master.config_map()
     master.request_state(0, AlState.SAFEOP)
-    with pytest.raises(SdoAbortError) as err:
+    with pytest.raises(SdoAbort) as err:
         master.sdo_download8(0, 0x1C12, 0, 0)
-    assert err.value.code == SdoAbortCode.CANNOT_STORE_STATE
+    assert err.value.code == SdoAbortCode.DATA_CANNOT_BE_STORED_DEVICE_STATE
 
 
 def test_sdo_information_lists_and_describes(master: Master) -> None:
@@ -92,9 +92,9 @@ def test_sdo_information_lists_and_describes(master: Master) -> None:
     assert (desc.data_type, desc.object_code, desc.name) == (DataType.UNSIGNED16, 8, "RxPDO assign")
     entry = master.entry_description(0, 0x7010, 1)
     assert entry.data_type == DataType.INTEGER16 and entry.bit_length == 16
-    assert entry.access & Access.RXPDO and entry.name == "Analog output 1"
+    assert entry.access & CoeAccessBits.RXPDO and entry.name == "Analog output 1"
     assert master.od_list(0, 3) == [0x6000, 0x6010, 0x6020]
-    with pytest.raises(SdoAbortError) as err:
+    with pytest.raises(SdoAbort) as err:
         master.object_description(0, 0x4321)
     assert err.value.code == SdoAbortCode.OBJECT_DOES_NOT_EXIST
 
@@ -440,14 +440,14 @@ def test_mapping_validation_and_refused_safeop(master: Master, segment: Segment)
     master.config_map()
     master.sdo_download8(0, 0x1A00, 0, 0)
     for bad in (0x5FFF0108, 0x70000108, 0x60000110):
-        with pytest.raises(SdoAbortError) as abort:
+        with pytest.raises(SdoAbort) as abort:
             master.sdo_download32(0, 0x1A00, 1, bad)
-        assert abort.value.code == SdoAbortCode.CANNOT_BE_MAPPED
+        assert abort.value.code == SdoAbortCode.OBJECT_NOT_MAPPABLE
     master.sdo_download32(0, 0x1A00, 1, 0x00000008)  # a gap is fine
     master.sdo_download8(0, 0x1C13, 0, 0)
-    with pytest.raises(SdoAbortError) as abort:
+    with pytest.raises(SdoAbort) as abort:
         master.sdo_download16(0, 0x1C13, 1, 0x1A05)
-    assert abort.value.code == SdoAbortCode.VALUE_RANGE
+    assert abort.value.code == SdoAbortCode.VALUE_RANGE_EXCEEDED
     master.sdo_download8(0, 0x1C13, 0, 1)
     od = segment.slaves[0].od
     od.set(0x1A00, 1, 0x5FFF0108)  # the device itself put a broken mapping in place

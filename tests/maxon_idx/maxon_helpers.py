@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 from gatewaylab.common.clock import SimulatedClock
 from gatewaylab.common.errors import GatewaylabError
 from gatewaylab.devices.maxon_idx.codec import Frame, FrameDecoder, FrameReceived
-from gatewaylab.devices.maxon_idx.errors import ErrorCode, IdxRemoteError
+from gatewaylab.devices.maxon_idx.errors import IdxRemoteError, SdoAbortCode
 from gatewaylab.devices.maxon_idx.protocol import IdxSlave
 
 
@@ -27,22 +27,22 @@ class DictObjects:
 
     def _key(self, index: int, sub: int) -> tuple[int, int]:
         if (index, sub) not in self.values:
-            raise IdxRemoteError(ErrorCode.OBJECT_DOES_NOT_EXIST)
+            raise IdxRemoteError(SdoAbortCode.OBJECT_DOES_NOT_EXIST)
         return (index, sub)
 
     def read(self, index: int, subindex: int) -> bytes:
         key = self._key(index, subindex)
         if self.access[key] == "wo":
-            raise IdxRemoteError(ErrorCode.WRITE_ONLY_ERROR)
+            raise IdxRemoteError(SdoAbortCode.WRITE_ONLY)
         return bytes(self.values[key])
 
     def write(self, index: int, subindex: int, data: bytes) -> None:
         key = self._key(index, subindex)
         if self.access[key] == "ro":
-            raise IdxRemoteError(ErrorCode.READ_ONLY_ERROR)
+            raise IdxRemoteError(SdoAbortCode.READ_ONLY)
         size = self.sizes[key]
         if size is not None and len(data) != size:
-            raise IdxRemoteError(ErrorCode.SERVICE_PARAMETER_ERROR)
+            raise IdxRemoteError(SdoAbortCode.LENGTH_MISMATCH)
         self.values[key] = bytearray(data)
 
     def value_size(self, index: int, subindex: int) -> int | None:
@@ -50,7 +50,7 @@ class DictObjects:
 
     def check_write(self, index: int, subindex: int) -> None:
         if self.access[self._key(index, subindex)] == "ro":
-            raise IdxRemoteError(ErrorCode.READ_ONLY_ERROR)
+            raise IdxRemoteError(SdoAbortCode.READ_ONLY)
 
 
 @dataclass
@@ -81,7 +81,7 @@ class ScriptedGateway:
 
     def read_lss(self, timeout: float, callback: Callable[[bytes | GatewaylabError], None]) -> None:
         if not self.lss_sent:
-            raise IdxRemoteError(ErrorCode.WRONG_DEVICE_STATE)
+            raise IdxRemoteError(SdoAbortCode.DATA_CANNOT_BE_STORED_DEVICE_STATE)
         self.lss_reads.append((timeout, callback))
 
 

@@ -7,7 +7,7 @@ from typing import Any
 from gatewaylab.bus import CanFrame, VirtualBus
 from gatewaylab.common.clock import SimulatedClock
 from gatewaylab.common.errors import GatewaylabError
-from gatewaylab.devices.maxon_idx.errors import ErrorCode, IdxRemoteError
+from gatewaylab.devices.maxon_idx.errors import IdxRemoteError, SdoAbortCode
 from gatewaylab.devices.maxon_idx.gateway import CanGateway
 
 
@@ -87,7 +87,7 @@ def test_lss_timeout_and_not_armed() -> None:
     try:
         gw.read_lss(0.01, results.append)
     except IdxRemoteError as exc:
-        assert exc.code == ErrorCode.WRONG_DEVICE_STATE
+        assert exc.code == SdoAbortCode.DATA_CANNOT_BE_STORED_DEVICE_STATE
     else:
         raise AssertionError("ReadLSS without SendLSS accepted")
     gw.send_lss(bytes(8))
@@ -96,7 +96,7 @@ def test_lss_timeout_and_not_armed() -> None:
     assert results == []
     clock.advance(0.002)
     assert len(results) == 1 and isinstance(results[0], IdxRemoteError)
-    assert results[0].code == ErrorCode.SDO_TIMEOUT
+    assert results[0].code == SdoAbortCode.SDO_PROTOCOL_TIMED_OUT
 
 
 def test_sdo_frames_routed_to_client() -> None:
@@ -139,7 +139,7 @@ def test_read_object_of_a_long_object_aborts_the_segmented_answer() -> None:
     other.send(CanFrame(0x582, bytes([0x41, 0x08, 0x10, 0, 29, 0, 0, 0])))
     clock.advance(0.001)
     assert seen[-1] == CanFrame(0x602, bytes([0x80, 0x08, 0x10, 0, 0x10, 0x00, 0x07, 0x06]))
-    assert isinstance(results[0], IdxRemoteError) and results[0].code == ErrorCode.SERVICE_PARAMETER_ERROR
+    assert isinstance(results[0], IdxRemoteError) and results[0].code == SdoAbortCode.LENGTH_MISMATCH
     assert [f for f in seen if f.can_id == 0x602 and f.data[0] & 0xE0 == 0x60] == []   # no segment request
 
 

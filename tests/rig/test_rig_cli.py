@@ -7,11 +7,11 @@ from pathlib import Path
 import pytest
 
 from gatewaylab.bus import CanFrame
+from gatewaylab.canopen.explain import explain
 from gatewaylab.common.clock import SimulatedClock
 from gatewaylab.common.errors import ConfigError
 from gatewaylab.rig.cli import build_parser, main
 from gatewaylab.rig.config import load_rig, parse_rig
-from gatewaylab.rig.explain import explain
 from gatewaylab.rig.runtime import Rig
 
 

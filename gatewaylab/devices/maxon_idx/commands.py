@@ -14,7 +14,7 @@ from typing import ClassVar, Self
 
 from ...common.errors import LocalError
 from .codec import Frame
-from .errors import ErrorCode, IdxRemoteError
+from .errors import IdxRemoteError, SdoAbortCode
 
 RESPONSE_OPCODE = 0x00
 #: Largest data block of one segment (guide 2.1.1.2/2.1.1.3/2.1.2.3: "Length (max. 255 bytes)").
@@ -25,6 +25,7 @@ CONTROL_LAST = 0x02
 
 
 class OpCode(IntEnum):
+    """USB frame opcodes (guide chapter 2)."""
     READ_OBJECT = 0x60
     INITIATE_SEGMENTED_READ = 0x81
     SEGMENT_READ = 0x62
@@ -66,7 +67,7 @@ def _pad(data: bytes) -> bytes:
 
 def _need_len(frame: Frame, *allowed: int) -> None:
     if frame.length not in allowed:
-        raise IdxRemoteError(ErrorCode.SERVICE_PARAMETER_ERROR,
+        raise IdxRemoteError(SdoAbortCode.LENGTH_MISMATCH,
                              f"opcode 0x{frame.opcode:02X} with Len {frame.length}, expected {allowed}")
 
 
@@ -132,10 +133,12 @@ class SegmentRead:
     toggle: bool
 
     def to_frame(self) -> Frame:
+        """The frame as it goes on the USB link (guide chapter 2)."""
         return Frame(self.opcode, _CTRL.pack(CONTROL_TOGGLE if self.toggle else 0, 0))
 
     @classmethod
     def from_frame(cls, frame: Frame) -> SegmentRead:
+        """Decode a received frame (IdxRemoteError 0x06070010 when it is too short)."""
         _need_len(frame, 1)
         control, _dummy = _CTRL.unpack(frame.data)
         return cls(bool(control & CONTROL_TOGGLE))
@@ -157,10 +160,12 @@ class WriteObject:
             raise LocalError("WriteObject carries exactly 4 data bytes (pad with zeros)")
 
     def to_frame(self) -> Frame:
+        """The frame as it goes on the USB link (guide chapter 2)."""
         return Frame(self.opcode, _OBJ_DATA.pack(self.node_id, self.index, self.subindex, self.data))
 
     @classmethod
     def from_frame(cls, frame: Frame) -> WriteObject:
+        """Decode a received frame (IdxRemoteError 0x06070010 when it is too short)."""
         _need_len(frame, 4)
         return cls(*_OBJ_DATA.unpack(frame.data))
 
@@ -180,10 +185,12 @@ class InitiateSegmentedWrite:
         _check_field("total length", self.total_length, 32)
 
     def to_frame(self) -> Frame:
+        """The frame as it goes on the USB link (guide chapter 2)."""
         return Frame(self.opcode, _OBJ_LEN.pack(self.node_id, self.index, self.subindex, self.total_length))
 
     @classmethod
     def from_frame(cls, frame: Frame) -> InitiateSegmentedWrite:
+        """Decode a received frame (IdxRemoteError 0x06070010 when it is too short)."""
         _need_len(frame, 4)
         return cls(*_OBJ_LEN.unpack(frame.data))
 
@@ -201,11 +208,13 @@ class SegmentWrite:
         _check_segment(self.data)
 
     def to_frame(self) -> Frame:
+        """The frame as it goes on the USB link (guide chapter 2)."""
         control = (CONTROL_TOGGLE if self.toggle else 0) | (CONTROL_LAST if self.last else 0)
         return Frame(self.opcode, _pad(_CTRL.pack(len(self.data), control) + self.data))
 
     @classmethod
     def from_frame(cls, frame: Frame) -> SegmentWrite:
+        """Decode a received frame (IdxRemoteError 0x06070010 when it is too short)."""
         if frame.length < 1:
             _need_len(frame, 1)
         length, control = _CTRL.unpack_from(frame.data)
@@ -226,10 +235,12 @@ class SendNmtService:
         _check_field("command specifier", self.command, 16)
 
     def to_frame(self) -> Frame:
+        """The frame as it goes on the USB link (guide chapter 2)."""
         return Frame(self.opcode, _NMT.pack(self.node_id, self.command))
 
     @classmethod
     def from_frame(cls, frame: Frame) -> SendNmtService:
+        """Decode a received frame (IdxRemoteError 0x06070010 when it is too short)."""
         _need_len(frame, 2)
         return cls(*_NMT.unpack(frame.data))
 
@@ -246,10 +257,12 @@ class SendLss:
             raise LocalError("an LSS master message has exactly 8 bytes")
 
     def to_frame(self) -> Frame:
+        """The frame as it goes on the USB link (guide chapter 2)."""
         return Frame(self.opcode, self.data)
 
     @classmethod
     def from_frame(cls, frame: Frame) -> SendLss:
+        """Decode a received frame (IdxRemoteError 0x06070010 when it is too short)."""
         _need_len(frame, 4)
         return cls(frame.data)
 
@@ -266,11 +279,13 @@ class ReadLss:
 
     def to_frame(self) -> Frame:
         # Len 2 as the guide's table says: the timeout WORD and a zero WORD.
+        """The frame as it goes on the USB link (guide chapter 2)."""
         return Frame(self.opcode, _U16.pack(self.timeout_ms) + b"\x00\x00")
 
     @classmethod
     def from_frame(cls, frame: Frame) -> ReadLss:
         # The guide's table says Len 2 but lists one WORD: accept both, the first word is the timeout.
+        """Decode a received frame (IdxRemoteError 0x06070010 when it is too short)."""
         _need_len(frame, 1, 2)
         return cls(_U16.unpack_from(frame.data)[0])
 
@@ -288,7 +303,7 @@ def decode_request(frame: Frame) -> Request:
     """The request in ``frame``; IdxRemoteError with the reply's code when it is not one."""
     cls = _REQUESTS.get(frame.opcode)
     if cls is None:
-        raise IdxRemoteError(ErrorCode.ILLEGAL_COMMAND, f"unknown opcode 0x{frame.opcode:02X}")
+        raise IdxRemoteError(SdoAbortCode.ILLEGAL_COMMAND, f"unknown opcode 0x{frame.opcode:02X}")
     return cls.from_frame(frame)
 
 
@@ -301,23 +316,28 @@ class StatusReply:
     error: int = 0
 
     def to_frame(self) -> Frame:
+        """The frame as it goes on the USB link (guide chapter 2)."""
         return Frame(RESPONSE_OPCODE, _ERR.pack(self.error))
 
     @classmethod
     def from_frame(cls, frame: Frame) -> StatusReply:
+        """Decode a received frame (IdxRemoteError 0x06070010 when it is too short)."""
         return cls(_ERR.unpack_from(frame.data)[0])
 
 
 @dataclass(frozen=True, slots=True)
 class ReadObjectReply:
+    """2.1.1.1 reply: error DWORD and up to 4 data bytes."""
     error: int = 0
     data: bytes = bytes(4)
 
     def to_frame(self) -> Frame:
+        """The frame as it goes on the USB link (guide chapter 2)."""
         return Frame(RESPONSE_OPCODE, _ERR_DATA4.pack(self.error, self.data.ljust(4, b"\x00")))
 
     @classmethod
     def from_frame(cls, frame: Frame) -> ReadObjectReply:
+        """Decode a received frame (IdxRemoteError 0x06070010 when it is too short)."""
         if frame.length < 4:
             return cls(StatusReply.from_frame(frame).error)
         return cls(*_ERR_DATA4.unpack_from(frame.data))
@@ -325,6 +345,7 @@ class ReadObjectReply:
 
 @dataclass(frozen=True, slots=True)
 class InitiateSegmentedReadReply:
+    """2.1.1.2 reply: error DWORD, total length and the first segment."""
     error: int = 0
     total_length: int = 0
     data: bytes = b""
@@ -333,11 +354,13 @@ class InitiateSegmentedReadReply:
         _check_segment(self.data)
 
     def to_frame(self) -> Frame:
+        """The frame as it goes on the USB link (guide chapter 2)."""
         return Frame(RESPONSE_OPCODE, _pad(_ERR_TOTAL_LEN.pack(self.error, self.total_length, len(self.data))
                                            + self.data))
 
     @classmethod
     def from_frame(cls, frame: Frame) -> InitiateSegmentedReadReply:
+        """Decode a received frame (IdxRemoteError 0x06070010 when it is too short)."""
         if frame.length < 5:
             return cls(StatusReply.from_frame(frame).error)
         error, total, n = _ERR_TOTAL_LEN.unpack_from(frame.data)
@@ -346,6 +369,7 @@ class InitiateSegmentedReadReply:
 
 @dataclass(frozen=True, slots=True)
 class SegmentReadReply:
+    """2.1.1.3 reply: error DWORD, control byte (toggle, last) and a segment."""
     error: int = 0
     toggle: bool = False
     last: bool = False
@@ -355,12 +379,14 @@ class SegmentReadReply:
         _check_segment(self.data)
 
     def to_frame(self) -> Frame:
+        """The frame as it goes on the USB link (guide chapter 2)."""
         control = (CONTROL_TOGGLE if self.toggle else 0) | (CONTROL_LAST if self.last else 0)
         head = _ERR_LEN_CTRL.pack(self.error, len(self.data), control)
         return Frame(RESPONSE_OPCODE, _pad(head + self.data))
 
     @classmethod
     def from_frame(cls, frame: Frame) -> SegmentReadReply:
+        """Decode a received frame (IdxRemoteError 0x06070010 when it is too short)."""
         if frame.length < 3:
             return cls(StatusReply.from_frame(frame).error)
         error, n, control = _ERR_LEN_CTRL.unpack_from(frame.data)
@@ -369,16 +395,19 @@ class SegmentReadReply:
 
 @dataclass(frozen=True, slots=True)
 class SegmentWriteReply:
+    """2.1.2.3 reply: error DWORD and the number of bytes taken."""
     error: int = 0
     length_written: int = 0
     toggle: bool = False
 
     def to_frame(self) -> Frame:
+        """The frame as it goes on the USB link (guide chapter 2)."""
         return Frame(RESPONSE_OPCODE, _ERR_LEN_CTRL.pack(self.error, self.length_written,
                                                          CONTROL_TOGGLE if self.toggle else 0))
 
     @classmethod
     def from_frame(cls, frame: Frame) -> SegmentWriteReply:
+        """Decode a received frame (IdxRemoteError 0x06070010 when it is too short)."""
         if frame.length < 3:
             return cls(StatusReply.from_frame(frame).error)
         error, n, control = _ERR_LEN_CTRL.unpack_from(frame.data)
@@ -387,14 +416,17 @@ class SegmentWriteReply:
 
 @dataclass(frozen=True, slots=True)
 class ReadLssReply:
+    """2.1.3.2 reply: error DWORD and the LSS slave message."""
     error: int = 0
     data: bytes = bytes(8)
 
     def to_frame(self) -> Frame:
+        """The frame as it goes on the USB link (guide chapter 2)."""
         return Frame(RESPONSE_OPCODE, _ERR_LSS.pack(self.error, self.data))
 
     @classmethod
     def from_frame(cls, frame: Frame) -> ReadLssReply:
+        """Decode a received frame (IdxRemoteError 0x06070010 when it is too short)."""
         if frame.length < 6:
             return cls(StatusReply.from_frame(frame).error)
         return cls(*_ERR_LSS.unpack_from(frame.data))
@@ -427,7 +459,7 @@ def error_reply(opcode: int, code: int) -> Reply:
 def decode_reply(opcode: int, frame: Frame) -> Reply:
     """Decode the reply to a request with ``opcode``; a Len 2 reply decodes to its error only."""
     if frame.opcode != RESPONSE_OPCODE:
-        raise IdxRemoteError(ErrorCode.GENERAL_ERROR, f"reply opcode 0x{frame.opcode:02X}, expected 0x00")
+        raise IdxRemoteError(SdoAbortCode.GENERAL_ERROR, f"reply opcode 0x{frame.opcode:02X}, expected 0x00")
     if frame.length < 2:
-        raise IdxRemoteError(ErrorCode.GENERAL_ERROR, f"reply of {frame.length} words has no error DWORD")
+        raise IdxRemoteError(SdoAbortCode.GENERAL_ERROR, f"reply of {frame.length} words has no error DWORD")
     return REPLY_TYPE.get(opcode, StatusReply).from_frame(frame)

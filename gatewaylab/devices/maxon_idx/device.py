@@ -17,7 +17,7 @@ from ...canopen.nmt import NmtCommand
 from ...canopen.node import Node
 from ...common.clock import Clock
 from .commands import MAX_SEGMENT
-from .errors import ErrorCode, IdxRemoteError
+from .errors import IdxRemoteError, SdoAbortCode
 from .gateway import CanGateway, SdoClientLike
 from .protocol import IdxSlave
 
@@ -42,7 +42,7 @@ class NodeObjects:
 
     def check_write(self, index: int, subindex: int) -> None:
         if not self.node.od.entry(index, subindex).access.writable:
-            raise IdxRemoteError(ErrorCode.READ_ONLY_ERROR, f"0x{index:04X}:{subindex:02X} is read only")
+            raise IdxRemoteError(SdoAbortCode.READ_ONLY, f"0x{index:04X}:{subindex:02X} is read only")
 
 
 def _default_sdo_client(clock: Clock, send: Callable[..., None], timeout: float) -> SdoClientLike:

@@ -18,7 +18,7 @@ from typing import Any, Protocol
 from ...bus.frame import CanFrame
 from ...common.clock import Clock, TimerHandle
 from ...common.errors import GatewaylabError
-from .errors import ErrorCode, IdxRemoteError
+from .errors import IdxRemoteError, SdoAbortCode
 
 LSS_MASTER_COB_ID = 0x7E5
 LSS_SLAVE_COB_ID = 0x7E4
@@ -55,13 +55,16 @@ class _Expedited:
 class SdoClientLike(Protocol):
     """What the gateway needs of :class:`gatewaylab.canopen.sdo_client.SdoClient`."""
 
-    def upload(self, node_id: int, index: int, sub: int, callback: Callable[[Any], None], *,
-               segmented: bool | None = None, block: bool = False) -> None: ...
+    def upload(self, node_id: int, index: int, subindex: int, callback: Callable[[Any], None], *,
+               segmented: bool | None = None, block: bool = False) -> None:
+        """Read an object of another node; the callback gets bytes or an SdoAbort."""
 
-    def download(self, node_id: int, index: int, sub: int, data: bytes,
-                 callback: Callable[[Any], None]) -> None: ...
+    def download(self, node_id: int, index: int, subindex: int, data: bytes,
+                 callback: Callable[[Any], None]) -> None:
+        """Write an object of another node; the callback gets None or an SdoAbort."""
 
-    def on_frame(self, frame: CanFrame, t: float) -> None: ...
+    def on_frame(self, frame: CanFrame, t: float) -> None:
+        """A frame from the bus for the client."""
 
 
 class CanGateway:
@@ -170,19 +173,19 @@ class CanGateway:
             n = (cs >> 2) & 0x03 if cs & 0x01 else 0                          # s = 1: 4 - n bytes
             self._end_expedited(bytes(data[4:8 - n]))
         elif ex.upload and cs & 0xE0 == SDO_UPLOAD_RESPONSE:                    # segmented (e = 0)
-            self._abort_server(ErrorCode.SERVICE_PARAMETER_ERROR)
-            self._end_expedited(IdxRemoteError(ErrorCode.SERVICE_PARAMETER_ERROR,
+            self._abort_server(SdoAbortCode.LENGTH_MISMATCH)
+            self._end_expedited(IdxRemoteError(SdoAbortCode.LENGTH_MISMATCH,
                                                f"node {ex.node_id} 0x{index:04X}:{sub:02X} is longer than "
                                                "4 bytes: use InitiateSegmentedRead"))
         else:
-            self._abort_server(ErrorCode.COMMAND_UNKNOWN)
-            self._end_expedited(IdxRemoteError(ErrorCode.COMMAND_UNKNOWN, f"SDO answer cs 0x{cs:02X}"))
+            self._abort_server(SdoAbortCode.COMMAND_SPECIFIER_UNKNOWN)
+            self._end_expedited(IdxRemoteError(SdoAbortCode.COMMAND_SPECIFIER_UNKNOWN, f"SDO answer cs 0x{cs:02X}"))
 
     def _expedited_timeout(self) -> None:
         ex = self._expedited
         if ex is not None:
-            self._abort_server(ErrorCode.SDO_TIMEOUT)
-            self._end_expedited(IdxRemoteError(ErrorCode.SDO_TIMEOUT, f"node {ex.node_id} silent"))
+            self._abort_server(SdoAbortCode.SDO_PROTOCOL_TIMED_OUT)
+            self._end_expedited(IdxRemoteError(SdoAbortCode.SDO_PROTOCOL_TIMED_OUT, f"node {ex.node_id} silent"))
 
     def _abort_server(self, code: int) -> None:
         ex = self._expedited
@@ -209,9 +212,9 @@ class CanGateway:
     def read_lss(self, timeout: float, callback: UploadCallback) -> None:
         """2.1.3.2: only after a SendLSS; the next 0x7E4 frame, else 0x05040000 after ``timeout``."""
         if not self.lss_armed:
-            raise IdxRemoteError(ErrorCode.WRONG_DEVICE_STATE, "ReadLSS before any SendLSS")
+            raise IdxRemoteError(SdoAbortCode.DATA_CANNOT_BE_STORED_DEVICE_STATE, "ReadLSS before any SendLSS")
         if self._lss_wait is not None:
-            raise IdxRemoteError(ErrorCode.WRONG_DEVICE_STATE, "another ReadLSS is waiting")
+            raise IdxRemoteError(SdoAbortCode.DATA_CANNOT_BE_STORED_DEVICE_STATE, "another ReadLSS is waiting")
         if self.lss_backlog:
             callback(self.lss_backlog.popleft())
             return
@@ -221,7 +224,7 @@ class CanGateway:
     def _lss_timeout(self) -> None:
         wait, self._lss_wait = self._lss_wait, None
         if wait is not None:
-            wait[0](IdxRemoteError(ErrorCode.SDO_TIMEOUT, "no LSS slave message within the timeout"))
+            wait[0](IdxRemoteError(SdoAbortCode.SDO_PROTOCOL_TIMED_OUT, "no LSS slave message within the timeout"))
 
     def _lss_frame(self, data: bytes) -> None:
         wait, self._lss_wait = self._lss_wait, None

@@ -52,7 +52,7 @@ from .commands import (
     decode_request,
     error_reply,
 )
-from .errors import ErrorCode, IdxRemoteError
+from .errors import IdxRemoteError, SdoAbortCode
 
 #: Requests held while one executes (a host should wait for each answer, guide 2.2.8 D).
 MAX_QUEUED = 64
@@ -64,9 +64,11 @@ DownloadCallback = Callable[[GatewaylabError | None], None]
 class ObjectAccess(Protocol):
     """The IDX's own object dictionary, accessed exactly as an SDO client would."""
 
-    def read(self, index: int, subindex: int) -> bytes: ...
+    def read(self, index: int, subindex: int) -> bytes:
+        """The wire form of an object (raises with the chapter 6 code)."""
 
-    def write(self, index: int, subindex: int, data: bytes) -> None: ...
+    def write(self, index: int, subindex: int, data: bytes) -> None:
+        """Write the wire form of an object (raises with the chapter 6 code)."""
 
     def value_size(self, index: int, subindex: int) -> int | None:
         """Bytes of a fixed-size value, None for variable-size ones; raises if the object is missing."""
@@ -81,16 +83,21 @@ class Gateway(Protocol):
     """The CAN side (guide chapter 5): SDO client to other nodes, NMT and LSS master messages."""
 
     def upload(self, node_id: int, index: int, subindex: int, callback: UploadCallback, *,
-               segmented: bool) -> None: ...
+               segmented: bool) -> None:
+        """SDO upload from another node on CAN (guide chapter 5)."""
 
     def download(self, node_id: int, index: int, subindex: int, data: bytes,
-                 callback: DownloadCallback) -> None: ...
+                 callback: DownloadCallback) -> None:
+        """SDO download to another node on CAN (guide chapter 5)."""
 
-    def send_nmt(self, node_id: int, command: int) -> None: ...
+    def send_nmt(self, node_id: int, command: int) -> None:
+        """Send an NMT command on CAN."""
 
-    def send_lss(self, data: bytes) -> None: ...
+    def send_lss(self, data: bytes) -> None:
+        """Send an LSS master message on CAN."""
 
-    def read_lss(self, timeout: float, callback: UploadCallback) -> None: ...
+    def read_lss(self, timeout: float, callback: UploadCallback) -> None:
+        """Wait up to ``timeout`` for an LSS slave message."""
 
 
 class SlaveState(Enum):
@@ -101,6 +108,7 @@ class SlaveState(Enum):
 
 
 class Transfer(Enum):
+    """The segmented transfer a host has in progress."""
     NONE = "none"
     SEGMENTED_READ = "segmented-read"
     SEGMENTED_WRITE = "segmented-write"
@@ -115,6 +123,7 @@ _TRANSITIONS: dict[tuple[SlaveState, str], SlaveState] = {
 
 @dataclass(slots=True)
 class SlaveStats:
+    """Counters of the USB slave (requests, replies, error replies)."""
     requests: int = 0
     replies: int = 0
     error_replies: int = 0
@@ -222,7 +231,7 @@ class IdxSlave:
         if isinstance(event, CrcFailed):
             # Guide 2.2.2 note: a bad CRC is answered with a frame carrying the CRC error code.
             self.stats.crc_errors += 1
-            self._reply(StatusReply(ErrorCode.CRC_ERROR))
+            self._reply(StatusReply(SdoAbortCode.CRC_ERROR))
             return
         assert isinstance(event, FrameReceived)
         self.stats.requests += 1
@@ -245,7 +254,7 @@ class IdxSlave:
 
     def _check_remote(self, node_id: int) -> None:
         if not 1 <= node_id <= 127:
-            raise IdxRemoteError(ErrorCode.VALUE_RANGE_ERROR, f"node id {node_id} outside 1..127")
+            raise IdxRemoteError(SdoAbortCode.VALUE_RANGE_EXCEEDED, f"node id {node_id} outside 1..127")
 
     def _dispatch(self, req: Request) -> Reply | None:
         """Execute ``req``; returns the reply, or None when it will come from a gateway callback."""
@@ -279,7 +288,7 @@ class IdxSlave:
             if isinstance(result, GatewaylabError):
                 reply: Reply = ReadObjectReply(_code_of(result))
             elif len(result) > 4:
-                reply = ReadObjectReply(ErrorCode.SERVICE_PARAMETER_ERROR)
+                reply = ReadObjectReply(SdoAbortCode.LENGTH_MISMATCH)
             else:
                 reply = ReadObjectReply(0, result.ljust(4, b"\x00"))
             self._async_done(gen, reply)
@@ -316,10 +325,10 @@ class IdxSlave:
     def _segment_read(self, req: SegmentRead) -> Reply:
         seg = self._seg
         if seg.kind is not Transfer.SEGMENTED_READ:
-            raise IdxRemoteError(ErrorCode.COMMAND_UNKNOWN, "SegmentRead without InitiateSegmentedRead")
+            raise IdxRemoteError(SdoAbortCode.COMMAND_SPECIFIER_UNKNOWN, "SegmentRead without InitiateSegmentedRead")
         if req.toggle != seg.toggle:
             self._seg = _SegState()
-            raise IdxRemoteError(ErrorCode.TOGGLE_ERROR)
+            raise IdxRemoteError(SdoAbortCode.TOGGLE_BIT_NOT_ALTERNATED)
         chunk = bytes(seg.data[seg.offset:seg.offset + self.segment_size])
         seg.offset += len(chunk)
         seg.toggle = not seg.toggle
@@ -333,7 +342,7 @@ class IdxSlave:
         if self._is_local(req.node_id):
             size = self.objects.value_size(req.index, req.subindex)
             if size is not None and size > 4:
-                raise IdxRemoteError(ErrorCode.SERVICE_PARAMETER_ERROR,
+                raise IdxRemoteError(SdoAbortCode.LENGTH_MISMATCH,
                                      f"object of {size} bytes needs a segmented write")
             self.objects.write(req.index, req.subindex, req.data if size is None else req.data[:size])
             return StatusReply()
@@ -351,12 +360,12 @@ class IdxSlave:
         self._seg = _SegState()
         if not self._is_local(req.node_id):
             # 2.1.2.2 "Note that gateway communication is not supported."
-            raise IdxRemoteError(ErrorCode.ACCESS_ERROR, "segmented write through the gateway")
+            raise IdxRemoteError(SdoAbortCode.UNSUPPORTED_ACCESS, "segmented write through the gateway")
         # 0x06020000 / 0x06010002 / 0x06070010 now, not after the host has sent every segment.
         self.objects.check_write(req.index, req.subindex)
         size = self.objects.value_size(req.index, req.subindex)
         if size is not None and req.total_length != size:
-            raise IdxRemoteError(ErrorCode.SERVICE_PARAMETER_ERROR,
+            raise IdxRemoteError(SdoAbortCode.LENGTH_MISMATCH,
                                  f"{req.total_length} bytes announced for an object of {size}")
         self._seg = _SegState(Transfer.SEGMENTED_WRITE, req.node_id, req.index, req.subindex,
                               bytearray(), 0, req.total_length, False)
@@ -365,15 +374,15 @@ class IdxSlave:
     def _segment_write(self, req: SegmentWrite) -> Reply:
         seg = self._seg
         if seg.kind is not Transfer.SEGMENTED_WRITE:
-            raise IdxRemoteError(ErrorCode.COMMAND_UNKNOWN, "SegmentWrite without InitiateSegmentedWrite")
+            raise IdxRemoteError(SdoAbortCode.COMMAND_SPECIFIER_UNKNOWN, "SegmentWrite without InitiateSegmentedWrite")
         if req.toggle != seg.toggle:
             self._seg = _SegState()
-            raise IdxRemoteError(ErrorCode.TOGGLE_ERROR)
+            raise IdxRemoteError(SdoAbortCode.TOGGLE_BIT_NOT_ALTERNATED)
         seg.data += req.data
         seg.toggle = not seg.toggle
         if len(seg.data) > seg.total or (req.last and len(seg.data) != seg.total):
             self._seg = _SegState()
-            raise IdxRemoteError(ErrorCode.SERVICE_PARAMETER_ERROR,
+            raise IdxRemoteError(SdoAbortCode.LENGTH_MISMATCH,
                                  f"{len(seg.data)} bytes written, {seg.total} announced")
         if req.last:
             self._seg = _SegState()
@@ -383,11 +392,11 @@ class IdxSlave:
     # NMT and LSS (2.1.2.4, 2.1.3) --------------------------------------------------------------------
     def _send_nmt(self, req: SendNmtService) -> Reply:
         if req.node_id > 127:
-            raise IdxRemoteError(ErrorCode.VALUE_RANGE_ERROR, f"node id {req.node_id} outside 0..127")
+            raise IdxRemoteError(SdoAbortCode.VALUE_RANGE_EXCEEDED, f"node id {req.node_id} outside 0..127")
         try:
             NmtCommand(req.command)
         except ValueError:
-            raise IdxRemoteError(ErrorCode.VALUE_RANGE_ERROR, f"NMT command {req.command}") from None
+            raise IdxRemoteError(SdoAbortCode.VALUE_RANGE_EXCEEDED, f"NMT command {req.command}") from None
         self.gateway.send_nmt(req.node_id, req.command)
         return StatusReply()
 
@@ -406,11 +415,11 @@ class IdxSlave:
 
 def _fit4(data: bytes) -> bytes:
     if len(data) > 4:
-        raise IdxRemoteError(ErrorCode.SERVICE_PARAMETER_ERROR,
+        raise IdxRemoteError(SdoAbortCode.LENGTH_MISMATCH,
                              f"object of {len(data)} bytes: use InitiateSegmentedRead")
     return data.ljust(4, b"\x00")
 
 
 def _code_of(exc: GatewaylabError) -> int:
     code = exc.code
-    return ErrorCode.GENERAL_ERROR if code is None or code == 0 else code
+    return SdoAbortCode.GENERAL_ERROR if code is None or code == 0 else code

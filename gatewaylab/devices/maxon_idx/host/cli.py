@@ -16,7 +16,7 @@ from typing import Any
 from ....common.endpoint import EndpointError
 from ....common.errors import ConfigError, LocalError
 from ..commands import NmtCommand
-from ..errors import ErrorCode
+from ..errors import SdoAbortCode
 from .client import IdxClient, IdxError, IdxTimeout
 
 _NMT = {
@@ -174,7 +174,7 @@ def _run(func: Any) -> Any:
             return 1
         except IdxError as exc:
             hint = ""
-            if exc.code == ErrorCode.SERVICE_PARAMETER_ERROR and getattr(args, "idx_command", "") == "read" \
+            if exc.code == SdoAbortCode.LENGTH_MISMATCH and getattr(args, "idx_command", "") == "read" \
                     and not args.segmented and args.type not in ("str",):
                 hint = "\nhint: an object longer than 4 bytes needs the segmented read: add -s or -t str"
             print(f"error: {exc}{hint}", file=sys.stderr)

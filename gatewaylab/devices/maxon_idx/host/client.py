@@ -37,7 +37,7 @@ from ..commands import (
     WriteObject,
     decode_reply,
 )
-from ..errors import ErrorCode, error_cause, error_name
+from ..errors import SdoAbortCode, error_cause, error_name
 from .link import Link, open_link
 
 _TYPES: dict[str, struct.Struct] = {
@@ -87,7 +87,7 @@ class IdxTimeout(IdxError):
 
     def __init__(self, request: str = "", timeout: float | None = None, detail: str = "") -> None:
         within = f" within {timeout:g} s" if timeout is not None else ""
-        super().__init__(ErrorCode.SDO_TIMEOUT, request, detail or f"no reply frame from the IDX{within}")
+        super().__init__(SdoAbortCode.SDO_PROTOCOL_TIMED_OUT, request, detail or f"no reply frame from the IDX{within}")
 
 
 @dataclass(frozen=True, slots=True)
@@ -153,7 +153,7 @@ class IdxClient:
         try:
             return decode_reply(request.opcode, self._frames[0])
         except GatewaylabError as exc:
-            raise IdxError(exc.code or ErrorCode.GENERAL_ERROR, type(request).__name__) from exc
+            raise IdxError(exc.code or SdoAbortCode.GENERAL_ERROR, type(request).__name__) from exc
 
     def _drop_late_reply(self) -> None:
         """Wait up to ``late_reply_wait`` for the reply owed to a timed-out request and drop it."""
@@ -218,15 +218,15 @@ class IdxClient:
         while len(data) < first.total_length:
             seg: SegmentReadReply = self._ok(SegmentRead(toggle), what)
             if seg.toggle != toggle:
-                raise IdxError(ErrorCode.TOGGLE_ERROR, what, "the reply's toggle bit did not alternate")
+                raise IdxError(SdoAbortCode.TOGGLE_BIT_NOT_ALTERNATED, what, "the reply's toggle bit did not alternate")
             data += seg.data
             toggle = not toggle
             if seg.last:
                 break
             if not seg.data:        # would loop for ever on a device that sends nothing more
-                raise IdxError(ErrorCode.GENERAL_ERROR, what, "empty segment without the last-segment bit")
+                raise IdxError(SdoAbortCode.GENERAL_ERROR, what, "empty segment without the last-segment bit")
         if len(data) != first.total_length:
-            raise IdxError(ErrorCode.SERVICE_PARAMETER_ERROR, what,
+            raise IdxError(SdoAbortCode.LENGTH_MISMATCH, what,
                            f"{len(data)} bytes received, {first.total_length} announced")
         return bytes(data)
 
@@ -246,7 +246,7 @@ class IdxClient:
             last = offset >= len(data)
             reply: SegmentWriteReply = self._ok(SegmentWrite(toggle, last, chunk), what)
             if reply.length_written != len(chunk):
-                raise IdxError(ErrorCode.SERVICE_PARAMETER_ERROR, what)
+                raise IdxError(SdoAbortCode.LENGTH_MISMATCH, what)
             toggle = not toggle
             if last:
                 return
@@ -264,7 +264,7 @@ class IdxClient:
         """ReadLSS (2.1.3.2): the next LSS slave message, or None when none came in time."""
         reply = self.transact(ReadLss(timeout_ms), self.timeout + timeout_ms / 1000)
         assert isinstance(reply, ReadLssReply)
-        if reply.error == ErrorCode.SDO_TIMEOUT:
+        if reply.error == SdoAbortCode.SDO_PROTOCOL_TIMED_OUT:
             return None
         if reply.error:
             raise IdxError(reply.error, "ReadLSS")
@@ -297,7 +297,7 @@ class IdxClient:
         if answer is None:
             raise IdxTimeout("LSS configure node id", detail="no LSS slave answered")
         if answer[1]:
-            raise IdxError(ErrorCode.VALUE_RANGE_ERROR, f"LSS configure node id {node_id}: error {answer[1]}")
+            raise IdxError(SdoAbortCode.VALUE_RANGE_EXCEEDED, f"LSS configure node id {node_id}: error {answer[1]}")
 
     def store_configuration(self, timeout_ms: int = 50) -> None:
         """3.5.2.6: error 0 ok, 1 not supported, 2 storage media access error."""
@@ -305,7 +305,7 @@ class IdxClient:
         if answer is None:
             raise IdxTimeout("LSS store configuration", detail="no LSS slave answered")
         if answer[1]:
-            raise IdxError(ErrorCode.TRANSFER_OR_STORE_ERROR, f"LSS store configuration: error {answer[1]}")
+            raise IdxError(SdoAbortCode.DATA_CANNOT_BE_STORED, f"LSS store configuration: error {answer[1]}")
 
     def inquire(self, what: str, timeout_ms: int = 50) -> int | None:
         """3.5.2.7-3.5.2.11: vendor, product, revision, serial or node_id of the slave in configuration."""

@@ -1,4 +1,4 @@
-"""EDS / DCF (CiA 306) export and import of an :class:`~gatewaylab.canopen.od.ObjectDictionary`.
+"""EDS / DCF (CiA 306) export and import of an :class:`~gatewaylab.od.ObjectDictionary`.
 
 Export writes every object with ParameterName, ObjectType, DataType, AccessType, PDOMapping,
 limits and DefaultValue (COB-IDs that follow the node-id as ``$NODEID+0x...``); a DCF adds
@@ -14,7 +14,8 @@ import re
 from typing import Any
 
 from ..common.errors import ConfigError
-from .od import (
+from .dictionary import ObjectDictionary
+from .types import (
     BYTES_TYPES,
     FLOAT_TYPES,
     STRING_TYPES,
@@ -22,7 +23,6 @@ from .od import (
     DataType,
     Entry,
     ObjectCode,
-    ObjectDictionary,
     coerce,
     type_range,
 )
@@ -61,7 +61,7 @@ def _export_entry(lines: list[str], section: str, entry: Entry, od: ObjectDictio
     if entry.preop_only:
         lines.append("GatewaylabPreOpOnly=1")     # not in CiA 306; other tools ignore unknown keys
     if dcf:
-        lines.append(f"ParameterValue={_fmt(entry, od.values[(entry.index, entry.sub)])}")
+        lines.append(f"ParameterValue={_fmt(entry, od.values[(entry.index, entry.subindex)])}")
     lines.append("")
 
 

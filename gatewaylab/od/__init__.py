@@ -1,0 +1,35 @@
+"""The one object dictionary of gatewaylab: types and codecs, rows, hooks, SDO aborts, EDS/ESI.
+
+Below ``canopen/`` and ``ethercat/`` in the layering: it imports only ``common/``. A CANopen node
+and an EtherCAT slave's CoE server both keep their objects in an :class:`ObjectDictionary`; each
+protocol brings its state-dependent :class:`AccessPolicy`.
+"""
+
+from .aborts import SdoAbort, SdoAbortCode, abort_text
+from .dictionary import AccessPolicy, Key, Listener, ObjectDictionary, ReadHook, Validator, WriteHook
+from .types import (
+    BYTES_TYPES,
+    ESI_TYPE_NAMES,
+    FLOAT_TYPES,
+    INT_TYPES,
+    STRING_TYPES,
+    Access,
+    DataType,
+    Entry,
+    ObjectCode,
+    OdObject,
+    check_limits,
+    coerce,
+    decode,
+    encode,
+    type_default,
+    type_range,
+    type_size,
+)
+
+__all__ = [
+    "BYTES_TYPES", "ESI_TYPE_NAMES", "FLOAT_TYPES", "INT_TYPES", "STRING_TYPES", "Access", "AccessPolicy",
+    "DataType", "Entry", "Key", "Listener", "ObjectCode", "ObjectDictionary", "OdObject", "ReadHook",
+    "SdoAbort", "SdoAbortCode", "Validator", "WriteHook", "abort_text", "check_limits", "coerce", "decode",
+    "encode", "type_default", "type_range", "type_size",
+]

@@ -1,0 +1,370 @@
+"""The object dictionary as data: rows of :class:`Entry` bound to typed storage, with hooks.
+
+One :class:`ObjectDictionary` serves a CANopen node (``canopen.node``) and an EtherCAT slave's
+CoE server (``ethercat.slave``) alike; what differs per protocol (may this entry be written in the
+present NMT / EtherCAT state?) is a small :class:`AccessPolicy` the caller passes. Values are
+typed Python values in ``values`` keyed by (index, subindex); :meth:`put` is the device's own
+write and the one change notification (:meth:`subscribe`); :meth:`write` is the remote write with
+the device's validators, commands, write hooks and reactions; :meth:`read` the remote read with
+its read hooks. EDS/DCF import and export live in :mod:`.eds`, the ESI dictionary in :mod:`.esi`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from dataclasses import replace
+from typing import Any, Protocol
+
+from ..common.errors import ConfigError
+from .aborts import SdoAbort, SdoAbortCode
+from .types import Access, DataType, Entry, ObjectCode, OdObject, coerce, decode, encode
+
+Key = tuple[int, int]
+#: ``listener((index, subindex), value)`` after a value changed.
+Listener = Callable[[Key, Any], None]
+#: ``validator(entry, value)`` may refuse a remote write with :class:`SdoAbort`; also the
+#: signature of reactions (after the store) and commands (instead of the store).
+Validator = Callable[[Entry, Any], None]
+#: ``hook(index, subindex, value)`` after a remote write was stored; raising undoes it.
+WriteHook = Callable[[int, int, Any], None]
+#: ``hook(index, subindex)`` before a remote read: refresh the value with :meth:`put`.
+ReadHook = Callable[[int, int], None]
+#: Where a hook applies: one index or a range of indexes (also objects added later).
+Where = int | range
+
+
+class AccessPolicy(Protocol):
+    """A protocol's access rules for remote reads and writes (NMT state, EtherCAT state)."""
+
+    def check_read(self, entry: Entry) -> None:
+        """Raise :class:`SdoAbort` when ``entry`` may not be read now."""
+
+    def check_write(self, entry: Entry, data: bytes) -> None:
+        """Raise :class:`SdoAbort` when ``data`` may not be written to ``entry`` now."""
+
+
+class ObjectDictionary:
+    """Rows of :class:`Entry` grouped in :class:`OdObject`, the current values and the hooks."""
+
+    def __init__(self, node_id: int | None = None) -> None:
+        self.objects: dict[int, OdObject] = {}
+        self.entries: dict[Key, Entry] = {}
+        #: The raw value store; hot paths read it directly. Write through :meth:`put`.
+        self.values: dict[Key, Any] = {}
+        #: Node-id used to resolve ``$NODEID`` defaults when values are (re)initialised.
+        self.node_id = node_id
+        #: Free-form [DeviceInfo] fields for EDS export (VendorName, ProductName, ...).
+        self.device_info: dict[str, str] = {}
+        #: Name of the node or slave whose hooks this dictionary holds (one owner per dictionary).
+        self.owner: str | None = None
+        self._listeners: dict[Key, list[Listener]] = {}
+        self._validators: dict[int, list[Validator]] = {}
+        self._reactions: dict[int, list[Validator]] = {}
+        self._commands: dict[int, Validator] = {}
+        self._write_hooks: dict[int, list[WriteHook]] = {}
+        self._read_hooks: dict[int, list[ReadHook]] = {}
+        #: Indexes with a command, validator, write hook or reaction (others are stored directly).
+        self.intercepted: set[int] = set()
+        #: Hooks registered for ranges, applied to objects added later too.
+        self._range_hooks: list[tuple[range, Callable[[int], None]]] = []
+
+    # -- building ------------------------------------------------------------------------------
+    def _add_entry(self, obj: OdObject, entry: Entry) -> Entry:
+        obj.entries[entry.subindex] = entry
+        key = (entry.index, entry.subindex)
+        self.entries[key] = entry
+        self.values[key] = coerce(entry, entry.default_for(self.node_id))
+        return entry
+
+    def _new_object(self, index: int, name: str, code: ObjectCode) -> OdObject:
+        if not 0 < index <= 0xFFFF:
+            raise ConfigError(f"index 0x{index:X} out of range")
+        if index in self.objects:
+            raise ConfigError(f"object 0x{index:04X} already exists")
+        obj = OdObject(index, name, code, {})
+        self.objects[index] = obj
+        for where, register in self._range_hooks:
+            if index in where:
+                register(index)
+        return obj
+
+    def add_variable(self, index: int, name: str, data_type: DataType, access: Access = Access.RW,
+                     default: Any = None, *, pdo_mappable: bool = False, low: float | None = None,
+                     high: float | None = None, nodeid_offset: bool = False,
+                     preop_only: bool = False) -> Entry:
+        """Add a VAR object (subindex 0)."""
+        obj = self._new_object(index, name, ObjectCode.VAR)
+        return self._add_entry(obj, Entry(index, 0, name, DataType(data_type), access, pdo_mappable,
+                                          default, low, high, nodeid_offset, preop_only))
+
+    def add_record(self, index: int, name: str, code: ObjectCode = ObjectCode.RECORD) -> OdObject:
+        """Add an empty RECORD (or ARRAY); fill it with :meth:`add_sub`. Subindex 0 is added for you."""
+        return self._new_object(index, name, code)
+
+    def add_sub(self, index: int, subindex: int, name: str, data_type: DataType,
+                access: Access = Access.RW, default: Any = None, *, pdo_mappable: bool = False,
+                low: float | None = None, high: float | None = None, nodeid_offset: bool = False,
+                preop_only: bool = False, sub0_name: str = "Highest sub-index supported") -> Entry:
+        """Add a subindex to a RECORD/ARRAY; subindex 0 'highest sub-index supported' follows."""
+        obj = self.objects[index]
+        entry = self._add_entry(obj, Entry(index, subindex, name, DataType(data_type), access, pdo_mappable,
+                                           default, low, high, nodeid_offset, preop_only))
+        if subindex != 0:
+            sub0 = obj.entries.get(0)
+            highest = max(s for s in obj.entries if s != 0)
+            if sub0 is None:
+                self._add_entry(obj, Entry(index, 0, sub0_name, DataType.UNSIGNED8, Access.RO, False, highest))
+            elif sub0.access is Access.RO or sub0.access is Access.CONST:
+                new0 = replace(sub0, default=highest)
+                obj.entries[0] = new0
+                self.entries[(index, 0)] = new0
+                self.values[(index, 0)] = highest
+        return entry
+
+    def add_array(self, index: int, name: str, data_type: DataType, count: int,
+                  access: Access = Access.RW, default: Any = None, *, pdo_mappable: bool = False,
+                  low: float | None = None, high: float | None = None,
+                  sub0_access: Access = Access.RO, sub0_default: int | None = None,
+                  sub_names: list[str] | None = None, defaults: list[Any] | None = None,
+                  sub0_name: str = "Highest sub-index supported", preop_only: bool = False) -> OdObject:
+        """Add an ARRAY with ``count`` elements of one type (``defaults`` per element if given)."""
+        obj = self._new_object(index, name, ObjectCode.ARRAY)
+        self._add_entry(obj, Entry(index, 0, sub0_name, DataType.UNSIGNED8,
+                                   sub0_access, False, count if sub0_default is None else sub0_default,
+                                   0, count if sub0_access.writable else None, preop_only=preop_only))
+        for i in range(1, count + 1):
+            label = sub_names[i - 1] if sub_names else f"{name} {i}"
+            value = defaults[i - 1] if defaults is not None and i <= len(defaults) else default
+            self._add_entry(obj, Entry(index, i, label, DataType(data_type), access, pdo_mappable,
+                                       value, low, high, preop_only=preop_only))
+        return obj
+
+    def replace_entry(self, entry: Entry) -> None:
+        """Swap the description of an existing entry (keeps its value when still valid)."""
+        obj = self.objects[entry.index]
+        obj.entries[entry.subindex] = entry
+        self.entries[(entry.index, entry.subindex)] = entry
+
+    # -- lookup ----------------------------------------------------------------------------------
+    def entry(self, index: int, subindex: int) -> Entry:
+        """The entry at (index, subindex), or SdoAbort 0x06020000 / 0x06090011 as CiA 301 says."""
+        e = self.entries.get((index, subindex))
+        if e is not None:
+            return e
+        if index in self.objects:
+            raise SdoAbort(SdoAbortCode.SUBINDEX_DOES_NOT_EXIST, f"0x{index:04X}:{subindex:02X}")
+        raise SdoAbort(SdoAbortCode.OBJECT_DOES_NOT_EXIST, f"0x{index:04X}")
+
+    def object(self, index: int) -> OdObject:
+        """The object at ``index``, or SdoAbort 0x06020000."""
+        obj = self.objects.get(index)
+        if obj is None:
+            raise SdoAbort(SdoAbortCode.OBJECT_DOES_NOT_EXIST, f"0x{index:04X}")
+        return obj
+
+    def __contains__(self, key: Any) -> bool:
+        if isinstance(key, tuple):
+            return key in self.entries
+        return key in self.objects
+
+    def __iter__(self) -> Iterator[OdObject]:
+        for index in sorted(self.objects):
+            yield self.objects[index]
+
+    def __len__(self) -> int:
+        return len(self.objects)
+
+    # -- typed values: the device's own access ---------------------------------------------------
+    def get(self, index: int, subindex: int = 0) -> Any:
+        """The typed value (no access checks)."""
+        try:
+            return self.values[(index, subindex)]
+        except KeyError:
+            self.entry(index, subindex)
+            raise
+
+    def put(self, index: int, subindex: int, value: Any) -> bool:
+        """The device's own write (no access or limit checks, coerced to the entry's type): stores,
+        returns True when the value changed and then calls the key's listeners."""
+        key = (index, subindex)
+        entry = self.entries.get(key) or self.entry(index, subindex)
+        value = coerce(entry, value)
+        values = self.values
+        old = values[key]
+        values[key] = value
+        if old == value:
+            return False
+        listeners = self._listeners.get(key)
+        if listeners is not None:
+            for listener in listeners:
+                listener(key, value)
+        return True
+
+    def set(self, index: int, subindex: int, value: Any) -> None:
+        """:meth:`put` without the result (typed local access for device code)."""
+        self.put(index, subindex, value)
+
+    def subscribe(self, key: Key, listener: Listener) -> Callable[[], None]:
+        """``listener(key, value)`` whenever the value at ``key`` changes; returns the unsubscribe."""
+        self._listeners.setdefault(key, []).append(listener)
+
+        def unsubscribe() -> None:
+            listeners = self._listeners.get(key)
+            if listeners is not None and listener in listeners:
+                listeners.remove(listener)
+                if not listeners:
+                    del self._listeners[key]
+        return unsubscribe
+
+    def _changed(self, key: Key, value: Any) -> None:
+        listeners = self._listeners.get(key)
+        if listeners is not None:
+            for listener in listeners:
+                listener(key, value)
+
+    def get_bytes(self, index: int, subindex: int = 0) -> bytes:
+        """The wire form of the present value (no access checks, no read hooks)."""
+        entry = self.entry(index, subindex)
+        return encode(entry, self.values[(index, subindex)])
+
+    def bit_length(self, index: int, subindex: int) -> int:
+        """Bits the entry takes in a PDO: its type's size, or the present length of a string."""
+        entry = self.entry(index, subindex)
+        bits = entry.bit_length
+        return bits if bits else 8 * len(encode(entry, self.values[(index, subindex)]))
+
+    def reset_values(self, indices: range | None = None) -> None:
+        """Put the defaults back (all, or the objects whose index is in ``indices``)."""
+        for key, entry in self.entries.items():
+            if indices is None or key[0] in indices:
+                self.values[key] = coerce(entry, entry.default_for(self.node_id))
+
+    def copy(self) -> ObjectDictionary:
+        """An independent dictionary with the same rows and values (entries are immutable; no hooks)."""
+        new = ObjectDictionary(self.node_id)
+        for index, obj in self.objects.items():
+            new.objects[index] = OdObject(obj.index, obj.name, obj.object_code, dict(obj.entries))
+        new.entries = dict(self.entries)
+        new.values = dict(self.values)
+        new.device_info = dict(self.device_info)
+        return new
+
+    # -- hooks -----------------------------------------------------------------------------------
+    def _register(self, where: Where, register: Callable[[int], None]) -> None:
+        if isinstance(where, range):
+            self._range_hooks.append((where, register))
+            for index in list(self.objects):
+                if index in where:
+                    register(index)
+        else:
+            register(where)
+
+    def add_validator(self, where: Where, validator: Validator) -> None:
+        """``validator(entry, value)`` before a remote write is stored; may refuse with SdoAbort."""
+        def register(index: int) -> None:
+            self._validators.setdefault(index, []).append(validator)
+            self.intercepted.add(index)
+        self._register(where, register)
+
+    def add_reaction(self, where: Where, reaction: Validator) -> None:
+        """``reaction(entry, value)`` after a remote write was stored (apply commands, reconfigure)."""
+        def register(index: int) -> None:
+            self._reactions.setdefault(index, []).append(reaction)
+            self.intercepted.add(index)
+        self._register(where, register)
+
+    def add_command(self, where: Where, command: Validator) -> None:
+        """Remote writes run ``command(entry, value)`` and store nothing (0x1010 'save', triggers)."""
+        def register(index: int) -> None:
+            self._commands[index] = command
+            self.intercepted.add(index)
+        self._register(where, register)
+
+    def on_write(self, where: Where, hook: WriteHook) -> None:
+        """``hook(index, subindex, value)`` after a remote write was stored; raising undoes it."""
+        def register(index: int) -> None:
+            self._write_hooks.setdefault(index, []).append(hook)
+            self.intercepted.add(index)
+        self._register(where, register)
+
+    def on_read(self, where: Where, hook: ReadHook) -> None:
+        """``hook(index, subindex)`` before a remote read: status objects and counters refresh here."""
+        def register(index: int) -> None:
+            self._read_hooks.setdefault(index, []).append(hook)
+        self._register(where, register)
+
+    # -- remote access (SDO / CoE) -----------------------------------------------------------------
+    def read(self, index: int, subindex: int, policy: AccessPolicy | None = None) -> bytes:
+        """The value as an SDO upload returns it: policy, read hooks, wire form."""
+        entry = self.entries.get((index, subindex)) or self.entry(index, subindex)
+        if policy is not None:
+            policy.check_read(entry)
+        elif entry.access is Access.WO:
+            raise SdoAbort(SdoAbortCode.WRITE_ONLY, f"0x{index:04X}:{subindex:02X}")
+        hooks = self._read_hooks.get(index)
+        if hooks is not None:
+            for hook in hooks:
+                hook(index, subindex)
+        return encode(entry, self.values[(index, subindex)])
+
+    def write(self, index: int, subindex: int, data: bytes, policy: AccessPolicy | None = None) -> None:
+        """An SDO download: policy (access, state), length and limits, then :meth:`store`."""
+        entry = self.entries.get((index, subindex)) or self.entry(index, subindex)
+        if policy is not None:
+            policy.check_write(entry, data)
+        elif not entry.access.writable:
+            raise SdoAbort(SdoAbortCode.READ_ONLY, f"0x{index:04X}:{subindex:02X}")
+        self.store(entry, decode(entry, bytes(data)))
+
+    def store(self, entry: Entry, value: Any) -> None:
+        """A checked, decoded remote value: command, validators, store, write hooks, reactions, listeners."""
+        index = entry.index
+        key = (index, entry.subindex)
+        values = self.values
+        if index not in self.intercepted:    # a plain value (e.g. a PDO-mapped set-point)
+            old = values[key]
+            values[key] = value
+            if old != value:
+                listeners = self._listeners.get(key)
+                if listeners is not None:
+                    for listener in listeners:
+                        listener(key, value)
+            return
+        command = self._commands.get(index)
+        if command is not None:
+            command(entry, value)
+            return
+        validators = self._validators.get(index)
+        if validators is not None:
+            for validator in validators:
+                validator(entry, value)
+        old = values[key]
+        values[key] = value
+        hooks = self._write_hooks.get(index)
+        if hooks is not None:
+            try:
+                for hook in hooks:
+                    hook(index, entry.subindex, value)
+            except Exception:
+                values[key] = old
+                raise
+        reactions = self._reactions.get(index)
+        if reactions is not None:
+            for reaction in reactions:
+                reaction(entry, value)
+        if old != value:
+            self._changed(key, value)
+
+    # -- EDS / ESI -------------------------------------------------------------------------------
+    def to_eds(self, *, dcf: bool = False, node_id: int | None = None) -> str:
+        """CiA 306 EDS text (or DCF with ``ParameterValue`` lines when ``dcf``)."""
+        from .eds import export_eds
+
+        return export_eds(self, dcf=dcf, node_id=node_id)
+
+    @classmethod
+    def from_eds(cls, text: str, node_id: int | None = None) -> ObjectDictionary:
+        """Build a dictionary from EDS or DCF text (DCF ``ParameterValue`` become the values)."""
+        from .eds import import_eds
+
+        return import_eds(text, node_id)

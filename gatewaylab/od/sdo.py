@@ -1,0 +1,194 @@
+"""The SDO protocol's codec and transfer state, shared by the CANopen SDO server and client and CoE.
+
+CiA 301 7.2.4 defines the command byte, the expedited/segmented transfers and the block
+transfers; ETG.1000.6 CoE carries the same SDO in a mailbox (segments may be longer than 7
+bytes, an initiate upload response may carry the first part of the data). What is the same lives
+here: named command specifiers, pure encode/decode functions, and the two segmented transfer
+state machines (:class:`SegmentedDownload`, :class:`SegmentedUpload`). The servers add framing.
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass, field
+from enum import IntEnum
+
+from .aborts import SdoAbort, SdoAbortCode
+
+#: command byte, index, subindex (CiA 301 figure 20 ff.)
+SDO_HEADER = struct.Struct("<BHB")
+#: command byte, index, subindex, data word / size
+SDO_HEADER_U32 = struct.Struct("<BHBI")
+#: block end: command byte, CRC, 5 reserved bytes
+BLOCK_END = struct.Struct("<BH5x")
+#: Data bytes in one CAN segment.
+SEGMENT_DATA = 7
+
+
+class ClientCommand(IntEnum):
+    """Client command specifier (ccs, bits 7..5 of a request)."""
+
+    DOWNLOAD_SEGMENT = 0
+    INITIATE_DOWNLOAD = 1
+    INITIATE_UPLOAD = 2
+    UPLOAD_SEGMENT = 3
+    ABORT = 4
+    BLOCK_UPLOAD = 5
+    BLOCK_DOWNLOAD = 6
+
+
+class ServerCommand(IntEnum):
+    """Server command specifier (scs, bits 7..5 of a response)."""
+
+    UPLOAD_SEGMENT = 0
+    DOWNLOAD_SEGMENT = 1
+    INITIATE_UPLOAD = 2
+    INITIATE_DOWNLOAD = 3
+    ABORT = 4
+    BLOCK_DOWNLOAD = 5
+    BLOCK_UPLOAD = 6
+
+
+class BlockUploadSub(IntEnum):
+    """Client subcommand of a block upload request (cs bits 1..0)."""
+
+    INITIATE = 0
+    END = 1
+    ACK = 2
+    START = 3
+
+
+#: Frequently sent command bytes.
+CS_ABORT = 0x80
+CS_DOWNLOAD_RESPONSE = 0x60           # scs 3: initiate download response
+CS_UPLOAD_REQUEST = 0x40              # ccs 2: initiate upload request
+CS_UPLOAD_SEGMENTED_RESPONSE = 0x41   # scs 2, size indicated, not expedited
+CS_BLOCK_DOWNLOAD_INITIATE_RESPONSE = 0xA4
+CS_BLOCK_ACK = 0xA2
+CS_BLOCK_END_RESPONSE = 0xA1
+CS_BLOCK_UPLOAD_START = 0xA3
+
+
+def command(cs: int) -> int:
+    """The command specifier (bits 7..5) of a command byte."""
+    return cs >> 5
+
+
+def abort(index: int, subindex: int, code: int) -> bytes:
+    """An abort transfer request/response (8 bytes)."""
+    return SDO_HEADER_U32.pack(CS_ABORT, index, subindex, code)
+
+
+def expedited_size(cs: int) -> int | None:
+    """Data bytes of an expedited initiate (None when the size is not indicated)."""
+    return 4 - ((cs >> 2) & 0x03) if cs & 0x01 else None
+
+
+def expedited_upload_response(index: int, subindex: int, value: bytes) -> bytes:
+    """Initiate upload response carrying 1..4 bytes (scs 2, e = s = 1)."""
+    n = 4 - len(value)
+    return SDO_HEADER.pack(0x43 | (n << 2), index, subindex) + value + bytes(n)
+
+
+def expedited_download_request(index: int, subindex: int, data: bytes, size_indicated: bool = True) -> bytes:
+    """Initiate download request carrying 1..4 bytes (ccs 1, e = 1)."""
+    n = 4 - len(data)
+    cs = 0x23 | (n << 2) if size_indicated else 0x22
+    return SDO_HEADER.pack(cs, index, subindex) + data + bytes(n)
+
+
+def download_response(index: int, subindex: int) -> bytes:
+    """Initiate download response (scs 3)."""
+    return SDO_HEADER_U32.pack(CS_DOWNLOAD_RESPONSE, index, subindex, 0)
+
+
+def segment(base: int, toggle: int, chunk: bytes, last: bool) -> bytes:
+    """One segment: ``base`` (0x00 request / response cs), toggle bit, unused count n, c bit, data
+    padded to 7 bytes (CoE segments may carry more; n is 0 then)."""
+    n = SEGMENT_DATA - len(chunk) if len(chunk) < SEGMENT_DATA else 0
+    return bytes((base | (toggle << 4) | (n << 1) | (1 if last else 0),)) + chunk.ljust(SEGMENT_DATA, b"\0")
+
+
+def segment_ack(base: int, toggle: int) -> bytes:
+    """A segment acknowledge: download segment response (0x20) or upload segment request (0x60)."""
+    return bytes((base | (toggle << 4), 0, 0, 0, 0, 0, 0, 0))
+
+
+def segment_data(data: bytes) -> bytes:
+    """The data of a received segment (8 bytes on CAN with n unused; longer on CoE)."""
+    if len(data) > 8:
+        return bytes(data[1:])
+    return bytes(data[1:8 - ((data[0] >> 1) & 0x07)])
+
+
+def block_segment(seq: int, chunk: bytes, last: bool) -> bytes:
+    """One block-transfer segment: c bit, sequence number 1..127, 7 data bytes."""
+    return bytes(((0x80 if last else 0) | seq,)) + chunk + bytes(SEGMENT_DATA - len(chunk))
+
+
+def block_ack(ackseq: int, blksize: int) -> bytes:
+    """Block acknowledge (sub-block received up to ``ackseq``, next block size)."""
+    return bytes((CS_BLOCK_ACK, ackseq, blksize, 0, 0, 0, 0, 0))
+
+
+def block_end(base: int, total: int, crc: int) -> bytes:
+    """End block request/response: n bytes of the last segment unused, CRC."""
+    used = total - SEGMENT_DATA * ((total - 1) // SEGMENT_DATA) if total else 0
+    return BLOCK_END.pack(base | ((SEGMENT_DATA - used) << 2), crc)
+
+
+def check_size(received: int, announced: int | None) -> None:
+    """Transfers that end with another size than announced: 0x06070013 too low, else 0x06070010."""
+    if announced is not None and received != announced:
+        raise SdoAbort(SdoAbortCode.LENGTH_TOO_LOW if received < announced else SdoAbortCode.LENGTH_MISMATCH)
+
+
+@dataclass(slots=True)
+class SegmentedDownload:
+    """A segmented download in progress: toggle check, collected data, announced size."""
+
+    index: int
+    subindex: int
+    size: int | None
+    limit: int
+    #: Abort code when more than ``limit`` bytes arrive (CANopen: out of memory; CoE: too high).
+    over: SdoAbortCode = SdoAbortCode.OUT_OF_MEMORY
+    toggle: int = 0
+    buf: bytearray = field(default_factory=bytearray)
+
+    def segment(self, data: bytes) -> tuple[int, bool]:
+        """Take one download segment; (toggle of the segment, last?). SdoAbort on a toggle error
+        or on more data than ``limit``."""
+        cs = data[0]
+        toggle = (cs >> 4) & 1
+        if toggle != self.toggle:
+            raise SdoAbort(SdoAbortCode.TOGGLE_BIT_NOT_ALTERNATED)
+        self.buf += segment_data(data)
+        if len(self.buf) > self.limit:
+            raise SdoAbort(self.over)
+        self.toggle ^= 1
+        return toggle, bool(cs & 0x01)
+
+
+@dataclass(slots=True)
+class SegmentedUpload:
+    """A segmented upload in progress: toggle check, the data still to send."""
+
+    index: int
+    subindex: int
+    data: bytes
+    max_segment: int = SEGMENT_DATA
+    pos: int = 0
+    toggle: int = 0
+
+    def segment(self, cs: int) -> tuple[bytes, bool]:
+        """Answer one upload segment request: (upload segment response, last?)."""
+        toggle = (cs >> 4) & 1
+        if toggle != self.toggle:
+            raise SdoAbort(SdoAbortCode.TOGGLE_BIT_NOT_ALTERNATED)
+        pos = self.pos
+        chunk = self.data[pos:pos + self.max_segment]
+        self.pos = pos + len(chunk)
+        last = self.pos >= len(self.data)
+        self.toggle ^= 1
+        return segment(0x00, toggle, chunk, last), last
