@@ -62,6 +62,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     try:
         for bus_name, path in args.trace or []:
             rig.add_trace(bus_name, path)
+        if args.acker:
+            for bus in rig.buses.values():
+                bus.attach("acker")   # hears every frame, acknowledges it, sends nothing
         rig.start()
         info = rig.ready_info()
 
@@ -133,6 +136,9 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--trace", metavar="BUS=FILE", action="append", type=_parse_trace,
                      help="record BUS to FILE with python-can's writer for its suffix (.log candump, .asc, "
                           ".blf, .csv, .trc); may be repeated")
+    run.add_argument("--acker", action="store_true",
+                     help="attach to every bus a passive node that only acknowledges frames, so a lone "
+                          "client's frames are not ACK errors (see docs/bus.md)")
     run.set_defaults(func=cmd_run)
 
     demo = sub.add_parser("demo", help="run the scripted demo (what `make demo` does)",
