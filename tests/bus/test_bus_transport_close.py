@@ -5,13 +5,19 @@ client closes at once; the transmit queue is bounded like a SocketCAN device's (
 import socket
 import subprocess
 import sys
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import can
 import pytest
-from transport_testkit import drain, rig_factory  # noqa: F401  (fixture)
+from transport_testkit import Rig, drain, rigs
 
 from gatewaylab.bus import CanFrame, wire
+
+
+@pytest.fixture
+def rig_factory(tmp_path: Path) -> Iterator[Callable[..., Rig]]:
+    yield from rigs(tmp_path)
 
 
 def test_thousand_frames_then_shutdown_all_arrive(rig_factory) -> None:
@@ -67,7 +73,7 @@ def test_full_transmit_queue_blocks_then_raises(rig_factory) -> None:
     with can.Bus(interface="gatewaylab", channel=rig.endpoint, tx_queue_len=4, shutdown_timeout=0.5) as lone:
         for i in range(4):
             lone.send(can.Message(arbitration_id=0x300 + i, is_extended_id=False), timeout=5.0)
-        with pytest.raises(can.CanOperationError, match="transmit queue full.*--acker"):
+        with pytest.raises(can.CanOperationError, match=r"transmit queue full.*--acker"):
             lone.send(can.Message(arbitration_id=0x310, is_extended_id=False), timeout=0.2)
     err = rig.stop()
     assert "4 frame(s) queued by departed client" in err   # given up loudly, not silently

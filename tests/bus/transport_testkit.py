@@ -11,7 +11,6 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import can
-import pytest
 
 RIG = """
 clock = "realtime"
@@ -68,8 +67,8 @@ def start(tmp_path: Path, *extra: str, rig_text: str = RIG) -> Rig:
     return Rig(proc, json.loads(ready.read_text()))
 
 
-@pytest.fixture
-def rig_factory(tmp_path: Path) -> Iterator[Callable[..., Rig]]:
+def rigs(tmp_path: Path) -> Iterator[Callable[..., Rig]]:
+    """Body of the ``rig_factory`` fixture of each test module: start rigs, kill leftovers."""
     rigs: list[Rig] = []
 
     def _start(*extra: str, rig_text: str = RIG) -> Rig:

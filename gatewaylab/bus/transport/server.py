@@ -16,8 +16,16 @@ from typing import Protocol
 from ...common.clock import TimerHandle
 from ...common.errors import GatewaylabError, LocalError, ProtocolError
 from .. import wire
-from ..bus import (BusEvent, Controller, ErrorFrameEvent, ErrorState, StateChangeEvent, TxAbortedEvent,
-                   TxDoneEvent, VirtualBus)
+from ..bus import (
+    BusEvent,
+    Controller,
+    ErrorFrameEvent,
+    ErrorState,
+    StateChangeEvent,
+    TxAbortedEvent,
+    TxDoneEvent,
+    VirtualBus,
+)
 from ..frame import CanFrame
 
 log = logging.getLogger(__name__)
