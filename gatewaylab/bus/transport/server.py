@@ -62,6 +62,8 @@ class _Client:
         self.out = bytearray()
         self.writing = False
         self.closed = False
+        #: writing to the client failed; its data is still read until the end
+        self.broken = False
         #: SocketCAN's loopback of own frames: the echo is made here, when the bus reports the
         #: frame transmitted, so it carries the ECHO flag (python-can's ``is_rx=False``).
         self.receive_own = False
@@ -106,7 +108,7 @@ class _Client:
                                           ev.timestamp))
 
     def write(self, data: bytes) -> None:
-        if self.closed:
+        if self.closed or self.broken:
             return
         if self.out:
             self.out += data
@@ -116,7 +118,7 @@ class _Client:
             except BlockingIOError:
                 sent = 0
             except OSError as exc:
-                self.server.drop(self, f"send failed: {exc}")
+                self._broken(exc)
                 return
             if sent < len(data):
                 self.out += data[sent:]
@@ -133,10 +135,20 @@ class _Client:
         except BlockingIOError:
             return
         except OSError as exc:
-            self.server.drop(self, f"send failed: {exc}")
+            self._broken(exc)
             return
         del self.out[:sent]
         if not self.out and self.writing:
+            self.writing = False
+            self.server.reactor.remove_writer(self.sock.fileno())
+
+    def _broken(self, exc: OSError) -> None:
+        """The client stopped reading (closed, or shut its side down): what it sent before is still
+        read and put on the bus; it is disconnected at the end of its data."""
+        log.info("bus %s: %s stopped reading: %s", self.server.bus.name, self.peer, exc)
+        self.broken = True
+        self.out.clear()
+        if self.writing:
             self.writing = False
             self.server.reactor.remove_writer(self.sock.fileno())
 
