@@ -10,7 +10,7 @@ from pathlib import Path
 
 import can
 import pytest
-from transport_testkit import Rig, drain, rigs
+from transport_testkit import Rig, drain, one_rig, rigs
 
 from gatewaylab.bus import CanFrame, wire
 
@@ -20,10 +20,15 @@ def rig_factory(tmp_path: Path) -> Iterator[Callable[..., Rig]]:
     yield from rigs(tmp_path)
 
 
-def test_thousand_frames_then_shutdown_all_arrive(rig_factory) -> None:
+@pytest.fixture(scope="module")
+def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
+    """One rig for the tests whose clients leave nothing queued (the others start their own)."""
+    yield from one_rig(tmp_path_factory.mktemp("rig"))
+
+
+def test_thousand_frames_then_shutdown_all_arrive(rig: Rig) -> None:
     """Issue 15: 1,000 frames to a 1 Mbit/s bus, then shutdown(): a second client counts 1,000, in order
     (before the fix about 10 % arrived)."""
-    rig = rig_factory()
     with can.Bus(interface="gatewaylab", channel=rig.endpoint) as listener:
         sender = can.Bus(interface="gatewaylab", channel=rig.endpoint)
         for i in range(1000):
@@ -33,10 +38,9 @@ def test_thousand_frames_then_shutdown_all_arrive(rig_factory) -> None:
     assert [int.from_bytes(m.data, "little") for m in got] == list(range(1000))
 
 
-def test_frames_of_a_client_that_vanishes_are_still_transmitted(rig_factory) -> None:
+def test_frames_of_a_client_that_vanishes_are_still_transmitted(rig: Rig) -> None:
     """Issue 15: "the server keeps transmitting a departed client's queue": a raw client writes HELLO and
     300 FRAME records (docs/bus-wire.md) and closes without waiting; all 300 reach the bus."""
-    rig = rig_factory()
     with can.Bus(interface="gatewaylab", channel=rig.endpoint) as listener:
         raw = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         raw.connect(rig.endpoint[len("unix:"):])
@@ -47,7 +51,7 @@ def test_frames_of_a_client_that_vanishes_are_still_transmitted(rig_factory) -> 
     assert [int.from_bytes(m.data, "little") for m in got] == list(range(300))
 
 
-def test_can_player_replays_a_10000_frame_log_in_order(rig_factory, tmp_path: Path) -> None:
+def test_can_player_replays_a_10000_frame_log_in_order(rig: Rig, tmp_path: Path) -> None:
     """Issue 15: `python -m can.player` replaying a 10,000-frame log at full speed against `gatewaylab run`:
     a listener counts 10,000, in order."""
     log = tmp_path / "replay.log"
@@ -55,7 +59,6 @@ def test_can_player_replays_a_10000_frame_log_in_order(rig_factory, tmp_path: Pa
         for i in range(10_000):
             writer(can.Message(timestamp=1_700_000_000 + i * 1e-4, arbitration_id=0x123,
                                data=i.to_bytes(4, "little"), is_extended_id=False))
-    rig = rig_factory()
     with can.Bus(interface="gatewaylab", channel=rig.endpoint) as listener:
         player = subprocess.run([sys.executable, "-m", "can.player", "-i", "gatewaylab", "-c", rig.endpoint,
                                  "--ignore-timestamps", str(log)], capture_output=True, text=True, timeout=120)

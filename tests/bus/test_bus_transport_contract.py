@@ -3,23 +3,22 @@ shutdown while another thread reads, timestamps, channel, own echoes, CAN FD che
 
 import threading
 import time
-from collections.abc import Callable, Iterator
-from pathlib import Path
+from collections.abc import Iterator
 
 import can
 import pytest
-from transport_testkit import Rig, drain, rigs
+from transport_testkit import Rig, drain, one_rig
 
 
-@pytest.fixture
-def rig_factory(tmp_path: Path) -> Iterator[Callable[..., Rig]]:
-    yield from rigs(tmp_path)
+@pytest.fixture(scope="module")
+def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
+    """One rig for the module: each test opens its own clients and leaves nothing queued."""
+    yield from one_rig(tmp_path_factory.mktemp("rig"))
 
 
-def test_shutdown_interrupts_a_recv_in_another_thread_with_none(rig_factory) -> None:
+def test_shutdown_interrupts_a_recv_in_another_thread_with_none(rig: Rig) -> None:
     """Issue 15: "A recv() interrupted by the bus's own shutdown() returns None; any call after shutdown()
     raises can.CanOperationError" (before: CanOperationError from a closed socket, then ValueError)."""
-    rig = rig_factory()
     bus = can.Bus(interface="gatewaylab", channel=rig.endpoint)
     results: list[object] = []
     entered = threading.Event()
@@ -44,10 +43,9 @@ def test_shutdown_interrupts_a_recv_in_another_thread_with_none(rig_factory) -> 
     bus.shutdown()   # a second shutdown is harmless
 
 
-def test_notifier_stopped_without_waiting_then_shutdown_reports_no_error(rig_factory) -> None:
+def test_notifier_stopped_without_waiting_then_shutdown_reports_no_error(rig: Rig) -> None:
     """Issue 15: a can.Notifier (what every canopen Network runs) told to stop without waiting for its
     reader, then the bus shut down while the reader is in recv(): the reader ends without an exception."""
-    rig = rig_factory()
     bus = can.Bus(interface="gatewaylab", channel=rig.endpoint)
     errors: list[Exception] = []
 
@@ -68,10 +66,9 @@ def test_notifier_stopped_without_waiting_then_shutdown_reports_no_error(rig_fac
     assert errors == [] and notifier.exception is None
 
 
-def test_timestamp_is_unix_time_channel_is_the_callers_echo_is_tx(rig_factory) -> None:
+def test_timestamp_is_unix_time_channel_is_the_callers_echo_is_tx(rig: Rig) -> None:
     """python-can Message docs: timestamp in seconds since the epoch; channel as given to can.Bus; an own
     echo (receive_own_messages=True) has is_rx=False, a received frame is_rx=True (issue 15)."""
-    rig = rig_factory()
     before = time.time()
     with can.Bus(interface="gatewaylab", channel=rig.endpoint, receive_own_messages=True) as a, \
          can.Bus(interface="gatewaylab", channel=rig.endpoint) as b:
@@ -89,10 +86,9 @@ def test_timestamp_is_unix_time_channel_is_the_callers_echo_is_tx(rig_factory) -
     assert sent.equals(got, timestamp_delta=None)
 
 
-def test_fd_frame_from_a_classic_client_is_refused_and_the_connection_stays(rig_factory) -> None:
+def test_fd_frame_from_a_classic_client_is_refused_and_the_connection_stays(rig: Rig) -> None:
     """Issue 15: a client opened with fd=False that sends an FD frame gets can.CanOperationError from send();
     before, the rig dropped the whole connection."""
-    rig = rig_factory()
     with can.Bus(interface="gatewaylab", channel=rig.endpoint, fd=False) as classic, \
          can.Bus(interface="gatewaylab", channel=rig.endpoint) as other:
         with pytest.raises(can.CanOperationError, match="fd=False"):
@@ -102,10 +98,9 @@ def test_fd_frame_from_a_classic_client_is_refused_and_the_connection_stays(rig_
     assert msg is not None and msg.arbitration_id == 0x11
 
 
-def test_fd_payload_of_invalid_length_is_padded_like_socketcan(rig_factory) -> None:
+def test_fd_payload_of_invalid_length_is_padded_like_socketcan(rig: Rig) -> None:
     """ISO 11898-1:2015 FD lengths 0-8,12,16,20,24,32,48,64; SocketCAN pads a 10-byte payload to 12 with
     zeros instead of refusing it (issue 15)."""
-    rig = rig_factory()
     with can.Bus(interface="gatewaylab", channel=rig.endpoint) as a, \
          can.Bus(interface="gatewaylab", channel=rig.endpoint) as b:
         a.send(can.Message(arbitration_id=0x20, data=bytes(range(1, 11)), is_fd=True, is_extended_id=False))
@@ -114,10 +109,9 @@ def test_fd_payload_of_invalid_length_is_padded_like_socketcan(rig_factory) -> N
     assert bytes(msg.data) == bytes(range(1, 11)) + b"\0\0" and msg.dlc == 12
 
 
-def test_filters_are_applied_by_the_rig(rig_factory) -> None:
+def test_filters_are_applied_by_the_rig(rig: Rig) -> None:
     """python-can set_filters()/can_filters: `id & mask == can_id & mask`, `extended` if given. Issue 15: the
     rig applies them, filtered frames never cross the socket, and the bus reports them as already filtered."""
-    rig = rig_factory()
     filters = [{"can_id": 0x100, "can_mask": 0x7F0, "extended": False}]
     with can.Bus(interface="gatewaylab", channel=rig.endpoint) as sender, \
          can.Bus(interface="gatewaylab", channel=rig.endpoint, can_filters=filters) as filtered:
@@ -142,10 +136,9 @@ def test_filters_are_applied_by_the_rig(rig_factory) -> None:
     assert last is not None and last.arbitration_id == 0x7FF
 
 
-def test_many_filters_fall_back_to_filtering_in_the_client(rig_factory) -> None:
+def test_many_filters_fall_back_to_filtering_in_the_client(rig: Rig) -> None:
     """More filters than one FILTER record holds (docs/bus-wire.md): the client filters itself, BusABC.recv
     still returns only matching frames."""
-    rig = rig_factory()
     filters = [{"can_id": 0x200 + i, "can_mask": 0x7FF} for i in range(60)]
     with can.Bus(interface="gatewaylab", channel=rig.endpoint) as sender, \
          can.Bus(interface="gatewaylab", channel=rig.endpoint, can_filters=filters) as filtered:

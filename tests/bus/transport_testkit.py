@@ -80,9 +80,7 @@ def rigs(tmp_path: Path) -> Iterator[Callable[..., Rig]]:
 
     yield _start
     for rig in rigs:
-        if rig.proc.poll() is None:
-            rig.proc.kill()
-            rig.proc.communicate()
+        stop(rig)
 
 
 def drain(bus: can.BusABC, count: int, timeout: float = 10.0) -> list[can.Message]:
@@ -94,3 +92,23 @@ def drain(bus: can.BusABC, count: int, timeout: float = 10.0) -> list[can.Messag
             break
         got.append(msg)
     return got
+
+
+def one_rig(tmp_path: Path, *extra: str) -> Iterator[Rig]:
+    """Body of a module-scoped rig fixture: one rig shared by the tests of a module."""
+    rig = start(tmp_path, *extra)
+    try:
+        yield rig
+    finally:
+        stop(rig)
+
+
+def stop(rig: Rig) -> None:
+    """SIGTERM (the rig removes its sockets and folder), SIGKILL only if that does not end it."""
+    if rig.proc.poll() is None:
+        rig.proc.send_signal(signal.SIGTERM)
+        try:
+            rig.proc.communicate(timeout=20)
+        except subprocess.TimeoutExpired:
+            rig.proc.kill()
+            rig.proc.communicate()
