@@ -59,7 +59,6 @@ class TxOutcome(IntEnum):
     TRANSMITTED = 0   # sent and acknowledged (or dropped by fault injection, as the sender sees it)
     ABORTED = 1       # given up by the controller: flushed at bus-off, single-shot after an error
     REFUSED = 2       # never queued: the controller refused it (bus-off, FD on a classic bus)
-    EXPIRED = 3       # the client left and nobody acknowledged its queued frames for too long
 
 
 class FilterMatch(IntEnum):

@@ -101,3 +101,14 @@ def test_malformed_new_records_raise_protocol_error(garbage: bytes, reason: str)
     """docs/bus-wire.md: malformed TXDONE, TIMEBASE and FILTER records raise ProtocolError."""
     with pytest.raises(ProtocolError, match=reason):
         wire.RecordDecoder().feed(garbage)
+
+
+@given(st.integers(min_value=0, max_value=255), st.binary(max_size=wire.MAX_RECORD - 1))
+def test_any_record_type_with_any_body_gives_a_record_or_protocol_error(rtype: int, body: bytes) -> None:
+    """Property (docs/bus-wire.md): a well-framed record of any type with any body decodes to a record or
+    raises ProtocolError, never anything else (the server drops such a client and carries on)."""
+    try:
+        records = wire.RecordDecoder().feed(wire.LENGTH.pack(len(body) + 1) + bytes((rtype,)) + body)
+    except ProtocolError:
+        return
+    assert len(records) == 1
