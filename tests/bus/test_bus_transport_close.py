@@ -5,6 +5,7 @@ client closes at once; the transmit queue is bounded like a SocketCAN device's (
 import socket
 import subprocess
 import sys
+import threading
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -93,3 +94,39 @@ def test_acker_acknowledges_a_lone_client(rig_factory) -> None:
     lone.shutdown()
     assert lone.state is can.BusState.ACTIVE and lone.tx_errors == 0
     assert "were not transmitted" not in rig.stop()
+
+
+def test_shutdown_releases_a_send_waiting_for_room_and_a_recv(rig_factory) -> None:
+    """Issue 15: a send() waiting for room in a full transmit queue (a lone node: nobody acknowledges) in one
+    thread and a recv() in another both end when the bus is shut down; shutdown() itself returns."""
+    rig = rig_factory()
+    lone = can.Bus(interface="gatewaylab", channel=rig.endpoint, tx_queue_len=1, shutdown_timeout=0.5)
+    results: dict[str, object] = {}
+    started = threading.Barrier(3)
+
+    def sender() -> None:
+        started.wait()
+        try:
+            for i in range(2):   # the second waits for room that never comes
+                lone.send(can.Message(arbitration_id=0x7F0 + i, is_extended_id=False), timeout=None)
+            results["send"] = "returned"
+        except can.CanOperationError as exc:
+            results["send"] = exc
+
+    def receiver() -> None:
+        started.wait()
+        try:
+            results["recv"] = lone.recv(None)
+        except can.CanOperationError as exc:   # when shutdown() came first
+            results["recv"] = exc
+
+    threads = [threading.Thread(target=sender), threading.Thread(target=receiver)]
+    for t in threads:
+        t.start()
+    started.wait()
+    lone.shutdown()
+    for t in threads:
+        t.join(10)
+        assert not t.is_alive()
+    assert isinstance(results["send"], can.CanOperationError)
+    assert results["recv"] is None or isinstance(results["recv"], can.CanOperationError)

@@ -407,7 +407,8 @@ class GatewaylabBus(can.BusABC):
         self.stop_all_periodic_tasks()
         with self._cond:
             self._closing = True
-        self._wake()
+            self._cond.notify_all()   # threads waiting in recv()/send() without reading look again
+        self._wake()                  # and the one reading leaves its select()
         drained = self._wait(self._drained, self._shutdown_timeout, interruptible=False)
         if not drained and self._lost is None:
             log.info("%s: shutdown leaves %d frame(s) queued in the rig (controller %s)", self.channel_info,
