@@ -130,3 +130,13 @@ def test_shutdown_releases_a_send_waiting_for_room_and_a_recv(rig_factory) -> No
         assert not t.is_alive()
     assert isinstance(results["send"], can.CanOperationError)
     assert results["recv"] is None or isinstance(results["recv"], can.CanOperationError)
+
+
+def test_lone_node_with_full_queue_raises_instead_of_hanging(rig_factory) -> None:
+    """docs/bus.md "A lone node": nobody acknowledges, the controller goes error-passive (CAN 2.0 fault
+    confinement), and a send() with no timeout on the full queue raises instead of waiting forever."""
+    rig = rig_factory()
+    with can.Bus(interface="gatewaylab", channel=rig.endpoint, tx_queue_len=2, shutdown_timeout=0.5) as lone:
+        with pytest.raises(can.CanOperationError, match="error_passive.*--acker"):
+            for i in range(1000):
+                lone.send(can.Message(arbitration_id=0x500 + i % 16, is_extended_id=False), timeout=None)

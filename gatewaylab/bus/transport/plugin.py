@@ -9,7 +9,8 @@ What a SocketCAN user expects holds here too (docs/bus-wire.md):
 
 * the transmit queue is bounded (``tx_queue_len`` frames handed to the rig and not yet on the
   bus); when it is full ``send(msg, timeout)`` waits up to ``timeout`` and then raises
-  ``can.CanOperationError``; nothing is dropped silently;
+  ``can.CanOperationError`` (at once when the controller is error-passive or bus-off: nobody
+  acknowledges); nothing is dropped silently;
 * ``shutdown()`` waits (at most ``shutdown_timeout``) until the rig has put every accepted frame
   on the bus; frames still queued after that stay queued in the rig, as in a SocketCAN device;
 * a ``recv()`` in another thread (a ``can.Notifier``) interrupted by ``shutdown()`` returns
@@ -311,7 +312,8 @@ class GatewaylabBus(can.BusABC):
             raise can.CanOperationError(str(exc)) from exc
         record = wire.encode_frame(frame)
         with self._send_lock:
-            if not self._wait(self._room, timeout):
+            self._wait(self._room_or_hopeless, timeout)
+            if not self._room():
                 self._check_open()
                 if self._lost is not None:
                     raise can.CanOperationError(self._lost)
@@ -323,9 +325,16 @@ class GatewaylabBus(can.BusABC):
     def _room(self) -> bool:
         return self._outstanding < self._tx_queue_len
 
+    def _room_or_hopeless(self) -> bool:
+        # an error-passive or bus-off controller is not being acknowledged (a lone node): room
+        # would come only when another node appears, so a full queue raises at once
+        return (self._outstanding < self._tx_queue_len
+                or self.controller_state is not wire.ControllerStateCode.ERROR_ACTIVE)
+
     def _queue_full_reason(self, timeout: float | None) -> str:
-        reason = (f"transmit queue full: {self._outstanding} frames handed to the rig are not on the bus "
-                  f"after {timeout} s")
+        reason = f"transmit queue full: {self._outstanding} frames handed to the rig are not on the bus"
+        if timeout is not None:
+            reason += f" after {timeout} s"
         if self.controller_state is not wire.ControllerStateCode.ERROR_ACTIVE:
             reason += (f" (controller {self.controller_state.name.lower()}: is another node acknowledging? "
                        "Add a second client or run the rig with --acker)")
