@@ -136,7 +136,7 @@ def test_lone_node_with_full_queue_raises_instead_of_hanging(rig_factory) -> Non
     """docs/bus.md "A lone node": nobody acknowledges, the controller goes error-passive (CAN 2.0 fault
     confinement), and a send() with no timeout on the full queue raises instead of waiting forever."""
     rig = rig_factory()
-    with can.Bus(interface="gatewaylab", channel=rig.endpoint, tx_queue_len=2, shutdown_timeout=0.5) as lone:
-        with pytest.raises(can.CanOperationError, match="error_passive.*--acker"):
-            for i in range(1000):
-                lone.send(can.Message(arbitration_id=0x500 + i % 16, is_extended_id=False), timeout=None)
+    with can.Bus(interface="gatewaylab", channel=rig.endpoint, tx_queue_len=2, shutdown_timeout=0.5) as lone, \
+         pytest.raises(can.CanOperationError, match=r"error_passive.*--acker"):
+        for i in range(1000):
+            lone.send(can.Message(arbitration_id=0x500 + i % 16, is_extended_id=False), timeout=None)
