@@ -11,7 +11,8 @@
    ``inapplicable.toml`` lists, each with its reason.
 5. Stops the rig and removes its files on every exit (also on Ctrl-C and SIGTERM).
 
-Exit status: pytest's (0 when every applicable test passed).
+Arguments go to pytest; any that names a test file (``python_can_test/notifier_test.py``, a node id)
+replaces the default selection. Exit status: pytest's (0 when every applicable test passed).
 """
 
 from __future__ import annotations
@@ -137,7 +138,7 @@ def main(argv: list[str]) -> int:
         print(f"conformance: rig pid {info['pid']}, {len(info['buses'])} buses, --acker", flush=True)
         result = subprocess.run([sys.executable, "-m", "pytest", "-c", str(HERE / "pytest.ini"),
                                  "--rootdir", str(suites_dir), "-p", "gatewaylab_conformance", "-q",
-                                 *(argv if any(not a.startswith("-") for a in argv) else [*targets, *argv])],
+                                 *(argv if any(".py" in a for a in argv) else [*targets, *argv])],
                                 cwd=suites_dir, env=env)
         return result.returncode
     finally:
