@@ -5,7 +5,7 @@ BIN     := $(VENV)/bin
 STAMP   := $(VENV)/.stamp-install
 APT_STAMP := $(VENV)/.stamp-apt
 
-.PHONY: demo test bench lint typecheck install apt clean
+.PHONY: demo test conformance bench lint typecheck install apt clean
 
 $(BIN)/python:
 	$(PY) -m venv $(VENV)
@@ -41,11 +41,16 @@ demo: install
 test: install
 	$(BIN)/python -m pytest -q
 
+# python-can's and canopen's own test suites (the installed versions, sdists from the package index)
+# against a rig, through the `gatewaylab` interface; skips only what conformance/inapplicable.toml lists.
+conformance: install
+	$(BIN)/python conformance/run.py
+
 bench: install
 	$(BIN)/python -m benchmarks
 
 lint: install
-	$(BIN)/ruff check gatewaylab tests benchmarks examples
+	$(BIN)/ruff check gatewaylab tests benchmarks examples conformance
 	$(BIN)/mypy
 
 clean:

@@ -10,7 +10,7 @@ import struct
 from dataclasses import dataclass
 from enum import IntEnum
 
-from ..common.errors import FrameError, ProtocolError
+from ..common.errors import FrameError, LocalError, ProtocolError
 from .frame import CanFrame
 
 VERSION = 1
@@ -21,6 +21,12 @@ HELLO = struct.Struct("<BB")           # version, options
 WELCOME = struct.Struct("<BBII")       # version, flags, bitrate, data_bitrate
 FRAME = struct.Struct("<IBBd")         # can_id, flags, dlc, timestamp
 STATUS = struct.Struct("<BBHHd")       # kind, state, tec, rec, timestamp
+TXDONE = struct.Struct("<BH")          # outcome, count
+TIMEBASE = struct.Struct("<d")         # Unix time of bus time 0
+FILTER = struct.Struct("<IIB")         # can_id, can_mask, match (one entry of a FILTER record)
+
+#: The most acceptance filters one FILTER record carries (a client with more filters itself).
+MAX_FILTERS = (MAX_RECORD - 1) // FILTER.size
 
 
 class RecordType(IntEnum):
@@ -29,6 +35,9 @@ class RecordType(IntEnum):
     FRAME = 0x03     # both ways: one CAN (FD) frame; the server fills in the bus time
     STATUS = 0x04    # server -> client: an error frame or a controller state change
     BYE = 0x05       # either way: the sender closes; body is the reason (UTF-8)
+    TXDONE = 0x06    # server -> client: frames of this client that left its transmit queue
+    TIMEBASE = 0x07  # server -> client, right after WELCOME: Unix time of bus time 0
+    FILTER = 0x08    # client -> server: acceptance filters; server -> client: filters in force
 
 
 class FrameFlags:
@@ -37,12 +46,25 @@ class FrameFlags:
     FD = 0x04
     BRS = 0x08
     ESI = 0x10
-    ALL = 0x1F
+    ECHO = 0x20      # server -> client: the client's own frame, transmitted (receive-own option)
+    ALL = 0x3F
 
 
 class StatusKind(IntEnum):
     ERROR_FRAME = 1
     STATE = 2
+
+
+class TxOutcome(IntEnum):
+    TRANSMITTED = 0   # sent and acknowledged (or dropped by fault injection, as the sender sees it)
+    ABORTED = 1       # given up by the controller: flushed at bus-off, single-shot after an error
+    REFUSED = 2       # never queued: the controller refused it (bus-off, FD on a classic bus)
+
+
+class FilterMatch(IntEnum):
+    ANY = 0           # standard and extended identifiers
+    STANDARD = 1
+    EXTENDED = 2
 
 
 class ControllerStateCode(IntEnum):
@@ -72,6 +94,7 @@ class Welcome:
 class FrameRecord:
     frame: CanFrame
     timestamp: float
+    echo: bool = False
 
 
 @dataclass(frozen=True, slots=True)
@@ -88,7 +111,39 @@ class Bye:
     reason: str
 
 
-Record = Hello | Welcome | FrameRecord | Status | Bye
+@dataclass(frozen=True, slots=True)
+class TxDone:
+    outcome: TxOutcome
+    count: int
+
+
+@dataclass(frozen=True, slots=True)
+class TimeBase:
+    wall_epoch: float
+
+
+@dataclass(frozen=True, slots=True)
+class AcceptanceFilter:
+    """``frame.can_id & can_mask == can_id & can_mask`` (python-can's and SocketCAN's rule)."""
+
+    can_id: int
+    can_mask: int
+    match: FilterMatch = FilterMatch.ANY
+
+    def accepts(self, frame: CanFrame) -> bool:
+        if self.match is not FilterMatch.ANY and (self.match is FilterMatch.EXTENDED) != frame.extended:
+            return False
+        return (frame.can_id ^ self.can_id) & self.can_mask == 0
+
+
+@dataclass(frozen=True, slots=True)
+class Filters:
+    """Acceptance filters; none means every frame passes."""
+
+    filters: tuple[AcceptanceFilter, ...]
+
+
+Record = Hello | Welcome | FrameRecord | Status | Bye | TxDone | TimeBase | Filters
 
 
 def _record(rtype: RecordType, body: bytes) -> bytes:
@@ -105,10 +160,10 @@ def encode_welcome(bus_name: str, bitrate: int, data_bitrate: int | None) -> byt
     return _record(RecordType.WELCOME, body + bus_name.encode()[:255])
 
 
-def encode_frame(frame: CanFrame, timestamp: float = 0.0) -> bytes:
+def encode_frame(frame: CanFrame, timestamp: float = 0.0, echo: bool = False) -> bytes:
     flags = ((FrameFlags.EXTENDED if frame.extended else 0) | (FrameFlags.RTR if frame.rtr else 0)
              | (FrameFlags.FD if frame.fd else 0) | (FrameFlags.BRS if frame.brs else 0)
-             | (FrameFlags.ESI if frame.esi else 0))
+             | (FrameFlags.ESI if frame.esi else 0) | (FrameFlags.ECHO if echo else 0))
     data = frame.data
     return LENGTH.pack(FRAME.size + 1 + len(data)) + b"\x03" + FRAME.pack(
         frame.can_id, flags, frame.dlc, timestamp) + data
@@ -120,6 +175,21 @@ def encode_status(kind: StatusKind, state: ControllerStateCode, tec: int, rec: i
 
 def encode_bye(reason: str) -> bytes:
     return _record(RecordType.BYE, reason.encode()[:MAX_RECORD - 1])
+
+
+def encode_txdone(outcome: TxOutcome, count: int = 1) -> bytes:
+    return _record(RecordType.TXDONE, TXDONE.pack(outcome, count))
+
+
+def encode_timebase(wall_epoch: float) -> bytes:
+    return _record(RecordType.TIMEBASE, TIMEBASE.pack(wall_epoch))
+
+
+def encode_filters(filters: tuple[AcceptanceFilter, ...] | list[AcceptanceFilter]) -> bytes:
+    if len(filters) > MAX_FILTERS:
+        raise LocalError(f"at most {MAX_FILTERS} filters fit in one FILTER record, got {len(filters)}")
+    return _record(RecordType.FILTER, b"".join(
+        FILTER.pack(f.can_id & 0x1FFFFFFF, f.can_mask & 0x1FFFFFFF, f.match) for f in filters))
 
 
 def decode_body(rtype: int, body: bytes) -> Record:
@@ -135,7 +205,7 @@ def decode_body(rtype: int, body: bytes) -> Record:
             frame = CanFrame(can_id, body[FRAME.size:], bool(flags & FrameFlags.EXTENDED), rtr,
                              bool(flags & FrameFlags.FD), bool(flags & FrameFlags.BRS),
                              bool(flags & FrameFlags.ESI), dlc)
-            return FrameRecord(frame, ts)
+            return FrameRecord(frame, ts, bool(flags & FrameFlags.ECHO))
         if rtype == RecordType.HELLO:
             if len(body) < HELLO.size:
                 raise ProtocolError("HELLO record too short")
@@ -153,6 +223,20 @@ def decode_body(rtype: int, body: bytes) -> Record:
             return Status(StatusKind(kind), ControllerStateCode(state), tec, rec, ts)
         if rtype == RecordType.BYE:
             return Bye(body.decode(errors="replace"))
+        if rtype == RecordType.TXDONE:
+            if len(body) != TXDONE.size:
+                raise ProtocolError("TXDONE record has the wrong size")
+            outcome, count = TXDONE.unpack(body)
+            return TxDone(TxOutcome(outcome), count)
+        if rtype == RecordType.TIMEBASE:
+            if len(body) != TIMEBASE.size:
+                raise ProtocolError("TIMEBASE record has the wrong size")
+            return TimeBase(TIMEBASE.unpack(body)[0])
+        if rtype == RecordType.FILTER:
+            if len(body) % FILTER.size:
+                raise ProtocolError(f"FILTER record of {len(body)} bytes is not a whole number of entries")
+            return Filters(tuple(AcceptanceFilter(i & 0x1FFFFFFF, m & 0x1FFFFFFF, FilterMatch(k))
+                                 for i, m, k in FILTER.iter_unpack(body)))
     except FrameError as exc:
         raise ProtocolError(f"invalid frame: {exc}") from None
     except (UnicodeDecodeError, ValueError) as exc:

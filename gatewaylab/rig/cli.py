@@ -111,6 +111,9 @@ def cmd_run(args: argparse.Namespace) -> int:
                 rig.add_trace(bus_name, path)
             except OSError as exc:
                 raise UsageError(f"--trace {bus_name}={path}: {exc.strerror or exc}") from None
+        if args.acker:
+            for bus in rig.buses.values():
+                bus.attach("acker")   # hears every frame, acknowledges it, sends nothing
         rig.start()
         info = rig.ready_info()
         #: Unix time of the rig's clock time 0: trace files and client timestamps count from it.
@@ -184,6 +187,9 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--trace", metavar="BUS=FILE", action="append", type=_parse_trace,
                      help="record BUS to FILE, streamed (flushed every 100 ms), in the format of its suffix: "
                           f"{', '.join(TRACE_FORMATS)}; may be repeated")
+    run.add_argument("--acker", action="store_true",
+                     help="attach to every bus a passive node that only acknowledges frames, so a lone "
+                          "client's frames are not ACK errors (see docs/bus.md)")
     run.set_defaults(func=cmd_run)
 
     demo = sub.add_parser("demo", help="run the scripted demo (what `make demo` does)",

@@ -57,4 +57,58 @@ def test_random_bytes_give_records_or_protocol_error(data: bytes) -> None:
     except ProtocolError:
         return
     for r in records:
-        assert isinstance(r, (wire.Hello, wire.Welcome, wire.FrameRecord, wire.Status, wire.Bye))
+        assert isinstance(r, (wire.Hello, wire.Welcome, wire.FrameRecord, wire.Status, wire.Bye, wire.TxDone,
+                              wire.TimeBase, wire.Filters))
+
+
+def test_txdone_timebase_filter_golden_bytes() -> None:
+    """docs/bus-wire.md TXDONE (u8 outcome, u16 count), TIMEBASE (f64 Unix time of bus time 0) and FILTER
+    (u32 can_id, u32 mask, u8 match per entry), byte for byte."""
+    assert wire.encode_txdone(wire.TxOutcome.REFUSED, 3) == bytes.fromhex("0400" "06" "02" "0300")
+    assert wire.encode_timebase(1.5) == bytes.fromhex("0900" "07" "000000000000F83F")
+    f = wire.AcceptanceFilter(0x123, 0x7FF, wire.FilterMatch.STANDARD)
+    assert wire.encode_filters([f]) == bytes.fromhex("0A00" "08" "23010000" "FF070000" "01")
+    assert wire.encode_filters([]) == bytes.fromhex("0100" "08")
+    recs = wire.RecordDecoder().feed(wire.encode_txdone(wire.TxOutcome.TRANSMITTED) + wire.encode_timebase(2.0)
+                                     + wire.encode_filters([f]))
+    assert recs == [wire.TxDone(wire.TxOutcome.TRANSMITTED, 1), wire.TimeBase(2.0), wire.Filters((f,))]
+
+
+def test_echo_flag_marks_own_frames() -> None:
+    """docs/bus-wire.md FRAME flags bit 5: the client's own frame coming back (receive-own option)."""
+    rec = wire.encode_frame(CanFrame(0x10, b"\x01"), 0.25, echo=True)
+    assert rec[7] == 0x20
+    (out,) = wire.RecordDecoder().feed(rec)
+    assert isinstance(out, wire.FrameRecord) and out.echo and out.timestamp == 0.25
+
+
+def test_acceptance_filter_rule() -> None:
+    """python-can set_filters: a frame matches when id & mask == can_id & mask and, if given, its id type."""
+    f = wire.AcceptanceFilter(0x100, 0x7F0, wire.FilterMatch.STANDARD)
+    assert f.accepts(CanFrame(0x10A)) and not f.accepts(CanFrame(0x110))
+    assert not f.accepts(CanFrame(0x10A, extended=True))
+    assert wire.AcceptanceFilter(0x100, 0x7F0).accepts(CanFrame(0x10A, extended=True))
+
+
+@pytest.mark.parametrize("garbage, reason", [
+    (bytes.fromhex("0300" "06" "00" "01"), "TXDONE record has the wrong size"),
+    (bytes.fromhex("0400" "06" "09" "0100"), "malformed record"),
+    (bytes.fromhex("0500" "07" "00000000"), "TIMEBASE record has the wrong size"),
+    (bytes.fromhex("0500" "08" "00000000"), "not a whole number of entries"),
+    (bytes.fromhex("0A00" "08" "23010000" "FF070000" "07"), "malformed record"),
+])
+def test_malformed_new_records_raise_protocol_error(garbage: bytes, reason: str) -> None:
+    """docs/bus-wire.md: malformed TXDONE, TIMEBASE and FILTER records raise ProtocolError."""
+    with pytest.raises(ProtocolError, match=reason):
+        wire.RecordDecoder().feed(garbage)
+
+
+@given(st.integers(min_value=0, max_value=255), st.binary(max_size=wire.MAX_RECORD - 1))
+def test_any_record_type_with_any_body_gives_a_record_or_protocol_error(rtype: int, body: bytes) -> None:
+    """Property (docs/bus-wire.md): a well-framed record of any type with any body decodes to a record or
+    raises ProtocolError, never anything else (the server drops such a client and carries on)."""
+    try:
+        records = wire.RecordDecoder().feed(wire.LENGTH.pack(len(body) + 1) + bytes((rtype,)) + body)
+    except ProtocolError:
+        return
+    assert len(records) == 1

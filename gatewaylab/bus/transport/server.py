@@ -13,15 +13,28 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Protocol
 
-from ...common.errors import GatewaylabError, ProtocolError
+from ...common.clock import TimerHandle
+from ...common.errors import GatewaylabError, LocalError, ProtocolError
 from .. import wire
-from ..bus import BusEvent, Controller, ErrorFrameEvent, ErrorState, StateChangeEvent, VirtualBus
+from ..bus import (
+    BusEvent,
+    Controller,
+    ErrorFrameEvent,
+    ErrorState,
+    StateChangeEvent,
+    TxAbortedEvent,
+    TxDoneEvent,
+    VirtualBus,
+)
 from ..frame import CanFrame
 
 log = logging.getLogger(__name__)
 
 #: A client that lets this much unsent data pile up is too slow and is disconnected.
 MAX_BACKLOG = 8 * 1024 * 1024
+#: A departed client's queued frames stay on the bus until sent; if none of them completes for
+#: this long (bus time: nobody acknowledges), the rest are given up with a warning.
+ORPHAN_PATIENCE = 2.0
 
 _STATE_CODES = {
     ErrorState.ERROR_ACTIVE: wire.ControllerStateCode.ERROR_ACTIVE,
@@ -49,13 +62,43 @@ class _Client:
         self.out = bytearray()
         self.writing = False
         self.closed = False
+        #: writing to the client failed; its data is still read until the end
+        self.broken = False
+        #: SocketCAN's loopback of own frames: the echo is made here, when the bus reports the
+        #: frame transmitted, so it carries the ECHO flag (python-can's ``is_rx=False``).
+        self.receive_own = False
+        self.filters: tuple[wire.AcceptanceFilter, ...] = ()
+        #: frames of this client that completed (progress of a departed client's queue)
+        self.completed = 0
 
     # bus -> client
     def on_frame(self, frame: CanFrame, t: float) -> None:
         self.write(wire.encode_frame(frame, t))
 
+    def on_frame_filtered(self, frame: CanFrame, t: float) -> None:
+        for f in self.filters:
+            if f.accepts(frame):
+                self.write(wire.encode_frame(frame, t))
+                return
+
+    def accepts(self, frame: CanFrame) -> bool:
+        return not self.filters or any(f.accepts(frame) for f in self.filters)
+
     def on_event(self, ev: BusEvent) -> None:
-        if isinstance(ev, ErrorFrameEvent):
+        if self.closed:   # departed, its queue still on the bus
+            if isinstance(ev, (TxDoneEvent, TxAbortedEvent)):
+                self.completed += 1
+            self.server.orphan_progress(self)
+            return
+        if isinstance(ev, TxDoneEvent):
+            self.completed += 1
+            if self.receive_own and self.accepts(ev.frame):
+                self.write(wire.encode_frame(ev.frame, ev.timestamp, echo=True))
+            self.write(wire.encode_txdone(wire.TxOutcome.TRANSMITTED))
+        elif isinstance(ev, TxAbortedEvent):
+            self.completed += 1
+            self.write(wire.encode_txdone(wire.TxOutcome.ABORTED))
+        elif isinstance(ev, ErrorFrameEvent):
             ctrl = self.controller
             assert ctrl is not None
             self.write(wire.encode_status(wire.StatusKind.ERROR_FRAME, _STATE_CODES[ctrl.state],
@@ -65,7 +108,7 @@ class _Client:
                                           ev.timestamp))
 
     def write(self, data: bytes) -> None:
-        if self.closed:
+        if self.closed or self.broken:
             return
         if self.out:
             self.out += data
@@ -75,7 +118,7 @@ class _Client:
             except BlockingIOError:
                 sent = 0
             except OSError as exc:
-                self.server.drop(self, f"send failed: {exc}")
+                self._broken(exc)
                 return
             if sent < len(data):
                 self.out += data[sent:]
@@ -92,10 +135,20 @@ class _Client:
         except BlockingIOError:
             return
         except OSError as exc:
-            self.server.drop(self, f"send failed: {exc}")
+            self._broken(exc)
             return
         del self.out[:sent]
         if not self.out and self.writing:
+            self.writing = False
+            self.server.reactor.remove_writer(self.sock.fileno())
+
+    def _broken(self, exc: OSError) -> None:
+        """The client stopped reading (closed, or shut its side down): what it sent before is still
+        read and put on the bus; it is disconnected at the end of its data."""
+        log.info("bus %s: %s stopped reading: %s", self.server.bus.name, self.peer, exc)
+        self.broken = True
+        self.out.clear()
+        if self.writing:
             self.writing = False
             self.server.reactor.remove_writer(self.sock.fileno())
 
@@ -122,18 +175,34 @@ class _Client:
 
     def handle(self, record: wire.Record) -> None:
         if isinstance(record, wire.FrameRecord):
-            if self.controller is None:
+            ctrl = self.controller
+            if ctrl is None:
                 raise ProtocolError("FRAME before HELLO")
-            self.controller.send(record.frame)
+            try:
+                ctrl.send(record.frame)
+            except LocalError as exc:
+                # what the controller refuses (bus-off, an FD frame it cannot send) is one
+                # refused frame, reported to the client; the connection stays up
+                self.server.refused += 1
+                log.info("bus %s: %s: frame refused: %s", self.server.bus.name, self.peer, exc)
+                self.write(wire.encode_txdone(wire.TxOutcome.REFUSED))
+        elif isinstance(record, wire.Filters):
+            if self.controller is None:
+                raise ProtocolError("FILTER before HELLO")
+            self.filters = record.filters
+            self.controller.on_frame = self.on_frame_filtered if record.filters else self.on_frame
+            self.write(wire.encode_filters(record.filters))   # in force from here on
         elif isinstance(record, wire.Hello):
             if self.controller is not None:
                 raise ProtocolError("second HELLO")
             if record.version != wire.VERSION:
                 raise ProtocolError(f"protocol version {record.version} not supported (need {wire.VERSION})")
             bus = self.server.bus
-            self.controller = bus.attach(record.name or self.peer, receive_own=record.receive_own,
-                                         fd=record.fd, on_frame=self.on_frame, on_event=self.on_event)
+            self.receive_own = record.receive_own
+            self.controller = bus.attach(record.name or self.peer, fd=record.fd, on_frame=self.on_frame,
+                                         on_event=self.on_event)
             self.write(wire.encode_welcome(bus.name, bus.bitrate, bus.data_bitrate))
+            self.write(wire.encode_timebase(bus.clock.wall_epoch))
         elif isinstance(record, wire.Bye):
             self.server.drop(self, f"client said bye: {record.reason}", notify=False)
         else:
@@ -151,6 +220,12 @@ class BusServer:
         self.reactor = reactor
         self.clients: list[_Client] = []
         self.dropped: list[str] = []
+        #: departed clients whose queued frames are still being transmitted -> patience timer
+        self.orphans: dict[_Client, TimerHandle] = {}
+        #: frames refused by a client's controller (bus-off, FD it cannot send), reported to it
+        self.refused = 0
+        #: frames of departed clients given up because nobody acknowledged them
+        self.expired = 0
         self.unix_path = unix_path
         if unix_path is not None:
             self.listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
@@ -181,7 +256,11 @@ class BusServer:
         self.reactor.add_reader(sock.fileno(), client.readable)
 
     def drop(self, client: _Client, reason: str, notify: bool = True, level: int = logging.WARNING) -> None:
-        """Disconnect one client with a logged reason; the bus and the other clients carry on."""
+        """Disconnect one client with a logged reason; the bus and the other clients carry on.
+
+        Frames the client queued stay on the bus until they are transmitted (a SocketCAN socket
+        closed with frames in its device queue leaves them there too): its controller stays
+        attached, hears nothing, and is detached when its queue is empty."""
         if client.closed:
             return
         log.log(level if notify else logging.INFO, "bus %s: disconnecting %s: %s", self.bus.name,
@@ -198,13 +277,52 @@ class BusServer:
         if client.writing:
             self.reactor.remove_writer(fd)
         client.sock.close()
-        if client.controller is not None:
-            self.bus.detach(client.controller)
         self.clients.remove(client)
+        ctrl = client.controller
+        if ctrl is None:
+            return
+        if ctrl.tx_queue and not ctrl.bus_off:
+            ctrl.on_frame = None
+            self.orphans[client] = self.bus.clock.call_later(ORPHAN_PATIENCE, self._orphan_check, client,
+                                                              client.completed)
+        else:
+            self.bus.detach(ctrl)
+
+    def orphan_progress(self, client: _Client) -> None:
+        """A departed client's frame completed: detach it once its queue is empty."""
+        ctrl = client.controller
+        if ctrl is not None and not ctrl.tx_queue:
+            self._release(client)
+
+    def _orphan_check(self, client: _Client, completed: int) -> None:
+        if client not in self.orphans:
+            return
+        if client.completed == completed:
+            self._release(client, "nobody acknowledged them (a lone node? add a second client or "
+                                  "`gatewaylab run --acker`)")
+        else:
+            self.orphans[client] = self.bus.clock.call_later(ORPHAN_PATIENCE, self._orphan_check, client,
+                                                              client.completed)
+
+    def _release(self, client: _Client, why: str = "") -> None:
+        handle = self.orphans.pop(client, None)
+        if handle is not None:
+            handle.cancel()
+        ctrl = client.controller
+        if ctrl is None:
+            return
+        left = len(ctrl.tx_queue)
+        if left and why:
+            self.expired += left
+            log.warning("bus %s: %d frame(s) queued by departed client %s were not transmitted: %s",
+                        self.bus.name, left, client.peer, why)
+        self.bus.detach(ctrl)
 
     def close(self) -> None:
         for client in list(self.clients):
             self.drop(client, "rig shutting down", level=logging.INFO)
+        for client in list(self.orphans):
+            self._release(client, "the rig shut down")
         self.reactor.remove_reader(self.listener.fileno())
         self.listener.close()
         if self.unix_path is not None:
