@@ -56,12 +56,25 @@ def _bus(raw: dict[str, Any], where: str) -> BusConfig:
     endpoint = raw.get("endpoint", "unix")
     if endpoint not in ("unix", "tcp", "none"):
         raise ConfigError(f"{where}: endpoint must be 'unix', 'tcp' or 'none'")
-    return BusConfig(raw["name"], bitrate, data_bitrate, bool(raw.get("timing", True)), endpoint,
-                     int(raw.get("tcp_port", 0)))
+    tcp_port = raw.get("tcp_port", 0)
+    if not isinstance(tcp_port, int) or isinstance(tcp_port, bool) or not 0 <= tcp_port <= 65535:
+        raise ConfigError(f"{where}: tcp_port {tcp_port!r} must be a port number 0..65535")
+    return BusConfig(raw["name"], bitrate, data_bitrate, bool(raw.get("timing", True)), endpoint, tcp_port)
+
+
+def _check_shapes(data: dict[str, Any], source: str) -> None:
+    """Tables where the rig file has tables: TOML decodes anything, e.g. ``bus = 3`` or ``rig = "x"``."""
+    for key in ("rig", "ethercat"):
+        if key in data and not isinstance(data[key], dict):
+            raise ConfigError(f"{source}: {key} must be a table ([{key}])")
+    for key in ("bus", "drive", "device"):
+        if key in data and (not isinstance(data[key], list) or not all(isinstance(e, dict) for e in data[key])):
+            raise ConfigError(f"{source}: {key} must be an array of tables ([[{key}]])")
 
 
 def parse_rig(data: dict[str, Any], source: str = "<memory>") -> RigConfig:
     """Validate a decoded rig file; raises ConfigError naming the offending section."""
+    _check_shapes(data, source)
     unknown = set(data) - _TOP_KEYS
     if unknown:
         raise ConfigError(f"{source}: unknown top-level keys {sorted(unknown)}")

@@ -16,11 +16,12 @@ import sys
 import time
 from typing import Any
 
-from ethercat_soem_driver import RX_TIMEOUT_US, _open, _to_op
+from ethercat_soem_driver import RX_TIMEOUT_US, SLOW_US, _open, _to_op
 from ethercat_storm import storm
 
 ETHERTYPE = 0x88A4
 WD_DIVIDER_DEFAULT = (2498).to_bytes(2, "little")  # 100 us ticks (ET1100 0x0400 after power-on)
+WD_TIME_1S = (10_000).to_bytes(2, "little")  # SM watchdog 0x0420: 10,000 ticks of 100 us
 
 
 def send_storm(iface: str, seed: int, count: int) -> dict[str, int]:
@@ -47,13 +48,21 @@ def send_storm(iface: str, seed: int, count: int) -> dict[str, int]:
 
 
 def soem_after_storm(iface: str, cycles: int) -> dict[str, Any]:
+    """config_init, then OP; a bring-up that lost a register frame to a stall of this shared VM
+    (SOEM waits 2 ms for those) is started again from config_init, at most three times."""
     master = _open(iface)
-    out: dict[str, Any] = {"count": master.config_init()}
-    out["names"] = [s.name for s in master.slaves]
-    for s in master.slaves:  # the storm may have left any SM watchdog divider behind
-        s._fpwr(0x0400, WD_DIVIDER_DEFAULT)
-        s.set_watchdog("processdata", 1000)
-    out.update(_to_op(master))
+    out: dict[str, Any] = {"attempts": []}
+    for _ in range(3):
+        out["count"] = master.config_init()
+        out["names"] = [s.name for s in master.slaves]
+        for s in master.slaves:  # the storm may have left any SM watchdog divider and time behind
+            s._fpwr(0x0400, WD_DIVIDER_DEFAULT, SLOW_US)
+            s._fpwr(0x0420, WD_TIME_1S, SLOW_US)
+        out.update(_to_op(master))
+        master.read_state()
+        out["attempts"].append({"op": out["op"], "states": [(s.state, s.al_status) for s in master.slaves]})
+        if out["op"] == 8:
+            break
     bad = 0
     for i in range(cycles):
         for k, s in enumerate(master.slaves):

@@ -45,6 +45,7 @@ def test_soem_reaches_op_after_a_storm(veth_ns: Any) -> None:
         wire.stop()
     assert proc.returncode == 0, proc.stderr[-2000:]
     r = json.loads(proc.stdout.strip().splitlines()[-1])
+    print("bring-up attempts:", r["attempts"])
     assert alive
     assert wire.frame_errors == 0
     assert r["storm"]["sent"] == STORM_FRAMES
@@ -52,7 +53,7 @@ def test_soem_reaches_op_after_a_storm(veth_ns: Any) -> None:
     assert [bytes(s.esc.eeprom) for s in segment.slaves] == eeproms
     assert r["count"] == 3
     assert r["names"] == ["GL-IO #0", "GL-IO #1", "GL-IO #2"]
-    assert r["op"] == 8
+    assert r["op"] == 8, r["attempts"]
     assert r["bad_wkc"] == 0 and r["cycles"] == CYCLES
 
 

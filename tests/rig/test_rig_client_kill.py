@@ -14,10 +14,10 @@ import canopen
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
-import client_victims  # noqa: E402
-from benchmarks.soak import _start_rig, _stop_rig  # noqa: E402
+import client_victims
 
-from gatewaylab.devices.maxon_idx.host.client import IdxClient  # noqa: E402
+from benchmarks.soak import _start_rig, _stop_rig
+from gatewaylab.devices.maxon_idx.host.client import IdxClient
 
 pytestmark = pytest.mark.slow
 KILL_EVERY = 0.1
