@@ -29,6 +29,7 @@ from .wire_pcap import PcapWriter
 
 PACKET_OUTGOING = 4
 _log = logging.getLogger(__name__)
+MAX_ERRORS_KEPT = 100
 
 
 class WireTransport:
@@ -134,7 +135,8 @@ class WireTransport:
                 try:
                     sock.send(frame)
                 except OSError as exc:
-                    self.errors.append(str(exc))
+                    if len(self.errors) < MAX_ERRORS_KEPT:  # a storm must not grow the list without end
+                        self.errors.append(str(exc))
                     continue
                 self.frames_out += 1
                 if pcap is not None:
