@@ -21,6 +21,7 @@ import argparse
 import json
 import multiprocessing as mp
 import os
+import select
 import signal
 import subprocess
 import sys
@@ -183,21 +184,29 @@ def _sdo_loop(endpoint: str, start: Barrier, stop: Event, results: Any) -> None:
 
 # -- the rig ---------------------------------------------------------------------------------------
 def _start_rig(rig_file: str | None, workdir: Path) -> tuple[subprocess.Popen[bytes], dict[str, Any]]:
+    """``gatewaylab run`` with a ready file; returns once the ready file holds the rig's endpoints
+    (waiting on the rig's output pipe in between, which it writes to when it is up)."""
     ready = workdir / "ready.json"
+    log = (workdir / "rig-stderr.log").open("wb")
     args = [sys.executable, "-m", "gatewaylab", "run", *([rig_file] if rig_file else []), "--ready-file", str(ready)]
-    proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=log, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    log.close()
+    assert proc.stdout is not None
+    fd = proc.stdout.fileno()
     deadline = time.monotonic() + 60
-    while time.monotonic() < deadline:
-        if proc.poll() is not None:
-            raise RuntimeError(f"gatewaylab run exited with {proc.returncode}: "
-                               f"{proc.stderr.read().decode(errors='replace') if proc.stderr else ''}")
+    seen = b""
+    while time.monotonic() < deadline and proc.poll() is None:
         try:
             info: dict[str, Any] = json.loads(ready.read_text())
             return proc, info
         except (OSError, ValueError):
-            time.sleep(0.05)  # the ready file appears once everything is up
+            pass
+        if select.select([fd], [], [], 0.2)[0]:
+            seen += os.read(fd, 65536)
     proc.kill()
-    raise RuntimeError("gatewaylab run did not write its ready file within 60 s")
+    proc.wait(10)
+    err = (workdir / "rig-stderr.log").read_text(errors="replace")[-2000:]
+    raise RuntimeError(f"gatewaylab run did not start (exit {proc.returncode}): {seen.decode(errors='replace')}{err}")
 
 
 def _stop_rig(proc: subprocess.Popen[bytes]) -> None:
