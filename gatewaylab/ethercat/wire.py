@@ -49,7 +49,8 @@ class WireTransport:
         self._running = False
         self.frames_in = 0
         self.frames_out = 0
-        #: Frames (or clock events) whose processing raised: each dropped, logged once, counted.
+        #: Frames whose processing raised (and failed receives, clock events that raised): each dropped,
+        #: logged on one line, counted.
         self.frame_errors = 0
         self.errors: list[str] = []
 
@@ -83,8 +84,9 @@ class WireTransport:
 
     def _fault(self, what: str, exc: BaseException) -> None:
         self.frame_errors += 1
+        text = " ".join(str(exc).split())  # one log line, whatever the message holds
         _log.error("ethercat-wire %s: %s raised %s: %s (dropped; %d so far)", self.interface, what,
-                   type(exc).__name__, exc, self.frame_errors)
+                   type(exc).__name__, text, self.frame_errors)
 
     def _run(self) -> None:
         if self.cpu is not None and hasattr(os, "sched_setaffinity"):
@@ -118,9 +120,15 @@ class WireTransport:
                     select.select([sock], [], [], 0.001)
                 continue
             except OSError as exc:
-                if self._running:
+                if not self._running:
+                    return
+                # e.g. ENETDOWN while the interface flaps: keep serving once it is back
+                if not self.errors or self.errors[-1] != str(exc):
+                    self._fault("receive", exc)
+                if len(self.errors) < MAX_ERRORS_KEPT:
                     self.errors.append(str(exc))
-                return
+                select.select([], [], [], 0.01)
+                continue
             if addr[2] == PACKET_OUTGOING:
                 continue
             frame = buf[:n]
