@@ -93,6 +93,7 @@ def _check_frame(seg: Segment, raw: bytes) -> None:
     except FrameFormatError:
         before = None
     sizes = [len(s.esc.mem) for s in seg.slaves]
+    nobody = _addresses_nobody(seg, before[0]) if before else False
     answered = seg.process(frame)
     assert answered == (before is not None)
     assert len(frame) == len(raw)
@@ -101,11 +102,28 @@ def _check_frame(seg: Segment, raw: bytes) -> None:
         assert frame == raw
         return
     after = decode_frame(frame).datagrams
+    if nobody:  # ETG.1000.4: a datagram no slave is addressed by passes with its working counter unchanged
+        assert after[0].wkc == before[0].wkc and after[0].data == before[0].data
     for b, a in zip(before, after, strict=True):
         grown = (a.wkc - b.wkc) & 0xFFFF
         assert grown <= MAX_WKC_PER_SLAVE * len(seg.slaves)
         if b.command == Command.NOP:
             assert a == b
+
+
+def _addresses_nobody(seg: Segment, d: Datagram) -> bool:
+    """A configured-address datagram for a station address and alias no slave has, or an
+    auto-increment one for a position past the last slave (judged before the frame runs)."""
+    if d.command in (Command.FPRD, Command.FPWR, Command.FPRW, Command.FRMW):
+        for s in seg.slaves:
+            esc = s.esc
+            alias = struct.unpack_from("<H", esc.mem, 0x0012)[0] if esc.mem[0x0103] & 1 else None
+            if d.adp in (esc.station_address, alias):
+                return False
+        return d.command != Command.FRMW  # FRMW writes every slave that is not addressed
+    if d.command in (Command.APRD, Command.APWR, Command.APRW):
+        return (-d.adp) & 0xFFFF >= len(seg.slaves)
+    return d.command == Command.NOP
 
 
 def _recover_to_op(clock: SimulatedClock, seg: Segment) -> None:
