@@ -35,7 +35,7 @@ def near_valid_record(draw: st.DrawFn) -> bytes:
     return struct.pack("<HB", length, rtype) + body
 
 
-@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(st.lists(st.one_of(near_valid_record(), st.builds(lambda f: wire.encode_frame(f), st.builds(
     CanFrame, st.integers(0, 0x7FF), st.binary(max_size=8))), st.binary(max_size=20)), min_size=1, max_size=12),
        st.lists(st.integers(1, 64), min_size=1, max_size=20))

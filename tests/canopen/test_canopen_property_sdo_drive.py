@@ -34,7 +34,7 @@ def request(draw: st.DrawFn) -> tuple[bytes, bool]:
     return data, fd
 
 
-@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(st.lists(st.tuples(request(), st.sampled_from([0.0, 0.0005, 0.01, 1.2])), min_size=1, max_size=20))
 def test_drive_sdo_server_answers_only_valid_frames(requests: list[tuple[tuple[bytes, bool], float]]) -> None:
     """Any request sequence (short, long, CAN FD, with pauses past the SDO timeout): the server never

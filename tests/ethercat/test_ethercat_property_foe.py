@@ -20,7 +20,7 @@ packet = st.one_of(
 ERROR_CODES = {int(c) for c in FoeErrorCode}
 
 
-@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(st.lists(packet, min_size=1, max_size=12))
 def test_foe_server_answers_spec_packets_or_raises_frame_format_error(packets: list[bytes]) -> None:
     """Any packet sequence: the server raises only FrameFormatError (a packet shorter than the FoE header,

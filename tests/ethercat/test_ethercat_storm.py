@@ -144,7 +144,7 @@ def _recover_to_op(clock: SimulatedClock, seg: Segment) -> None:
 def test_seeded_storm_never_raises_and_master_recovers() -> None:
     """issue 15: thousands of random frames (random bytes, 1-4 datagrams of random command, address,
     length, lying lengths) processed with the clock running; afterwards a master reaches OP."""
-    for seed in (1, 2, 3):
+    for seed in (1, 2):
         clock, seg = fresh()
         eeproms = [bytes(s.esc.eeprom) for s in seg.slaves]
         for i, raw in enumerate(storm(seed, 3000, keep_eeprom=True)):
@@ -175,7 +175,7 @@ lying_datagram = st.tuples(st.integers(0, 255), st.integers(0, 0xFFFFFFFF), st.i
                            st.binary(max_size=80), st.booleans())
 
 
-@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(st.lists(lying_datagram, min_size=1, max_size=4), st.one_of(st.none(), st.integers(0, 0x7FF)),
        st.integers(0, 15))
 def test_any_datagram_header_is_processed_or_dropped(dgs: list[tuple[int, int, int, bytes, bool]],

@@ -48,7 +48,7 @@ def _load(text: str, tmp: Path) -> RigConfig | None:
         return None
 
 
-@settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.too_slow,
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow,
                                                                   HealthCheck.function_scoped_fixture])
 @given(tables=TABLES)
 def test_structured_rig_files_load_or_raise_config_error(tables: dict[str, object], tmp_path: Path) -> None:
@@ -64,14 +64,14 @@ def test_structured_rig_files_load_or_raise_config_error(tables: dict[str, objec
         assert all(isinstance(b.name, str) for b in config.buses)
 
 
-@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(text=st.text(alphabet=st.sampled_from(list('[]{}="\'.,#\n -_0123456789abcdeklnorstuxyz')), max_size=120))
 def test_random_text_loads_or_raises_config_error(text: str, tmp_path: Path) -> None:
     """Random TOML-ish text (brackets, quotes, keys, numbers): ConfigError naming the file, or a config."""
     _load(text, tmp_path)
 
 
-@settings(max_examples=150, deadline=None)
+@settings(max_examples=100, deadline=None)
 @given(st.dictionaries(st.sampled_from(["clock", "bus", "drive", "device", "ethercat", "rig"]), VALUES, max_size=4))
 def test_parse_rig_on_decoded_data_raises_only_config_error(data: dict[str, object]) -> None:
     """parse_rig (what the CLI and the Rig API call on decoded TOML) validates shapes, not just keys."""
