@@ -317,7 +317,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--clients", type=int, default=3)
     parser.add_argument("--rig", default=None, help="rig file (default: gatewaylab's default rig)")
     args = parser.parse_args(argv)
-    print(f"soak: default rig, {args.clients} clients, {args.rate:.0f} frames/s, {args.minutes:g} min", flush=True)
+    print(f"soak: {args.rig or 'default rig'}, {args.clients} clients, {args.rate:.0f} frames/s, "
+          f"{args.minutes:g} min", flush=True)
     result = run_soak(args.minutes * 60, rate=args.rate, clients=args.clients, rig_file=args.rig)
     print(result.report())
     return 0 if result.ok else 1
