@@ -57,6 +57,9 @@ REG_DC_START_TIME = 0x0990
 REG_DC_SYNC0_CYCLE = 0x09A0
 REG_DC_SYNC1_CYCLE = 0x09A4
 RAM_START = 0x1000
+#: Shortest SYNC0 period the emulated firmware follows (a shorter 0x09A0 is raised to it): a Python
+#: PDI cannot take interrupts faster, and a 1 ns cycle would otherwise flood the clock (docs/decisions.md).
+SYNC0_MIN_CYCLE_NS = 10_000
 
 AL_ERROR = 0x10
 AL_ACK = 0x10
@@ -190,7 +193,8 @@ class Esc:
     """One slave controller. ``app`` gets the PDI-side events; ``eeprom`` is the SII image."""
 
     def __init__(self, clock: Clock, eeprom: bytes, app: EscApplication, *, ram_size: int = 0x2000,
-                 fmmus: int = 16, sms: int = 16, dc: bool = True, eeprom_size: int | None = None) -> None:
+                 fmmus: int = 16, sms: int = 16, dc: bool = True, eeprom_size: int | None = None,
+                 firmware_sms: int = 4) -> None:
         self.clock = clock
         self.app = app
         self.stats = EscStats()
@@ -198,6 +202,9 @@ class Esc:
         self._memlen = len(self.mem)
         self.n_fmmu = fmmus
         self.n_sm = sms
+        #: SyncManagers the slave firmware serves (mailbox 0/1, process data 2/3); the others are
+        #: deactivated from the PDI side on every INIT request (see ``_release_unused_sms``).
+        self.firmware_sms = min(firmware_sms, sms)
         self.dc = dc
         if eeprom_size is None:
             eeprom_size = max(2048, len(eeprom))
@@ -294,6 +301,10 @@ class Esc:
         start, length, control, _status, activate, _pdi = SM_REG.unpack_from(self.mem, REG_SM + 8 * index)
         return SmConfig(index, start, length, control, activate)
 
+    def sm_in_use(self, index: int) -> bool:
+        """Enabled by the master and not deactivated by the PDI (0x0807 + 8n bit 0)."""
+        return self.sm_config(index).enabled and not self.mem[REG_SM + 8 * index + 7] & SM_PDI_DISABLE
+
     def sm_status(self, index: int) -> int:
         return self.mem[REG_SM + 8 * index + 5]
 
@@ -310,9 +321,16 @@ class Esc:
         return (self.local_time_ns() + offset) & 0xFFFFFFFFFFFFFFFF
 
     # ------------------------------------------------------------------ PDI side (the slave application)
+    def _store(self, address: int, data: bytes | bytearray) -> None:
+        """Write memory without ever growing it: bytes past the end of process RAM are dropped
+        (a SyncManager a master placed there has no memory behind it)."""
+        end = min(address + len(data), self._memlen)
+        if address < end:
+            self.mem[address:end] = data[:end - address]
+
     def pdi_write(self, address: int, data: bytes) -> None:
         """The application writes DPRAM (inputs buffer); no ECAT-side effects."""
-        self.mem[address:address + len(data)] = data
+        self._store(address, data)
 
     def pdi_read(self, address: int, length: int) -> bytes:
         return bytes(self.mem[address:address + length])
@@ -324,7 +342,7 @@ class Esc:
         if self.mem[status_addr] & SM_STATUS_FULL or not cfg.enabled:
             return False
         buf = message[:cfg.length].ljust(cfg.length, b"\x00")
-        self.mem[cfg.start:cfg.start + cfg.length] = buf
+        self._store(cfg.start, buf)
         self.mem[status_addr] |= SM_STATUS_FULL
         self._mbx_last = buf
         return True
@@ -543,7 +561,9 @@ class Esc:
             return False
         p0 = bits[0][1] >> 3
         p1 = (bits[-1][1] >> 3) + 1
-        cur = bytearray(self.mem[p0:p1])
+        # Bits mapped past the end of process RAM read as 0; ecat_write drops them (ET1100 II:
+        # accesses to non-existent memory are ignored).
+        cur = bytearray(self.mem[p0:p1]).ljust(p1 - p0, b"\x00")
         for lbit, pbit in bits:
             v = (buf[off + (lbit >> 3) - laddr] >> (lbit & 7)) & 1
             i = (pbit >> 3) - p0
@@ -614,7 +634,7 @@ class Esc:
         """Repeat request toggled: put the last message back and acknowledge (ETG.1000.4 mailbox)."""
         base = REG_SM + 8 * index
         if self._mbx_last:
-            self.mem[cfg.start:cfg.start + cfg.length] = self._mbx_last[:cfg.length].ljust(cfg.length, b"\0")
+            self._store(cfg.start, self._mbx_last[:cfg.length].ljust(cfg.length, b"\0"))
             self.mem[base + 5] |= SM_STATUS_FULL
         self.mem[base + 7] = (self.mem[base + 7] & ~SM_PDI_REPEAT_ACK) | (cfg.activate & SM_ACT_REPEAT)
 
@@ -630,6 +650,8 @@ class Esc:
         except ValueError:
             self._refuse(current, AlStatusCode.UNKNOWN_STATE)
             return
+        if target == AlState.INIT:
+            self._release_unused_sms()
         if error and not ack and _RANK[target] >= _RANK[current]:
             return  # an error indication is only left with an acknowledge (or by going down)
         if target == current:
@@ -654,6 +676,23 @@ class Esc:
             for i in range(self.n_sm):
                 self.mem[REG_SM + 8 * i + 5] &= ~SM_STATUS_FULL & 0xFF
         self.app.state_changed(current, target, 0)
+
+    def _release_unused_sms(self) -> None:
+        """An INIT request: the firmware deactivates (PDI side) every SyncManager it does not serve.
+
+        A master configures only the SyncManagers it uses (SOEM's config_init clears SM0-3 and FMMU0-2),
+        so SM4+ left enabled by an earlier master, or by a storm of random frames, would otherwise
+        overlap the mailbox forever; the firmware's own channels stay under the master's control.
+        """
+        mem = self.mem
+        changed = False
+        for i in range(self.firmware_sms, self.n_sm):
+            at = REG_SM + 8 * i + 7
+            if not mem[at] & SM_PDI_DISABLE:
+                mem[at] |= SM_PDI_DISABLE
+                changed = True
+        if changed:
+            self._rebuild_sms(bytes(mem[REG_SM:REG_SM + 8 * self.n_sm]), REG_SM)
 
     def _refuse(self, current: AlState, code: int) -> None:
         self.stats.al_refusals += 1
@@ -760,7 +799,7 @@ class Esc:
         start_sys = U64.unpack_from(self.mem, REG_DC_START_TIME)[0]
         offset = U64.unpack_from(self.mem, REG_DC_SYSTEM_OFFSET)[0]
         start = ((start_sys - offset) & 0xFFFFFFFFFFFFFFFF) / 1e9
-        cycle = cycle_ns / 1e9
+        cycle = max(cycle_ns, SYNC0_MIN_CYCLE_NS) / 1e9
         now = self.clock.now()
         if start < now:
             start += (int((now - start) / cycle) + 1) * cycle
@@ -770,7 +809,11 @@ class Esc:
 
     def _sync0_fire(self) -> None:
         t = self._sync0_next
-        self._sync0_next = t + self._sync0_cycle
+        nxt = t + self._sync0_cycle
+        now = self.clock.now()
+        if nxt <= now:  # pulses the PDI missed while it was busy merge into this one
+            nxt += (int((now - nxt) / self._sync0_cycle) + 1) * self._sync0_cycle
+        self._sync0_next = nxt
         self._sync0_timer = self.clock.call_at(self._sync0_next, self._sync0_fire)
         self.mem[REG_DC_SYNC0_STATUS] |= 0x01
         self.app.sync0(t)

@@ -162,7 +162,7 @@ class Slave:
         ranges = []
         for i in range(self.esc.n_sm):
             sm = self.esc.sm_config(i)
-            if sm.enabled:
+            if self.esc.sm_in_use(i):
                 if sm.start < 0x1000 or sm.start + sm.length > len(self.esc.mem):
                     return False
                 ranges.append((sm.start, sm.start + sm.length))

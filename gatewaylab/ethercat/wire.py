@@ -5,10 +5,15 @@ adds 50-300 us and occasional ms stalls on a VM, see shared notes 'soem-interop'
 socket itself sent (PACKET_OUTGOING) are ignored. Protocol state is touched only under
 ``clock.lock``; with ``drive_clock`` the thread also runs due clock events (standalone use
 without a rig runtime, so SM watchdogs and SYNC0 keep working).
+
+The frame loop outlives any exception raised while a frame is processed (or a clock event runs):
+the frame is dropped, one log line is written and ``frame_errors`` counts it, and the next frame is
+served, as a real ESC keeps forwarding whatever one frame held.
 """
 
 from __future__ import annotations
 
+import logging
 import os
 import select
 import socket
@@ -23,6 +28,8 @@ from .segment import Segment
 from .wire_pcap import PcapWriter
 
 PACKET_OUTGOING = 4
+_log = logging.getLogger(__name__)
+MAX_ERRORS_KEPT = 100
 
 
 class WireTransport:
@@ -42,6 +49,9 @@ class WireTransport:
         self._running = False
         self.frames_in = 0
         self.frames_out = 0
+        #: Frames whose processing raised (and failed receives, clock events that raised): each dropped,
+        #: logged on one line, counted.
+        self.frame_errors = 0
         self.errors: list[str] = []
 
     def start(self) -> None:
@@ -72,6 +82,12 @@ class WireTransport:
             self._sock.close()
             self._sock = None
 
+    def _fault(self, what: str, exc: BaseException) -> None:
+        self.frame_errors += 1
+        text = " ".join(str(exc).split())  # one log line, whatever the message holds
+        _log.error("ethercat-wire %s: %s raised %s: %s (dropped; %d so far)", self.interface, what,
+                   type(exc).__name__, text, self.frame_errors)
+
     def _run(self) -> None:
         if self.cpu is not None and hasattr(os, "sched_setaffinity"):
             try:
@@ -95,30 +111,43 @@ class WireTransport:
                     now = time.monotonic()
                     if now >= next_clock:
                         assert isinstance(clock, RealTimeClock)
-                        clock.run_due()
+                        try:
+                            clock.run_due()
+                        except Exception as exc:
+                            self._fault("a clock event", exc)
                         next_clock = now + 0.0002
                 if not busy:
                     select.select([sock], [], [], 0.001)
                 continue
             except OSError as exc:
-                if self._running:
+                if not self._running:
+                    return
+                # e.g. ENETDOWN while the interface flaps: keep serving once it is back
+                if not self.errors or self.errors[-1] != str(exc):
+                    self._fault("receive", exc)
+                if len(self.errors) < MAX_ERRORS_KEPT:
                     self.errors.append(str(exc))
-                return
+                select.select([], [], [], 0.01)
+                continue
             if addr[2] == PACKET_OUTGOING:
                 continue
             frame = buf[:n]
             self.frames_in += 1
-            if pcap is not None:
-                pcap.write(time.time(), frame)
-            with clock.lock:
-                ok = segment.process(frame)
-            if not ok:
-                continue
             try:
-                sock.send(frame)
-            except OSError as exc:
-                self.errors.append(str(exc))
-                continue
-            self.frames_out += 1
-            if pcap is not None:
-                pcap.write(time.time(), frame)
+                if pcap is not None:
+                    pcap.write(time.time(), frame)
+                with clock.lock:
+                    ok = segment.process(frame)
+                if not ok:
+                    continue
+                try:
+                    sock.send(frame)
+                except OSError as exc:
+                    if len(self.errors) < MAX_ERRORS_KEPT:  # a storm must not grow the list without end
+                        self.errors.append(str(exc))
+                    continue
+                self.frames_out += 1
+                if pcap is not None:
+                    pcap.write(time.time(), frame)
+            except Exception as exc:
+                self._fault(f"frame {self.frames_in}", exc)

@@ -1,0 +1,84 @@
+"""Storm sender + SOEM master, run in a subprocess inside the test's network namespace; prints one JSON line.
+
+Usage: python ethercat_storm_driver.py INTERFACE SEED COUNT CYCLES
+
+Sends COUNT random frames (ethercat_storm.py, SII writes disabled) on INTERFACE, waits until the
+emulator has answered what it answers (0.5 s of silence, at most 20 s), then lets pysoem
+re-initialise the segment, go to OP and run CYCLES process data cycles.
+"""
+
+from __future__ import annotations
+
+import json
+import select
+import socket
+import sys
+import time
+from typing import Any
+
+from ethercat_soem_driver import RX_TIMEOUT_US, SLOW_US, _open, _to_op
+from ethercat_storm import storm
+
+ETHERTYPE = 0x88A4
+WD_DIVIDER_DEFAULT = (2498).to_bytes(2, "little")  # 100 us ticks (ET1100 0x0400 after power-on)
+WD_TIME_1S = (10_000).to_bytes(2, "little")  # SM watchdog 0x0420: 10,000 ticks of 100 us
+
+
+def send_storm(iface: str, seed: int, count: int) -> dict[str, int]:
+    rx = socket.socket(socket.AF_PACKET, socket.SOCK_RAW, socket.htons(ETHERTYPE))
+    rx.bind((iface, ETHERTYPE))
+    rx.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 22)
+    tx = socket.socket(socket.AF_PACKET, socket.SOCK_RAW, 0)
+    tx.bind((iface, 0))
+    sent = replies = 0
+    for i, frame in enumerate(storm(seed, count, keep_eeprom=True)):
+        tx.send(frame.ljust(60, b"\0"))
+        sent += 1
+        if i % 64 == 63:  # let the emulator keep up a little (its socket buffer is 1 MB)
+            while select.select([rx], [], [], 0.002)[0]:
+                rx.recv(2048)
+                replies += 1
+    deadline = time.monotonic() + 20.0
+    while time.monotonic() < deadline and select.select([rx], [], [], 0.5)[0]:
+        rx.recv(2048)
+        replies += 1
+    tx.close()
+    rx.close()
+    return {"sent": sent, "replies": replies}
+
+
+def soem_after_storm(iface: str, cycles: int) -> dict[str, Any]:
+    """config_init, then OP; a bring-up that lost a register frame to a stall of this shared VM
+    (SOEM waits 2 ms for those) is started again from config_init, at most three times."""
+    master = _open(iface)
+    out: dict[str, Any] = {"attempts": []}
+    for _ in range(3):
+        out["count"] = master.config_init()
+        out["names"] = [s.name for s in master.slaves]
+        for s in master.slaves:  # the storm may have left any SM watchdog divider and time behind
+            s._fpwr(0x0400, WD_DIVIDER_DEFAULT, SLOW_US)
+            s._fpwr(0x0420, WD_TIME_1S, SLOW_US)
+        out.update(_to_op(master))
+        master.read_state()
+        out["attempts"].append({"op": out["op"], "states": [(s.state, s.al_status) for s in master.slaves]})
+        if out["op"] == 8:
+            break
+    bad = 0
+    for i in range(cycles):
+        for k, s in enumerate(master.slaves):
+            s.output = bytes([(i + k) & 0xFF]) + bytes(len(s.output) - 1)
+        master.send_processdata()
+        if master.receive_processdata(RX_TIMEOUT_US) != master.expected_wkc:
+            bad += 1
+    out["bad_wkc"] = bad
+    out["cycles"] = cycles
+    out["inputs"] = [s.input.hex() for s in master.slaves]
+    master.close()
+    return out
+
+
+if __name__ == "__main__":
+    iface, seed, count, cycles = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), int(sys.argv[4])
+    result: dict[str, Any] = {"storm": send_storm(iface, seed, count)}
+    result.update(soem_after_storm(iface, cycles))
+    print(json.dumps(result))
