@@ -197,12 +197,7 @@ class Node:
         """Internal: validators, store, reactions and hooks for a checked, decoded value."""
         index = entry.index
         if index not in self._intercepted:    # a plain value (e.g. a PDO-mapped set-point)
-            key = (index, entry.sub)
-            values = self.od.values
-            old = values[key]
-            values[key] = value
-            if old != value and key in self.pdo.watch:
-                self.pdo.value_changed(key)
+            self.od.put(index, entry.sub, value)
             return
         command = self._commands.get(index)
         if command is not None:
@@ -228,8 +223,9 @@ class Node:
         if reactions is not None:
             for reaction in reactions:
                 reaction(entry, value)
-        if old != value and key in self.pdo.watch:
-            self.pdo.value_changed(key)
+        if old != value:
+            values[key] = old     # stored early for the hooks: od.put stores it and notifies
+            self.od.put(index, entry.sub, value)
 
     # -- typed local access for device code -----------------------------------------------------
     def get(self, index: int, sub: int = 0) -> Any:
@@ -240,12 +236,7 @@ class Node:
         """Set a typed value (no access checks, no hooks); event-driven TPDOs see the change."""
         key = (index, sub)
         entry = self.od.entries.get(key) or self.od.entry(index, sub)
-        values = self.od.values
-        value = coerce(entry, value)
-        old = values[key]
-        values[key] = value
-        if old != value and key in self.pdo.watch:
-            self.pdo.value_changed(key)
+        self.od.put(index, sub, coerce(entry, value))
 
     # -- frames ------------------------------------------------------------------------------------
     def send(self, frame: CanFrame) -> None:

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 import struct
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, replace
 from enum import Enum, IntEnum
 from typing import Any
@@ -287,6 +287,10 @@ def coerce(entry: Entry, value: Any) -> Any:
     return bytes(value)
 
 
+#: ``listener((index, subindex), value)`` after :meth:`ObjectDictionary.put` changed that value.
+Listener = Callable[[tuple[int, int], Any], None]
+
+
 class ObjectDictionary:
     """Rows of :class:`Entry` grouped in :class:`OdObject`, plus the current values."""
 
@@ -298,6 +302,7 @@ class ObjectDictionary:
         self.node_id = node_id
         #: Free-form [DeviceInfo] fields for EDS export (VendorName, ProductName, ...).
         self.device_info: dict[str, str] = {}
+        self._listeners: dict[tuple[int, int], list[Listener]] = {}
 
     # -- building ------------------------------------------------------------------------------
     def _add_entry(self, obj: OdObject, entry: Entry) -> Entry:
@@ -404,6 +409,38 @@ class ObjectDictionary:
 
     def set(self, index: int, sub: int, value: Any) -> None:
         self.values[(index, sub)] = coerce(self.entry(index, sub), value)
+
+    # -- change notification (temporary: the shared gatewaylab.od package replaces this) -----
+    def put(self, index: int, subindex: int, value: Any) -> bool:
+        """The device's own write (no access check, no coercion): store ``value``; when it
+        differs from the stored one, tell every listener of that key. True if it changed."""
+        key = (index, subindex)
+        values = self.values
+        try:
+            if values[key] == value:
+                return False
+        except KeyError:
+            self.entry(index, subindex)     # SdoAbort for an object that does not exist
+            raise
+        values[key] = value
+        listeners = self._listeners.get(key)
+        if listeners:
+            for listener in tuple(listeners):
+                listener(key, value)
+        return True
+
+    def subscribe(self, key: tuple[int, int], listener: Listener) -> Callable[[], None]:
+        """Call ``listener(key, value)`` on every change :meth:`put` makes to ``key``; returns
+        the function that ends the subscription (PDO managers re-subscribe on a remap)."""
+        self._listeners.setdefault(key, []).append(listener)
+
+        def unsubscribe() -> None:
+            listeners = self._listeners.get(key)
+            if listeners is not None and listener in listeners:
+                listeners.remove(listener)
+                if not listeners:
+                    del self._listeners[key]
+        return unsubscribe
 
     def get_bytes(self, index: int, sub: int = 0) -> bytes:
         entry = self.entry(index, sub)

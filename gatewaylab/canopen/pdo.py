@@ -152,6 +152,7 @@ class Rpdo(_Pdo):
             self.apply(data)
 
     def apply_pending(self) -> None:
+        """Apply the data a synchronous RPDO received before this SYNC (if any)."""
         data = self._pending
         if data is not None:
             self._pending = None
@@ -266,6 +267,10 @@ class Tpdo(_Pdo):
         self._event_timer = None
         self.trigger()
 
+    def on_value_changed(self, key: Key, value: Any) -> None:
+        """Dictionary listener: a mapped object changed (an event, CiA 301 7.2.2)."""
+        self.trigger()
+
     def trigger(self) -> None:
         """An application event: type 254/255 sends (respecting the inhibit time), type 0 at the next SYNC."""
         if not self._active():
@@ -329,8 +334,8 @@ class PdoManager:
         self.node = node
         self.rpdo = [Rpdo(self, n) for n in range(N_PDO)]
         self.tpdo = [Tpdo(self, n) for n in range(N_PDO)]
-        #: (index, sub) -> TPDOs (type 0 / 254 / 255) that a change of that value triggers.
-        self.watch: dict[Key, list[Tpdo]] = {}
+        #: Ends the subscriptions of the event-driven TPDOs to the objects they map.
+        self._unsubscribe: list[Callable[[], None]] = []
         for n in range(N_PDO):
             for comm, mapping, receive in ((0x1400 + n, 0x1600 + n, True), (0x1800 + n, 0x1A00 + n, False)):
                 node.add_validator(comm, self._comm_validator(comm, receive))
@@ -342,13 +347,17 @@ class PdoManager:
     def configure(self) -> None:
         for pdo in (*self.rpdo, *self.tpdo):
             pdo.configure()
-        watch: dict[Key, list[Tpdo]] = {}
-        for tpdo in self.tpdo:
-            if tpdo.valid and (tpdo.trans_type == 0 or tpdo.trans_type >= 254):
-                for m in tpdo.mapped:
-                    if m.key is not None:
-                        watch.setdefault(m.key, []).append(tpdo)
-        self.watch = watch
+        self._subscribe_events()
+
+    def _subscribe_events(self) -> None:
+        """Event-driven TPDOs (types 0, 254, 255) subscribe to the objects they map, so that a
+        change of a mapped value triggers them (CiA 301 7.2.2); a remap subscribes anew."""
+        for unsubscribe in self._unsubscribe:
+            unsubscribe()
+        od = self.node.od
+        self._unsubscribe = [od.subscribe(m.key, tpdo.on_value_changed)
+                             for tpdo in self.tpdo if tpdo.valid and (tpdo.trans_type == 0 or tpdo.trans_type >= 254)
+                             for m in tpdo.mapped if m.key is not None]
 
     def reconfigure(self) -> None:
         self.halt()
@@ -383,18 +392,13 @@ class PdoManager:
             self.halt()
 
     # -- runtime ---------------------------------------------------------------------------------
-    def value_changed(self, key: Key) -> None:
-        for tpdo in self.watch.get(key, ()):
-            tpdo.trigger()
-
     def apply_sync_rpdos(self) -> None:
+        """SYNC, first step: the data synchronous RPDOs received since the previous SYNC."""
         for rpdo in self.rpdo:
-            data = rpdo._pending
-            if data is not None:     # Rpdo.apply_pending, written out
-                rpdo._pending = None
-                rpdo.apply(data)
+            rpdo.apply_pending()
 
     def on_sync(self, counter: int | None) -> None:
+        """SYNC, last step: synchronous TPDOs sample and send, type 252 samples."""
         for tpdo in self.tpdo:
             if tpdo.valid:
                 tpdo.on_sync(counter)
