@@ -177,16 +177,6 @@ def _clamp(value: float, low: float, high: float) -> float:
     return low if value < low else high if value > high else value
 
 
-def _i32(value: float) -> int:
-    """A computed actual value as its INTEGER32 object holds it (rounded, saturated)."""
-    return round(_I32_MIN if value < _I32_MIN else _I32_MAX if value > _I32_MAX else value)
-
-
-def _i16(value: float) -> int:
-    """A computed actual value as its INTEGER16 object holds it (rounded, saturated)."""
-    return round(-0x8000 if value < -0x8000 else 0x7FFF if value > 0x7FFF else value)
-
-
 class Demand(NamedTuple):
     """What the plant follows in one control period, as a mode handler computes it.
 
@@ -207,18 +197,22 @@ class Demand(NamedTuple):
 #: The power stage is off: the axis coasts and friction stops it.
 _POWER_OFF = Demand(ControlMode.OFF)
 
-#: The actual values the control tick publishes every period, in this order (the event-driven
-#: TPDOs mapping them sample the dictionary as each one changes).
-_ACTUAL_KEYS: tuple[tuple[int, int], ...] = (
-    (0x6064, 0),   # position actual value
-    (0x606C, 0),   # velocity actual value
-    (0x6077, 0),   # torque actual value
-    (0x6074, 0),   # torque demand (the plant's motor torque: no current loop)
-    (0x6062, 0),   # position demand value
-    (0x606B, 0),   # velocity demand value
-    (0x60F4, 0),   # following error actual value
-    (0x60FD, 0),   # digital inputs
-    (0x6041, 0),   # statusword
+_I32 = (-0x80000000, 0x7FFFFFFF)
+_I16 = (-0x8000, 0x7FFF)
+
+#: The actual values the control tick publishes every period, in this order (an event-driven
+#: TPDO mapping them samples the dictionary as each one changes): (index, subindex, low, high),
+#: the value rounded and saturated to its data type.
+_ACTUALS: tuple[tuple[int, int, int, int], ...] = (
+    (0x6064, 0, *_I32),   # position actual value
+    (0x606C, 0, *_I32),   # velocity actual value
+    (0x6077, 0, *_I16),   # torque actual value
+    (0x6074, 0, *_I16),   # torque demand (the motor torque of the plant: no current loop)
+    (0x6062, 0, *_I32),   # position demand value
+    (0x606B, 0, *_I32),   # velocity demand value
+    (0x60F4, 0, *_I32),   # following error actual value
+    (0x60FD, 0, 0, 0xFFFFFFFF),   # digital inputs
+    (0x6041, 0, 0, 0xFFFF),       # statusword
 )
 
 
@@ -434,7 +428,7 @@ class Drive:
         low = int(self._v[0x607D, 1])
         high = int(self._v[0x607D, 2])
         if low < high:
-            clamped = _clamp(x, low, high)
+            clamped = low if x < low else high if x > high else x
             if clamped != x:
                 self.internal_limit = True
             return clamped
@@ -596,7 +590,9 @@ class Drive:
         if prev is None:
             self.csp_changed_at, self.csp_span, self.csp_velocity = now, dt, 0.0
         elif target != prev:
-            span = max(now - self.csp_changed_at, dt)
+            span = now - self.csp_changed_at
+            if span < dt:     # a set-point within one period of the previous change
+                span = dt
             self.csp_velocity = (target - prev) / span
             self.csp_changed_at, self.csp_span = now, span
         elif now - self.csp_changed_at > self.csp_span + 0.5 * dt:
@@ -712,15 +708,14 @@ class Drive:
         self.od.put(0x6041, 0, self.statusword())
 
     def _publish_actuals(self, x: float, fe: float) -> None:
-        """The actual values of this period into the dictionary, in the order of ``_ACTUAL_KEYS``."""
+        """The actual values of this period into the dictionary, in the order of ``_ACTUALS``."""
         plant = self.plant
         st = plant.state
-        torque = _i16(st.torque)
-        actuals = (_i32(x), _i32(st.velocity), torque, torque, _i32(self.demand),
-                   _i32(self.demand_velocity), _i32(fe), plant.digital_inputs(), self.statusword())
+        actuals = (x, st.velocity, st.torque, st.torque, self.demand, self.demand_velocity, fe,
+                   plant.digital_inputs(), self.statusword())
         put = self.od.put
-        for (index, subindex), value in zip(_ACTUAL_KEYS, actuals):
-            put(index, subindex, value)
+        for (index, subindex, low, high), value in zip(_ACTUALS, actuals):
+            put(index, subindex, round(low if value < low else high if value > high else value))
 
 
 _CW_HALT = int(Cw.HALT)
@@ -731,7 +726,6 @@ _SW_INTERNAL_LIMIT = int(Sw.INTERNAL_LIMIT)
 _SW_TARGET_REACHED = int(Sw.TARGET_REACHED)
 _SW_BIT12 = int(Sw.OP_SPECIFIC_12)
 _SW_BIT13 = int(Sw.OP_SPECIFIC_13)
-_I32_MIN, _I32_MAX = -0x80000000, 0x7FFFFFFF
 # enum members through module constants: Enum class attribute access is slow in 3.11
 _CSP = OpMode.CYCLIC_SYNC_POSITION
 _PP = OpMode.PROFILE_POSITION

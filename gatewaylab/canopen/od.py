@@ -423,9 +423,8 @@ class ObjectDictionary:
             self.entry(index, subindex)     # SdoAbort for an object that does not exist
             raise
         values[key] = value
-        listeners = self._listeners.get(key)
-        if listeners:
-            for listener in tuple(listeners):
+        if key in self._listeners:
+            for listener in tuple(self._listeners[key]):
                 listener(key, value)
         return True
 
