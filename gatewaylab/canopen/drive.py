@@ -479,7 +479,7 @@ class Drive:
         if state is _OPERATION_ENABLED:
             demand = self._run_mode(dt)
         elif state is _QUICK_STOP_ACTIVE or state is _FAULT_REACTION_ACTIVE:
-            demand = self._stop(dt)
+            demand = self._stop_ramp(dt)
         elif st.velocity == 0.0 and plant.external_torque == 0.0 and not self.fe_warning:
             return   # power stage off and the axis at rest: nothing can change
         else:
@@ -614,7 +614,7 @@ class Drive:
                 self.target_reached = False
                 self.in_window_time = 0.0
 
-    def _stop(self, dt: float) -> Demand:
+    def _stop_ramp(self, dt: float) -> Demand:
         """Quick stop / fault reaction: ramp to standstill, then the CiA 402 follow-up state
         (transition 12 or 14); quick stop option 0 switches the power stage off at once."""
         option = int(self._v[0x605A, 0])

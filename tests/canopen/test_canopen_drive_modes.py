@@ -3,6 +3,7 @@ download does), on the simulated clock only. IDX guide 3.1 (CiA 402 V4.0), table
 
 from __future__ import annotations
 
+import itertools
 import struct
 
 import pytest
@@ -239,4 +240,4 @@ def test_actual_values_reach_dictionary_subscribers(axis: Axis) -> None:
     axis.clock.advance(0.1)
     assert len(seen) > 50
     assert seen[-1] == axis.r(0x6064)
-    assert all(a != b for a, b in zip(seen, seen[1:]))
+    assert all(a != b for a, b in itertools.pairwise(seen))
