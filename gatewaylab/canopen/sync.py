@@ -116,7 +116,8 @@ class Sync:
         operational = node.nmt_state is _OPERATIONAL
         if operational:
             node.pdo.apply_sync_rpdos()
-        for listener in list(self.listeners):
-            listener(counter, t)
+        if self.listeners:
+            for listener in list(self.listeners):
+                listener(counter, t)
         if operational:
             node.pdo.on_sync(counter)
