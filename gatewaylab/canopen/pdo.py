@@ -147,8 +147,6 @@ class Rpdo(_Pdo):
             emcy.clear_error(EMCY_PDO_LENGTH_EXCEEDED)
         self.received += 1
         if self.trans_type <= 240:
-            if self._pending is None:
-                self.manager.sync_received.append(self)
             self._pending = data
         else:
             self.apply(data)
@@ -336,8 +334,6 @@ class PdoManager:
         self.node = node
         self.rpdo = [Rpdo(self, n) for n in range(N_PDO)]
         self.tpdo = [Tpdo(self, n) for n in range(N_PDO)]
-        #: Synchronous RPDOs with data to apply at the next SYNC, in the order received.
-        self.sync_received: list[Rpdo] = []
         #: Ends the subscriptions of the event-driven TPDOs to the objects they map.
         self._unsubscribe: list[Callable[[], None]] = []
         for n in range(N_PDO):
@@ -376,7 +372,6 @@ class PdoManager:
             tpdo.halt()
         for rpdo in self.rpdo:
             rpdo._pending = None
-        self.sync_received.clear()
 
     def register(self, add: AddHandler) -> None:
         for rpdo in self.rpdo:
@@ -398,10 +393,8 @@ class PdoManager:
 
     # -- runtime ---------------------------------------------------------------------------------
     def apply_sync_rpdos(self) -> None:
-        """SYNC, first step: the data synchronous RPDOs received since the previous SYNC, in
-        the order they were received."""
-        received, self.sync_received = self.sync_received, []
-        for rpdo in received:
+        """SYNC, first step: the data synchronous RPDOs received since the previous SYNC."""
+        for rpdo in self.rpdo:
             rpdo.apply_pending()
 
     def on_sync(self, counter: int | None) -> None:
