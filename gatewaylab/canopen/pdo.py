@@ -16,7 +16,6 @@ from typing import TYPE_CHECKING, Any
 
 from ..bus.frame import CanFrame
 from ..common.clock import TimerHandle
-from ..common.errors import LocalError
 from .communication import MAX_MAPPED, N_PDO
 from .emcy import EMCY_PDO_LENGTH, EMCY_PDO_LENGTH_EXCEEDED, ERR_COMMUNICATION
 from .errors import (
@@ -246,11 +245,7 @@ class Tpdo(_Pdo):
     def transmit(self, data: bytes | None = None) -> None:
         """Send now (used for SYNC and RTR, which ignore the inhibit time)."""
         node = self.node
-        frame = CanFrame(self.cob_id, self.build() if data is None else data)
-        try:
-            node.controller.send(frame)    # Node.send written out (every SYNC, every TPDO)
-        except LocalError:
-            node.count("tx_errors")
+        node.send(CanFrame(self.cob_id, self.build() if data is None else data))
         self.sent += 1
         self._last_tx = node.clock.now()
         if self._event_timer is not None or self.event_time > 0:
