@@ -16,7 +16,6 @@ from typing import TYPE_CHECKING, Any
 
 from ..bus.frame import CanFrame
 from ..common.clock import TimerHandle
-from ..common.errors import LocalError
 from ..od import DataType, Entry, decode, encode, type_size
 from .communication import MAX_MAPPED, N_PDO
 from .emcy import EMCY_PDO_LENGTH, EMCY_PDO_LENGTH_EXCEEDED, ERR_COMMUNICATION
@@ -152,6 +151,7 @@ class Rpdo(_Pdo):
             self.apply(data)
 
     def apply_pending(self) -> None:
+        """Apply the data a synchronous RPDO received before this SYNC (if any)."""
         data = self._pending
         if data is not None:
             self._pending = None
@@ -245,11 +245,7 @@ class Tpdo(_Pdo):
     def transmit(self, data: bytes | None = None) -> None:
         """Send now (used for SYNC and RTR, which ignore the inhibit time)."""
         node = self.node
-        frame = CanFrame(self.cob_id, self.build() if data is None else data)
-        try:
-            node.controller.send(frame)    # Node.send written out (every SYNC, every TPDO)
-        except LocalError:
-            node.count("tx_errors")
+        node.send(CanFrame(self.cob_id, self.build() if data is None else data))
         self.sent += 1
         self._last_tx = node.clock.now()
         if self._event_timer is not None or self.event_time > 0:
@@ -264,6 +260,10 @@ class Tpdo(_Pdo):
 
     def _event_timer_fired(self) -> None:
         self._event_timer = None
+        self.trigger()
+
+    def on_value_changed(self, key: Key, value: Any) -> None:
+        """Dictionary listener: a mapped object changed (an event, CiA 301 7.2.2)."""
         self.trigger()
 
     def trigger(self) -> None:
@@ -329,8 +329,7 @@ class PdoManager:
         self.node = node
         self.rpdo = [Rpdo(self, n) for n in range(N_PDO)]
         self.tpdo = [Tpdo(self, n) for n in range(N_PDO)]
-        #: (index, sub) -> TPDOs (type 0 / 254 / 255) that a change of that value triggers.
-        self.watch: dict[Key, list[Tpdo]] = {}
+        #: Ends the subscriptions of the event-driven TPDOs to the objects they map.
         self._unsubscribe: list[Callable[[], None]] = []
         for n in range(N_PDO):
             for comm, mapping, receive in ((0x1400 + n, 0x1600 + n, True), (0x1800 + n, 0x1A00 + n, False)):
@@ -343,20 +342,17 @@ class PdoManager:
     def configure(self) -> None:
         for pdo in (*self.rpdo, *self.tpdo):
             pdo.configure()
-        watch: dict[Key, list[Tpdo]] = {}
-        for tpdo in self.tpdo:
-            if tpdo.valid and (tpdo.trans_type == 0 or tpdo.trans_type >= 254):
-                for m in tpdo.mapped:
-                    if m.key is not None:
-                        watch.setdefault(m.key, []).append(tpdo)
-        self.watch = watch
+        self._subscribe_events()
+
+    def _subscribe_events(self) -> None:
+        """Event-driven TPDOs (types 0, 254, 255) subscribe to the objects they map, so that a
+        change of a mapped value triggers them (CiA 301 7.2.2); a remap subscribes anew."""
         for unsubscribe in self._unsubscribe:
             unsubscribe()
         od = self.node.od
-        self._unsubscribe = [od.subscribe(key, self._on_change) for key in watch]
-
-    def _on_change(self, key: Key, value: Any) -> None:
-        self.value_changed(key)
+        self._unsubscribe = [od.subscribe(m.key, tpdo.on_value_changed)
+                             for tpdo in self.tpdo if tpdo.valid and (tpdo.trans_type == 0 or tpdo.trans_type >= 254)
+                             for m in tpdo.mapped if m.key is not None]
 
     def reconfigure(self) -> None:
         self.halt()
@@ -391,18 +387,13 @@ class PdoManager:
             self.halt()
 
     # -- runtime ---------------------------------------------------------------------------------
-    def value_changed(self, key: Key) -> None:
-        for tpdo in self.watch.get(key, ()):
-            tpdo.trigger()
-
     def apply_sync_rpdos(self) -> None:
+        """SYNC, first step: the data synchronous RPDOs received since the previous SYNC."""
         for rpdo in self.rpdo:
-            data = rpdo._pending
-            if data is not None:     # Rpdo.apply_pending, written out
-                rpdo._pending = None
-                rpdo.apply(data)
+            rpdo.apply_pending()
 
     def on_sync(self, counter: int | None) -> None:
+        """SYNC, last step: synchronous TPDOs sample and send, type 252 samples."""
         for tpdo in self.tpdo:
             if tpdo.valid:
                 tpdo.on_sync(counter)
@@ -412,7 +403,7 @@ class PdoManager:
         def validate(entry: Entry, value: Any) -> None:
             od = self.node.od
             valid_now = not od.get(comm, 1) & COB_INVALID
-            sub = entry.sub
+            sub = entry.subindex
             if sub == 1:
                 if value & COB_EXTENDED:
                     raise SdoAbort(VALUE_RANGE_EXCEEDED, "only 11-bit COB-IDs (IDX: standard frames only)")
@@ -435,7 +426,7 @@ class PdoManager:
             od = self.node.od
             if not od.get(comm, 1) & COB_INVALID:
                 raise SdoAbort(UNSUPPORTED_ACCESS, "PDO is valid: set COB-ID bit 31 before re-mapping")
-            if entry.sub == 0:
+            if entry.subindex == 0:
                 if value > MAX_MAPPED:
                     raise SdoAbort(VALUE_RANGE_EXCEEDED)
                 self._check_mapping(mapping, value, receive)

@@ -113,19 +113,11 @@ class Sync:
         node = self.node
         if node.emcy.active and EMCY_UNEXPECTED_SYNC_LENGTH in node.emcy.active:
             node.emcy.clear_error(EMCY_UNEXPECTED_SYNC_LENGTH)
-        pdo = node.pdo
         operational = node.nmt_state is _OPERATIONAL
         if operational:
-            for rpdo in pdo.rpdo:     # PdoManager.apply_sync_rpdos, written out
-                data = rpdo._pending
-                if data is not None:
-                    rpdo._pending = None
-                    rpdo.apply(data)
-        listeners = self.listeners
-        if listeners:
-            for listener in list(listeners):
+            node.pdo.apply_sync_rpdos()
+        if self.listeners:
+            for listener in list(self.listeners):
                 listener(counter, t)
         if operational:
-            for tpdo in pdo.tpdo:     # PdoManager.on_sync, written out (every SYNC, every node)
-                if tpdo.valid:
-                    tpdo.on_sync(counter)
+            node.pdo.on_sync(counter)

@@ -203,11 +203,6 @@ class Entry:
         return 8 * size if size is not None else 0
 
     @property
-    def sub(self) -> int:
-        """Alias of ``subindex`` kept for ``canopen/pdo.py`` until it reads ``subindex``."""
-        return self.subindex
-
-    @property
     def rx_pdo(self) -> bool:
         """Mappable into an RPDO / CoE RxPDO (outputs of the master)."""
         return self.pdo_mappable and self.access.rx_mappable

@@ -3,6 +3,7 @@ download does), on the simulated clock only. IDX guide 3.1 (CiA 402 V4.0), table
 
 from __future__ import annotations
 
+import itertools
 import struct
 
 import pytest
@@ -209,3 +210,34 @@ def test_unconfigured_drive_is_silent_until_lss() -> None:
     clock.advance(0.1)
     assert [f.can_id for f in frames] == [0x601]
     assert d.node.node_id is None
+
+
+def test_transition_16_resumes_the_motion(axis: Axis) -> None:
+    """CiA 402 transition 16 (quick stop active -> operation enabled, quick stop option codes
+    5..8): the drive function is enabled again: in PV the axis runs up to 0x60FF again."""
+    axis.w(0x605A, 0, "h", 6)
+    axis.enable(3)
+    axis.w(0x60FF, 0, "i", 20_000)
+    axis.clock.advance(0.3)
+    axis.cw(0x02)                                    # quick stop
+    axis.clock.advance(0.3)
+    assert state_from_statusword(axis.sw()) is PdsState.QUICK_STOP_ACTIVE
+    assert abs(axis.r(0x606C)) <= 5
+    axis.cw(0x0F)                                    # enable operation: transition 16
+    assert state_from_statusword(axis.sw()) is PdsState.OPERATION_ENABLED
+    axis.clock.advance(0.3)
+    assert abs(axis.r(0x606C) - 20_000) <= 100
+
+
+def test_actual_values_reach_dictionary_subscribers(axis: Axis) -> None:
+    """The drive publishes its actual values through the dictionary's change notification (the
+    mechanism event-driven TPDOs use, CiA 301 7.2.2): a subscriber of 0x6064 position actual
+    value sees every change, the last one equal to the stored value."""
+    seen: list[int] = []
+    axis.drive.od.subscribe((0x6064, 0), lambda key, value: seen.append(value))
+    axis.enable(3)
+    axis.w(0x60FF, 0, "i", 20_000)
+    axis.clock.advance(0.1)
+    assert len(seen) > 50
+    assert seen[-1] == axis.r(0x6064)
+    assert all(a != b for a, b in itertools.pairwise(seen))

@@ -350,3 +350,47 @@ def test_tpdo_frame_golden(make_node, raw) -> None:
     raw.received.clear()
     raw.send(0x80)
     assert raw.take(0x185) == [CanFrame(0x185, bytes([4, 3, 2, 1, 0xB0, 0xA0, 1, 0xFF]))]
+
+
+def test_dictionary_put_notifies_subscribers_of_changes_only() -> None:
+    """Change notification for event-driven PDOs (CiA 301 7.2.2: a TPDO of type 254/255 is sent
+    on a change of a mapped value): ``put`` stores, says whether the value changed and calls the
+    key's listeners only then; the returned function ends the subscription."""
+    from gatewaylab.od import Access, DataType, ObjectDictionary
+
+    od = ObjectDictionary(5)
+    od.add_variable(0x2000, "a", DataType.INTEGER16, Access.RW, 0, pdo_mappable=True)
+    od.add_variable(0x2001, "b", DataType.INTEGER16, Access.RW, 0, pdo_mappable=True)
+    seen: list[tuple[tuple[int, int], object]] = []
+    unsubscribe = od.subscribe((0x2000, 0), lambda key, value: seen.append((key, value)))
+    assert od.put(0x2000, 0, 7) is True
+    assert od.put(0x2000, 0, 7) is False          # same value: no event
+    assert od.put(0x2001, 0, 3) is True           # another key: not this listener's
+    assert seen == [((0x2000, 0), 7)]
+    assert od.values[(0x2000, 0)] == 7 and od.values[(0x2001, 0)] == 3
+    unsubscribe()
+    assert od.put(0x2000, 0, 8) is True
+    assert seen == [((0x2000, 0), 7)]
+    unsubscribe()                                 # ending it twice is harmless
+    with pytest.raises(E.SdoAbort):
+        od.put(0x3000, 0, 1)                      # no such object
+
+
+def test_remap_moves_the_event_subscription(make_node, raw, sniffer, clock) -> None:
+    """CiA 301 7.5.2.36 re-mapping: an event-driven TPDO (type 255) follows the objects it maps
+    now: a change of an object mapped before the remap no longer sends it."""
+    node = make_node()
+    map_tpdo(raw, 0, [0x20110010], 255)
+    raw.send(0, [0x01, 5])
+    sniffer.clear()
+    node.set(0x2011, 0, 4)
+    clock.advance(0.01)
+    assert [f.data for _, f in sniffer.ids(0x185)] == [b"\x04\x00"]
+    map_tpdo(raw, 0, [0x20070020], 255)           # 0x2011 no longer mapped
+    sniffer.clear()
+    node.set(0x2011, 0, 5)
+    clock.advance(0.01)
+    assert sniffer.ids(0x185) == []
+    node.set(0x2007, 0, -2)
+    clock.advance(0.01)
+    assert [f.data for _, f in sniffer.ids(0x185)] == [struct.pack("<i", -2)]

@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 
 from gatewaylab.bus import CanFrame, VirtualBus
 from gatewaylab.canopen.drive import Drive
-from gatewaylab.canopen.errors import ABORT_NAMES
+from gatewaylab.od import SdoAbortCode
 from gatewaylab.common.clock import SimulatedClock
 
 NODE = 4
@@ -60,7 +60,7 @@ def test_drive_sdo_server_answers_only_valid_frames(requests: list[tuple[tuple[b
         if frame.can_id == 0x580 + NODE:
             assert len(frame.data) == 8, frame
             if frame.data[0] == 0x80:
-                assert int.from_bytes(frame.data[4:], "little") in ABORT_NAMES, frame
+                assert SdoAbortCode.known(int.from_bytes(frame.data[4:], "little")), frame
     out.clear()
     ctrl.send(CanFrame(0x600 + NODE, bytes([0x80, 0, 0, 0, 0, 0, 0, 0])))  # end whatever still runs
     clock.advance(0.01)

@@ -25,7 +25,7 @@ from gatewaylab.devices.maxon_idx.commands import (
     decode_reply,
 )
 from gatewaylab.devices.maxon_idx.device import IdxDevice
-from gatewaylab.devices.maxon_idx.errors import ErrorCode
+from gatewaylab.devices.maxon_idx.errors import idx_codes
 from gatewaylab.devices.maxon_idx.host.client import IdxClient
 
 #: Requests that change the device or the bus (a storm of valid ones would legitimately change what a
@@ -33,7 +33,7 @@ from gatewaylab.devices.maxon_idx.host.client import IdxClient
 #: only corrupted (bad CRC).
 CHANGING = {OpCode.WRITE_OBJECT, OpCode.INITIATE_SEGMENTED_WRITE, OpCode.SEGMENT_WRITE,
             OpCode.SEND_NMT_SERVICE, OpCode.SEND_LSS, OpCode.READ_LSS}
-SPEC_CODES = {int(c) for c in ErrorCode}
+SPEC_CODES = {int(c) for c in idx_codes()}
 CHECKS = ((1, 0x1018, 4, 0x2001), (0, 0x1018, 4, 0x2001), (2, 0x1018, 4, 0x1002))
 
 
