@@ -191,17 +191,22 @@ class SimulatedClock(Clock):
     def step(self) -> bool:
         """Run the earliest event (advancing time to it); False when nothing is scheduled."""
         with self.lock:
+            return self._run_next()
+
+    def _run_next(self) -> bool:
+        """:meth:`step` for a caller that holds the lock already."""
+        if self._injected:
             self._drain_injected()
-            heap = self._heap
-            while heap:
-                when, _, handle = heapq.heappop(heap)
-                if handle.cancelled:
-                    continue
-                if when > self._now:
-                    self._now = when
-                handle.callback(*handle.args)
-                return True
-            return False
+        heap = self._heap
+        while heap:
+            when, _, handle = heapq.heappop(heap)
+            if handle.cancelled:
+                continue
+            if when > self._now:
+                self._now = when
+            handle.callback(*handle.args)
+            return True
+        return False
 
     def run_until(self, t: float) -> int:
         """Run every event due at or before ``t`` and leave ``now() == t``; returns events run."""
@@ -243,10 +248,8 @@ class SimulatedClock(Clock):
     def run_while(self, condition: Callable[[], bool], max_events: int = 1_000_000) -> int:
         """Run events one by one while ``condition()`` holds (e.g. while a bus is busy)."""
         count = 0
-        with self.lock:
-            while condition() and count < max_events:
-                if not self.step():
-                    break
+        with self.lock:   # taken once, not per event
+            while count < max_events and condition() and self._run_next():
                 count += 1
         return count
 
