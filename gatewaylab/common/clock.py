@@ -9,7 +9,11 @@ and schedules callbacks with ``call_at``/``call_later``. Two implementations exi
 * :class:`RealTimeClock` -- the same event queue read against a monotonic wall clock. Something
   outside the protocol code (the rig runtime's I/O loop) calls :meth:`RealTimeClock.run_due` and
   waits until :meth:`Clock.next_deadline`; other threads hand work in with
-  :meth:`Clock.call_soon_threadsafe`.
+  :meth:`Clock.call_soon_threadsafe`. Each ``run_due`` runs only what was due when it began, so
+  that loop serves its I/O between passes whatever the protocols schedule.
+
+A blocking caller outside the protocol cores (an in-process EtherCAT master polling a mailbox)
+lets time pass with :meth:`Clock.wait`, never by moving a simulated clock or spinning itself.
 """
 
 from __future__ import annotations
@@ -121,6 +125,12 @@ class Clock:
         if self._injected:
             return self.now()
         return heap[0][0] if heap else None
+
+    def wait(self, delay: float) -> None:
+        """Let ``delay`` seconds pass for a caller that blocks on the clock (an in-process master
+        polling a slave): a simulated clock runs its events up to then, a real-time one blocks
+        the calling thread without spinning. Protocol code never calls it: it schedules."""
+        raise NotImplementedError
 
     def pending(self) -> int:
         return sum(1 for _, _, h in self._heap if not h.cancelled) + len(self._injected)
@@ -245,6 +255,10 @@ class SimulatedClock(Clock):
         with self.lock:  # read "now" under the lock: another thread may be running the clock
             return self.run_until(self._now + dt)
 
+    def wait(self, delay: float) -> None:
+        """:meth:`Clock.wait`: the events of the next ``delay`` seconds run, then time is ``now + delay``."""
+        self.advance(delay)
+
     def run_while(self, condition: Callable[[], bool], max_events: int = 1_000_000) -> int:
         """Run events one by one while ``condition()`` holds (e.g. while a bus is busy)."""
         count = 0
@@ -268,18 +282,46 @@ class RealTimeClock(Clock):
     def now(self) -> float:
         return time.monotonic() - self._t0
 
+    def wait(self, delay: float) -> None:
+        """:meth:`Clock.wait`: block the calling thread for ``delay`` seconds. When no loop runs
+        this clock (no :attr:`wakeup` installed, e.g. a script without a rig), run its events
+        meanwhile as they fall due."""
+        if delay < 0:
+            raise LocalError(f"negative delay {delay}")
+        deadline = self.now() + delay
+        while True:
+            alone = self.wakeup is None
+            if alone:
+                self.run_due()
+            now = self.now()
+            if now >= deadline:
+                return
+            until = deadline
+            if alone:
+                due = self.next_deadline()
+                if due is not None and due < until:
+                    until = due
+            time.sleep(max(0.0, until - now))
+
     def run_due(self) -> int:
-        """Run every event whose time has come; returns how many ran."""
+        """Run the events that were due when the call began; returns how many ran.
+
+        Events that these schedule for now (a frame that takes no time, a callback that
+        reschedules itself at once) wait for the next call: each pass does bounded work, so the
+        loop that calls it keeps serving its sockets and signals whatever the protocols do."""
         count = 0
         with self.lock:
             self._drain_injected()
+            last = self._seq      # events scheduled from here on belong to the next pass
             heap = self._heap
             now = self.now()
             while heap:
-                when, _, handle = heap[0]
+                when, seq, handle = heap[0]
                 if handle.cancelled:
                     heapq.heappop(heap)
                     continue
+                if seq > last:
+                    break
                 if when > now:
                     now = self.now()
                     if when > now:
@@ -292,5 +334,4 @@ class RealTimeClock(Clock):
                         raise
                     self.on_error(exc)
                 count += 1
-                self._drain_injected()
         return count

@@ -12,7 +12,7 @@ import struct
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from ..common.clock import Clock, PeriodicTimer, SimulatedClock
+from ..common.clock import Clock, PeriodicTimer
 from ..common.errors import TimeoutError_
 from .coe import SDO, CoeService, InfoOpcode, coe_header
 from .datagram import MAX_DATAGRAM_DATA, Command, Datagram, Frame, decode_frame, encode_frame
@@ -42,6 +42,10 @@ U64 = struct.Struct("<Q")
 FMMU_REG = struct.Struct("<IHBBHBBB3x")
 SM_REG = struct.Struct("<HHBBBB")
 FIRST_STATION = 0x1001
+#: Seconds between two polls of a mailbox that is not ready yet (SM1 empty, SM0 still full).
+MAILBOX_POLL = 0.0005
+#: Seconds before an FoE data packet that the slave answered with BUSY is sent again.
+FOE_BUSY_RETRY = 0.01
 
 
 @dataclass(slots=True)
@@ -259,12 +263,12 @@ class Master:
 
     # ------------------------------------------------------------------ mailbox
     def _wait(self, check: Callable[[], bool]) -> None:
+        """Poll ``check`` (it sends a frame) until it holds, waiting on the clock between polls."""
         deadline = self.clock.now() + self.timeout
         while not check():
             if self.clock.now() >= deadline:
                 raise TimeoutError_("mailbox timeout")
-            if isinstance(self.clock, SimulatedClock):
-                self.clock.advance(0.0005)
+            self.clock.wait(MAILBOX_POLL)
 
     def mailbox_exchange(self, position: int, mtype: int, data: bytes,
                          accept: Callable[[MailboxMessage], bool] | None = None) -> MailboxMessage:
@@ -455,8 +459,7 @@ class Master:
             while opcode == FoeOpcode.BUSY:  # the slave needs time: repeat the packet later
                 if self.clock.now() >= deadline:
                     raise TimeoutError_("FoE slave stayed busy")
-                if isinstance(self.clock, SimulatedClock):
-                    self.clock.advance(0.01)
+                self.clock.wait(FOE_BUSY_RETRY)
                 opcode, word, _ = self._foe(position, foe_packet(FoeOpcode.DATA, packet, chunk))
             if opcode != FoeOpcode.ACK or word != packet:
                 raise FoeError(f"data packet {packet} not acknowledged", 0x8005)
