@@ -162,15 +162,9 @@ class PeriodicTimer:
         # origin + k * period: no accumulated rounding error however long it runs.
         self._count = count = self._count + 1
         self.next_time = when = self._origin + count * self.period
-        # the handle that has just fired is queued again (clock.reschedule written out): one
-        # pending run per timer, so it needs no new handle per period
-        handle = self._handle
-        if handle is not None:
-            clock = self.clock
-            clock._seq = seq = clock._seq + 1
-            handle.when = when
-            handle.seq = seq
-            heapq.heappush(clock._heap, (when, seq, handle))
+        # one pending run per timer: the handle that has just fired is queued again
+        if self._handle is not None:
+            self.clock.reschedule(self._handle, when)
         self.callback(*self.args)
 
     def cancel(self) -> None:
