@@ -9,7 +9,7 @@ and schedules callbacks with ``call_at``/``call_later``. Two implementations exi
 * :class:`RealTimeClock` -- the same event queue read against a monotonic wall clock. Something
   outside the protocol code (the rig runtime's I/O loop) calls :meth:`RealTimeClock.run_due` and
   waits until :meth:`Clock.next_deadline`; other threads hand work in with
-  :meth:`Clock.call_soon_threadsafe`. Each ``run_due`` runs only what was due when it began, so
+  :meth:`Clock.call_soon_threadsafe`. Each ``run_due`` pass runs a bounded number of events, so
   that loop serves its I/O between passes whatever the protocols schedule.
 
 A blocking caller outside the protocol cores (an in-process EtherCAT master polling a mailbox)
@@ -272,6 +272,9 @@ class RealTimeClock(Clock):
         #: Called with the exception when a callback raises; None lets it propagate. A running rig
         #: sets it so one faulty callback is logged instead of stopping every device.
         self.on_error: Callable[[BaseException], None] | None = None
+        #: Events one :meth:`run_due` pass runs at most (a few milliseconds of work): large enough
+        #: to batch a burst of frames into one write per client, small enough to poll I/O often.
+        self.pass_limit = 1000
 
     def now(self) -> float:
         return time.monotonic() - self._t0
@@ -298,24 +301,23 @@ class RealTimeClock(Clock):
             time.sleep(max(0.0, until - now))
 
     def run_due(self) -> int:
-        """Run the events that were due when the call began; returns how many ran.
+        """Run the events that are due, those that fall due meanwhile included, but at most
+        :attr:`pass_limit` of them; returns how many ran.
 
-        Events that these schedule for now (a frame that takes no time, a callback that
-        reschedules itself at once) wait for the next call: each pass does bounded work, so the
-        loop that calls it keeps serving its sockets and signals whatever the protocols do."""
+        The limit bounds each pass, so the loop that calls it serves its sockets and signals
+        between passes whatever the protocols schedule (frames that take no time, a callback
+        that schedules itself for now again and again); what is left runs in the next pass."""
         count = 0
+        limit = self.pass_limit
         with self.lock:
             self._drain_injected()
-            last = self._seq      # events scheduled from here on belong to the next pass
             heap = self._heap
             now = self.now()
-            while heap:
-                when, seq, handle = heap[0]
+            while heap and count < limit:
+                when, _, handle = heap[0]
                 if handle.cancelled:
                     heapq.heappop(heap)
                     continue
-                if seq > last:
-                    break
                 if when > now:
                     now = self.now()
                     if when > now:
@@ -328,4 +330,5 @@ class RealTimeClock(Clock):
                         raise
                     self.on_error(exc)
                 count += 1
+                self._drain_injected()
         return count
