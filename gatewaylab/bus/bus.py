@@ -57,6 +57,10 @@ class Outcome(Enum):
     CRC_ERROR = "crc"        # fault injection: the receivers see a CRC error, the sender retransmits
 
 
+#: Frames that take no time (a bus without frame timing) end at once, at most this many in a
+#: row; then the bus goes on in a new clock event (see VirtualBus._arbitrate).
+ZERO_TIME_BURST = 32
+
 _SENT = Outcome.SENT
 _DROPPED = Outcome.DROPPED
 _ACK_ERROR = Outcome.ACK_ERROR
@@ -722,27 +726,45 @@ class VirtualBus:
     def _arbitrate(self, start: float | None = None) -> None:
         """Put the next frame on the wire at ``start`` (default now) and schedule its end: in real
         time a late wake-up must not stretch the frame schedule, so back-to-back frames start at
-        the previous frame's end. Every frame ends in a clock event of its own, also when it takes
-        no time, so the clock's owner keeps control between frames."""
+        the previous frame's end. A frame that takes no time (a bus without frame timing) ends at
+        once; after ZERO_TIME_BURST of them in a row the bus goes on in a new clock event, so the
+        clock's owner keeps control (a real-time rig serves its clients in between)."""
         self._arb_timer = None
         if self._on_wire is not None:
             return
-        tx = self._next_transmission(self.clock.now() if start is None else start)
-        if tx is None:
-            return
-        if tx.outcome is _DROPPED:
-            self._drop_next -= 1
-        elif tx.outcome is _CRC_ERROR:
-            self._corrupt_next -= 1
-        self._on_wire = tx
-        self.clock.reschedule(self._eof_handle, tx.end)
+        now = self.clock.now() if start is None else start
+        for _ in range(ZERO_TIME_BURST):
+            tx = self._next_transmission(now)
+            if tx is None:
+                return
+            if tx.outcome is _DROPPED:
+                self._drop_next -= 1
+            elif tx.outcome is _CRC_ERROR:
+                self._corrupt_next -= 1
+            self._on_wire = tx
+            if tx.end != now:
+                self.clock.reschedule(self._eof_handle, tx.end)
+                return
+            try:
+                self._complete(tx)
+            except BaseException:
+                self._kick()   # the frames still queued go on in a clock event of their own
+                raise
+        self._kick()
 
     def _end_of_frame(self) -> None:
-        """The transmission on the wire ends: account for it (queue, counters, delivery, events,
-        fault confinement), then arbitrate the next frame at this instant. The bus counts as busy
-        until then, so frames that receivers send meanwhile wait for that arbitration."""
+        """The frame on the wire ends: complete it, then arbitrate the next one at this instant.
+        The bus counts as busy until then, so frames that receivers send meanwhile wait for it."""
         tx = self._on_wire
         assert tx is not None
+        try:
+            self._complete(tx)
+        finally:
+            self._arbitrate(tx.end)
+
+    def _complete(self, tx: Transmission) -> None:
+        """Account for the transmission on the wire as it ends (queue, counters, delivery,
+        events, fault confinement); the bus is idle afterwards."""
         sender, frame, outcome, start, end = tx.sender, tx.frame, tx.outcome, tx.start, tx.end
         try:
             self._idle_at = end
@@ -786,7 +808,6 @@ class VirtualBus:
             self._foreign_errors(end)
         finally:
             self._on_wire = None
-            self._arbitrate(end)
 
     def _deliver(self, sender: Controller, frame: CanFrame, now: float) -> None:
         """Hand a completed frame to everyone who hears it: its sender with ``receive_own``, the

@@ -3,6 +3,7 @@
 import pytest
 
 from gatewaylab.bus import CanFrame, ErrorState, Outcome, VirtualBus, frame_duration
+from gatewaylab.bus.bus import ZERO_TIME_BURST
 from gatewaylab.bus.timing import error_duration
 
 
@@ -126,22 +127,24 @@ def test_arbitration_step_names_the_winner_and_the_outcome_without_changing_anyt
     assert lone is not None and lone.outcome is Outcome.ACK_ERROR
 
 
-def test_without_timing_every_frame_ends_in_its_own_clock_event(clock, attach) -> None:
-    """docs/bus.md: `timing=False` gives every frame zero duration, arbitration order still applies; each frame
-    still ends in a clock event of its own, so the clock's owner keeps control between frames (issue 15)."""
+def test_without_timing_frames_end_at_once_in_bounded_bursts(clock, attach) -> None:
+    """docs/bus.md: `timing=False` gives every frame zero duration, arbitration order still applies; at most
+    ZERO_TIME_BURST frames end in one clock event, so the clock's owner keeps control between bursts (issue 15)."""
     untimed = VirtualBus(clock, "fast", 1_000_000, timing=False)
     got: list[int] = []
     tx = untimed.attach("tx")
     untimed.attach("rx", on_frame=lambda f, t: got.append(f.can_id))
-    for can_id in (0x300, 0x100, 0x200):
-        tx.send(CanFrame(can_id))
     other = untimed.attach("other")
+    queued = [0x300 + i for i in range(2 * ZERO_TIME_BURST + 5)]
+    for can_id in queued:
+        tx.send(CanFrame(can_id))
     other.send(CanFrame(0x050))
-    clock.step()                # the arbitration: 0x050 wins (0x300 heads tx's FIFO queue)
-    clock.step()                # its end of frame
-    assert got == [0x050] and clock.now() == 0.0
+    clock.step()                # one arbitration event: 0x050 wins (0x300 heads tx's FIFO queue)
+    assert got == [0x050, *queued[:ZERO_TIME_BURST - 1]] and clock.now() == 0.0
+    clock.step()
+    assert len(got) == 2 * ZERO_TIME_BURST
     clock.run_while(untimed.is_busy)
-    assert got == [0x050, 0x300, 0x100, 0x200] and clock.now() == 0.0
+    assert got == [0x050, *queued] and clock.now() == 0.0
 
 
 def test_lone_sender_without_timing_does_not_stop_the_clock(clock) -> None:
