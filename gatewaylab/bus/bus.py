@@ -733,7 +733,8 @@ class VirtualBus:
         if self._on_wire is not None:
             return
         now = self.clock.now() if start is None else start
-        for _ in range(ZERO_TIME_BURST):
+        burst = 0
+        while True:
             tx = self._next_transmission(now)
             if tx is None:
                 return
@@ -745,26 +746,23 @@ class VirtualBus:
             if tx.end != now:
                 self.clock.reschedule(self._eof_handle, tx.end)
                 return
+            burst += 1
             try:
-                self._complete(tx)
+                self._end_of_frame(arbitrate=False)
             except BaseException:
                 self._kick()   # the frames still queued go on in a clock event of their own
                 raise
-        self._kick()
+            if burst == ZERO_TIME_BURST:
+                self._kick()
+                return
 
-    def _end_of_frame(self) -> None:
-        """The frame on the wire ends: complete it, then arbitrate the next one at this instant.
-        The bus counts as busy until then, so frames that receivers send meanwhile wait for it."""
+    def _end_of_frame(self, arbitrate: bool = True) -> None:
+        """The transmission on the wire ends: account for it (queue, counters, delivery, events,
+        fault confinement), then, in its own clock event, arbitrate the next frame at this
+        instant. The bus counts as busy until then, so frames that receivers send meanwhile wait
+        for that arbitration."""
         tx = self._on_wire
         assert tx is not None
-        try:
-            self._complete(tx)
-        finally:
-            self._arbitrate(tx.end)
-
-    def _complete(self, tx: Transmission) -> None:
-        """Account for the transmission on the wire as it ends (queue, counters, delivery,
-        events, fault confinement); the bus is idle afterwards."""
         sender, frame, outcome, start, end = tx.sender, tx.frame, tx.outcome, tx.start, tx.end
         try:
             self._idle_at = end
@@ -808,6 +806,8 @@ class VirtualBus:
             self._foreign_errors(end)
         finally:
             self._on_wire = None
+            if arbitrate:
+                self._arbitrate(end)
 
     def _deliver(self, sender: Controller, frame: CanFrame, now: float) -> None:
         """Hand a completed frame to everyone who hears it: its sender with ``receive_own``, the
