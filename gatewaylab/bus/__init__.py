@@ -10,7 +10,9 @@ from .bus import (
     ErrorFrameEvent,
     ErrorKind,
     ErrorState,
+    Outcome,
     StateChangeEvent,
+    Transmission,
     TxAbortedEvent,
     TxDoneEvent,
     VirtualBus,
@@ -22,8 +24,8 @@ if TYPE_CHECKING:
     from .transport.inprocess import InProcessBus
 
 __all__ = [
-    "BusEvent", "CanFrame", "Controller", "ErrorFrameEvent", "ErrorKind", "ErrorState",
-    "StateChangeEvent", "TxAbortedEvent", "TxDoneEvent", "VirtualBus", "frame_duration",
+    "BusEvent", "CanFrame", "Controller", "ErrorFrameEvent", "ErrorKind", "ErrorState", "Outcome",
+    "StateChangeEvent", "Transmission", "TxAbortedEvent", "TxDoneEvent", "VirtualBus", "frame_duration",
     "len_to_dlc", "python_can_bus",
 ]
 

@@ -70,6 +70,11 @@ def frame_duration(frame: CanFrame, bitrate: int, data_bitrate: int | None = Non
     return _duration(frame.extended, frame.fd, frame.brs, n, bitrate, data_bitrate or bitrate)
 
 
+def classic_durations(bitrate: int) -> tuple[float, ...]:
+    """Seconds of classic base frames with 0..8 data bytes (index = bytes; remote frames: 0)."""
+    return tuple(classic_bits(False, n) / bitrate for n in range(9))
+
+
 def frame_bits_until_ack(frame: CanFrame) -> int:
     """Nominal-rate bit times until the ACK slot, where an ACK error is detected."""
     n = 0 if frame.rtr else len(frame.data)
@@ -77,6 +82,16 @@ def frame_bits_until_ack(frame: CanFrame) -> int:
         return classic_bits(frame.extended, n) - 12
     nominal, data = fd_bits(frame.extended, n)
     return nominal - 12 + data
+
+
+def error_duration(frame: CanFrame, passive: bool, bitrate: int, data_bitrate: int | None = None) -> float:
+    """Seconds a transmission that ends in an error (ACK or CRC) occupies the bus: the frame up
+    to its ACK slot, the error frame, and for an error-passive sender the suspend transmission."""
+    if frame.fd and frame.brs and data_bitrate:
+        until_ack = frame_duration(frame, bitrate, data_bitrate) - 12 / bitrate
+    else:
+        until_ack = frame_bits_until_ack(frame) / bitrate
+    return until_ack + (ERROR_FRAME_BITS + (SUSPEND_TRANSMISSION_BITS if passive else 0)) / bitrate
 
 
 def arbitration_key(frame: CanFrame) -> int:

@@ -9,7 +9,11 @@ and schedules callbacks with ``call_at``/``call_later``. Two implementations exi
 * :class:`RealTimeClock` -- the same event queue read against a monotonic wall clock. Something
   outside the protocol code (the rig runtime's I/O loop) calls :meth:`RealTimeClock.run_due` and
   waits until :meth:`Clock.next_deadline`; other threads hand work in with
-  :meth:`Clock.call_soon_threadsafe`.
+  :meth:`Clock.call_soon_threadsafe`. Each ``run_due`` pass runs a bounded number of events, so
+  that loop serves its I/O between passes whatever the protocols schedule.
+
+A blocking caller outside the protocol cores (an in-process EtherCAT master polling a mailbox)
+lets time pass with :meth:`Clock.wait`, never by moving a simulated clock or spinning itself.
 """
 
 from __future__ import annotations
@@ -122,6 +126,12 @@ class Clock:
             return self.now()
         return heap[0][0] if heap else None
 
+    def wait(self, delay: float) -> None:
+        """Let ``delay`` seconds pass for a caller that blocks on the clock (an in-process master
+        polling a slave): a simulated clock runs its events up to then, a real-time one blocks
+        the calling thread without spinning. Protocol code never calls it: it schedules."""
+        raise NotImplementedError
+
     def pending(self) -> int:
         return sum(1 for _, _, h in self._heap if not h.cancelled) + len(self._injected)
 
@@ -152,15 +162,9 @@ class PeriodicTimer:
         # origin + k * period: no accumulated rounding error however long it runs.
         self._count = count = self._count + 1
         self.next_time = when = self._origin + count * self.period
-        # the handle that has just fired is queued again (clock.reschedule written out): one
-        # pending run per timer, so it needs no new handle per period
-        handle = self._handle
-        if handle is not None:
-            clock = self.clock
-            clock._seq = seq = clock._seq + 1
-            handle.when = when
-            handle.seq = seq
-            heapq.heappush(clock._heap, (when, seq, handle))
+        # one pending run per timer: the handle that has just fired is queued again
+        if self._handle is not None:
+            self.clock.reschedule(self._handle, when)
         self.callback(*self.args)
 
     def cancel(self) -> None:
@@ -191,17 +195,22 @@ class SimulatedClock(Clock):
     def step(self) -> bool:
         """Run the earliest event (advancing time to it); False when nothing is scheduled."""
         with self.lock:
+            return self._run_next()
+
+    def _run_next(self) -> bool:
+        """:meth:`step` for a caller that holds the lock already."""
+        if self._injected:
             self._drain_injected()
-            heap = self._heap
-            while heap:
-                when, _, handle = heapq.heappop(heap)
-                if handle.cancelled:
-                    continue
-                if when > self._now:
-                    self._now = when
-                handle.callback(*handle.args)
-                return True
-            return False
+        heap = self._heap
+        while heap:
+            when, _, handle = heapq.heappop(heap)
+            if handle.cancelled:
+                continue
+            if when > self._now:
+                self._now = when
+            handle.callback(*handle.args)
+            return True
+        return False
 
     def run_until(self, t: float) -> int:
         """Run every event due at or before ``t`` and leave ``now() == t``; returns events run."""
@@ -240,13 +249,15 @@ class SimulatedClock(Clock):
         with self.lock:  # read "now" under the lock: another thread may be running the clock
             return self.run_until(self._now + dt)
 
+    def wait(self, delay: float) -> None:
+        """:meth:`Clock.wait`: the events of the next ``delay`` seconds run, then time is ``now + delay``."""
+        self.advance(delay)
+
     def run_while(self, condition: Callable[[], bool], max_events: int = 1_000_000) -> int:
         """Run events one by one while ``condition()`` holds (e.g. while a bus is busy)."""
         count = 0
-        with self.lock:
-            while condition() and count < max_events:
-                if not self.step():
-                    break
+        with self.lock:   # taken once, not per event
+            while count < max_events and condition() and self._run_next():
                 count += 1
         return count
 
@@ -261,18 +272,48 @@ class RealTimeClock(Clock):
         #: Called with the exception when a callback raises; None lets it propagate. A running rig
         #: sets it so one faulty callback is logged instead of stopping every device.
         self.on_error: Callable[[BaseException], None] | None = None
+        #: Events one :meth:`run_due` pass runs at most (a few milliseconds of work): large enough
+        #: to batch a burst of frames into one write per client, small enough to poll I/O often.
+        self.pass_limit = 1000
 
     def now(self) -> float:
         return time.monotonic() - self._t0
 
+    def wait(self, delay: float) -> None:
+        """:meth:`Clock.wait`: block the calling thread for ``delay`` seconds. When no loop runs
+        this clock (no :attr:`wakeup` installed, e.g. a script without a rig), run its events
+        meanwhile as they fall due."""
+        if delay < 0:
+            raise LocalError(f"negative delay {delay}")
+        deadline = self.now() + delay
+        while True:
+            alone = self.wakeup is None
+            if alone:
+                self.run_due()
+            now = self.now()
+            if now >= deadline:
+                return
+            until = deadline
+            if alone:
+                due = self.next_deadline()
+                if due is not None and due < until:
+                    until = due
+            time.sleep(max(0.0, until - now))
+
     def run_due(self) -> int:
-        """Run every event whose time has come; returns how many ran."""
+        """Run the events that are due, those that fall due meanwhile included, but at most
+        :attr:`pass_limit` of them; returns how many ran.
+
+        The limit bounds each pass, so the loop that calls it serves its sockets and signals
+        between passes whatever the protocols schedule (frames that take no time, a callback
+        that schedules itself for now again and again); what is left runs in the next pass."""
         count = 0
+        limit = self.pass_limit
         with self.lock:
             self._drain_injected()
             heap = self._heap
             now = self.now()
-            while heap:
+            while heap and count < limit:
                 when, _, handle = heap[0]
                 if handle.cancelled:
                     heapq.heappop(heap)

@@ -12,7 +12,7 @@ import struct
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from ..common.clock import Clock, PeriodicTimer, SimulatedClock
+from ..common.clock import Clock, PeriodicTimer
 from ..common.errors import TimeoutError_
 from .coe import SDO, CoeService, InfoOpcode, coe_header
 from .datagram import MAX_DATAGRAM_DATA, Command, Datagram, Frame, decode_frame, encode_frame
@@ -42,11 +42,15 @@ U64 = struct.Struct("<Q")
 FMMU_REG = struct.Struct("<IHBBHBBB3x")
 SM_REG = struct.Struct("<HHBBBB")
 FIRST_STATION = 0x1001
+#: Seconds between two polls of a mailbox that is not ready yet (SM1 empty, SM0 still full).
+MAILBOX_POLL = 0.0005
+#: Seconds before an FoE data packet that the slave answered with BUSY is sent again.
+FOE_BUSY_RETRY = 0.01
 
 
 @dataclass(slots=True)
 class SlaveInfo:
-    """What the master learnt about one slave (QEC: getVendorID / getProductCode ...)."""
+    """What the master learnt about one slave, so every later call addresses it by position (QEC: getVendorID ...)."""
 
     position: int
     station: int
@@ -60,38 +64,45 @@ class SlaveInfo:
 
     @property
     def mailbox_out(self) -> tuple[int, int]:
-        """The mailbox SM0 in use: the bootstrap one in BOOT, else the standard one."""
+        """(start, size) of the SM0 mailbox to write requests to: the bootstrap one in BOOT, else the standard one."""
         b = self.sii.bootstrap_mailbox
         return (b[0], b[1]) if self.boot and b[1] else self.sii.mailbox_out
 
     @property
     def mailbox_in(self) -> tuple[int, int]:
+        """(start, size) of the SM1 mailbox to read replies from: the bootstrap one in BOOT, else the standard one."""
         b = self.sii.bootstrap_mailbox
         return (b[2], b[3]) if self.boot and b[3] else self.sii.mailbox_in
 
     @property
     def name(self) -> str:
+        """The SII device name, to tell slaves apart in messages and ready info."""
         return self.sii.name
 
     @property
     def vendor_id(self) -> int:
+        """The SII vendor id, to check the slave is the expected device."""
         return self.sii.vendor_id
 
     @property
     def product_code(self) -> int:
+        """The SII product code, to check the slave is the expected device."""
         return self.sii.product_code
 
     @property
     def revision(self) -> int:
+        """The SII revision number, to check the slave is the expected device version."""
         return self.sii.revision
 
     @property
     def serial(self) -> int:
+        """The SII serial number, to tell identical devices apart."""
         return self.sii.serial
 
 
 @dataclass(frozen=True, slots=True)
 class ObjectDescription:
+    """One SDO information OD description: lets a master browse a dictionary it has no ESI for."""
     index: int
     data_type: int
     max_subindex: int
@@ -101,6 +112,7 @@ class ObjectDescription:
 
 @dataclass(frozen=True, slots=True)
 class EntryDescription:
+    """One SDO information entry description: type, bit length and access of a subindex."""
     index: int
     subindex: int
     data_type: int
@@ -110,7 +122,7 @@ class EntryDescription:
 
 
 class Master:
-    """Drives a :class:`Segment` with real frames; ``link`` replaces the segment (e.g. a socket)."""
+    """A small EtherCAT master with real frames, so tests and teaching scripts drive slaves without a network."""
 
     def __init__(self, clock: Clock, segment: Segment | None = None,
                  link: Callable[[bytes], bytes | None] | None = None, *, timeout: float = 0.1,
@@ -137,7 +149,7 @@ class Master:
 
     # ------------------------------------------------------------------ frames
     def exchange(self, datagrams: list[Datagram]) -> tuple[Datagram, ...]:
-        """Send one frame and return its datagrams as they came back (working counters set)."""
+        """Send one frame and return its datagrams as they came back: the one path every command takes."""
         raw = encode_frame(Frame(tuple(datagrams)))
         self.frames += 1
         if self.capture is not None:
@@ -163,19 +175,21 @@ class Master:
         return self._one(command, (adp & 0xFFFF) | (ado << 16), data)
 
     def fprd(self, station: int, ado: int, length: int) -> bytes:
+        """Read a register of one configured slave (FPRD), raising unless exactly that slave answered."""
         d = self._phys(Command.FPRD, station, ado, bytes(length))
         if d.wkc != 1:
             raise WorkingCounterError(f"FPRD 0x{station:04X}:0x{ado:04X} wkc {d.wkc}", d.wkc)
         return d.data
 
     def fpwr(self, station: int, ado: int, data: bytes) -> None:
+        """Write a register of one configured slave (FPWR), raising unless exactly that slave answered."""
         d = self._phys(Command.FPWR, station, ado, data)
         if d.wkc != 1:
             raise WorkingCounterError(f"FPWR 0x{station:04X}:0x{ado:04X} wkc {d.wkc}", d.wkc)
 
     # ------------------------------------------------------------------ scan
     def scan(self) -> list[SlaveInfo]:
-        """Count slaves (BRD), give them station addresses (APWR), read their SII."""
+        """Find the slaves (BRD), give them station addresses (APWR) and read their SII: the start of every session."""
         count = self._phys(Command.BRD, 0, 0x0000, b"\0\0").wkc
         self._phys(Command.BWR, 0, REG_AL_CONTROL, U16.pack(AlState.INIT | 0x10))
         self._phys(Command.BWR, 0, REG_FMMU, bytes(16 * 16))
@@ -190,7 +204,7 @@ class Master:
         return self.slaves
 
     def read_sii(self, station: int, max_bytes: int = 65536) -> bytes:
-        """The SII image up to the END category, 8 bytes per EEPROM read command."""
+        """The SII image up to its END category, which tells the master the slave's mailboxes and SyncManagers."""
         out = bytearray()
         while len(out) < max_bytes:
             out += self.sii_read8(station, len(out) // 2)
@@ -209,6 +223,7 @@ class Master:
         return False
 
     def sii_read8(self, station: int, word: int) -> bytes:
+        """Read 8 bytes of the SII through the EEPROM interface, the unit of every SII read."""
         self.fpwr(station, REG_SII_CONTROL, U16.pack(0x0100) + U32.pack(word))
         status = U16.unpack(self.fprd(station, REG_SII_CONTROL, 2))[0]
         if status & 0x7800:
@@ -216,24 +231,25 @@ class Master:
         return self.fprd(station, REG_SII_DATA, 8)
 
     def sii_write(self, station: int, word: int, value: int) -> int:
-        """Write one EEPROM word; returns the EEPROM status (error bits 11..14)."""
+        """Write one SII word through the EEPROM interface (to test write protection and errors); returns its status."""
         self.fpwr(station, REG_SII_DATA, U16.pack(value))
         self.fpwr(station, REG_SII_CONTROL, U16.pack(0x0201) + U32.pack(word))
         return int(U16.unpack(self.fprd(station, REG_SII_CONTROL, 2))[0])
 
     def slave(self, position: int) -> SlaveInfo:
+        """The scanned slave at a position, or a MasterError that says to scan first."""
         if not 0 <= position < len(self.slaves):
             raise MasterError(f"no slave at position {position} (scan first)")
         return self.slaves[position]
 
     # ------------------------------------------------------------------ states
     def al_status(self, position: int) -> tuple[int, int]:
-        """(AL status, AL status code) of one slave."""
+        """(AL status, AL status code) of one slave: how a master learns a state change failed and why."""
         raw = self.fprd(self.slave(position).station, REG_AL_STATUS, 6)
         return U16.unpack_from(raw, 0)[0], U16.unpack_from(raw, 4)[0]
 
     def request_state(self, position: int, state: AlState, ack: bool = False) -> AlState:
-        """Write AL control and check AL status; raises AlStatusError with the slave's code."""
+        """Move one slave to an AL state (configuring its mailbox first), raising AlStatusError with its code."""
         s = self.slave(position)
         if state in (AlState.PREOP, AlState.BOOT):
             self._configure_mailbox(s, boot=state == AlState.BOOT)
@@ -245,6 +261,7 @@ class Master:
         return AlState(status & 0x0F)
 
     def set_state(self, state: AlState) -> None:
+        """Move every slave to an AL state, as masters do for the whole segment."""
         for s in self.slaves:
             self.request_state(s.position, state)
 
@@ -259,16 +276,16 @@ class Master:
 
     # ------------------------------------------------------------------ mailbox
     def _wait(self, check: Callable[[], bool]) -> None:
+        """Poll ``check`` (it sends a frame) until it holds, waiting on the clock between polls."""
         deadline = self.clock.now() + self.timeout
         while not check():
             if self.clock.now() >= deadline:
                 raise TimeoutError_("mailbox timeout")
-            if isinstance(self.clock, SimulatedClock):
-                self.clock.advance(0.0005)
+            self.clock.wait(MAILBOX_POLL)
 
     def mailbox_exchange(self, position: int, mtype: int, data: bytes,
                          accept: Callable[[MailboxMessage], bool] | None = None) -> MailboxMessage:
-        """Write a request into SM0 and return the first reply of the same type from SM1."""
+        """Write a request into SM0 and return the first reply of the same type from SM1: the carrier of CoE and FoE."""
         s = self.slave(position)
         mo, mos = s.mailbox_out
         s.mbx_counter = s.mbx_counter % 7 + 1
@@ -300,7 +317,7 @@ class Master:
         return body
 
     def sdo_upload(self, position: int, index: int, subindex: int = 0, complete: bool = False) -> bytes:
-        """Read an object (expedited, normal or segmented, by what the slave answers)."""
+        """Read an object by CoE SDO (expedited, normal or segmented, as the slave answers)."""
         ca = 0x10 if complete else 0
         body = self._sdo(position, SDO.pack(0x40 | ca, index, subindex, 0))
         cmd, _i, _s, word = SDO.unpack_from(body, 0)
@@ -324,7 +341,7 @@ class Master:
 
     def sdo_download(self, position: int, index: int, subindex: int, data: bytes,
                      complete: bool = False) -> None:
-        """Write an object: expedited up to 4 bytes, else normal, segmented when it does not fit."""
+        """Write an object by CoE SDO: expedited up to 4 bytes, else normal, segmented when it does not fit."""
         ca = 0x10 if complete else 0
         if len(data) <= 4:
             n = 4 - len(data)
@@ -352,30 +369,39 @@ class Master:
         return int(st.unpack(raw)[0])
 
     def sdo_upload8(self, position: int, index: int, sub: int = 0) -> int:
+        """Read an 8-bit object as an int (QEC sdo_upload8), checking its size."""
         return self._typed_up(position, index, sub, "<B")
 
     def sdo_upload16(self, position: int, index: int, sub: int = 0) -> int:
+        """Read a 16-bit object as an int (QEC sdo_upload16), checking its size."""
         return self._typed_up(position, index, sub, "<H")
 
     def sdo_upload32(self, position: int, index: int, sub: int = 0) -> int:
+        """Read a 32-bit object as an int (QEC sdo_upload32), checking its size."""
         return self._typed_up(position, index, sub, "<I")
 
     def sdo_upload64(self, position: int, index: int, sub: int = 0) -> int:
+        """Read a 64-bit object as an int, checking its size."""
         return self._typed_up(position, index, sub, "<Q")
 
     def sdo_upload_str(self, position: int, index: int, sub: int = 0) -> str:
+        """Read a VISIBLE_STRING object (names, versions) as text."""
         return self.sdo_upload(position, index, sub).decode("latin-1")
 
     def sdo_download8(self, position: int, index: int, sub: int, value: int) -> None:
+        """Write an 8-bit object from an int (QEC sdo_download8)."""
         self.sdo_download(position, index, sub, struct.pack("<B", value))
 
     def sdo_download16(self, position: int, index: int, sub: int, value: int) -> None:
+        """Write a 16-bit object from an int (QEC sdo_download16)."""
         self.sdo_download(position, index, sub, struct.pack("<H", value))
 
     def sdo_download32(self, position: int, index: int, sub: int, value: int) -> None:
+        """Write a 32-bit object from an int (QEC sdo_download32)."""
         self.sdo_download(position, index, sub, struct.pack("<I", value))
 
     def sdo_download64(self, position: int, index: int, sub: int, value: int) -> None:
+        """Write a 64-bit object from an int."""
         self.sdo_download(position, index, sub, struct.pack("<Q", value))
 
     # ------------------------------------------------------------------ SDO information
@@ -416,15 +442,18 @@ class Master:
         return out[0]
 
     def od_list(self, position: int, list_type: int = 1) -> list[int]:
+        """The indexes of a slave's dictionary by SDO information (list type 1: all), to browse it without an ESI."""
         data = b"".join(self._info(position, InfoOpcode.OD_LIST_REQ, U16.pack(list_type)))
         return [U16.unpack_from(data, i)[0] for i in range(2, len(data) - 1, 2)]
 
     def object_description(self, position: int, index: int) -> ObjectDescription:
+        """Name, type and size of one object by SDO information, to browse a dictionary without an ESI."""
         data = self._info(position, InfoOpcode.OD_REQ, U16.pack(index))[0]
         idx, dtype, max_sub, code = struct.unpack_from("<HHBB", data, 0)
         return ObjectDescription(idx, dtype, max_sub, code, data[6:].decode("latin-1"))
 
     def entry_description(self, position: int, index: int, subindex: int) -> EntryDescription:
+        """Type, bit length, access and name of one subindex by SDO information."""
         data = self._info(position, InfoOpcode.ED_REQ, struct.pack("<HBB", index, subindex, 0))[0]
         idx, sub, _vi, dtype, bits, access = struct.unpack_from("<HBBHHH", data, 0)
         return EntryDescription(idx, sub, dtype, bits, access, data[10:].decode("latin-1"))
@@ -439,6 +468,7 @@ class Master:
         return opcode, word, rest
 
     def foe_write(self, position: int, name: str, data: bytes, password: int = 0) -> None:
+        """Send a file by FoE (firmware updates), repeating a packet while the slave answers BUSY."""
         s = self.slave(position)
         max_data = s.mailbox_out[1] - 12
         opcode, word, _ = self._foe(position, foe_packet(FoeOpcode.WRQ, password, name.encode("latin-1")))
@@ -455,8 +485,7 @@ class Master:
             while opcode == FoeOpcode.BUSY:  # the slave needs time: repeat the packet later
                 if self.clock.now() >= deadline:
                     raise TimeoutError_("FoE slave stayed busy")
-                if isinstance(self.clock, SimulatedClock):
-                    self.clock.advance(0.01)
+                self.clock.wait(FOE_BUSY_RETRY)
                 opcode, word, _ = self._foe(position, foe_packet(FoeOpcode.DATA, packet, chunk))
             if opcode != FoeOpcode.ACK or word != packet:
                 raise FoeError(f"data packet {packet} not acknowledged", 0x8005)
@@ -464,6 +493,7 @@ class Master:
                 return
 
     def foe_read(self, position: int, name: str, password: int = 0) -> bytes:
+        """Read a file by FoE (logs, configuration), acknowledging every data packet."""
         s = self.slave(position)
         max_data = s.mailbox_in[1] - 12
         out = bytearray()
@@ -486,7 +516,7 @@ class Master:
 
     # ------------------------------------------------------------------ process data
     def config_map(self) -> int:
-        """Read each slave's PDO assignment by SDO, program SM2/SM3 + FMMU0/1; returns image size."""
+        """Read each slave's PDO assignment by SDO, program SM2/SM3 and FMMU0/1; returns the process image size."""
         out_off = 0
         for s in self.slaves:
             s.output_bytes = self._pdo_bytes(s, 0x1C12)
@@ -543,8 +573,7 @@ class Master:
         return (bits + 7) // 8
 
     def exchange_process_data(self) -> int:
-        """One LRW frame per image chunk (one frame for images up to 1486 bytes); returns the summed
-        working counter (compare with ``expected_wkc``)."""
+        """The cyclic exchange, one LRW frame per image chunk; returns the summed working counter (see expected_wkc)."""
         total = 0
         image = self.image
         for a, n in self.chunks:
@@ -561,6 +590,7 @@ class Master:
         return total
 
     def pdo_write(self, position: int, offset: int, data: bytes) -> None:
+        """Put bytes into one slave's outputs in the image, sent with the next process data exchange."""
         s = self.slave(position)
         if offset + len(data) > s.output_bytes:
             raise MasterError(f"outputs of slave {position} are {s.output_bytes} bytes")
@@ -568,6 +598,7 @@ class Master:
         self.image[start:start + len(data)] = data
 
     def pdo_read(self, position: int, offset: int, length: int) -> bytes:
+        """Bytes of one slave's inputs as the last process data exchange brought them."""
         s = self.slave(position)
         if offset + length > s.input_bytes:
             raise MasterError(f"inputs of slave {position} are {s.input_bytes} bytes")
@@ -575,25 +606,31 @@ class Master:
         return bytes(self.image[start:start + length])
 
     def pdo_write8(self, position: int, offset: int, value: int) -> None:
+        """Put an 8-bit output into the image (QEC pdo_write8)."""
         self.pdo_write(position, offset, struct.pack("<B", value))
 
     def pdo_write16(self, position: int, offset: int, value: int) -> None:
+        """Put a 16-bit output into the image (QEC pdo_write16)."""
         self.pdo_write(position, offset, struct.pack("<H", value))
 
     def pdo_write32(self, position: int, offset: int, value: int) -> None:
+        """Put a 32-bit output into the image (QEC pdo_write32)."""
         self.pdo_write(position, offset, struct.pack("<I", value))
 
     def pdo_read8(self, position: int, offset: int) -> int:
+        """An 8-bit input from the image (QEC pdo_read8)."""
         return int(self.pdo_read(position, offset, 1)[0])
 
     def pdo_read16(self, position: int, offset: int) -> int:
+        """A 16-bit input from the image (QEC pdo_read16)."""
         return int(U16.unpack(self.pdo_read(position, offset, 2))[0])
 
     def pdo_read32(self, position: int, offset: int) -> int:
+        """A 32-bit input from the image (QEC pdo_read32)."""
         return int(U32.unpack(self.pdo_read(position, offset, 4))[0])
 
     def start_cyclic(self, period: float, callback: Callable[[Master], None] | None = None) -> None:
-        """Exchange process data every ``period`` seconds on the clock, then call ``callback``."""
+        """Exchange process data every ``period`` seconds on the clock, then call ``callback``: the master's cycle."""
         self.stop_cyclic()
 
         def cycle() -> None:
@@ -604,13 +641,14 @@ class Master:
         self._cyclic = self.clock.call_every(period, cycle)
 
     def stop_cyclic(self) -> None:
+        """Stop the cycle started by start_cyclic (slaves with a watchdog then leave OP)."""
         if self._cyclic is not None:
             self._cyclic.cancel()
             self._cyclic = None
 
     # ------------------------------------------------------------------ DC
     def configure_sync0(self, position: int, cycle: float, start_delay: float = 0.01) -> None:
-        """Program SYNC0 (cycle time, start time = system time + delay, activation)."""
+        """Program DC SYNC0 (cycle, start = system time + delay, activation) for slaves that run synchronous cycles."""
         s = self.slave(position)
         now = U64.unpack(self.fprd(s.station, REG_DC_SYSTEM_TIME, 8))[0]
         self.fpwr(s.station, REG_DC_SYNC0_CYCLE, U32.pack(round(cycle * 1e9)))
@@ -618,7 +656,7 @@ class Master:
         self.fpwr(s.station, REG_DC_ACTIVATION, b"\x03")
 
     def bring_up(self) -> None:
-        """scan, PREOP, map, SAFEOP, OP (with one process data cycle before OP, as masters do)."""
+        """scan, PREOP, map, SAFEOP, one process data cycle, OP: what every master does before its cycle."""
         self.scan()
         self.set_state(AlState.PREOP)
         self.config_map()

@@ -2,7 +2,9 @@
 
 import pytest
 
-from gatewaylab.bus import CanFrame, frame_duration
+from gatewaylab.bus import CanFrame, ErrorState, Outcome, VirtualBus, frame_duration
+from gatewaylab.bus.bus import ZERO_TIME_BURST
+from gatewaylab.bus.timing import error_duration
 
 
 def test_pending_frames_go_out_lowest_identifier_first(clock, bus, attach) -> None:
@@ -103,3 +105,54 @@ def test_receive_own_and_bus_statistics(clock, bus, attach) -> None:
     assert bus.stats.frames == 10 and bus.stats.bytes == 80
     assert bus.load_percent() == pytest.approx(100 * 10 * 135e-6 / 0.01)
     assert a.stats.tx_frames == 10
+
+
+def test_arbitration_step_names_the_winner_and_the_outcome_without_changing_anything(clock, bus, attach) -> None:
+    """The arbitration step (issue 9 'a pure arbitration step that returns a transmission record with an Outcome'):
+    lowest arbitration field wins (CAN 2.0 part A §2 'Arbitration'); without another node the outcome is an ACK
+    error (CAN 2.0 §7 'ACK error'); asking twice gives the same answer."""
+    a, _ = attach("a")
+    b, _ = attach("b")
+    a.send(CanFrame(0x200, b"\x01"))
+    b.send(CanFrame(0x100, b"\x02"))
+    step = bus._next_transmission(clock.now())
+    assert step == bus._next_transmission(clock.now())
+    assert step is not None and step.sender is b and step.frame.can_id == 0x100 and step.outcome is Outcome.SENT
+    assert step.end - step.start == pytest.approx(frame_duration(step.frame, 1_000_000, 5_000_000))
+    clock.advance(0.01)
+    assert bus.stats.frames == 2
+    bus.detach(b)
+    a.send(CanFrame(0x300))
+    lone = bus._next_transmission(clock.now())
+    assert lone is not None and lone.outcome is Outcome.ACK_ERROR
+
+
+def test_without_timing_frames_end_at_once_in_bounded_bursts(clock, attach) -> None:
+    """docs/bus.md: `timing=False` gives every frame zero duration, arbitration order still applies; at most
+    ZERO_TIME_BURST frames end in one clock event, so the clock's owner keeps control between bursts (issue 15)."""
+    untimed = VirtualBus(clock, "fast", 1_000_000, timing=False)
+    got: list[int] = []
+    tx = untimed.attach("tx")
+    untimed.attach("rx", on_frame=lambda f, t: got.append(f.can_id))
+    other = untimed.attach("other")
+    queued = [0x300 + i for i in range(2 * ZERO_TIME_BURST + 5)]
+    for can_id in queued:
+        tx.send(CanFrame(can_id))
+    other.send(CanFrame(0x050))
+    clock.step()                # one arbitration event: 0x050 wins (0x300 heads tx's FIFO queue)
+    assert got == [0x050, *queued[:ZERO_TIME_BURST - 1]] and clock.now() == 0.0
+    clock.step()
+    assert len(got) == 2 * ZERO_TIME_BURST
+    clock.run_while(untimed.is_busy)
+    assert got == [0x050, *queued] and clock.now() == 0.0
+
+
+def test_lone_sender_without_timing_does_not_stop_the_clock(clock) -> None:
+    """A lone sender retransmits for ever (CAN 2.0 §8 rule 3 exception 1, docs/bus.md 'Errors'); on a bus without
+    frame timing its error frames still take their time (docs/decisions.md), so simulated time moves on."""
+    untimed = VirtualBus(clock, "fast", 1_000_000, timing=False)
+    lone = untimed.attach("lone")
+    lone.send(CanFrame(0x100, b"\x01"))
+    clock.advance(0.01)
+    assert clock.now() == 0.01 and lone.state is ErrorState.ERROR_PASSIVE and lone.tx_queue
+    assert 0 < untimed.stats.error_frames < 0.01 / error_duration(CanFrame(0x100, b"\x01"), False, 1_000_000) + 1

@@ -2,7 +2,7 @@
 
 import pytest
 
-from gatewaylab.common.clock import SimulatedClock
+from gatewaylab.common.clock import RealTimeClock, SimulatedClock
 from gatewaylab.common.errors import LocalError
 
 
@@ -79,3 +79,39 @@ def test_negative_time_is_local_misuse() -> None:
         clock.advance(-1)
     with pytest.raises(LocalError):
         clock.call_later(-0.1, print)
+
+
+def test_real_time_pass_does_bounded_work() -> None:
+    """Issue 15 '`timing = false` hangs the rig': a callback that keeps scheduling work for 'now' must not keep
+    RealTimeClock.run_due from returning, so the runtime's loop serves its sockets and signals between passes;
+    what is left runs in the next pass, in order."""
+    clock = RealTimeClock()
+    clock.pass_limit = 10
+    runs: list[str] = []
+
+    def again() -> None:
+        runs.append("again")
+        if len(runs) < 1000:   # bounded, so a regression fails instead of hanging
+            clock.call_soon(again)
+
+    clock.call_soon(again)
+    clock.call_soon(runs.append, "other")
+    assert clock.run_due() == 10 and runs[:3] == ["again", "other", "again"] and len(runs) == 10
+    assert clock.next_deadline() is not None       # the rest waits for the next pass
+    assert clock.run_due() == 10 and len(runs) == 20
+
+
+def test_wait_lets_time_pass_through_the_clock() -> None:
+    """A blocking caller (the in-process EtherCAT master polling a mailbox, issue 9) waits through the clock: a
+    simulated clock runs the events of that span; a real-time clock that no loop runs runs its due events."""
+    sim = SimulatedClock()
+    seen: list[str] = []
+    sim.call_later(0.0004, seen.append, "slave answered")
+    sim.wait(0.0005)
+    assert seen == ["slave answered"] and sim.now() == pytest.approx(0.0005)
+    real = RealTimeClock()
+    real.call_soon(seen.append, "due")
+    real.wait(0.0)
+    assert seen == ["slave answered", "due"]
+    with pytest.raises(LocalError):
+        real.wait(-1.0)
