@@ -9,6 +9,7 @@ cannot change the count.
 from __future__ import annotations
 
 import gc
+import multiprocessing.util
 import os
 import shutil
 import tempfile
@@ -30,7 +31,10 @@ def pytest_configure(config: pytest.Config) -> None:
 def pytest_unconfigure(config: pytest.Config) -> None:
     private = config.stash.get(_PRIVATE_TMP, None)
     if private is not None and not any(private.glob("gatewaylab-*")):
-        shutil.rmtree(private, ignore_errors=True)
+        # After multiprocessing's own exit finalisers (the forkserver's pymp-* folder lives in here
+        # and is removed at exitpriority -100): they run by descending priority.
+        multiprocessing.util.Finalize(None, shutil.rmtree, args=(private,), kwargs={"ignore_errors": True},
+                                      exitpriority=-200)
 
 
 def gatewaylab_folders() -> set[Path]:

@@ -9,8 +9,8 @@ from hypothesis import strategies as st
 
 from gatewaylab.bus import CanFrame, VirtualBus
 from gatewaylab.canopen.drive import Drive
-from gatewaylab.od import SdoAbortCode
 from gatewaylab.common.clock import SimulatedClock
+from gatewaylab.od import SdoAbortCode
 
 NODE = 4
 #: Every client command specifier of CiA 301 7.2.4.3 (initiate/segment download and upload, block).
