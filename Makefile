@@ -38,8 +38,9 @@ apt: $(APT_STAMP)
 demo: install
 	$(BIN)/python -m gatewaylab.rig.demo
 
+# Two workers, one per core (whole files per worker: module fixtures such as the veth namespace stay in one).
 test: install
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile
 
 # python-can's and canopen's own test suites (the installed versions, sdists from the package index)
 # against a rig, through the `gatewaylab` interface; skips only what conformance/inapplicable.toml lists.

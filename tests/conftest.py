@@ -24,6 +24,10 @@ _PRIVATE_TMP = pytest.StashKey[Path]()
 def pytest_configure(config: pytest.Config) -> None:
     private = Path(tempfile.mkdtemp(prefix="glt-"))
     config.stash[_PRIVATE_TMP] = private
+    if config.option.basetemp is None and not hasattr(config, "workerinput"):
+        # Short tmp_path names: a rig's Unix sockets live below them and AF_UNIX paths end at
+        # 107 bytes (pytest's own pytest-of-USER/pytest-N/popen-gwK prefix would eat 40 of them).
+        config.option.basetemp = str(private / "t")
     os.environ["TMPDIR"] = str(private)
     tempfile.tempdir = None  # recomputed from TMPDIR on next use
 
