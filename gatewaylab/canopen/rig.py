@@ -16,7 +16,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from ..rig.plugin import DeviceKind, Key, RigContext
+from ..bus.participant import DeviceKind, Key, RigContext
 from .drive import Drive
 
 KEYS: dict[str, Key] = {

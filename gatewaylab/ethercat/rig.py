@@ -20,7 +20,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any, Protocol, cast
 
-from ..rig.plugin import DeviceKind, Key, Participant, RigContext
+from ..bus.participant import DeviceKind, Key, Participant, RigContext
 from .io_device import create_io_slave
 from .segment import Segment
 from .slave import Slave

@@ -45,10 +45,10 @@ def test_run_ready_file_and_idx_commands(tmp_path: Path, capsys: pytest.CaptureF
                 break
         info = json.loads(ready.read_text())
         usb = info["usb"]["idx1"]
-        assert usb["pty"].startswith("/dev/pts/") and usb["tcp"].startswith("127.0.0.1:")
+        assert usb["pty"].startswith("/dev/pts/") and usb["tcp"].startswith("tcp:127.0.0.1:")
         assert main(["idx", "read", usb["pty"], "0", "0x1018", "4"]) == 0
         assert "node 0 0x1018:04 = 8193 (0x00002001)" in capsys.readouterr().out
-        assert main(["idx", "write", "socket://" + usb["tcp"], "1", "0x30B0", "0", "-5", "--type", "i32"]) == 0
+        assert main(["idx", "write", usb["tcp"], "1", "0x30B0", "0", "-5", "--type", "i32"]) == 0
         assert main(["idx", "read", usb["pty"], "1", "0x30B0", "0", "-t", "i32"]) == 0
         assert "= -5 (0xFFFFFFFB)" in capsys.readouterr().out
         assert main(["idx", "read", usb["pty"], "0", "0x1008", "0", "-t", "str"]) == 0
@@ -118,12 +118,14 @@ def test_cli_errors_are_clear(capsys: pytest.CaptureFixture[str]) -> None:
 
 
 def test_idx_accepts_every_endpoint_form_of_the_ready_file(capsys: pytest.CaptureFixture[str]) -> None:
-    """Issue 15, one endpoint syntax: the ready file's TCP port as printed (127.0.0.1:PORT), its canonical
-    form tcp:127.0.0.1:PORT and pyserial's socket:// URL all reach the IDX (ReadObject 2.1.1.1)."""
+    """Issue 15, one endpoint syntax: the ready file's TCP port as printed (canonical tcp:127.0.0.1:PORT),
+    the bare 127.0.0.1:PORT and pyserial's socket:// URL all reach the IDX (ReadObject 2.1.1.1)."""
     r = IdxRig([])
     try:
-        hostport = r.info["usb"]["idx1"]["tcp"]
-        for port in (hostport, "tcp:" + hostport, "socket://" + hostport):
+        printed = r.info["usb"]["idx1"]["tcp"]
+        assert printed.startswith("tcp:")
+        hostport = printed.removeprefix("tcp:")
+        for port in (printed, hostport, "socket://" + hostport):
             assert main(["idx", "read", port, "0", "0x1018", "4"]) == 0
             assert "= 8193 (0x00002001)" in capsys.readouterr().out
             with IdxClient(port) as client:

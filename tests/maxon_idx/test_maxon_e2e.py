@@ -41,10 +41,10 @@ def _error(call: object, *args: object) -> int:
 
 def test_ready_info_names_pty_and_tcp(rig: IdxRig) -> None:
     """2.3.1 USB port, emulated: the rig ready info names it {"usb": {"idx1": {"pty": "/dev/pts/N",
-    "tcp": "127.0.0.1:PORT"}}} (issue 4 rig file)."""
+    "tcp": "tcp:127.0.0.1:PORT"}}} (issue 4 rig file; the endpoint form of docs/endpoints.md)."""
     usb = rig.info["usb"]["idx1"]
     assert usb["pty"].startswith("/dev/pts/")
-    assert usb["tcp"].startswith("127.0.0.1:") and int(usb["tcp"].split(":")[1]) > 0
+    assert usb["tcp"].startswith("tcp:127.0.0.1:") and int(usb["tcp"].rsplit(":", 1)[1]) > 0
 
 
 def test_local_objects(rig: IdxRig, client: IdxClient) -> None:
@@ -61,7 +61,7 @@ def test_local_objects(rig: IdxRig, client: IdxClient) -> None:
 
 def test_tcp_url_reaches_same_device(rig: IdxRig) -> None:
     """2.2 data link over the TCP transport (pyserial socket:// URL): the same device, its own 0x1018:04."""
-    with IdxClient("socket://" + rig.info["usb"]["idx1"]["tcp"]) as c:
+    with IdxClient(rig.info["usb"]["idx1"]["tcp"].replace("tcp:", "socket://", 1)) as c:
         assert c.read(0, 0x1018, 4) == 0x2001
 
 
@@ -171,7 +171,7 @@ def test_guide_example_bytes_against_the_emulated_idx(rig: IdxRig) -> None:
     usb = rig.info["usb"]["idx1"]
     with IdxClient(usb["pty"]) as c:
         c.write(1, 0x30B0, 0, 36865, "i32")
-    for url in (usb["pty"], "socket://" + usb["tcp"]):
+    for url in (usb["pty"], usb["tcp"].replace("tcp:", "socket://", 1)):
         with serial.serial_for_url(url, timeout=2) as s:
             s.write(request)
             assert s.read(len(response)) == response, url

@@ -15,7 +15,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from ...rig.plugin import DeviceKind, Key, RigContext
+from ...bus.participant import DeviceKind, Key, RigContext
+from ...common.endpoint import format_tcp
 from .commands import MAX_SEGMENT
 from .device import IdxDevice
 from .transport.pty import PtyPort
@@ -77,7 +78,7 @@ class IdxParticipant:
         if self.pty is not None:
             entry["pty"] = self.pty.path
         if self.tcp is not None:
-            entry["tcp"] = self.tcp.address
+            entry["tcp"] = format_tcp(self.tcp.host, self.tcp.port)   # docs/endpoints.md
         return {"usb": {self.name: entry}}
 
 
