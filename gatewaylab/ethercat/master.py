@@ -14,6 +14,8 @@ from dataclasses import dataclass
 
 from ..common.clock import Clock, PeriodicTimer
 from ..common.errors import TimeoutError_
+from ..od import sdo as sdo_codec
+from ..od.sdo import ClientCommand
 from .coe import SDO, CoeService, InfoOpcode, coe_header
 from .datagram import MAX_DATAGRAM_DATA, Command, Datagram, Frame, decode_frame, encode_frame
 from .errors import AlStatusError, FoeError, FrameFormatError, MasterError, SdoAbort, SdoAbortCode, WorkingCounterError
@@ -319,23 +321,20 @@ class Master:
     def sdo_upload(self, position: int, index: int, subindex: int = 0, complete: bool = False) -> bytes:
         """Read an object by CoE SDO (expedited, normal or segmented, as the slave answers)."""
         ca = 0x10 if complete else 0
-        body = self._sdo(position, SDO.pack(0x40 | ca, index, subindex, 0))
+        body = self._sdo(position, SDO.pack(sdo_codec.CS_UPLOAD_REQUEST | ca, index, subindex, 0))
         cmd, _i, _s, word = SDO.unpack_from(body, 0)
-        if cmd & 0x02:
-            n = (cmd >> 2) & 3 if cmd & 0x01 else 0
-            return body[4:8 - n]
+        if cmd & 0x02:                                  # expedited: the data is in the initiate
+            return body[4:4 + (sdo_codec.expedited_size(cmd) or 4)]
         size = word
         data = bytearray(body[8:8 + size])
         toggle = 0
         while len(data) < size:
-            seg = self._sdo(position, bytes([0x60 | toggle]) + bytes(7))
-            scmd = seg[0]
-            if (scmd & 0x10) != toggle:
+            seg = self._sdo(position, sdo_codec.segment_ack(ClientCommand.UPLOAD_SEGMENT << 5, toggle))
+            if (seg[0] >> 4) & 1 != toggle:
                 raise SdoAbort(SdoAbortCode.TOGGLE_BIT_NOT_ALTERNATED, "toggle bit in segment response")
-            chunk = seg[1:] if len(seg) > 8 else seg[1:8 - ((scmd >> 1) & 7)]
-            data += chunk
-            toggle ^= 0x10
-            if scmd & 0x01:
+            data += sdo_codec.segment_data(seg)
+            toggle ^= 1
+            if seg[0] & 0x01:
                 break
         return bytes(data[:size])
 
@@ -344,9 +343,8 @@ class Master:
         """Write an object by CoE SDO: expedited up to 4 bytes, else normal, segmented when it does not fit."""
         ca = 0x10 if complete else 0
         if len(data) <= 4:
-            n = 4 - len(data)
-            self._sdo(position, SDO.pack(0x23 | ca | (n << 2), index, subindex,
-                                         int.from_bytes(data.ljust(4, b"\0"), "little")))
+            request = sdo_codec.expedited_download_request(index, subindex, data)
+            self._sdo(position, bytes((request[0] | ca,)) + request[1:])
             return
         s = self.slave(position)
         max_first = s.mailbox_out[1] - 16
@@ -357,9 +355,8 @@ class Master:
         max_seg = s.mailbox_out[1] - 9
         while rest:
             chunk, rest = rest[:max_seg], rest[max_seg:]
-            n = 7 - len(chunk) if len(chunk) < 7 else 0
-            self._sdo(position, bytes([toggle | (n << 1) | (0 if rest else 1)]) + chunk.ljust(7, b"\0"))
-            toggle ^= 0x10
+            self._sdo(position, sdo_codec.segment(ClientCommand.DOWNLOAD_SEGMENT << 5, toggle, chunk, not rest))
+            toggle ^= 1
 
     def _typed_up(self, position: int, index: int, sub: int, fmt: str) -> int:
         raw = self.sdo_upload(position, index, sub)
