@@ -18,12 +18,8 @@ closing client are not the soak's subject).
 from __future__ import annotations
 
 import argparse
-import json
 import multiprocessing as mp
 import os
-import select
-import signal
-import subprocess
 import sys
 import tempfile
 import time
@@ -31,6 +27,8 @@ from dataclasses import dataclass, field
 from multiprocessing.synchronize import Barrier, Event
 from pathlib import Path
 from typing import Any
+
+from gatewaylab.rig.process import RigProcess
 
 BASE_ID = 0x110  # free in the CANopen predefined connection set (between TIME 0x100 and TPDO1 0x181)
 RSS_GROWTH_LIMIT = 10 * 1024 * 1024
@@ -183,52 +181,17 @@ def _sdo_loop(endpoint: str, start: Barrier, stop: Event, results: Any) -> None:
 
 
 # -- the rig ---------------------------------------------------------------------------------------
-def _start_rig(rig_file: str | None, workdir: Path) -> tuple[subprocess.Popen[bytes], dict[str, Any]]:
-    """``gatewaylab run`` with a ready file; returns once the ready file holds the rig's endpoints
-    (waiting on the rig's output pipe in between, which it writes to when it is up)."""
-    ready = workdir / "ready.json"
-    log = (workdir / "rig-stderr.log").open("wb")
-    args = [sys.executable, "-m", "gatewaylab", "run", *([rig_file] if rig_file else []), "--ready-file", str(ready)]
-    proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=log, env={**os.environ, "PYTHONUNBUFFERED": "1"})
-    log.close()
-    assert proc.stdout is not None
-    fd = proc.stdout.fileno()
-    deadline = time.monotonic() + 60
-    seen = b""
-    while time.monotonic() < deadline and proc.poll() is None:
-        try:
-            info: dict[str, Any] = json.loads(ready.read_text())
-            return proc, info
-        except (OSError, ValueError):
-            pass
-        if select.select([fd], [], [], 0.2)[0]:
-            seen += os.read(fd, 65536)
-    proc.kill()
-    proc.wait(10)
-    err = (workdir / "rig-stderr.log").read_text(errors="replace")[-2000:]
-    raise RuntimeError(f"gatewaylab run did not start (exit {proc.returncode}): {seen.decode(errors='replace')}{err}")
-
-
-def _stop_rig(proc: subprocess.Popen[bytes]) -> None:
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(10)
-
-
 def run_soak(seconds: float, *, rate: float = 2000.0, clients: int = 3, rig_file: str | None = None,
              bus: str = "can0", warmup: float | None = None) -> SoakResult:
     """Run the soak for ``seconds`` and return the figures (``result.violations`` lists broken bounds)."""
     ctx = mp.get_context("spawn")
     result = SoakResult(seconds)
     with tempfile.TemporaryDirectory(prefix="gatewaylab-soak-") as tmp:
-        proc, info = _start_rig(rig_file, Path(tmp))
+        rig = RigProcess(rig_file, workdir=tmp)
+        proc = rig.proc
         procs: list[Any] = []
         try:
-            endpoint = str(info["buses"][bus]["endpoint"])
+            endpoint = rig.endpoint(bus)
             start = ctx.Barrier(clients + 2)
             totals = ctx.Array("q", clients)
             totals_known = ctx.Event()
@@ -287,7 +250,7 @@ def run_soak(seconds: float, *, rate: float = 2000.0, clients: int = 3, rig_file
                 p.join(30)
                 if p.is_alive():
                     p.kill()
-            _stop_rig(proc)
+            rig.stop()
     _check(result, clients)
     return result
 

@@ -18,18 +18,17 @@ replaces the default selection. Exit status: pytest's (0 when every applicable t
 from __future__ import annotations
 
 import importlib.metadata
-import json
 import os
-import selectors
 import shutil
 import signal
 import subprocess
 import sys
 import tarfile
 import tempfile
-import time
 from pathlib import Path
 from types import FrameType
+
+from gatewaylab.rig.process import RigProcess
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
@@ -77,44 +76,6 @@ def _extract_tests(archive: Path, folder: str, dest: Path) -> None:
     shutil.rmtree(tmp)
 
 
-def _start_rig(state: Path) -> subprocess.Popen[bytes]:
-    rig_file = state / "conformance.toml"
-    rig_file.write_text(RIG)
-    ready = state / "ready.json"
-    proc = subprocess.Popen([sys.executable, "-m", "gatewaylab", "run", str(rig_file), "--acker",
-                             "--ready-file", str(ready)], stdout=subprocess.PIPE, stderr=sys.stderr,
-                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
-    assert proc.stdout is not None
-    sel = selectors.DefaultSelector()
-    sel.register(proc.stdout, selectors.EVENT_READ)
-    out = b""
-    deadline = time.monotonic() + 60
-    try:
-        while b"  bus " not in out:   # printed once the ready file is written
-            left = deadline - time.monotonic()
-            if left <= 0 or not sel.select(left):
-                break
-            chunk = os.read(proc.stdout.fileno(), 4096)
-            if not chunk:
-                break
-            out += chunk
-    finally:
-        sel.close()
-    if b"  bus " not in out:
-        raise RuntimeError(f"the conformance rig did not start: {out.decode(errors='replace')}")
-    return proc
-
-
-def _stop_rig(proc: subprocess.Popen[bytes]) -> None:
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-
-
 def main(argv: list[str]) -> int:
     def terminate(signum: int, frame: FrameType | None) -> None:
         raise SystemExit(128 + signum)
@@ -129,12 +90,14 @@ def main(argv: list[str]) -> int:
         targets += [f"{name}/{f}" for f in files]
         print(f"conformance: {dist} {version}: {', '.join(files)}", flush=True)
     state = Path(tempfile.mkdtemp(prefix="gatewaylab-conformance-"))
-    rig: subprocess.Popen[bytes] | None = None
+    rig: RigProcess | None = None
     try:
-        rig = _start_rig(state)
-        env = {**os.environ, "GATEWAYLAB_CONFORMANCE_READY": str(state / "ready.json"),
+        rig_file = state / "conformance.toml"
+        rig_file.write_text(RIG)
+        rig = RigProcess(rig_file, "--acker", workdir=state, stderr=sys.stderr)
+        env = {**os.environ, "GATEWAYLAB_CONFORMANCE_READY": str(rig.ready_file),
                "PYTHONPATH": os.pathsep.join(filter(None, [str(HERE), os.environ.get("PYTHONPATH")]))}
-        info = json.loads((state / "ready.json").read_text())
+        info = rig.info
         print(f"conformance: rig pid {info['pid']}, {len(info['buses'])} buses, --acker", flush=True)
         result = subprocess.run([sys.executable, "-m", "pytest", "-c", str(HERE / "pytest.ini"),
                                  "--rootdir", str(suites_dir), "-p", "gatewaylab_conformance", "-q",
@@ -143,7 +106,7 @@ def main(argv: list[str]) -> int:
         return result.returncode
     finally:
         if rig is not None:
-            _stop_rig(rig)
+            rig.stop()
         shutil.rmtree(state, ignore_errors=True)
 
 

@@ -17,8 +17,8 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 import client_victims
 
-from benchmarks.soak import _start_rig, _stop_rig
 from gatewaylab.devices.maxon_idx.host.client import IdxClient, IdxError
+from gatewaylab.rig.process import RigProcess
 
 pytestmark = pytest.mark.slow
 KILL_EVERY = 0.1
@@ -32,9 +32,10 @@ def test_killing_a_client_every_100_ms_never_stalls_the_sdo_loop_of_another() ->
     chapter 5), a bus client halfway through a FRAME record (docs/bus-wire.md) -- while another client's
     SDO loop with node 2 runs without a single failure; afterwards node 3 answers over both paths."""
     with tempfile.TemporaryDirectory(prefix="gatewaylab-kill-") as tmp:
-        proc, info = _start_rig(None, Path(tmp))
+        rig = RigProcess(None, workdir=tmp)
+        proc, info = rig.proc, rig.info
         try:
-            endpoint = str(info["buses"]["can0"]["endpoint"])
+            endpoint = rig.endpoint("can0")
             tcp = str(info["usb"]["idx1"]["tcp"]).rsplit(":", 1)
             idx_url = f"socket://127.0.0.1:{tcp[1]}"
             ctx = mp.get_context("forkserver")
@@ -135,4 +136,4 @@ def test_killing_a_client_every_100_ms_never_stalls_the_sdo_loop_of_another() ->
             settled(read_idx)
             assert proc.poll() is None
         finally:
-            _stop_rig(proc)
+            rig.stop()
