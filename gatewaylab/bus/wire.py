@@ -30,6 +30,8 @@ MAX_FILTERS = (MAX_RECORD - 1) // FILTER.size
 
 
 class RecordType(IntEnum):
+    """The type byte after a record's length field; selects the body layout (docs/bus-wire.md record table)."""
+
     HELLO = 0x01     # client -> server: version, options (bit 0 receive own, bit 1 CAN FD), name
     WELCOME = 0x02   # server -> client: version, flags (bit 0 FD bus), bitrates, bus name
     FRAME = 0x03     # both ways: one CAN (FD) frame; the server fills in the bus time
@@ -41,6 +43,8 @@ class RecordType(IntEnum):
 
 
 class FrameFlags:
+    """Bits of a FRAME record's flags byte (docs/bus-wire.md, type 0x03); ``ALL`` lets decoding reject unknown bits."""
+
     EXTENDED = 0x01
     RTR = 0x02
     FD = 0x04
@@ -51,23 +55,31 @@ class FrameFlags:
 
 
 class StatusKind(IntEnum):
+    """The ``kind`` byte of a STATUS record: an error frame seen on the bus or a controller state change."""
+
     ERROR_FRAME = 1
     STATE = 2
 
 
 class TxOutcome(IntEnum):
+    """The ``outcome`` of a TXDONE record: how a client's frames left its queue (docs/bus-wire.md "Transmit queue")."""
+
     TRANSMITTED = 0   # sent and acknowledged (or dropped by fault injection, as the sender sees it)
     ABORTED = 1       # given up by the controller: flushed at bus-off, single-shot after an error
     REFUSED = 2       # never queued: the controller refused it (bus-off, FD on a classic bus)
 
 
 class FilterMatch(IntEnum):
+    """The ``match`` byte of a FILTER entry: which identifier type the filter accepts (docs/bus-wire.md "Filters")."""
+
     ANY = 0           # standard and extended identifiers
     STANDARD = 1
     EXTENDED = 2
 
 
 class ControllerStateCode(IntEnum):
+    """The ``state`` byte of STATUS: the client's controller error state; send() waits only while error-active."""
+
     ERROR_ACTIVE = 0
     ERROR_PASSIVE = 1
     BUS_OFF = 2
@@ -75,6 +87,8 @@ class ControllerStateCode(IntEnum):
 
 @dataclass(frozen=True, slots=True)
 class Hello:
+    """A decoded HELLO: the first record of a client, with its protocol version, receive-own/FD options and name."""
+
     version: int
     receive_own: bool
     fd: bool
@@ -83,6 +97,8 @@ class Hello:
 
 @dataclass(frozen=True, slots=True)
 class Welcome:
+    """A decoded WELCOME, the server's answer to HELLO: whether the bus is CAN FD, its bitrates and its name."""
+
     version: int
     fd: bool
     bitrate: int
@@ -92,6 +108,8 @@ class Welcome:
 
 @dataclass(frozen=True, slots=True)
 class FrameRecord:
+    """A decoded FRAME: one CAN (FD) frame with its bus-time stamp; ``echo`` marks the client's own frame sent back."""
+
     frame: CanFrame
     timestamp: float
     echo: bool = False
@@ -99,6 +117,8 @@ class FrameRecord:
 
 @dataclass(frozen=True, slots=True)
 class Status:
+    """A decoded STATUS: an error frame or controller state change with the error counters, stamped in bus time."""
+
     kind: StatusKind
     state: ControllerStateCode
     tec: int
@@ -108,17 +128,23 @@ class Status:
 
 @dataclass(frozen=True, slots=True)
 class Bye:
+    """A decoded BYE: the peer closes the connection after it; ``reason`` says why (e.g. the malformed record)."""
+
     reason: str
 
 
 @dataclass(frozen=True, slots=True)
 class TxDone:
+    """A decoded TXDONE: ``count`` of the client's frames left its transmit queue, which bounds its frames in flight."""
+
     outcome: TxOutcome
     count: int
 
 
 @dataclass(frozen=True, slots=True)
 class TimeBase:
+    """A decoded TIMEBASE: the Unix time of bus time 0, to turn record timestamps into wall-clock time."""
+
     wall_epoch: float
 
 
@@ -131,6 +157,7 @@ class AcceptanceFilter:
     match: FilterMatch = FilterMatch.ANY
 
     def accepts(self, frame: CanFrame) -> bool:
+        """Whether ``frame`` passes; the server and a client filtering for itself apply this same rule."""
         if self.match is not FilterMatch.ANY and (self.match is FilterMatch.EXTENDED) != frame.extended:
             return False
         return (frame.can_id ^ self.can_id) & self.can_mask == 0
@@ -151,16 +178,19 @@ def _record(rtype: RecordType, body: bytes) -> bytes:
 
 
 def encode_hello(name: str, receive_own: bool = False, fd: bool = True) -> bytes:
+    """The HELLO record a client sends first to join a bus (name truncated to 255 bytes)."""
     opts = (1 if receive_own else 0) | (2 if fd else 0)
     return _record(RecordType.HELLO, HELLO.pack(VERSION, opts) + name.encode()[:255])
 
 
 def encode_welcome(bus_name: str, bitrate: int, data_bitrate: int | None) -> bytes:
+    """The WELCOME record the server answers HELLO with; ``data_bitrate`` None announces a classic CAN bus."""
     body = WELCOME.pack(VERSION, 1 if data_bitrate else 0, bitrate, data_bitrate or 0)
     return _record(RecordType.WELCOME, body + bus_name.encode()[:255])
 
 
 def encode_frame(frame: CanFrame, timestamp: float = 0.0, echo: bool = False) -> bytes:
+    """A FRAME record for ``frame``; clients send timestamp 0, the server stamps bus time and flags echoes."""
     flags = ((FrameFlags.EXTENDED if frame.extended else 0) | (FrameFlags.RTR if frame.rtr else 0)
              | (FrameFlags.FD if frame.fd else 0) | (FrameFlags.BRS if frame.brs else 0)
              | (FrameFlags.ESI if frame.esi else 0) | (FrameFlags.ECHO if echo else 0))
@@ -170,22 +200,27 @@ def encode_frame(frame: CanFrame, timestamp: float = 0.0, echo: bool = False) ->
 
 
 def encode_status(kind: StatusKind, state: ControllerStateCode, tec: int, rec: int, t: float) -> bytes:
+    """A STATUS record for an error frame or state change; the counters saturate to fit their u16 fields."""
     return _record(RecordType.STATUS, STATUS.pack(kind, state, min(tec, 0xFFFF), min(rec, 0xFFFF), t))
 
 
 def encode_bye(reason: str) -> bytes:
+    """The BYE record sent just before closing, carrying the reason (truncated to fit one record)."""
     return _record(RecordType.BYE, reason.encode()[:MAX_RECORD - 1])
 
 
 def encode_txdone(outcome: TxOutcome, count: int = 1) -> bytes:
+    """A TXDONE record telling a client that ``count`` of its frames left its transmit queue with ``outcome``."""
     return _record(RecordType.TXDONE, TXDONE.pack(outcome, count))
 
 
 def encode_timebase(wall_epoch: float) -> bytes:
+    """The TIMEBASE record the server sends right after WELCOME, so clients can convert bus time to Unix time."""
     return _record(RecordType.TIMEBASE, TIMEBASE.pack(wall_epoch))
 
 
 def encode_filters(filters: tuple[AcceptanceFilter, ...] | list[AcceptanceFilter]) -> bytes:
+    """A FILTER record: a client's acceptance filters, or the server's echo of those in force (at most MAX_FILTERS)."""
     if len(filters) > MAX_FILTERS:
         raise LocalError(f"at most {MAX_FILTERS} filters fit in one FILTER record, got {len(filters)}")
     return _record(RecordType.FILTER, b"".join(
@@ -253,6 +288,7 @@ class RecordDecoder:
         self._buf = bytearray()
 
     def feed(self, data: bytes) -> list[Record]:
+        """Add bytes as they arrive and return the records now complete; raises ProtocolError on anything malformed."""
         buf = self._buf
         buf += data
         out: list[Record] = []
@@ -273,4 +309,5 @@ class RecordDecoder:
 
     @property
     def buffered(self) -> int:
+        """Bytes of an incomplete record held back (0 when the stream ended on a record boundary)."""
         return len(self._buf)

@@ -22,6 +22,8 @@ from .errors import ConfigError
 
 
 class EndpointKind(Enum):
+    """Which transport an :class:`Endpoint` names, so each client knows how to open it (docs/endpoints.md)."""
+
     UNIX = "unix"
     TCP = "tcp"
     SERIAL = "serial"
@@ -74,6 +76,7 @@ def format_tcp(host: str, port: int) -> str:
 
 
 def format_unix(path: object) -> str:
+    """The canonical ``unix:PATH`` form of a Unix-socket path (what ``str()`` gives for a UNIX endpoint)."""
     return f"unix:{path}"
 
 

@@ -68,14 +68,17 @@ class Datagram:
 
     @property
     def adp(self) -> int:
+        """The address position (ADP): a negative slave position (APxx) or a station address (FPxx), ETG.1000.4."""
         return self.address & 0xFFFF
 
     @property
     def ado(self) -> int:
+        """The address offset (ADO): the ESC register or memory address a physical datagram accesses (ETG.1000.4)."""
         return (self.address >> 16) & 0xFFFF
 
     @staticmethod
     def physical(command: Command, index: int, adp: int, ado: int, data: bytes, wkc: int = 0) -> Datagram:
+        """Build an auto-increment, configured or broadcast datagram from ADP and ADO rather than a packed address."""
         return Datagram(command, index, (adp & 0xFFFF) | ((ado & 0xFFFF) << 16), data, wkc)
 
 
@@ -149,6 +152,7 @@ def decode_datagrams(payload: bytes | bytearray | memoryview) -> tuple[Datagram,
 
 
 def decode_frame(raw: bytes | bytearray | memoryview) -> Frame:
+    """Parse a whole Ethernet frame (EtherType 0x88A4 checked, then the datagrams); raises FrameFormatError."""
     if len(raw) < ETH_HEADER_LEN + ECAT_HEADER_LEN:
         raise FrameFormatError("frame shorter than the Ethernet + EtherCAT headers")
     dst, src, ethertype = ETH_HEADER.unpack_from(raw, 0)

@@ -99,6 +99,8 @@ class DiscardReason(Enum):
 
 @dataclass(frozen=True, slots=True)
 class FrameReceived:
+    """Decoder event: a complete frame whose CRC checks (2.2.3), for the slave to execute or the host to read."""
+
     frame: Frame
 
 
@@ -112,6 +114,8 @@ class CrcFailed:
 
 @dataclass(frozen=True, slots=True)
 class FrameDiscarded:
+    """Decoder event: a partial frame dropped unanswered (e.g. 2.2.6 frame timeout), with the reason and bytes."""
+
     reason: DiscardReason
     partial: bytes
 
@@ -120,6 +124,8 @@ DecoderEvent = FrameReceived | CrcFailed | FrameDiscarded
 
 
 class RxState(Enum):
+    """Where :class:`FrameDecoder` is in the DLE STX framing and DLE stuffing (guide 2.2.2, 2.2.4)."""
+
     HUNT = "hunt"            # looking for DLE
     SYNC = "sync"            # saw DLE, expecting STX
     BODY = "body"            # inside a frame
@@ -127,6 +133,8 @@ class RxState(Enum):
 
 
 class DecoderStats:
+    """Counters of one :class:`FrameDecoder` (frames, CRC errors, discards, timeouts...) for diagnosis."""
+
     __slots__ = ("crc_errors", "discarded", "frames", "garbage_bytes", "timeouts")
 
     def __init__(self) -> None:

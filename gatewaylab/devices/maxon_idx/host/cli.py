@@ -66,6 +66,7 @@ def _obj(args: argparse.Namespace) -> str:
 
 
 def cmd_read(args: argparse.Namespace) -> int:
+    """``gatewaylab idx read``: print an object as a typed number, string or hex (ReadObject/segmented, guide 2.1.1)."""
     with IdxClient(args.port, timeout=args.timeout) as client:
         if args.type == "str":
             print(f"{_obj(args)} = {client.read_string(args.node, args.index, args.sub)!r}")
@@ -98,6 +99,7 @@ def _value(text: str, type_: str) -> int:
 
 
 def cmd_write(args: argparse.Namespace) -> int:
+    """``gatewaylab idx write``: write a typed value, bytes or a string (WriteObject/segmented, guide 2.1.2)."""
     with IdxClient(args.port, timeout=args.timeout) as client:
         if args.type in ("str", "hex"):
             data = args.value.encode() if args.type == "str" else bytes.fromhex(args.value)
@@ -112,6 +114,7 @@ def cmd_write(args: argparse.Namespace) -> int:
 
 
 def cmd_nmt(args: argparse.Namespace) -> int:
+    """``gatewaylab idx nmt``: send an NMT command to one node, node 0 = all (SendNMTService, guide 2.1.2.4)."""
     with IdxClient(args.port, timeout=args.timeout) as client:
         client.nmt(args.node, _NMT[args.command])
     target = "all nodes" if args.node == 0 else f"node {args.node}"

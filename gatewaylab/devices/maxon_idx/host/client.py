@@ -92,12 +92,15 @@ class IdxTimeout(IdxError):
 
 @dataclass(frozen=True, slots=True)
 class LssAddress:
+    """A CiA 305 LSS address (vendor, product, revision, serial) that names one drive, e.g. as fastscan found it."""
+
     vendor_id: int
     product_code: int
     revision: int
     serial: int
 
     def as_tuple(self) -> tuple[int, int, int, int]:
+        """The four fields in LSS order, the order switch_state_selective sends them in (0x40..0x43)."""
         return (self.vendor_id, self.product_code, self.revision, self.serial)
 
 
@@ -127,6 +130,7 @@ class IdxClient:
         self.close()
 
     def close(self) -> None:
+        """Close the link (leaving the ``with`` block does the same)."""
         self.link.close()
 
     def _on_event(self, event: DecoderEvent) -> None:
@@ -207,6 +211,7 @@ class IdxClient:
         return value
 
     def write(self, node_id: int, index: int, subindex: int, value: int, type_: str = "u32") -> None:
+        """Typed write: pack ``value`` as ``type_`` (u8 u16 u32 i8 i16 i32) and send it by WriteObject (2.1.2.1)."""
         self.write_object(node_id, index, subindex, _TYPES[type_].pack(value))
 
     def read_segmented(self, node_id: int, index: int, subindex: int) -> bytes:
@@ -231,6 +236,7 @@ class IdxClient:
         return bytes(data)
 
     def read_string(self, node_id: int, index: int, subindex: int) -> str:
+        """A string object (e.g. 0x1008 device name) by segmented read, trailing NULs stripped, decoded as Latin-1."""
         return self.read_segmented(node_id, index, subindex).rstrip(b"\x00").decode("latin-1")
 
     def write_segmented(self, node_id: int, index: int, subindex: int, data: bytes,
@@ -258,6 +264,7 @@ class IdxClient:
 
     # -- LSS ----------------------------------------------------------------------------------------
     def send_lss(self, data: bytes) -> None:
+        """SendLSS (2.1.3.1): put an LSS master message, padded to 8 bytes, on the bus; answers come by ReadLSS."""
         self._ok(SendLss(data.ljust(8, b"\x00")), "SendLSS")
 
     def read_lss(self, timeout_ms: int = 50) -> bytes | None:

@@ -13,15 +13,23 @@ USB_IDS: tuple[tuple[int, int], ...] = ((0x24E7, 0x3B01), (0x0403, 0xA8B0))
 
 
 class Link(Protocol):
-    def write(self, data: bytes) -> None: ...
+    """What :class:`~.client.IdxClient` needs of a byte link, so serial, socket and USB ports are interchangeable."""
+
+    def write(self, data: bytes) -> None:
+        """Send the bytes of a stuffed frame to the device."""
+        ...
 
     def read(self, size: int, timeout: float) -> bytes:
         """Up to ``size`` bytes; may return fewer (or none) once ``timeout`` seconds passed."""
         ...
 
-    def reset_input(self) -> None: ...
+    def reset_input(self) -> None:
+        """Drop bytes received but not read yet, e.g. a late reply after a client timeout."""
+        ...
 
-    def close(self) -> None: ...
+    def close(self) -> None:
+        """Release the port or device."""
+        ...
 
 
 class SerialLink:
@@ -34,19 +42,23 @@ class SerialLink:
         self.port: Any = serial.serial_for_url(url, baudrate=baudrate, timeout=0.1)
 
     def write(self, data: bytes) -> None:
+        """Write and flush, so the request is out before the client starts timing its reply."""
         self.port.write(data)
         self.port.flush()
 
     def read(self, size: int, timeout: float) -> bytes:
+        """What is waiting (at least one byte, or none at the timeout), so the decoder sees bytes as they arrive."""
         self.port.timeout = max(timeout, 0.0)
         waiting = self.port.in_waiting
         data: bytes = self.port.read(max(1, min(size, waiting)) if waiting else 1)
         return data
 
     def reset_input(self) -> None:
+        """Drop pyserial's input buffer (a late reply after a client timeout)."""
         self.port.reset_input_buffer()
 
     def close(self) -> None:
+        """Close the serial port or socket."""
         self.port.close()
 
 
@@ -87,9 +99,11 @@ class UsbLink:
             raise ConfigError("the USB device has no bulk IN/OUT endpoint pair")
 
     def write(self, data: bytes) -> None:
+        """Send stuffed frame bytes on the bulk OUT endpoint."""
         self.ep_out.write(data)
 
     def read(self, size: int, timeout: float) -> bytes:
+        """One bulk IN transfer; no bytes when ``timeout`` expires, as :class:`Link` allows."""
         import usb.core
 
         try:
@@ -98,9 +112,11 @@ class UsbLink:
             return b""
 
     def reset_input(self) -> None:
+        """Nothing to drop: pyusb keeps no input buffer between reads."""
         pass
 
     def close(self) -> None:
+        """Release the device's interface and handles so another program can open it."""
         import usb.util
 
         usb.util.dispose_resources(self.dev)
