@@ -351,7 +351,7 @@ class Drive:
         self._set_mode(op)
 
     def _on_controlword(self, *args: Any) -> None:
-        cw = int(self._v[0x6040, 0])
+        cw = self._v[0x6040, 0]
         prev, self.controlword = self.controlword, cw
         # next_state(state, decode_command(cw, prev)) from one precomputed table (every SYNC)
         hit = CONTROLWORD_NEXT[self.state][(cw & 0x8F) | ((prev & 0x80) << 1)]
@@ -418,8 +418,9 @@ class Drive:
                 self.profile.reset(run.profile.position + self.offset, run.profile.velocity)
 
     def _soft_limits(self, x: float) -> float:
-        low = int(self._v[0x607D, 1])
-        high = int(self._v[0x607D, 2])
+        v = self._v     # typed values: integer objects hold ints
+        low = v[0x607D, 1]
+        high = v[0x607D, 2]
         if low < high:
             clamped = low if x < low else high if x > high else x
             if clamped != x:
@@ -554,8 +555,8 @@ class Drive:
         stream + 0x60B1."""
         v = self._v
         self.internal_limit = False
-        target = self._soft_limits(float(int(v[0x607A, 0]) + int(v[0x60B0, 0])))
-        return (_POSITION, target, self._csp_feedforward(target, dt) + float(int(v[0x60B1, 0])), 0.0, 0.0)
+        target = self._soft_limits(float(v[0x607A, 0] + v[0x60B0, 0]))
+        return (_POSITION, target, self._csp_feedforward(target, dt) + float(v[0x60B1, 0]), 0.0, 0.0)
 
     def _cyclic_velocity(self, dt: float) -> Demand:
         """CSV: 0x60FF + 0x60B1, limited to min(0x607F, 0x6080)."""
@@ -624,7 +625,7 @@ class Drive:
         return self._follow_profile()
 
     def _following_error(self, fe: float, dt: float, supervised: bool) -> None:
-        window = int(self._v[0x6065, 0])
+        window = self._v[0x6065, 0]
         if not supervised or window == 0xFFFFFFFF or abs(fe) <= window:
             self.fe_time = 0.0
             self.fe_warning = False
@@ -697,7 +698,7 @@ class Drive:
 
     def _publish(self) -> None:
         """The statusword into the dictionary (event-driven TPDOs mapping it see a change)."""
-        self.od.put(0x6041, 0, self.statusword())
+        self.od.put(0x6041, 0, self.statusword(), typed=True)
 
     def _publish_actuals(self, x: float, fe: float) -> None:
         """The actual values of this period into the dictionary, in the order of ``_ACTUALS``."""
@@ -707,7 +708,8 @@ class Drive:
                    plant.digital_inputs(), self.statusword())
         put = self.od.put
         for (index, subindex, low, high), value in zip(_ACTUALS, actuals):
-            put(index, subindex, round(low if value < low else high if value > high else value))
+            # rounded and saturated here: typed values for the dictionary
+            put(index, subindex, round(low if value < low else high if value > high else value), typed=True)
 
 
 _CW_HALT = int(Cw.HALT)

@@ -32,6 +32,9 @@ ReadHook = Callable[[int, int], None]
 #: Where a hook applies: one index or a range of indexes (also objects added later).
 Where = int | range
 
+#: What :meth:`ObjectDictionary.put` compares with when a key holds no value (equal to nothing).
+_ABSENT = object()
+
 
 class AccessPolicy(Protocol):
     """A protocol's access rules for remote reads and writes (NMT state, EtherCAT state)."""
@@ -183,14 +186,23 @@ class ObjectDictionary:
             self.entry(index, subindex)
             raise
 
-    def put(self, index: int, subindex: int, value: Any) -> bool:
+    def put(self, index: int, subindex: int, value: Any, *, typed: bool = False) -> bool:
         """The device's own write (no access or limit checks, coerced to the entry's type): stores,
-        returns True when the value changed and then calls the key's listeners."""
+        returns True when the value changed and then calls the key's listeners.
+
+        ``typed``: the caller guarantees that ``value`` already has the entry's Python type and
+        fits its data type (a control loop that rounds and saturates what it publishes), so it
+        is stored without coercion; a value of the wrong type would be stored as it is."""
         key = (index, subindex)
-        entry = self.entries.get(key) or self.entry(index, subindex)
-        value = coerce(entry, value)
         values = self.values
-        old = values[key]
+        old = values.get(key, _ABSENT)
+        if old == value:
+            # the value the entry holds: coerced it would be the same (a value equal to a
+            # stored one converts to it), so nothing is stored and nobody is told. Control
+            # loops put every actual value every period, most of them unchanged.
+            return False
+        if not typed or old is _ABSENT:
+            value = coerce(self.entries.get(key) or self.entry(index, subindex), value)
         values[key] = value
         if old == value:
             return False
