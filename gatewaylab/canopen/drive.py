@@ -190,23 +190,28 @@ Demand = tuple[ControlMode, float, float, float, float]
 #: The power stage is off: the axis coasts and friction stops it.
 _POWER_OFF: Demand = (ControlMode.OFF, 0.0, 0.0, 0.0, 0.0)
 
-_I32 = (-0x80000000, 0x7FFFFFFF)
-_I16 = (-0x8000, 0x7FFF)
+#: Ranges of INTEGER32 / INTEGER16 as floats (the measured values are floats: a float compares
+#: with a float faster than with an int); the saturated value rounds to the same int.
+_I32 = (-2147483648.0, 2147483647.0)
+_I16 = (-32768.0, 32767.0)
 
 #: The actual values the control tick publishes every period, in this order (an event-driven
-#: TPDO mapping them samples the dictionary as each one changes): (index, subindex, low, high),
-#: the value rounded and saturated to its data type.
-_ACTUALS: tuple[tuple[int, int, int, int], ...] = (
-    (0x6064, 0, *_I32),   # position actual value
-    (0x606C, 0, *_I32),   # velocity actual value
-    (0x6077, 0, *_I16),   # torque actual value
-    (0x6074, 0, *_I16),   # torque demand (the motor torque of the plant: no current loop)
-    (0x6062, 0, *_I32),   # position demand value
-    (0x606B, 0, *_I32),   # velocity demand value
-    (0x60F4, 0, *_I32),   # following error actual value
-    (0x60FD, 0, 0, 0xFFFFFFFF),   # digital inputs
-    (0x6041, 0, 0, 0xFFFF),       # statusword
+#: TPDO mapping them samples the dictionary as each one changes): (index, subindex) and the
+#: range a measured value is saturated to before it is rounded; None for the digital inputs
+#: and the statusword, which the drive computes as ints of their type.
+_ACTUALS: tuple[tuple[tuple[int, int], tuple[float, float] | None], ...] = (
+    ((0x6064, 0), _I32),   # position actual value
+    ((0x606C, 0), _I32),   # velocity actual value
+    ((0x6077, 0), _I16),   # torque actual value
+    ((0x6074, 0), _I16),   # torque demand (the motor torque of the plant: no current loop)
+    ((0x6062, 0), _I32),   # position demand value
+    ((0x606B, 0), _I32),   # velocity demand value
+    ((0x60F4, 0), _I32),   # following error actual value
+    ((0x60FD, 0), None),   # digital inputs
+    ((0x6041, 0), None),   # statusword
 )
+_ACTUAL_KEYS = tuple(key for key, _ in _ACTUALS)
+_MEASURED_RANGES = tuple(limits for _, limits in _ACTUALS if limits is not None)
 
 
 class Drive:
@@ -701,15 +706,16 @@ class Drive:
         self.od.put(0x6041, 0, self.statusword(), typed=True)
 
     def _publish_actuals(self, x: float, fe: float) -> None:
-        """The actual values of this period into the dictionary, in the order of ``_ACTUALS``."""
+        """The actual values of this period into the dictionary, in the order of ``_ACTUALS``:
+        the measured ones rounded and saturated to their type, so they are stored typed."""
         plant = self.plant
         st = plant.state
-        actuals = (x, st.velocity, st.torque, st.torque, self.demand, self.demand_velocity, fe,
-                   plant.digital_inputs(), self.statusword())
-        put = self.od.put
-        for (index, subindex, low, high), value in zip(_ACTUALS, actuals):
-            # rounded and saturated here: typed values for the dictionary
-            put(index, subindex, round(low if value < low else high if value > high else value), typed=True)
+        values = [round(low if value < low else high if value > high else value)
+                  for (low, high), value in zip(_MEASURED_RANGES, (
+                      x, st.velocity, st.torque, st.torque, self.demand, self.demand_velocity, fe))]
+        values.append(plant.digital_inputs())
+        values.append(self.statusword())
+        self.od.put_many(_ACTUAL_KEYS, values, typed=True)
 
 
 _CW_HALT = int(Cw.HALT)
