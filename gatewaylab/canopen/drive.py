@@ -211,6 +211,7 @@ _ACTUALS: tuple[tuple[tuple[int, int], tuple[float, float] | None], ...] = (
     ((0x6041, 0), None),   # statusword
 )
 _ACTUAL_KEYS = tuple(key for key, _ in _ACTUALS)
+_STATUSWORD_KEY = ((0x6041, 0),)
 _MEASURED_RANGES = tuple(limits for _, limits in _ACTUALS if limits is not None)
 
 
@@ -703,7 +704,7 @@ class Drive:
 
     def _publish(self) -> None:
         """The statusword into the dictionary (event-driven TPDOs mapping it see a change)."""
-        self.od.put(0x6041, 0, self.statusword(), typed=True)
+        self.od.put_many(_STATUSWORD_KEY, (self.statusword(),), typed=True)
 
     def _publish_actuals(self, x: float, fe: float) -> None:
         """The actual values of this period into the dictionary, in the order of ``_ACTUALS``:

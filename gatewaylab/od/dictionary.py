@@ -203,6 +203,7 @@ class ObjectDictionary:
         and fits its data type (a control loop that rounds and saturates what it publishes), so
         values are stored without coercion; a value of the wrong type would be stored as it is."""
         values = self.values
+        listeners_of = self._listeners
         changed = False
         for key, value in zip(keys, new):
             try:
@@ -223,7 +224,7 @@ class ObjectDictionary:
                 if old == value:
                     continue
             changed = True
-            listeners = self._listeners.get(key)
+            listeners = listeners_of.get(key)
             if listeners is not None:
                 for listener in listeners:
                     listener(key, value)
