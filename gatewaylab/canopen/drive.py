@@ -211,7 +211,6 @@ _ACTUALS: tuple[tuple[tuple[int, int], tuple[float, float] | None], ...] = (
     ((0x6041, 0), None),   # statusword
 )
 _ACTUAL_KEYS = tuple(key for key, _ in _ACTUALS)
-_STATUSWORD_KEY = ((0x6041, 0),)
 _MEASURED_RANGES = tuple(limits for _, limits in _ACTUALS if limits is not None)
 
 
@@ -236,6 +235,11 @@ class Drive:
         self.od = build_object_dictionary(serial, node_id, params=params)
         #: the dictionary's value table (typed values), read directly on the 1 kHz hot path
         self._v: dict[tuple[int, int], Any] = self.od.values
+        #: _ACTUAL_KEYS as the key objects of that table (a dict finds an identical key
+        #: without comparing tuples: the puts of every control period)
+        own = {key: key for key in self._v}
+        self._actual_keys = tuple(own[key] for key in _ACTUAL_KEYS)
+        self._statusword_key = (own[0x6041, 0],)
         self.node = Node(clock, bus, node_id, self.od, name=self.name, store_path=store_path)
         if stored is not None:
             rate = BIT_TIMING_TABLE[stored[1]] if stored[1] < len(BIT_TIMING_TABLE) else None
@@ -704,7 +708,7 @@ class Drive:
 
     def _publish(self) -> None:
         """The statusword into the dictionary (event-driven TPDOs mapping it see a change)."""
-        self.od.put_many(_STATUSWORD_KEY, (self.statusword(),), typed=True)
+        self.od.put_many(self._statusword_key, (self.statusword(),), typed=True)
 
     def _publish_actuals(self, x: float, fe: float) -> None:
         """The actual values of this period into the dictionary, in the order of ``_ACTUALS``:
@@ -716,7 +720,7 @@ class Drive:
                       x, st.velocity, st.torque, st.torque, self.demand, self.demand_velocity, fe))]
         values.append(plant.digital_inputs())
         values.append(self.statusword())
-        self.od.put_many(_ACTUAL_KEYS, values, typed=True)
+        self.od.put_many(self._actual_keys, values, typed=True)
 
 
 _CW_HALT = int(Cw.HALT)

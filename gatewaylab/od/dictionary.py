@@ -224,7 +224,7 @@ class ObjectDictionary:
                 if old == value:
                     continue
             changed = True
-            listeners = listeners_of.get(key)
+            listeners = listeners_of.get(key) if listeners_of else None
             if listeners is not None:
                 for listener in listeners:
                     listener(key, value)
