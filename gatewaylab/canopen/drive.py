@@ -235,11 +235,11 @@ class Drive:
         self.od = build_object_dictionary(serial, node_id, params=params)
         #: the dictionary's value table (typed values), read directly on the 1 kHz hot path
         self._v: dict[tuple[int, int], Any] = self.od.values
-        #: _ACTUAL_KEYS as the key objects of that table (a dict finds an identical key
-        #: without comparing tuples: the puts of every control period)
-        own = {key: key for key in self._v}
-        self._actual_keys = tuple(own[key] for key in _ACTUAL_KEYS)
-        self._statusword_key = (own[0x6041, 0],)
+        #: _ACTUAL_KEYS as the entries' own key objects (Entry.key: a dict finds an identical
+        #: key without comparing tuples; the puts of every control period)
+        entries = self.od.entries
+        self._actual_keys = tuple(entries[key].key for key in _ACTUAL_KEYS)
+        self._statusword_key = (entries[0x6041, 0].key,)
         self.node = Node(clock, bus, node_id, self.od, name=self.name, store_path=store_path)
         if stored is not None:
             rate = BIT_TIMING_TABLE[stored[1]] if stored[1] < len(BIT_TIMING_TABLE) else None

@@ -94,7 +94,7 @@ class _Pdo:
             if entry is not None and entry.bit_length != bits:
                 entry = None        # an inconsistent default/stored mapping acts like a dummy entry
                 self.node.count("pdo_mapping_errors")
-            mapped.append(_Mapped(entry, (index, s) if entry is not None else None, offset, size))
+            mapped.append(_Mapped(entry, entry.key if entry is not None else None, offset, size))
             offset += size
         self.mapped = mapped
         self.length = offset

@@ -74,7 +74,7 @@ class ObjectDictionary:
     # -- building ------------------------------------------------------------------------------
     def _add_entry(self, obj: OdObject, entry: Entry) -> Entry:
         obj.entries[entry.subindex] = entry
-        key = (entry.index, entry.subindex)
+        key = entry.key
         self.entries[key] = entry
         self.values[key] = coerce(entry, entry.default_for(self.node_id))
         return entry
@@ -349,7 +349,7 @@ class ObjectDictionary:
     def store(self, entry: Entry, value: Any) -> None:
         """A checked, decoded remote value: command, validators, store, write hooks, reactions, listeners."""
         index = entry.index
-        key = (index, entry.subindex)
+        key = entry.key
         values = self.values
         if index not in self.intercepted:    # a plain value (e.g. a PDO-mapped set-point)
             old = values[key]
