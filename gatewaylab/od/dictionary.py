@@ -32,7 +32,7 @@ ReadHook = Callable[[int, int], None]
 #: Where a hook applies: one index or a range of indexes (also objects added later).
 Where = int | range
 
-#: What :meth:`ObjectDictionary.put` compares with when a key holds no value (equal to nothing).
+#: What :meth:`ObjectDictionary.put_many` compares with when a key holds no value (equal to nothing).
 _ABSENT = object()
 
 
