@@ -158,6 +158,10 @@ class Controller:
         self.synthetic = False
         self._recovery: TimerHandle | None = None
         self._mismatch_timer: TimerHandle | None = None
+        #: The frame at the head of tx_queue when the bus last arbitrated, and its arbitration
+        #: key: computed once per frame, not in every arbitration the frame waits through.
+        self._head: CanFrame | None = None
+        self._head_key = 0
 
     def __repr__(self) -> str:
         return f"<Controller {self.bus.name}/{self.name} {self.state.value} TEC={self.tec} REC={self.rec}>"
@@ -691,7 +695,11 @@ class VirtualBus:
         for c in audience.senders:
             queue = c.tx_queue
             if queue:
-                key = arbitration_key(queue[0])
+                head = queue[0]
+                if head is not c._head:
+                    c._head = head
+                    c._head_key = arbitration_key(head)
+                key = c._head_key
                 if sender is None or key < best:
                     sender, best = c, key
         if sender is None:
@@ -705,7 +713,7 @@ class VirtualBus:
             outcome = _DROPPED
         elif self._corrupt_next:
             outcome = _CRC_ERROR
-        elif len(acks) > 1 or (len(acks) == 1 and acks[0] is not sender):
+        elif acks and (acks[0] is not sender or len(acks) > 1):
             outcome = _SENT
         else:
             outcome = _ACK_ERROR
@@ -748,7 +756,7 @@ class VirtualBus:
                 return
             burst += 1
             try:
-                self._end_of_frame(arbitrate=False)
+                self._end_of_frame(False)
             except BaseException:
                 self._kick()   # the frames still queued go on in a clock event of their own
                 raise

@@ -190,23 +190,28 @@ Demand = tuple[ControlMode, float, float, float, float]
 #: The power stage is off: the axis coasts and friction stops it.
 _POWER_OFF: Demand = (ControlMode.OFF, 0.0, 0.0, 0.0, 0.0)
 
-_I32 = (-0x80000000, 0x7FFFFFFF)
-_I16 = (-0x8000, 0x7FFF)
+#: Ranges of INTEGER32 / INTEGER16 as floats (the measured values are floats: a float compares
+#: with a float faster than with an int); the saturated value rounds to the same int.
+_I32 = (-2147483648.0, 2147483647.0)
+_I16 = (-32768.0, 32767.0)
 
 #: The actual values the control tick publishes every period, in this order (an event-driven
-#: TPDO mapping them samples the dictionary as each one changes): (index, subindex, low, high),
-#: the value rounded and saturated to its data type.
-_ACTUALS: tuple[tuple[int, int, int, int], ...] = (
-    (0x6064, 0, *_I32),   # position actual value
-    (0x606C, 0, *_I32),   # velocity actual value
-    (0x6077, 0, *_I16),   # torque actual value
-    (0x6074, 0, *_I16),   # torque demand (the motor torque of the plant: no current loop)
-    (0x6062, 0, *_I32),   # position demand value
-    (0x606B, 0, *_I32),   # velocity demand value
-    (0x60F4, 0, *_I32),   # following error actual value
-    (0x60FD, 0, 0, 0xFFFFFFFF),   # digital inputs
-    (0x6041, 0, 0, 0xFFFF),       # statusword
+#: TPDO mapping them samples the dictionary as each one changes): (index, subindex) and the
+#: range a measured value is saturated to before it is rounded; None for the digital inputs
+#: and the statusword, which the drive computes as ints of their type.
+_ACTUALS: tuple[tuple[tuple[int, int], tuple[float, float] | None], ...] = (
+    ((0x6064, 0), _I32),   # position actual value
+    ((0x606C, 0), _I32),   # velocity actual value
+    ((0x6077, 0), _I16),   # torque actual value
+    ((0x6074, 0), _I16),   # torque demand (the motor torque of the plant: no current loop)
+    ((0x6062, 0), _I32),   # position demand value
+    ((0x606B, 0), _I32),   # velocity demand value
+    ((0x60F4, 0), _I32),   # following error actual value
+    ((0x60FD, 0), None),   # digital inputs
+    ((0x6041, 0), None),   # statusword
 )
+_ACTUAL_KEYS = tuple(key for key, _ in _ACTUALS)
+_MEASURED_RANGES = tuple(limits for _, limits in _ACTUALS if limits is not None)
 
 
 class Drive:
@@ -230,6 +235,11 @@ class Drive:
         self.od = build_object_dictionary(serial, node_id, params=params)
         #: the dictionary's value table (typed values), read directly on the 1 kHz hot path
         self._v: dict[tuple[int, int], Any] = self.od.values
+        #: _ACTUAL_KEYS as the entries' own key objects (Entry.key: a dict finds an identical
+        #: key without comparing tuples; the puts of every control period)
+        entries = self.od.entries
+        self._actual_keys = tuple(entries[key].key for key in _ACTUAL_KEYS)
+        self._statusword_key = (entries[0x6041, 0].key,)
         self.node = Node(clock, bus, node_id, self.od, name=self.name, store_path=store_path)
         if stored is not None:
             rate = BIT_TIMING_TABLE[stored[1]] if stored[1] < len(BIT_TIMING_TABLE) else None
@@ -351,7 +361,7 @@ class Drive:
         self._set_mode(op)
 
     def _on_controlword(self, *args: Any) -> None:
-        cw = int(self._v[0x6040, 0])
+        cw = self._v[0x6040, 0]
         prev, self.controlword = self.controlword, cw
         # next_state(state, decode_command(cw, prev)) from one precomputed table (every SYNC)
         hit = CONTROLWORD_NEXT[self.state][(cw & 0x8F) | ((prev & 0x80) << 1)]
@@ -418,8 +428,9 @@ class Drive:
                 self.profile.reset(run.profile.position + self.offset, run.profile.velocity)
 
     def _soft_limits(self, x: float) -> float:
-        low = int(self._v[0x607D, 1])
-        high = int(self._v[0x607D, 2])
+        v = self._v     # typed values: integer objects hold ints
+        low = v[0x607D, 1]
+        high = v[0x607D, 2]
         if low < high:
             clamped = low if x < low else high if x > high else x
             if clamped != x:
@@ -554,8 +565,8 @@ class Drive:
         stream + 0x60B1."""
         v = self._v
         self.internal_limit = False
-        target = self._soft_limits(float(int(v[0x607A, 0]) + int(v[0x60B0, 0])))
-        return (_POSITION, target, self._csp_feedforward(target, dt) + float(int(v[0x60B1, 0])), 0.0, 0.0)
+        target = self._soft_limits(float(v[0x607A, 0] + v[0x60B0, 0]))
+        return (_POSITION, target, self._csp_feedforward(target, dt) + float(v[0x60B1, 0]), 0.0, 0.0)
 
     def _cyclic_velocity(self, dt: float) -> Demand:
         """CSV: 0x60FF + 0x60B1, limited to min(0x607F, 0x6080)."""
@@ -624,7 +635,7 @@ class Drive:
         return self._follow_profile()
 
     def _following_error(self, fe: float, dt: float, supervised: bool) -> None:
-        window = int(self._v[0x6065, 0])
+        window = self._v[0x6065, 0]
         if not supervised or window == 0xFFFFFFFF or abs(fe) <= window:
             self.fe_time = 0.0
             self.fe_warning = False
@@ -697,17 +708,19 @@ class Drive:
 
     def _publish(self) -> None:
         """The statusword into the dictionary (event-driven TPDOs mapping it see a change)."""
-        self.od.put(0x6041, 0, self.statusword())
+        self.od.put_many(self._statusword_key, (self.statusword(),), typed=True)
 
     def _publish_actuals(self, x: float, fe: float) -> None:
-        """The actual values of this period into the dictionary, in the order of ``_ACTUALS``."""
+        """The actual values of this period into the dictionary, in the order of ``_ACTUALS``:
+        the measured ones rounded and saturated to their type, so they are stored typed."""
         plant = self.plant
         st = plant.state
-        actuals = (x, st.velocity, st.torque, st.torque, self.demand, self.demand_velocity, fe,
-                   plant.digital_inputs(), self.statusword())
-        put = self.od.put
-        for (index, subindex, low, high), value in zip(_ACTUALS, actuals):
-            put(index, subindex, round(low if value < low else high if value > high else value))
+        values = [round(low if value < low else high if value > high else value)
+                  for (low, high), value in zip(_MEASURED_RANGES, (
+                      x, st.velocity, st.torque, st.torque, self.demand, self.demand_velocity, fe))]
+        values.append(plant.digital_inputs())
+        values.append(self.statusword())
+        self.od.put_many(self._actual_keys, values, typed=True)
 
 
 _CW_HALT = int(Cw.HALT)

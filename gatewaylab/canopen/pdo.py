@@ -94,7 +94,7 @@ class _Pdo:
             if entry is not None and entry.bit_length != bits:
                 entry = None        # an inconsistent default/stored mapping acts like a dummy entry
                 self.node.count("pdo_mapping_errors")
-            mapped.append(_Mapped(entry, (index, s) if entry is not None else None, offset, size))
+            mapped.append(_Mapped(entry, entry.key if entry is not None else None, offset, size))
             offset += size
         self.mapped = mapped
         self.length = offset
@@ -159,7 +159,7 @@ class Rpdo(_Pdo):
 
     def apply(self, data: bytes) -> None:
         node = self.node
-        store = node.store
+        store = node.od.store
         whole = self._whole
         if whole is not None:   # unlimited fixed-size objects: decoding cannot fail
             for target, value in zip(self._entries, whole.unpack_from(data)):
@@ -331,6 +331,11 @@ class PdoManager:
         self.tpdo = [Tpdo(self, n) for n in range(N_PDO)]
         #: Ends the subscriptions of the event-driven TPDOs to the objects they map.
         self._unsubscribe: list[Callable[[], None]] = []
+        #: What a SYNC concerns, from the configuration: valid synchronous RPDOs (types 0..240,
+        #: the only ones that hold received data for it) and valid mapped TPDOs that act on it
+        #: (types 0..240 and 252); the other PDOs ignore every SYNC.
+        self._sync_rpdos: list[Rpdo] = []
+        self._sync_tpdos: list[Tpdo] = []
         for n in range(N_PDO):
             for comm, mapping, receive in ((0x1400 + n, 0x1600 + n, True), (0x1800 + n, 0x1A00 + n, False)):
                 node.add_validator(comm, self._comm_validator(comm, receive))
@@ -342,6 +347,9 @@ class PdoManager:
     def configure(self) -> None:
         for pdo in (*self.rpdo, *self.tpdo):
             pdo.configure()
+        self._sync_rpdos = [rpdo for rpdo in self.rpdo if rpdo.valid and rpdo.trans_type <= 240]
+        self._sync_tpdos = [tpdo for tpdo in self.tpdo if tpdo.valid and tpdo.mapped
+                            and (tpdo.trans_type <= 240 or tpdo.trans_type == 252)]
         self._subscribe_events()
 
     def _subscribe_events(self) -> None:
@@ -389,14 +397,13 @@ class PdoManager:
     # -- runtime ---------------------------------------------------------------------------------
     def apply_sync_rpdos(self) -> None:
         """SYNC, first step: the data synchronous RPDOs received since the previous SYNC."""
-        for rpdo in self.rpdo:
+        for rpdo in self._sync_rpdos:
             rpdo.apply_pending()
 
     def on_sync(self, counter: int | None) -> None:
         """SYNC, last step: synchronous TPDOs sample and send, type 252 samples."""
-        for tpdo in self.tpdo:
-            if tpdo.valid:
-                tpdo.on_sync(counter)
+        for tpdo in self._sync_tpdos:
+            tpdo.on_sync(counter)
 
     # -- CiA 301 parameter rules -----------------------------------------------------------------
     def _comm_validator(self, comm: int, receive: bool) -> Callable[[Entry, Any], None]:

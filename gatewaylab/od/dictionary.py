@@ -11,7 +11,7 @@ its read hooks. EDS/DCF import and export live in :mod:`.eds`, the ESI dictionar
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import replace
 from typing import Any, Protocol
 
@@ -31,6 +31,9 @@ WriteHook = Callable[[int, int, Any], None]
 ReadHook = Callable[[int, int], None]
 #: Where a hook applies: one index or a range of indexes (also objects added later).
 Where = int | range
+
+#: What :meth:`ObjectDictionary.put_many` compares with when a key holds no value (equal to nothing).
+_ABSENT = object()
 
 
 class AccessPolicy(Protocol):
@@ -71,7 +74,7 @@ class ObjectDictionary:
     # -- building ------------------------------------------------------------------------------
     def _add_entry(self, obj: OdObject, entry: Entry) -> Entry:
         obj.entries[entry.subindex] = entry
-        key = (entry.index, entry.subindex)
+        key = entry.key
         self.entries[key] = entry
         self.values[key] = coerce(entry, entry.default_for(self.node_id))
         return entry
@@ -183,22 +186,49 @@ class ObjectDictionary:
             self.entry(index, subindex)
             raise
 
-    def put(self, index: int, subindex: int, value: Any) -> bool:
+    def put(self, index: int, subindex: int, value: Any, *, typed: bool = False) -> bool:
         """The device's own write (no access or limit checks, coerced to the entry's type): stores,
-        returns True when the value changed and then calls the key's listeners."""
-        key = (index, subindex)
-        entry = self.entries.get(key) or self.entry(index, subindex)
-        value = coerce(entry, value)
+        returns True when the value changed and then calls the key's listeners.
+
+        ``typed``: the caller guarantees that ``value`` already has the entry's Python type and
+        fits its data type, so it is stored without coercion (see :meth:`put_many`)."""
+        return self.put_many(((index, subindex),), (value,), typed=typed)
+
+    def put_many(self, keys: Sequence[Key], new: Iterable[Any], *, typed: bool = False) -> bool:
+        """:meth:`put` of each value to its key, in order (the one implementation of both): a
+        control loop publishes its actual values every period in one call. Returns True when
+        any value changed; the listeners of a key run as soon as its value has changed.
+
+        ``typed``: the caller guarantees that every value already has its entry's Python type
+        and fits its data type (a control loop that rounds and saturates what it publishes), so
+        values are stored without coercion; a value of the wrong type would be stored as it is."""
         values = self.values
-        old = values[key]
-        values[key] = value
-        if old == value:
-            return False
-        listeners = self._listeners.get(key)
-        if listeners is not None:
-            for listener in listeners:
-                listener(key, value)
-        return True
+        listeners_of = self._listeners
+        changed = False
+        for key, value in zip(keys, new):
+            try:
+                old = values[key]
+            except KeyError:
+                self.entry(*key)     # SdoAbort for an unknown key
+                old = _ABSENT
+            if old == value:
+                # the value the entry holds: coerced it would be the same (a value equal to a
+                # stored one converts to it), so nothing is stored and nobody is told. Control
+                # loops put every actual value every period, most of them unchanged.
+                continue
+            if typed and old is not _ABSENT:
+                values[key] = value
+            else:
+                value = coerce(self.entries[key], value)
+                values[key] = value
+                if old == value:
+                    continue
+            changed = True
+            listeners = listeners_of.get(key) if listeners_of else None
+            if listeners is not None:
+                for listener in listeners:
+                    listener(key, value)
+        return changed
 
     def set(self, index: int, subindex: int, value: Any) -> None:
         """:meth:`put` without the result (typed local access for device code)."""
@@ -319,7 +349,7 @@ class ObjectDictionary:
     def store(self, entry: Entry, value: Any) -> None:
         """A checked, decoded remote value: command, validators, store, write hooks, reactions, listeners."""
         index = entry.index
-        key = (index, entry.subindex)
+        key = entry.key
         values = self.values
         if index not in self.intercepted:    # a plain value (e.g. a PDO-mapped set-point)
             old = values[key]

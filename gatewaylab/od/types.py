@@ -184,6 +184,9 @@ class Entry:
     #: Python type family: 0 bool, 1 int, 2 float, 3 str, 4 bytes; and the integer range.
     kind: int = field(init=False, compare=False, repr=False)
     int_range: tuple[int, int] | None = field(init=False, compare=False, repr=False)
+    #: ``(index, subindex)``, built once: the dictionary stores values under this very tuple,
+    #: and a dict finds an identical key without comparing tuples (PDO and SDO hot paths).
+    key: tuple[int, int] = field(init=False, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         dt = DataType(self.data_type)
@@ -195,6 +198,7 @@ class Entry:
                 else 3 if dt in STRING_TYPES else 4)
         object.__setattr__(self, "kind", kind)
         object.__setattr__(self, "int_range", type_range(dt) if kind == 1 else None)
+        object.__setattr__(self, "key", (self.index, self.subindex))
 
     @property
     def bit_length(self) -> int:
