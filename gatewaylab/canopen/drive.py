@@ -566,7 +566,22 @@ class Drive:
         v = self._v
         self.internal_limit = False
         target = self._soft_limits(float(v[0x607A, 0] + v[0x60B0, 0]))
-        return (_POSITION, target, self._csp_feedforward(target, dt) + float(v[0x60B1, 0]), 0.0, 0.0)
+        # velocity feed-forward from the set-point stream: change / time between changes, held
+        # until the next set-point is late (so master cycles other than 1 ms still run smoothly)
+        now = self.clock.now()
+        prev = self.prev_csp_target
+        self.prev_csp_target = target
+        if prev is None:
+            self.csp_changed_at, self.csp_span, self.csp_velocity = now, dt, 0.0
+        elif target != prev:
+            span = now - self.csp_changed_at
+            if span < dt:     # a set-point within one period of the previous change
+                span = dt
+            self.csp_velocity = (target - prev) / span
+            self.csp_changed_at, self.csp_span = now, span
+        elif now - self.csp_changed_at > self.csp_span + 0.5 * dt:
+            self.csp_velocity = 0.0
+        return (_POSITION, target, self.csp_velocity + float(v[0x60B1, 0]), 0.0, 0.0)
 
     def _cyclic_velocity(self, dt: float) -> Demand:
         """CSV: 0x60FF + 0x60B1, limited to min(0x607F, 0x6080)."""
@@ -583,24 +598,6 @@ class Drive:
         torque = _clamp(raw, -max_torque, max_torque)
         self.internal_limit = torque != raw
         return (_TORQUE, 0.0, 0.0, 0.0, torque)
-
-    def _csp_feedforward(self, target: float, dt: float) -> float:
-        """Velocity feed-forward from the set-point stream: change / time between changes, held
-        until the next set-point is late (so master cycles other than 1 ms still run smoothly)."""
-        now = self.clock.now()
-        prev = self.prev_csp_target
-        self.prev_csp_target = target
-        if prev is None:
-            self.csp_changed_at, self.csp_span, self.csp_velocity = now, dt, 0.0
-        elif target != prev:
-            span = now - self.csp_changed_at
-            if span < dt:     # a set-point within one period of the previous change
-                span = dt
-            self.csp_velocity = (target - prev) / span
-            self.csp_changed_at, self.csp_span = now, span
-        elif now - self.csp_changed_at > self.csp_span + 0.5 * dt:
-            self.csp_velocity = 0.0
-        return self.csp_velocity
 
     def _check_window(self, dt: float) -> None:
         """PP target reached: actual position within 0x6067 for 0x6068 ms after the profile ended."""

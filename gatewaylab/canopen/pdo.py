@@ -150,13 +150,6 @@ class Rpdo(_Pdo):
         else:
             self.apply(data)
 
-    def apply_pending(self) -> None:
-        """Apply the data a synchronous RPDO received before this SYNC (if any)."""
-        data = self._pending
-        if data is not None:
-            self._pending = None
-            self.apply(data)
-
     def apply(self, data: bytes) -> None:
         node = self.node
         store = node.od.store
@@ -396,9 +389,13 @@ class PdoManager:
 
     # -- runtime ---------------------------------------------------------------------------------
     def apply_sync_rpdos(self) -> None:
-        """SYNC, first step: the data synchronous RPDOs received since the previous SYNC."""
+        """SYNC, first step: the data synchronous RPDOs received since the previous SYNC (each
+        RPDO holds what it received before this SYNC in ``_pending``, None if nothing)."""
         for rpdo in self._sync_rpdos:
-            rpdo.apply_pending()
+            data = rpdo._pending
+            if data is not None:
+                rpdo._pending = None
+                rpdo.apply(data)
 
     def on_sync(self, counter: int | None) -> None:
         """SYNC, last step: synchronous TPDOs sample and send, type 252 samples."""
