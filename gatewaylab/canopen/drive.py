@@ -369,7 +369,10 @@ class Drive:
         if hit is not None and not (hit[1] == 16 and int(self._v[0x605A, 0]) < 5):
             self._transition(*hit)
         if self.state is _OPERATION_ENABLED:
-            self._mode_control(cw, prev)
+            self.halted = bool(cw & _CW_HALT)
+            mode = self.mode
+            if mode is _PP or mode is _HOMING:   # the modes with a new-set-point bit
+                self._mode_control(cw, prev)
         self._publish()
 
     def _transition(self, new: PdsState, number: int) -> None:
@@ -408,9 +411,9 @@ class Drive:
         self.plant.reset_integrator()
 
     def _mode_control(self, cw: int, prev: int) -> None:
-        """Mode-specific controlword bits (4..6, 8) in Operation enabled."""
+        """The new-set-point bit (4) of PP and HM in Operation enabled (halt, bit 8, is set by
+        _on_controlword for every mode)."""
         rising = cw & ~prev
-        self.halted = bool(cw & _CW_HALT)
         mode = self.mode
         if mode is _PP:
             if rising & _CW_NEW_SETPOINT:
@@ -496,7 +499,16 @@ class Drive:
         self.demand = position if control is _POSITION else x
         self.demand_velocity = velocity
         fe = self.demand - x if supervised else 0.0
-        self._following_error(fe, dt, supervised)
+        # following error supervision: outside the window 0x6065 for longer than 0x6066 ms is a fault
+        window = self._v[0x6065, 0]
+        if not supervised or window == 0xFFFFFFFF or abs(fe) <= window:
+            self.fe_time = 0.0
+            self.fe_warning = False
+        else:
+            self.fe_warning = True
+            self.fe_time += dt
+            if self.fe_time * 1000.0 > int(self._v[0x6066, 0]) + 1e-9 and self.state is _OPERATION_ENABLED:
+                self.fault(ERROR_FOLLOWING, ERROR_REGISTER_FOLLOWING)
         self._publish_actuals(x, fe)
 
     # The mode handlers: one control period of a mode of operation in 'operation enabled'.
@@ -630,17 +642,6 @@ class Drive:
             elif option < 5:
                 self._transition(PdsState.SWITCH_ON_DISABLED, 12)
         return self._follow_profile()
-
-    def _following_error(self, fe: float, dt: float, supervised: bool) -> None:
-        window = self._v[0x6065, 0]
-        if not supervised or window == 0xFFFFFFFF or abs(fe) <= window:
-            self.fe_time = 0.0
-            self.fe_warning = False
-            return
-        self.fe_warning = True
-        self.fe_time += dt
-        if self.fe_time * 1000.0 > int(self._v[0x6066, 0]) + 1e-9 and self.state is PdsState.OPERATION_ENABLED:
-            self.fault(ERROR_FOLLOWING, ERROR_REGISTER_FOLLOWING)
 
     def fault(self, error_code: int, error_register: int, data: bytes = b"") -> None:
         """Enter 'fault reaction active' (transition 13): 0x603F, EMCY, then ramp down to FAULT."""
