@@ -428,6 +428,36 @@ class _RxCounters:
 _Route = tuple[tuple[Controller, FrameCallback | None], ...]
 
 
+class _Routes(dict[int, _Route]):
+    """The receivers of each kind of frame (see :data:`_Route`), built when a kind is first
+    asked for. Frames of one kind reach the same receivers: classic base frames by identifier,
+    FD base frames by identifier + 0x800 (a range of their own), extended frames by format only
+    (-1 classic, -2 FD); VirtualBus._deliver computes that key, the one place that does."""
+
+    __slots__ = ("hear",)
+
+    def __init__(self, hear: list[Controller]) -> None:
+        super().__init__()
+        self.hear = hear
+
+    def __missing__(self, key: int) -> _Route:
+        """The route of a kind not seen since the audience was built: the receivers in
+        attachment order, each with the callback it gets the frame through; receivers with
+        REC > 0 are named even without a callback."""
+        fd = key == -2 or key >= 0x800
+        can_id = key - 0x800 if key >= 0x800 else key
+        entries = []
+        for c in self.hear:
+            if fd and not c._fd:
+                continue
+            table = c._rx_table
+            cb = c._on_frame if table is None else table.get(can_id)   # no extended ids in tables
+            if cb is not None or c.rec:
+                entries.append((c, cb))
+        route = self[key] = tuple(entries)
+        return route
+
+
 class _Audience:
     """Who takes part in frames while nothing changes on the bus, their callbacks per kind of
     frame, and what they received. The bus builds it on demand; VirtualBus._invalidate (the one
@@ -448,32 +478,8 @@ class _Audience:
         self.acks = [c for c in self.hear if not c._listen_only]
         #: those of them that acknowledge FD frames
         self.fd_acks = [c for c in self.acks if c._fd]
-        self.routes: dict[int, _Route] = {}
+        self.routes = _Routes(self.hear)
         self.rx = _RxCounters()
-
-    def route(self, frame: CanFrame) -> _Route:
-        """The receivers of a frame of this kind in attachment order, each with the callback it
-        gets the frame through; receivers with REC > 0 are named even without a callback."""
-        # frames of one kind reach the same receivers: classic base frames by identifier, FD
-        # base frames by identifier (in a range of their own), extended frames by format only
-        fd = frame.fd
-        if frame.extended:
-            key = can_id = -2 if fd else -1
-        else:
-            can_id = frame.can_id
-            key = can_id + 0x800 if fd else can_id
-        route = self.routes.get(key)
-        if route is None:
-            entries = []
-            for c in self.hear:
-                if fd and not c._fd:
-                    continue
-                table = c._rx_table
-                cb = c._on_frame if table is None else table.get(can_id)   # no extended ids in tables
-                if cb is not None or c.rec:
-                    entries.append((c, cb))
-            route = self.routes[key] = tuple(entries)
-        return route
 
 
 @dataclass(slots=True)
@@ -826,7 +832,10 @@ class VirtualBus:
         audience.rx.count(sender, frame)
         if sender.receive_own and sender._on_frame is not None:
             sender._on_frame(frame, now)
-        for c, cb in audience.route(frame):
+        # the kind of frame (see _Routes): its receivers are looked up, built on first use
+        fd = frame.fd
+        kind = (-2 if fd else -1) if frame.extended else (frame.can_id + 0x800 if fd else frame.can_id)
+        for c, cb in audience.routes[kind]:
             if c is not sender:
                 if c.rec:
                     c._received()
