@@ -652,10 +652,13 @@ class Master:
         self.fpwr(s.station, REG_DC_START_TIME, U64.pack(now + round(start_delay * 1e9)))
         self.fpwr(s.station, REG_DC_ACTIVATION, b"\x03")
 
-    def bring_up(self) -> None:
-        """scan, PREOP, map, SAFEOP, one process data cycle, OP: what every master does before its cycle."""
+    def bring_up(self, ack_errors: bool = False) -> None:
+        """scan, PREOP, map, SAFEOP, one process data cycle, OP: what every master does before its cycle.
+        ``ack_errors``: request PREOP with the error acknowledge bit, as a master re-initialising a line
+        whose slaves report an AL error does (ETG.1000.6 AL control)."""
         self.scan()
-        self.set_state(AlState.PREOP)
+        for s in self.slaves:
+            self.request_state(s.position, AlState.PREOP, ack=ack_errors)
         self.config_map()
         self.set_state(AlState.SAFEOP)
         self.exchange_process_data()

@@ -69,13 +69,7 @@ def test_random_datagrams_leave_slaves_usable(dgs: list[Datagram]) -> None:
     if [bytes(s.esc.eeprom) for s in seg.slaves] != eeproms:
         return
     m = Master(clock, seg)
-    m.scan()
-    for s in m.slaves:
-        m.request_state(s.position, AlState.PREOP, ack=True)
-    m.config_map()
-    m.set_state(AlState.SAFEOP)
-    m.exchange_process_data()
-    m.set_state(AlState.OP)
+    m.bring_up(ack_errors=True)
     assert m.exchange_process_data() == m.expected_wkc
 
 

@@ -129,13 +129,7 @@ def _addresses_nobody(seg: Segment, d: Datagram) -> bool:
 def _recover_to_op(clock: SimulatedClock, seg: Segment) -> None:
     """The master re-initialises the line and runs process data without a wrong working counter."""
     m = Master(clock, seg)
-    m.scan()
-    for s in m.slaves:
-        m.request_state(s.position, AlState.PREOP, ack=True)
-    m.config_map()
-    m.set_state(AlState.SAFEOP)
-    m.exchange_process_data()
-    m.set_state(AlState.OP)
+    m.bring_up(ack_errors=True)
     for _ in range(20):
         assert m.exchange_process_data() == m.expected_wkc
     assert all(s.esc.al_state == AlState.OP for s in seg.slaves)
