@@ -298,6 +298,9 @@ class RealTimeClock(Clock):
                 due = self.next_deadline()
                 if due is not None and due < until:
                     until = due
+            # The one wall-clock wait of the project: RealTimeClock is the adapter between protocol
+            # time and wall time, and only blocking clients (the in-process master) call wait();
+            # protocol cores schedule on the clock instead.
             time.sleep(max(0.0, until - now))
 
     def run_due(self) -> int:
