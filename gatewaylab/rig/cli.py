@@ -21,6 +21,7 @@ from ..common.errors import ConfigError, GatewaylabError
 #: Sub-commands contributed by other parts of the package: module with ``add_subcommand(subparsers)``.
 EXTRA_SUBCOMMANDS = (
     "gatewaylab.devices.maxon_idx.host.cli",
+    "gatewaylab.canopen.lss_cli",
     "gatewaylab.ethercat.net_cli",
 )
 
