@@ -22,6 +22,7 @@ from ..common.errors import ConfigError, GatewaylabError
 EXTRA_SUBCOMMANDS = (
     "gatewaylab.devices.maxon_idx.host.cli",
     "gatewaylab.canopen.lss_cli",
+    "gatewaylab.canopen.monitor_cli",
     "gatewaylab.ethercat.net_cli",
 )
 
