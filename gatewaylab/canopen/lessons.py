@@ -30,6 +30,9 @@ from .sdo_client import SdoClient
 Say = Callable[[str], None]
 #: The master's own COB-IDs (CiA 301 predefined connection set, CiA 305): what it sends.
 _LSS_PARTS = ("vendor", "product", "revision", "serial")
+#: Watched objects shown in hex (codes and bit fields), besides the PDO parameters 0x1400-0x1BFF.
+_HEX_OBJECTS = (0x1001, 0x603F, 0x6040, 0x6041)
+_START_2 = encode_nmt(NmtCommand.START_REMOTE_NODE, 2)
 
 
 @dataclass(frozen=True, slots=True)
@@ -131,7 +134,7 @@ class Classroom:
                 entry = node.od.entries.get((index, sub))
                 if entry is not None:
                     value = node.od.values[(index, sub)]
-                    hexa = isinstance(value, int) and (0x1400 <= index <= 0x1BFF or index in (0x1001, 0x603F, 0x6040, 0x6041))
+                    hexa = isinstance(value, int) and (0x1400 <= index <= 0x1BFF or index in _HEX_OBJECTS)
                     view[f"0x{index:04X}:{sub:02X} {entry.name}"] = (
                         f"0x{value:0{2 * (entry.size or 4)}X}" if hexa else value)
             out[name] = view
@@ -248,7 +251,7 @@ def _nmt(room: Classroom) -> None:
               "reports its NMT state every 100 ms: that is how a master notices a node that vanished",
               lambda: room.sdo.download(2, 0x1017, 0, (100).to_bytes(2, "little"), _ignore), settle=0.15)
     room.step("Start the node", "NMT 'start remote node' (COB-ID 0, command 0x01, node 2): "
-              "in Operational the node also exchanges PDOs", lambda: room.send(encode_nmt(NmtCommand.START_REMOTE_NODE, 2)),
+              "in Operational the node also exchanges PDOs", lambda: room.send(_START_2),
               settle=0.12)
     room.step("Stop it", "NMT 'stop' (0x02): only NMT and heartbeats are served in Stopped",
               lambda: room.send(encode_nmt(NmtCommand.STOP_REMOTE_NODE, 2)), settle=0.12)
@@ -296,7 +299,7 @@ def _pdo(room: Classroom) -> None:
               write(0x1801, 2, 1, 1))
     room.step("Enable TPDO2 again", "clear bit 31: COB-ID 0x282 = 0x280 + node-ID",
               write(0x1801, 1, 0x282, 4))
-    room.step("Start the node", "PDOs flow only in Operational", lambda: room.send(encode_nmt(NmtCommand.START_REMOTE_NODE, 2)))
+    room.step("Start the node", "PDOs flow only in Operational", lambda: room.send(_START_2))
     room.step("SYNC", "the master's SYNC (COB-ID 0x80) makes the node send TPDO2 with the position",
               lambda: room.send(CanFrame(0x080, b"")))
 
@@ -325,7 +328,7 @@ def _emcy(room: Classroom) -> None:
     room.watched = ((0x1001, 0), (0x603F, 0))
     room.start()
     room.step("Start the node", "EMCY messages are sent in Pre-operational and Operational (not Stopped)",
-              lambda: room.send(encode_nmt(NmtCommand.START_REMOTE_NODE, 2)))
+              lambda: room.send(_START_2))
     room.step("A following error", "the drive's position lags its demand by more than the window "
               "(0x6065): it reports EMCY 0x8611 with error register 0x1001 and enters Fault (CiA 402)",
               lambda: drive.fault(0x8611, 0x20), settle=0.05)
