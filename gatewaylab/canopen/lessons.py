@@ -369,9 +369,11 @@ def _cia402(room: Classroom) -> None:
     room.step("Switch on (0x07)", "-> Switched on (transition 3)", cw(0x07))
     room.step("Enable operation (0x0F)", "-> Operation enabled (transition 4): the motor holds its position",
               cw(0x0F))
+    def move() -> None:
+        room.sdo.download(2, 0x607A, 0, (1000).to_bytes(4, "little", signed=True), _ignore)
+        room.sdo.download(2, 0x6040, 0, (0x1F).to_bytes(2, "little"), _ignore)
     room.step("Target 1000 and new set-point (0x1F)", "0x607A = 1000, then controlword bit 4 starts the move",
-              lambda: (room.sdo.download(2, 0x607A, 0, (1000).to_bytes(4, "little", signed=True), _ignore),
-                       room.sdo.download(2, 0x6040, 0, (0x1F).to_bytes(2, "little"), _ignore)), settle=0.5)
+              move, settle=0.5)
     room.step("Where is it?", "0x6064 position actual value, read after the move (bit 10 of the statusword, "
               "target reached, is set again)", lambda: room.sdo.upload(2, 0x6064, 0, _ignore))
     room.step("Disable voltage (0x00)", "-> Switch on disabled (transition 9)", cw(0x00))
