@@ -24,6 +24,7 @@ EXTRA_SUBCOMMANDS = (
     "gatewaylab.canopen.lss_cli",
     "gatewaylab.canopen.monitor_cli",
     "gatewaylab.canopen.lesson_cli",
+    "gatewaylab.canopen.plot_cli",
     "gatewaylab.ethercat.net_cli",
 )
 
