@@ -49,12 +49,13 @@ def image_by_hand(layout: StreamLayout, seq: int, payload: bytes, frame_count: i
                   crc: int | None = None, crc_alg: int = 1, layout_id: int | None = None,
                   channel_mask: int | None = None, seq_end: int | None = None, ver_ihl: int = 0x16,
                   payload_len: int | None = None, tail: bytes = b"") -> bytes:
-    """A full image from the chapter 6 offset table: header fields as given, payload at 24, ``tail``
-    after the payload, zeros to 128*N."""
+    """A full image from the chapter 6 offset table: header fields as given (payload_crc16 over
+    the first payload_len payload bytes unless ``crc``), payload at 24, ``tail`` after it, zeros
+    to 128*N."""
+    length = len(payload) if payload_len is None else payload_len
     header = struct.pack(
-        "<BBHHHHHBBBB4H", ver_ihl, flags, seq, seq if seq_end is None else seq_end,
-        len(payload) if payload_len is None else payload_len,
-        crc16_bitwise(payload) if crc is None else crc,
+        "<BBHHHHHBBBB4H", ver_ihl, flags, seq, seq if seq_end is None else seq_end, length,
+        crc16_bitwise(payload[:length]) if crc is None else crc,
         layout.layout_id if layout_id is None else layout_id,
         layout.channel_mask if channel_mask is None else channel_mask, frame_count, overflow_sat, crc_alg, *status)
     body = header + payload + tail

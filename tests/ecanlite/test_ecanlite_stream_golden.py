@@ -122,10 +122,8 @@ def test_control_word_bit_positions(field: str, value: int, bit: int) -> None:
             args["ts"] = bytes(8)
         if field == "d64":
             data = bytes(64)
-        if field == "ide":
-            payload = ext_packet(0, 0x10, data, **args)
-        else:
-            payload = std_packet(0, 0x10, data, **args)
+        build = ext_packet if field == "ide" else std_packet
+        payload = build(0, 0x10, data, **args)
         p = decode_stream(image_by_hand(layout, 1, payload, 1), layout).packets[0]
         assert isinstance(p, CanPacket)
         expect = {"dlc": ("data", bytes(64)), "ide": ("extended", True), "fdf": ("fd", True), "brs": ("brs", True),
