@@ -195,6 +195,7 @@ _TSF_BYTES = (0, 2, 4, 8)
 _HEADER = struct.Struct("<BBHHHHHBBBB4H")
 _HEADER_SEQ_END = struct.Struct("<H")
 _U16 = struct.Struct("<H")
+_COMMIT = struct.Struct("<HHHH")
 _U32 = struct.Struct("<I")
 _U64 = struct.Struct("<Q")
 _CTRL_STD = struct.Struct("<HH")
@@ -766,19 +767,25 @@ def commit_state(image: bytes | bytearray | memoryview, previous: bytes | bytear
 
     TORN when seq_begin != seq_end (6.1 step 2); SAME when ``previous`` has the same sequence and
     the same header and payload bytes (13.8: a stopped master leaves the last image, an idempotent
-    no-op); DUPLICATE when the sequence is the same but the contents differ (LastPDOError 10);
-    else NEW. Bytes beyond payload_len do not count (PAYLOAD_ONLY, 9.1). Pass the last committed
-    image whether it was accepted or rejected, so a repeated bad image is not counted twice.
+    no-op); with the same sequence but other contents, TORN while payload_crc16 does not match
+    (5.4.4.1 writes the frame area before the new seq_begin: a write in progress) and DUPLICATE
+    (LastPDOError 10) once it does; else NEW. Bytes beyond payload_len do not count (PAYLOAD_ONLY,
+    9.1). Pass the last committed image whether it was accepted or rejected, so a repeated bad
+    image is not counted twice.
     """
     if len(image) < HEADER_SIZE:
         raise StreamError(PdoError.ACTIVE_AREA, ParseDiag(reason=f"image of {len(image)} bytes has no header"))
-    seq_begin, seq_end, payload_len = struct.unpack_from("<HHH", image, 2)
+    seq_begin, seq_end, payload_len, crc = _COMMIT.unpack_from(image, 2)
     if seq_begin != seq_end:
         return Commit.TORN
     if previous is None or len(previous) < HEADER_SIZE or _U16.unpack_from(previous, 2)[0] != seq_begin:
         return Commit.NEW
     n = HEADER_SIZE + payload_len
-    return Commit.SAME if bytes(image[:n]) == bytes(previous[:n]) else Commit.DUPLICATE
+    if bytes(image[:n]) == bytes(previous[:n]):
+        return Commit.SAME
+    if image[15] == CRC_ALG_CCITT_FALSE and n <= len(image) and binascii.crc_hqx(image[HEADER_SIZE:n], 0xFFFF) != crc:
+        return Commit.TORN
+    return Commit.DUPLICATE
 
 
 def decode_stream(image: bytes | bytearray | memoryview, layout: StreamLayout) -> DecodedStream:
