@@ -40,7 +40,7 @@ __all__ = [
     "StreamHeader", "StreamLayout", "Tsf", "TxResultCode", "TxResultPacket",
     "check_layout", "check_options", "commit_state", "crc16", "decode_stream", "dlc_to_len",
     "encode_into", "encode_stream", "fold_layout_id", "next_seq", "packet_size", "profile_word",
-    "saturate_u8",
+    "saturate_u8", "timestamp_ticks",
 ]
 
 #: ver_ihl: version 1 in the high nibble, 6 four-byte words in the low nibble (chapter 6).
@@ -243,6 +243,17 @@ def next_seq(seq: int) -> tuple[int, bool]:
     return nxt, nxt == 0
 
 
+def timestamp_ticks(t: float, tsf: Tsf | int, reference: float = 0.0) -> int:
+    """The TSF field for an instant ``t`` (clock seconds, e.g. the bus receive instant): delta16 /
+    delta32 are the low 16 / 32 bits of ``t - reference`` in 1 us ticks (8.4: relative to the
+    cycle's time base, wrapping), full64 the ticks of ``t`` itself; 0 for TSF_NONE."""
+    if not tsf:
+        return 0
+    if tsf == Tsf.FULL64:
+        return round(t / TIMESTAMP_UNIT_S) & 0xFFFFFFFFFFFFFFFF
+    return round((t - reference) / TIMESTAMP_UNIT_S) & (0xFFFF if tsf == Tsf.DELTA16 else 0xFFFFFFFF)
+
+
 def check_options(options: int) -> ApplyStatus:
     """Apply status for an option byte (9.1): reserved bits 5-7 (or > 8 bits) -> 10 unsupported."""
     return ApplyStatus.OK if 0 <= options <= 0xFF and not options & ~OPTION_MASK else ApplyStatus.UNSUPPORTED_OPTION
@@ -382,6 +393,11 @@ class StreamHeader:
     crc_alg: int = CRC_ALG_CCITT_FALSE
     channel_status: tuple[int, int, int, int] = (0, 0, 0, 0)
     ver_ihl: int = VER_IHL
+
+    @property
+    def crc(self) -> int:
+        """payload_crc16 (the name parse_diag uses, 16.2)."""
+        return self.payload_crc16
 
     @property
     def version(self) -> int:
