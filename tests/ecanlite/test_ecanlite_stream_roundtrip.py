@@ -196,3 +196,19 @@ def test_sequence_wrap() -> None:
     assert next_seq(0xFFFF) == (0, True)
     layout = StreamLayout.default(Direction.TX)
     assert decode_stream(encode_stream(layout, 0x1_0005, []), layout).seq == 5
+
+
+def test_process_image_views() -> None:
+    """5.4.4: the device writes and reads the PDO in place: encode_into a memoryview of the process
+    image gives the bytes encode_stream returns, and decode_stream / commit_state read views too."""
+    layout = StreamLayout(multiplier=3, options=Option.ALIGN_4_ENABLE | Option.TX_RESULT_ENABLE,
+                          direction=Direction.TX)
+    packets: list[Packet] = [TxResultPacket(1, 2, 3, TxResultCode.QUEUED), CanPacket(3, 0x1F, data=b"\x01\x02\x03")]
+    process = bytearray(b"\xaa" * 1000)
+    view = memoryview(process)[100:100 + layout.pdo_bytes]
+    assert encode_into(view, layout, 77, packets) == 8 + 8
+    assert bytes(view) == encode_stream(layout, 77, packets)
+    assert process[:100] == b"\xaa" * 100 and process[100 + layout.pdo_bytes:] == b"\xaa" * (900 - layout.pdo_bytes)
+    assert decode_stream(view, layout).packets == tuple(packets)
+    assert decode_stream(bytearray(view), layout).packets == tuple(packets)
+    assert commit_state(view, bytes(view)) is Commit.SAME
