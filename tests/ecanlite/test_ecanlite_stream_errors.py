@@ -367,3 +367,17 @@ def test_diag_fields_of_a_packet_error() -> None:
     assert d.crc == struct.unpack_from("<H", image, 8)[0]
     assert (d.ch, d.dlc, d.tsf, d.kind) == (2, 8, 0, 0)
     assert "RESERVED_BIT (13)" in str(err)
+
+
+@pytest.mark.parametrize("make", [
+    lambda: CanPacket(0, 1.0),                            # type: ignore[arg-type]
+    lambda: CanPacket(0, 1, data="text"),                 # type: ignore[arg-type]
+    lambda: CanPacket(0, 1, tsf=Tsf.DELTA16, timestamp=2.5),  # type: ignore[arg-type]
+    lambda: CanPacket(True, 1),
+    lambda: TxResultPacket(0, 1.0, 0, TxResultCode.OK),   # type: ignore[arg-type]
+])
+def test_non_integer_fields_refused(make: Callable[[], object]) -> None:
+    """8.1 / 10: every packet field is an integer (or bytes) of a fixed width; anything else is
+    refused when built, not half-written into an image."""
+    with pytest.raises(StreamEncodeError):
+        make()

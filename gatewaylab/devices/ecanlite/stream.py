@@ -479,6 +479,9 @@ class CanPacket:
         ch = self.channel
         if type(ch) is not int or not 0 <= ch <= 7:
             raise _refuse(PdoError.INVALID_CHANNEL, f"channel {ch!r} does not fit CH (0..7, chapter 8)")
+        if not all(isinstance(v, int) for v in (self.can_id, self.timestamp, self.offset_ns, self.tag, self.id_aux,
+                                                 self.dlc)):
+            raise _refuse(PdoError.RESERVED_BIT, f"id, timestamp, offset_ns, tag, ID_AUX, DLC are integers: {self!r}")
         n = len(data)
         if self.fd:
             if self.rtr:
@@ -516,7 +519,7 @@ class CanPacket:
                 raise _refuse(PdoError.BAD_SCHEDULE, "offset_ns is u32, tag u16, no timestamp (8.4)")
         elif self.offset_ns or self.tag:
             raise _refuse(PdoError.BAD_SCHEDULE, "offset_ns and tag belong to scheduled packets (8.4)")
-        elif not 0 <= self.timestamp < 1 << (8 * _TSF_BYTES[tsf]) and (tsf or self.timestamp):
+        elif not 0 <= self.timestamp < 1 << (8 * _TSF_BYTES[tsf]):
             raise _refuse(PdoError.INVALID_TSF, f"timestamp {self.timestamp} does not fit TSF {tsf} (8.4)")
         if not 0 <= self.can_id <= (MAX_EXT_ID if self.extended else MAX_STD_ID) or not 0 <= self.id_aux <= 7:
             raise _refuse(PdoError.RESERVED_BIT, f"id 0x{self.can_id:X} / ID_AUX {self.id_aux} out of range (8.1)")
@@ -565,7 +568,8 @@ class TxResultPacket:
         ch = self.channel
         if type(ch) is not int or not 0 <= ch <= 7:
             raise _refuse(PdoError.INVALID_CHANNEL, f"channel {ch!r} does not fit CH (0..7, chapter 8)")
-        if not 0 <= self.ref_packet_seq <= 0xFFFF or not 0 <= self.ref_frame_index <= 0xFF:
+        seq, index = self.ref_packet_seq, self.ref_frame_index
+        if not isinstance(seq, int) or not isinstance(index, int) or not 0 <= seq <= 0xFFFF or not 0 <= index <= 0xFF:
             raise _refuse(PdoError.UNKNOWN_KIND, "RefPacketSeq is u16, RefFrameIndex u8 (10)")
         if type(self.result) is not TxResultCode:
             if self.result not in _RESULT_VALUES:
