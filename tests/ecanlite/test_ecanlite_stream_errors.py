@@ -381,3 +381,16 @@ def test_non_integer_fields_refused(make: Callable[[], object]) -> None:
     refused when built, not half-written into an image."""
     with pytest.raises(StreamEncodeError):
         make()
+
+
+def test_a_kept_error_does_not_pin_the_image() -> None:
+    """13.2: a device keeps the last StreamError for its diagnostics while it reuses its buffer;
+    the error (and its traceback) holds no view of that buffer."""
+    image = bytearray(image_by_hand(RX, 1, GOOD, 1))
+    image[30] ^= 1
+    try:
+        decode_stream(image, RX)
+    except StreamError as exc:
+        kept = exc
+    image.extend(b"\0")      # would raise BufferError while a memoryview of it were alive
+    assert kept.pdo_error is PdoError.BAD_CRC

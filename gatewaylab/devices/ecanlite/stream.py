@@ -863,9 +863,11 @@ def decode_stream(image: bytes | bytearray | memoryview, layout: StreamLayout) -
     end = HEADER_SIZE + payload_len
     if end > size:
         raise fail(PdoError.PACKET_OVERRUN, f"payload_len {payload_len} > frame area {size - HEADER_SIZE} (6.1)")
-    mv = memoryview(image)[HEADER_SIZE:end]
-    if layout._crc and binascii.crc_hqx(mv, 0xFFFF) != crc:
-        raise fail(PdoError.BAD_CRC, f"payload_crc16 0x{crc:04X} != 0x{crc16(mv):04X} (6.1)")
+    if layout._crc:
+        # (a copy, not a memoryview: a view kept alive by a traceback would pin the caller's bytearray)
+        calc = binascii.crc_hqx(image[HEADER_SIZE:end], 0xFFFF)
+        if calc != crc:
+            raise fail(PdoError.BAD_CRC, f"payload_crc16 0x{crc:04X} != 0x{calc:04X} (6.1)")
     if layout_id != layout.layout_id or mask != layout.channel_mask:
         raise fail(PdoError.ACTIVE_AREA, f"layout_id 0x{layout_id:04X} / channel_mask 0x{mask:02X}, active "
                                          f"0x{layout.layout_id:04X} / 0x{layout.channel_mask:02X} (5.4.4.1)")
