@@ -4,6 +4,7 @@ commit order and trailing bytes after payload_len (manual chapters 5.4.4, 6, 8-1
 from __future__ import annotations
 
 import struct
+from contextlib import nullcontext
 
 import pytest
 from ecanlite_stream_kit import FD_LENGTHS, crc16_bitwise
@@ -108,7 +109,7 @@ def test_prefixes_of_an_image() -> None:
     image = encode_stream(layout, 0x1234, packets)
     complete = HEADER_SIZE + struct.unpack_from("<H", image, 6)[0]
     for k in range(len(image) + 1):
-        with pytest.raises(StreamError) if k < len(image) else _no_error():
+        with pytest.raises(StreamError) if k < len(image) else nullcontext():
             decode_stream(image[:k], layout)          # missing bytes: never the mapped length
         zero_filled = image[:k] + bytes(len(image) - k)
         try:
@@ -117,14 +118,6 @@ def test_prefixes_of_an_image() -> None:
             assert k < complete     # (the last bytes may be zeros already: k < complete can decode)
             continue
         assert decoded.packets == tuple(packets)
-
-
-class _no_error:
-    def __enter__(self) -> None:
-        return None
-
-    def __exit__(self, *exc: object) -> None:
-        return None
 
 
 def test_commit_order_never_shows_a_half_image() -> None:
