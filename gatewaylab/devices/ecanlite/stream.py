@@ -36,7 +36,7 @@ __all__ = [
     "CRC_ALG_CCITT_FALSE", "DEFAULT_FEATURES", "HEADER_SIZE", "MAX_CHANNELS", "MAX_FRAME_COUNT",
     "OPTION_MASK", "PROFILE_MASK", "TIMESTAMP_UNIT_S", "VER_IHL",
     "ApplyStatus", "CanPacket", "Commit", "DecodedStream", "Direction", "Feature", "HeaderFlags",
-    "Option", "PacketKind", "ParseDiag", "PdoError", "StreamEncodeError", "StreamError",
+    "Option", "Packet", "PacketKind", "ParseDiag", "PdoError", "StreamEncodeError", "StreamError",
     "StreamHeader", "StreamLayout", "Tsf", "TxResultCode", "TxResultPacket",
     "check_layout", "check_options", "commit_state", "crc16", "decode_stream", "dlc_to_len",
     "encode_into", "encode_stream", "fold_layout_id", "next_seq", "packet_size", "profile_word",
