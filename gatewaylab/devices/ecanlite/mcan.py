@@ -31,6 +31,7 @@ from ...bus.bus import (
     TxDoneEvent,
 )
 from ...bus.frame import CanFrame
+from ...bus.timing import arbitration_key
 from ...common.clock import Clock
 from ...common.errors import GatewaylabError
 from ...ethercat.description import ObjectDef
@@ -508,7 +509,7 @@ REG = MappingProxyType({
 WRITE_WHITELIST = frozenset({0x000C, 0x0010, 0x0014, 0x0018, 0x001C, 0x0048, 0x0050, 0x0054, 0x0058,
                              0x005C, 0x0080, 0x0090, 0x00A8, 0x00B8, 0x00D0, 0x00D4, 0x00F8})
 # IR bits (M_CAN): RF0N 0, RF0F 2, RF0L 3, TC 9, TFE 11, PEA 27, PED 28, EP 23, EW 24, BO 25.
-IR_RF0N, IR_RF0F, IR_RF0L, IR_TC, IR_TFE = 1 << 0, 1 << 2, 1 << 3, 1 << 9, 1 << 11
+IR_RF0N, IR_RF0F, IR_RF0L, IR_HPM, IR_TC, IR_TFE = 1 << 0, 1 << 2, 1 << 3, 1 << 8, 1 << 9, 1 << 11
 IR_EP, IR_EW, IR_BO, IR_PEA, IR_PED = 1 << 23, 1 << 24, 1 << 25, 1 << 27, 1 << 28
 #: PSR.LEC of an error kind: 2 form, 3 ack, 5 bit0, 6 crc.
 _LEC = {ErrorKind.FORM: 2, ErrorKind.ACK: 3, ErrorKind.BIT: 5, ErrorKind.CRC: 6}
@@ -539,6 +540,7 @@ class McanChannel:
         self._events = EventFlag(0)
         self._detail_pending = False
         self._ir = 0
+        self._hpms = 0
         self._lec = 0
         self._rx_lost = False
         self._rx_recent_drop = False
@@ -651,8 +653,12 @@ class McanChannel:
         ext = frame.extended
         if frame.rtr and (rt.reject_remote_ext if ext else rt.reject_remote_std):
             return False
-        for f in rt.ext_filters if ext else rt.std_filters:
+        for i, f in enumerate(rt.ext_filters if ext else rt.std_filters):
             if filter_match(f, frame.can_id, ext, rt.xidam):
+                if f.action in (4, 5, 6):
+                    # high priority message: HPMS FIDX 8..14, FLST 15, MSI 6..7 (0 none, 2 FIFO0, 3 FIFO1)
+                    self._hpms = i << 8 | ext << 15 | (0, 2, 3)[f.action - 4] << 6
+                    self._ir |= IR_HPM
                 return f.action in _STORE_ACTIONS
         return (rt.non_match_ext if ext else rt.non_match_std) < 2
 
@@ -757,8 +763,6 @@ class McanChannel:
             return TxResult.INVALID_CHANNEL
         if c.state is ErrorState.BUS_OFF:
             return TxResult.BUS_OFF
-        if rt.transmit_pause and self._tx:
-            return TxResult.BUS_BUSY
         p = self.policy
         if self._backoff_cycles > 0:
             self._tx_full()
@@ -785,7 +789,26 @@ class McanChannel:
         except GatewaylabError:
             self._tx.pop()
             return TxResult.INVALID_CHANNEL
+        if rt.tx_queue_mode:
+            self._sort_queue(c, frame)
         return TxResult.OK
+
+    @staticmethod
+    def _sort_queue(c: Controller, frame: CanFrame) -> None:
+        """TX queue mode (0x800x:69 = 1): the frame with the highest arbitration priority leaves
+        first; the frame on the wire keeps its place."""
+        queue = c.tx_queue
+        if not queue or queue[-1] is not frame:
+            return
+        on_wire = c.bus._on_wire
+        start = 1 if on_wire is not None and on_wire.sender is c else 0
+        key = arbitration_key(frame)
+        pos = len(queue) - 1
+        while pos > start and arbitration_key(queue[pos - 1]) > key:
+            pos -= 1
+        if pos != len(queue) - 1:
+            queue.pop()
+            queue.insert(pos, frame)
 
     def _tx_full(self) -> None:
         c = self.counters
@@ -978,6 +1001,8 @@ class McanChannel:
             return len(rt.ext_filters) << 16
         if offset == 0x0090:
             return rt.xidam
+        if offset == 0x0094:
+            return self._hpms
         if offset == 0x00A0:      # RXF0C: F0S 16..22
             return rt.rx_fifo0 << 16
         if offset == 0x00A4:      # RXF0S: F0FL 0..6, F0F 24, RF0L 25
@@ -1009,7 +1034,8 @@ class McanChannel:
         """0x900x values by subindex (13.5)."""
         c = self.counters
         return {1: self.register(0x0040), 2: self.register(0x0044), 3: self.register(0x0050),
-                4: self.register(0x00A4), 5: 0, 6: self.register(0x00C4), 7: 0, 8: 0, 9: self._status(),
+                4: self.register(0x00A4), 5: 0, 6: self.register(0x00C4), 7: 0, 8: self.register(0x0094),
+                9: self._status(),
                 10: min(len(self._rx), 0xFFFF), 11: min(len(self._tx), 0xFFFF), 12: int(self._events),
                 13: c.rx_dropped_total, 14: c.tx_fifo_full, 15: c.bus_off, 16: c.detail_sequence}
 
