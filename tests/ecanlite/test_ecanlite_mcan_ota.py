@@ -175,3 +175,24 @@ def test_pack_help_has_example(tmp_path: Path) -> None:
     done = _cli("pack", "--help", cwd=tmp_path)
     assert done.returncode == 0
     assert "gatewaylab ecan pack APP.bin --version 1.4 --build 0x2291 -o ecan_lite_v140.bin" in done.stdout
+
+
+def test_new_firmware_survives_the_reset(tmp_path: Path) -> None:
+    """15.3.1 'the firmware writes to the free APP partition and requests a reset': a model built
+    after the reset on the same flash (file or the in-memory medium) runs the new version."""
+    path = tmp_path / "ecan.flash"
+    rig = make_rig(flash_path=path)
+    resets, code = _write(rig, APP_FILE_NAME, 0, pack(APP, FirmwareVersion(1, 4, 0x2291)))
+    assert code == 0 and resets
+    rig.model.close()
+    again = make_rig(flash_path=path)
+    assert tuple(again.model.version) == (1, 4, 0x2291)
+    assert again.r(0xF000, 5) == 0x0104
+    major, minor, build = again.model.version
+    assert (major, minor, build) == (1, 4, 0x2291)
+    mem = make_rig()
+    _write(mem, APP_FILE_NAME, 0, pack(APP, FirmwareVersion(1, 5, 7)))
+    from gatewaylab.devices.ecanlite.mcan import McanModel
+    fresh = McanModel(mem.clock, [], mem.model.flash)
+    assert fresh.version == FirmwareVersion(1, 5, 7)
+    assert McanModel(mem.clock, [], None).version == FirmwareVersion(1, 3, 0x2100)

@@ -38,11 +38,15 @@ from ...ethercat.description import ObjectDef
 from ...od import Access, DataType, Entry, ObjectDictionary, SdoAbort, SdoAbortCode
 from . import bittiming
 from .bittiming import BitTiming, BitTimingError, Tdc
+from .ota import FirmwareVersion
+
+#: The firmware a device runs before any OTA update (0xF000:05 = 0x0103, :06 = 0x2100).
+FACTORY_VERSION = FirmwareVersion(1, 3, 0x2100)
 
 if TYPE_CHECKING:
     from ...ethercat.foe import FoeHandler
     from ...ethercat.slave import Slave
-    from .ota import FirmwareVersion
+    from .flash import FlashMedium
     from .system import SystemModel
 
 U8, U16, U32 = DataType.UNSIGNED8, DataType.UNSIGNED16, DataType.UNSIGNED32
@@ -1072,10 +1076,14 @@ def _put(od: ObjectDictionary, index: int, values: Mapping[int, int]) -> None:
 class McanModel:
     """The four MCAN channels, the system objects, flash and FoE update of one ECAN-Lite."""
 
-    def __init__(self, clock: Clock, controllers: Sequence[Controller | None], flash_path: Path | None = None,
-                 *, serial: int = 0, hardware_revision: int = 0) -> None:
-        from .flash import FileFlash, FlashMedium, MemoryFlash
-        from .ota import FirmwareVersion
+    def __init__(self, clock: Clock, controllers: Sequence[Controller | None],
+                 flash_path: Path | FlashMedium | None = None, *, serial: int = 0,
+                 hardware_revision: int = 0) -> None:
+        """``flash_path``: the configuration flash file (the APP partition is ``PATH.app`` next to
+        it), None for flash in memory, or a :class:`~.flash.FlashMedium` (e.g. the previous
+        model's ``flash``, so a reset keeps an in-memory flash and firmware)."""
+        from .flash import FileFlash, MemoryFlash
+        from .ota import OtaError, unpack
         from .system import SystemModel
 
         if len(controllers) > CHANNELS:
@@ -1083,8 +1091,20 @@ class McanModel:
         self.clock = clock
         ctrls = list(controllers) + [None] * (CHANNELS - len(controllers))
         self.channels: list[McanChannel] = [McanChannel(k, clock, c) for k, c in enumerate(ctrls)]
-        self.flash: FlashMedium = FileFlash(flash_path) if flash_path is not None else MemoryFlash()
-        self.version: FirmwareVersion = FirmwareVersion(1, 3, 0x2100)
+        if flash_path is None:
+            self.flash: FlashMedium = MemoryFlash()
+        elif isinstance(flash_path, (str, Path)):
+            self.flash = FileFlash(flash_path)
+        else:
+            self.flash = flash_path
+        #: The running firmware: the installed APP package, else the factory firmware.
+        self.version: FirmwareVersion = FACTORY_VERSION
+        try:
+            app = self.flash.read_app()
+            if app is not None:
+                self.version = unpack(app).version
+        except (OSError, OtaError):
+            pass
         self.system: SystemModel = SystemModel(self, serial=serial, hardware_revision=hardware_revision)
         self.od: ObjectDictionary | None = None
         self.system.power_on()
@@ -1133,6 +1153,19 @@ class McanModel:
         """The FoE handler for ``ecan_lite_app`` (password 0): a good package takes the new
         version and calls ``on_accepted`` (the device resets)."""
         return self.system.ota_handler(on_accepted)
+
+    def close(self) -> None:
+        """The firmware stops (device reset): the controllers forget this model's callbacks and
+        their queued frames."""
+        for ch in self.channels:
+            c = ch.controller
+            if c is not None:
+                if c.on_frame == ch._on_frame:
+                    c.on_frame = None
+                if c.on_event == ch._on_event:
+                    c.on_event = None
+                c.flush_tx()
+            ch._tx.clear()
 
     def reset(self) -> None:
         """A device reset (after an OTA update or 0x8000:01): channels restart from the flash image."""

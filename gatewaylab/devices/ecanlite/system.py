@@ -427,10 +427,11 @@ class SystemModel:
             self._publish_maintenance()
             on_accepted()
 
-        def failed_publish(package: Package) -> None:
+        def install(package: Package, data: bytes) -> None:
+            self.model.flash.write_app(data)
             self._install_package(package)
 
-        handler = OtaHandler(failed_publish, accepted, self.ota)
+        handler = OtaHandler(install, accepted, self.ota)
         return _PublishingHandler(handler, self._publish_maintenance)
 
     def _install_package(self, package: Package) -> None:
@@ -626,6 +627,10 @@ class SystemModel:
                 status = MaintenanceStatus.IMAGE_INVALID
             else:
                 if bits & 0x10:
+                    try:
+                        self.model.flash.write_app(self.ota.last_image)
+                    except OSError:
+                        return MaintenanceStatus.FLASH_ERROR
                     self._install_package(package)
                     self.clock.call_soon(self._reboot)
         return status
