@@ -53,7 +53,7 @@ def test_good_package_updates_version_and_resets() -> None:
     assert code == 0 and len(resets) == 1
     assert rig.model.version == FirmwareVersion(1, 4, 0x2291)
     assert (rig.r(0xF000, 5), rig.r(0xF000, 6)) == (0x0104, 0x2291)
-    assert rig.od.read(0x100A, 0) == b"V1.4 build 0x2291"
+    assert rig.od.read(0x100A, 0) == b"1.4 build 0x2291"
     assert (rig.r(0xB000, 9), rig.r(0xB000, 10), rig.r(0xB000, 11)) == (len(package), zlib.crc32(package), 0)
 
 
@@ -145,7 +145,7 @@ def test_pack_command(tmp_path: Path) -> None:
     done = _cli("pack", "APP.bin", "--version", "1.4", "--build", "0x2291", "-o", "ecan_lite_v140.bin",
                 cwd=tmp_path)
     assert done.returncode == 0, done.stderr
-    assert "V1.4 build 0x2291" in done.stdout
+    assert "1.4 build 0x2291" in done.stdout
     package = unpack((tmp_path / "ecan_lite_v140.bin").read_bytes())
     assert package.version == FirmwareVersion(1, 4, 0x2291) and package.payload == APP
     rig = make_rig()

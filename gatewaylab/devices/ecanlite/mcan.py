@@ -1112,7 +1112,7 @@ class McanModel:
     # -- contract --------------------------------------------------------------------------------
     @property
     def version_string(self) -> str:
-        """0x100A text: 'V1.3 build 0x2100'."""
+        """0x100A text: '1.3 build 0x2100' (the device's version_string format)."""
         return str(self.version)
 
     def object_defs(self) -> tuple[ObjectDef, ...]:

@@ -72,7 +72,7 @@ class FirmwareVersion:
         return ((self.major & 0xFF) << 8) | (self.minor & 0xFF)
 
     def __str__(self) -> str:
-        return f"V{self.major}.{self.minor} build 0x{self.build:04X}"
+        return f"{self.major}.{self.minor} build 0x{self.build:04X}"
 
     def __iter__(self) -> Iterator[int]:
         """``major, minor, build = version``."""
