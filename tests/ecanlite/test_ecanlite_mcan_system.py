@@ -58,6 +58,24 @@ def test_system_config() -> None:
     assert rig.reboots
 
 
+def test_pin_rotation_moves_channels() -> None:
+    """13.3 SI12 'Rotation of logical CAN channel to fixed pin group': with rotation 1 CAN0 drives
+    the second pin group's bus and CAN3 the first's; rotation 0 restores the wiring."""
+    rig = make_rig(channels=2)
+    assert rig.configure(0) == 0 and rig.configure(3) == 0
+    rig.w(0x8000, 12, 1)
+    ch0, ch3 = rig.model.channels[0], rig.model.channels[3]
+    assert ch0.controller is rig.model.pins[1] and ch3.controller is rig.model.pins[0]
+    assert rig.model.channels[1].controller is None
+    assert ch0.submit(CanFrame(0x111, b"\x01"), None) == 0
+    rig.peers[0].send(CanFrame(0x222, b"\x02"))
+    rig.run()
+    assert [f.can_id for f, _ in rig.recorders[1].frames] == [0x111]
+    assert [r.frame.can_id for r in ch3.peek(8)] == [0x222]
+    rig.w(0x8000, 12, 0)
+    assert ch0.controller is rig.model.pins[0]
+
+
 def test_global_control_apply() -> None:
     """13.2.1: runtime/diagnostic option flags must stay 0 (capability mask 0), budget 0..1000."""
     rig = make_rig()

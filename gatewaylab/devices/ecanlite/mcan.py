@@ -616,6 +616,43 @@ class McanChannel:
         if c.state is ErrorState.BUS_OFF:
             c.recover()
 
+    def release(self) -> None:
+        """Let go of the controller (pin rotation, reset): queued frames not on the wire are taken
+        back and reported as aborted (ResultCode 2), the callbacks unhooked."""
+        c = self.controller
+        if c is None:
+            return
+        on_wire = c.bus._on_wire
+        busy = on_wire.frame if on_wire is not None and on_wire.sender is c else None
+        queue = c.tx_queue
+        for entry in list(self._tx):
+            if entry.frame is busy:
+                continue
+            for j, queued in enumerate(queue):
+                if queued is entry.frame:
+                    del queue[j]
+                    break
+            self._tx.remove(entry)
+            self._results.append((entry.ref, TxResult.BUS_BUSY))
+        if busy is not None:
+            for entry in list(self._tx):
+                self._tx.remove(entry)
+                self._results.append((entry.ref, TxResult.OK))
+        if c.on_frame == self._on_frame:
+            c.on_frame = None
+        if c.on_event == self._on_event:
+            c.on_event = None
+        self.controller = None
+
+    def bind(self, controller: Controller | None) -> None:
+        """Take a controller (pin rotation): hook it and program the applied configuration."""
+        self.controller = controller
+        if controller is not None:
+            controller.on_frame = self._on_frame
+            controller.on_event = self._on_event
+            if self.runtime is not None:
+                self._activate(self.runtime)
+
     def apply_policy(self, policy: DataPathPolicy) -> None:
         """Apply a data-path policy (0x802x:02 = 1); also ends a degraded state and host recovery."""
         self.policy = policy
@@ -1090,6 +1127,9 @@ class McanModel:
             raise ValueError(f"the ECAN-Lite has {CHANNELS} MCAN channels, got {len(controllers)} controllers")
         self.clock = clock
         ctrls = list(controllers) + [None] * (CHANNELS - len(controllers))
+        #: The controller on each fixed pin group; logical channel k uses group (k + rotation) % 4.
+        self.pins: tuple[Controller | None, ...] = tuple(ctrls)
+        self.rotation = 0
         self.channels: list[McanChannel] = [McanChannel(k, clock, c) for k, c in enumerate(ctrls)]
         if flash_path is None:
             self.flash: FlashMedium = MemoryFlash()
@@ -1153,6 +1193,17 @@ class McanModel:
         """The FoE handler for ``ecan_lite_app`` (password 0): a good package takes the new
         version and calls ``on_accepted`` (the device resets)."""
         return self.system.ota_handler(on_accepted)
+
+    def rotate(self, rotation: int) -> None:
+        """0x8000:12 CAN pin rotation: logical channel k moves to pin group (k + rotation) % 4."""
+        rotation %= CHANNELS
+        if rotation == self.rotation:
+            return
+        for ch in self.channels:
+            ch.release()
+        self.rotation = rotation
+        for ch in self.channels:
+            ch.bind(self.pins[(ch.index + rotation) % CHANNELS])
 
     def close(self) -> None:
         """The firmware stops (device reset): the controllers forget this model's callbacks and

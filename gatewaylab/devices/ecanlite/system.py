@@ -314,6 +314,7 @@ class SystemModel:
         if sysv[12] > 3:
             sysv[12] = 0
         sysv[13] = sysv[12]
+        self.model.rotate(sysv[13])
         self.system = sysv
         self.global_control = glob
         self._put(SYSTEM_INDEX, sysv)
@@ -466,6 +467,7 @@ class SystemModel:
             ok = rotation <= 3 and bool(self.system[14] & (1 << rotation))
             if ok:
                 self.system[13] = rotation
+                self.model.rotate(rotation)
             self.system[12] = rotation
             self.system[15] = 0 if ok else 1
             self.system[11] = self.system[15]
