@@ -1170,19 +1170,22 @@ class McanModel:
     def install(self, slave: Slave | None, od: ObjectDictionary) -> None:
         """Put the running configuration into ``od`` and wire the hooks (validators, reactions,
         read hooks). Called from the device's ``SlaveApplication.setup_od``; again after a reset
-        with the new dictionary."""
+        with the new dictionary (the same dictionary twice only refreshes the values)."""
+        hook = od is not self.od
         self.od = od
         for ch in self.channels:
             k = ch.index
             rt_values = ch.runtime.settings.values if ch.runtime is not None else CONFIG_DEFAULTS
             _put(od, CONFIG_BASE + k, {s: rt_values.get(s, CONFIG_DEFAULTS[s]) for s in CONFIG_PERSISTED})
             _put(od, POLICY_BASE + k, self._policy_values(ch.policy))
+            if not hook:
+                continue
             od.add_validator(CONFIG_BASE + k, self._config_validator)
             od.add_reaction(CONFIG_BASE + k, self._config_reaction)
             od.add_reaction(POLICY_BASE + k, self._policy_reaction)
             od.on_read(INFO_BASE + k, self._info_read)
             od.on_read(DIAG_BASE + k, self._diag_read)
-        self.system.install(slave, od)
+        self.system.install(slave, od, hook=hook)
 
     def on_cycle(self, t: float) -> None:
         """Per-cycle tick (TX backoff); call once per process data cycle."""

@@ -248,14 +248,19 @@ class SystemModel:
                        7: self.serial & 0xFFFFFFFF, 8: (self.serial >> 32) & 0xFFFFFFFF})
         return values
 
-    def install(self, slave: Any, od: ObjectDictionary) -> None:
-        """Values and hooks of the system objects."""
+    def install(self, slave: Any, od: ObjectDictionary, *, hook: bool = True) -> None:
+        """Values and (with ``hook``) hooks of the system objects."""
         self.od = od
         put = self._put
         put(SYSTEM_INDEX, self.system)
         put(GLOBAL_INDEX, self.global_control)
         put(CAPABILITY_INDEX, self.capability())
         put(TEST_INDEX, {8: 0x1F, 9: int(self.reject_reason)})
+        self._publish_maintenance()
+        if 0x100A in od:
+            od.put(0x100A, 0, self.model.version_string)
+        if not hook:
+            return
         od.add_validator(SYSTEM_INDEX, self._system_validator)
         od.add_reaction(SYSTEM_INDEX, self._system_reaction)
         od.add_reaction(GLOBAL_INDEX, self._global_reaction)
@@ -267,9 +272,6 @@ class SystemModel:
         for k in range(CHANNELS):
             od.add_validator(REGISTER_BASE + k, self._register_validator)
             od.add_reaction(REGISTER_BASE + k, self._register_reaction)
-        self._publish_maintenance()
-        if 0x100A in od:
-            od.put(0x100A, 0, self.model.version_string)
 
     def _put(self, index: int, values: Mapping[int, int]) -> None:
         od = self.od
