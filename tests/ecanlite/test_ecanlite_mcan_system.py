@@ -58,6 +58,25 @@ def test_system_config() -> None:
     assert rig.reboots
 
 
+def test_fine_bypass_of_the_mcan_path() -> None:
+    """13.2.3 TxPDO bit 2 MCAN_READ 'Skip reading real frames from MCAN/RX cache', RxPDO bit 5
+    MCAN_WRITE 'Skip real MCAN transmit': frames stay in the cache / never reach the bus, the
+    transmit still reports OK."""
+    rig = make_rig()
+    assert rig.configure(0) == 0
+    ch = rig.model.channels[0]
+    rig.w(0x8030, 1, TEST_KEY)
+    rig.w(0x8030, 2, 0x04)
+    rig.w(0x8030, 3, 0x20)
+    rig.peers[0].send(CanFrame(0x10, b""))
+    assert ch.submit(CanFrame(0x20, b""), "b") == 0
+    rig.run()
+    assert ch.peek(8) == () and ch.pending_rx() == 1
+    assert ch.take_tx_results() == [("b", 0)] and rig.recorders[0].frames == []
+    rig.w(0x8030, 1, 0)
+    assert len(ch.peek(8)) == 1
+
+
 def test_pin_rotation_moves_channels() -> None:
     """13.3 SI12 'Rotation of logical CAN channel to fixed pin group': with rotation 1 CAN0 drives
     the second pin group's bus and CAN3 the first's; rotation 0 restores the wiring."""

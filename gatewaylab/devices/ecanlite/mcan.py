@@ -553,6 +553,9 @@ class McanChannel:
         self._backoff_cycles = 0
         self._backoff_level = 0
         self._expert: dict[int, int] = {}
+        #: 0x8030 fine bypass (13.2.3): TxPDO bit 2 MCAN_READ, RxPDO bit 4 TX_RING / bit 5 MCAN_WRITE.
+        self.bypass_read = False
+        self.bypass_write = False
         if controller is not None:
             controller.on_frame = self._on_frame
             controller.on_event = self._on_event
@@ -767,7 +770,7 @@ class McanChannel:
     def peek(self, limit: int) -> Sequence[ReceivedFrame]:
         """The oldest received frames, at most ``limit`` and the drain budget (not removed)."""
         n = min(limit, self.drain_budget(), len(self._rx))
-        if n <= 0:
+        if n <= 0 or self.bypass_read:
             return ()
         rx = self._rx
         return tuple(rx[i] for i in range(n))
@@ -802,6 +805,9 @@ class McanChannel:
             return TxResult.INVALID_CHANNEL
         if frame.fd and not rt.fd:
             return TxResult.INVALID_CHANNEL
+        if self.bypass_write:
+            self._results.append((ref, TxResult.OK))     # 0x8030 TX_RING / MCAN_WRITE bypass
+            return TxResult.OK
         if c.state is ErrorState.BUS_OFF:
             return TxResult.BUS_OFF
         p = self.policy

@@ -535,10 +535,13 @@ class SystemModel:
             if int(value) == 0:
                 self.test = TestControls()
                 self._put(TEST_INDEX, {2: 0, 3: 0, 4: 0, 5: 0, 6: 0})
-            return
-        self.test = self._test_with(sub, int(value))
-        self.reject_reason = RejectReason.NONE
-        self._put(TEST_INDEX, {9: 0})
+        else:
+            self.test = self._test_with(sub, int(value))
+            self.reject_reason = RejectReason.NONE
+            self._put(TEST_INDEX, {9: 0})
+        for ch in self.model.channels:
+            ch.bypass_read = bool(self.test.tx_bypass & 0x04)
+            ch.bypass_write = bool(self.test.rx_bypass & 0x30)
 
     def _register_validator(self, entry: Entry, value: Any) -> None:
         if entry.subindex == 2 and int(value) > 2:
