@@ -228,3 +228,22 @@ def test_clear_diagnostics() -> None:
     assert rig.r(0x9020, 5) == 4
     rig.w(0xB000, 4, 0x20)
     assert rig.r(0x9020, 5) == 0 and rig.r(0x9000, 13) == 0
+
+
+def test_objects_in_esi() -> None:
+    """13.1: the objects reach the ESI dictionary a master imports (names, subindexes with the gap
+    at 0x8001:35, access)."""
+    import xml.etree.ElementTree as ET
+
+    from gatewaylab.ethercat.description import DeviceDescription
+    from gatewaylab.ethercat.esi import export_esi
+
+    rig = make_rig()
+    desc = DeviceDescription(name="ECAN-Lite", vendor_id=1, product_code=1, objects=rig.model.object_defs())
+    root = ET.fromstring(export_esi(desc, rig.od))
+    objects = {o.findtext("Index"): o for o in root.iter("Object")}
+    assert objects["#x8001"].findtext("Name") == "MCAN0 Channel Config"
+    assert objects["#xF000"].findtext("Name") == "Device Objects"
+    subs = [int(s.findtext("SubIdx") or "-1") for dt in root.iter("DataType")
+            if dt.findtext("Name") == objects["#x8001"].findtext("Type") for s in dt.iter("SubItem")]
+    assert 87 in subs and 35 not in subs and 34 in subs
