@@ -98,8 +98,9 @@ def test_operation_enabled_and_profile_position_move(client: ModbusTcpClient) ->
         if r.registers[0] & 0x400 and abs(positions[-1] - target) <= 10:    # inside the position window
             break
     assert abs(positions[-1] - target) <= 10, positions[-10:]
-    assert len(set(positions)) > 2                                         # seen on its way, not only at the end
-    assert all(b >= a - 2 for a, b in zip(positions, positions[1:]))       # forwards (the controller settles +-1)
+    on_the_way = {p for p in positions if 0 < p < target - 10}
+    assert len(on_the_way) > 2, positions[:10]                             # followed on its way, not only at the end
+    assert min(positions) >= -10 and max(positions) <= target + 500, (min(positions), max(positions))
 
 
 def test_exceptions_seen_by_the_client(client: ModbusTcpClient) -> None:
