@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import array
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 import usb.core
@@ -19,11 +20,13 @@ from gatewaylab.bus import CanFrame, VirtualBus
 from gatewaylab.canopen.drive import Drive
 from gatewaylab.canopen.nmt import NmtState
 from gatewaylab.common.clock import SimulatedClock
+from gatewaylab.common.errors import ConfigError
 from gatewaylab.devices.maxon_idx.commands import NmtCommand
 from gatewaylab.devices.maxon_idx.device import IdxDevice
 from gatewaylab.devices.maxon_idx.host.client import IdxClient, IdxError
 from gatewaylab.devices.maxon_idx.host.link import UsbLink
 from gatewaylab.devices.maxon_idx.host.usb_backend import IdxUsbBackend
+from gatewaylab.rig.process import RigProcess
 
 MAXON_VENDOR_ID = 0x000000FB
 #: IDX guide 2.2.8: ReadObject 0x30B0:00 of node 1, and the answer with Home Position 36865.
@@ -177,3 +180,17 @@ def test_simulated_clock_in_process() -> None:
     usb.util.dispose_resources(dev)
     idx.stop()
     drive.stop()
+
+
+def test_ready_file_of_a_running_rig(tmp_path: Path) -> None:
+    """The default rig under `gatewaylab run` (a child process): the backend built from its ready file
+    (the IDX's "usb" entry, its TCP port) is found by pyusb and serves IdxClient and the gateway."""
+    with RigProcess(None, workdir=tmp_path, timeout=60) as rig:
+        backend = IdxUsbBackend.from_ready_file(rig.ready_file)
+        dev = usb.core.find(idVendor=0x24E7, idProduct=0x3B01, backend=backend)
+        assert dev is not None
+        usb.util.dispose_resources(dev)
+        with IdxClient(UsbLink(backend=backend), timeout=2.0) as c:
+            assert c.read(2, 0x1018, 1) == MAXON_VENDOR_ID
+        with pytest.raises(ConfigError, match="no IDX"):
+            IdxUsbBackend.from_ready_file(rig.ready_file, "nope")
