@@ -14,7 +14,7 @@ from gatewaylab.devices.modbus_gateway.rig import ModbusGatewayParticipant
 from gatewaylab.rig import Rig
 from gatewaylab.rig.config import parse_rig
 
-H, I = RegisterKind.HOLDING, RegisterKind.INPUT
+H, INP = RegisterKind.HOLDING, RegisterKind.INPUT
 
 
 def _rig(**gateway: Any) -> Rig:
@@ -60,7 +60,7 @@ def test_reads_are_sdo_uploads_of_the_mapped_objects(rig: Rig) -> None:
     """FC 4 input registers 0..5 of unit 2 = statusword, mode display, position, velocity of node 2,
     each read by an SDO upload request 0x40 on 0x602 (CiA 301 7.2.4.3.6)."""
     gw = _gw(rig)
-    words = _run(rig, gw.read, 2, I, 0, 6)
+    words = _run(rig, gw.read, 2, INP, 0, 6)
     assert words[0] & 0x6F == 0x40 and words[2:] == [0, 0, 0, 0]      # switch on disabled, at rest
     uploads = [f for f in rig.frames if f.can_id == 0x602]  # type: ignore[attr-defined]
     assert [(f.data[0], int.from_bytes(f.data[1:3], "little")) for f in uploads] == [
@@ -73,7 +73,7 @@ def test_writes_drive_the_power_state_machine(rig: Rig) -> None:
     gw = _gw(rig)
     for cw in (0x06, 0x07, 0x0F):
         assert _run(rig, gw.write, 2, 0, [cw]) is None
-    assert _run(rig, gw.read, 2, I, 0, 1)[0] & 0x6F == 0x27
+    assert _run(rig, gw.read, 2, INP, 0, 1)[0] & 0x6F == 0x27
     assert _run(rig, gw.write, 2, 2, [0x0001, 0x86A0]) is None          # 100000, high word first
     with rig.clock.lock:
         assert rig.participants[0].node.get(0x607A, 0) == 100_000  # type: ignore[attr-defined]

@@ -22,7 +22,7 @@ from gatewaylab.devices.modbus_gateway.mapping import (
     to_registers,
 )
 
-H, I = RegisterKind.HOLDING, RegisterKind.INPUT
+H, INP = RegisterKind.HOLDING, RegisterKind.INPUT
 
 
 def test_32_bit_values_take_two_registers_high_word_first() -> None:
@@ -85,8 +85,8 @@ def test_default_map_plans() -> None:
     """Reads may cover parts of 32-bit objects; writes must cover whole objects (Modbus 7, code 02:
     "the combination of reference number and transfer length is invalid"); gaps are unmapped (02)."""
     rmap = RegisterMap(default_cia402_map())
-    assert [o.index for o in rmap.plan_read(I, 0, 6)] == [0x6041, 0x6061, 0x6064, 0x606C]
-    assert [o.index for o in rmap.plan_read(I, 3, 1)] == [0x6064]
+    assert [o.index for o in rmap.plan_read(INP, 0, 6)] == [0x6041, 0x6061, 0x6064, 0x606C]
+    assert [o.index for o in rmap.plan_read(INP, 3, 1)] == [0x6064]
     plan = rmap.plan_write(0, [0x0F, 1, 0, 20000])
     assert [(o.index, data) for o, data in plan] == [(0x6040, b"\x0f\x00"), (0x6060, b"\x01"),
                                                      (0x607A, (20000).to_bytes(4, "little"))]
@@ -95,14 +95,14 @@ def test_default_map_plans() -> None:
             rmap.plan_write(address, values)
         assert exc.value.code == 0x02
     with pytest.raises(ModbusError) as exc:
-        rmap.plan_read(I, 5, 2)
+        rmap.plan_read(INP, 5, 2)
     assert exc.value.code == 0x02
 
 
 def test_map_table_rows_are_checked() -> None:
     """`map = [...]` rows: register/index/subindex ranges, kind, type, overlaps are ConfigErrors."""
     rows = parse_map([{"register": 10, "kind": "input", "index": 0x1018, "subindex": 4, "type": "u32"}])
-    assert rows == (MappedObject(10, I, 0x1018, 4, "u32"),)
+    assert rows == (MappedObject(10, INP, 0x1018, 4, "u32"),)
     for bad, text in (({"register": 1, "index": 0x1000, "type": "f32"}, "type"),
                       ({"register": -1, "index": 0x1000, "type": "u8"}, "register"),
                       ({"register": 1, "index": 0x1000, "type": "u8", "kind": "coil"}, "kind"),

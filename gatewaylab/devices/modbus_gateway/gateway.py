@@ -68,7 +68,8 @@ class ModbusGateway:
 
     def _check_unit(self, unit: int) -> None:
         if unit not in self.nodes:
-            raise ModbusError(ModbusException.GATEWAY_PATH_UNAVAILABLE, f"unit {unit} is not a node this gateway serves")
+            raise ModbusError(ModbusException.GATEWAY_PATH_UNAVAILABLE,
+                              f"unit {unit} is not a node this gateway serves")
 
     # -- reads ----------------------------------------------------------------------------------
     def read(self, unit: int, kind: RegisterKind, address: int, count: int, done: ReadDone) -> None:
@@ -77,7 +78,7 @@ class ModbusGateway:
             self._check_unit(unit)
             objects = self.map.plan_read(kind, address, count)
         except ModbusError as exc:
-            self._finish_read(done, ModbusException(exc.code))
+            self._finish_read(done, exc.exception)
             return
         words: list[tuple[int, ...]] = []
 
@@ -109,7 +110,7 @@ class ModbusGateway:
             self._check_unit(unit)
             plan = self.map.plan_write(address, values)
         except ModbusError as exc:
-            self._finish_write(done, ModbusException(exc.code))
+            self._finish_write(done, exc.exception)
             return
         pending = list(plan)
 

@@ -35,6 +35,7 @@ class ModbusError(RemoteError):
     """A request the gateway answers with a Modbus exception (``code``)."""
 
     def __init__(self, code: ModbusException, message: str = "") -> None:
+        self.exception = code
         super().__init__(f"Modbus exception 0x{int(code):02X} {code.name}{': ' + message if message else ''}",
                          int(code))
 
@@ -168,6 +169,7 @@ def parse_map(rows: Iterable[Mapping[str, Any]], where: str = "map") -> tuple[Ma
         if type_ not in TYPES:
             raise ConfigError(f"{here}: type must be one of {', '.join(TYPES)}, got {type_!r}")
         assert isinstance(register, int) and isinstance(index, int) and isinstance(subindex, int)
+        assert isinstance(type_, str)
         obj = MappedObject(register, RegisterKind(kind), index, subindex, type_)
         if register + obj.words > 0x10000:
             raise ConfigError(f"{here}: {obj} runs past register 65535")
