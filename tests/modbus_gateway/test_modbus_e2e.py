@@ -133,13 +133,16 @@ def test_garbage_on_one_connection_does_not_stop_the_server(rig: RigProcess, cli
 
 
 def test_sigterm_stops_cleanly_and_a_port_in_use_fails_the_start(tmp_path: Path) -> None:
-    """docs/architecture.md life cycle: SIGTERM ends the rig with exit 0 and the Modbus port closed;
+    """docs/architecture.md life cycle: SIGTERM ends the rig with exit 0 and the Modbus port closed,
+    also with a client still connected;
     a second rig asking for a port in use does not start (exit 1, one line naming the section)."""
     rig_file = tmp_path / "rig.toml"
     rig_file.write_text(RIG.format(port=0))
     first = RigProcess(rig_file, workdir=tmp_path, timeout=60)
+    plc = ModbusTcpClient("127.0.0.1", port=_port(first.info), timeout=5)
     try:
         port = _port(first.info)
+        assert plc.connect() and not plc.read_input_registers(0, count=1, device_id=2).isError()  # stays connected
         busy = tmp_path / "busy.toml"
         busy.write_text(RIG.format(port=port))
         with pytest.raises(RigStartTimeout, match=r"modbus_gateway|mb1") as exc:
@@ -149,6 +152,7 @@ def test_sigterm_stops_cleanly_and_a_port_in_use_fails_the_start(tmp_path: Path)
         first.proc.send_signal(signal.SIGTERM)
         code = first.proc.wait(20)
         first.stop()
+        plc.close()
     assert code == 0, first.log_text()
     with pytest.raises(OSError):
         socket.create_connection(("127.0.0.1", port), timeout=2).close()
