@@ -194,3 +194,30 @@ def test_ready_file_of_a_running_rig(tmp_path: Path) -> None:
             assert c.read(2, 0x1018, 1) == MAXON_VENDOR_ID
         with pytest.raises(ConfigError, match="no IDX"):
             IdxUsbBackend.from_ready_file(rig.ready_file, "nope")
+    dev = usb.core.find(idVendor=0x24E7, idProduct=0x3B01, backend=backend)    # still enumerated...
+    with pytest.raises(usb.core.USBError) as exc:                               # ...but gone: no device
+        dev.write(0x01, REQUEST)
+    assert exc.value.backend_error_code == -4
+    usb.util.dispose_resources(dev)
+
+
+def test_endpoint_halt_and_bad_endpoints(backend: IdxUsbBackend) -> None:
+    """USB 2.0 9.4.5/9.4.9: SET_FEATURE(ENDPOINT_HALT) stalls the bulk IN endpoint and GET_STATUS
+    reports it until CLEAR_FEATURE (pyusb's clear_halt); an endpoint the descriptors do not list is
+    refused by pyusb before the backend sees it."""
+    dev = usb.core.find(idVendor=0x24E7, idProduct=0x3B01, backend=backend)
+    dev.ctrl_transfer(0x02, 0x03, 0, 0x81)                       # SET_FEATURE(ENDPOINT_HALT) on 0x81
+    assert bytes(dev.ctrl_transfer(0x82, 0x00, 0, 0x81, 2)) == b"\x01\x00"
+    with pytest.raises(usb.core.USBError) as exc:
+        dev.read(0x81, 64, timeout=50)
+    assert exc.value.backend_error_code == -9
+    dev.clear_halt(0x81)
+    assert bytes(dev.ctrl_transfer(0x82, 0x00, 0, 0x81, 2)) == b"\x00\x00"
+    dev.write(0x01, REQUEST)
+    got = b""
+    while len(got) < 10:
+        got += bytes(dev.read(0x81, 64, timeout=2000))
+    assert got[:3] == b"\x90\x02\x00"                           # a ReadObject answer (2.2.2)
+    with pytest.raises(ValueError, match="Invalid endpoint address 0x2"):
+        dev.write(0x02, REQUEST)                                 # pyusb checks the descriptors itself
+    usb.util.dispose_resources(dev)
