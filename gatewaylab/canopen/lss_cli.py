@@ -30,37 +30,12 @@ from ..common.clock import RealTimeClock
 from ..common.endpoint import EndpointError, bus_endpoint
 from ..common.errors import GatewaylabError
 from .explain import explain
-from .lss import BIT_TIMING_TABLE, FASTSCAN_CONFIRM, LSS_SLAVE_COB_ID, Cs, LssAddress, LssError, LssMaster, LssState
+from .lss import BIT_TIMING_TABLE, LSS_SLAVE_COB_ID, Cs, LssAddress, LssError, LssMaster, LssState
+from .monitor import FastscanNarrator
 
 _PARTS = ("vendor", "product", "revision", "serial")
 _INQUIRE = {"vendor": Cs.INQUIRE_VENDOR, "product": Cs.INQUIRE_PRODUCT, "revision": Cs.INQUIRE_REVISION,
             "serial": Cs.INQUIRE_SERIAL, "node-id": Cs.INQUIRE_NODE_ID}
-
-
-class _FastscanNarrator:
-    """Turns Fastscan requests and answers into the bisection they are ("bit 27 of serial: 0").
-
-    A request with BitChecked b asks "does any slave match the bits above b?"; an answer means the
-    checked bit is 0 (it was sent as 0), silence that it is 1 (CiA 305 clause 8.3.5)."""
-
-    def __init__(self, say: Callable[[str], None]) -> None:
-        self._say = say
-        self._pending: tuple[int, int] | None = None   # (sub, bit) waiting for an answer or the next request
-        self._answered = False
-
-    def sent(self, data: bytes) -> None:
-        self._resolve()
-        if data[0] == Cs.FASTSCAN and data[5] != FASTSCAN_CONFIRM and data[6] == data[7]:
-            self._pending, self._answered = (data[6], data[5]), False
-
-    def answer(self) -> None:
-        self._answered = True
-
-    def _resolve(self) -> None:
-        if self._pending is not None:
-            sub, bit = self._pending
-            self._say(f"   bit {bit} of {_PARTS[sub]}: {0 if self._answered else 1}")
-            self._pending = None
 
 
 class LssSession:
@@ -72,11 +47,15 @@ class LssSession:
         self.clock = RealTimeClock()
         self.master = LssMaster(self.clock, self._send, timeout=timeout)
         self._say = say
-        self._fastscan = _FastscanNarrator(say) if say is not None else None
+        self._fastscan = FastscanNarrator(self._bit) if say is not None else None
+
+    def _bit(self, sub: int, bit: int, value: int) -> None:
+        if self._say is not None:
+            self._say(f"   bit {bit} of {_PARTS[sub]}: {value}")
 
     def _send(self, frame: CanFrame) -> None:
         if self._fastscan is not None:
-            self._fastscan.sent(frame.data)   # first says what the previous request found
+            self._fastscan.request(frame.data)   # first says what the previous request found
         if self._say is not None:
             self._say(f"-> {frame.can_id:03X} {frame.data.hex(' ').upper()}  {explain(frame)}")
         self.bus.send(frame.to_message())
@@ -100,7 +79,7 @@ class LssSession:
                 self.master.on_frame(frame, self.clock.now())
             self.clock.run_due()
         if self._fastscan is not None:
-            self._fastscan.sent(b"\x00" * 8)   # report the last bisection step
+            self._fastscan.flush()   # report the last bisection step
         result = results[0]
         if isinstance(result, LssError):
             raise result
