@@ -104,13 +104,12 @@ class GatewayStats:
     tx_ext_rtr: int = 0          # :3F
     rx_bytes: int = 0
     tx_bytes: int = 0
-    rx_bits: int = 0
 
 
 class _Window:
     """Handler times in microseconds over the last ``size`` calls (min/max/avg of 5.1.4.2)."""
 
-    __slots__ = ("size", "values", "busy")
+    __slots__ = ("busy", "size", "values")
 
     def __init__(self, size: int) -> None:
         self.size = size
@@ -346,7 +345,7 @@ class EsdGateway(SlaveApplication):
     def _may_send(self) -> bool:
         """The bit rate setting lets the gateway send (not off the bus, listen-only or still detecting)."""
         s = self.setting
-        return not (s.mode is br.Mode.NONE or s.listen_only and not self.detected)
+        return not (s.mode is br.Mode.NONE or (s.listen_only and not self.detected))
 
     def _abort_local(self) -> None:
         """Listen-only and no baud rate never send (5.1.5.9): queued frames are aborted (0x2010:37)."""
@@ -378,7 +377,8 @@ class EsdGateway(SlaveApplication):
 
     # ------------------------------------------------------------------ CAN side
     def _on_frame(self, frame: CanFrame, t: float) -> None:
-        """The CAN handler: count, filter, queue, deliver when the master is ready."""
+        """The CAN handler: count, filter, queue, deliver when the master is ready. 11-bit queues
+        (0x6000, 5.1.5.1) cannot carry a 29-bit identifier: in 11-bit mode such frames are only counted."""
         t0 = self.clock.now()
         st = self.stats
         if frame.extended:
@@ -393,7 +393,7 @@ class EsdGateway(SlaveApplication):
         st.rx_bytes += len(frame.data)
         if self.setting.mode is br.Mode.AUTOBAUD and not self.detected:
             self._autobaud_found()
-        if self._passes(frame):
+        if (self.extended or not frame.extended) and self._passes(frame):
             if len(self.rx_local) >= self.local_rx_size:
                 st.fifo_overrun += 1
                 self._refresh_status()
