@@ -262,9 +262,12 @@ def _e(value: object) -> str:
 class EsdWebApp:
     """The pages of manual chapter 6 for one device; thread-safe through ``lock``."""
 
-    def __init__(self, backend: EsdWebBackend, lock: contextlib.AbstractContextManager[object]) -> None:
+    def __init__(self, backend: EsdWebBackend, lock: contextlib.AbstractContextManager[object],
+                 refresh: float = 1.0) -> None:
         self.backend = backend
         self.lock = lock
+        #: Seconds between the progress page's reloads while an update runs (Figure 39).
+        self.refresh = refresh
         self._routes: dict[str, dict[str, Callable[[Request], Response]]] = {
             "/": {"GET": self._overview},
             "/firmware": {"GET": self._firmware, "POST": self._firmware_upload},
@@ -370,7 +373,7 @@ class EsdWebApp:
         content += ('<p>Please be patient after clicking "Submit", <b>do not power off the device!</b></p>\n')
         status = 200 if refused is None else 400
         return self._page("Firmware Update", "/firmware", content, status=status,
-                          refresh=1 if progress is not None else None)
+                          refresh=self.refresh if progress is not None else None)
 
     def _firmware_upload(self, request: Request) -> Response:
         """6.1.2: "The firmware update starts after confirmation ... with the command button Submit"."""

@@ -51,6 +51,8 @@ class _HttpServer(ThreadingHTTPServer):
 class _Handler(BaseHTTPRequestHandler):
     server_version = "esd-httpd/1.0"
     sys_version = ""
+    # A request line the base class cannot parse is answered with a status line and headers too.
+    default_request_version = "HTTP/1.0"
 
     def setup(self) -> None:
         super().setup()
@@ -64,6 +66,13 @@ class _Handler(BaseHTTPRequestHandler):
         if name.startswith("do_"):
             return self._serve
         raise AttributeError(name)
+
+    def send_error(self, code: int, message: str | None = None, explain: str | None = None) -> None:
+        """The base class's errors (bad request line, 414, 431, 505) as a page in the device's frame."""
+        title = message or self.responses.get(code, ("Error", ""))[0]
+        text = explain or self.responses.get(code, ("", "The request cannot be served."))[1]
+        self.close_connection = True
+        self._write(cast(_HttpServer, self.server).app.error(code, title, text))
 
     def _serve(self) -> None:
         server = cast(_HttpServer, self.server)
@@ -153,14 +162,15 @@ class EsdWebServer:
 
     The server thread calls ``backend`` only inside ``with lock:`` (the rig passes the clock's
     lock; docs/architecture.md "Threads"). ``port=0`` takes any free port; :meth:`start` returns
-    the base URL.
+    the base URL. ``max_body`` bounds a request body (413 beyond), ``timeout`` drops a silent
+    connection, ``refresh`` is the reload interval of the update progress page (Figure 39).
     """
 
     def __init__(self, backend: EsdWebBackend, lock: contextlib.AbstractContextManager[object],
                  host: str = "127.0.0.1", port: int = 0, *, max_body: int = DEFAULT_MAX_BODY,
-                 timeout: float = DEFAULT_TIMEOUT) -> None:
+                 timeout: float = DEFAULT_TIMEOUT, refresh: float = 1.0) -> None:
         _check_loopback(host)
-        self.app = EsdWebApp(backend, lock)
+        self.app = EsdWebApp(backend, lock, refresh)
         self.host = host
         self.port = port
         self.max_body = max_body
