@@ -56,6 +56,14 @@ def _check_screenshot(png: bytes) -> None:
     assert len(colours) > 3, "the screenshot is blank"
 
 
+def test_screenshot_check_sees_a_blank_page(page: tuple[Any, str]) -> None:
+    """The check below can fail: a blank page's screenshot has one colour."""
+    tab, _ = page
+    tab.set_content("<html><body style='margin:0;background:#fff'></body></html>")
+    width, height, colours = png_pixels(tab.screenshot())
+    assert (width, height) == (VIEWPORT["width"], VIEWPORT["height"]) and len(colours) == 1
+
+
 def test_status_can_page_in_chromium(page: tuple[Any, str]) -> None:
     """6.2.1 Figure 41 as a browser renders it: the text the user sees holds every field of the figure with
     the backend's values, the menu is there, and the screenshot is a non-blank PNG of the viewport."""

@@ -73,6 +73,7 @@ def test_second_upload_during_an_update_is_refused(url: str, backend: FakeBacken
     reply = upload(url, "b.bin", FIRMWARE_MAGIC)
     assert reply.status == 400
     assert "Updating now..." in reply.text
+    assert "Update refused: an update is already running" in reply.text
     assert backend.uploads == [("a.bin", FIRMWARE_MAGIC)]
 
 

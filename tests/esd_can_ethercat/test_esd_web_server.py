@@ -111,18 +111,37 @@ def test_body_over_the_limit_answers_413_without_reading_it(url: str, backend: F
 
 
 def test_upload_just_under_and_over_the_limit(url: str, backend: FakeBackend) -> None:
-    """The limit counts the whole body: a file that fits is taken, one that makes the body too big is 413
-    (or, if the server closes before the client finished sending, a reset connection)."""
+    """The limit counts the whole body: a file that fits is taken, one byte more is 413; the client that
+    sent the too-large body reads the 413 (the server discards the rest instead of resetting)."""
     _, body = multipart("fw.bin", b"")
     fits = FIRMWARE_MAGIC + bytes(4096 - len(body) - len(FIRMWARE_MAGIC))
     assert upload(url, "fw.bin", fits).status == 303
     backend.progress = None
+    reply = upload(url, "fw.bin", fits + b"x")
+    assert reply.status == 413 and "The body is larger than 4096 bytes." in reply.text
+    assert len(backend.uploads) == 1
+
+
+def test_huge_upload_streamed_in_full(url: str, backend: FakeBackend) -> None:
+    """A client that sends a body far over the limit anyway gets the 413 or a closed connection, never a
+    started update, and the server keeps serving."""
     try:
-        status = upload(url, "fw.bin", fits + b"x").status
-    except ConnectionError:
+        status = upload(url, "huge.bin", FIRMWARE_MAGIC + bytes(8 * 1024 * 1024)).status
+    except ConnectionError:  # the server closed after discarding its share of the body
         status = 413
     assert status == 413
-    assert len(backend.uploads) == 1
+    assert backend.uploads == []
+    assert request(url, "GET", "/status/can").status == 200
+
+
+@pytest.mark.parametrize(("method", "path", "status"), [("POST", "/nope", 404), ("POST", "/status/can", 405),
+                                                          ("PUT", "/firmware", 405)])
+def test_refused_requests_with_a_body_read_their_answer(url: str, method: str, path: str, status: int) -> None:
+    """A body sent to a page that does not take it is read and dropped: the client gets the 404/405, not a
+    reset connection."""
+    content_type, body = multipart("fw.bin", FIRMWARE_MAGIC + bytes(3000))
+    reply = request(url, method, path, body, {"Content-Type": content_type})
+    assert reply.status == status
 
 
 @pytest.mark.parametrize(("head", "status"), [
@@ -130,6 +149,8 @@ def test_upload_just_under_and_over_the_limit(url: str, backend: FakeBackend) ->
     (b"POST /firmware HTTP/1.1\r\nHost: x\r\nTransfer-Encoding: chunked\r\n\r\n0\r\n\r\n", b"411"),
     (b"POST /firmware HTTP/1.1\r\nHost: x\r\nContent-Length: -5\r\n\r\n", b"400"),
     (b"POST /firmware HTTP/1.1\r\nHost: x\r\nContent-Length: zwei\r\n\r\n", b"400"),
+    (b"POST /firmware HTTP/1.1\r\nHost: x\r\nContent-Length: 1_0\r\n\r\n", b"400"),
+    (b"GET / HTTP/1.1\r\nHost: x\r\nContent-Length: 99999999999999999999999\r\n\r\n", b"413"),
     (b"GARBAGE\r\n\r\n", b"400"),
     (b"GET /" + b"a" * 70000 + b" HTTP/1.1\r\n\r\n", b"414"),
     (b"GET / HTTP/1.1\r\n" + b"X: y\r\n" * 200 + b"\r\n", b"431"),

@@ -360,11 +360,11 @@ class EsdWebApp:
             "update is finished. Usually you just have to wait, but if your browser times out you have to "
             "reload this page by clicking the <b>Firmware Update</b> link on the left.</p>\n"
         )
+        if refused is not None:
+            content += f'<p class="refused" id="refused">Update refused: {_e(refused)}</p>\n'
         if progress is not None:
             content += f'<p>Updating now...</p>\n<pre id="progress">\n{_e(progress)}\n</pre>\n'
         else:
-            if refused is not None:
-                content += f'<p class="refused" id="refused">Update refused: {_e(refused)}</p>\n'
             content += (
                 '<form method="post" action="/firmware" enctype="multipart/form-data">\n'
                 '<input type="file" name="file" id="file"><br><br>\n'

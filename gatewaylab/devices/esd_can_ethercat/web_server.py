@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import ipaddress
 import logging
+import socket
 import threading
 from collections.abc import Callable
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
@@ -27,6 +28,8 @@ log = logging.getLogger(__name__)
 DEFAULT_MAX_BODY = 16 * 1024 * 1024
 #: Seconds a connection may stay silent before the server drops it (a stalled upload).
 DEFAULT_TIMEOUT = 10.0
+#: At most this much of a refused body is read and discarded before the connection closes.
+LINGER_BYTES = 1024 * 1024
 
 
 class EsdWebError(ConfigError):
@@ -49,6 +52,7 @@ class _HttpServer(ThreadingHTTPServer):
 
 
 class _Handler(BaseHTTPRequestHandler):
+    _linger = False
     server_version = "esd-httpd/1.0"
     sys_version = ""
     # A request line the base class cannot parse is answered with a status line and headers too.
@@ -77,6 +81,7 @@ class _Handler(BaseHTTPRequestHandler):
     def _serve(self) -> None:
         server = cast(_HttpServer, self.server)
         app = server.app
+        self._linger = False
         try:
             response = self._answer(app, server.max_body)
         except Exception:
@@ -84,40 +89,50 @@ class _Handler(BaseHTTPRequestHandler):
             response = app.error(500, "Internal Server Error", "The device could not answer this request.")
         if response is not None:
             self._write(response)
+        if self._linger:
+            self._lingering_close()
+
+    def _refuse_body(self, response: Response) -> Response:
+        # Answer without reading the body: close afterwards, but only after the client had a chance
+        # to read the answer (closing on unread data would reset the connection under it).
+        self.close_connection = True
+        self._linger = True
+        return response
 
     def _answer(self, app: EsdWebApp, max_body: int) -> Response | None:
         """The response to write, or None when the client is gone (connection closed silently)."""
-        allowed = app.allowed(self.path)
-        if allowed is None:
+        if self.headers.get("Transfer-Encoding"):
+            return self._refuse_body(app.error(411, "Length Required", "Send the body with a Content-Length."))
+        length_text = self.headers.get("Content-Length")
+        if length_text is None:
+            if self.command == "POST":
+                return self._refuse_body(app.error(411, "Length Required", "Send the body with a Content-Length."))
+            length_text = "0"
+        length_text = length_text.strip()
+        if not (length_text.isascii() and length_text.isdigit()):
+            return self._refuse_body(app.error(400, "Bad Request", "Content-Length is not a number of bytes."))
+        length = int(length_text)
+        if length > max_body:
+            return self._refuse_body(app.error(413, "Content Too Large", f"The body is larger than {max_body} bytes."))
+        body = self._read_body(length)
+        if len(body) < length:
             self.close_connection = True
-            return app.error(404, "Not Found", "There is no such page on this device.")
-        if self.command not in allowed:
-            self.close_connection = True
-            return app.handle(Request(self.command, self.path))
-        body = b""
-        if self.command == "POST":
-            if self.headers.get("Transfer-Encoding"):
-                self.close_connection = True
-                return app.error(411, "Length Required", "Send the body with a Content-Length.")
-            length_text = self.headers.get("Content-Length")
-            if length_text is None:
-                self.close_connection = True
-                return app.error(411, "Length Required", "Send the body with a Content-Length.")
-            try:
-                length = int(length_text)
-            except ValueError:
-                length = -1
-            if length < 0:
-                self.close_connection = True
-                return app.error(400, "Bad Request", "Content-Length is not a number of bytes.")
-            if length > max_body:
-                self.close_connection = True
-                return app.error(413, "Content Too Large", f"The body is larger than {max_body} bytes.")
-            body = self._read_body(length)
-            if len(body) < length:
-                self.close_connection = True
-                return None  # the client stopped sending (disconnect or timeout): nobody to answer
+            return None  # the client stopped sending (disconnect or timeout): nobody to answer
         return app.handle(Request(self.command, self.path, self.headers.get("Content-Type", ""), body))
+
+    def _lingering_close(self) -> None:
+        """Stop sending, then discard what the client still sends (up to LINGER_BYTES, until it closes
+        or the timeout), so it reads the error answer instead of a connection reset."""
+        try:
+            self.connection.shutdown(socket.SHUT_WR)
+            drained = 0
+            while drained < LINGER_BYTES:
+                chunk = self.connection.recv(65536)
+                if not chunk:
+                    break
+                drained += len(chunk)
+        except OSError:
+            pass
 
     def _read_body(self, length: int) -> bytes:
         chunks: list[bytes] = []
