@@ -4,6 +4,7 @@ gets a 4xx (or a closed connection), never a traceback, and the next client is s
 
 from __future__ import annotations
 
+import http.client
 import socket
 import threading
 from collections.abc import Iterator
@@ -221,6 +222,64 @@ def test_backend_is_called_only_under_the_lock_and_waits_for_it(backend: FakeBac
         request(url, "POST", "/reboot", b"")
     assert backend.calls_outside_lock == []
     assert backend.reboots == 1 and len(backend.uploads) == 1
+
+
+def test_stop_cuts_stalled_clients(backend: FakeBackend) -> None:
+    """stop() closes open connections too: a client stalled mid-upload sees its connection end at once
+    (the server's own idle timeout here is an hour), and the upload never reaches the device."""
+    server = EsdWebServer(backend, backend.lock, timeout=3600.0)  # type: ignore[arg-type]
+    url = server.start()
+    content_type, body = multipart("fw.bin", FIRMWARE_MAGIC + bytes(3000))
+    head = (f"POST /firmware HTTP/1.1\r\nHost: x\r\nContent-Type: {content_type}\r\n"
+            f"Content-Length: {len(body)}\r\n\r\n").encode()
+    with socket.create_connection(("127.0.0.1", _port(url)), timeout=30) as sock:
+        sock.sendall(head + body[:1000])
+        assert request(url, "GET", "/").status == 200  # accepted after the stalled one, so that one is known
+        server.stop()
+        try:
+            assert sock.recv(1000) == b""
+        except ConnectionResetError:
+            pass
+    assert backend.uploads == []
+
+
+def test_no_backend_call_after_stop_even_for_a_waiting_request(backend: FakeBackend) -> None:
+    """The rig stops its devices holding the clock's lock (docs/architecture.md "Threads"); a request
+    waiting for that lock must not reach the device after stop() returned: it gets 503 or a closed
+    connection."""
+    server = EsdWebServer(backend, backend.lock)  # type: ignore[arg-type]
+    url = server.start()
+    outcome: list[object] = []
+
+    def fetch() -> None:
+        try:
+            outcome.append(request(url, "GET", "/status/can").status)
+        except (ConnectionError, http.client.HTTPException) as exc:
+            outcome.append(type(exc))
+
+    with backend.lock:
+        worker = threading.Thread(target=fetch)
+        worker.start()
+        worker.join(0.5)  # usually blocked on the lock by now; either way the outcome below holds
+        server.stop()
+        calls_at_stop = len(backend.calls)
+    worker.join(30)
+    assert not worker.is_alive()
+    assert len(backend.calls) == calls_at_stop == 0
+    assert outcome and outcome[0] != 200
+    server.stop()
+
+
+def test_restart_after_stop(backend: FakeBackend) -> None:
+    """A rig that stops and starts a device again (reboot of the rig) gets a working server again."""
+    server = EsdWebServer(backend, backend.lock)  # type: ignore[arg-type]
+    server.start()
+    server.stop()
+    url = server.start()
+    try:
+        assert request(url, "GET", "/status/can").status == 200
+    finally:
+        server.stop()
 
 
 def test_many_clients_at_once(url: str) -> None:

@@ -153,6 +153,10 @@ class Response:
     headers: tuple[tuple[str, str], ...] = ()
 
 
+class ServerClosed(Exception):
+    """The server stopped while a request waited for the lock (answered 503, backend untouched)."""
+
+
 class MultipartError(ValueError):
     """A multipart/form-data body that does not follow RFC 7578 / RFC 2046 5.1."""
 
@@ -268,6 +272,8 @@ class EsdWebApp:
         self.lock = lock
         #: Seconds between the progress page's reloads while an update runs (Figure 39).
         self.refresh = refresh
+        #: Set (under ``lock``) when the server stops: no backend call happens after that.
+        self.closed = False
         self._routes: dict[str, dict[str, Callable[[Request], Response]]] = {
             "/": {"GET": self._overview},
             "/firmware": {"GET": self._firmware, "POST": self._firmware_upload},
@@ -297,7 +303,10 @@ class EsdWebApp:
             allowed = ", ".join(self.allowed(request.target) or ())
             response = self.error(405, "Method Not Allowed", f"This page answers {allowed}.")
             return Response(405, response.body, (*response.headers, ("Allow", allowed)))
-        return page(request)
+        try:
+            return page(request)
+        except ServerClosed:
+            return self.error(503, "Service Unavailable", "The web interface is stopping.")
 
     def error(self, status: int, title: str, text: str) -> Response:
         """An error page in the device's frame (no backend call, so it is safe from any state)."""
@@ -306,6 +315,8 @@ class EsdWebApp:
 
     def _call(self, fn: Callable[[], _T]) -> _T:
         with self.lock:
+            if self.closed:
+                raise ServerClosed("the web interface is stopped")
             return fn()
 
     # -- frame --------------------------------------------------------------------------------

@@ -15,7 +15,7 @@ import socket
 import threading
 from collections.abc import Callable
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
-from typing import cast
+from typing import Any, cast
 
 from ...common.errors import ConfigError
 from .web_pages import EsdWebApp, EsdWebBackend, Request, Response
@@ -38,13 +38,37 @@ class EsdWebError(ConfigError):
 
 class _HttpServer(ThreadingHTTPServer):
     daemon_threads = True
-    allow_reuse_address = True
 
     def __init__(self, address: tuple[str, int], app: EsdWebApp, max_body: int, timeout: float) -> None:
         self.app = app
         self.max_body = max_body
         self.request_timeout = timeout
+        self._active: set[socket.socket] = set()
+        self._active_lock = threading.Lock()
         super().__init__(address, _Handler)
+
+    def process_request(self, request: Any, client_address: Any) -> None:
+        # registered in the accepting thread, so a connection accepted earlier is always known
+        with self._active_lock:
+            self._active.add(request)
+        super().process_request(request, client_address)
+
+    def process_request_thread(self, request: Any, client_address: Any) -> None:
+        try:
+            super().process_request_thread(request, client_address)
+        finally:
+            with self._active_lock:
+                self._active.discard(request)
+
+    def close_connections(self) -> None:
+        """Cut every open connection (a stalled upload would otherwise hold its thread until the timeout)."""
+        with self._active_lock:
+            active = list(self._active)
+        for sock in active:
+            try:
+                sock.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
 
     def handle_error(self, request: object, client_address: object) -> None:
         # A client that vanished mid-request lands here; nothing to tell anyone but the debug log.
@@ -207,6 +231,7 @@ class EsdWebServer:
         """
         if self._httpd is not None:
             raise EsdWebError("esd web server already started")
+        self.app.closed = False
         try:
             httpd = _HttpServer((self.host, self.port), self.app, self.max_body, self.timeout)
         except OSError as exc:
@@ -222,12 +247,19 @@ class EsdWebServer:
         return url
 
     def stop(self) -> None:
-        """Stop serving, join the thread, close the listening socket; idempotent."""
+        """Stop serving, join the thread, close the listening socket and open connections; idempotent.
+
+        After it returns the backend is not called again, also by a request that still waits for the
+        lock (it gets 503). The caller may hold the lock (the rig stops its devices holding the clock's).
+        """
         httpd, thread = self._httpd, self._thread
         self._httpd = self._thread = None
         if httpd is None:
             return
+        with self.app.lock:
+            self.app.closed = True
         httpd.shutdown()
         if thread is not None:
             thread.join()
+        httpd.close_connections()
         httpd.server_close()
