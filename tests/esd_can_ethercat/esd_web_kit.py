@@ -90,8 +90,10 @@ class FakeBackend:
     reboots: int = 0
     calls_outside_lock: list[str] = field(default_factory=list)
     fail_with: Exception | None = None
+    calls: list[str] = field(default_factory=list)
 
     def _check(self, name: str) -> None:
+        self.calls.append(name)
         if not self.lock.held():
             self.calls_outside_lock.append(name)
         if self.fail_with is not None:

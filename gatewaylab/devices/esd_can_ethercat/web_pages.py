@@ -153,6 +153,10 @@ class Response:
     headers: tuple[tuple[str, str], ...] = ()
 
 
+class ServerClosed(Exception):
+    """The server stopped while a request waited for the lock (answered 503, backend untouched)."""
+
+
 class MultipartError(ValueError):
     """A multipart/form-data body that does not follow RFC 7578 / RFC 2046 5.1."""
 
@@ -262,9 +266,14 @@ def _e(value: object) -> str:
 class EsdWebApp:
     """The pages of manual chapter 6 for one device; thread-safe through ``lock``."""
 
-    def __init__(self, backend: EsdWebBackend, lock: contextlib.AbstractContextManager[object]) -> None:
+    def __init__(self, backend: EsdWebBackend, lock: contextlib.AbstractContextManager[object],
+                 refresh: float = 1.0) -> None:
         self.backend = backend
         self.lock = lock
+        #: Seconds between the progress page's reloads while an update runs (Figure 39).
+        self.refresh = refresh
+        #: Set (under ``lock``) when the server stops: no backend call happens after that.
+        self.closed = False
         self._routes: dict[str, dict[str, Callable[[Request], Response]]] = {
             "/": {"GET": self._overview},
             "/firmware": {"GET": self._firmware, "POST": self._firmware_upload},
@@ -294,7 +303,10 @@ class EsdWebApp:
             allowed = ", ".join(self.allowed(request.target) or ())
             response = self.error(405, "Method Not Allowed", f"This page answers {allowed}.")
             return Response(405, response.body, (*response.headers, ("Allow", allowed)))
-        return page(request)
+        try:
+            return page(request)
+        except ServerClosed:
+            return self.error(503, "Service Unavailable", "The web interface is stopping.")
 
     def error(self, status: int, title: str, text: str) -> Response:
         """An error page in the device's frame (no backend call, so it is safe from any state)."""
@@ -303,6 +315,8 @@ class EsdWebApp:
 
     def _call(self, fn: Callable[[], _T]) -> _T:
         with self.lock:
+            if self.closed:
+                raise ServerClosed("the web interface is stopped")
             return fn()
 
     # -- frame --------------------------------------------------------------------------------
@@ -357,11 +371,11 @@ class EsdWebApp:
             "update is finished. Usually you just have to wait, but if your browser times out you have to "
             "reload this page by clicking the <b>Firmware Update</b> link on the left.</p>\n"
         )
+        if refused is not None:
+            content += f'<p class="refused" id="refused">Update refused: {_e(refused)}</p>\n'
         if progress is not None:
             content += f'<p>Updating now...</p>\n<pre id="progress">\n{_e(progress)}\n</pre>\n'
         else:
-            if refused is not None:
-                content += f'<p class="refused" id="refused">Update refused: {_e(refused)}</p>\n'
             content += (
                 '<form method="post" action="/firmware" enctype="multipart/form-data">\n'
                 '<input type="file" name="file" id="file"><br><br>\n'
@@ -370,7 +384,7 @@ class EsdWebApp:
         content += ('<p>Please be patient after clicking "Submit", <b>do not power off the device!</b></p>\n')
         status = 200 if refused is None else 400
         return self._page("Firmware Update", "/firmware", content, status=status,
-                          refresh=1 if progress is not None else None)
+                          refresh=self.refresh if progress is not None else None)
 
     def _firmware_upload(self, request: Request) -> Response:
         """6.1.2: "The firmware update starts after confirmation ... with the command button Submit"."""

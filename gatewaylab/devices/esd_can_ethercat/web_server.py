@@ -11,10 +11,11 @@ from __future__ import annotations
 import contextlib
 import ipaddress
 import logging
+import socket
 import threading
 from collections.abc import Callable
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
-from typing import cast
+from typing import Any, cast
 
 from ...common.errors import ConfigError
 from .web_pages import EsdWebApp, EsdWebBackend, Request, Response
@@ -27,6 +28,8 @@ log = logging.getLogger(__name__)
 DEFAULT_MAX_BODY = 16 * 1024 * 1024
 #: Seconds a connection may stay silent before the server drops it (a stalled upload).
 DEFAULT_TIMEOUT = 10.0
+#: At most this much of a refused body is read and discarded before the connection closes.
+LINGER_BYTES = 1024 * 1024
 
 
 class EsdWebError(ConfigError):
@@ -35,13 +38,37 @@ class EsdWebError(ConfigError):
 
 class _HttpServer(ThreadingHTTPServer):
     daemon_threads = True
-    allow_reuse_address = True
 
     def __init__(self, address: tuple[str, int], app: EsdWebApp, max_body: int, timeout: float) -> None:
         self.app = app
         self.max_body = max_body
         self.request_timeout = timeout
+        self._active: set[socket.socket] = set()
+        self._active_lock = threading.Lock()
         super().__init__(address, _Handler)
+
+    def process_request(self, request: Any, client_address: Any) -> None:
+        # registered in the accepting thread, so a connection accepted earlier is always known
+        with self._active_lock:
+            self._active.add(request)
+        super().process_request(request, client_address)
+
+    def process_request_thread(self, request: Any, client_address: Any) -> None:
+        try:
+            super().process_request_thread(request, client_address)
+        finally:
+            with self._active_lock:
+                self._active.discard(request)
+
+    def close_connections(self) -> None:
+        """Cut every open connection (a stalled upload would otherwise hold its thread until the timeout)."""
+        with self._active_lock:
+            active = list(self._active)
+        for sock in active:
+            try:
+                sock.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
 
     def handle_error(self, request: object, client_address: object) -> None:
         # A client that vanished mid-request lands here; nothing to tell anyone but the debug log.
@@ -49,8 +76,11 @@ class _HttpServer(ThreadingHTTPServer):
 
 
 class _Handler(BaseHTTPRequestHandler):
+    _linger = False
     server_version = "esd-httpd/1.0"
     sys_version = ""
+    # A request line the base class cannot parse is answered with a status line and headers too.
+    default_request_version = "HTTP/1.0"
 
     def setup(self) -> None:
         super().setup()
@@ -65,9 +95,17 @@ class _Handler(BaseHTTPRequestHandler):
             return self._serve
         raise AttributeError(name)
 
+    def send_error(self, code: int, message: str | None = None, explain: str | None = None) -> None:
+        """The base class's errors (bad request line, 414, 431, 505) as a page in the device's frame."""
+        title = message or self.responses.get(code, ("Error", ""))[0]
+        text = explain or self.responses.get(code, ("", "The request cannot be served."))[1]
+        self.close_connection = True
+        self._write(cast(_HttpServer, self.server).app.error(code, title, text))
+
     def _serve(self) -> None:
         server = cast(_HttpServer, self.server)
         app = server.app
+        self._linger = False
         try:
             response = self._answer(app, server.max_body)
         except Exception:
@@ -75,40 +113,50 @@ class _Handler(BaseHTTPRequestHandler):
             response = app.error(500, "Internal Server Error", "The device could not answer this request.")
         if response is not None:
             self._write(response)
+        if self._linger:
+            self._lingering_close()
+
+    def _refuse_body(self, response: Response) -> Response:
+        # Answer without reading the body: close afterwards, but only after the client had a chance
+        # to read the answer (closing on unread data would reset the connection under it).
+        self.close_connection = True
+        self._linger = True
+        return response
 
     def _answer(self, app: EsdWebApp, max_body: int) -> Response | None:
         """The response to write, or None when the client is gone (connection closed silently)."""
-        allowed = app.allowed(self.path)
-        if allowed is None:
+        if self.headers.get("Transfer-Encoding"):
+            return self._refuse_body(app.error(411, "Length Required", "Send the body with a Content-Length."))
+        length_text = self.headers.get("Content-Length")
+        if length_text is None:
+            if self.command == "POST":
+                return self._refuse_body(app.error(411, "Length Required", "Send the body with a Content-Length."))
+            length_text = "0"
+        length_text = length_text.strip()
+        if not (length_text.isascii() and length_text.isdigit()):
+            return self._refuse_body(app.error(400, "Bad Request", "Content-Length is not a number of bytes."))
+        length = int(length_text)
+        if length > max_body:
+            return self._refuse_body(app.error(413, "Content Too Large", f"The body is larger than {max_body} bytes."))
+        body = self._read_body(length)
+        if len(body) < length:
             self.close_connection = True
-            return app.error(404, "Not Found", "There is no such page on this device.")
-        if self.command not in allowed:
-            self.close_connection = True
-            return app.handle(Request(self.command, self.path))
-        body = b""
-        if self.command == "POST":
-            if self.headers.get("Transfer-Encoding"):
-                self.close_connection = True
-                return app.error(411, "Length Required", "Send the body with a Content-Length.")
-            length_text = self.headers.get("Content-Length")
-            if length_text is None:
-                self.close_connection = True
-                return app.error(411, "Length Required", "Send the body with a Content-Length.")
-            try:
-                length = int(length_text)
-            except ValueError:
-                length = -1
-            if length < 0:
-                self.close_connection = True
-                return app.error(400, "Bad Request", "Content-Length is not a number of bytes.")
-            if length > max_body:
-                self.close_connection = True
-                return app.error(413, "Content Too Large", f"The body is larger than {max_body} bytes.")
-            body = self._read_body(length)
-            if len(body) < length:
-                self.close_connection = True
-                return None  # the client stopped sending (disconnect or timeout): nobody to answer
+            return None  # the client stopped sending (disconnect or timeout): nobody to answer
         return app.handle(Request(self.command, self.path, self.headers.get("Content-Type", ""), body))
+
+    def _lingering_close(self) -> None:
+        """Stop sending, then discard what the client still sends (up to LINGER_BYTES, until it closes
+        or the timeout), so it reads the error answer instead of a connection reset."""
+        try:
+            self.connection.shutdown(socket.SHUT_WR)
+            drained = 0
+            while drained < LINGER_BYTES:
+                chunk = self.connection.recv(65536)
+                if not chunk:
+                    break
+                drained += len(chunk)
+        except OSError:
+            pass
 
     def _read_body(self, length: int) -> bytes:
         chunks: list[bytes] = []
@@ -153,14 +201,15 @@ class EsdWebServer:
 
     The server thread calls ``backend`` only inside ``with lock:`` (the rig passes the clock's
     lock; docs/architecture.md "Threads"). ``port=0`` takes any free port; :meth:`start` returns
-    the base URL.
+    the base URL. ``max_body`` bounds a request body (413 beyond), ``timeout`` drops a silent
+    connection, ``refresh`` is the reload interval of the update progress page (Figure 39).
     """
 
     def __init__(self, backend: EsdWebBackend, lock: contextlib.AbstractContextManager[object],
                  host: str = "127.0.0.1", port: int = 0, *, max_body: int = DEFAULT_MAX_BODY,
-                 timeout: float = DEFAULT_TIMEOUT) -> None:
+                 timeout: float = DEFAULT_TIMEOUT, refresh: float = 1.0) -> None:
         _check_loopback(host)
-        self.app = EsdWebApp(backend, lock)
+        self.app = EsdWebApp(backend, lock, refresh)
         self.host = host
         self.port = port
         self.max_body = max_body
@@ -182,6 +231,7 @@ class EsdWebServer:
         """
         if self._httpd is not None:
             raise EsdWebError("esd web server already started")
+        self.app.closed = False
         try:
             httpd = _HttpServer((self.host, self.port), self.app, self.max_body, self.timeout)
         except OSError as exc:
@@ -197,12 +247,19 @@ class EsdWebServer:
         return url
 
     def stop(self) -> None:
-        """Stop serving, join the thread, close the listening socket; idempotent."""
+        """Stop serving, join the thread, close the listening socket and open connections; idempotent.
+
+        After it returns the backend is not called again, also by a request that still waits for the
+        lock (it gets 503). The caller may hold the lock (the rig stops its devices holding the clock's).
+        """
         httpd, thread = self._httpd, self._thread
         self._httpd = self._thread = None
         if httpd is None:
             return
+        with self.app.lock:
+            self.app.closed = True
         httpd.shutdown()
         if thread is not None:
             thread.join()
+        httpd.close_connections()
         httpd.server_close()
