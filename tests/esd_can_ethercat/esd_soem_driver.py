@@ -33,6 +33,31 @@ def _open(iface: str) -> Any:
     return master
 
 
+def _init(master: Any) -> int:
+    """config_init, repeated when a reply came too late on this shared machine (it then finds 0)."""
+    n = 0
+    for _ in range(10):
+        n = master.config_init()
+        if n > 0:
+            return int(n)
+        time.sleep(0.2)
+    return int(n)
+
+
+def _retry(fn: Any, *args: Any) -> Any:
+    """A mailbox service repeated when this shared machine delayed a reply past SOEM's timeout
+    (pysoem then raises WkcError/PacketError); every call here is idempotent."""
+    for attempt in range(6):
+        try:
+            return fn(*args)
+        except (pysoem.WkcError, pysoem.PacketError, pysoem.ConfigMapError, pysoem.MailboxError,
+                pysoem.SdoInfoError):
+            if attempt == 5:
+                raise
+            time.sleep(0.2)
+    return None
+
+
 def _text(value: Any) -> str:
     return value.decode("latin-1") if isinstance(value, bytes) else str(value)
 
@@ -42,7 +67,11 @@ def _u(raw: bytes) -> int:
 
 
 def _to_op(master: Any) -> str:
-    master.config_map()
+    for _ in range(5):   # the mapping is read by SDO: repeated when a reply came too late
+        _retry(master.config_map)
+        if all(len(sl.input) and len(sl.output) for sl in master.slaves):
+            break
+        time.sleep(0.2)
     master.state_check(pysoem.SAFEOP_STATE, 50_000)
     master.state = pysoem.OP_STATE
     master.send_processdata()
@@ -58,19 +87,19 @@ def _to_op(master: Any) -> str:
 
 def scenario_identity(iface: str) -> dict[str, Any]:
     master = _open(iface)
-    out: dict[str, Any] = {"count": master.config_init()}
+    out: dict[str, Any] = {"count": _init(master)}
     s = master.slaves[0]
     out.update(name=s.name, man=s.man, id=s.id, rev=s.rev)
-    out["device_type"] = _u(s.sdo_read(0x1000, 0))
-    out["device_name"] = s.sdo_read(0x1008, 0).decode()
-    out["hw"] = s.sdo_read(0x1009, 0).decode()
-    out["sw"] = s.sdo_read(0x100A, 0).decode()
-    out["identity"] = [_u(s.sdo_read(0x1018, i)) for i in range(1, 5)]
-    out["sm_types"] = [_u(s.sdo_read(0x1C00, i)) for i in range(0, 5)]
-    od = {obj.index: obj for obj in s.od}
+    out["device_type"] = _u(_retry(s.sdo_read, 0x1000, 0))
+    out["device_name"] = _retry(s.sdo_read, 0x1008, 0).decode()
+    out["hw"] = _retry(s.sdo_read, 0x1009, 0).decode()
+    out["sw"] = _retry(s.sdo_read, 0x100A, 0).decode()
+    out["identity"] = [_u(_retry(s.sdo_read, 0x1018, i)) for i in range(1, 5)]
+    out["sm_types"] = [_u(_retry(s.sdo_read, 0x1C00, i)) for i in range(0, 5)]
+    od = {obj.index: obj for obj in _retry(lambda: s.od)}
     out["od"] = sorted(od)
     out["od_names"] = {hex(i): _text(od[i].name) for i in (0x1600, 0x1A00, 0x6000, 0x7000, 0x8000, 0xF800) if i in od}
-    out["map_1600"] = [_u(s.sdo_read(0x1600, i)) for i in (0, 1, 4)]
+    out["map_1600"] = [_u(_retry(s.sdo_read, 0x1600, i)) for i in (0, 1, 4)]
     out["op"] = _to_op(master)
     out["sizes"] = [len(s.output), len(s.input)]
     master.close()
@@ -95,11 +124,11 @@ def _rx(raw: bytes, off: int, mode: int) -> tuple[int, str]:
 
 def scenario_handshake(iface: str, mode: int) -> dict[str, Any]:
     master = _open(iface)
-    out: dict[str, Any] = {"count": master.config_init()}
+    out: dict[str, Any] = {"count": _init(master)}
     s = master.slaves[0]
-    s.sdo_write(0xF800, 2, bytes([2]))                   # 500 kbit/s (Table 6)
+    _retry(s.sdo_write, 0xF800, 2, bytes([2]))                   # 500 kbit/s (Table 6)
     if mode == 29:
-        s.sdo_write(0x8000, 0x20, (1).to_bytes(2, "little"))
+        _retry(s.sdo_write, 0x8000, 0x20, (1).to_bytes(2, "little"))
     out["op"] = _to_op(master)
     out["sizes"] = [len(s.output), len(s.input)]
     tx_size, rx_size = (12, 10) if mode == 11 else (16, 14)
@@ -144,14 +173,14 @@ def scenario_handshake(iface: str, mode: int) -> dict[str, Any]:
         time.sleep(0.001)
     out.update(acks=acks, rx_batches=rx_batches, received=received, last_tn=tn,
                sent=[(cid, d.hex()) for b in batches for cid, d in b], tx_size=tx_size)
-    out["stats"] = {hex(sub): _u(s.sdo_read(0x2010, sub)) for sub in (0x30, 0x31, 0x32, 0x3C, 0x3E)}
+    out["stats"] = {hex(sub): _u(_retry(s.sdo_read, 0x2010, sub)) for sub in (0x30, 0x31, 0x32, 0x3C, 0x3E)}
     master.close()
     return out
 
 
 def scenario_foe(iface: str, seconds: float) -> dict[str, Any]:
     master = _open(iface)
-    out: dict[str, Any] = {"count": master.config_init()}
+    out: dict[str, Any] = {"count": _init(master)}
     s = master.slaves[0]
     image = b"CAN-EtherCAT firmware 2.7\n" + bytes(range(256)) * 12
     out["preop_result"] = s.foe_write("firmwareUpdate", 0, image, SLOW_US)
@@ -171,8 +200,8 @@ def scenario_foe(iface: str, seconds: float) -> dict[str, Any]:
             break
         time.sleep(0.05)
     out["after_update"] = state
-    out["count_again"] = master.config_init()
-    out["sw"] = master.slaves[0].sdo_read(0x100A, 0).decode()
+    out["count_again"] = _init(master)
+    out["sw"] = _retry(master.slaves[0].sdo_read, 0x100A, 0).decode()
     master.close()
     return out
 
