@@ -77,7 +77,7 @@ def test_rx_batches_wait_for_the_masters_acknowledge(kit: Any) -> None:
     for f in frames:
         kit.peer.send(f)
     _drain(kit, 15)                 # the bus carries all 40 meanwhile; the master does not acknowledge
-    tx, rx, num, _tn = kit.inputs()
+    _tx, rx, num, _tn = kit.inputs()
     assert (rx, num) == (1, 1)      # the first frame found the counters equal
     before = kit.master.pdo_read(0, 0, kit.in_size)
     _drain(kit, 5)

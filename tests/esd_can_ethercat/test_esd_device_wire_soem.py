@@ -82,7 +82,7 @@ def test_soem_runs_both_handshakes_with_several_batches(esd_veth: Any, mode: int
     acknowledged by the Tx counter and sent in order, the echoes read back as Rx batches (at most 16)
     acknowledged by the Rx counter; the Tx transaction number ends at the last frame's; 29-bit
     mode (0x8000:20 bit 0) gives 262/232 bytes."""
-    r, gw = _serve(esd_veth, "handshake", str(mode))
+    r, _gw = _serve(esd_veth, "handshake", str(mode))
     assert r["op"] == "OP" and r["sizes"] == sizes
     assert len(r["acks"]) == 3
     sent = [(cid, data) for cid, data in r["sent"]]
