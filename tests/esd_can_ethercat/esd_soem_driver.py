@@ -6,6 +6,7 @@ Usage: python esd_soem_driver.py INTERFACE SCENARIO [ARGS...]
   identity                      identity, version strings, SDO Info object list, default sizes
   handshake MODE                MODE 11 or 29: F800:02 = 2, Tx batches of 5/16/8 frames that the
                                 emulator's echo node answers (id + 0x100), read back as Rx batches
+  extras                        queue sizes, filter, 0x1A85, 0x2010, every 0xF800 mode, SM watchdog
   foe SECONDS                   FoE refused in PREOP, then BOOT + firmwareUpdate, wait for the reboot
 """
 
@@ -47,14 +48,14 @@ def _init(master: Any) -> int:
 def _retry(fn: Any, *args: Any) -> Any:
     """A mailbox service repeated when this shared machine delayed a reply past SOEM's timeout
     (pysoem then raises WkcError/PacketError); every call here is idempotent."""
-    for attempt in range(6):
+    for attempt in range(20):
         try:
             return fn(*args)
         except (pysoem.WkcError, pysoem.PacketError, pysoem.ConfigMapError, pysoem.MailboxError,
                 pysoem.SdoInfoError):
-            if attempt == 5:
+            if attempt == 19:
                 raise
-            time.sleep(0.2)
+            time.sleep(0.25)
     return None
 
 
@@ -129,6 +130,7 @@ def scenario_handshake(iface: str, mode: int) -> dict[str, Any]:
     _retry(s.sdo_write, 0xF800, 2, bytes([2]))                   # 500 kbit/s (Table 6)
     if mode == 29:
         _retry(s.sdo_write, 0x8000, 0x20, (1).to_bytes(2, "little"))
+    _retry(s.set_watchdog, "processdata", 1000)     # the SDO reads after the run must not trip it
     out["op"] = _to_op(master)
     out["sizes"] = [len(s.output), len(s.input)]
     tx_size, rx_size = (12, 10) if mode == 11 else (16, 14)
@@ -206,12 +208,122 @@ def scenario_foe(iface: str, seconds: float) -> dict[str, Any]:
     return out
 
 
+class Handshake:
+    """The 11-bit counter handshake on one slave's process data, one SOEM cycle per step."""
+
+    def __init__(self, master: Any, slave: Any) -> None:
+        self.master, self.s = master, slave
+        self.outputs = bytearray(len(slave.output))
+        self.tx_counter = self.rx_counter = 0
+        self.received: list[tuple[int, str]] = []
+        self.batches: list[int] = []
+        self.inputs = b""
+
+    def cycle(self) -> None:
+        self.s.output = bytes(self.outputs)
+        self.master.send_processdata()
+        self.master.receive_processdata(RX_TIMEOUT_US)
+        self.inputs = bytes(self.s.input)
+        _tx, in_rx, num, _tn = IN_HDR.unpack_from(self.inputs, 0)
+        if in_rx != self.rx_counter:
+            self.received += [_rx(self.inputs, 8 + 10 * k, 11) for k in range(num)]
+            self.batches.append(num)
+            self.rx_counter = in_rx
+            OUT_HDR.pack_into(self.outputs, 0, self.tx_counter, self.rx_counter, OUT_HDR.unpack_from(self.outputs)[2])
+        time.sleep(0.001)
+
+    def run(self, cycles: int) -> None:
+        for _ in range(cycles):
+            self.cycle()
+
+    def send(self, frames: list[tuple[int, bytes]]) -> bool:
+        """A batch; True once the gateway acknowledged it (input Tx counter == output)."""
+        body = b"".join(_tx11(k + 1, cid, d) for k, (cid, d) in enumerate(frames))
+        self.tx_counter = (self.tx_counter + 1) & 0xFFFF
+        self.outputs[6:6 + len(body)] = body
+        OUT_HDR.pack_into(self.outputs, 0, self.tx_counter, self.rx_counter, len(frames))
+        for _ in range(500):
+            self.cycle()
+            if IN_HDR.unpack_from(self.inputs, 0)[0] == self.tx_counter:
+                return True
+        return False
+
+
+def scenario_extras(iface: str) -> dict[str, Any]:
+    """Queue sizes, a filter area, 0x1A85, a numerical rate, 0x2010 counts, listen-only, no baud rate,
+    autobaud, a wrong rate (bus off in 0x1A85), the SM watchdog (0x2010:08)."""
+    master = _open(iface)
+    out: dict[str, Any] = {"count": _init(master)}
+    s = master.slaves[0]
+    w = _retry
+    w(s.sdo_write, 0x8000, 0x21, bytes([4]))
+    w(s.sdo_write, 0x8000, 0x22, bytes([8]))
+    w(s.sdo_write, 0x8001, 1, (0x100 | 0x1FF << 32).to_bytes(8, "little"))
+    w(s.sdo_write, 0x8001, 0, bytes([1]))
+    w(s.sdo_write, 0x1C13, 0, bytes([0]))
+    w(s.sdo_write, 0x1C13, 2, (0x1A85).to_bytes(2, "little"))
+    w(s.sdo_write, 0x1C13, 0, bytes([2]))
+    w(s.sdo_write, 0xF800, 5, (0x20000000 | 500_000).to_bytes(4, "little"))
+    out["map_sub0"] = [_u(w(s.sdo_read, 0x1600, 0)), _u(w(s.sdo_read, 0x1A00, 0))]
+    # SM watchdog 1 s (ESC 0x0420): the SDO services between cycles must not trip it on this shared VM
+    w(s.set_watchdog, "processdata", 1000)
+    out["op"] = _to_op(master)
+    out["sizes"] = [len(s.output), len(s.input)]
+    h = Handshake(master, s)
+    h.run(5)
+    # echoes of 0x000..0x009 (0x100..0x109) pass the filter, the echo of 0x180 (0x280) does not
+    out["ack1"] = h.send([(i, bytes([i])) for i in range(8)])
+    out["ack2"] = h.send([(8, b"\x08"), (9, b"\x09"), (0x180, b"x")])
+    h.run(60)
+    out["received"] = list(h.received)
+    out["batches"] = list(h.batches)
+    out["status_ok"] = h.inputs[48:54].hex()
+    out["counts"] = {hex(sub): _u(w(s.sdo_read, 0x2010, sub)) for sub in (0x30, 0x31, 0x32, 0x37, 0x38)}
+    modes: dict[str, Any] = {}
+    for name, value in (("listen_only", 0x40000002), ("no_baudrate", 0x7FFFFFFF)):
+        w(s.sdo_write, 0xF800, 5, value.to_bytes(4, "little"))
+        before = len(h.received)
+        aborted = _u(w(s.sdo_read, 0x2010, 0x37))
+        h.send([(0x1, b"lo")])
+        h.run(30)
+        modes[name] = {"rx": len(h.received) - before, "aborted": _u(w(s.sdo_read, 0x2010, 0x37)) - aborted}
+    w(s.sdo_write, 0xF800, 5, (0x00FFFFFE).to_bytes(4, "little"))
+    before = len(h.received)
+    tries = 0
+    while tries < 40 and len(h.received) == before:   # aborted while detecting; two other nodes talk
+        tries += 1
+        h.send([(0x2, b"ab")])
+        h.run(25)
+    modes["autobaud"] = {"rx": h.received[before:], "tries": tries}
+    w(s.sdo_write, 0xF800, 5, (0x20000000 | 250_000).to_bytes(4, "little"))   # wrong rate
+    bus_off = rec = 0
+    aborted = _u(w(s.sdo_read, 0x2010, 0x37))
+    h.send([(0x3, b"w")])
+    for _ in range(60):
+        h.cycle()
+        bus_off |= h.inputs[48] & 0x01
+        rec = max(rec, h.inputs[52])
+    modes["wrong_rate"] = {"bus_off_seen": bus_off, "rec_max": rec, "rx": len(h.received) - before - 1,
+                           "aborted": _u(w(s.sdo_read, 0x2010, 0x37)) - aborted,
+                           "error_frames": _u(w(s.sdo_read, 0x2010, 0x36))}
+    out["modes"] = modes
+    # SM watchdog: no process data for 2 s (watchdog 1 s)
+    time.sleep(2.0)
+    master.read_state()
+    out["after_watchdog"] = [s.state, s.al_status]
+    out["watchdog_count"] = _u(w(s.sdo_read, 0x2010, 0x08))
+    master.close()
+    return out
+
+
 if __name__ == "__main__":
     iface, scenario = sys.argv[1], sys.argv[2]
     if scenario == "identity":
         result = scenario_identity(iface)
     elif scenario == "handshake":
         result = scenario_handshake(iface, int(sys.argv[3]))
+    elif scenario == "extras":
+        result = scenario_extras(iface)
     elif scenario == "foe":
         result = scenario_foe(iface, float(sys.argv[3]))
     else:

@@ -18,20 +18,27 @@ from gatewaylab.ethercat.segment import Segment
 from gatewaylab.ethercat.wire import WireTransport
 
 pytestmark = [pytest.mark.net, pytest.mark.slow]
+CHATTER_ID = 0x7F0
 
 
-def _serve(veth: Any, *args: str, update_duration: float = 1.0) -> tuple[dict[str, Any], Any]:
+def _serve(veth: Any, *args: str, update_duration: float = 1.0, chatter: bool = False) -> tuple[dict[str, Any], Any]:
     """The gateway on a 500 kbit/s bus with an echo node (id + 0x100), served on the veth while the
-    driver runs; returns the driver's JSON and the gateway."""
+    driver runs; with ``chatter`` two more nodes exchange a frame (0x7F0) every 10 ms (autobaud
+    needs them). Returns the driver's JSON and the gateway."""
     clock = RealTimeClock()
     bus = VirtualBus(clock, "can0", bitrate=500_000)
     gw = create_esd_gateway(clock, bus, "esd1", serial=0x4711, update_duration=update_duration)
     echo = bus.attach("echo")
 
     def answer(frame: CanFrame, t: float) -> None:
-        echo.send(CanFrame(frame.can_id + 0x100, frame.data, extended=frame.extended))
+        if frame.can_id != CHATTER_ID:
+            echo.send(CanFrame(frame.can_id + 0x100, frame.data, extended=frame.extended))
 
     echo.on_frame = answer
+    if chatter:
+        talker = bus.attach("talker")
+        bus.attach("listener")
+        clock.call_every(0.01, lambda: talker.send(CanFrame(CHATTER_ID, b"chat")))
     wire = WireTransport(Segment([gw.slave]), veth.emulator_iface, clock, drive_clock=True)
     wire.start()
     try:
@@ -39,7 +46,7 @@ def _serve(veth: Any, *args: str, update_duration: float = 1.0) -> tuple[dict[st
     finally:
         wire.stop()
         gw.stop()
-    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert proc.returncode == 0, " | ".join(proc.stderr.strip().splitlines()[-6:])
     assert not wire.errors
     return json.loads(proc.stdout.strip().splitlines()[-1]), gw
 
@@ -102,3 +109,27 @@ def test_soem_foe_firmware_update_in_boot(esd_veth: Any) -> None:
     assert r["after_update"] & 0x0F == 1
     assert r["count_again"] == 1 and r["sw"] == "2.7"
     assert gw.updates == 1 and gw.reboots == 1
+
+
+def test_soem_queue_sizes_filter_status_pdo_bit_rate_modes_and_watchdog(esd_veth: Any) -> None:
+    """Through SOEM: 0x8000:21/22 = 4/8 resize the mapping (5.1.5.5) and the image (102 B out,
+    48 + 6 B in with 0x1A85 assigned, 5.1.3.9); a filter area 0x100-0x1FF (5.1.5.6); a numerical rate
+    (UBRN); 0x2010 counts (5.1.4.2); listen-only and no baud rate send nothing and count the frame
+    aborted; autobaud finds 500 kbit/s from two other nodes and goes active; a wrong rate receives
+    nothing, counts error frames, shows REC in the 0x1A85 bytes and loses its frame at bus off
+    (5.1.5.8, 5.1.5.9); missing process data trips the SM watchdog (SAFEOP + 0x001B, 0x2010:08 = 1)."""
+    r, _gw = _serve(esd_veth, "extras", chatter=True)
+    assert r["map_sub0"] == [11, 8] and r["op"] == "OP" and r["sizes"] == [102, 54]
+    assert r["ack1"] and r["ack2"]
+    assert [tuple(x) for x in r["received"]] == [(0x100 + i, f"{i:02x}") for i in range(10)]
+    assert max(r["batches"]) <= 4 and sum(r["batches"]) == 10
+    assert r["status_ok"] == "000000000000"
+    assert (r["counts"]["0x30"], r["counts"]["0x31"], r["counts"]["0x32"], r["counts"]["0x37"]) == (11, 11, 10, 0)
+    assert r["counts"]["0x38"] >= 11
+    modes = r["modes"]
+    assert modes["listen_only"] == {"rx": 0, "aborted": 1}
+    assert modes["no_baudrate"] == {"rx": 0, "aborted": 1}
+    assert [tuple(x) for x in modes["autobaud"]["rx"]] == [(0x102, "6162")]
+    wrong = modes["wrong_rate"]
+    assert wrong["rx"] == 0 and wrong["aborted"] == 1 and wrong["error_frames"] > 0 and wrong["rec_max"] > 0
+    assert r["after_watchdog"] == [0x14, 0x001B] and r["watchdog_count"] == 1

@@ -678,15 +678,20 @@ class _FirmwareFiles:
         """The gateway offers no files."""
         raise FoeError(f"no file {name!r}", FoeErrorCode.NOT_FOUND)
 
-    def foe_write(self, name: str, password: int, data: bytes) -> None:
-        """Start the update, or refuse with the FoE error code."""
-        g = self.gateway
+    def foe_check_write(self, name: str, password: int) -> None:
+        """The write request itself is refused (before any data) for another file name, another
+        state than BOOT or another password."""
         if name != FIRMWARE_FILE:
             raise FoeError(f"no file {name!r} (only {FIRMWARE_FILE!r})", FoeErrorCode.NOT_FOUND)
-        if g.slave.state != AlState.BOOT:
+        if self.gateway.slave.state != AlState.BOOT:
             raise FoeError("firmware updates only in BOOT", FoeErrorCode.BOOTSTRAP_ONLY)
         if password != FIRMWARE_PASSWORD:
             raise FoeError("wrong password", FoeErrorCode.NO_RIGHTS)
+
+    def foe_write(self, name: str, password: int, data: bytes) -> None:
+        """Start the update, or refuse with the FoE error code."""
+        g = self.gateway
+        self.foe_check_write(name, password)
         try:
             g.start_update(data)
         except ValueError as exc:
