@@ -172,3 +172,15 @@ def test_rig_web_port_in_use_fails_cleanly() -> None:
         participant = second.participants[0]
         assert participant.web is None and participant.gateway.controller is None
         second.close()
+
+
+def test_foe_write_request_outside_boot_is_refused_before_any_data(kit: Any) -> None:
+    """5.3.1 step 2 (Bootstrap first): the write request itself gets the FoE error 0x8008, so a master
+    sends no data packet in vain (ETG.1000.6 FoE: an ERR packet may answer a WRQ)."""
+    from gatewaylab.ethercat.foe import FOE_HEADER, FoeOpcode, foe_packet
+    from gatewaylab.ethercat.mailbox import MailboxType
+
+    kit.preop()
+    reply = kit.master.mailbox_exchange(0, MailboxType.FOE, foe_packet(FoeOpcode.WRQ, 0, b"firmwareUpdate"))
+    opcode, _res, code = FOE_HEADER.unpack_from(reply.data, 0)
+    assert (opcode, code) == (FoeOpcode.ERR, FoeErrorCode.BOOTSTRAP_ONLY)
