@@ -290,3 +290,13 @@ def test_num_tx_above_the_queue_size_is_limited_to_it(kit: Any) -> None:
     kit.master.pdo_write(0, 0, OUT_HEADER.pack(1, 0, 999) + body)
     kit.cycle(10)
     assert kit.heard == _frames(16) and kit.master.sdo_upload32(0, 0x2010, 0x30) == 16
+
+
+def test_coe_read_of_the_tx_queue_objects_shows_the_outputs(kit: Any) -> None:
+    """5.1.5.3: 0x7000:01-03 and the Tx messages are the mapped outputs: an SDO upload in OP returns
+    what the master wrote in the last cycle (decoded from the image, not stored every cycle)."""
+    kit.op()
+    kit.send([CanFrame(0x321, b"\x01\x02")], first_tn=77)
+    m = kit.master
+    assert [m.sdo_upload16(0, 0x7000, s) for s in (1, 2, 3)] == [1, 0, 1]
+    assert m.sdo_upload(0, 0x7000, 4) == encode_tx11(77, CanFrame(0x321, b"\x01\x02"))

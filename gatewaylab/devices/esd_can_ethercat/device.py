@@ -132,6 +132,10 @@ class EsdGateway(SlaveApplication):
     the real device; a few seconds here, on the clock). Call :meth:`start` to attach to the bus.
     """
 
+    #: The handshake parses the raw outputs: up to 148 Tx messages are not decoded into 0x7000 every
+    #: cycle; a CoE read of 0x7000/0x7001 decodes them from the outputs image.
+    store_outputs = False
+
     def __init__(self, clock: Clock, bus: VirtualBus | None, name: str = "CAN-EtherCAT", serial: int = 0,
                  update_duration: float = 3.0) -> None:
         self.clock = clock
