@@ -4,8 +4,9 @@
 receive to the master seeing the frame in its inputs (median / p99), late EtherCAT cycles.
 
 Needs root (network namespace + veth); prints why and returns otherwise. GL_BENCH_SECONDS shortens
-the run (default 60 s). The master runs in a subprocess inside the namespace on CPU 0, the
-emulator's busy-polling wire thread (which also runs the clock, the bus and the CAN node) on CPU 1.
+the run (default 60 s); GL_BENCH_DEBUG=1 adds the latency per 1,000 frames. The master runs in a
+subprocess inside the namespace on CPU 0, the emulator's busy-polling wire thread (which also runs
+the clock, the bus and the CAN node) on CPU 1.
 Both sides stamp with CLOCK_MONOTONIC (one host), so latencies need no clock sync.
 """
 
@@ -219,6 +220,11 @@ def main() -> None:
     seen = {int(k): v for k, v in r["rx_seen"].items()}
     lat = [(seen[s] - t) / 1000.0 for s, t in node.received_at.items() if s in seen]
     rx_lost = node.sent - sum(1 for s in range(node.sent) if s in seen)
+    if os.environ.get("GL_BENCH_DEBUG"):
+        for sec in range(0, node.sent, 1000):
+            window = [(seen[q] - node.received_at[q]) / 1000.0 for q in range(sec, min(sec + 1000, node.sent))
+                      if q in seen and q in node.received_at]
+            print(f"  frames {sec}..: median {statistics.median(window):9.1f} us  max {max(window):9.1f} us")
     tx_lost = r["tx_committed"] - len(node.tx_heard)
     in_order = node.tx_heard == sorted(node.tx_heard)
     print(f"esd CAN-EtherCAT over veth: pysoem at 1 kHz for {seconds:.0f} s (+{DRAIN_S:.0f} s drain), "
