@@ -17,8 +17,11 @@ from esd_web_kit import (
     request,
     serving,
 )
+from hypothesis import given
+from hypothesis import strategies as st
 
 from gatewaylab.devices.esd_can_ethercat.web import format_can_status
+from gatewaylab.devices.esd_can_ethercat.web_pages import EsdWebApp, Request
 
 PAGES = ("/", "/firmware", "/reboot", "/status/can", "/information", "/contact")
 MENU = ("Overview", "Configuration", "Firmware update", "Reboot", "Status", "CAN", "Information", "Contact")
@@ -154,16 +157,21 @@ def test_every_value_is_html_escaped(backend: FakeBackend) -> None:
         assert "<script>" not in page and html.escape(evil) in page
 
 
-@pytest.mark.parametrize("path", ["/nope", "/status", "/status/can/x", "/../etc/passwd", "/firmware.html"])
+@pytest.mark.parametrize("path", ["/nope", "/status", "/status/can/x", "/../etc/passwd", "/firmware.html", "//[",
+                                  "http://127.0.0.1/status/cane"])
 def test_unknown_paths_answer_404(url: str, path: str) -> None:
     """Only the pages of chapter 6 exist; anything else is 404 in the device's frame."""
     reply = request(url, "GET", path)
     assert reply.status == 404 and "404 Not Found" in reply.text
 
 
-def test_query_strings_do_not_change_the_page(url: str) -> None:
-    """A browser may append a query (cache busting); the page is the same."""
-    assert request(url, "GET", "/status/can?x=1").status == 200
+@pytest.mark.parametrize("target", ["/status/can?x=1", "/status/can#top", "http://127.0.0.1/status/can",
+                                    "HTTP://localhost:80/status/can?y"])
+def test_query_strings_and_absolute_form_reach_the_page(url: str, target: str) -> None:
+    """A browser may append a query (cache busting); a client may send the absolute-form target
+    (RFC 9112 3.2.2: a server must accept it): the same page."""
+    reply = request(url, "GET", target)
+    assert reply.status == 200 and '<pre id="can">' in reply.text
 
 
 @pytest.mark.parametrize(("method", "path", "allow"), [
@@ -186,3 +194,17 @@ def test_head_answers_headers_only(url: str) -> None:
     head = request(url, "HEAD", "/status/can")
     assert head.status == 200 and head.body == b""
     assert head.headers["content-length"] == str(len(get.body))
+
+
+@given(st.sampled_from(["GET", "HEAD", "POST", "PUT", "DELETE", "X"]),
+       st.one_of(st.sampled_from(["/", "/firmware", "/reboot", "/status/can", "/information", "/contact"]),
+                 st.text(max_size=40)),
+       st.text(max_size=60), st.binary(max_size=200))
+def test_pages_answer_any_request_without_raising(method: str, target: str, content_type: str, body: bytes) -> None:
+    """The sans-I/O pages (EsdWebApp) answer any request line, content type and body with a page, a
+    redirect or a 4xx, never an exception (no traceback can reach a client)."""
+    backend = FakeBackend(OwnedLock())
+    app = EsdWebApp(backend, backend.lock)
+    response = app.handle(Request(method, target, content_type, body))
+    assert response.status in {200, 303, 400, 404, 405, 415}
+    assert backend.calls_outside_lock == []

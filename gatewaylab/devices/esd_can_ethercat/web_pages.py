@@ -24,7 +24,6 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from email.message import Message
 from typing import Protocol, TypeVar
-from urllib.parse import urlsplit
 
 __all__ = [
     "CanStatusView",
@@ -258,6 +257,16 @@ table.info td{padding:2px 12px 2px 0}
 """
 
 
+def _path(target: str) -> str:
+    """The path of a request target: origin-form ``/path?query`` or absolute-form
+    ``http://host/path`` (RFC 9112 3.2: a server must accept both); never raises."""
+    if target[:8].lower().startswith(("http://", "https://")):
+        authority_and_path = target.partition("://")[2]
+        slash = authority_and_path.find("/")
+        target = authority_and_path[slash:] if slash >= 0 else "/"
+    return target.partition("?")[0].partition("#")[0]
+
+
 def _e(value: object) -> str:
     """HTML-escape any value (manual text and backend values alike)."""
     return html.escape(str(value), quote=True)
@@ -287,14 +296,14 @@ class EsdWebApp:
 
     def allowed(self, target: str) -> tuple[str, ...] | None:
         """Methods ``target`` answers (HEAD with GET), or None for an unknown path."""
-        methods = self._routes.get(urlsplit(target).path)
+        methods = self._routes.get(_path(target))
         if methods is None:
             return None
         return (*methods, "HEAD") if "GET" in methods else tuple(methods)
 
     def handle(self, request: Request) -> Response:
         """Answer one request: a page, 303 after an accepted upload, 4xx for anything wrong."""
-        methods = self._routes.get(urlsplit(request.target).path)
+        methods = self._routes.get(_path(request.target))
         if methods is None:
             return self.error(404, "Not Found", "There is no such page on this device.")
         method = "GET" if request.method == "HEAD" else request.method
