@@ -138,6 +138,7 @@ def test_web_backend_views(kit: Any) -> None:
     assert (s.bitrate_set, s.bitrate_actual, s.time_quanta, s.sample_point) == ("0x00000002", 500_000, 20, 85.0)
     assert (s.tx_std_data, s.tx_std_rtr, s.rx_std_data, s.rx_bytes, s.tx_bytes) == (1, 1, 1, 4, 3)
     assert (s.status, s.rx_error_counter, s.tx_error_counter) == ("00", 0, 0)
+    assert s.rx_bits > 4 * 8 + 44          # a 4-byte frame: 44 bits of frame overhead, data, stuffing
 
 
 def _rig(web_port: int) -> Any:

@@ -35,6 +35,7 @@ from ...bus.bus import (
     VirtualBus,
 )
 from ...bus.frame import CanFrame
+from ...bus.timing import classic_bits
 from ...common.clock import Clock, TimerHandle
 from ...ethercat.errors import AlStatusCode, FoeError, FoeErrorCode
 from ...ethercat.esc import AlState
@@ -104,6 +105,7 @@ class GatewayStats:
     tx_ext_rtr: int = 0          # :3F
     rx_bytes: int = 0
     tx_bytes: int = 0
+    rx_bits: int = 0             # Figure 41 'Rcv bits' (stuffing as the bus model counts it)
 
 
 class _Window:
@@ -395,6 +397,7 @@ class EsdGateway(SlaveApplication):
         else:
             st.rx_std += 1
         st.rx_bytes += len(frame.data)
+        st.rx_bits += classic_bits(frame.extended, len(frame.data))
         if self.setting.mode is br.Mode.AUTOBAUD and not self.detected:
             self._autobaud_found()
         if (self.extended or not frame.extended) and self._passes(frame):

@@ -58,7 +58,7 @@ class EsdWebModel:
             tx_std_data=st.tx_std, tx_std_rtr=st.tx_std_rtr, tx_ext_data=st.tx_ext, tx_ext_rtr=st.tx_ext_rtr,
             rx_bytes=st.rx_bytes, tx_bytes=st.tx_bytes, overruns=0, error_frames=st.error_frames,
             aborted_frames=st.aborted, rx_error_counter=min(rec, 255), tx_error_counter=min(tec, 255),
-            status=f"{status:02X}", fifo_overruns=st.fifo_overrun, deviation=deviation,
+            status=f"{status:02X}", fifo_overruns=st.fifo_overrun, deviation=deviation, rx_bits=st.rx_bits,
             timestamp=int(g.clock.now() * 500_000))
 
     def start_firmware_update(self, filename: str, data: bytes) -> None:
