@@ -118,6 +118,10 @@ class Slave:
         self._inputs = bytearray(self.input_bytes)
         self._outputs = bytes(self.output_bytes)
         self.outputs_valid = False
+        #: Store every received output image into its mapped objects (the default). A device whose
+        #: outputs are one byte stream (ECAN-Lite's 8 x N STRING(16) units) turns it off and decodes
+        #: the mapped objects from :attr:`outputs` in a read hook instead: no per-unit work per cycle.
+        self.mirror_outputs = True
         self._inputs_one_buffer = False
         self.cycles = 0
         self._unbind: list[Callable[[], None]] = []
@@ -229,7 +233,8 @@ class Slave:
         if esc.mem[REG_AL_STATUS] & 0x0F == AlState.OP:  # hot path: no enum construction
             self._outputs = data if len(data) == self.output_bytes else data[:self.output_bytes]
             self.outputs_valid = True
-            self._store_outputs()
+            if self.mirror_outputs:
+                self._store_outputs()
             self.app.on_outputs(self, self._outputs)
 
     def sync0(self, t: float) -> None:
