@@ -1,0 +1,897 @@
+"""The ECAN-Lite frame-stream PDO codec (manual chapters 6-11, 13.2, 13.8): the one copy of the format.
+
+Both PDO directions carry the same image of ``128*N`` bytes (5.2): a 24-byte little-endian fixed
+header (chapter 6) and, from offset 24, a stream of packets (chapter 8): CAN_FRAME (KIND 0) and,
+in the TxPDO only, TX_RESULT (KIND 1, chapter 10). The device parses the RxPDO and builds the
+TxPDO with this module; the host library (issue 12) does the opposite with the same functions.
+
+- :func:`encode_stream` / :func:`encode_into` build an image (packets, zeroed unused area, CRC,
+  layout_id, header written last with seq_end == seq_begin, 5.4.4.1 step 4).
+- :func:`commit_state` tells a new image from an idempotent repeat and from a torn one (6.1).
+- :func:`decode_stream` checks header and packets in the order of 6.1 and raises
+  :class:`StreamError` with the LastPDOError code of 13.2 and a parse diagnostic (16.2); it never
+  raises anything else, whatever the bytes.
+- :func:`packet_size` is the length a packet occupies (8.3, with ALIGN4), for the budget.
+
+What a packet may carry depends on the active profile word of its direction (:class:`StreamLayout`,
+chapter 9) and on the device's feature flags (0xF000:16, 13.8); choices the manual leaves open
+are listed in docs/decisions.md under "ECAN-Lite frame stream (issue 10)".
+"""
+
+from __future__ import annotations
+
+import binascii
+import enum
+import struct
+import zlib
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+from ...bus.frame import FD_DLC_TO_LEN, FD_LEN_TO_DLC, MAX_EXT_ID, MAX_STD_ID, CanFrame
+from ...common.errors import LocalError, ProtocolError
+from .budget import BudgetPolicy
+
+__all__ = [
+    "CRC_ALG_CCITT_FALSE", "DEFAULT_FEATURES", "HEADER_SIZE", "MAX_CHANNELS", "MAX_FRAME_COUNT",
+    "OPTION_MASK", "PROFILE_MASK", "TIMESTAMP_UNIT_S", "VER_IHL",
+    "ApplyStatus", "CanPacket", "Commit", "DecodedStream", "Direction", "Feature", "HeaderFlags",
+    "Option", "PacketKind", "ParseDiag", "PdoError", "StreamEncodeError", "StreamError",
+    "StreamHeader", "StreamLayout", "Tsf", "TxResultCode", "TxResultPacket",
+    "check_layout", "check_options", "commit_state", "crc16", "decode_stream", "dlc_to_len",
+    "encode_into", "encode_stream", "fold_layout_id", "next_seq", "packet_size", "profile_word",
+    "saturate_u8",
+]
+
+#: ver_ihl: version 1 in the high nibble, 6 four-byte words in the low nibble (chapter 6).
+VER_IHL = 0x16
+HEADER_SIZE = 24
+#: crc_alg value for CRC-16/CCITT-FALSE (chapter 6); 0 with NO_CRC16_ENABLE (9.1).
+CRC_ALG_CCITT_FALSE = 1
+#: 0xF000:14 Max CAN channels.
+MAX_CHANNELS = 4
+#: frame_count is one byte (chapter 6).
+MAX_FRAME_COUNT = 255
+#: 0xF000:12 Encapsulation profile mask: profiles 0, 1, 4, 5.
+PROFILE_MASK = 0x33
+#: 0xF000:15 PDO option flags mask.
+OPTION_MASK = 0x1F
+#: One tick of delta16/delta32/full64 timestamps (8.4 gives no unit; docs/decisions.md).
+TIMESTAMP_UNIT_S = 1e-6
+
+
+class PdoError(enum.IntEnum):
+    """LastPDOError, 0x8010/0x8011:14 (13.2 "Last PDO error common values"); 1 is not defined."""
+
+    OK = 0
+    FRAME_OVERRUN = 2
+    PACKET_OVERRUN = 3
+    UNKNOWN_KIND = 4
+    INVALID_DLC = 5
+    INVALID_CHANNEL = 6
+    INVALID_TSF = 7
+    TRUNCATED = 8
+    UNSUPPORTED_PROFILE = 9
+    DUPLICATE_SEQUENCE = 10
+    UNSUPPORTED_OPTION = 11
+    ACTIVE_AREA = 12
+    RESERVED_BIT = 13
+    BAD_HEADER = 14
+    BAD_CRC = 15
+    BAD_SCHEDULE = 16
+
+
+class ApplyStatus(enum.IntEnum):
+    """0x8010/0x8011:02 Status (13.2 "Status common values"); 6 is not defined."""
+
+    OK = 0
+    INVALID_STATE = 1
+    INVALID_MULTIPLIER = 2
+    INVALID_CHANNEL_MASK = 3
+    INVALID_PROFILE = 4
+    MAPPING_RELOAD_REQUIRED = 5
+    ENCAPSULATION_ERROR = 7
+    OVERFLOW = 8
+    PENDING_APPLY = 9
+    UNSUPPORTED_OPTION = 10
+
+
+class TxResultCode(enum.IntEnum):
+    """TX_RESULT ResultCode (chapter 10)."""
+
+    OK = 0
+    QUEUED = 1
+    BUS_BUSY = 2
+    INVALID_CHANNEL = 3
+    TX_FIFO_FULL = 4
+    BUS_OFF = 5
+
+
+class HeaderFlags(enum.IntFlag):
+    """header_flags bits 0-5 (chapter 6); bits 6/7 are written 0 and ignored on receipt."""
+
+    STREAM_TRUNCATED = 0x01
+    ANY_CHANNEL_ERROR = 0x02
+    TX_RESULT_PRESENT = 0x04
+    STATUS_CHANGED = 0x08
+    SEQ_WRAP = 0x10
+    OVERFLOW_SAT_VALID = 0x20
+
+
+class Option(enum.IntFlag):
+    """Option flags 0x8010/0x8011:07 (9.1); bits 5-7 are reserved (apply status 10)."""
+
+    TX_RESULT_ENABLE = 0x01
+    ALIGN_4_ENABLE = 0x02
+    NO_CRC16_ENABLE = 0x04
+    APP_BYPASS_ENABLE = 0x08
+    PAYLOAD_ONLY_ENABLE = 0x10
+
+
+class Feature(enum.IntFlag):
+    """PDO feature flags 0xF000:16 (13.8): what the device can do at all."""
+
+    TX_RESULT = 1 << 0
+    TSF_DELTA16 = 1 << 1
+    TSF_DELTA32 = 1 << 2
+    TSF_FULL64 = 1 << 3
+    D64 = 1 << 4
+    ALIGN4 = 1 << 5
+    STREAM_CRC32 = 1 << 6
+    RX_TSF_SCHEDULE_TX = 1 << 8
+    NO_CRC16 = 1 << 9
+    APP_BYPASS = 1 << 10
+    PAYLOAD_ONLY = 1 << 11
+    FINE_BYPASS = 1 << 12
+
+
+_NO_FLAGS = HeaderFlags(0)
+
+#: 0xF000:16 default 0x00001F3B (13.8): no delta32, no stream CRC32.
+DEFAULT_FEATURES = 0x1F3B
+
+
+class Tsf(enum.IntEnum):
+    """Control-word TSF: timestamp field size 0/2/4/8 bytes (8.4)."""
+
+    NONE = 0
+    DELTA16 = 1
+    DELTA32 = 2
+    FULL64 = 3
+
+
+class PacketKind(enum.IntEnum):
+    """Control-word KIND (chapter 8): only CAN_FRAME and TX_RESULT exist today; 2/3 are refused."""
+
+    CAN_FRAME = 0
+    TX_RESULT = 1
+    STREAM_META = 2
+    RESERVED = 3
+
+
+class Direction(enum.Enum):
+    """Which PDO an image is: they differ in TSF meaning (8.4) and in TX_RESULT (chapter 10)."""
+
+    #: TxPDO / SM3 / inputs, slave to master, profile object 0x8010.
+    TX = "tx"
+    #: RxPDO / SM2 / outputs, master to slave, profile object 0x8011.
+    RX = "rx"
+
+
+class Commit(enum.Enum):
+    """What a received image is relative to the last one processed (6.1, 13.8 last note)."""
+
+    #: seq_begin == seq_end and a sequence not just processed: parse it.
+    NEW = "new"
+    #: The image just processed, byte for byte again: an idempotent no-op, not an error.
+    SAME = "same"
+    #: seq_begin != seq_end: half written, ignore this cycle.
+    TORN = "torn"
+    #: The sequence just processed with different contents: LastPDOError 10.
+    DUPLICATE = "duplicate"
+
+
+_TSF_BYTES = (0, 2, 4, 8)
+_HEADER = struct.Struct("<BBHHHHHBBBB4H")
+_HEADER_SEQ_END = struct.Struct("<H")
+_U16 = struct.Struct("<H")
+_U32 = struct.Struct("<I")
+_U64 = struct.Struct("<Q")
+_CTRL_STD = struct.Struct("<HH")
+_CTRL_EXT = struct.Struct("<HI")
+_SCHEDULE = struct.Struct("<BBHI")
+_TX_RESULT = struct.Struct("<HHBB")
+_LAYOUT_CRC = struct.Struct("<IHH")
+#: Control-word bits a TX_RESULT leaves 0: DLC, IDE, FDF, BRS, X, TSF, D64 (chapter 10: CH + KIND).
+_TX_RESULT_CTRL_ZERO = 0x9FF8
+_ZERO64 = bytes(64)
+
+
+def dlc_to_len(dlc: int) -> int:
+    """CAN / CAN FD DLC -> data bytes (8.2 table)."""
+    return FD_DLC_TO_LEN[dlc]
+
+
+def crc16(data: bytes | bytearray | memoryview) -> int:
+    """CRC-16/CCITT-FALSE (poly 0x1021, init 0xFFFF, no reflection, xorout 0; 5.4.4.1)."""
+    return binascii.crc_hqx(data, 0xFFFF)
+
+
+def profile_word(multiplier: int, channel_mask: int, profile: int, budget_policy: int, options: int) -> int:
+    """The Active profile word 0x8010/0x8011:12 (13.2 bit table; the layout_word of 5.4.4.1)."""
+    return (((multiplier - 1) & 0x1F) | ((channel_mask & 0xFF) << 5) | ((profile & 0x3F) << 13)
+            | ((budget_policy & 0x03) << 19) | ((options & 0xFF) << 21))
+
+
+def fold_layout_id(word: int) -> int:
+    """layout_id = (layout_word ^ (layout_word >> 16)) & 0xFFFF (5.4.4.1 step 3)."""
+    return (word ^ (word >> 16)) & 0xFFFF
+
+
+def saturate_u8(n: int) -> int:
+    """overflow_sat saturates at 255 (6.1) and is never negative."""
+    return 0 if n < 0 else (255 if n > 255 else n)
+
+
+def next_seq(seq: int) -> tuple[int, bool]:
+    """The next publish sequence (16-bit wrap, 6.1) and whether it wrapped (SEQ_WRAP)."""
+    nxt = (seq + 1) & 0xFFFF
+    return nxt, nxt == 0
+
+
+def check_options(options: int) -> ApplyStatus:
+    """Apply status for an option byte (9.1): reserved bits 5-7 (or > 8 bits) -> 10 unsupported."""
+    return ApplyStatus.OK if 0 <= options <= 0xFF and not options & ~OPTION_MASK else ApplyStatus.UNSUPPORTED_OPTION
+
+
+def check_layout(multiplier: int, channel_mask: int, profile: int, budget_policy: int, options: int,
+                 *, max_multiplier: int = 24, channels: int = MAX_CHANNELS) -> ApplyStatus:
+    """The apply status a requested profile gets on its own merits (13.2 status table, 13.8 limits).
+
+    State (1) and mapping (5) checks need the EtherCAT state and 0x1C12/0x1C13: the device adds them.
+    """
+    if not 1 <= multiplier <= max_multiplier:
+        return ApplyStatus.INVALID_MULTIPLIER
+    if not 0 <= channel_mask <= 0xFF or channel_mask >> channels:
+        return ApplyStatus.INVALID_CHANNEL_MASK
+    if not 0 <= profile <= 0x3F or not (PROFILE_MASK >> profile) & 1 or budget_policy not in (0, 1, 2):
+        return ApplyStatus.INVALID_PROFILE
+    return check_options(options)
+
+
+@dataclass(frozen=True, slots=True)
+class StreamLayout:
+    """One direction's active profile (0x8010 or 0x8011 after apply): what an image looks like.
+
+    ``direction`` is not part of the profile word but decides what packets may appear (8.4,
+    chapter 10): the device's RxPDO layout is ``Direction.RX``, its TxPDO layout ``Direction.TX``.
+    ``features`` is 0xF000:16; tests raise it to exercise capabilities the product leaves off.
+    """
+
+    multiplier: int = 8
+    channel_mask: int = 0x0F
+    profile: int = 0
+    budget_policy: int = BudgetPolicy.BALANCED
+    options: int = 0
+    direction: Direction = Direction.RX
+    features: int = DEFAULT_FEATURES
+    # Derived once (the hot loops read these instead of recomputing them per packet).
+    _tsf_ok: int = field(init=False, repr=False, compare=False, default=0)
+    _d64_ok: bool = field(init=False, repr=False, compare=False, default=False)
+    _tx_result_ok: bool = field(init=False, repr=False, compare=False, default=False)
+    _schedule_ok: bool = field(init=False, repr=False, compare=False, default=False)
+    _rx: bool = field(init=False, repr=False, compare=False, default=True)
+    _align4: bool = field(init=False, repr=False, compare=False, default=False)
+    _crc: bool = field(init=False, repr=False, compare=False, default=True)
+
+    def __post_init__(self) -> None:
+        status = check_layout(self.multiplier, self.channel_mask, self.profile, int(self.budget_policy),
+                              self.options)
+        if status is not ApplyStatus.OK:
+            raise LocalError(f"not an ECAN-Lite layout ({status.name}): {self!r}")
+        object.__setattr__(self, "budget_policy", BudgetPolicy(self.budget_policy))
+        feat = self.features
+        tx = self.direction is Direction.TX
+        stamps = self.profile in (1, 5)
+        tsf_ok = 1 << Tsf.NONE
+        if tx and stamps:
+            for tsf, bit in ((Tsf.DELTA16, Feature.TSF_DELTA16), (Tsf.DELTA32, Feature.TSF_DELTA32),
+                             (Tsf.FULL64, Feature.TSF_FULL64)):
+                if feat & bit:
+                    tsf_ok |= 1 << tsf
+        schedule_ok = not tx and bool(feat & Feature.RX_TSF_SCHEDULE_TX)
+        if schedule_ok:
+            tsf_ok |= 1 << Tsf.FULL64
+        object.__setattr__(self, "_tsf_ok", tsf_ok)
+        object.__setattr__(self, "_schedule_ok", schedule_ok)
+        object.__setattr__(self, "_rx", not tx)
+        object.__setattr__(self, "_d64_ok", self.profile in (4, 5) and bool(feat & Feature.D64))
+        object.__setattr__(self, "_tx_result_ok",
+                           tx and bool(self.options & Option.TX_RESULT_ENABLE) and bool(feat & Feature.TX_RESULT))
+        object.__setattr__(self, "_align4", bool(self.options & Option.ALIGN_4_ENABLE))
+        object.__setattr__(self, "_crc", not self.options & Option.NO_CRC16_ENABLE)
+
+    @classmethod
+    def default(cls, direction: Direction = Direction.RX) -> StreamLayout:
+        """The power-on requested profile (9.2): N 8, mask 0x0F, profile 0, Balanced, options 0."""
+        return cls(direction=direction)
+
+    @property
+    def pdo_bytes(self) -> int:
+        """ActivePDOBytes = 128 * N (5.2)."""
+        return 128 * self.multiplier
+
+    @property
+    def frame_area_bytes(self) -> int:
+        """ActiveFrameAreaBytes = ActivePDOBytes - 24 (5.2)."""
+        return 128 * self.multiplier - HEADER_SIZE
+
+    @property
+    def profile_word(self) -> int:
+        """Active profile word 0x8010/0x8011:12 (13.2)."""
+        return profile_word(self.multiplier, self.channel_mask, self.profile, self.budget_policy, self.options)
+
+    @property
+    def layout_id(self) -> int:
+        """The header's layout_id: the profile word folded to 16 bits (5.4.4.1)."""
+        return fold_layout_id(self.profile_word)
+
+    @property
+    def layout_crc(self) -> int:
+        """Active layout CRC 0x8010/0x8011:11: CRC32 (zlib) of profile word, PDO and frame-area
+        bytes, little-endian (11 names it, nothing defines it; docs/decisions.md)."""
+        return zlib.crc32(_LAYOUT_CRC.pack(self.profile_word, self.pdo_bytes, self.frame_area_bytes))
+
+    @property
+    def align4(self) -> bool:
+        """ALIGN_4_ENABLE: packets padded to 4 bytes, padding counted in payload_len (8.3)."""
+        return self._align4
+
+    @property
+    def crc_enabled(self) -> bool:
+        """payload_crc16 in use (crc_alg 1) unless NO_CRC16_ENABLE (9.1)."""
+        return self._crc
+
+    @property
+    def channels(self) -> tuple[int, ...]:
+        """The enabled channels of this direction, ascending."""
+        return tuple(ch for ch in range(MAX_CHANNELS) if self.channel_mask >> ch & 1)
+
+    def allows_tsf(self, tsf: Tsf | int) -> bool:
+        """Whether a CAN_FRAME may carry this TSF here (chapter 9 profiles, 8.4 directions)."""
+        return bool(self._tsf_ok >> tsf & 1)
+
+
+@dataclass(frozen=True, slots=True)
+class StreamHeader:
+    """The 24-byte fixed header (chapter 6), field by field."""
+
+    header_flags: HeaderFlags = _NO_FLAGS
+    seq_begin: int = 0
+    seq_end: int = 0
+    payload_len: int = 0
+    payload_crc16: int = 0
+    layout_id: int = 0
+    channel_mask: int = 0
+    frame_count: int = 0
+    overflow_sat: int = 0
+    crc_alg: int = CRC_ALG_CCITT_FALSE
+    channel_status: tuple[int, int, int, int] = (0, 0, 0, 0)
+    ver_ihl: int = VER_IHL
+
+    @property
+    def version(self) -> int:
+        """Header version (high nibble of ver_ihl): 1."""
+        return self.ver_ihl >> 4
+
+    @property
+    def ihl(self) -> int:
+        """Header length in 4-byte words (low nibble of ver_ihl): 6."""
+        return self.ver_ihl & 0x0F
+
+    @property
+    def committed(self) -> bool:
+        """seq_begin == seq_end: the sender finished this image (6.1)."""
+        return self.seq_begin == self.seq_end
+
+    @property
+    def incomplete(self) -> bool:
+        """overflow_sat != 0 or STREAM_TRUNCATED: frames were left out of this cycle (6.1 step 8)."""
+        return self.overflow_sat != 0 or bool(self.header_flags & HeaderFlags.STREAM_TRUNCATED)
+
+    def pack(self) -> bytes:
+        """The 24 header bytes."""
+        return _HEADER.pack(self.ver_ihl, self.header_flags, self.seq_begin, self.seq_end, self.payload_len,
+                            self.payload_crc16, self.layout_id, self.channel_mask, self.frame_count,
+                            self.overflow_sat, self.crc_alg, *self.channel_status)
+
+    @classmethod
+    def unpack(cls, image: bytes | bytearray | memoryview) -> StreamHeader:
+        """The header of an image; an image shorter than 24 bytes is StreamError ACTIVE_AREA."""
+        if len(image) < HEADER_SIZE:
+            raise StreamError(PdoError.ACTIVE_AREA, ParseDiag(reason=f"image of {len(image)} bytes has no header"))
+        (ver_ihl, flags, seq_begin, seq_end, payload_len, crc, layout_id, mask, count, overflow, crc_alg,
+         s0, s1, s2, s3) = _HEADER.unpack_from(image, 0)
+        return cls(HeaderFlags(flags & 0x3F), seq_begin, seq_end, payload_len, crc, layout_id, mask, count,
+                   overflow, crc_alg, (s0, s1, s2, s3), ver_ihl)
+
+
+@dataclass(frozen=True, slots=True)
+class CanPacket:
+    """A CAN_FRAME packet (8.1): one CAN / CAN FD frame of a channel.
+
+    ``timestamp`` is the raw delta16/delta32/full64 value in :data:`TIMESTAMP_UNIT_S` ticks
+    (TxPDO). In the RxPDO, ``tsf=FULL64`` with ``scheduled`` is the SYNC0 reservation of 8.4/13.8:
+    ``offset_ns`` after the next SYNC0, ``tag`` the master's own 16 bits. ``dlc`` is only needed
+    for classic remote frames (data length 0, DLC = requested length); -1 derives it from ``data``.
+    ``d64`` sends the data in a fixed 64-byte window (profiles 4/5). ``id_aux`` is ID_AUX (8.1).
+    """
+
+    channel: int
+    can_id: int
+    extended: bool = False
+    fd: bool = False
+    brs: bool = False
+    rtr: bool = False
+    esi: bool = False
+    data: bytes = b""
+    tsf: Tsf = Tsf.NONE
+    timestamp: int = 0
+    scheduled: bool = False
+    offset_ns: int = 0
+    tag: int = 0
+    id_aux: int = 0
+    d64: bool = False
+    dlc: int = -1
+
+    @property
+    def kind(self) -> PacketKind:
+        """KIND 0."""
+        return PacketKind.CAN_FRAME
+
+    @property
+    def frame(self) -> CanFrame:
+        """The bus frame this packet describes."""
+        return CanFrame(self.can_id, self.data, self.extended, self.rtr, self.fd, self.brs, self.esi,
+                        self.dlc if self.rtr else -1)
+
+    @classmethod
+    def from_frame(cls, channel: int, frame: CanFrame, *, tsf: Tsf = Tsf.NONE, timestamp: int = 0,
+                   id_aux: int = 0, d64: bool = False) -> CanPacket:
+        """The packet carrying a bus frame received on ``channel`` (TxPDO direction)."""
+        return cls(channel, frame.can_id, frame.extended, frame.fd, frame.brs, frame.rtr, frame.esi, frame.data,
+                   tsf, timestamp, False, 0, 0, id_aux, d64, frame.dlc if frame.rtr else -1)
+
+
+@dataclass(frozen=True, slots=True)
+class TxResultPacket:
+    """A TX_RESULT packet (chapter 10): the outcome of frame ``ref_frame_index`` (counting KIND 0
+    packets from 0) of the RxPDO image committed with sequence ``ref_packet_seq``."""
+
+    channel: int
+    ref_packet_seq: int
+    ref_frame_index: int
+    result: TxResultCode
+
+    @property
+    def kind(self) -> PacketKind:
+        """KIND 1."""
+        return PacketKind.TX_RESULT
+
+
+Packet = CanPacket | TxResultPacket
+
+
+@dataclass(frozen=True, slots=True)
+class ParseDiag:
+    """Where a parse failed: the IgH package's parse_diag fields (16.2); -1 = not reached."""
+
+    offset: int = -1
+    packet_end: int = -1
+    ctrl: int = -1
+    seq: int = -1
+    payload_len: int = -1
+    crc: int = -1
+    layout_id: int = -1
+    ch: int = -1
+    dlc: int = -1
+    tsf: int = -1
+    kind: int = -1
+    reason: str = ""
+
+
+class StreamError(ProtocolError):
+    """An image the receiver rejects: ``code`` is its LastPDOError (13.2), ``diag`` says where."""
+
+    def __init__(self, code: PdoError, diag: ParseDiag | None = None) -> None:
+        diag = diag if diag is not None else ParseDiag()
+        super().__init__(f"{code.name} ({int(code)}): {diag.reason}" if diag.reason else code.name, int(code))
+        self.pdo_error = code
+        self.diag = diag
+
+    def __reduce__(self) -> tuple[type[StreamError], tuple[PdoError, ParseDiag]]:
+        return (StreamError, (self.pdo_error, self.diag))
+
+
+class StreamEncodeError(LocalError, ValueError):
+    """A packet this layout cannot carry, refused before anything is written; ``pdo_error`` is the
+    LastPDOError the receiver would report for it."""
+
+    def __init__(self, code: PdoError, message: str) -> None:
+        super().__init__(f"{code.name} ({int(code)}): {message}", int(code))
+        self.pdo_error = code
+
+
+@dataclass(frozen=True, slots=True)
+class DecodedStream:
+    """A parsed image: its header and packets in stream order."""
+
+    header: StreamHeader
+    packets: tuple[Packet, ...]
+
+    @property
+    def frames(self) -> tuple[CanPacket, ...]:
+        """The CAN_FRAME packets; index i is RefFrameIndex i (chapter 10)."""
+        return tuple(p for p in self.packets if type(p) is CanPacket)
+
+    @property
+    def tx_results(self) -> tuple[TxResultPacket, ...]:
+        """The TX_RESULT packets."""
+        return tuple(p for p in self.packets if type(p) is TxResultPacket)
+
+    @property
+    def seq(self) -> int:
+        """The committed sequence (seq_begin == seq_end)."""
+        return self.header.seq_begin
+
+
+# --------------------------------------------------------------------------------------------- encode
+
+def _refuse(code: PdoError, message: str) -> StreamEncodeError:
+    return StreamEncodeError(code, message)
+
+
+def _can_geometry(p: CanPacket, layout: StreamLayout) -> tuple[int, int, int]:
+    """(ctrl, data bytes on the wire, DLC) of a CAN packet, or StreamEncodeError (8.1-8.4)."""
+    ch = p.channel
+    if type(ch) is not int or not 0 <= ch < MAX_CHANNELS or not layout.channel_mask >> ch & 1:
+        raise _refuse(PdoError.INVALID_CHANNEL, f"channel {ch!r} is not in mask 0x{layout.channel_mask:02X}")
+    n = len(p.data)
+    if p.fd:
+        if p.rtr:
+            raise _refuse(PdoError.INVALID_DLC, "CAN FD has no remote frames")
+        dlc = FD_LEN_TO_DLC.get(n, -1)
+        if dlc < 0:
+            raise _refuse(PdoError.INVALID_DLC, f"{n} data bytes match no CAN FD DLC")
+        x = p.esi
+    else:
+        if p.brs or p.esi or p.d64:
+            raise _refuse(PdoError.INVALID_DLC, "BRS, ESI and D64 need CAN FD (8.2)")
+        if p.rtr:
+            if n:
+                raise _refuse(PdoError.INVALID_DLC, "a remote frame carries no data (8.2)")
+            dlc = 0 if p.dlc == -1 else p.dlc
+            if not 0 <= dlc <= 8:
+                raise _refuse(PdoError.INVALID_DLC, f"remote frame DLC {dlc} out of 0..8")
+        else:
+            if n > 8:
+                raise _refuse(PdoError.INVALID_DLC, f"classic CAN carries at most 8 bytes, got {n}")
+            dlc = n
+        x = p.rtr
+    if p.dlc not in (-1, dlc):
+        raise _refuse(PdoError.INVALID_DLC, f"DLC {p.dlc} does not match {n} data bytes")
+    if p.d64 and not layout._d64_ok:
+        raise _refuse(PdoError.FRAME_OVERRUN, f"D64 window not allowed in profile {layout.profile} (chapter 9)")
+    tsf = p.tsf
+    if not 0 <= tsf <= 3 or not layout._tsf_ok >> tsf & 1:
+        if layout._rx and tsf == Tsf.FULL64:
+            raise _refuse(PdoError.BAD_SCHEDULE, "scheduled transmit (RX_TSF_SCHEDULE_TX) not supported (8.4)")
+        raise _refuse(PdoError.INVALID_TSF, f"TSF {tsf} not allowed in profile {layout.profile} "
+                                            f"{layout.direction.value.upper()}PDO (8.4, chapter 9)")
+    if p.scheduled:
+        if tsf != Tsf.FULL64 or not layout._schedule_ok:
+            raise _refuse(PdoError.BAD_SCHEDULE, "scheduled transmit is RxPDO TSF_FULL64 format 1 (8.4)")
+        if not 0 <= p.offset_ns <= 0xFFFFFFFF or not 0 <= p.tag <= 0xFFFF:
+            raise _refuse(PdoError.BAD_SCHEDULE, "offset_ns is u32, tag u16 (8.4)")
+    elif tsf == Tsf.FULL64 and layout._schedule_ok:
+        raise _refuse(PdoError.BAD_SCHEDULE, "RxPDO TSF_FULL64 is the reservation format only (8.4)")
+    elif tsf and not 0 <= p.timestamp < 1 << (8 * _TSF_BYTES[tsf]):
+        raise _refuse(PdoError.INVALID_TSF, f"timestamp {p.timestamp} does not fit TSF {tsf}")
+    if p.extended:
+        if not 0 <= p.can_id <= MAX_EXT_ID or not 0 <= p.id_aux <= 7:
+            raise _refuse(PdoError.RESERVED_BIT, f"extended id 0x{p.can_id:X} / ID_AUX {p.id_aux} out of range")
+    elif not 0 <= p.can_id <= MAX_STD_ID or not 0 <= p.id_aux <= 7:
+        raise _refuse(PdoError.RESERVED_BIT, f"standard id 0x{p.can_id:X} / ID_AUX {p.id_aux} out of range")
+    ctrl = (ch | dlc << 3 | p.extended << 7 | p.fd << 8 | p.brs << 9 | x << 10 | tsf << 11 | p.d64 << 15)
+    data_bytes = 0 if p.rtr else (64 if p.d64 else n)
+    return ctrl, data_bytes, dlc
+
+
+def packet_size(packet: Packet, layout: StreamLayout) -> int:
+    """Bytes ``packet`` occupies in ``layout``'s frame area, ALIGN4 padding included (8.3).
+
+    Raises :class:`StreamEncodeError` for a packet this layout cannot carry.
+    """
+    if type(packet) is CanPacket:
+        _ctrl, data_bytes, _dlc = _can_geometry(packet, layout)
+        raw = 2 + (4 if packet.extended else 2) + _TSF_BYTES[packet.tsf] + data_bytes
+    elif type(packet) is TxResultPacket:
+        _check_tx_result(packet, layout)
+        raw = _TX_RESULT.size
+    else:
+        raise LocalError(f"not a packet: {packet!r}")
+    return (raw + 3) & ~3 if layout._align4 else raw
+
+
+def _check_tx_result(p: TxResultPacket, layout: StreamLayout) -> None:
+    if not layout._tx_result_ok:
+        raise _refuse(PdoError.UNKNOWN_KIND, "TX_RESULT needs the TxPDO with TX_RESULT_ENABLE (9.1, chapter 10)")
+    ch = p.channel
+    if type(ch) is not int or not 0 <= ch < MAX_CHANNELS or not layout.channel_mask >> ch & 1:
+        raise _refuse(PdoError.INVALID_CHANNEL, f"channel {ch!r} is not in mask 0x{layout.channel_mask:02X}")
+    if not 0 <= p.ref_packet_seq <= 0xFFFF or not 0 <= p.ref_frame_index <= 0xFF or not 0 <= p.result <= 5:
+        raise _refuse(PdoError.UNKNOWN_KIND, f"TX_RESULT field out of range: {p!r}")
+
+
+def encode_into(buf: bytearray | memoryview, layout: StreamLayout, seq: int, packets: Sequence[Packet], *,
+                status_words: Sequence[int] = (0, 0, 0, 0), flags: HeaderFlags | int = 0,
+                overflow_sat: int = 0) -> int:
+    """Write one committed image into ``buf`` (``layout.pdo_bytes`` long); returns payload_len.
+
+    Order of 5.4.4.1 step 4: packets from offset 24, the rest of the frame area zeroed (left as it
+    is with PAYLOAD_ONLY_ENABLE, whose receivers ignore it, 9.1), header, seq_end last.
+    TX_RESULT_PRESENT is set when a TX_RESULT is among ``packets``; ``overflow_sat`` saturates.
+    """
+    if len(buf) != layout.pdo_bytes:
+        raise LocalError(f"image buffer is {len(buf)} bytes, the layout needs {layout.pdo_bytes}")
+    if len(packets) > MAX_FRAME_COUNT:
+        raise _refuse(PdoError.PACKET_OVERRUN, f"{len(packets)} packets; frame_count holds at most 255")
+    if len(status_words) != 4:
+        raise LocalError("four channel status words (chapter 7)")
+    end = layout.pdo_bytes
+    align4 = layout._align4
+    off = HEADER_SIZE
+    flags = int(flags) & 0x3F
+    for p in packets:
+        if type(p) is CanPacket:
+            ctrl, data_bytes, _dlc = _can_geometry(p, layout)
+            tsf = p.tsf
+            ts_bytes = _TSF_BYTES[tsf]
+            raw = (6 if p.extended else 4) + ts_bytes + data_bytes
+            size = (raw + 3) & ~3 if align4 else raw
+            if off + size > end:
+                raise _refuse(PdoError.PACKET_OVERRUN, f"packet at {off} ends at {off + size} > {end} (chapter 12)")
+            if p.extended:
+                _CTRL_EXT.pack_into(buf, off, ctrl, p.can_id | p.id_aux << 29)
+                o = off + 6
+            else:
+                _CTRL_STD.pack_into(buf, off, ctrl, p.can_id | p.id_aux << 11)
+                o = off + 4
+            if ts_bytes:
+                if p.scheduled:
+                    _SCHEDULE.pack_into(buf, o, 1, 0, p.tag, p.offset_ns)
+                elif ts_bytes == 2:
+                    _U16.pack_into(buf, o, p.timestamp)
+                elif ts_bytes == 4:
+                    _U32.pack_into(buf, o, p.timestamp)
+                else:
+                    _U64.pack_into(buf, o, p.timestamp)
+                o += ts_bytes
+            if data_bytes:
+                n = len(p.data)
+                buf[o:o + n] = p.data
+                if data_bytes != n:
+                    buf[o + n:o + data_bytes] = _ZERO64[:data_bytes - n]
+            if size != raw:
+                buf[off + raw:off + size] = _ZERO64[:size - raw]
+            off += size
+        elif type(p) is TxResultPacket:
+            _check_tx_result(p, layout)
+            size = 8 if align4 else 6
+            if off + size > end:
+                raise _refuse(PdoError.PACKET_OVERRUN, f"packet at {off} ends at {off + size} > {end} (chapter 12)")
+            _TX_RESULT.pack_into(buf, off, p.channel | 1 << 13, p.ref_packet_seq, p.ref_frame_index, p.result)
+            if align4:
+                buf[off + 6:off + 8] = b"\0\0"
+            off += size
+            flags |= 0x04  # HeaderFlags.TX_RESULT_PRESENT
+        else:
+            raise LocalError(f"not a packet: {p!r}")
+    if not layout.options & Option.PAYLOAD_ONLY_ENABLE:
+        buf[off:end] = bytes(end - off)
+    payload_len = off - HEADER_SIZE
+    if layout._crc:
+        crc = binascii.crc_hqx(memoryview(buf)[HEADER_SIZE:off], 0xFFFF)
+        alg = CRC_ALG_CCITT_FALSE
+    else:
+        crc = alg = 0
+    seq &= 0xFFFF
+    s0, s1, s2, s3 = status_words
+    # seq_end (offset 4) is packed too but written again last, the commit of 5.4.4.1 step 4.
+    _HEADER.pack_into(buf, 0, VER_IHL, flags, seq, (seq - 1) & 0xFFFF, payload_len, crc, layout.layout_id,
+                      layout.channel_mask, len(packets), saturate_u8(overflow_sat), alg,
+                      s0 & 0xFFFF, s1 & 0xFFFF, s2 & 0xFFFF, s3 & 0xFFFF)
+    _HEADER_SEQ_END.pack_into(buf, 4, seq)
+    return payload_len
+
+
+def encode_stream(layout: StreamLayout, seq: int, packets: Sequence[Packet], *,
+                  status_words: Sequence[int] = (0, 0, 0, 0), flags: HeaderFlags | int = 0,
+                  overflow_sat: int = 0) -> bytes:
+    """One committed image of exactly ``layout.pdo_bytes`` bytes, unused area zeroed (5.4.4.1)."""
+    buf = bytearray(layout.pdo_bytes)
+    encode_into(buf, layout, seq, packets, status_words=status_words, flags=flags, overflow_sat=overflow_sat)
+    return bytes(buf)
+
+
+# --------------------------------------------------------------------------------------------- decode
+
+def commit_state(image: bytes | bytearray | memoryview, previous: bytes | bytearray | memoryview | None) -> Commit:
+    """Whether to parse ``image`` given the last image processed (``None`` after a session reset).
+
+    TORN when seq_begin != seq_end (6.1 step 2); SAME when ``previous`` has the same sequence and
+    the same header and payload bytes (13.8: a stopped master leaves the last image, an idempotent
+    no-op); DUPLICATE when the sequence is the same but the contents differ (LastPDOError 10);
+    else NEW. Bytes beyond payload_len do not count (PAYLOAD_ONLY, 9.1). Pass the last committed
+    image whether it was accepted or rejected, so a repeated bad image is not counted twice.
+    """
+    if len(image) < HEADER_SIZE:
+        raise StreamError(PdoError.ACTIVE_AREA, ParseDiag(reason=f"image of {len(image)} bytes has no header"))
+    seq_begin, seq_end, payload_len = struct.unpack_from("<HHH", image, 2)
+    if seq_begin != seq_end:
+        return Commit.TORN
+    if previous is None or len(previous) < HEADER_SIZE or _U16.unpack_from(previous, 2)[0] != seq_begin:
+        return Commit.NEW
+    n = HEADER_SIZE + payload_len
+    return Commit.SAME if bytes(image[:n]) == bytes(previous[:n]) else Commit.DUPLICATE
+
+
+def decode_stream(image: bytes | bytearray | memoryview, layout: StreamLayout) -> DecodedStream:
+    """Parse one image of ``layout`` (6.1 order), raising :class:`StreamError` at the first error.
+
+    Header: length = ActivePDOBytes (else 12), ver_ihl 0x16 (14), seq_begin == seq_end (14, use
+    :func:`commit_state` first to skip torn images quietly), crc_alg 1, or 0 with a zero CRC under
+    NO_CRC16 (14), payload_len <= ActiveFrameAreaBytes (3), CRC over [24, 24+payload_len) (15),
+    layout_id and channel_mask = the active profile's (12). Packets: each as chapter 8, ending
+    within payload_len (8); then frame_count = the packets found (14). Bytes after payload_len
+    are ignored (PAYLOAD_ONLY, 9.1).
+    """
+    size = len(image)
+    if size != layout.pdo_bytes:
+        raise StreamError(PdoError.ACTIVE_AREA, ParseDiag(
+            reason=f"image of {size} bytes, the active layout has {layout.pdo_bytes} (5.2)"))
+    (ver_ihl, flags, seq, seq_end, payload_len, crc, layout_id, mask, count, overflow, crc_alg,
+     s0, s1, s2, s3) = _HEADER.unpack_from(image, 0)
+
+    def fail(code: PdoError, reason: str, offset: int = -1, packet_end: int = -1, ctrl: int = -1) -> StreamError:
+        if ctrl < 0:
+            return StreamError(code, ParseDiag(offset, packet_end, -1, seq, payload_len, crc, layout_id,
+                                               reason=reason))
+        return StreamError(code, ParseDiag(offset, packet_end, ctrl, seq, payload_len, crc, layout_id,
+                                           ctrl & 7, ctrl >> 3 & 15, ctrl >> 11 & 3, ctrl >> 13 & 3, reason))
+
+    if ver_ihl != VER_IHL:
+        raise fail(PdoError.BAD_HEADER, f"ver_ihl 0x{ver_ihl:02X}, expected 0x16 (chapter 6)")
+    if seq != seq_end:
+        raise fail(PdoError.BAD_HEADER, f"torn image: seq_begin {seq} != seq_end {seq_end} (6.1)")
+    if layout._crc:
+        if crc_alg != CRC_ALG_CCITT_FALSE:
+            raise fail(PdoError.BAD_HEADER, f"crc_alg {crc_alg}, expected 1 (6.1)")
+    elif crc_alg != 0 or crc != 0:
+        raise fail(PdoError.BAD_HEADER, f"crc_alg {crc_alg} / crc 0x{crc:04X}, NO_CRC16 expects 0 / 0 (9.1)")
+    end = HEADER_SIZE + payload_len
+    if end > size:
+        raise fail(PdoError.PACKET_OVERRUN, f"payload_len {payload_len} > frame area {size - HEADER_SIZE} (6.1)")
+    mv = memoryview(image)
+    if layout._crc and binascii.crc_hqx(mv[HEADER_SIZE:end], 0xFFFF) != crc:
+        raise fail(PdoError.BAD_CRC, f"payload_crc16 0x{crc:04X} != 0x{crc16(mv[HEADER_SIZE:end]):04X} (6.1)")
+    if layout_id != layout.layout_id or mask != layout.channel_mask:
+        raise fail(PdoError.ACTIVE_AREA, f"layout_id 0x{layout_id:04X} / channel_mask 0x{mask:02X}, active "
+                                         f"0x{layout.layout_id:04X} / 0x{layout.channel_mask:02X} (5.4.4.1)")
+    packets: list[Packet] = []
+    append = packets.append
+    chan_ok = layout.channel_mask & ((1 << MAX_CHANNELS) - 1)
+    tsf_ok = layout._tsf_ok
+    d64_ok = layout._d64_ok
+    schedule_ok = layout._schedule_ok
+    rx = layout._rx
+    align4 = layout._align4
+    tx_result_ok = layout._tx_result_ok
+    fd_len = FD_DLC_TO_LEN
+    off = HEADER_SIZE
+    u16 = _U16.unpack_from
+    while off < end:
+        if off + 2 > end:
+            raise fail(PdoError.TRUNCATED, "control word cut by payload_len (8)", off, off + 2)
+        ctrl = u16(image, off)[0]
+        kind = ctrl >> 13 & 3
+        ch = ctrl & 7
+        if kind:
+            if kind != PacketKind.TX_RESULT or not tx_result_ok:
+                raise fail(PdoError.UNKNOWN_KIND, f"KIND {kind} not supported here (chapter 8, 9.1)", off, -1, ctrl)
+            if not chan_ok >> ch & 1:
+                raise fail(PdoError.INVALID_CHANNEL, f"channel {ch} not in mask 0x{chan_ok:02X}", off, -1, ctrl)
+            if ctrl & _TX_RESULT_CTRL_ZERO:
+                raise fail(PdoError.RESERVED_BIT, "TX_RESULT control word carries only CH and KIND (10)",
+                           off, -1, ctrl)
+            pend = off + 6
+            nxt = off + 8 if align4 else pend
+            if nxt > end:
+                raise fail(PdoError.TRUNCATED, "TX_RESULT cut by payload_len (10)", off, nxt, ctrl)
+            _c, ref_seq, ref_index, result = _TX_RESULT.unpack_from(image, off)
+            if result > 5:
+                raise fail(PdoError.UNKNOWN_KIND, f"ResultCode {result} undefined (10)", off, nxt, ctrl)
+            if nxt != pend and image[pend] | image[pend + 1]:
+                raise fail(PdoError.RESERVED_BIT, "ALIGN4 padding must be 0 (8.3)", off, nxt, ctrl)
+            append(TxResultPacket(ch, ref_seq, ref_index, TxResultCode(result)))
+            off = nxt
+            continue
+        if not chan_ok >> ch & 1:
+            raise fail(PdoError.INVALID_CHANNEL, f"channel {ch} not in mask 0x{chan_ok:02X} (8, 13.2)", off, -1, ctrl)
+        dlc = ctrl >> 3 & 15
+        ide = ctrl & 0x80
+        fdf = ctrl & 0x100
+        brs = ctrl & 0x200
+        x = ctrl & 0x400
+        tsf = ctrl >> 11 & 3
+        d64 = ctrl & 0x8000
+        if fdf:
+            data_bytes = 64 if d64 else fd_len[dlc]
+            rtr = False
+        else:
+            if dlc > 8 or brs or d64:
+                raise fail(PdoError.INVALID_DLC, "classic CAN: DLC <= 8, BRS = 0, D64 = 0 (8.2)", off, -1, ctrl)
+            rtr = bool(x)
+            data_bytes = 0 if rtr else dlc
+        if d64 and not d64_ok:
+            raise fail(PdoError.FRAME_OVERRUN, f"D64 window not allowed in profile {layout.profile} (9)",
+                       off, -1, ctrl)
+        if not tsf_ok >> tsf & 1:
+            if rx and tsf == 3:
+                raise fail(PdoError.BAD_SCHEDULE, "scheduled transmit (RX_TSF_SCHEDULE_TX) not supported (8.4)",
+                           off, -1, ctrl)
+            raise fail(PdoError.INVALID_TSF, f"TSF {tsf} not allowed in this profile/direction (8.4, 9)",
+                       off, -1, ctrl)
+        o = off + (6 if ide else 4)
+        ts_bytes = _TSF_BYTES[tsf]
+        data_at = o + ts_bytes
+        pend = data_at + data_bytes
+        nxt = (pend - off + 3 & ~3) + off if align4 else pend
+        if nxt > end:
+            raise fail(PdoError.TRUNCATED, f"packet ends at {nxt} beyond payload end {end} (8.3)", off, nxt, ctrl)
+        if ide:
+            word = _U32.unpack_from(image, off + 2)[0]
+            can_id = word & 0x1FFFFFFF
+            id_aux = word >> 29
+        else:
+            word = u16(image, off + 2)[0]
+            if word & 0xC000:
+                raise fail(PdoError.RESERVED_BIT, "StdIdField bits 14/15 must be 0 (8.1)", off, nxt, ctrl)
+            can_id = word & 0x7FF
+            id_aux = word >> 11
+        timestamp = offset_ns = tag = 0
+        scheduled = False
+        if ts_bytes:
+            if schedule_ok:     # RxPDO: TSF_FULL64 is only the reservation format (8.4)
+                fmt, sflags, tag, offset_ns = _SCHEDULE.unpack_from(image, o)
+                if fmt != 1 or sflags:
+                    raise fail(PdoError.BAD_SCHEDULE, f"reservation format {fmt} flags {sflags}, expected 1 / 0 "
+                                                      "(8.4)", off, nxt, ctrl)
+                scheduled = True
+            elif ts_bytes == 2:
+                timestamp = u16(image, o)[0]
+            elif ts_bytes == 4:
+                timestamp = _U32.unpack_from(image, o)[0]
+            else:
+                timestamp = _U64.unpack_from(image, o)[0]
+        if nxt != pend and any(mv[pend:nxt]):
+            raise fail(PdoError.RESERVED_BIT, "ALIGN4 padding must be 0 (8.3)", off, nxt, ctrl)
+        n = fd_len[dlc] if d64 else data_bytes
+        append(CanPacket(ch, can_id, bool(ide), bool(fdf), bool(brs), rtr, bool(x) and not rtr,
+                         bytes(mv[data_at:data_at + n]), Tsf(tsf), timestamp, scheduled, offset_ns, tag,
+                         id_aux, bool(d64), dlc if rtr else -1))
+        off = nxt
+    if len(packets) != count:
+        raise fail(PdoError.BAD_HEADER, f"frame_count {count} but {len(packets)} packets in payload_len (6)", off)
+    header = StreamHeader(HeaderFlags(flags & 0x3F), seq, seq_end, payload_len, crc, layout_id, mask, count,
+                          overflow, crc_alg, (s0, s1, s2, s3), ver_ihl)
+    return DecodedStream(header, tuple(packets))
