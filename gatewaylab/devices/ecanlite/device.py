@@ -38,13 +38,12 @@ from .image import (CHUNKS, CYCLE_DIAG, DEVICE_NAME, RX_MAP, RX_PROFILE, RX_UNIT
                     SI_PROFILE, SI_PROFILE_WORD, SI_SEQUENCE, SI_STATUS, TX_MAP, TX_PROFILE, UNIT_BYTES,
                     ecanlite_description)
 from .mcan import McanChannel, McanModel
-from .stream import (CanPacket, PdoError, StreamError, StreamLayout, TxResultCode, TxResultPacket, decode_stream,
-                     encode_stream, packet_size)
+from .stream import (TIMESTAMP_UNIT_S, CanPacket, Commit, Direction, PdoError, StreamError, StreamLayout, Tsf,
+                     TxResultCode, TxResultPacket, check_layout, commit_state, decode_stream, encode_stream,
+                     packet_size)
 
-__all__ = ["EcanLiteApplication", "EcanLiteDevice", "Status"]
+__all__ = ["EcanLiteApplication", "EcanLiteDevice", "Status", "version_string"]
 
-_HDR = struct.Struct("<BBHHHHHBBBB")
-_LAYOUT_CRC = struct.Struct("<IHH")
 
 #: 0x8010/0x8011:02 values (13.2).
 class Status:
@@ -77,12 +76,6 @@ RESET_TIME = 0.5
 SCHED_QUEUE_MAX = 64
 #: Smallest packet: ctrl + standard id, no data: bounds how many frames one image can take.
 _MIN_PACKET = 4
-
-
-def layout_crc(layout: StreamLayout) -> int:
-    """0x8010/0x8011:11 Active layout CRC: CRC-32 (zlib) over profile word, PDO bytes and frame area
-    bytes, little-endian (the manual names the CRC, not its input; see docs/decisions.md)."""
-    return zlib.crc32(_LAYOUT_CRC.pack(layout.profile_word, layout.pdo_bytes, layout.frame_area_bytes))
 
 
 @dataclass(slots=True)
@@ -125,8 +118,8 @@ class EcanLiteApplication(SlaveApplication):
         self.device = device
         self.model = device.model
         self.clock = device.clock
-        self.tx = _Direction(TX_PROFILE, 0x1C13, TX_MAP, StreamLayout.default())
-        self.rx = _Direction(RX_PROFILE, 0x1C12, RX_MAP, StreamLayout.default())
+        self.tx = _Direction(TX_PROFILE, 0x1C13, TX_MAP, StreamLayout.default(Direction.TX))
+        self.rx = _Direction(RX_PROFILE, 0x1C12, RX_MAP, StreamLayout.default(Direction.RX))
         self.slave: Slave | None = None
         self._last_rx: bytes = b""
         self._last_rx_seq: int | None = None
@@ -134,6 +127,8 @@ class EcanLiteApplication(SlaveApplication):
         self._staged: _Staged | None = None
         self._stage_pending = -1
         self._last_status: tuple[int, ...] = (0, 0, 0, 0)
+        self._cycle_ref: float | None = None
+        self._rotate = 0
         self._scheduled: list[_Scheduled] = []
         self.sched_late_drops = 0
         self.frames_submitted = 0
@@ -173,8 +168,6 @@ class EcanLiteApplication(SlaveApplication):
 
     @staticmethod
     def _validate_profile(entry: Entry, value: Any) -> None:
-        if entry.subindex == SI_BUDGET and int(value) > 2:
-            raise SdoAbort(SdoAbortCode.VALUE_RANGE_EXCEEDED, "budget policy 0..2 (chapter 12; 3 is reserved)")
         if entry.subindex == SI_COMMAND and int(value) & ~0x03:
             raise SdoAbort(SdoAbortCode.VALUE_RANGE_EXCEEDED, "command bits 2..7 are reserved (13.2)")
 
@@ -212,20 +205,16 @@ class EcanLiteApplication(SlaveApplication):
         """13.2 / 14.2: validate the requested profile; the active one changes only on status 0."""
         assert self.slave is not None
         n, mask, profile, budget, options = self._requested(d)
+        merit = int(check_layout(n, mask, profile, budget, options, max_multiplier=CHUNKS))
         if self.slave.state == AlState.OP:
             d.status = Status.INVALID_STATE
-        elif not 1 <= n <= CHUNKS:
-            d.status = Status.INVALID_MULTIPLIER
-        elif mask & ~0x0F:
-            d.status = Status.INVALID_MASK
-        elif profile not in SUPPORTED_PROFILES:
-            d.status = Status.INVALID_PROFILE
-        elif options & ~OPTION_MASK:
-            d.status = Status.UNSUPPORTED_OPTION
+        elif merit:
+            d.status = merit
         elif not self._assignment_matches(d, n):
             d.status = Status.MAPPING_RELOAD
         else:
-            new = StreamLayout(multiplier=n, channel_mask=mask, profile=profile, budget_policy=budget, options=options)
+            new = StreamLayout(multiplier=n, channel_mask=mask, profile=profile, budget_policy=budget, options=options,
+                               direction=Direction.TX if d is self.tx else Direction.RX)
             if new != d.active:
                 d.active = new
                 self._reset_session(d)
@@ -258,7 +247,7 @@ class EcanLiteApplication(SlaveApplication):
         a = d.active
         od.put(d.index, SI_ACTIVE_BYTES, a.pdo_bytes)
         od.put(d.index, SI_ACTIVE_AREA, a.frame_area_bytes)
-        od.put(d.index, SI_LAYOUT_CRC, layout_crc(a))
+        od.put(d.index, SI_LAYOUT_CRC, a.layout_crc)
         od.put(d.index, SI_PROFILE_WORD, a.profile_word)
 
     def _refresh_profile(self, index: int, subindex: int) -> None:
@@ -326,59 +315,64 @@ class EcanLiteApplication(SlaveApplication):
             self._rx_image(data)
             self._cost(4, t0)
         self._cost(0, t0)
-        if self._results or any(ch.pending_rx() for ch in self.model.channels) or self._staged is None:
+        if (self._results or self._staged is None or any(ch.pending_rx() for ch in self.model.channels)
+                or self.tx.active.options & OPT_TX_RESULT):
             t1 = self.clock.now()
             self._stage()
             self._cost(3, t1)
 
     def _rx_image(self, data: bytes) -> None:
         rx = self.rx
-        if len(data) < 6 or data[2:4] != data[4:6]:
-            return  # torn: seq_begin != seq_end, ignore this cycle (6.1)
         if not any(data):
             self._last_rx = data
-            return  # the master has not published anything yet
-        seq = data[2] | data[3] << 8
+            return  # the master has not published anything yet (an all-zero image after OP)
+        try:
+            commit = commit_state(data, self._last_rx or None)
+        except StreamError as exc:
+            self._error(rx, exc.pdo_error)
+            return
+        if commit is Commit.TORN:
+            return  # seq_begin != seq_end: ignore this cycle (6.1)
         self._last_rx = data
-        if seq == self._last_rx_seq:
-            self._error(rx, PdoError.DUPLICATE_SEQUENCE)  # same sequence, other content
+        if commit is Commit.SAME:
+            return  # the same image again, beyond payload_len (13.8: idempotent no-op)
+        if commit is Commit.DUPLICATE:
+            self._error(rx, PdoError.DUPLICATE_SEQUENCE)
             return
         try:
             decoded = decode_stream(data, rx.active)
         except StreamError as exc:
-            self._error(rx, exc.code)
+            self._error(rx, exc.pdo_error)
             return
-        self._last_rx_seq = seq
+        seq = decoded.seq
         rx.seq = seq
-        frames: list[tuple[int, CanFrame, tuple[int, int], int | None]] = []
-        index = 0
-        for packet in decoded.packets:
-            if not isinstance(packet, CanPacket):
-                continue
-            offset = packet.offset_ns if packet.scheduled else None
-            frames.append((packet.channel, _to_frame(packet), (seq, index), offset))
-            index += 1
-        if any(f[3] is not None for f in frames) and not self._sync0_active():
+        frames = decoded.frames
+        if not frames:
+            return
+        if any(p.scheduled for p in frames) and not self._sync0_active():
             self._error(rx, PdoError.BAD_SCHEDULE)  # no SYNC0 to schedule against (13.8)
             return
         if rx.active.options & OPT_APP_BYPASS:
-            return
+            return  # 9.1: the RxPDO does not enter the MCAN path
         channels = self.model.channels
         tx_result = bool(self.tx.active.options & OPT_TX_RESULT)
-        for ch, frame, ref, offset in frames:
-            if offset is not None:
+        results = self._results
+        for index, p in enumerate(frames):
+            ref = (seq, index)
+            ch = p.channel
+            if p.scheduled:
                 if len(self._scheduled) >= SCHED_QUEUE_MAX:
                     self._maintenance_flag(DIAG_SCHED_QUEUE_FULL)
                     rx.overflows += 1
                     if tx_result:
-                        self._results.append(TxResultPacket(ch, ref[0], ref[1], TxResultCode(4)))
+                        results.append(TxResultPacket(ch, seq, index, TxResultCode.TX_FIFO_FULL))
                     continue
-                self._scheduled.append(_Scheduled(ch, frame, ref, offset))
+                self._scheduled.append(_Scheduled(ch, p.frame, ref, p.offset_ns))
                 continue
-            code = channels[ch].submit(frame, ref)
+            code = channels[ch].submit(p.frame, ref)
             self.frames_submitted += 1
             if code and tx_result:
-                self._results.append(TxResultPacket(ch, ref[0], ref[1], TxResultCode(code)))
+                results.append(TxResultPacket(ch, seq, index, TxResultCode(code)))
 
     def _error(self, d: _Direction, code: int) -> None:
         d.last_error = int(code)
@@ -449,6 +443,17 @@ class EcanLiteApplication(SlaveApplication):
         self._stage()
         self._cost(1, t0)
 
+    def _collect_results(self) -> None:
+        """TX results the channels finished since the last image (chapter 10), when TX_RESULT is on."""
+        want = self.tx.active.options & OPT_TX_RESULT
+        results = self._results
+        for ch in self.model.channels:
+            done = ch.take_tx_results()
+            if want:
+                for ref, code in done:
+                    if isinstance(ref, tuple):
+                        results.append(TxResultPacket(ch.index, ref[0], ref[1], TxResultCode(code)))
+
     def _stage(self) -> None:
         """Build the next TxPDO image from the channels' oldest frames (chapter 12 budget)."""
         slave = self.slave
@@ -458,6 +463,7 @@ class EcanLiteApplication(SlaveApplication):
             return
         seq = (self.tx.seq + 1) & 0xFFFF
         channels = self.model.channels
+        self._collect_results()
         status_words = tuple(ch.status_word() for ch in channels)
         flags = 0
         if seq == 0:
@@ -473,38 +479,43 @@ class EcanLiteApplication(SlaveApplication):
         if layout.options & OPT_TX_RESULT and not bypass:
             for r in self._results:
                 size = packet_size(r, layout)
-                if size > area:
+                if size > area or n_results == 255:
                     break
                 area -= size
                 packets.append(r)
                 n_results += 1
-            if n_results:
-                flags |= FLAG_TX_RESULT
         counts: dict[int, int] = {}
         left = 0
         if not bypass:
             limit = area // _MIN_PACKET + 1
             pending: dict[int, list[int]] = {}
             peeked: dict[int, list[CanPacket]] = {}
-            ref = self.clock.now()
+            now = self.clock.now()
+            ref = self._cycle_ref if self._cycle_ref is not None else now
+            self._cycle_ref = now
+            tsf = Tsf.DELTA16 if layout.allows_tsf(Tsf.DELTA16) else Tsf.NONE
+            mask = layout.channel_mask
             for ch in channels:
-                if layout.channel_mask >> ch.index & 1 and ch.controller is not None:
+                if mask >> ch.index & 1 and ch.controller is not None:
                     frames = ch.peek(limit)
                     if frames:
-                        pk = [_to_packet(ch.index, rf.frame, rf.t, ref, layout) for rf in frames]
+                        pk = [CanPacket.from_frame(ch.index, rf.frame, tsf=tsf,
+                                                   timestamp=round((rf.t - ref) / TIMESTAMP_UNIT_S) & 0xFFFF
+                                                   if tsf else 0) for rf in frames]
                         peeked[ch.index] = pk
                         pending[ch.index] = [packet_size(p, layout) for p in pk]
             if pending:
-                enabled = [ch.index for ch in channels if layout.channel_mask >> ch.index & 1]
-                alloc = budget_mod.allocate(layout.budget_policy, area, enabled, pending)
-                counts = dict(alloc.counts)
-                left = sum(ch.pending_rx() for ch in channels if ch.index in pending) - sum(counts.values())
-                for ch_index, n in counts.items():
-                    packets.extend(peeked[ch_index][:n])
-        overflow = min(left, 255)
+                alloc = budget_mod.allocate(layout.budget_policy, area, layout.channels, pending,
+                                            max_packets=255 - n_results, rotate=self._rotate)
+                self._rotate += 1
+                for ch_index, n in alloc.counts.items():
+                    if n:
+                        counts[ch_index] = n
+                        packets.extend(peeked[ch_index][:n])
+                left = sum(channels[i].pending_rx() for i in pending) - sum(counts.values())
         if left:
             flags |= FLAG_TRUNCATED | FLAG_OVERFLOW_VALID
-        image = encode_stream(layout, seq, packets, status_words=status_words, flags=flags, overflow_sat=overflow)
+        image = encode_stream(layout, seq, packets, status_words=status_words, flags=flags, overflow_sat=left)
         self._last_status = status_words
         self._staged = _Staged(counts, n_results, left, seq)
         slave.write_inputs(image)
@@ -518,14 +529,6 @@ def version_string(version: tuple[int, int, int]) -> str:
     """0x100A: 'major.minor build 0xBBBB' (the OTA header's version and build, 13.8 SI 5/6)."""
     major, minor, build = version
     return f"{major}.{minor} build 0x{build:04X}"
-
-
-def _to_frame(p: CanPacket) -> CanFrame:
-    return CanFrame(p.can_id, bytes(p.data), extended=p.extended, rtr=p.rtr, fd=p.fd, brs=p.brs, esi=p.esi)
-
-
-def _to_packet(channel: int, frame: CanFrame, t: float, ref: float, layout: StreamLayout) -> CanPacket:
-    return CanPacket.from_frame(channel, frame, t, ref, layout)
 
 
 class EcanLiteDevice:
@@ -579,4 +582,3 @@ class EcanLiteDevice:
             cb(self)
 
 
-__all__ += ["budget_mod", "McanChannel", "version_string", "layout_crc"]
