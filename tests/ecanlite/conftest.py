@@ -3,6 +3,12 @@ them, an in-process master, and helpers that follow the bring-up of manual 5.4.3
 
 from __future__ import annotations
 
+import contextlib
+import itertools
+import os
+import shutil
+import subprocess
+import sys
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -78,3 +84,67 @@ def make_rig(tmp_path: Path, n_buses: int = 4, fd: bool = True) -> Rig:
 @pytest.fixture
 def rig(tmp_path: Path) -> Iterator[Rig]:
     yield make_rig(tmp_path)
+
+
+# ---------------------------------------------------------------------------------------- veth + pysoem
+DRIVER = Path(__file__).with_name("ecanlite_soem_driver.py")
+_counter = itertools.count()
+
+
+def net_capable() -> str | None:
+    """None when we may create namespaces and raw sockets, else the reason to skip."""
+    if not sys.platform.startswith("linux"):
+        return "EtherCAT wire tests need Linux AF_PACKET sockets"
+    if shutil.which("ip") is None:
+        return "the 'ip' tool (iproute2) is missing"
+    try:
+        import pysoem  # noqa: F401
+    except ImportError:
+        return "pysoem is not installed"
+    try:
+        status = Path("/proc/self/status").read_text()
+        cap_eff = int(next(line for line in status.splitlines() if line.startswith("CapEff:")).split()[1], 16)
+    except (OSError, StopIteration, ValueError):
+        return "cannot read process capabilities"
+    if not (cap_eff >> 12) & 1 or not (cap_eff >> 13) & 1:
+        return "process lacks CAP_NET_ADMIN/CAP_NET_RAW (run as root to create veth pairs)"
+    return None
+
+
+@dataclass(frozen=True)
+class VethNs:
+    """Emulator end in this namespace, master end inside ``namespace`` (as tests/ethercat)."""
+
+    namespace: str
+    emulator_iface: str
+    master_iface: str
+
+    def run_master(self, *args: str, timeout: float = 300.0) -> subprocess.CompletedProcess[str]:
+        return subprocess.run(["ip", "netns", "exec", self.namespace, sys.executable, str(DRIVER),
+                               self.master_iface, *args], capture_output=True, text=True, timeout=timeout,
+                              check=False)
+
+
+@contextlib.contextmanager
+def veth_pair() -> Iterator[VethNs]:
+    tag = f"{os.getpid() % 100000}{next(_counter)}"
+    ns = f"gl-ecan-{tag}"
+    emu, mst = f"gle{tag}e", f"gle{tag}m"
+    subprocess.run(["ip", "netns", "add", ns], check=True)
+    try:
+        subprocess.run(["ip", "link", "add", emu, "type", "veth", "peer", "name", mst, "netns", ns], check=True)
+        subprocess.run(["ip", "link", "set", emu, "up"], check=True)
+        subprocess.run(["ip", "netns", "exec", ns, "ip", "link", "set", mst, "up"], check=True)
+        yield VethNs(ns, emu, mst)
+    finally:
+        subprocess.run(["ip", "link", "del", emu], check=False, capture_output=True)
+        subprocess.run(["ip", "netns", "del", ns], check=False)
+
+
+@pytest.fixture(scope="module")
+def veth_ns() -> Iterator[VethNs]:
+    reason = net_capable()
+    if reason is not None:
+        pytest.skip(reason)
+    with veth_pair() as v:
+        yield v

