@@ -24,8 +24,9 @@ import binascii
 import enum
 import struct
 import zlib
-from collections.abc import Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, fields
+from typing import Any
 
 from ...bus.frame import FD_DLC_TO_LEN, FD_LEN_TO_DLC, MAX_EXT_ID, MAX_STD_ID, CanFrame
 from ...common.errors import LocalError, ProtocolError
@@ -194,6 +195,7 @@ _TSF_BYTES = (0, 2, 4, 8)
 _HEADER = struct.Struct("<BBHHHHHBBBB4H")
 _HEADER_SEQ_END = struct.Struct("<H")
 _U16 = struct.Struct("<H")
+_COMMIT = struct.Struct("<HHHH")
 _U32 = struct.Struct("<I")
 _U64 = struct.Struct("<Q")
 _CTRL_STD = struct.Struct("<HH")
@@ -204,6 +206,7 @@ _LAYOUT_CRC = struct.Struct("<IHH")
 #: Control-word bits a TX_RESULT leaves 0: DLC, IDE, FDF, BRS, X, TSF, D64 (chapter 10: CH + KIND).
 _TX_RESULT_CTRL_ZERO = 0x9FF8
 _ZERO64 = bytes(64)
+_new_object = object.__new__
 
 
 def dlc_to_len(dlc: int) -> int:
@@ -462,6 +465,38 @@ class CanPacket:
                    tsf, timestamp, False, 0, 0, id_aux, d64, frame.dlc if frame.rtr else -1)
 
 
+#: The slot setters of CanPacket in field order: the decoder builds packets it has already checked
+#: without the generated __init__ (half the cost per packet; the same trick as CanFrame).
+_CAN_PACKET_SETTERS: tuple[Callable[[CanPacket, Any], None], ...] = tuple(
+    vars(CanPacket)[f.name].__set__ for f in fields(CanPacket))
+
+
+def _make_can_packet(channel: int, can_id: int, extended: bool, fd: bool, brs: bool, rtr: bool, esi: bool,
+                     data: bytes, tsf: Tsf, timestamp: int, scheduled: bool, offset_ns: int, tag: int, id_aux: int,
+                     d64: bool, dlc: int) -> CanPacket:
+    """A CanPacket from checked fields (decoder only)."""
+    (s_ch, s_id, s_ext, s_fd, s_brs, s_rtr, s_esi, s_data, s_tsf, s_ts, s_sched, s_off, s_tag, s_aux, s_d64,
+     s_dlc) = _CAN_PACKET_SETTERS
+    p: CanPacket = _new_object(CanPacket)
+    s_ch(p, channel)
+    s_id(p, can_id)
+    s_ext(p, extended)
+    s_fd(p, fd)
+    s_brs(p, brs)
+    s_rtr(p, rtr)
+    s_esi(p, esi)
+    s_data(p, data)
+    s_tsf(p, tsf)
+    s_ts(p, timestamp)
+    s_sched(p, scheduled)
+    s_off(p, offset_ns)
+    s_tag(p, tag)
+    s_aux(p, id_aux)
+    s_d64(p, d64)
+    s_dlc(p, dlc)
+    return p
+
+
 @dataclass(frozen=True, slots=True)
 class TxResultPacket:
     """A TX_RESULT packet (chapter 10): the outcome of frame ``ref_frame_index`` (counting KIND 0
@@ -479,6 +514,8 @@ class TxResultPacket:
 
 
 Packet = CanPacket | TxResultPacket
+_TSFS = tuple(Tsf)
+_RESULT_CODES = tuple(TxResultCode)
 
 
 @dataclass(frozen=True, slots=True)
@@ -730,19 +767,25 @@ def commit_state(image: bytes | bytearray | memoryview, previous: bytes | bytear
 
     TORN when seq_begin != seq_end (6.1 step 2); SAME when ``previous`` has the same sequence and
     the same header and payload bytes (13.8: a stopped master leaves the last image, an idempotent
-    no-op); DUPLICATE when the sequence is the same but the contents differ (LastPDOError 10);
-    else NEW. Bytes beyond payload_len do not count (PAYLOAD_ONLY, 9.1). Pass the last committed
-    image whether it was accepted or rejected, so a repeated bad image is not counted twice.
+    no-op); with the same sequence but other contents, TORN while payload_crc16 does not match
+    (5.4.4.1 writes the frame area before the new seq_begin: a write in progress) and DUPLICATE
+    (LastPDOError 10) once it does; else NEW. Bytes beyond payload_len do not count (PAYLOAD_ONLY,
+    9.1). Pass the last committed image whether it was accepted or rejected, so a repeated bad
+    image is not counted twice.
     """
     if len(image) < HEADER_SIZE:
         raise StreamError(PdoError.ACTIVE_AREA, ParseDiag(reason=f"image of {len(image)} bytes has no header"))
-    seq_begin, seq_end, payload_len = struct.unpack_from("<HHH", image, 2)
+    seq_begin, seq_end, payload_len, crc = _COMMIT.unpack_from(image, 2)
     if seq_begin != seq_end:
         return Commit.TORN
     if previous is None or len(previous) < HEADER_SIZE or _U16.unpack_from(previous, 2)[0] != seq_begin:
         return Commit.NEW
     n = HEADER_SIZE + payload_len
-    return Commit.SAME if bytes(image[:n]) == bytes(previous[:n]) else Commit.DUPLICATE
+    if bytes(image[:n]) == bytes(previous[:n]):
+        return Commit.SAME
+    if image[15] == CRC_ALG_CCITT_FALSE and n <= len(image) and binascii.crc_hqx(image[HEADER_SIZE:n], 0xFFFF) != crc:
+        return Commit.TORN
+    return Commit.DUPLICATE
 
 
 def decode_stream(image: bytes | bytearray | memoryview, layout: StreamLayout) -> DecodedStream:
@@ -781,117 +824,130 @@ def decode_stream(image: bytes | bytearray | memoryview, layout: StreamLayout) -
     end = HEADER_SIZE + payload_len
     if end > size:
         raise fail(PdoError.PACKET_OVERRUN, f"payload_len {payload_len} > frame area {size - HEADER_SIZE} (6.1)")
-    mv = memoryview(image)
-    if layout._crc and binascii.crc_hqx(mv[HEADER_SIZE:end], 0xFFFF) != crc:
-        raise fail(PdoError.BAD_CRC, f"payload_crc16 0x{crc:04X} != 0x{crc16(mv[HEADER_SIZE:end]):04X} (6.1)")
+    mv = memoryview(image)[HEADER_SIZE:end]
+    if layout._crc and binascii.crc_hqx(mv, 0xFFFF) != crc:
+        raise fail(PdoError.BAD_CRC, f"payload_crc16 0x{crc:04X} != 0x{crc16(mv):04X} (6.1)")
     if layout_id != layout.layout_id or mask != layout.channel_mask:
         raise fail(PdoError.ACTIVE_AREA, f"layout_id 0x{layout_id:04X} / channel_mask 0x{mask:02X}, active "
                                          f"0x{layout.layout_id:04X} / 0x{layout.channel_mask:02X} (5.4.4.1)")
+    data = image if type(image) is bytes else bytes(image)
     packets: list[Packet] = []
     append = packets.append
-    chan_ok = layout.channel_mask & ((1 << MAX_CHANNELS) - 1)
-    tsf_ok = layout._tsf_ok
-    d64_ok = layout._d64_ok
+    # Control word -> its checked geometry, filled on first sight: an image repeats few distinct
+    # control words, so each is validated once per image instead of once per packet.
+    geo: dict[int, tuple[int, int, int, int, Tsf, bool, bool, bool, bool, bool, int]] = {}
+    geometry = _ctrl_geometry
+    make = _make_can_packet
     schedule_ok = layout._schedule_ok
-    rx = layout._rx
     align4 = layout._align4
-    tx_result_ok = layout._tx_result_ok
-    fd_len = FD_DLC_TO_LEN
-    off = HEADER_SIZE
     u16 = _U16.unpack_from
+    u32 = _U32.unpack_from
+    off = HEADER_SIZE
     while off < end:
         if off + 2 > end:
             raise fail(PdoError.TRUNCATED, "control word cut by payload_len (8)", off, off + 2)
-        ctrl = u16(image, off)[0]
-        kind = ctrl >> 13 & 3
-        ch = ctrl & 7
-        if kind:
-            if kind != PacketKind.TX_RESULT or not tx_result_ok:
-                raise fail(PdoError.UNKNOWN_KIND, f"KIND {kind} not supported here (chapter 8, 9.1)", off, -1, ctrl)
-            if not chan_ok >> ch & 1:
-                raise fail(PdoError.INVALID_CHANNEL, f"channel {ch} not in mask 0x{chan_ok:02X}", off, -1, ctrl)
-            if ctrl & _TX_RESULT_CTRL_ZERO:
-                raise fail(PdoError.RESERVED_BIT, "TX_RESULT control word carries only CH and KIND (10)",
-                           off, -1, ctrl)
+        ctrl = u16(data, off)[0]
+        g = geo.get(ctrl)
+        if g is None:
+            code, why = _ctrl_error(ctrl, layout)
+            if code:
+                raise fail(code, why, off, -1, ctrl)
+            g = geo[ctrl] = geometry(ctrl)
+        id_bytes, ts_bytes, data_bytes, n, tsf, ide, fdf, brs, rtr, esi, dlc = g
+        if id_bytes == 0:   # TX_RESULT (checked by _ctrl_error: KIND 1 allowed here)
             pend = off + 6
             nxt = off + 8 if align4 else pend
             if nxt > end:
                 raise fail(PdoError.TRUNCATED, "TX_RESULT cut by payload_len (10)", off, nxt, ctrl)
-            _c, ref_seq, ref_index, result = _TX_RESULT.unpack_from(image, off)
+            _c, ref_seq, ref_index, result = _TX_RESULT.unpack_from(data, off)
             if result > 5:
                 raise fail(PdoError.UNKNOWN_KIND, f"ResultCode {result} undefined (10)", off, nxt, ctrl)
-            if nxt != pend and image[pend] | image[pend + 1]:
+            if nxt != pend and data[pend] | data[pend + 1]:
                 raise fail(PdoError.RESERVED_BIT, "ALIGN4 padding must be 0 (8.3)", off, nxt, ctrl)
-            append(TxResultPacket(ch, ref_seq, ref_index, TxResultCode(result)))
+            append(TxResultPacket(ctrl & 7, ref_seq, ref_index, _RESULT_CODES[result]))
             off = nxt
             continue
-        if not chan_ok >> ch & 1:
-            raise fail(PdoError.INVALID_CHANNEL, f"channel {ch} not in mask 0x{chan_ok:02X} (8, 13.2)", off, -1, ctrl)
-        dlc = ctrl >> 3 & 15
-        ide = ctrl & 0x80
-        fdf = ctrl & 0x100
-        brs = ctrl & 0x200
-        x = ctrl & 0x400
-        tsf = ctrl >> 11 & 3
-        d64 = ctrl & 0x8000
-        if fdf:
-            data_bytes = 64 if d64 else fd_len[dlc]
-            rtr = False
-        else:
-            if dlc > 8 or brs or d64:
-                raise fail(PdoError.INVALID_DLC, "classic CAN: DLC <= 8, BRS = 0, D64 = 0 (8.2)", off, -1, ctrl)
-            rtr = bool(x)
-            data_bytes = 0 if rtr else dlc
-        if d64 and not d64_ok:
-            raise fail(PdoError.FRAME_OVERRUN, f"D64 window not allowed in profile {layout.profile} (9)",
-                       off, -1, ctrl)
-        if not tsf_ok >> tsf & 1:
-            if rx and tsf == 3:
-                raise fail(PdoError.BAD_SCHEDULE, "scheduled transmit (RX_TSF_SCHEDULE_TX) not supported (8.4)",
-                           off, -1, ctrl)
-            raise fail(PdoError.INVALID_TSF, f"TSF {tsf} not allowed in this profile/direction (8.4, 9)",
-                       off, -1, ctrl)
-        o = off + (6 if ide else 4)
-        ts_bytes = _TSF_BYTES[tsf]
+        o = off + 2 + id_bytes
         data_at = o + ts_bytes
         pend = data_at + data_bytes
-        nxt = (pend - off + 3 & ~3) + off if align4 else pend
+        nxt = off + (pend - off + 3 & ~3) if align4 else pend
         if nxt > end:
             raise fail(PdoError.TRUNCATED, f"packet ends at {nxt} beyond payload end {end} (8.3)", off, nxt, ctrl)
         if ide:
-            word = _U32.unpack_from(image, off + 2)[0]
+            word = u32(data, off + 2)[0]
             can_id = word & 0x1FFFFFFF
             id_aux = word >> 29
         else:
-            word = u16(image, off + 2)[0]
+            word = u16(data, off + 2)[0]
             if word & 0xC000:
                 raise fail(PdoError.RESERVED_BIT, "StdIdField bits 14/15 must be 0 (8.1)", off, nxt, ctrl)
             can_id = word & 0x7FF
             id_aux = word >> 11
-        timestamp = offset_ns = tag = 0
-        scheduled = False
         if ts_bytes:
             if schedule_ok:     # RxPDO: TSF_FULL64 is only the reservation format (8.4)
-                fmt, sflags, tag, offset_ns = _SCHEDULE.unpack_from(image, o)
+                fmt, sflags, tag, offset_ns = _SCHEDULE.unpack_from(data, o)
                 if fmt != 1 or sflags:
                     raise fail(PdoError.BAD_SCHEDULE, f"reservation format {fmt} flags {sflags}, expected 1 / 0 "
                                                       "(8.4)", off, nxt, ctrl)
-                scheduled = True
-            elif ts_bytes == 2:
-                timestamp = u16(image, o)[0]
-            elif ts_bytes == 4:
-                timestamp = _U32.unpack_from(image, o)[0]
+                pkt = make(ctrl & 7, can_id, ide, fdf, brs, rtr, esi, data[data_at:data_at + n], tsf, 0, True,
+                           offset_ns, tag, id_aux, ctrl >= 0x8000, dlc)
             else:
-                timestamp = _U64.unpack_from(image, o)[0]
-        if nxt != pend and any(mv[pend:nxt]):
+                stamp = (u16 if ts_bytes == 2 else u32 if ts_bytes == 4 else _U64.unpack_from)(data, o)[0]
+                pkt = make(ctrl & 7, can_id, ide, fdf, brs, rtr, esi, data[data_at:data_at + n], tsf, stamp, False,
+                           0, 0, id_aux, ctrl >= 0x8000, dlc)
+        else:
+            pkt = make(ctrl & 7, can_id, ide, fdf, brs, rtr, esi, data[data_at:data_at + n], tsf, 0, False, 0, 0,
+                       id_aux, ctrl >= 0x8000, dlc)
+        if nxt != pend and data[pend:nxt].count(0) != nxt - pend:
             raise fail(PdoError.RESERVED_BIT, "ALIGN4 padding must be 0 (8.3)", off, nxt, ctrl)
-        n = fd_len[dlc] if d64 else data_bytes
-        append(CanPacket(ch, can_id, bool(ide), bool(fdf), bool(brs), rtr, bool(x) and not rtr,
-                         bytes(mv[data_at:data_at + n]), Tsf(tsf), timestamp, scheduled, offset_ns, tag,
-                         id_aux, bool(d64), dlc if rtr else -1))
+        append(pkt)
         off = nxt
     if len(packets) != count:
         raise fail(PdoError.BAD_HEADER, f"frame_count {count} but {len(packets)} packets in payload_len (6)", off)
     header = StreamHeader(HeaderFlags(flags & 0x3F), seq, seq_end, payload_len, crc, layout_id, mask, count,
                           overflow, crc_alg, (s0, s1, s2, s3), ver_ihl)
     return DecodedStream(header, tuple(packets))
+
+
+def _ctrl_error(ctrl: int, layout: StreamLayout) -> tuple[PdoError, str]:
+    """The LastPDOError a control word alone earns in ``layout`` (chapter 8, 8.2, 8.4, 9, 10)."""
+    kind = ctrl >> 13 & 3
+    ch = ctrl & 7
+    if kind and (kind != PacketKind.TX_RESULT or not layout._tx_result_ok):
+        return PdoError.UNKNOWN_KIND, f"KIND {kind} not supported here (chapter 8, 9.1)"
+    mask = layout.channel_mask & ((1 << MAX_CHANNELS) - 1)
+    if not mask >> ch & 1:
+        return PdoError.INVALID_CHANNEL, f"channel {ch} not in mask 0x{mask:02X} (8, 13.2)"
+    if kind:
+        if ctrl & _TX_RESULT_CTRL_ZERO:
+            return PdoError.RESERVED_BIT, "TX_RESULT control word carries only CH and KIND (10)"
+        return PdoError.OK, ""
+    fdf = ctrl & 0x100
+    d64 = ctrl & 0x8000
+    if not fdf and (ctrl >> 3 & 15 > 8 or ctrl & 0x200 or d64):
+        return PdoError.INVALID_DLC, "classic CAN: DLC <= 8, BRS = 0, D64 = 0 (8.2)"
+    if d64 and not layout._d64_ok:
+        return PdoError.FRAME_OVERRUN, f"D64 window not allowed in profile {layout.profile} (9)"
+    tsf = ctrl >> 11 & 3
+    if not layout._tsf_ok >> tsf & 1:
+        if layout._rx and tsf == Tsf.FULL64:
+            return PdoError.BAD_SCHEDULE, "scheduled transmit (RX_TSF_SCHEDULE_TX) not supported (8.4)"
+        return PdoError.INVALID_TSF, f"TSF {tsf} not allowed in this profile/direction (8.4, 9)"
+    return PdoError.OK, ""
+
+
+def _ctrl_geometry(ctrl: int) -> tuple[int, int, int, int, Tsf, bool, bool, bool, bool, bool, int]:
+    """(id bytes (0 = TX_RESULT), timestamp bytes, data bytes on the wire, data bytes of the frame,
+    TSF, IDE, FDF, BRS, RTR, ESI, DLC field of the packet) of a control word that passed
+    :func:`_ctrl_error` (8.3)."""
+    if ctrl >> 13 & 3:
+        return 0, 0, 0, 0, Tsf.NONE, False, False, False, False, False, -1
+    dlc = ctrl >> 3 & 15
+    fdf = ctrl & 0x100 != 0
+    x = ctrl & 0x400 != 0
+    rtr = x and not fdf
+    tsf = _TSFS[ctrl >> 11 & 3]
+    n = 0 if rtr else FD_DLC_TO_LEN[dlc]
+    wire = 64 if ctrl & 0x8000 else n
+    return (4 if ctrl & 0x80 else 2, _TSF_BYTES[tsf], wire, n, tsf, ctrl & 0x80 != 0, fdf, ctrl & 0x200 != 0, rtr,
+            x and fdf, dlc if rtr else -1)
