@@ -22,6 +22,7 @@ from ..common.errors import ConfigError, GatewaylabError
 EXTRA_SUBCOMMANDS = (
     "gatewaylab.devices.maxon_idx.host.cli",
     "gatewaylab.ethercat.net_cli",
+    "gatewaylab.devices.ecanlite.cli",
 )
 
 RIG_HELP = """\
