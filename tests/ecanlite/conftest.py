@@ -65,10 +65,27 @@ def bring_up(rig: Rig, n: int = 8, tx_mask: int = 0x0F, rx_mask: int = 0x0F, tx_
     for index in (0x8010, 0x8011):                                        # phase D
         assert m.sdo_upload8(0, index, 2) == 0
         assert m.sdo_upload16(0, index, 9) == 128 * n
+    configure_channels(rig)                                               # phase E
     m.config_map()
     m.set_state(AlState.SAFEOP)
     m.exchange_process_data()
     m.set_state(AlState.OP)
+
+
+def configure_channels(rig: Rig) -> None:
+    """5.4.3 phase E for every connected channel: automatic bit timing at the bus's rates, CAN FD
+    when the bus has a data rate, apply, status 0."""
+    m = rig.master
+    for k, bus in enumerate(rig.buses):
+        index = 0x8001 + k
+        fd = bus.data_bitrate is not None
+        m.sdo_download8(0, index, 7, 0)
+        m.sdo_download8(0, index, 15, 1 if fd else 0)
+        m.sdo_download32(0, index, 19, bus.bitrate)
+        if fd:
+            m.sdo_download32(0, index, 20, bus.data_bitrate or 0)
+        m.sdo_download8(0, index, 1, 1)
+        assert m.sdo_upload8(0, index, 2) == 0, f"MCAN{k} apply status"
 
 
 def make_rig(tmp_path: Path, n_buses: int = 4, fd: bool = True) -> Rig:

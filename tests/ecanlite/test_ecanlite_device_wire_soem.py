@@ -14,6 +14,7 @@ import pytest
 from gatewaylab.bus import VirtualBus, python_can_bus
 from gatewaylab.common.clock import RealTimeClock
 from gatewaylab.devices.ecanlite.device import EcanLiteDevice
+from gatewaylab.ethercat.esc import AlState
 from gatewaylab.ethercat.segment import Segment
 from gatewaylab.ethercat.wire import WireTransport
 
@@ -33,8 +34,16 @@ def test_soem_bring_up_and_the_manual_frame(veth_ns: Any, tmp_path: Path, n: int
     wire.start()
     c0 = python_can_bus(buses[0])
     c1 = python_can_bus(buses[1])
+
+    def peer() -> None:
+        """The peer on CAN1 talks once the master has the device in OP (its channel applied)."""
+        if device.slave.state == AlState.OP:
+            c1.send(can.Message(arbitration_id=0x2A5, data=b"peer", is_extended_id=False))
+        else:
+            clock.call_later(0.002, peer)
+
+    clock.call_soon(peer)
     try:
-        c1.send(can.Message(arbitration_id=0x2A5, data=b"peer", is_extended_id=False))
         proc = veth_ns.run_master("bringup", str(n), "300")
     finally:
         wire.stop()
@@ -47,6 +56,7 @@ def test_soem_bring_up_and_the_manual_frame(veth_ns: Any, tmp_path: Path, n: int
         assert (a["unit"], a["header"]) == (128, 24)
         word = (n - 1) | 0x0F << 5
         assert r["D"] == {"0x8010": [0, 128 * n, 128 * n - 24, word], "0x8011": [0, 128 * n, 128 * n - 24, word]}
+        assert r["E"] == [0, 0, 0, 0]  # phase E: 1 Mbit/s + 5 Mbit/s FD, 87.5 %, applied
         assert r["op"] == 8 and r["sizes"] == [128 * n, 128 * n]
         assert r["bad_wkc"] == 0 and r["tx_errors"] == []
         assert [1, 0x2A5, b"peer".hex()] in r["rx_packets"]

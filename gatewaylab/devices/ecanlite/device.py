@@ -37,12 +37,13 @@ from .image import (CHUNKS, CYCLE_DIAG, DEVICE_NAME, RX_MAP, RX_PROFILE, RX_UNIT
                     SI_LAST_ERROR, SI_LAYOUT_CRC, SI_MASK, SI_MULTIPLIER, SI_OPTIONS, SI_OVERFLOW_COUNTER,
                     SI_PROFILE, SI_PROFILE_WORD, SI_SEQUENCE, SI_STATUS, TX_MAP, TX_PROFILE, UNIT_BYTES,
                     ecanlite_description)
-from .mcan import McanChannel, McanModel
+from .mcan import McanModel
+from .system import DiagFlag
 from .stream import (TIMESTAMP_UNIT_S, CanPacket, Commit, Direction, PdoError, StreamError, StreamLayout, Tsf,
                      TxResultCode, TxResultPacket, check_layout, commit_state, decode_stream, encode_stream,
                      packet_size)
 
-__all__ = ["EcanLiteApplication", "EcanLiteDevice", "Status", "version_string"]
+__all__ = ["EcanLiteApplication", "EcanLiteDevice", "Status"]
 
 
 #: 0x8010/0x8011:02 values (13.2).
@@ -67,9 +68,6 @@ FLAG_TRUNCATED, FLAG_CHANNEL_ERROR, FLAG_TX_RESULT, FLAG_STATUS_CHANGED, FLAG_SE
     0x01, 0x02, 0x04, 0x08, 0x10, 0x20)
 #: Channel status word bits that make ANY_CHANNEL_ERROR (chapter 7: warn, bus_off, rx/tx pressure).
 _STATUS_ERROR_BITS = 0x10 | 0x20 | 0x40 | 0x80
-#: 0xB000:06 legacy maintenance diag flags (13.7).
-DIAG_TX_FIFO_FULL, DIAG_SCHED_LATE_DROP, DIAG_SCHED_QUEUE_FULL = 0x20, 0x40, 0x80
-MAINTENANCE = 0xB000
 #: How long the device is gone from the line while it resets after an OTA update (15.3.1).
 RESET_TIME = 0.5
 #: Scheduled frames waiting for the next SYNC0 (firmware queue depth, 0xF000:29 TX cache max depth).
@@ -155,8 +153,7 @@ class EcanLiteApplication(SlaveApplication):
         od.on_read(CYCLE_DIAG, self._refresh_cycle)
         od.on_read(range(RX_UNIT, RX_UNIT + CHUNKS * 0x80), self._refresh_rx_unit)
         self.model.install(slave, od)
-        major, minor, build = self.model.version
-        od.put(0x100A, 0, version_string((major, minor, build)))
+        od.put(0x100A, 0, self.model.version_string)
         if (0x8000, 4) in od.values:
             self.cpu_hz = int(od.values[(0x8000, 4)]) or self.cpu_hz
 
@@ -362,7 +359,7 @@ class EcanLiteApplication(SlaveApplication):
             ch = p.channel
             if p.scheduled:
                 if len(self._scheduled) >= SCHED_QUEUE_MAX:
-                    self._maintenance_flag(DIAG_SCHED_QUEUE_FULL)
+                    self._maintenance_flag(DiagFlag.SCHED_QUEUE_FULL)
                     rx.overflows += 1
                     if tx_result:
                         results.append(TxResultPacket(ch, seq, index, TxResultCode.TX_FIFO_FULL))
@@ -383,11 +380,9 @@ class EcanLiteApplication(SlaveApplication):
         assert self.slave is not None
         return self.slave.esc._sync0_timer is not None
 
-    def _maintenance_flag(self, bit: int) -> None:
-        assert self.slave is not None
-        key = (MAINTENANCE, 6)
-        if key in self.slave.od.values:
-            self.slave.od.values[key] = int(self.slave.od.values[key]) | bit
+    def _maintenance_flag(self, flag: DiagFlag) -> None:
+        """Latch a 0xB000:06 legacy diag flag (13.7) in the maintenance model."""
+        self.model.system.diag_flags |= flag
 
     # ------------------------------------------------------------------ SYNC0 scheduled transmit
     def on_sync0(self, slave: Slave, t: float) -> None:
@@ -406,7 +401,7 @@ class EcanLiteApplication(SlaveApplication):
             if when < t0 or (cycle and s.offset_ns * 1e-9 >= cycle):
                 self.sched_late_drops += 1
                 self.rx.overflows += 1
-                self._maintenance_flag(DIAG_SCHED_LATE_DROP)
+                self._maintenance_flag(DiagFlag.SCHED_LATE_DROP)
                 if tx_result:
                     self._results.append(TxResultPacket(s.channel, s.ref[0], s.ref[1], TxResultCode(2)))
                 continue
@@ -512,7 +507,7 @@ class EcanLiteApplication(SlaveApplication):
                     if n:
                         counts[ch_index] = n
                         packets.extend(peeked[ch_index][:n])
-                left = sum(channels[i].pending_rx() for i in pending) - sum(counts.values())
+                left = alloc.left_behind  # peeked (within the drain budgets) but not packed
         if left:
             flags |= FLAG_TRUNCATED | FLAG_OVERFLOW_VALID
         image = encode_stream(layout, seq, packets, status_words=status_words, flags=flags, overflow_sat=left)
@@ -523,12 +518,6 @@ class EcanLiteApplication(SlaveApplication):
 
 def _i32(value: int) -> int:
     return max(-0x80000000, min(0x7FFFFFFF, value))
-
-
-def version_string(version: tuple[int, int, int]) -> str:
-    """0x100A: 'major.minor build 0xBBBB' (the OTA header's version and build, 13.8 SI 5/6)."""
-    major, minor, build = version
-    return f"{major}.{minor} build 0x{build:04X}"
 
 
 class EcanLiteDevice:
@@ -543,13 +532,14 @@ class EcanLiteDevice:
         self.controllers = list(controllers)[:4] + [None] * (4 - len(controllers))
         self.resets = 0
         self.on_reset: list[Callable[[EcanLiteDevice], None]] = []
-        self.model = McanModel(clock, self.controllers, flash_path)
+        self.model = McanModel(clock, self.controllers, flash_path, serial=serial)
+        self.model.system.on_reboot = self._go_offline  # 0x8000:01 / 0xB000:04 bit 6 restart the device
         self.app = EcanLiteApplication(self)
         self.slave = self._build_slave()
 
     def _build_slave(self) -> Slave:
         desc = ecanlite_description(self.model.object_defs(), serial=self.serial,
-                                    software_version=version_string(self.model.version))
+                                    software_version=self.model.version_string)
         return Slave(self.clock, desc, self.app, self.model.ota_handler(self._ota_accepted), name=self.name)
 
     def _ota_accepted(self) -> None:
@@ -562,16 +552,13 @@ class EcanLiteDevice:
         self.clock.call_later(RESET_TIME, self._come_back)
 
     def _come_back(self) -> None:
-        """Restart: a fresh MCAN model (reads the flash, new version), dictionary and slave state, in
+        """Restart: the MCAN model reset (reads the flash, keeps the new version), a fresh dictionary and slave state, in
         INIT. The ESC object stays, as the segment holds it; it was cleared by ``power_cycle``."""
         esc = self.slave.esc
-        close = getattr(self.model, "close", None)
-        if close is not None:
-            close()
-        self.model = McanModel(self.clock, self.controllers, self.flash_path)
+        self.model.reset()  # channels restart from the flash image; the new version stays
         self.app = EcanLiteApplication(self)
         desc = ecanlite_description(self.model.object_defs(), serial=self.serial,
-                                    software_version=version_string(self.model.version))
+                                    software_version=self.model.version_string)
         # The firmware starts again behind the same ESC: re-run the slave's construction, keep the ESC.
         Slave.__init__(self.slave, self.clock, desc, self.app, self.model.ota_handler(self._ota_accepted),
                        name=self.name)
