@@ -14,8 +14,17 @@ import sys
 import time
 from typing import Any
 
-from gatewaylab.devices.ecanlite.stream import (CanPacket, Commit, Direction, StreamError, StreamLayout, commit_state,
-                                                crc16, decode_stream, encode_stream)
+from gatewaylab.devices.ecanlite.stream import (
+    CanPacket,
+    Commit,
+    Direction,
+    StreamError,
+    StreamLayout,
+    commit_state,
+    crc16,
+    decode_stream,
+    encode_stream,
+)
 
 #: Correctness, not timing: a frame only counts as lost after 20 ms (shared notes 'soem-interop').
 RX_TIMEOUT_US = 20_000

@@ -12,8 +12,18 @@ from conftest import CYCLE, Rig, bring_up, make_rig
 from gatewaylab.bus import python_can_bus
 from gatewaylab.devices.ecanlite.device import Status
 from gatewaylab.devices.ecanlite.image import SM_SIZE
-from gatewaylab.devices.ecanlite.stream import (CanPacket, Direction, HeaderFlags, PdoError, StreamLayout,
-                                                TxResultCode, TxResultPacket, crc16, decode_stream, encode_stream)
+from gatewaylab.devices.ecanlite.stream import (
+    CanPacket,
+    Direction,
+    HeaderFlags,
+    PdoError,
+    StreamLayout,
+    TxResultCode,
+    TxResultPacket,
+    crc16,
+    decode_stream,
+    encode_stream,
+)
 from gatewaylab.ethercat.errors import AlStatusCode, AlStatusError
 from gatewaylab.ethercat.esc import AlState
 from gatewaylab.ethercat.esi import export_esi
@@ -182,8 +192,8 @@ def test_align4_both_directions(rig: Rig) -> None:
     assert rig.master.sdo_upload32(0, 0x8011, 12) == 2 | 0x0F << 5 | 0x02 << 21
     client = python_can_bus(rig.buses[1])
     try:
-        publish(rig, encode_stream(rx_layout(3, options=2), 1, [CanPacket(1, 0x1234567, extended=True, data=b"ABCDEFGH")]),
-                cycles=3)
+        frame = CanPacket(1, 0x1234567, extended=True, data=b"ABCDEFGH")
+        publish(rig, encode_stream(rx_layout(3, options=2), 1, [frame]), cycles=3)
         msg = client.recv(0)
         assert msg is not None and msg.arbitration_id == 0x1234567 and bytes(msg.data) == b"ABCDEFGH"
         client.send(can.Message(arbitration_id=0x1234568, is_extended_id=True, data=b"12345678"))

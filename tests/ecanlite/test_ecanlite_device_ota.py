@@ -10,6 +10,7 @@ from conftest import bring_up, make_rig
 
 from gatewaylab.devices.ecanlite.device import RESET_TIME
 from gatewaylab.devices.ecanlite.ota import FirmwareVersion, pack
+from gatewaylab.ethercat.errors import FoeError
 from gatewaylab.ethercat.esc import AlState
 
 
@@ -51,7 +52,7 @@ def test_refused_packages_leave_the_version(tmp_path: Path, name: str, password:
     m.set_state(AlState.PREOP)
     old = m.sdo_upload_str(0, 0x100A)
     payload = data if data is not None else pack(b"\x13" * 3000, FirmwareVersion(1, 4, 0x0494))
-    with pytest.raises(Exception):
+    with pytest.raises(FoeError):
         m.foe_write(0, name, payload, password=password)
     rig.clock.advance(RESET_TIME * 2)
     assert not rig.device.slave.esc.offline and rig.device.resets == 0

@@ -16,8 +16,6 @@ master has read it, what it carried is consumed and counted.
 
 from __future__ import annotations
 
-import struct
-import zlib
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -32,16 +30,54 @@ from ...ethercat.esc import AlState
 from ...ethercat.slave import Slave, SlaveApplication
 from ...od import Entry, ObjectDictionary, SdoAbort, SdoAbortCode
 from . import budget as budget_mod
-from .image import (CHUNKS, CYCLE_DIAG, DEVICE_NAME, RX_MAP, RX_PROFILE, RX_UNIT, SI_ACTIVE_AREA,
-                    SI_ACTIVE_BYTES, SI_APPLY, SI_BUDGET, SI_COMMAND, SI_CYCLE_CLEAR, SI_ERROR_COUNTER,
-                    SI_LAST_ERROR, SI_LAYOUT_CRC, SI_MASK, SI_MULTIPLIER, SI_OPTIONS, SI_OVERFLOW_COUNTER,
-                    SI_PROFILE, SI_PROFILE_WORD, SI_SEQUENCE, SI_STATUS, TX_MAP, TX_PROFILE, UNIT_BYTES,
-                    ecanlite_description)
+from .image import (
+    CHUNKS,
+    CYCLE_DIAG,
+    DEVICE_NAME,
+    RX_MAP,
+    RX_PROFILE,
+    RX_UNIT,
+    SI_ACTIVE_AREA,
+    SI_ACTIVE_BYTES,
+    SI_APPLY,
+    SI_BUDGET,
+    SI_COMMAND,
+    SI_CYCLE_CLEAR,
+    SI_ERROR_COUNTER,
+    SI_LAST_ERROR,
+    SI_LAYOUT_CRC,
+    SI_MASK,
+    SI_MULTIPLIER,
+    SI_OPTIONS,
+    SI_OVERFLOW_COUNTER,
+    SI_PROFILE,
+    SI_PROFILE_WORD,
+    SI_SEQUENCE,
+    SI_STATUS,
+    TX_MAP,
+    TX_PROFILE,
+    UNIT_BYTES,
+    ecanlite_description,
+)
 from .mcan import McanModel
+from .stream import (
+    TIMESTAMP_UNIT_S,
+    CanPacket,
+    Commit,
+    Direction,
+    PdoError,
+    StreamError,
+    StreamLayout,
+    Tsf,
+    TxResultCode,
+    TxResultPacket,
+    check_layout,
+    commit_state,
+    decode_stream,
+    encode_stream,
+    packet_size,
+)
 from .system import DiagFlag
-from .stream import (TIMESTAMP_UNIT_S, CanPacket, Commit, Direction, PdoError, StreamError, StreamLayout, Tsf,
-                     TxResultCode, TxResultPacket, check_layout, commit_state, decode_stream, encode_stream,
-                     packet_size)
 
 __all__ = ["EcanLiteApplication", "EcanLiteDevice", "Status"]
 
@@ -552,8 +588,9 @@ class EcanLiteDevice:
         self.clock.call_later(RESET_TIME, self._come_back)
 
     def _come_back(self) -> None:
-        """Restart: the MCAN model reset (reads the flash, keeps the new version), a fresh dictionary and slave state, in
-        INIT. The ESC object stays, as the segment holds it; it was cleared by ``power_cycle``."""
+        """Restart: the MCAN model reset (reads the flash, keeps the new version), a fresh dictionary
+        and slave state, in INIT. The ESC object stays, as the segment holds it; ``power_cycle``
+        cleared it."""
         esc = self.slave.esc
         self.model.reset()  # channels restart from the flash image; the new version stays
         self.app = EcanLiteApplication(self)
