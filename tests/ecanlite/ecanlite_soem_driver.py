@@ -165,6 +165,7 @@ def scenario_bringup(iface: str, n: int, cycles: int) -> dict[str, Any]:
     for i in range(cycles):
         if i == 5:
             s0.output = frame_5_4_4_1(n, 1)  # phase F: the frame, written once, repeated by the master
+        time.sleep(0.0005)  # a cyclic task, roughly 1 kHz: CAN peers get time to talk
         master.send_processdata()
         if master.receive_processdata(RX_TIMEOUT_US) != master.expected_wkc:
             bad += 1

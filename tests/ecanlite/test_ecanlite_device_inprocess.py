@@ -198,7 +198,7 @@ def test_align4_both_directions(rig: Rig) -> None:
         assert msg is not None and msg.arbitration_id == 0x1234567 and bytes(msg.data) == b"ABCDEFGH"
         client.send(can.Message(arbitration_id=0x1234568, is_extended_id=True, data=b"12345678"))
         rig.clock.advance(0.001)
-        rig.cycle(1)
+        rig.cycle(2)  # staged after the first read, read in the second
         image = _inputs(rig, tx_layout(3, options=2))
         decoded = decode_stream(image, tx_layout(3, options=2))
         assert decoded.header.payload_len == 16 and image[24 + 14:24 + 16] == b"\0\0"

@@ -10,8 +10,8 @@ objects) is :class:`~gatewaylab.devices.ecanlite.mcan.McanModel`; the byte forma
 Per cycle, RxPDO: an image equal to the last one is a no-op; an all-zero image (nothing published
 yet) is ignored; ``seq_begin != seq_end`` (torn) is ignored; anything else is decoded whole first and
 only then are its CAN_FRAMEs submitted, so a rejected image never puts a frame on the bus. TxPDO: an
-image is staged (peeked, not consumed) after every read and restaged after new outputs; when the
-master has read it, what it carried is consumed and counted.
+image is staged (peeked, not consumed) after every read; when the master has read it, what it
+carried is consumed and counted, and the next one is staged (one build per cycle).
 """
 
 from __future__ import annotations
@@ -348,8 +348,7 @@ class EcanLiteApplication(SlaveApplication):
             self._rx_image(data)
             self._cost(4, t0)
         self._cost(0, t0)
-        if (self._results or self._staged is None or any(ch.pending_rx() for ch in self.model.channels)
-                or self.tx.active.options & OPT_TX_RESULT):
+        if self._staged is None:  # else the image staged after the last read stands (one build per cycle)
             t1 = self.clock.now()
             self._stage()
             self._cost(3, t1)
