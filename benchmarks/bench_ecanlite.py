@@ -132,8 +132,16 @@ def master_ecan(iface: str, seconds: float) -> dict[str, Any]:
     """4 frames (one per channel) in every RxPDO, the TxPDO parsed every cycle."""
     import pysoem
 
-    from gatewaylab.devices.ecanlite.stream import (CanPacket, Commit, Direction, StreamError, StreamLayout,
-                                                    commit_state, decode_stream, encode_stream)
+    from gatewaylab.devices.ecanlite.stream import (
+        CanPacket,
+        Commit,
+        Direction,
+        StreamError,
+        StreamLayout,
+        commit_state,
+        decode_stream,
+        encode_stream,
+    )
     _pin(0)
     master = _open(iface)
     s0 = master.slaves[0]
@@ -175,7 +183,10 @@ def master_ecan(iface: str, seconds: float) -> dict[str, Any]:
         time.sleep(0.001)
     out.update({"sent": state["sent"], "received": state["received"], "parse_errors": state["parse_errors"],
                 "pdo_errors": int.from_bytes(s0.sdo_read(0x8011, 15), "little"),
-                "tx_overflows": int.from_bytes(s0.sdo_read(0x8010, 16), "little")})
+                "tx_overflows": int.from_bytes(s0.sdo_read(0x8010, 16), "little"),
+                # 13.2.5 RX dropped old/new: cache overflows while the master stalled
+                "rx_cache_drops": sum(int.from_bytes(s0.sdo_read(0x9020 + k, sub), "little")
+                                      for k in range(4) for sub in (6, 7))})
     master.state = pysoem.INIT_STATE
     master.write_state()
     master.close()
@@ -277,7 +288,8 @@ def main() -> None:
     print(_line("ECAN-Lite", ecan))
     to_master_lost = sum(peer_sent) - ecan["received"]
     to_bus_lost = ecan["sent"] - sum(heard)
-    print(f"  CAN -> master: peers sent {sum(peer_sent)}, master parsed {ecan['received']}, lost {to_master_lost}")
+    print(f"  CAN -> master: peers sent {sum(peer_sent)}, master parsed {ecan['received']}, lost {to_master_lost} "
+          f"(RX cache overflows while the master was late, 0x9020..0x9023:06/07: {ecan['rx_cache_drops']})")
     print(f"  master -> CAN: master sent {ecan['sent']}, peers heard {sum(heard)}, lost {to_bus_lost}")
     print(f"  PDO errors: RxPDO 0x8011:15 = {ecan['pdo_errors']}, TxPDO parse errors {ecan['parse_errors']}; "
           f"TxPDO overflows 0x8010:16 = {ecan['tx_overflows']}")
