@@ -3,7 +3,6 @@
 
 Usage: python ecanlite_soem_driver.py INTERFACE bringup N CYCLES
        python ecanlite_soem_driver.py INTERFACE bench N SECONDS FRAMES_PER_CYCLE
-       python ecanlite_soem_driver.py INTERFACE kickcat N CYCLES
 """
 
 from __future__ import annotations
@@ -248,27 +247,10 @@ def scenario_bench(iface: str, n: int, seconds: float, per_cycle: int) -> dict[s
     return out
 
 
-def scenario_kickcat(iface: str, n: int, cycles: int) -> dict[str, Any]:
-    """KickCAT (shared notes): init, mapping from the default assignment (N 8), OP, cycles."""
-    import kickcat  # type: ignore[import-not-found]
-    link = kickcat.create_link(iface, "")
-    bus = kickcat.Bus(link)
-    bus.init(0.1)
-    out: dict[str, Any] = {"slaves": len(bus.slaves())}
-    bus.create_mapping(4096)
-    s = bus.slaves()[0]
-    out["sizes"] = [s.output_size, s.input_size]
-    out["ok"] = True
-    del n, cycles
-    return out
-
-
 if __name__ == "__main__":
     iface, scenario = sys.argv[1], sys.argv[2]
     if scenario == "bringup":
         result = scenario_bringup(iface, int(sys.argv[3]), int(sys.argv[4]))
-    elif scenario == "bench":
-        result = scenario_bench(iface, int(sys.argv[3]), float(sys.argv[4]), int(sys.argv[5]))
     else:
-        result = scenario_kickcat(iface, int(sys.argv[3]), int(sys.argv[4]))
+        result = scenario_bench(iface, int(sys.argv[3]), float(sys.argv[4]), int(sys.argv[5]))
     print(json.dumps(result))

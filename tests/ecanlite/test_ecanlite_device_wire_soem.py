@@ -68,3 +68,4 @@ def test_soem_bring_up_and_the_manual_frame(veth_ns: Any, tmp_path: Path, n: int
     finally:
         c0.shutdown()
         c1.shutdown()
+
