@@ -2,7 +2,6 @@
 5.4.3 phases A-D and F, the 5.4.4.1 frame, TxPDO parsing; prints one JSON result.
 
 Usage: python ecanlite_soem_driver.py INTERFACE bringup N CYCLES
-       python ecanlite_soem_driver.py INTERFACE bench N SECONDS FRAMES_PER_CYCLE
 """
 
 from __future__ import annotations
@@ -22,7 +21,6 @@ from gatewaylab.devices.ecanlite.stream import (
     commit_state,
     crc16,
     decode_stream,
-    encode_stream,
 )
 
 #: Correctness, not timing: a frame only counts as lost after 20 ms (shared notes 'soem-interop').
@@ -181,76 +179,9 @@ def scenario_bringup(iface: str, n: int, cycles: int) -> dict[str, Any]:
     return out
 
 
-def scenario_bench(iface: str, n: int, seconds: float, per_cycle: int) -> dict[str, Any]:
-    """1 kHz cycle: ``per_cycle`` frames per channel in every RxPDO, TxPDO frames counted."""
-    import pysoem
-    master = pysoem.Master()
-    master.sdo_read_timeout = SLOW_US
-    master.sdo_write_timeout = SLOW_US
-    master.open(iface)
-    _init(master)
-    s0 = master.slaves[0]
-    _configure(s0, n)
-    s0.set_watchdog("processdata", 1000)
-    op = _to_op(master)
-    rx = StreamLayout(multiplier=n, direction=Direction.RX)
-    tx = StreamLayout(multiplier=n, direction=Direction.TX)
-    period = 0.001
-    seq = 0
-    sent = received = late = tx_errors = 0
-    rtts: list[float] = []
-    previous: bytes | None = None
-    t_next = time.perf_counter()
-    end = t_next + seconds
-    while time.perf_counter() < end:
-        seq = (seq + 1) & 0xFFFF
-        frames = [CanPacket(ch, 0x100 + ch, data=struct.pack("<HI", seq, k)) for ch in range(4)
-                  for k in range(per_cycle)]
-        s0.output = encode_stream(rx, seq, frames)
-        t0 = time.perf_counter()
-        master.send_processdata()
-        wkc = master.receive_processdata(RX_TIMEOUT_US)
-        rtts.append(time.perf_counter() - t0)
-        if wkc != master.expected_wkc:
-            late += 1
-        else:
-            sent += len(frames)
-            image = bytes(s0.input)
-            if commit_state(image, previous) is Commit.NEW:
-                previous = image
-                try:
-                    received += len(decode_stream(image, tx).frames)
-                except StreamError:
-                    tx_errors += 1
-        t_next += period
-        while time.perf_counter() < t_next:
-            pass
-    # drain: a few more cycles without new frames
-    for _ in range(50):
-        master.send_processdata()
-        if master.receive_processdata(RX_TIMEOUT_US) == master.expected_wkc:
-            image = bytes(s0.input)
-            if commit_state(image, previous) is Commit.NEW:
-                previous = image
-                try:
-                    received += len(decode_stream(image, tx).frames)
-                except StreamError:
-                    tx_errors += 1
-    rtts.sort()
-    out = {"op": op, "cycles": len(rtts), "late": late, "sent": sent, "received": received, "tx_errors": tx_errors,
-           "rx_pdo_errors": _u(_Retry(s0).sdo_read(0x8011, 15)), "tx_overflows": _u(_Retry(s0).sdo_read(0x8010, 16)),
-           "p50_us": rtts[len(rtts) // 2] * 1e6 if rtts else 0, "p99_us": rtts[int(len(rtts) * 0.99)] * 1e6
-           if rtts else 0}
-    master.state = pysoem.INIT_STATE
-    master.write_state()
-    master.close()
-    return out
-
-
 if __name__ == "__main__":
     iface, scenario = sys.argv[1], sys.argv[2]
-    if scenario == "bringup":
-        result = scenario_bringup(iface, int(sys.argv[3]), int(sys.argv[4]))
-    else:
-        result = scenario_bench(iface, int(sys.argv[3]), float(sys.argv[4]), int(sys.argv[5]))
+    if scenario != "bringup":
+        raise SystemExit(f"unknown scenario {scenario!r}")
+    result = scenario_bringup(iface, int(sys.argv[3]), int(sys.argv[4]))
     print(json.dumps(result))
