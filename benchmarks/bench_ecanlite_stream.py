@@ -9,6 +9,7 @@ Measured in one run:
 - the baseline: a plain ``struct`` loop written here that packs the same packets and unpacks them
   into tuples, with the same CRC and zeroing but no validation and no objects.
 
+Rounds alternate between the two and the fastest round of each counts (the machine is shared).
 Target (issue 10): <= 50 us per image pack + parse. Printed, never asserted.
 """
 
@@ -19,7 +20,6 @@ import struct
 import time
 from collections.abc import Callable
 
-from gatewaylab.bus.frame import FD_LEN_TO_DLC
 from gatewaylab.devices.ecanlite.stream import (
     CanPacket,
     StreamLayout,
@@ -98,23 +98,29 @@ def baseline_roundtrip(buf: bytearray, rows: list[tuple[int, int, bool, bytes]],
     return out
 
 
-def _time(fn: Callable[[int], object], n: int) -> float:
-    for k in range(50):
-        fn(k)
-    t0 = time.perf_counter()
-    for k in range(n):
-        fn(k)
-    return (time.perf_counter() - t0) / n
+def _time_interleaved(fns: dict[str, Callable[[int], object]], n: int, rounds: int = 10) -> dict[str, float]:
+    """Seconds per call of each function: rounds alternate between them and the fastest round
+    counts, so a load spike on the shared machine does not favour one side."""
+    best = dict.fromkeys(fns, float("inf"))
+    for fn in fns.values():
+        for k in range(50):
+            fn(k)
+    per = max(1, n // rounds)
+    for _ in range(rounds):
+        for name, fn in fns.items():
+            t0 = time.perf_counter()
+            for k in range(per):
+                fn(k)
+            best[name] = min(best[name], (time.perf_counter() - t0) / per)
+    return best
 
 
-def main() -> None:
-    layout = StreamLayout(multiplier=24, channel_mask=0x0F)
-    packets = mixed_packets(layout)
+def _run(layout: StreamLayout, packets: list[CanPacket]) -> float:
+    """Measure and print one image; returns the codec's seconds per pack + parse."""
     buf = bytearray(layout.pdo_bytes)
     payload = sum(packet_size(p, layout) for p in packets)
     fd = sum(p.fd for p in packets)
-    rows = [(p.channel | (FD_LEN_TO_DLC[len(p.data)] << 3) | (p.extended << 7) | (p.fd << 8) | (p.brs << 9),
-             p.can_id, p.extended, p.data) for p in packets]
+    rows = [(p.ctrl, p.can_id, p.extended, p.data) for p in packets]
 
     def codec(seq: int) -> None:
         encode_into(buf, layout, seq, packets)
@@ -130,17 +136,28 @@ def main() -> None:
     baseline_roundtrip(buf, rows, 1)
     assert bytes(buf[24:24 + payload]) == ours, "baseline and codec disagree on the frame area"
 
-    t_base = _time(baseline, N_IMAGES)
-    t_codec = _time(codec, N_IMAGES)
-    t_enc = _time(lambda seq: encode_into(buf, layout, seq, packets), N_IMAGES)
-    t_dec = _time(lambda seq: decode_stream(buf, layout), N_IMAGES)
-    print(f"image: N=24, {layout.pdo_bytes} B, {len(packets)} packets ({fd} CAN FD, {len(packets) - fd} classic), "
-          f"payload {payload} B, 4 channels")
-    print(f"codec    pack+parse: {t_codec * 1e6:8.1f} us/image  {1 / t_codec:9.0f} images/s  "
-          f"(pack {t_enc * 1e6:.1f} us, parse {t_dec * 1e6:.1f} us)")
-    print(f"baseline struct loop: {t_base * 1e6:8.1f} us/image  {1 / t_base:9.0f} images/s")
-    print(f"ratio codec/baseline: {t_codec / t_base:.2f}   target <= 50 us/image: "
-          f"{'met' if t_codec <= 50e-6 else 'NOT met'}")
+    t = _time_interleaved({
+        "baseline": baseline, "codec": codec,
+        "pack": lambda seq: encode_into(buf, layout, seq, packets),
+        "parse": lambda seq: decode_stream(buf, layout)}, N_IMAGES)
+    t_base, t_codec, t_enc, t_dec = t["baseline"], t["codec"], t["pack"], t["parse"]
+    print(f"image: N={layout.multiplier}, {layout.pdo_bytes} B, {len(packets)} packets ({fd} CAN FD, "
+          f"{len(packets) - fd} classic), payload {payload} B, 4 channels")
+    print(f"  codec    pack+parse: {t_codec * 1e6:8.1f} us/image  {1 / t_codec:9.0f} images/s  "
+          f"(pack {t_enc * 1e6:.1f} us, parse {t_dec * 1e6:.1f} us, {t_codec / len(packets) * 1e6:.2f} us/packet)")
+    print(f"  baseline struct loop: {t_base * 1e6:8.1f} us/image  {1 / t_base:9.0f} images/s")
+    print(f"  ratio codec/baseline: {t_codec / t_base:.2f}")
+    return t_codec
+
+
+def main() -> None:
+    layout = StreamLayout(multiplier=24, channel_mask=0x0F)
+    t_codec = _run(layout, mixed_packets(layout))
+    print(f"target <= 50 us/image pack+parse (mixed image): {'met' if t_codec <= 50e-6 else 'NOT met'}")
+    # For scale: the same area filled with 64-byte CAN FD frames only (fewer, larger packets).
+    fd64 = [CanPacket(k % 4, 0x300 + k, fd=True, brs=True, data=bytes([k]) * 64)
+            for k in range(layout.frame_area_bytes // 68)]
+    _run(layout, fd64)
 
 
 if __name__ == "__main__":

@@ -5,6 +5,7 @@ layout_id, ch, dlc, tsf, kind)."""
 from __future__ import annotations
 
 import struct
+from collections.abc import Callable
 
 import pytest
 from ecanlite_stream_kit import ctrl_word, ext_packet, image_by_hand, std_packet, tx_result_bytes
@@ -27,6 +28,7 @@ from gatewaylab.devices.ecanlite.stream import (
     TxResultPacket,
     commit_state,
     decode_stream,
+    encode_into,
     encode_stream,
     packet_size,
 )
@@ -278,41 +280,66 @@ def test_unsupported_profile_and_option_are_layout_errors() -> None:
         StreamLayout(options=0x20)
 
 
+@pytest.mark.parametrize(("make", "code"), [
+    (lambda: CanPacket(8, 1), PdoError.INVALID_CHANNEL),
+    (lambda: CanPacket(-1, 1), PdoError.INVALID_CHANNEL),
+    (lambda: CanPacket(0, 1, data=bytes(9)), PdoError.INVALID_DLC),
+    (lambda: CanPacket(0, 1, fd=True, data=bytes(9)), PdoError.INVALID_DLC),
+    (lambda: CanPacket(0, 1, rtr=True, dlc=9), PdoError.INVALID_DLC),
+    (lambda: CanPacket(0, 1, rtr=True, data=b"x"), PdoError.INVALID_DLC),
+    (lambda: CanPacket(0, 1, fd=True, rtr=True), PdoError.INVALID_DLC),
+    (lambda: CanPacket(0, 1, brs=True), PdoError.INVALID_DLC),
+    (lambda: CanPacket(0, 1, d64=True), PdoError.INVALID_DLC),
+    (lambda: CanPacket(0, 1, data=b"ab", dlc=3), PdoError.INVALID_DLC),
+    (lambda: CanPacket(0, 1, tsf=4), PdoError.INVALID_TSF),                               # type: ignore[arg-type]
+    (lambda: CanPacket(0, 1, tsf=Tsf.DELTA16, timestamp=0x10000), PdoError.INVALID_TSF),
+    (lambda: CanPacket(0, 1, timestamp=5), PdoError.INVALID_TSF),
+    (lambda: CanPacket(0, 1, scheduled=True), PdoError.BAD_SCHEDULE),
+    (lambda: CanPacket(0, 1, tsf=Tsf.FULL64, scheduled=True, offset_ns=1 << 32), PdoError.BAD_SCHEDULE),
+    (lambda: CanPacket(0, 1, tsf=Tsf.FULL64, offset_ns=5), PdoError.BAD_SCHEDULE),
+    (lambda: CanPacket(0, 0x800), PdoError.RESERVED_BIT),
+    (lambda: CanPacket(0, 0x20000000, True), PdoError.RESERVED_BIT),
+    (lambda: CanPacket(0, 1, id_aux=8), PdoError.RESERVED_BIT),
+    (lambda: TxResultPacket(0, 1, 256, TxResultCode.OK), PdoError.UNKNOWN_KIND),
+    (lambda: TxResultPacket(0, 1, 0, 6), PdoError.UNKNOWN_KIND),                         # type: ignore[arg-type]
+    (lambda: TxResultPacket(9, 1, 0, TxResultCode.OK), PdoError.INVALID_CHANNEL),
+])
+def test_packets_no_layout_can_carry(make: Callable[[], object], code: PdoError) -> None:
+    """Chapters 8-10: a packet that fits no control word or field (CH 0..7, the 8.2 DLC rules, TSF
+    sizes, the 8.4 reservation format, id widths, ResultCode 0..5) is refused when built, with the
+    LastPDOError a receiver would report for it."""
+    with pytest.raises(StreamEncodeError) as info:
+        make()
+    assert info.value.pdo_error is code
+    assert isinstance(info.value, LocalError)
+
+
 @pytest.mark.parametrize(("layout", "packet", "code"), [
     (RX, CanPacket(4, 1), PdoError.INVALID_CHANNEL),
     (StreamLayout(channel_mask=1), CanPacket(1, 1), PdoError.INVALID_CHANNEL),
-    (RX, CanPacket(0, 1, data=bytes(9)), PdoError.INVALID_DLC),
-    (RX, CanPacket(0, 1, fd=True, data=bytes(9)), PdoError.INVALID_DLC),
-    (RX, CanPacket(0, 1, rtr=True, dlc=9), PdoError.INVALID_DLC),
-    (RX, CanPacket(0, 1, rtr=True, data=b"x"), PdoError.INVALID_DLC),
-    (RX, CanPacket(0, 1, fd=True, rtr=True), PdoError.INVALID_DLC),
-    (RX, CanPacket(0, 1, brs=True), PdoError.INVALID_DLC),
-    (RX, CanPacket(0, 1, data=b"ab", dlc=3), PdoError.INVALID_DLC),
     (RX, CanPacket(0, 1, fd=True, d64=True), PdoError.FRAME_OVERRUN),
     (TX, CanPacket(0, 1, tsf=Tsf.DELTA32), PdoError.INVALID_TSF),
-    (TX, CanPacket(0, 1, tsf=Tsf.DELTA16, timestamp=0x10000), PdoError.INVALID_TSF),
+    (StreamLayout(direction=Direction.TX), CanPacket(0, 1, tsf=Tsf.DELTA16), PdoError.INVALID_TSF),
     (RX, CanPacket(0, 1, tsf=Tsf.DELTA16), PdoError.INVALID_TSF),
     (RX, CanPacket(0, 1, tsf=Tsf.FULL64), PdoError.BAD_SCHEDULE),
     (TX, CanPacket(0, 1, tsf=Tsf.FULL64, scheduled=True), PdoError.BAD_SCHEDULE),
-    (RX, CanPacket(0, 1, tsf=Tsf.FULL64, scheduled=True, offset_ns=1 << 32), PdoError.BAD_SCHEDULE),
-    (RX, CanPacket(0, 0x800), PdoError.RESERVED_BIT),
-    (RX, CanPacket(0, 0x20000000, True), PdoError.RESERVED_BIT),
-    (RX, CanPacket(0, 1, id_aux=8), PdoError.RESERVED_BIT),
     (RX, TxResultPacket(0, 1, 0, TxResultCode.OK), PdoError.UNKNOWN_KIND),
-    (TX, TxResultPacket(0, 1, 256, TxResultCode.OK), PdoError.UNKNOWN_KIND),
+    (StreamLayout(direction=Direction.TX), TxResultPacket(0, 1, 0, TxResultCode.OK), PdoError.UNKNOWN_KIND),
     (TX, TxResultPacket(5, 1, 0, TxResultCode.OK), PdoError.INVALID_CHANNEL),
 ])
 def test_encoder_refuses_with_the_receivers_code(layout: StreamLayout, packet: CanPacket | TxResultPacket,
                                                  code: PdoError) -> None:
-    """Chapters 8-10: a packet the layout cannot carry is refused before anything is written, with
-    the LastPDOError the receiver would report (packet_size and encode_stream agree)."""
+    """Chapters 8-10, 9, 13.2: a packet this layout cannot carry (mask, profile, direction,
+    options) is refused before anything is written, with the code the receiver would report;
+    packet_size and encode_stream agree."""
     with pytest.raises(StreamEncodeError) as info:
         packet_size(packet, layout)
     assert info.value.pdo_error is code
+    buf = bytearray(b"\x55" * layout.pdo_bytes)
     with pytest.raises(StreamEncodeError) as info:
-        encode_stream(layout, 1, [packet])
+        encode_into(buf, layout, 1, [CanPacket(0, 2), packet])
     assert info.value.pdo_error is code
-    assert isinstance(info.value, LocalError)
+    assert buf == b"\x55" * layout.pdo_bytes
 
 
 def test_encoder_packet_overrun_and_frame_count() -> None:
@@ -340,3 +367,30 @@ def test_diag_fields_of_a_packet_error() -> None:
     assert d.crc == struct.unpack_from("<H", image, 8)[0]
     assert (d.ch, d.dlc, d.tsf, d.kind) == (2, 8, 0, 0)
     assert "RESERVED_BIT (13)" in str(err)
+
+
+@pytest.mark.parametrize("make", [
+    lambda: CanPacket(0, 1.0),                            # type: ignore[arg-type]
+    lambda: CanPacket(0, 1, data="text"),                 # type: ignore[arg-type]
+    lambda: CanPacket(0, 1, tsf=Tsf.DELTA16, timestamp=2.5),  # type: ignore[arg-type]
+    lambda: CanPacket(True, 1),
+    lambda: TxResultPacket(0, 1.0, 0, TxResultCode.OK),   # type: ignore[arg-type]
+])
+def test_non_integer_fields_refused(make: Callable[[], object]) -> None:
+    """8.1 / 10: every packet field is an integer (or bytes) of a fixed width; anything else is
+    refused when built, not half-written into an image."""
+    with pytest.raises(StreamEncodeError):
+        make()
+
+
+def test_a_kept_error_does_not_pin_the_image() -> None:
+    """13.2: a device keeps the last StreamError for its diagnostics while it reuses its buffer;
+    the error (and its traceback) holds no view of that buffer."""
+    image = bytearray(image_by_hand(RX, 1, GOOD, 1))
+    image[30] ^= 1
+    try:
+        decode_stream(image, RX)
+    except StreamError as exc:
+        kept = exc
+    image.extend(b"\0")      # would raise BufferError while a memoryview of it were alive
+    assert kept.pdo_error is PdoError.BAD_CRC

@@ -40,6 +40,7 @@ from gatewaylab.devices.ecanlite.stream import (
     dlc_to_len,
     encode_stream,
     packet_size,
+    timestamp_ticks,
 )
 
 #: 5.4.4.1 step 1: "The bytes starting at offset 24 are"
@@ -366,3 +367,15 @@ def test_profile_feature_table(profile: int) -> None:
     else:
         with pytest.raises(ValueError):
             packet_size(d64, tx)
+
+
+def test_timestamp_ticks() -> None:
+    """8.4: delta16/delta32 are the low 16/32 bits of the difference to the cycle's reference time
+    (the master treats wrap as an unsigned difference); full64 the whole time; 1 us ticks."""
+    assert timestamp_ticks(1.5, Tsf.NONE) == 0
+    assert timestamp_ticks(10.000250, Tsf.DELTA16, reference=10.0) == 250
+    assert timestamp_ticks(10.070000, Tsf.DELTA16, reference=10.0) == 70_000 - 65_536
+    assert timestamp_ticks(10.000250, Tsf.DELTA32, reference=10.0) == 250
+    assert timestamp_ticks(3.25, Tsf.FULL64) == 3_250_000
+    h = StreamHeader(payload_crc16=0xBEEF)
+    assert h.crc == 0xBEEF

@@ -4,6 +4,7 @@ commit order and trailing bytes after payload_len (manual chapters 5.4.4, 6, 8-1
 from __future__ import annotations
 
 import struct
+from contextlib import nullcontext
 
 import pytest
 from ecanlite_stream_kit import FD_LENGTHS, crc16_bitwise
@@ -108,7 +109,7 @@ def test_prefixes_of_an_image() -> None:
     image = encode_stream(layout, 0x1234, packets)
     complete = HEADER_SIZE + struct.unpack_from("<H", image, 6)[0]
     for k in range(len(image) + 1):
-        with pytest.raises(StreamError) if k < len(image) else _no_error():
+        with pytest.raises(StreamError) if k < len(image) else nullcontext():
             decode_stream(image[:k], layout)          # missing bytes: never the mapped length
         zero_filled = image[:k] + bytes(len(image) - k)
         try:
@@ -117,14 +118,6 @@ def test_prefixes_of_an_image() -> None:
             assert k < complete     # (the last bytes may be zeros already: k < complete can decode)
             continue
         assert decoded.packets == tuple(packets)
-
-
-class _no_error:
-    def __enter__(self) -> None:
-        return None
-
-    def __exit__(self, *exc: object) -> None:
-        return None
 
 
 def test_commit_order_never_shows_a_half_image() -> None:
@@ -196,3 +189,19 @@ def test_sequence_wrap() -> None:
     assert next_seq(0xFFFF) == (0, True)
     layout = StreamLayout.default(Direction.TX)
     assert decode_stream(encode_stream(layout, 0x1_0005, []), layout).seq == 5
+
+
+def test_process_image_views() -> None:
+    """5.4.4: the device writes and reads the PDO in place: encode_into a memoryview of the process
+    image gives the bytes encode_stream returns, and decode_stream / commit_state read views too."""
+    layout = StreamLayout(multiplier=3, options=Option.ALIGN_4_ENABLE | Option.TX_RESULT_ENABLE,
+                          direction=Direction.TX)
+    packets: list[Packet] = [TxResultPacket(1, 2, 3, TxResultCode.QUEUED), CanPacket(3, 0x1F, data=b"\x01\x02\x03")]
+    process = bytearray(b"\xaa" * 1000)
+    view = memoryview(process)[100:100 + layout.pdo_bytes]
+    assert encode_into(view, layout, 77, packets) == 8 + 8
+    assert bytes(view) == encode_stream(layout, 77, packets)
+    assert process[:100] == b"\xaa" * 100 and process[100 + layout.pdo_bytes:] == b"\xaa" * (900 - layout.pdo_bytes)
+    assert decode_stream(view, layout).packets == tuple(packets)
+    assert decode_stream(bytearray(view), layout).packets == tuple(packets)
+    assert commit_state(view, bytes(view)) is Commit.SAME

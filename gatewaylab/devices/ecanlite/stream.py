@@ -36,11 +36,11 @@ __all__ = [
     "CRC_ALG_CCITT_FALSE", "DEFAULT_FEATURES", "HEADER_SIZE", "MAX_CHANNELS", "MAX_FRAME_COUNT",
     "OPTION_MASK", "PROFILE_MASK", "TIMESTAMP_UNIT_S", "VER_IHL",
     "ApplyStatus", "CanPacket", "Commit", "DecodedStream", "Direction", "Feature", "HeaderFlags",
-    "Option", "PacketKind", "ParseDiag", "PdoError", "StreamEncodeError", "StreamError",
+    "Option", "Packet", "PacketKind", "ParseDiag", "PdoError", "StreamEncodeError", "StreamError",
     "StreamHeader", "StreamLayout", "Tsf", "TxResultCode", "TxResultPacket",
     "check_layout", "check_options", "commit_state", "crc16", "decode_stream", "dlc_to_len",
     "encode_into", "encode_stream", "fold_layout_id", "next_seq", "packet_size", "profile_word",
-    "saturate_u8",
+    "saturate_u8", "timestamp_ticks",
 ]
 
 #: ver_ihl: version 1 in the high nibble, 6 four-byte words in the low nibble (chapter 6).
@@ -192,6 +192,7 @@ class Commit(enum.Enum):
 
 
 _TSF_BYTES = (0, 2, 4, 8)
+_TSFS = tuple(Tsf)
 _HEADER = struct.Struct("<BBHHHHHBBBB4H")
 _HEADER_SEQ_END = struct.Struct("<H")
 _U16 = struct.Struct("<H")
@@ -205,7 +206,8 @@ _TX_RESULT = struct.Struct("<HHBB")
 _LAYOUT_CRC = struct.Struct("<IHH")
 #: Control-word bits a TX_RESULT leaves 0: DLC, IDE, FDF, BRS, X, TSF, D64 (chapter 10: CH + KIND).
 _TX_RESULT_CTRL_ZERO = 0x9FF8
-_ZERO64 = bytes(64)
+#: Zeros for a D64 window tail (< 64) plus ALIGN4 padding (< 4).
+_ZERO_PAD = bytes(68)
 _new_object = object.__new__
 
 
@@ -239,6 +241,17 @@ def next_seq(seq: int) -> tuple[int, bool]:
     """The next publish sequence (16-bit wrap, 6.1) and whether it wrapped (SEQ_WRAP)."""
     nxt = (seq + 1) & 0xFFFF
     return nxt, nxt == 0
+
+
+def timestamp_ticks(t: float, tsf: Tsf | int, reference: float = 0.0) -> int:
+    """The TSF field for an instant ``t`` (clock seconds, e.g. the bus receive instant): delta16 /
+    delta32 are the low 16 / 32 bits of ``t - reference`` in 1 us ticks (8.4: relative to the
+    cycle's time base, wrapping), full64 the ticks of ``t`` itself; 0 for TSF_NONE."""
+    if not tsf:
+        return 0
+    if tsf == Tsf.FULL64:
+        return round(t / TIMESTAMP_UNIT_S) & 0xFFFFFFFFFFFFFFFF
+    return round((t - reference) / TIMESTAMP_UNIT_S) & (0xFFFF if tsf == Tsf.DELTA16 else 0xFFFFFFFF)
 
 
 def check_options(options: int) -> ApplyStatus:
@@ -382,6 +395,11 @@ class StreamHeader:
     ver_ihl: int = VER_IHL
 
     @property
+    def crc(self) -> int:
+        """payload_crc16 (the name parse_diag uses, 16.2)."""
+        return self.payload_crc16
+
+    @property
     def version(self) -> int:
         """Header version (high nibble of ver_ihl): 1."""
         return self.ver_ihl >> 4
@@ -420,13 +438,15 @@ class StreamHeader:
 
 @dataclass(frozen=True, slots=True)
 class CanPacket:
-    """A CAN_FRAME packet (8.1): one CAN / CAN FD frame of a channel.
+    """A CAN_FRAME packet (8.1): one CAN / CAN FD frame of a channel, checked once when built.
 
     ``timestamp`` is the raw delta16/delta32/full64 value in :data:`TIMESTAMP_UNIT_S` ticks
     (TxPDO). In the RxPDO, ``tsf=FULL64`` with ``scheduled`` is the SYNC0 reservation of 8.4/13.8:
-    ``offset_ns`` after the next SYNC0, ``tag`` the master's own 16 bits. ``dlc`` is only needed
-    for classic remote frames (data length 0, DLC = requested length); -1 derives it from ``data``.
-    ``d64`` sends the data in a fixed 64-byte window (profiles 4/5). ``id_aux`` is ID_AUX (8.1).
+    ``offset_ns`` after the next SYNC0, ``tag`` the master's own 16 bits. ``dlc`` is the DLC field
+    (8.2): give it for classic remote frames (no data, DLC = requested length), else -1 derives it
+    from ``data``. ``d64`` sends the data in a fixed 64-byte window (profiles 4/5). ``id_aux`` is
+    ID_AUX (8.1). A packet no layout can carry raises :class:`StreamEncodeError` with the
+    LastPDOError a receiver would report; what a particular layout allows is checked on encoding.
     """
 
     channel: int
@@ -445,6 +465,69 @@ class CanPacket:
     id_aux: int = 0
     d64: bool = False
     dlc: int = -1
+    # The control word (KIND 0) and the unaligned packet length, computed once (8.3).
+    ctrl: int = field(init=False, repr=False, compare=False, default=0)
+    raw_size: int = field(init=False, repr=False, compare=False, default=0)
+
+    def __post_init__(self) -> None:
+        data = self.data
+        if type(data) is not bytes:
+            if not isinstance(data, (bytes, bytearray, memoryview)):
+                raise _refuse(PdoError.INVALID_DLC, f"data must be bytes, got {type(data).__name__}")
+            data = bytes(data)
+            object.__setattr__(self, "data", data)
+        ch = self.channel
+        if type(ch) is not int or not 0 <= ch <= 7:
+            raise _refuse(PdoError.INVALID_CHANNEL, f"channel {ch!r} does not fit CH (0..7, chapter 8)")
+        if not all(isinstance(v, int) for v in (self.can_id, self.timestamp, self.offset_ns, self.tag, self.id_aux,
+                                                 self.dlc)):
+            raise _refuse(PdoError.RESERVED_BIT, f"id, timestamp, offset_ns, tag, ID_AUX, DLC are integers: {self!r}")
+        n = len(data)
+        if self.fd:
+            if self.rtr:
+                raise _refuse(PdoError.INVALID_DLC, "CAN FD has no remote frames (8.2)")
+            dlc = FD_LEN_TO_DLC.get(n, -1)
+            if dlc < 0:
+                raise _refuse(PdoError.INVALID_DLC, f"{n} data bytes match no CAN FD DLC (8.2)")
+            x = self.esi
+        else:
+            if self.brs or self.esi or self.d64:
+                raise _refuse(PdoError.INVALID_DLC, "BRS, ESI and D64 need CAN FD (8.2)")
+            if self.rtr:
+                if n:
+                    raise _refuse(PdoError.INVALID_DLC, "a remote frame carries no data (8.2)")
+                dlc = 0 if self.dlc == -1 else self.dlc
+                if type(dlc) is not int or not 0 <= dlc <= 8:
+                    raise _refuse(PdoError.INVALID_DLC, f"remote frame DLC {dlc} out of 0..8 (8.2)")
+            elif n > 8:
+                raise _refuse(PdoError.INVALID_DLC, f"classic CAN carries at most 8 bytes, got {n} (8.2)")
+            else:
+                dlc = n
+            x = self.rtr
+        if self.dlc not in (-1, dlc):
+            raise _refuse(PdoError.INVALID_DLC, f"DLC {self.dlc} does not match {n} data bytes (8.2)")
+        tsf = self.tsf
+        if type(tsf) is not Tsf:
+            if tsf not in (0, 1, 2, 3):
+                raise _refuse(PdoError.INVALID_TSF, f"TSF {tsf!r} is not 0..3 (8.4)")
+            tsf = _TSFS[tsf]
+            object.__setattr__(self, "tsf", tsf)
+        if self.scheduled:
+            if tsf is not Tsf.FULL64:
+                raise _refuse(PdoError.BAD_SCHEDULE, "scheduled transmit is TSF_FULL64 format 1 (8.4)")
+            if not 0 <= self.offset_ns <= 0xFFFFFFFF or not 0 <= self.tag <= 0xFFFF or self.timestamp:
+                raise _refuse(PdoError.BAD_SCHEDULE, "offset_ns is u32, tag u16, no timestamp (8.4)")
+        elif self.offset_ns or self.tag:
+            raise _refuse(PdoError.BAD_SCHEDULE, "offset_ns and tag belong to scheduled packets (8.4)")
+        elif not 0 <= self.timestamp < 1 << (8 * _TSF_BYTES[tsf]):
+            raise _refuse(PdoError.INVALID_TSF, f"timestamp {self.timestamp} does not fit TSF {tsf} (8.4)")
+        if not 0 <= self.can_id <= (MAX_EXT_ID if self.extended else MAX_STD_ID) or not 0 <= self.id_aux <= 7:
+            raise _refuse(PdoError.RESERVED_BIT, f"id 0x{self.can_id:X} / ID_AUX {self.id_aux} out of range (8.1)")
+        object.__setattr__(self, "dlc", dlc)
+        object.__setattr__(self, "ctrl", ch | dlc << 3 | bool(self.extended) << 7 | bool(self.fd) << 8
+                           | bool(self.brs) << 9 | bool(x) << 10 | tsf << 11 | bool(self.d64) << 15)
+        object.__setattr__(self, "raw_size", (6 if self.extended else 4) + _TSF_BYTES[tsf]
+                           + (0 if self.rtr else 64 if self.d64 else n))
 
     @property
     def kind(self) -> PacketKind:
@@ -471,32 +554,6 @@ _CAN_PACKET_SETTERS: tuple[Callable[[CanPacket, Any], None], ...] = tuple(
     vars(CanPacket)[f.name].__set__ for f in fields(CanPacket))
 
 
-def _make_can_packet(channel: int, can_id: int, extended: bool, fd: bool, brs: bool, rtr: bool, esi: bool,
-                     data: bytes, tsf: Tsf, timestamp: int, scheduled: bool, offset_ns: int, tag: int, id_aux: int,
-                     d64: bool, dlc: int) -> CanPacket:
-    """A CanPacket from checked fields (decoder only)."""
-    (s_ch, s_id, s_ext, s_fd, s_brs, s_rtr, s_esi, s_data, s_tsf, s_ts, s_sched, s_off, s_tag, s_aux, s_d64,
-     s_dlc) = _CAN_PACKET_SETTERS
-    p: CanPacket = _new_object(CanPacket)
-    s_ch(p, channel)
-    s_id(p, can_id)
-    s_ext(p, extended)
-    s_fd(p, fd)
-    s_brs(p, brs)
-    s_rtr(p, rtr)
-    s_esi(p, esi)
-    s_data(p, data)
-    s_tsf(p, tsf)
-    s_ts(p, timestamp)
-    s_sched(p, scheduled)
-    s_off(p, offset_ns)
-    s_tag(p, tag)
-    s_aux(p, id_aux)
-    s_d64(p, d64)
-    s_dlc(p, dlc)
-    return p
-
-
 @dataclass(frozen=True, slots=True)
 class TxResultPacket:
     """A TX_RESULT packet (chapter 10): the outcome of frame ``ref_frame_index`` (counting KIND 0
@@ -507,15 +564,32 @@ class TxResultPacket:
     ref_frame_index: int
     result: TxResultCode
 
+    def __post_init__(self) -> None:
+        ch = self.channel
+        if type(ch) is not int or not 0 <= ch <= 7:
+            raise _refuse(PdoError.INVALID_CHANNEL, f"channel {ch!r} does not fit CH (0..7, chapter 8)")
+        seq, index = self.ref_packet_seq, self.ref_frame_index
+        if not isinstance(seq, int) or not isinstance(index, int) or not 0 <= seq <= 0xFFFF or not 0 <= index <= 0xFF:
+            raise _refuse(PdoError.UNKNOWN_KIND, "RefPacketSeq is u16, RefFrameIndex u8 (10)")
+        if type(self.result) is not TxResultCode:
+            if self.result not in _RESULT_VALUES:
+                raise _refuse(PdoError.UNKNOWN_KIND, f"ResultCode {self.result!r} is not 0..5 (10)")
+            object.__setattr__(self, "result", TxResultCode(self.result))
+
     @property
     def kind(self) -> PacketKind:
         """KIND 1."""
         return PacketKind.TX_RESULT
 
+    @property
+    def ctrl(self) -> int:
+        """The control word: CH and KIND 1 (chapter 10)."""
+        return self.channel | 1 << 13
+
 
 Packet = CanPacket | TxResultPacket
-_TSFS = tuple(Tsf)
 _RESULT_CODES = tuple(TxResultCode)
+_RESULT_VALUES = frozenset(range(6))
 
 
 @dataclass(frozen=True, slots=True)
@@ -587,60 +661,15 @@ def _refuse(code: PdoError, message: str) -> StreamEncodeError:
     return StreamEncodeError(code, message)
 
 
-def _can_geometry(p: CanPacket, layout: StreamLayout) -> tuple[int, int, int]:
-    """(ctrl, data bytes on the wire, DLC) of a CAN packet, or StreamEncodeError (8.1-8.4)."""
-    ch = p.channel
-    if type(ch) is not int or not 0 <= ch < MAX_CHANNELS or not layout.channel_mask >> ch & 1:
-        raise _refuse(PdoError.INVALID_CHANNEL, f"channel {ch!r} is not in mask 0x{layout.channel_mask:02X}")
-    n = len(p.data)
-    if p.fd:
-        if p.rtr:
-            raise _refuse(PdoError.INVALID_DLC, "CAN FD has no remote frames")
-        dlc = FD_LEN_TO_DLC.get(n, -1)
-        if dlc < 0:
-            raise _refuse(PdoError.INVALID_DLC, f"{n} data bytes match no CAN FD DLC")
-        x = p.esi
-    else:
-        if p.brs or p.esi or p.d64:
-            raise _refuse(PdoError.INVALID_DLC, "BRS, ESI and D64 need CAN FD (8.2)")
-        if p.rtr:
-            if n:
-                raise _refuse(PdoError.INVALID_DLC, "a remote frame carries no data (8.2)")
-            dlc = 0 if p.dlc == -1 else p.dlc
-            if not 0 <= dlc <= 8:
-                raise _refuse(PdoError.INVALID_DLC, f"remote frame DLC {dlc} out of 0..8")
-        else:
-            if n > 8:
-                raise _refuse(PdoError.INVALID_DLC, f"classic CAN carries at most 8 bytes, got {n}")
-            dlc = n
-        x = p.rtr
-    if p.dlc not in (-1, dlc):
-        raise _refuse(PdoError.INVALID_DLC, f"DLC {p.dlc} does not match {n} data bytes")
-    if p.d64 and not layout._d64_ok:
-        raise _refuse(PdoError.FRAME_OVERRUN, f"D64 window not allowed in profile {layout.profile} (chapter 9)")
-    tsf = p.tsf
-    if not 0 <= tsf <= 3 or not layout._tsf_ok >> tsf & 1:
-        if layout._rx and tsf == Tsf.FULL64:
-            raise _refuse(PdoError.BAD_SCHEDULE, "scheduled transmit (RX_TSF_SCHEDULE_TX) not supported (8.4)")
-        raise _refuse(PdoError.INVALID_TSF, f"TSF {tsf} not allowed in profile {layout.profile} "
-                                            f"{layout.direction.value.upper()}PDO (8.4, chapter 9)")
-    if p.scheduled:
-        if tsf != Tsf.FULL64 or not layout._schedule_ok:
-            raise _refuse(PdoError.BAD_SCHEDULE, "scheduled transmit is RxPDO TSF_FULL64 format 1 (8.4)")
-        if not 0 <= p.offset_ns <= 0xFFFFFFFF or not 0 <= p.tag <= 0xFFFF:
-            raise _refuse(PdoError.BAD_SCHEDULE, "offset_ns is u32, tag u16 (8.4)")
-    elif tsf == Tsf.FULL64 and layout._schedule_ok:
-        raise _refuse(PdoError.BAD_SCHEDULE, "RxPDO TSF_FULL64 is the reservation format only (8.4)")
-    elif tsf and not 0 <= p.timestamp < 1 << (8 * _TSF_BYTES[tsf]):
-        raise _refuse(PdoError.INVALID_TSF, f"timestamp {p.timestamp} does not fit TSF {tsf}")
-    if p.extended:
-        if not 0 <= p.can_id <= MAX_EXT_ID or not 0 <= p.id_aux <= 7:
-            raise _refuse(PdoError.RESERVED_BIT, f"extended id 0x{p.can_id:X} / ID_AUX {p.id_aux} out of range")
-    elif not 0 <= p.can_id <= MAX_STD_ID or not 0 <= p.id_aux <= 7:
-        raise _refuse(PdoError.RESERVED_BIT, f"standard id 0x{p.can_id:X} / ID_AUX {p.id_aux} out of range")
-    ctrl = (ch | dlc << 3 | p.extended << 7 | p.fd << 8 | p.brs << 9 | x << 10 | tsf << 11 | p.d64 << 15)
-    data_bytes = 0 if p.rtr else (64 if p.d64 else n)
-    return ctrl, data_bytes, dlc
+def _layout_refusal(p: Packet, layout: StreamLayout) -> StreamEncodeError | None:
+    """Why ``layout`` cannot carry ``p``, by the receiver's own rules (:func:`_ctrl_error`)."""
+    code, why = _ctrl_error(p.ctrl, layout)
+    if code:
+        return _refuse(code, why)
+    if type(p) is CanPacket and p.tsf is Tsf.FULL64 and p.scheduled != layout._schedule_ok:
+        return _refuse(PdoError.BAD_SCHEDULE, "TSF_FULL64 is the reservation format in the RxPDO and a timestamp "
+                                              "in the TxPDO (8.4)")
+    return None
 
 
 def packet_size(packet: Packet, layout: StreamLayout) -> int:
@@ -648,25 +677,13 @@ def packet_size(packet: Packet, layout: StreamLayout) -> int:
 
     Raises :class:`StreamEncodeError` for a packet this layout cannot carry.
     """
-    if type(packet) is CanPacket:
-        _ctrl, data_bytes, _dlc = _can_geometry(packet, layout)
-        raw = 2 + (4 if packet.extended else 2) + _TSF_BYTES[packet.tsf] + data_bytes
-    elif type(packet) is TxResultPacket:
-        _check_tx_result(packet, layout)
-        raw = _TX_RESULT.size
-    else:
+    if type(packet) is not CanPacket and type(packet) is not TxResultPacket:
         raise LocalError(f"not a packet: {packet!r}")
+    refusal = _layout_refusal(packet, layout)
+    if refusal is not None:
+        raise refusal
+    raw = packet.raw_size if type(packet) is CanPacket else 6
     return (raw + 3) & ~3 if layout._align4 else raw
-
-
-def _check_tx_result(p: TxResultPacket, layout: StreamLayout) -> None:
-    if not layout._tx_result_ok:
-        raise _refuse(PdoError.UNKNOWN_KIND, "TX_RESULT needs the TxPDO with TX_RESULT_ENABLE (9.1, chapter 10)")
-    ch = p.channel
-    if type(ch) is not int or not 0 <= ch < MAX_CHANNELS or not layout.channel_mask >> ch & 1:
-        raise _refuse(PdoError.INVALID_CHANNEL, f"channel {ch!r} is not in mask 0x{layout.channel_mask:02X}")
-    if not 0 <= p.ref_packet_seq <= 0xFFFF or not 0 <= p.ref_frame_index <= 0xFF or not 0 <= p.result <= 5:
-        raise _refuse(PdoError.UNKNOWN_KIND, f"TX_RESULT field out of range: {p!r}")
 
 
 def encode_into(buf: bytearray | memoryview, layout: StreamLayout, seq: int, packets: Sequence[Packet], *,
@@ -677,6 +694,7 @@ def encode_into(buf: bytearray | memoryview, layout: StreamLayout, seq: int, pac
     Order of 5.4.4.1 step 4: packets from offset 24, the rest of the frame area zeroed (left as it
     is with PAYLOAD_ONLY_ENABLE, whose receivers ignore it, 9.1), header, seq_end last.
     TX_RESULT_PRESENT is set when a TX_RESULT is among ``packets``; ``overflow_sat`` saturates.
+    Nothing is written when a packet is refused (:class:`StreamEncodeError`).
     """
     if len(buf) != layout.pdo_bytes:
         raise LocalError(f"image buffer is {len(buf)} bytes, the layout needs {layout.pdo_bytes}")
@@ -686,53 +704,74 @@ def encode_into(buf: bytearray | memoryview, layout: StreamLayout, seq: int, pac
         raise LocalError("four channel status words (chapter 7)")
     end = layout.pdo_bytes
     align4 = layout._align4
+    # Check every packet before writing one (a refused image leaves the buffer as it was); each
+    # distinct control word is judged once.
+    accepted: set[int] = set()
     off = HEADER_SIZE
-    flags = int(flags) & 0x3F
     for p in packets:
         if type(p) is CanPacket:
-            ctrl, data_bytes, _dlc = _can_geometry(p, layout)
-            tsf = p.tsf
-            ts_bytes = _TSF_BYTES[tsf]
-            raw = (6 if p.extended else 4) + ts_bytes + data_bytes
-            size = (raw + 3) & ~3 if align4 else raw
-            if off + size > end:
-                raise _refuse(PdoError.PACKET_OVERRUN, f"packet at {off} ends at {off + size} > {end} (chapter 12)")
-            if p.extended:
-                _CTRL_EXT.pack_into(buf, off, ctrl, p.can_id | p.id_aux << 29)
-                o = off + 6
-            else:
-                _CTRL_STD.pack_into(buf, off, ctrl, p.can_id | p.id_aux << 11)
-                o = off + 4
-            if ts_bytes:
-                if p.scheduled:
-                    _SCHEDULE.pack_into(buf, o, 1, 0, p.tag, p.offset_ns)
-                elif ts_bytes == 2:
-                    _U16.pack_into(buf, o, p.timestamp)
-                elif ts_bytes == 4:
-                    _U32.pack_into(buf, o, p.timestamp)
-                else:
-                    _U64.pack_into(buf, o, p.timestamp)
-                o += ts_bytes
-            if data_bytes:
-                n = len(p.data)
-                buf[o:o + n] = p.data
-                if data_bytes != n:
-                    buf[o + n:o + data_bytes] = _ZERO64[:data_bytes - n]
-            if size != raw:
-                buf[off + raw:off + size] = _ZERO64[:size - raw]
-            off += size
+            raw = p.raw_size
+            if p.ctrl not in accepted or p.tsf is Tsf.FULL64:
+                refusal = _layout_refusal(p, layout)
+                if refusal is not None:
+                    raise refusal
+                accepted.add(p.ctrl)
         elif type(p) is TxResultPacket:
-            _check_tx_result(p, layout)
-            size = 8 if align4 else 6
-            if off + size > end:
-                raise _refuse(PdoError.PACKET_OVERRUN, f"packet at {off} ends at {off + size} > {end} (chapter 12)")
-            _TX_RESULT.pack_into(buf, off, p.channel | 1 << 13, p.ref_packet_seq, p.ref_frame_index, p.result)
-            if align4:
-                buf[off + 6:off + 8] = b"\0\0"
-            off += size
-            flags |= 0x04  # HeaderFlags.TX_RESULT_PRESENT
+            raw = 6
+            refusal = _layout_refusal(p, layout)
+            if refusal is not None:
+                raise refusal
         else:
             raise LocalError(f"not a packet: {p!r}")
+        off += (raw + 3) & ~3 if align4 else raw
+    if off > end:
+        raise _refuse(PdoError.PACKET_OVERRUN, f"packets need {off - HEADER_SIZE} bytes, the frame area has "
+                                               f"{end - HEADER_SIZE} (chapter 12)")
+    flags = int(flags) & 0x3F
+    off = HEADER_SIZE
+    pack_std = _CTRL_STD.pack_into
+    pack_ext = _CTRL_EXT.pack_into
+    for p in packets:
+        if type(p) is CanPacket:
+            raw = p.raw_size
+            if p.extended:
+                pack_ext(buf, off, p.ctrl, p.can_id | p.id_aux << 29)
+                o = off + 6
+            else:
+                pack_std(buf, off, p.ctrl, p.can_id | p.id_aux << 11)
+                o = off + 4
+            tsf = p.tsf
+            if tsf:
+                if p.scheduled:
+                    _SCHEDULE.pack_into(buf, o, 1, 0, p.tag, p.offset_ns)
+                    o += 8
+                elif tsf == 1:
+                    _U16.pack_into(buf, o, p.timestamp)
+                    o += 2
+                elif tsf == 2:
+                    _U32.pack_into(buf, o, p.timestamp)
+                    o += 4
+                else:
+                    _U64.pack_into(buf, o, p.timestamp)
+                    o += 8
+            data = p.data
+            n = len(data)
+            buf[o:o + n] = data
+            nxt = off + raw
+            if align4 and raw & 3:
+                nxt = off + (raw + 3 & ~3)
+            if o + n != nxt:      # D64 window tail and ALIGN4 padding: zeros (8.1, 8.3)
+                buf[o + n:nxt] = _ZERO_PAD[:nxt - o - n]
+            off = nxt
+        else:
+            assert type(p) is TxResultPacket
+            _TX_RESULT.pack_into(buf, off, p.ctrl, p.ref_packet_seq, p.ref_frame_index, p.result)
+            if align4:
+                buf[off + 6:off + 8] = b"\0\0"
+                off += 8
+            else:
+                off += 6
+            flags |= 0x04  # HeaderFlags.TX_RESULT_PRESENT
     if not layout.options & Option.PAYLOAD_ONLY_ENABLE:
         buf[off:end] = bytes(end - off)
     payload_len = off - HEADER_SIZE
@@ -824,9 +863,11 @@ def decode_stream(image: bytes | bytearray | memoryview, layout: StreamLayout) -
     end = HEADER_SIZE + payload_len
     if end > size:
         raise fail(PdoError.PACKET_OVERRUN, f"payload_len {payload_len} > frame area {size - HEADER_SIZE} (6.1)")
-    mv = memoryview(image)[HEADER_SIZE:end]
-    if layout._crc and binascii.crc_hqx(mv, 0xFFFF) != crc:
-        raise fail(PdoError.BAD_CRC, f"payload_crc16 0x{crc:04X} != 0x{crc16(mv):04X} (6.1)")
+    if layout._crc:
+        # (a copy, not a memoryview: a view kept alive by a traceback would pin the caller's bytearray)
+        calc = binascii.crc_hqx(image[HEADER_SIZE:end], 0xFFFF)
+        if calc != crc:
+            raise fail(PdoError.BAD_CRC, f"payload_crc16 0x{crc:04X} != 0x{calc:04X} (6.1)")
     if layout_id != layout.layout_id or mask != layout.channel_mask:
         raise fail(PdoError.ACTIVE_AREA, f"layout_id 0x{layout_id:04X} / channel_mask 0x{mask:02X}, active "
                                          f"0x{layout.layout_id:04X} / 0x{layout.channel_mask:02X} (5.4.4.1)")
@@ -837,8 +878,11 @@ def decode_stream(image: bytes | bytearray | memoryview, layout: StreamLayout) -
     # control words, so each is validated once per image instead of once per packet.
     geo: dict[int, tuple[int, int, int, int, Tsf, bool, bool, bool, bool, bool, int]] = {}
     geometry = _ctrl_geometry
-    make = _make_can_packet
+    new = _new_object
+    (s_ch, s_id, s_ext, s_fd, s_brs, s_rtr, s_esi, s_data, s_tsf, s_ts, s_sched, s_off, s_tag, s_aux, s_d64,
+     s_dlc, s_ctrl, s_raw) = _CAN_PACKET_SETTERS
     schedule_ok = layout._schedule_ok
+    scheduled = schedule_ok     # in an RxPDO every packet with a TSF is a TSF_FULL64 reservation
     align4 = layout._align4
     u16 = _U16.unpack_from
     u32 = _U32.unpack_from
@@ -883,21 +927,35 @@ def decode_stream(image: bytes | bytearray | memoryview, layout: StreamLayout) -
                 raise fail(PdoError.RESERVED_BIT, "StdIdField bits 14/15 must be 0 (8.1)", off, nxt, ctrl)
             can_id = word & 0x7FF
             id_aux = word >> 11
+        stamp = offset_ns = tag = 0
         if ts_bytes:
             if schedule_ok:     # RxPDO: TSF_FULL64 is only the reservation format (8.4)
                 fmt, sflags, tag, offset_ns = _SCHEDULE.unpack_from(data, o)
                 if fmt != 1 or sflags:
                     raise fail(PdoError.BAD_SCHEDULE, f"reservation format {fmt} flags {sflags}, expected 1 / 0 "
                                                       "(8.4)", off, nxt, ctrl)
-                pkt = make(ctrl & 7, can_id, ide, fdf, brs, rtr, esi, data[data_at:data_at + n], tsf, 0, True,
-                           offset_ns, tag, id_aux, ctrl >= 0x8000, dlc)
             else:
                 stamp = (u16 if ts_bytes == 2 else u32 if ts_bytes == 4 else _U64.unpack_from)(data, o)[0]
-                pkt = make(ctrl & 7, can_id, ide, fdf, brs, rtr, esi, data[data_at:data_at + n], tsf, stamp, False,
-                           0, 0, id_aux, ctrl >= 0x8000, dlc)
-        else:
-            pkt = make(ctrl & 7, can_id, ide, fdf, brs, rtr, esi, data[data_at:data_at + n], tsf, 0, False, 0, 0,
-                       id_aux, ctrl >= 0x8000, dlc)
+        # The packet, slot by slot (checked above; no __init__ / __post_init__ round).
+        pkt = new(CanPacket)
+        s_ch(pkt, ctrl & 7)
+        s_id(pkt, can_id)
+        s_ext(pkt, ide)
+        s_fd(pkt, fdf)
+        s_brs(pkt, brs)
+        s_rtr(pkt, rtr)
+        s_esi(pkt, esi)
+        s_data(pkt, data[data_at:data_at + n])
+        s_tsf(pkt, tsf)
+        s_ts(pkt, stamp)
+        s_sched(pkt, scheduled and ts_bytes != 0)
+        s_off(pkt, offset_ns)
+        s_tag(pkt, tag)
+        s_aux(pkt, id_aux)
+        s_d64(pkt, ctrl >= 0x8000)
+        s_dlc(pkt, dlc)
+        s_ctrl(pkt, ctrl)
+        s_raw(pkt, pend - off)
         if nxt != pend and data[pend:nxt].count(0) != nxt - pend:
             raise fail(PdoError.RESERVED_BIT, "ALIGN4 padding must be 0 (8.3)", off, nxt, ctrl)
         append(pkt)
@@ -938,7 +996,7 @@ def _ctrl_error(ctrl: int, layout: StreamLayout) -> tuple[PdoError, str]:
 
 def _ctrl_geometry(ctrl: int) -> tuple[int, int, int, int, Tsf, bool, bool, bool, bool, bool, int]:
     """(id bytes (0 = TX_RESULT), timestamp bytes, data bytes on the wire, data bytes of the frame,
-    TSF, IDE, FDF, BRS, RTR, ESI, DLC field of the packet) of a control word that passed
+    TSF, IDE, FDF, BRS, RTR, ESI, DLC) of a control word that passed
     :func:`_ctrl_error` (8.3)."""
     if ctrl >> 13 & 3:
         return 0, 0, 0, 0, Tsf.NONE, False, False, False, False, False, -1
@@ -950,4 +1008,4 @@ def _ctrl_geometry(ctrl: int) -> tuple[int, int, int, int, Tsf, bool, bool, bool
     n = 0 if rtr else FD_DLC_TO_LEN[dlc]
     wire = 64 if ctrl & 0x8000 else n
     return (4 if ctrl & 0x80 else 2, _TSF_BYTES[tsf], wire, n, tsf, ctrl & 0x80 != 0, fdf, ctrl & 0x200 != 0, rtr,
-            x and fdf, dlc if rtr else -1)
+            x and fdf, dlc)
