@@ -260,3 +260,54 @@ def test_unconnected_channel() -> None:
     assert ch.status_word() & 7 == 0
     assert ch.submit(CanFrame(0x1, b""), None) == 3
     assert rig.configure(3) == 0                     # the configuration is still accepted
+
+
+def test_tx_queue_mode_sends_by_priority() -> None:
+    """13.4 SI69 '0=FIFO, 1=Queue; Queue is sorted by CAN ID arbitration priority'."""
+    for mode, want in ((0, [0x300, 0x100, 0x200]), (1, [0x100, 0x200, 0x300])):
+        rig = make_rig()
+        assert rig.configure(0, s69=mode) == 0
+        ch = rig.model.channels[0]
+        for cid in (0x300, 0x100, 0x200):
+            assert ch.submit(CanFrame(cid, b"\x01"), cid) == 0
+        rig.run()
+        assert [f.can_id for f, _ in rig.recorders[0].frames] == want
+        assert sorted(ref for ref, _ in ch.take_tx_results()) == [0x100, 0x200, 0x300]  # type: ignore[type-var]
+
+
+def test_priority_filter_sets_hpms() -> None:
+    """13.5 SI8 'HPMS raw': a filter with action 5 (priority + FIFO0) stores the frame and reports
+    the filter index and list in HPMS, IR.HPM set."""
+    rig = make_rig()
+    rig.w(0x8001, 55, 3)
+    _filter(rig, True, 2, 1, 5, 0x1234567, 0x1234568)
+    assert rig.configure(0) == 0
+    rig.peers[0].send(CanFrame(0x1234568, b"\x09", extended=True))
+    rig.run()
+    assert rig.r(0x9000, 8) == (2 << 8) | (1 << 15) | (2 << 6)
+    assert rig.r(0x9000, 3) >> 8 & 1
+    assert [r.frame.can_id for r in rig.model.channels[0].peek(8)] == [0x1234568]
+
+
+def test_restricted_mode_acks_but_never_sends() -> None:
+    """13.4 node mode 1 'Restricted/monitor': the channel receives and acknowledges (a lone peer's
+    frame is delivered without ACK errors) but transmits nothing."""
+    rig = make_rig()
+    assert rig.configure(0, s8=NodeMode.RESTRICTED) == 0
+    ch = rig.model.channels[0]
+    rig.peers[0].send(CanFrame(0x123, b"\x01"))
+    rig.run()
+    assert not [e for e in rig.recorders[0].events if isinstance(e, ErrorFrameEvent)]
+    assert [r.frame.can_id for r in ch.peek(8)] == [0x123]
+    assert ch.submit(CanFrame(0x1, b""), None) == 3
+    assert ch.status_word() & 7 == 5
+
+
+def test_install_twice_hooks_once() -> None:
+    """Installing the same dictionary again refreshes values without doubling the hooks (one apply
+    = one command sequence step, 13.4 SI5)."""
+    rig = make_rig()
+    rig.model.install(None, rig.od)
+    seq = rig.r(0x8001, 5)
+    rig.w(0x8001, 1, 1)
+    assert rig.r(0x8001, 5) == seq + 1

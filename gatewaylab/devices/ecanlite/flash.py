@@ -131,20 +131,28 @@ def decode_image(image: bytes) -> list[Record]:
 
 
 class FlashMedium(Protocol):
-    """Where the image lives."""
+    """Where the configuration image and the application partition (the installed OTA package) live."""
 
     def read(self) -> bytes | None:
-        """The stored bytes, None when nothing was ever stored; OSError when unreadable."""
+        """The stored configuration image, None when nothing was ever stored; OSError when unreadable."""
 
     def write(self, image: bytes) -> None:
-        """Replace the stored bytes; OSError when the medium fails."""
+        """Replace the configuration image; OSError when the medium fails."""
+
+    def read_app(self) -> bytes | None:
+        """The installed application package, None when the factory firmware runs."""
+
+    def write_app(self, package: bytes) -> None:
+        """Install an application package (a good FoE OTA image)."""
 
 
 class MemoryFlash:
-    """An image kept in memory (``flash_path`` None: lives as long as the model)."""
+    """Flash kept in memory (``flash_path`` None): hand the same object to the next model to keep
+    it across a device reset."""
 
-    def __init__(self, image: bytes | None = None) -> None:
+    def __init__(self, image: bytes | None = None, app: bytes | None = None) -> None:
         self.image = image
+        self.app = app
 
     def read(self) -> bytes | None:
         """The stored bytes."""
@@ -154,12 +162,29 @@ class MemoryFlash:
         """Keep the bytes."""
         self.image = bytes(image)
 
+    def read_app(self) -> bytes | None:
+        """The installed package."""
+        return self.app
+
+    def write_app(self, package: bytes) -> None:
+        """Keep the package."""
+        self.app = bytes(package)
+
+
+def _replace(path: Path, data: bytes) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_bytes(data)
+    os.replace(tmp, path)
+
 
 class FileFlash:
-    """An image in one file, replaced atomically on every write (the rig's state directory)."""
+    """The image in one file, the application package in ``PATH.app`` next to it; both replaced
+    atomically on every write (the rig's state directory)."""
 
     def __init__(self, path: Path | str) -> None:
         self.path = Path(path)
+        self.app_path = self.path.with_name(self.path.name + ".app")
 
     def read(self) -> bytes | None:
         """The file's bytes, None when it does not exist."""
@@ -170,7 +195,15 @@ class FileFlash:
 
     def write(self, image: bytes) -> None:
         """Write a temporary file next to the target and rename it over the target."""
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = self.path.with_suffix(self.path.suffix + ".tmp")
-        tmp.write_bytes(image)
-        os.replace(tmp, self.path)
+        _replace(self.path, image)
+
+    def read_app(self) -> bytes | None:
+        """The installed package, None when there is none."""
+        try:
+            return self.app_path.read_bytes()
+        except FileNotFoundError:
+            return None
+
+    def write_app(self, package: bytes) -> None:
+        """Replace the installed package."""
+        _replace(self.app_path, package)

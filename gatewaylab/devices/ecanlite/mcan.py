@@ -31,17 +31,22 @@ from ...bus.bus import (
     TxDoneEvent,
 )
 from ...bus.frame import CanFrame
+from ...bus.timing import arbitration_key
 from ...common.clock import Clock
 from ...common.errors import GatewaylabError
 from ...ethercat.description import ObjectDef
 from ...od import Access, DataType, Entry, ObjectDictionary, SdoAbort, SdoAbortCode
 from . import bittiming
 from .bittiming import BitTiming, BitTimingError, Tdc
+from .ota import FirmwareVersion
+
+#: The firmware a device runs before any OTA update (0xF000:05 = 0x0103, :06 = 0x2100).
+FACTORY_VERSION = FirmwareVersion(1, 3, 0x2100)
 
 if TYPE_CHECKING:
     from ...ethercat.foe import FoeHandler
     from ...ethercat.slave import Slave
-    from .ota import FirmwareVersion
+    from .flash import FlashMedium
     from .system import SystemModel
 
 U8, U16, U32 = DataType.UNSIGNED8, DataType.UNSIGNED16, DataType.UNSIGNED32
@@ -508,7 +513,7 @@ REG = MappingProxyType({
 WRITE_WHITELIST = frozenset({0x000C, 0x0010, 0x0014, 0x0018, 0x001C, 0x0048, 0x0050, 0x0054, 0x0058,
                              0x005C, 0x0080, 0x0090, 0x00A8, 0x00B8, 0x00D0, 0x00D4, 0x00F8})
 # IR bits (M_CAN): RF0N 0, RF0F 2, RF0L 3, TC 9, TFE 11, PEA 27, PED 28, EP 23, EW 24, BO 25.
-IR_RF0N, IR_RF0F, IR_RF0L, IR_TC, IR_TFE = 1 << 0, 1 << 2, 1 << 3, 1 << 9, 1 << 11
+IR_RF0N, IR_RF0F, IR_RF0L, IR_HPM, IR_TC, IR_TFE = 1 << 0, 1 << 2, 1 << 3, 1 << 8, 1 << 9, 1 << 11
 IR_EP, IR_EW, IR_BO, IR_PEA, IR_PED = 1 << 23, 1 << 24, 1 << 25, 1 << 27, 1 << 28
 #: PSR.LEC of an error kind: 2 form, 3 ack, 5 bit0, 6 crc.
 _LEC = {ErrorKind.FORM: 2, ErrorKind.ACK: 3, ErrorKind.BIT: 5, ErrorKind.CRC: 6}
@@ -539,6 +544,7 @@ class McanChannel:
         self._events = EventFlag(0)
         self._detail_pending = False
         self._ir = 0
+        self._hpms = 0
         self._lec = 0
         self._rx_lost = False
         self._rx_recent_drop = False
@@ -547,6 +553,9 @@ class McanChannel:
         self._backoff_cycles = 0
         self._backoff_level = 0
         self._expert: dict[int, int] = {}
+        #: 0x8030 fine bypass (13.2.3): TxPDO bit 2 MCAN_READ, RxPDO bit 4 TX_RING / bit 5 MCAN_WRITE.
+        self.bypass_read = False
+        self.bypass_write = False
         if controller is not None:
             controller.on_frame = self._on_frame
             controller.on_event = self._on_event
@@ -610,6 +619,43 @@ class McanChannel:
         if c.state is ErrorState.BUS_OFF:
             c.recover()
 
+    def release(self) -> None:
+        """Let go of the controller (pin rotation, reset): queued frames not on the wire are taken
+        back and reported as aborted (ResultCode 2), the callbacks unhooked."""
+        c = self.controller
+        if c is None:
+            return
+        on_wire = c.bus._on_wire
+        busy = on_wire.frame if on_wire is not None and on_wire.sender is c else None
+        queue = c.tx_queue
+        for entry in list(self._tx):
+            if entry.frame is busy:
+                continue
+            for j, queued in enumerate(queue):
+                if queued is entry.frame:
+                    del queue[j]
+                    break
+            self._tx.remove(entry)
+            self._results.append((entry.ref, TxResult.BUS_BUSY))
+        if busy is not None:
+            for entry in list(self._tx):
+                self._tx.remove(entry)
+                self._results.append((entry.ref, TxResult.OK))
+        if c.on_frame == self._on_frame:
+            c.on_frame = None
+        if c.on_event == self._on_event:
+            c.on_event = None
+        self.controller = None
+
+    def bind(self, controller: Controller | None) -> None:
+        """Take a controller (pin rotation): hook it and program the applied configuration."""
+        self.controller = controller
+        if controller is not None:
+            controller.on_frame = self._on_frame
+            controller.on_event = self._on_event
+            if self.runtime is not None:
+                self._activate(self.runtime)
+
     def apply_policy(self, policy: DataPathPolicy) -> None:
         """Apply a data-path policy (0x802x:02 = 1); also ends a degraded state and host recovery."""
         self.policy = policy
@@ -651,8 +697,12 @@ class McanChannel:
         ext = frame.extended
         if frame.rtr and (rt.reject_remote_ext if ext else rt.reject_remote_std):
             return False
-        for f in rt.ext_filters if ext else rt.std_filters:
+        for i, f in enumerate(rt.ext_filters if ext else rt.std_filters):
             if filter_match(f, frame.can_id, ext, rt.xidam):
+                if f.action in (4, 5, 6):
+                    # high priority message: HPMS FIDX 8..14, FLST 15, MSI 6..7 (0 none, 2 FIFO0, 3 FIFO1)
+                    self._hpms = i << 8 | ext << 15 | (0, 2, 3)[f.action - 4] << 6
+                    self._ir |= IR_HPM
                 return f.action in _STORE_ACTIONS
         return (rt.non_match_ext if ext else rt.non_match_std) < 2
 
@@ -720,7 +770,7 @@ class McanChannel:
     def peek(self, limit: int) -> Sequence[ReceivedFrame]:
         """The oldest received frames, at most ``limit`` and the drain budget (not removed)."""
         n = min(limit, self.drain_budget(), len(self._rx))
-        if n <= 0:
+        if n <= 0 or self.bypass_read:
             return ()
         rx = self._rx
         return tuple(rx[i] for i in range(n))
@@ -755,10 +805,11 @@ class McanChannel:
             return TxResult.INVALID_CHANNEL
         if frame.fd and not rt.fd:
             return TxResult.INVALID_CHANNEL
+        if self.bypass_write:
+            self._results.append((ref, TxResult.OK))     # 0x8030 TX_RING / MCAN_WRITE bypass
+            return TxResult.OK
         if c.state is ErrorState.BUS_OFF:
             return TxResult.BUS_OFF
-        if rt.transmit_pause and self._tx:
-            return TxResult.BUS_BUSY
         p = self.policy
         if self._backoff_cycles > 0:
             self._tx_full()
@@ -785,7 +836,26 @@ class McanChannel:
         except GatewaylabError:
             self._tx.pop()
             return TxResult.INVALID_CHANNEL
+        if rt.tx_queue_mode:
+            self._sort_queue(c, frame)
         return TxResult.OK
+
+    @staticmethod
+    def _sort_queue(c: Controller, frame: CanFrame) -> None:
+        """TX queue mode (0x800x:69 = 1): the frame with the highest arbitration priority leaves
+        first; the frame on the wire keeps its place."""
+        queue = c.tx_queue
+        if not queue or queue[-1] is not frame:
+            return
+        on_wire = c.bus._on_wire
+        start = 1 if on_wire is not None and on_wire.sender is c else 0
+        key = arbitration_key(frame)
+        pos = len(queue) - 1
+        while pos > start and arbitration_key(queue[pos - 1]) > key:
+            pos -= 1
+        if pos != len(queue) - 1:
+            queue.pop()
+            queue.insert(pos, frame)
 
     def _tx_full(self) -> None:
         c = self.counters
@@ -978,6 +1048,8 @@ class McanChannel:
             return len(rt.ext_filters) << 16
         if offset == 0x0090:
             return rt.xidam
+        if offset == 0x0094:
+            return self._hpms
         if offset == 0x00A0:      # RXF0C: F0S 16..22
             return rt.rx_fifo0 << 16
         if offset == 0x00A4:      # RXF0S: F0FL 0..6, F0F 24, RF0L 25
@@ -1009,7 +1081,8 @@ class McanChannel:
         """0x900x values by subindex (13.5)."""
         c = self.counters
         return {1: self.register(0x0040), 2: self.register(0x0044), 3: self.register(0x0050),
-                4: self.register(0x00A4), 5: 0, 6: self.register(0x00C4), 7: 0, 8: 0, 9: self._status(),
+                4: self.register(0x00A4), 5: 0, 6: self.register(0x00C4), 7: 0, 8: self.register(0x0094),
+                9: self._status(),
                 10: min(len(self._rx), 0xFFFF), 11: min(len(self._tx), 0xFFFF), 12: int(self._events),
                 13: c.rx_dropped_total, 14: c.tx_fifo_full, 15: c.bus_off, 16: c.detail_sequence}
 
@@ -1046,19 +1119,38 @@ def _put(od: ObjectDictionary, index: int, values: Mapping[int, int]) -> None:
 class McanModel:
     """The four MCAN channels, the system objects, flash and FoE update of one ECAN-Lite."""
 
-    def __init__(self, clock: Clock, controllers: Sequence[Controller | None], flash_path: Path | None = None,
-                 *, serial: int = 0, hardware_revision: int = 0) -> None:
-        from .flash import FileFlash, FlashMedium, MemoryFlash
-        from .ota import FirmwareVersion
+    def __init__(self, clock: Clock, controllers: Sequence[Controller | None],
+                 flash_path: Path | FlashMedium | None = None, *, serial: int = 0,
+                 hardware_revision: int = 0) -> None:
+        """``flash_path``: the configuration flash file (the APP partition is ``PATH.app`` next to
+        it), None for flash in memory, or a :class:`~.flash.FlashMedium` (e.g. the previous
+        model's ``flash``, so a reset keeps an in-memory flash and firmware)."""
+        from .flash import FileFlash, MemoryFlash
+        from .ota import OtaError, unpack
         from .system import SystemModel
 
         if len(controllers) > CHANNELS:
             raise ValueError(f"the ECAN-Lite has {CHANNELS} MCAN channels, got {len(controllers)} controllers")
         self.clock = clock
         ctrls = list(controllers) + [None] * (CHANNELS - len(controllers))
+        #: The controller on each fixed pin group; logical channel k uses group (k + rotation) % 4.
+        self.pins: tuple[Controller | None, ...] = tuple(ctrls)
+        self.rotation = 0
         self.channels: list[McanChannel] = [McanChannel(k, clock, c) for k, c in enumerate(ctrls)]
-        self.flash: FlashMedium = FileFlash(flash_path) if flash_path is not None else MemoryFlash()
-        self.version: FirmwareVersion = FirmwareVersion(1, 3, 0x2100)
+        if flash_path is None:
+            self.flash: FlashMedium = MemoryFlash()
+        elif isinstance(flash_path, (str, Path)):
+            self.flash = FileFlash(flash_path)
+        else:
+            self.flash = flash_path
+        #: The running firmware: the installed APP package, else the factory firmware.
+        self.version: FirmwareVersion = FACTORY_VERSION
+        try:
+            app = self.flash.read_app()
+            if app is not None:
+                self.version = unpack(app).version
+        except (OSError, OtaError):
+            pass
         self.system: SystemModel = SystemModel(self, serial=serial, hardware_revision=hardware_revision)
         self.od: ObjectDictionary | None = None
         self.system.power_on()
@@ -1066,7 +1158,7 @@ class McanModel:
     # -- contract --------------------------------------------------------------------------------
     @property
     def version_string(self) -> str:
-        """0x100A text: 'V1.3 build 0x2100'."""
+        """0x100A text: '1.3 build 0x2100' (the device's version_string format)."""
         return str(self.version)
 
     def object_defs(self) -> tuple[ObjectDef, ...]:
@@ -1084,19 +1176,22 @@ class McanModel:
     def install(self, slave: Slave | None, od: ObjectDictionary) -> None:
         """Put the running configuration into ``od`` and wire the hooks (validators, reactions,
         read hooks). Called from the device's ``SlaveApplication.setup_od``; again after a reset
-        with the new dictionary."""
+        with the new dictionary (the same dictionary twice only refreshes the values)."""
+        hook = od is not self.od
         self.od = od
         for ch in self.channels:
             k = ch.index
             rt_values = ch.runtime.settings.values if ch.runtime is not None else CONFIG_DEFAULTS
             _put(od, CONFIG_BASE + k, {s: rt_values.get(s, CONFIG_DEFAULTS[s]) for s in CONFIG_PERSISTED})
             _put(od, POLICY_BASE + k, self._policy_values(ch.policy))
+            if not hook:
+                continue
             od.add_validator(CONFIG_BASE + k, self._config_validator)
             od.add_reaction(CONFIG_BASE + k, self._config_reaction)
             od.add_reaction(POLICY_BASE + k, self._policy_reaction)
             od.on_read(INFO_BASE + k, self._info_read)
             od.on_read(DIAG_BASE + k, self._diag_read)
-        self.system.install(slave, od)
+        self.system.install(slave, od, hook=hook)
 
     def on_cycle(self, t: float) -> None:
         """Per-cycle tick (TX backoff); call once per process data cycle."""
@@ -1107,6 +1202,30 @@ class McanModel:
         """The FoE handler for ``ecan_lite_app`` (password 0): a good package takes the new
         version and calls ``on_accepted`` (the device resets)."""
         return self.system.ota_handler(on_accepted)
+
+    def rotate(self, rotation: int) -> None:
+        """0x8000:12 CAN pin rotation: logical channel k moves to pin group (k + rotation) % 4."""
+        rotation %= CHANNELS
+        if rotation == self.rotation:
+            return
+        for ch in self.channels:
+            ch.release()
+        self.rotation = rotation
+        for ch in self.channels:
+            ch.bind(self.pins[(ch.index + rotation) % CHANNELS])
+
+    def close(self) -> None:
+        """The firmware stops (device reset): the controllers forget this model's callbacks and
+        their queued frames."""
+        for ch in self.channels:
+            c = ch.controller
+            if c is not None:
+                if c.on_frame == ch._on_frame:
+                    c.on_frame = None
+                if c.on_event == ch._on_event:
+                    c.on_event = None
+                c.flush_tx()
+            ch._tx.clear()
 
     def reset(self) -> None:
         """A device reset (after an OTA update or 0x8000:01): channels restart from the flash image."""

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import struct
 import zlib
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 from ...common.errors import LocalError
@@ -72,7 +72,11 @@ class FirmwareVersion:
         return ((self.major & 0xFF) << 8) | (self.minor & 0xFF)
 
     def __str__(self) -> str:
-        return f"V{self.major}.{self.minor} build 0x{self.build:04X}"
+        return f"{self.major}.{self.minor} build 0x{self.build:04X}"
+
+    def __iter__(self) -> Iterator[int]:
+        """``major, minor, build = version``."""
+        return iter((self.major, self.minor, self.build))
 
 
 @dataclass(frozen=True, slots=True)
@@ -130,12 +134,12 @@ class OtaStatus:
 class OtaHandler:
     """The device's :class:`~gatewaylab.ethercat.foe.FoeHandler` for ``ecan_lite_app``.
 
-    A good package calls ``install(package)`` (the model takes the new version) and then
-    ``on_accepted()`` (the device resets); anything else raises the FoE error the master shows,
-    and nothing changes.
+    A good package calls ``install(package, data)`` (the model writes the APP partition and takes
+    the new version) and then ``on_accepted()`` (the device resets); anything else raises the FoE
+    error the master shows, and nothing changes.
     """
 
-    def __init__(self, install: Callable[[Package], None], on_accepted: Callable[[], None],
+    def __init__(self, install: Callable[[Package, bytes], None], on_accepted: Callable[[], None],
                  status: OtaStatus, device_type: int = 0) -> None:
         self._install = install
         self._on_accepted = on_accepted
@@ -165,6 +169,10 @@ class OtaHandler:
         except OtaError as exc:
             self.status.status_code = int(exc.foe_code)
             raise FoeError(str(exc), exc.foe_code) from None
+        try:
+            self._install(package, bytes(data))
+        except OSError as exc:
+            self.status.status_code = int(FoeErrorCode.DISK_FULL)
+            raise FoeError(f"file write fail: {exc}", FoeErrorCode.DISK_FULL) from None
         self.status.status_code = 0
-        self._install(package)
         self._on_accepted()

@@ -248,14 +248,19 @@ class SystemModel:
                        7: self.serial & 0xFFFFFFFF, 8: (self.serial >> 32) & 0xFFFFFFFF})
         return values
 
-    def install(self, slave: Any, od: ObjectDictionary) -> None:
-        """Values and hooks of the system objects."""
+    def install(self, slave: Any, od: ObjectDictionary, *, hook: bool = True) -> None:
+        """Values and (with ``hook``) hooks of the system objects."""
         self.od = od
         put = self._put
         put(SYSTEM_INDEX, self.system)
         put(GLOBAL_INDEX, self.global_control)
         put(CAPABILITY_INDEX, self.capability())
         put(TEST_INDEX, {8: 0x1F, 9: int(self.reject_reason)})
+        self._publish_maintenance()
+        if 0x100A in od:
+            od.put(0x100A, 0, self.model.version_string)
+        if not hook:
+            return
         od.add_validator(SYSTEM_INDEX, self._system_validator)
         od.add_reaction(SYSTEM_INDEX, self._system_reaction)
         od.add_reaction(GLOBAL_INDEX, self._global_reaction)
@@ -267,9 +272,6 @@ class SystemModel:
         for k in range(CHANNELS):
             od.add_validator(REGISTER_BASE + k, self._register_validator)
             od.add_reaction(REGISTER_BASE + k, self._register_reaction)
-        self._publish_maintenance()
-        if 0x100A in od:
-            od.put(0x100A, 0, self.model.version_string)
 
     def _put(self, index: int, values: Mapping[int, int]) -> None:
         od = self.od
@@ -314,6 +316,7 @@ class SystemModel:
         if sysv[12] > 3:
             sysv[12] = 0
         sysv[13] = sysv[12]
+        self.model.rotate(sysv[13])
         self.system = sysv
         self.global_control = glob
         self._put(SYSTEM_INDEX, sysv)
@@ -427,10 +430,11 @@ class SystemModel:
             self._publish_maintenance()
             on_accepted()
 
-        def failed_publish(package: Package) -> None:
+        def install(package: Package, data: bytes) -> None:
+            self.model.flash.write_app(data)
             self._install_package(package)
 
-        handler = OtaHandler(failed_publish, accepted, self.ota)
+        handler = OtaHandler(install, accepted, self.ota)
         return _PublishingHandler(handler, self._publish_maintenance)
 
     def _install_package(self, package: Package) -> None:
@@ -465,6 +469,7 @@ class SystemModel:
             ok = rotation <= 3 and bool(self.system[14] & (1 << rotation))
             if ok:
                 self.system[13] = rotation
+                self.model.rotate(rotation)
             self.system[12] = rotation
             self.system[15] = 0 if ok else 1
             self.system[11] = self.system[15]
@@ -530,10 +535,13 @@ class SystemModel:
             if int(value) == 0:
                 self.test = TestControls()
                 self._put(TEST_INDEX, {2: 0, 3: 0, 4: 0, 5: 0, 6: 0})
-            return
-        self.test = self._test_with(sub, int(value))
-        self.reject_reason = RejectReason.NONE
-        self._put(TEST_INDEX, {9: 0})
+        else:
+            self.test = self._test_with(sub, int(value))
+            self.reject_reason = RejectReason.NONE
+            self._put(TEST_INDEX, {9: 0})
+        for ch in self.model.channels:
+            ch.bypass_read = bool(self.test.tx_bypass & 0x04)
+            ch.bypass_write = bool(self.test.rx_bypass & 0x30)
 
     def _register_validator(self, entry: Entry, value: Any) -> None:
         if entry.subindex == 2 and int(value) > 2:
@@ -626,6 +634,10 @@ class SystemModel:
                 status = MaintenanceStatus.IMAGE_INVALID
             else:
                 if bits & 0x10:
+                    try:
+                        self.model.flash.write_app(self.ota.last_image)
+                    except OSError:
+                        return MaintenanceStatus.FLASH_ERROR
                     self._install_package(package)
                     self.clock.call_soon(self._reboot)
         return status
