@@ -347,13 +347,13 @@ def test_state_rules_of_14_2(rig: Rig) -> None:
     m = rig.master
     bring_up(rig, n=3)
     m.sdo_download8(0, 0x8011, 3, 8)
-    assert m.sdo_upload8(0, 0x8011, 2) == Status.PENDING
+    assert m.sdo_upload8(0, 0x8011, 2) == Status.PENDING_APPLY
     m.sdo_download8(0, 0x8011, 1, 1)
     assert m.sdo_upload8(0, 0x8011, 2) == Status.INVALID_STATE
     assert m.sdo_upload16(0, 0x8011, 9) == 384
     m.set_state(AlState.PREOP)
     m.sdo_download8(0, 0x8011, 1, 1)  # 8 requested, 3 assigned
-    assert m.sdo_upload8(0, 0x8011, 2) == Status.MAPPING_RELOAD and m.sdo_upload16(0, 0x8011, 9) == 384
+    assert m.sdo_upload8(0, 0x8011, 2) == Status.MAPPING_RELOAD_REQUIRED and m.sdo_upload16(0, 0x8011, 9) == 384
     m.sdo_download8(0, 0x8011, 3, 3)
     m.sdo_download8(0, 0x8011, 7, 0x20)
     m.sdo_download8(0, 0x8011, 1, 1)

@@ -62,6 +62,7 @@ from .image import (
 from .mcan import McanModel
 from .stream import (
     TIMESTAMP_UNIT_S,
+    ApplyStatus,
     CanPacket,
     Commit,
     Direction,
@@ -82,22 +83,8 @@ from .system import DiagFlag
 __all__ = ["EcanLiteApplication", "EcanLiteDevice", "Status"]
 
 
-#: 0x8010/0x8011:02 values (13.2).
-class Status:
-    OK = 0
-    INVALID_STATE = 1
-    INVALID_MULTIPLIER = 2
-    INVALID_MASK = 3
-    INVALID_PROFILE = 4
-    MAPPING_RELOAD = 5
-    ENCAPSULATION_ERROR = 7
-    OVERFLOW = 8
-    PENDING = 9
-    UNSUPPORTED_OPTION = 10
-
-
-SUPPORTED_PROFILES = (0, 1, 4, 5)
-OPTION_MASK = 0x1F
+#: 0x8010/0x8011:02 values (13.2) are the stream module's ApplyStatus.
+Status = ApplyStatus
 OPT_TX_RESULT, OPT_ALIGN4, OPT_NO_CRC16, OPT_APP_BYPASS = 0x01, 0x02, 0x04, 0x08
 #: Header flags (chapter 6).
 FLAG_TRUNCATED, FLAG_CHANNEL_ERROR, FLAG_TX_RESULT, FLAG_STATUS_CHANGED, FLAG_SEQ_WRAP, FLAG_OVERFLOW_VALID = (
@@ -225,7 +212,7 @@ class EcanLiteApplication(SlaveApplication):
                 if d.status in (Status.ENCAPSULATION_ERROR, Status.OVERFLOW):
                     d.status = Status.OK
         elif SI_MULTIPLIER <= sub <= SI_OPTIONS:
-            d.status = Status.PENDING
+            d.status = Status.PENDING_APPLY
 
     def _requested(self, d: _Direction) -> tuple[int, int, int, int, int]:
         assert self.slave is not None
@@ -242,9 +229,9 @@ class EcanLiteApplication(SlaveApplication):
         if self.slave.state == AlState.OP:
             d.status = Status.INVALID_STATE
         elif merit:
-            d.status = merit
+            d.status = ApplyStatus(merit)
         elif not self._assignment_matches(d, n):
-            d.status = Status.MAPPING_RELOAD
+            d.status = Status.MAPPING_RELOAD_REQUIRED
         else:
             new = StreamLayout(multiplier=n, channel_mask=mask, profile=profile, budget_policy=budget, options=options,
                                direction=Direction.TX if d is self.tx else Direction.RX)
