@@ -1,7 +1,7 @@
 """pysoem master for the ECAN-Lite (run in a subprocess inside the test's network namespace): manual
 5.4.3 phases A-D and F, the 5.4.4.1 frame, TxPDO parsing; prints one JSON result.
 
-Usage: python ecanlite_soem_driver.py INTERFACE bringup N CYCLES
+Usage: python ecanlite_soem_driver.py INTERFACE bringup N[,N...] CYCLES
 """
 
 from __future__ import annotations
@@ -33,8 +33,11 @@ def _u(data: bytes) -> int:
 
 
 class _Retry:
-    """SDO access retried on a lost mailbox frame (pysoem WkcError: a stall of this shared VM longer
-    than SOEM's mailbox timeout); every write here is idempotent."""
+    """SDO access retried on a lost mailbox frame (pysoem WkcError / MailboxError: a stall of this
+    shared VM longer than SOEM's mailbox timeouts); every access here is idempotent. The retries are
+    reported."""
+
+    retries: list[str] = []
 
     def __init__(self, slave: Any) -> None:
         self.slave = slave
@@ -44,7 +47,8 @@ class _Retry:
         for attempt in range(5):
             try:
                 return fn(*args)
-            except pysoem.WkcError:
+            except (pysoem.WkcError, pysoem.MailboxError) as exc:
+                self.retries.append(type(exc).__name__)
                 if attempt == 4:
                     raise
                 time.sleep(0.05)
@@ -127,17 +131,11 @@ def _init(master: Any) -> int:
     return 0
 
 
-def scenario_bringup(iface: str, n: int, cycles: int) -> dict[str, Any]:
-    import pysoem
-    master = pysoem.Master()
-    master.sdo_read_timeout = SLOW_US
-    master.sdo_write_timeout = SLOW_US
-    master.open(iface)
-    out: dict[str, Any] = {"count": _init(master)}
+def _one_size(master: Any, n: int, cycles: int, seq: int) -> dict[str, Any]:
+    """Phases A-E for ``n`` chunks, SAFEOP, OP, ``cycles`` cycles with the 5.4.4.1 frame (sequence
+    ``seq``) published from the 5th; every TxPDO image read on the way is parsed."""
     s0 = master.slaves[0]
-    out["name"] = s0.name
-    out["name_1008"] = s0.sdo_read(0x1008, 0).decode()
-    out.update(_configure(s0, n))
+    out: dict[str, Any] = _configure(s0, n)
     s0.set_watchdog("processdata", 1000)
     tx = StreamLayout(multiplier=n, direction=Direction.TX)
     packets: list[list[Any]] = []
@@ -161,7 +159,7 @@ def scenario_bringup(iface: str, n: int, cycles: int) -> dict[str, Any]:
     bad = 0
     for i in range(cycles):
         if i == 5:
-            s0.output = frame_5_4_4_1(n, 1)  # phase F: the frame, written once, repeated by the master
+            s0.output = frame_5_4_4_1(n, seq)  # phase F: the frame, written once, repeated by the master
         time.sleep(0.0005)  # a cyclic task, roughly 1 kHz: CAN peers get time to talk
         master.send_processdata()
         if master.receive_processdata(RX_TIMEOUT_US) != master.expected_wkc:
@@ -173,9 +171,34 @@ def scenario_bringup(iface: str, n: int, cycles: int) -> dict[str, Any]:
     out["tx_errors"] = errors
     out["last_pdo_error"] = _u(_Retry(s0).sdo_read(0x8011, 14))
     out["pdo_errors"] = _u(_Retry(s0).sdo_read(0x8011, 15))
-    master.state = pysoem.INIT_STATE
-    master.write_state()
-    master.close()
+    return out
+
+
+def _open(iface: str) -> Any:
+    import pysoem
+    master = pysoem.Master()
+    master.sdo_read_timeout = SLOW_US
+    master.sdo_write_timeout = SLOW_US
+    master.open(iface)
+    return master
+
+
+def scenario_bringup(iface: str, sizes: list[int], cycles: int) -> dict[str, Any]:
+    """N = each of ``sizes`` in turn, each from a fresh scan (SOEM's config_map is not meant to be
+    run twice on one context: its FMMUs accumulate)."""
+    import pysoem
+    out: dict[str, Any] = {}
+    for k, n in enumerate(sizes):
+        master = _open(iface)
+        out["count"] = _init(master)
+        s0 = master.slaves[0]
+        out["name"] = s0.name
+        out["name_1008"] = _Retry(s0).sdo_read(0x1008, 0).decode()
+        out[str(n)] = _one_size(master, n, cycles, k + 1)
+        master.state = pysoem.INIT_STATE
+        master.write_state()
+        master.close()
+    out["retries"] = _Retry.retries
     return out
 
 
@@ -183,5 +206,5 @@ if __name__ == "__main__":
     iface, scenario = sys.argv[1], sys.argv[2]
     if scenario != "bringup":
         raise SystemExit(f"unknown scenario {scenario!r}")
-    result = scenario_bringup(iface, int(sys.argv[3]), int(sys.argv[4]))
+    result = scenario_bringup(iface, [int(n) for n in sys.argv[3].split(",")], int(sys.argv[4]))
     print(json.dumps(result))

@@ -26,7 +26,7 @@ from ...bus.bus import Controller
 from ...bus.frame import CanFrame
 from ...common.clock import Clock
 from ...ethercat.errors import AlStatusCode
-from ...ethercat.esc import AlState
+from ...ethercat.esc import REG_DC_ACTIVATION, REG_DC_SYNC0_CYCLE, SYNC0_MIN_CYCLE_NS, AlState
 from ...ethercat.slave import Slave, SlaveApplication
 from ...od import Entry, ObjectDictionary, SdoAbort, SdoAbortCode
 from . import budget as budget_mod
@@ -143,10 +143,8 @@ class EcanLiteApplication(SlaveApplication):
         self.rx = _Direction(RX_PROFILE, 0x1C12, RX_MAP, StreamLayout.default(Direction.RX))
         self.slave: Slave | None = None
         self._last_rx: bytes = b""
-        self._last_rx_seq: int | None = None
         self._results: deque[TxResultPacket] = deque()
         self._staged: _Staged | None = None
-        self._stage_pending = -1
         self._last_status: tuple[int, ...] = (0, 0, 0, 0)
         self._cycle_ref: float | None = None
         self._rotate = 0
@@ -159,7 +157,9 @@ class EcanLiteApplication(SlaveApplication):
         self._last_sync0: float | None = None
         self.phase_min: int | None = None
         self.phase_max: int | None = None
-        self.cost_max = [0] * 9  # SI 6..13 (index 0..7) + spare
+        #: 0x9011:06..13 maxima in CPU cycles: output mapping, input mapping, MCAN service, TxPDO
+        #: build, RxPDO parse, ESC read, ESC write, schedule service (index = SI - 6).
+        self.cost_max = [0] * 8
         self.cpu_hz = 400_000_000
 
     # ------------------------------------------------------------------ objects
@@ -256,7 +256,6 @@ class EcanLiteApplication(SlaveApplication):
             d.status = Status.OK
         if d is self.rx:
             self._last_rx = b""
-            self._last_rx_seq = None
             self._scheduled.clear()
         else:
             self._results.clear()
@@ -319,7 +318,6 @@ class EcanLiteApplication(SlaveApplication):
             self._stage()
         if new != AlState.OP:
             self._last_rx = b""
-            self._last_rx_seq = None
             self._scheduled.clear()
 
     # ------------------------------------------------------------------ RxPDO -> CAN
@@ -399,8 +397,16 @@ class EcanLiteApplication(SlaveApplication):
         d.status = Status.ENCAPSULATION_ERROR
 
     def _sync0_active(self) -> bool:
+        return self._sync0_cycle() > 0
+
+    def _sync0_cycle(self) -> float:
+        """The SYNC0 period from the ESC's DC registers (0x0981 activation, 0x09A0 cycle); 0 = off."""
         assert self.slave is not None
-        return self.slave.esc._sync0_timer is not None
+        mem = self.slave.esc.mem
+        if mem[REG_DC_ACTIVATION] & 0x03 != 0x03:
+            return 0.0
+        ns = int.from_bytes(mem[REG_DC_SYNC0_CYCLE:REG_DC_SYNC0_CYCLE + 4], "little")
+        return max(ns, SYNC0_MIN_CYCLE_NS) / 1e9 if ns else 0.0
 
     def _maintenance_flag(self, flag: DiagFlag) -> None:
         """Latch a 0xB000:06 legacy diag flag (13.7) in the maintenance model."""
@@ -416,7 +422,7 @@ class EcanLiteApplication(SlaveApplication):
             return
         t0 = self.clock.now()
         due, self._scheduled = self._scheduled, []
-        cycle = slave.esc._sync0_cycle
+        cycle = self._sync0_cycle()
         tx_result = bool(self.tx.active.options & OPT_TX_RESULT)
         for s in due:
             when = t + s.offset_ns * 1e-9
@@ -453,11 +459,12 @@ class EcanLiteApplication(SlaveApplication):
                 self.tx.overflows += 1
                 self.tx.status = Status.OVERFLOW
             self.tx.seq = staged.seq
-        on_cycle = getattr(self.model, "on_cycle", None)
-        if on_cycle is not None:
-            on_cycle(t0)
+        self.model.on_cycle(t0)
+        self._cost(2, t0)  # MCAN PDO service: consume + channel tick
         self._staged = None
+        t1 = self.clock.now()
         self._stage()
+        self._cost(3, t1)
         self._cost(1, t0)
 
     def _collect_results(self) -> None:
