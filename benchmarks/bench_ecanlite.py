@@ -61,31 +61,44 @@ def _open(iface: str) -> Any:
     master.sdo_read_timeout = 3_000_000
     master.sdo_write_timeout = 3_000_000
     master.open(iface)
-    for _ in range(3):
+    for _ in range(10):  # a register read answered too late on a busy machine fails the scan
         if master.config_init() == 1:
             return master
-        time.sleep(0.2)
+        time.sleep(0.5)
     raise SystemExit("expected 1 slave")
+
+
+def _sdo(call: Any, *args: Any) -> Any:
+    """An idempotent SDO access, again after a mailbox frame lost to a stall of the machine."""
+    import pysoem
+    for attempt in range(5):
+        try:
+            return call(*args)
+        except (pysoem.WkcError, pysoem.MailboxError):
+            if attempt == 4:
+                raise
+            time.sleep(0.05)
+    return None
 
 
 def _configure_ecan(s0: Any) -> None:
     """Manual 5.4.3 phases B, C, E with N chunks, all four channels CAN FD 1M/5M, RX drain policy
     'performance' and a 32-frame RX cache (0x8021..0x8024)."""
     for assign, base in ((0x1C12, 0x1600), (0x1C13, 0x1A00)):
-        s0.sdo_write(assign, 0, bytes([0]))
+        _sdo(s0.sdo_write, assign, 0, bytes([0]))
         for i in range(N):
-            s0.sdo_write(assign, i + 1, struct.pack("<H", base + i))
-        s0.sdo_write(assign, 0, bytes([N]))
+            _sdo(s0.sdo_write, assign, i + 1, struct.pack("<H", base + i))
+        _sdo(s0.sdo_write, assign, 0, bytes([N]))
     for index in (0x8010, 0x8011):
         for sub, value in ((3, N), (4, 0x0F), (5, 0), (6, 0), (7, 0), (1, 1)):
-            s0.sdo_write(index, sub, bytes([value]))
+            _sdo(s0.sdo_write, index, sub, bytes([value]))
     for k in range(4):
         for sub, fmt, value in ((7, "<B", 0), (15, "<B", 1), (19, "<I", 1_000_000), (20, "<I", 5_000_000),
                                 (1, "<B", 1)):
-            s0.sdo_write(0x8001 + k, sub, struct.pack(fmt, value))
+            _sdo(s0.sdo_write, 0x8001 + k, sub, struct.pack(fmt, value))
         # 13.2.2 budgets for a 1,000 frames/s channel on a shared VM: drain what fits, 32-deep cache
         for sub, value in ((6, 2), (7, 32), (2, 1)):
-            s0.sdo_write(0x8021 + k, sub, bytes([value]))
+            _sdo(s0.sdo_write, 0x8021 + k, sub, bytes([value]))
 
 
 def _paced(seconds: float, cycle: Any) -> dict[str, Any]:
@@ -182,10 +195,10 @@ def master_ecan(iface: str, seconds: float) -> dict[str, Any]:
             take_inputs()
         time.sleep(0.001)
     out.update({"sent": state["sent"], "received": state["received"], "parse_errors": state["parse_errors"],
-                "pdo_errors": int.from_bytes(s0.sdo_read(0x8011, 15), "little"),
-                "tx_overflows": int.from_bytes(s0.sdo_read(0x8010, 16), "little"),
+                "pdo_errors": int.from_bytes(_sdo(s0.sdo_read, 0x8011, 15), "little"),
+                "tx_overflows": int.from_bytes(_sdo(s0.sdo_read, 0x8010, 16), "little"),
                 # 13.2.5 RX dropped old/new: cache overflows while the master stalled
-                "rx_cache_drops": sum(int.from_bytes(s0.sdo_read(0x9020 + k, sub), "little")
+                "rx_cache_drops": sum(int.from_bytes(_sdo(s0.sdo_read, 0x9020 + k, sub), "little")
                                       for k in range(4) for sub in (6, 7))})
     master.state = pysoem.INIT_STATE
     master.write_state()
