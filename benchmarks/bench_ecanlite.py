@@ -74,7 +74,7 @@ def _sdo(call: Any, *args: Any) -> Any:
     for attempt in range(5):
         try:
             return call(*args)
-        except (pysoem.WkcError, pysoem.MailboxError):
+        except (pysoem.WkcError, pysoem.MailboxError, pysoem.PacketError):
             if attempt == 4:
                 raise
             time.sleep(0.05)

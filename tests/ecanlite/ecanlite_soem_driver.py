@@ -47,7 +47,7 @@ class _Retry:
         for attempt in range(5):
             try:
                 return fn(*args)
-            except (pysoem.WkcError, pysoem.MailboxError) as exc:
+            except (pysoem.WkcError, pysoem.MailboxError, pysoem.PacketError) as exc:
                 self.retries.append(type(exc).__name__)
                 if attempt == 4:
                     raise
