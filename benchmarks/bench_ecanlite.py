@@ -194,14 +194,22 @@ def master_ecan(iface: str, seconds: float) -> dict[str, Any]:
         if master.receive_processdata(RX_TIMEOUT_US) == expected:
             take_inputs()
         time.sleep(0.001)
-    out.update({"sent": state["sent"], "received": state["received"], "parse_errors": state["parse_errors"],
-                "pdo_errors": int.from_bytes(_sdo(s0.sdo_read, 0x8011, 15), "little"),
+    out.update({"sent": state["sent"], "received": state["received"], "parse_errors": state["parse_errors"]})
+    master.state = pysoem.INIT_STATE
+    master.write_state()
+    master.close()
+    # The counters from a fresh session (PREOP): after long runs SOEM's SDO reads on the old context
+    # kept getting a stale mailbox answer (see docs/devices/ecanlite.md).
+    master = _open(iface)
+    master.state = pysoem.PREOP_STATE
+    master.write_state()
+    master.state_check(pysoem.PREOP_STATE, 500_000)
+    s0 = master.slaves[0]
+    out.update({"pdo_errors": int.from_bytes(_sdo(s0.sdo_read, 0x8011, 15), "little"),
                 "tx_overflows": int.from_bytes(_sdo(s0.sdo_read, 0x8010, 16), "little"),
                 # 13.2.5 RX dropped old/new: cache overflows while the master stalled
                 "rx_cache_drops": sum(int.from_bytes(_sdo(s0.sdo_read, 0x9020 + k, sub), "little")
                                       for k in range(4) for sub in (6, 7))})
-    master.state = pysoem.INIT_STATE
-    master.write_state()
     master.close()
     return out
 
@@ -291,8 +299,12 @@ def main() -> None:
         wire.start()
         try:
             ecan = _run_master(ns, mst, "ecan", seconds)
+        except RuntimeError as exc:
+            print(f"the ECAN-Lite master failed: {exc}\nemulator errors: {wire.errors[:3]}")
+            raise
         finally:
             wire.stop()
+        emulator_errors = list(wire.errors)
     finally:
         subprocess.run(["ip", "netns", "del", ns], check=False)
     print(f"ECAN-Lite over veth, pysoem, N={N} (384 B each way), 1 kHz for {seconds:.0f} s, "
@@ -306,6 +318,7 @@ def main() -> None:
     print(f"  master -> CAN: master sent {ecan['sent']}, peers heard {sum(heard)}, lost {to_bus_lost}")
     print(f"  PDO errors: RxPDO 0x8011:15 = {ecan['pdo_errors']}, TxPDO parse errors {ecan['parse_errors']}; "
           f"TxPDO overflows 0x8010:16 = {ecan['tx_overflows']}")
+    print(f"  emulator frame errors: {len(emulator_errors)} {emulator_errors[:1]}")
     print(f"  p99 round trip ratio ECAN-Lite / ethercat_io: {ecan['p99_us'] / io['p99_us']:.2f}")
     print("targets (issue 10): 0 lost within the budgets, 0 PDO errors")
 
