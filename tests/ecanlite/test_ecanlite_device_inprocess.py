@@ -7,7 +7,7 @@ from pathlib import Path
 
 import can
 import pytest
-from conftest import CYCLE, Rig, bring_up, make_rig
+from ecanlite_device_kit import CYCLE, Rig, bring_up, make_rig
 
 from gatewaylab.bus import python_can_bus
 from gatewaylab.devices.ecanlite.device import Status

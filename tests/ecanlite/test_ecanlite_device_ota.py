@@ -6,7 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from conftest import bring_up, make_rig
+from ecanlite_device_kit import bring_up, make_rig
 
 from gatewaylab.devices.ecanlite.device import RESET_TIME
 from gatewaylab.devices.ecanlite.ota import FirmwareVersion, pack

@@ -7,7 +7,7 @@ from __future__ import annotations
 import tempfile
 from pathlib import Path
 
-from conftest import Rig, bring_up, make_rig
+from ecanlite_device_kit import Rig, bring_up, make_rig
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 

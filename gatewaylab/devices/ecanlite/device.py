@@ -36,7 +36,6 @@ from .image import (
     DEVICE_NAME,
     RX_MAP,
     RX_PROFILE,
-    RX_UNIT,
     SI_ACTIVE_AREA,
     SI_ACTIVE_BYTES,
     SI_APPLY,
@@ -56,7 +55,6 @@ from .image import (
     SI_STATUS,
     TX_MAP,
     TX_PROFILE,
-    UNIT_BYTES,
     ecanlite_description,
 )
 from .mcan import McanModel
@@ -135,6 +133,10 @@ class _Scheduled:
 class EcanLiteApplication(SlaveApplication):
     """Behind the ESC: profile objects, state rules, data path, diagnostics, OTA reset."""
 
+    #: The RxPDO is one byte stream: not stored into its 8*N unit objects every cycle; a CoE read
+    #: of a unit decodes it from the outputs image (core, SlaveApplication.store_outputs).
+    store_outputs = False
+
     def __init__(self, device: EcanLiteDevice) -> None:
         self.device = device
         self.model = device.model
@@ -166,7 +168,6 @@ class EcanLiteApplication(SlaveApplication):
     def setup_od(self, slave: Slave, od: ObjectDictionary) -> None:
         """Hooks of 0x8010/0x8011/0x9011, unit objects decoded from the image, then the MCAN model's."""
         self.slave = slave
-        slave.mirror_outputs = False  # the RxPDO is one byte stream: units are decoded on read
         for d in (self.tx, self.rx):
             self._publish_active(od, d)
             od.add_validator(d.index, self._validate_profile)
@@ -174,17 +175,10 @@ class EcanLiteApplication(SlaveApplication):
             od.on_read(d.index, self._refresh_profile)
         od.add_reaction(CYCLE_DIAG, self._cycle_written)
         od.on_read(CYCLE_DIAG, self._refresh_cycle)
-        od.on_read(range(RX_UNIT, RX_UNIT + CHUNKS * 0x80), self._refresh_rx_unit)
         self.model.install(slave, od)
         od.put(0x100A, 0, self.model.version_string)
         if (0x8000, 4) in od.values:
             self.cpu_hz = int(od.values[(0x8000, 4)]) or self.cpu_hz
-
-    def _refresh_rx_unit(self, index: int, subindex: int) -> None:
-        assert self.slave is not None
-        off = (index - RX_UNIT) // 0x10 * UNIT_BYTES
-        unit = self.slave.outputs[off:off + UNIT_BYTES]
-        self.slave.od.values[(index, subindex)] = unit.ljust(UNIT_BYTES, b"\0").decode("latin-1")
 
     @staticmethod
     def _validate_profile(entry: Entry, value: Any) -> None:
