@@ -232,7 +232,7 @@ _MEASURED_RANGES = tuple(limits for _, limits in _ACTUALS if limits is not None)
 class Drive:
     """A maxon IDX-like CiA 402 servo on a virtual CAN bus (see module docstring)."""
 
-    def __init__(self, clock: Clock, bus: VirtualBus, node_id: int | None, serial: int, name: str = "",
+    def __init__(self, clock: Clock, bus: VirtualBus | None, node_id: int | None, serial: int, name: str = "",
                  store_path: Path | None = None, params: AxisParams | None = None, *,
                  od: ObjectDictionary | None = None, node: Node | None = None) -> None:
         """``od`` and ``node``: another protocol hosts the drive (the EtherCAT drive: its slave's
@@ -264,6 +264,8 @@ class Drive:
         if node is not None:
             self.node = node
         else:
+            if bus is None:
+                raise ConfigError(f"drive {self.name}: a CANopen drive needs a bus")
             self.node = Node(clock, bus, node_id, self.od, name=self.name, store_path=store_path)
             if stored is not None:
                 rate = BIT_TIMING_TABLE[stored[1]] if stored[1] < len(BIT_TIMING_TABLE) else None
