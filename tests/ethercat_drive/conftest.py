@@ -5,52 +5,18 @@ from __future__ import annotations
 
 import itertools
 import os
-import shutil
 import subprocess
-import sys
 from collections.abc import Iterator
-from dataclasses import dataclass
-from pathlib import Path
 
 import pytest
+from ecdrive_testkit import DriveVeth, net_capable
 
 _counter = itertools.count()
 
 
-def _net_capable() -> str | None:
-    """None when we may create namespaces and raw sockets, else the reason to skip."""
-    if not sys.platform.startswith("linux"):
-        return "EtherCAT wire tests need Linux AF_PACKET sockets"
-    if shutil.which("ip") is None:
-        return "the 'ip' tool (iproute2) is missing"
-    try:
-        status = Path("/proc/self/status").read_text()
-        cap_eff = int(next(line for line in status.splitlines() if line.startswith("CapEff:")).split()[1], 16)
-    except (OSError, StopIteration, ValueError):
-        return "cannot read process capabilities"
-    if not (cap_eff >> 12) & 1 or not (cap_eff >> 13) & 1:
-        return "process lacks CAP_NET_ADMIN/CAP_NET_RAW (run as root to create veth pairs)"
-    return None
-
-
-@dataclass(frozen=True)
-class DriveVeth:
-    """Emulator end in this namespace, master end inside ``namespace``."""
-
-    namespace: str
-    emulator_iface: str
-    master_iface: str
-
-    def run(self, script: Path, *args: str, timeout: float = 180.0) -> subprocess.CompletedProcess[str]:
-        """Run a Python script inside the namespace with the master interface as first argument."""
-        return subprocess.run(["ip", "netns", "exec", self.namespace, sys.executable, str(script),
-                               self.master_iface, *args], capture_output=True, text=True, timeout=timeout,
-                              check=False)
-
-
 @pytest.fixture(scope="module")
 def drive_veth() -> Iterator[DriveVeth]:
-    reason = _net_capable()
+    reason = net_capable()
     if reason is not None:
         pytest.skip(reason)
     tag = f"{os.getpid() % 100000}{next(_counter)}"

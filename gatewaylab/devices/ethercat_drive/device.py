@@ -15,8 +15,10 @@ Each axis is the CANopen drive of ``canopen/drive.py`` -- the same CiA 402 state
   in PREOP (the core's sub-index 0 rule); an object mapped twice refuses SAFEOP with 0x0025 /
   0x0024 (invalid output / input mapping).
 * **Synchronisation** (ETG.1020, 0x1C32 / 0x1C33): free run (the drive's own 1 ms timer),
-  SM-synchronous (a control period per outputs event) and DC SYNC0 (a control period at each
-  SYNC0 + 0x1C32:03 shift, sampling the targets the dictionary holds then). The mode is what the
+  SM-synchronous (a control period per outputs event, right after the frame; a period still
+  pending when the next frame comes runs then and counts in 0x1C32:0C) and DC SYNC0 (a control period at each
+  SYNC0 + 0x1C32:03 shift, sampling the targets the dictionary holds then; pulses the ESC
+  merged while the emulator was busy count as that many periods). The mode is what the
   master wrote to 0x1C32:01, else DC when it activated SYNC0 (0x0981), else SM-synchronous.
   In DC mode a SYNC0 without outputs since the previous one counts in 0x1C32:0B "SM event
   missed"; the sync error counter (+3 per miss, -1 per good cycle) above 0x10F1:02 sets
@@ -320,6 +322,7 @@ class DriveApplication(SlaveApplication):
         self._outputs_seen = 0
         self._sm_pending = False
         self._armed = False
+        self._last_sync0: float | None = None
         self.sync_error_counter = 0
         self._saturated_ms: list[float] = []
         self._control: list[tuple[ObjectDictionary, Entry, tuple[int, int]]] = []
@@ -436,6 +439,7 @@ class DriveApplication(SlaveApplication):
             self.sync_error_counter = 0
             self._outputs_seen = 0
             self._armed = False
+            self._last_sync0 = None
             self.cycle = int(od.values[(0x1C32, 2)]) / 1e9 or 0.001
             if self.sync_mode == FREE_RUN:
                 self._run_free()
@@ -485,7 +489,10 @@ class DriveApplication(SlaveApplication):
         mode = self.sync_mode
         if mode == SM_SYNC:
             if self._sm_pending:
-                self._count(slave, 12)      # the previous control period has not run yet
+                # the previous event's control period has not run yet (frames back to back):
+                # run it now, so the axis runs one period per master cycle whatever the jitter
+                self._count(slave, 12)
+                self._period(self.cycle)
             else:
                 self._sm_pending = True
                 slave.clock.call_soon(self._sm_period)
@@ -510,11 +517,16 @@ class DriveApplication(SlaveApplication):
             elif self.sync_error_counter:
                 self.sync_error_counter -= 1
         self._outputs_seen = 0
+        # pulses the ESC merged while the PDI was busy (shared CPU) still are control periods:
+        # the plant keeps the time of the SYNC0 train (at most 100 periods at once)
+        last, self._last_sync0 = self._last_sync0, t
+        periods = 1 if last is None else max(1, min(100, round((t - last) / self.cycle)))
         shift = int(slave.od.values[(0x1C32, 3)]) / 1e9
-        if shift > 0:
-            slave.clock.call_later(shift, self._period, self.cycle)
-        else:
-            self._period(self.cycle)
+        for _ in range(periods):
+            if shift > 0:
+                slave.clock.call_later(shift, self._period, self.cycle)
+            else:
+                self._period(self.cycle)
 
     @staticmethod
     def _count(slave: Slave, sub: int) -> None:
