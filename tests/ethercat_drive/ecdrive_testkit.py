@@ -3,18 +3,21 @@ master brought to OP, the default process image layout (ETG.6010 0x1600 / 0x1A00
 
 from __future__ import annotations
 
+import json
 import shutil
 import struct
 import subprocess
 import sys
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
-from gatewaylab.common.clock import SimulatedClock
+from gatewaylab.common.clock import RealTimeClock, SimulatedClock
 from gatewaylab.devices.ethercat_drive import EthercatDrive
 from gatewaylab.ethercat.esc import AlState
 from gatewaylab.ethercat.master import Master
 from gatewaylab.ethercat.segment import Segment
+from gatewaylab.ethercat.wire import WireTransport
 
 #: Default RxPDO 0x1600: controlword, target position, target velocity, target torque, mode.
 RX = struct.Struct("<HiihB")
@@ -116,3 +119,28 @@ class DriveVeth:
         return subprocess.run(["ip", "netns", "exec", self.namespace, sys.executable, str(script),
                                self.master_iface, *args], capture_output=True, text=True, timeout=timeout,
                               check=False)
+
+
+def serve_raw(veth: DriveVeth, script: Path, *args: str,
+              n: int = 2) -> tuple[subprocess.CompletedProcess[str], list[EthercatDrive]]:
+    """``n`` drives on the emulator end while ``script`` runs as the master in the namespace."""
+    clock = RealTimeClock()
+    drives = [EthercatDrive(clock, f"GL-Drive #{i}", serial=0x3001 + i) for i in range(n)]
+    wire = WireTransport(Segment([d.slave for d in drives]), veth.emulator_iface, clock, drive_clock=True)
+    wire.start()
+    try:
+        proc = veth.run(script, *args)
+    finally:
+        wire.stop()
+        with clock.lock:
+            for d in drives:
+                d.stop()
+    assert not wire.errors
+    return proc, drives
+
+
+def serve(veth: DriveVeth, script: Path, *args: str, n: int = 2) -> tuple[dict[str, Any], list[EthercatDrive]]:
+    """:func:`serve_raw` of a driver that prints one JSON result."""
+    proc, drives = serve_raw(veth, script, *args, n=n)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return json.loads(proc.stdout.strip().splitlines()[-1]), drives

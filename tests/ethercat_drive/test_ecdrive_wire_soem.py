@@ -4,40 +4,18 @@ DC SYNC0 (ETG.6010, ETG.1020, CiA 402)."""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
 import pytest
-from ecdrive_testkit import DriveVeth
+from ecdrive_testkit import DriveVeth, serve
 
-from gatewaylab.common.clock import RealTimeClock
-from gatewaylab.devices.ethercat_drive import PRODUCT_CODE, EthercatDrive
+from gatewaylab.devices.ethercat_drive import PRODUCT_CODE
 from gatewaylab.ethercat.io_device import VENDOR_ID
-from gatewaylab.ethercat.segment import Segment
-from gatewaylab.ethercat.wire import WireTransport
 
 pytestmark = [pytest.mark.net, pytest.mark.slow]
 DRIVER = Path(__file__).with_name("ecdrive_soem_driver.py")
 STATE_MASK = 0x006F
-
-
-def serve(veth: DriveVeth, script: Path, *args: str, n: int = 2) -> tuple[dict[str, Any], list[EthercatDrive]]:
-    """Two drives on the emulator end while ``script`` runs as the master in the namespace."""
-    clock = RealTimeClock()
-    drives = [EthercatDrive(clock, f"GL-Drive #{i}", serial=0x3001 + i) for i in range(n)]
-    wire = WireTransport(Segment([d.slave for d in drives]), veth.emulator_iface, clock, drive_clock=True)
-    wire.start()
-    try:
-        proc = veth.run(script, *args)
-    finally:
-        wire.stop()
-        with clock.lock:
-            for d in drives:
-                d.stop()
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    assert not wire.errors
-    return json.loads(proc.stdout.strip().splitlines()[-1]), drives
 
 
 @pytest.fixture(scope="module")
