@@ -346,3 +346,26 @@ def test_leaving_op_disables_the_axis(line: Line) -> None:
     line.clock.advance(0.01)
     assert line.drives[0].drives[0].state is PdsState.SWITCH_ON_DISABLED
     assert not line.master.sdo_upload16(0, 0x6041) & 0x0200
+
+
+def test_profile_position_and_homing_through_coe_and_process_data(line: Line) -> None:
+    """CiA 402 PP (mode 1) and HM (mode 6) as on CANopen, over EtherCAT: homing method 37 (0x6098
+    by CoE) sets the home position 0x30B0 at once (statusword bits 10 + 12); a PP set-point
+    (0x607A, controlword bit 4 rising) is acknowledged (bit 12) and reached (bit 10) in the window."""
+    m = line.master
+    m.sdo_download32(0, 0x30B0, 0, 1000)
+    line.enable(0, mode=6)
+    line.outputs(0, 0x1F, mode=6)                              # start homing
+    line.cycle(3)
+    sw, x, *_ = line.inputs(0)
+    assert sw & 0x1400 == 0x1400 and abs(x - 1000) <= 1
+    line.outputs(0, 0x0F, target=5000, mode=1)                 # PP, bit 4 low
+    line.cycle(2)
+    line.outputs(0, 0x1F, target=5000, mode=1)                 # new set-point
+    line.cycle(2)
+    assert line.inputs(0)[0] & 0x1000                          # set-point acknowledge
+    line.outputs(0, 0x0F, target=5000, mode=1)
+    line.cycle(800)
+    sw, x, *_ = line.inputs(0)
+    assert sw & 0x0400 and abs(x - 5000) <= m.sdo_upload32(0, 0x6067)
+    assert line.inputs(0)[4] == 1
