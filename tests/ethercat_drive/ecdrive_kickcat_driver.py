@@ -80,7 +80,7 @@ def main(iface: str) -> dict[str, Any]:
         out["enable"].append([inp(k)[0] for k in range(len(slaves))])
     worst = 0
     deadline = time.perf_counter()
-    for i in range(1000):
+    for i in range(2000):
         if i:
             worst = max(worst, *(abs(10 * (i - 1) - inp(k)[1]) for k in range(len(slaves))))
         outputs[:] = [RX.pack(0x0F, 10 * i, 0, 0, CSP) for _ in slaves]
@@ -88,7 +88,7 @@ def main(iface: str) -> dict[str, Any]:
         deadline += 0.001
         while time.perf_counter() < deadline:
             pass
-    for _ in range(200):
+    for _ in range(300):
         cycle()
     out["csp"] = {"worst": worst, "final": [inp(k)[1] for k in range(len(slaves))]}
     outputs[0] = RX.pack(0x0F, 500_000, 0, 0, CSP)
