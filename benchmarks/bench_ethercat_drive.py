@@ -158,8 +158,11 @@ def _run_line(ns: str, emu: str, mst: str, kind: str, count: int, seconds: float
             for d in devices:
                 d.stop()
     if proc.returncode != 0:
-        lines = [ln for ln in proc.stderr.strip().splitlines() if ln.strip()]
-        return {"error": lines[-1].strip() if lines else "master failed"}
+        lines = [ln.strip() for ln in proc.stderr.strip().splitlines() if ln.strip()]
+        if any(ln.startswith("Timeout (") for ln in lines):     # faulthandler: the master hung
+            frames = [ln for ln in lines if ln.startswith("File ") and "benchmarks" in ln]
+            return {"error": "master hung at " + (frames[0].split(", ")[-1] if frames else "?")}
+        return {"error": lines[-1] if lines else "master failed"}
     result: dict[str, Any] = json.loads(proc.stdout.strip().splitlines()[-1])
     return result
 
