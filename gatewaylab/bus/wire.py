@@ -32,7 +32,7 @@ MAX_FILTERS = (MAX_RECORD - 1) // FILTER.size
 class RecordType(IntEnum):
     """The type byte after a record's length field; selects the body layout (docs/bus-wire.md record table)."""
 
-    HELLO = 0x01     # client -> server: version, options (bit 0 receive own, bit 1 CAN FD), name
+    HELLO = 0x01     # client -> server: version, options (bit 0 receive own, bit 1 CAN FD, bit 2 listen-only), name
     WELCOME = 0x02   # server -> client: version, flags (bit 0 FD bus), bitrates, bus name
     FRAME = 0x03     # both ways: one CAN (FD) frame; the server fills in the bus time
     STATUS = 0x04    # server -> client: an error frame or a controller state change
@@ -87,12 +87,14 @@ class ControllerStateCode(IntEnum):
 
 @dataclass(frozen=True, slots=True)
 class Hello:
-    """A decoded HELLO: the first record of a client, with its protocol version, receive-own/FD options and name."""
+    """A decoded HELLO: the first record of a client, with its protocol version, receive-own/FD/listen-only
+    options and name."""
 
     version: int
     receive_own: bool
     fd: bool
     name: str
+    listen_only: bool = False
 
 
 @dataclass(frozen=True, slots=True)
@@ -177,9 +179,10 @@ def _record(rtype: RecordType, body: bytes) -> bytes:
     return LENGTH.pack(len(body) + 1) + bytes((rtype,)) + body
 
 
-def encode_hello(name: str, receive_own: bool = False, fd: bool = True) -> bytes:
-    """The HELLO record a client sends first to join a bus (name truncated to 255 bytes)."""
-    opts = (1 if receive_own else 0) | (2 if fd else 0)
+def encode_hello(name: str, receive_own: bool = False, fd: bool = True, listen_only: bool = False) -> bytes:
+    """The HELLO record a client sends first to join a bus (name truncated to 255 bytes); a listen-only
+    client's controller never transmits and never acknowledges (a bus monitor)."""
+    opts = (1 if receive_own else 0) | (2 if fd else 0) | (4 if listen_only else 0)
     return _record(RecordType.HELLO, HELLO.pack(VERSION, opts) + name.encode()[:255])
 
 
@@ -245,7 +248,7 @@ def decode_body(rtype: int, body: bytes) -> Record:
             if len(body) < HELLO.size:
                 raise ProtocolError("HELLO record too short")
             version, opts = HELLO.unpack_from(body)
-            return Hello(version, bool(opts & 1), bool(opts & 2), body[HELLO.size:].decode())
+            return Hello(version, bool(opts & 1), bool(opts & 2), body[HELLO.size:].decode(), bool(opts & 4))
         if rtype == RecordType.WELCOME:
             if len(body) < WELCOME.size:
                 raise ProtocolError("WELCOME record too short")

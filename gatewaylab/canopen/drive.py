@@ -275,6 +275,8 @@ class Drive:
                                 store=lss_store)
         self.plant = Plant(params or AxisParams())
         self.period = CONTROL_PERIOD
+        #: what the rig's ready file lists for this drive (set by the rig: its EDS, for monitors)
+        self.ready_extra: dict[str, Any] = {}
         self.faults = 0
         self.active_errors: set[int] = set()
         self._timer: PeriodicTimer | None = None
@@ -330,8 +332,9 @@ class Drive:
             self._timer = self.clock.call_every(self.period, self._tick)
 
     def ready_info(self) -> dict[str, Any]:
-        """Rig participant protocol: a drive publishes no endpoints."""
-        return {}
+        """Rig participant protocol: a drive publishes no endpoints, only what the rig set in
+        ``ready_extra`` (its EDS file, so a monitor decodes its PDOs)."""
+        return dict(self.ready_extra)
 
     def stop(self) -> None:
         if self._timer is not None:

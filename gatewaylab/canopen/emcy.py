@@ -41,6 +41,58 @@ EMCY_PDO_LENGTH_EXCEEDED = 0x8220
 EMCY_UNEXPECTED_SYNC_LENGTH = 0x8240
 
 
+#: Names of emergency error codes: CiA 301 table 21 and the CiA 402 drive codes a drive sends (0x603F),
+#: exact codes first; :func:`error_code_name` falls back to the class (high byte, then high nibble).
+ERROR_CODE_NAMES: dict[int, str] = {
+    0x0000: "error reset or no error",
+    0x1000: "generic error",
+    0x2310: "continuous over-current",
+    0x2320: "short circuit at outputs",
+    0x3210: "DC link over-voltage",
+    0x3220: "DC link under-voltage",
+    0x4210: "excess temperature device",
+    0x4310: "excess temperature drive",
+    0x5441: "enable input off",
+    0x6010: "software reset (watchdog)",
+    0x7121: "motor blocked",
+    0x7320: "position sensor error",
+    0x8110: "CAN overrun (objects lost)",
+    0x8120: "CAN in error passive mode",
+    0x8130: "life guard or heartbeat error",
+    0x8140: "recovered from bus off",
+    0x8150: "CAN-ID collision",
+    0x8210: "PDO not processed due to length error",
+    0x8220: "PDO length exceeded",
+    0x8230: "DAM MPDO not processed, destination object not available",
+    0x8240: "unexpected SYNC data length",
+    0x8250: "RPDO timeout",
+    0x8611: "following error",
+    0x8612: "reference limit",
+    0x9000: "external error",
+    0xF000: "additional functions",
+    0xFF00: "device specific",
+}
+_ERROR_CLASSES: dict[int, str] = {
+    0x10: "generic error", 0x20: "current", 0x21: "current, device input side", 0x22: "current inside the device",
+    0x23: "current, device output side", 0x30: "voltage", 0x31: "mains voltage", 0x32: "voltage inside the device",
+    0x33: "output voltage", 0x40: "temperature", 0x41: "ambient temperature", 0x42: "device temperature",
+    0x50: "device hardware", 0x60: "device software", 0x61: "internal software", 0x62: "user software",
+    0x63: "data set", 0x70: "additional modules", 0x80: "monitoring", 0x81: "communication",
+    0x82: "protocol error", 0x84: "velocity speed controller", 0x85: "position controller",
+    0x86: "positioning controller", 0x90: "external error", 0xF0: "additional functions", 0xFF: "device specific",
+}
+
+
+def error_code_name(code: int) -> str:
+    """What an emergency error code means (CiA 301 table 21, CiA 402 drive codes): the exact name when
+    known, else its class ("monitoring (class 0x8Fxx)")."""
+    name = ERROR_CODE_NAMES.get(code)
+    if name is not None:
+        return name
+    cls = _ERROR_CLASSES.get(code >> 8) or _ERROR_CLASSES.get((code >> 12) << 4)
+    return f"{cls or 'unknown'} (class 0x{code >> 8:02X}xx)"
+
+
 def encode_emcy(cob_id: int, code: int, register: int, info: bytes = b"") -> CanFrame:
     """EMCY frame: error code (u16), error register (u8), 5 manufacturer-specific bytes."""
     return CanFrame(cob_id, EMCY_FRAME.pack(code, register, info[:5].ljust(5, b"\x00")))

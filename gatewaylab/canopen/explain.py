@@ -13,6 +13,7 @@ import struct
 from ..bus.frame import CanFrame
 from ..od.aborts import abort_text
 from ..od.sdo import ClientCommand, ServerCommand
+from .emcy import error_code_name
 from .lss import Cs
 from .nmt import NmtCommand, NmtState
 
@@ -99,7 +100,7 @@ def explain(frame: CanFrame) -> str:
         return "SYNC" + (f" (counter {d[0]})" if d else "")
     if 0x081 <= cid <= 0x0FF:
         code = _U16.unpack_from(d, 0)[0] if len(d) >= 2 else 0
-        return f"EMCY from node {cid - 0x80}: error code 0x{code:04X}" + (
+        return f"EMCY from node {cid - 0x80}: error code 0x{code:04X} ({error_code_name(code)})" + (
             f", error register 0x{d[2]:02X}" if len(d) >= 3 else "")
     if cid == 0x100:
         return "TIME stamp"

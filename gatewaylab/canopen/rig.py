@@ -60,8 +60,14 @@ def create_drive(rig: RigContext, cfg: dict[str, Any]) -> Drive:
     cfg = KIND.validate(cfg, "[[drive]]", list(rig.buses))
     name = KIND.name_of(cfg) or default_name(cfg)
     store_path = rig.state_dir / f"{name}.params.json"
-    return Drive(rig.clock, rig.buses[cfg["bus"]], cfg["node_id"], cfg["serial"], name=name, store_path=store_path,
-                 params=axis_params(cfg["plant"]))
+    drive = Drive(rig.clock, rig.buses[cfg["bus"]], cfg["node_id"], cfg["serial"], name=name, store_path=store_path,
+                  params=axis_params(cfg["plant"]))
+    # the ready file lists each drive with its EDS, so `gatewaylab monitor` decodes its PDOs
+    eds = rig.state_dir / f"{name}.eds"
+    eds.write_text(drive.node.to_eds())
+    drive.ready_extra = {"canopen": {cfg["bus"]: {name: {"node_id": cfg["node_id"], "serial": cfg["serial"],
+                                                         "eds": str(eds)}}}}
+    return drive
 
 
 KIND = DeviceKind("drive", create_drive, KEYS, summary="a maxon IDX-like CiA 402 servo drive on a CAN bus",

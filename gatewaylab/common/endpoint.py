@@ -15,8 +15,10 @@ mean ``tcp:HOST:PORT``; a bare absolute path means whatever the client connects 
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from enum import Enum
+from pathlib import Path
 
 from .errors import ConfigError
 
@@ -139,3 +141,19 @@ def parse_endpoint(text: str, *, bare_path: EndpointKind = EndpointKind.SERIAL) 
     if bare_path is EndpointKind.SERIAL:          # COM3, ttyUSB0 relative names
         return Endpoint(EndpointKind.SERIAL, path=text)
     raise EndpointError(f"endpoint {text!r}: expected unix:PATH or tcp:HOST:PORT")
+
+
+def bus_endpoint(target: str, bus: str = "can0") -> str:
+    """The endpoint of ``bus``: ``target`` itself when it is an endpoint, or the bus's endpoint listed
+    in ``target`` when that is a rig's ready file (``gatewaylab run --ready-file``), so tools take
+    either what ``gatewaylab run`` printed or the file it wrote."""
+    path = Path(target)
+    if not path.is_file():
+        return target
+    try:
+        info = json.loads(path.read_text())
+        return str(info["buses"][bus]["endpoint"])
+    except (OSError, ValueError) as exc:
+        raise EndpointError(f"{target}: not a ready file ({exc})") from None
+    except (KeyError, TypeError):
+        raise EndpointError(f"{target}: the ready file lists no bus {bus!r}") from None

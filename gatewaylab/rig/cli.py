@@ -12,16 +12,25 @@ from collections.abc import Callable
 from importlib import import_module
 from pathlib import Path
 from types import FrameType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from .. import __version__
 from ..bus.transport.trace import TRACE_FORMATS, check_trace_path
 from ..common.errors import ConfigError, GatewaylabError
 
+if TYPE_CHECKING:
+    from .runtime import Rig
+    from .web import RigWeb
+
 #: Sub-commands contributed by other parts of the package: module with ``add_subcommand(subparsers)``.
 EXTRA_SUBCOMMANDS = (
     "gatewaylab.devices.maxon_idx.host.cli",
+    "gatewaylab.canopen.lss_cli",
+    "gatewaylab.canopen.monitor_cli",
+    "gatewaylab.canopen.lesson_cli",
+    "gatewaylab.canopen.plot_cli",
     "gatewaylab.ethercat.net_cli",
+    "gatewaylab.devices.ecanlite.cli",
 )
 
 RIG_HELP = """\
@@ -87,6 +96,19 @@ def _write_ready_file(path: str, info: dict[str, Any]) -> None:
         raise UsageError(f"--ready-file {path}: {exc.strerror or exc}") from None
 
 
+def _start_web(rig: Rig, port: int) -> RigWeb:
+    """The --web page: monitors on every bus, the drives' dictionaries for PDO values."""
+    from ..canopen.drive import Drive
+    from .web import RigWeb
+
+    try:
+        web = RigWeb(dict(rig.buses), [p for p in rig.participants if isinstance(p, Drive)], port)
+    except OSError as exc:
+        raise UsageError(f"--web {port}: {exc.strerror or exc}") from None
+    web.start()
+    return web
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     from .runtime import Rig
 
@@ -105,6 +127,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
         rig = Rig.from_file(args.rig, clock=RealTimeClock())
     ready_written = False
+    web: RigWeb | None = None
     try:
         for bus_name, path in args.trace or []:
             try:
@@ -114,8 +137,12 @@ def cmd_run(args: argparse.Namespace) -> int:
         if args.acker:
             for bus in rig.buses.values():
                 bus.attach("acker")   # hears every frame, acknowledges it, sends nothing
+        if args.web is not None:
+            web = _start_web(rig, args.web)    # before start(): the page sees the boot-up messages
         rig.start()
         info = rig.ready_info()
+        if web is not None:
+            info.setdefault("web", {})["monitor"] = web.url
         #: Unix time of the rig's clock time 0: trace files and client timestamps count from it.
         info.setdefault("wall_epoch", rig.clock.wall_epoch)
 
@@ -137,6 +164,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         sys.stdout.flush()
         rig.run()
     finally:
+        if web is not None:
+            web.stop()
         rig.close()
         if ready_written:
             try:
@@ -187,6 +216,10 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--trace", metavar="BUS=FILE", action="append", type=_parse_trace,
                      help="record BUS to FILE, streamed (flushed every 100 ms), in the format of its suffix: "
                           f"{', '.join(TRACE_FORMATS)}; may be repeated")
+    run.add_argument("--web", type=int, nargs="?", const=0, default=None, metavar="PORT",
+                     help="serve a live page of the rig (node table, decoded log, drive plot) on "
+                          "http://127.0.0.1:PORT/ (no PORT: any free port; listed in the ready file as "
+                          "web.monitor)")
     run.add_argument("--acker", action="store_true",
                      help="attach to every bus a passive node that only acknowledges frames, so a lone "
                           "client's frames are not ACK errors (see docs/bus.md)")

@@ -17,7 +17,9 @@ What a SocketCAN user expects holds here too (docs/bus-wire.md):
   None; any call after ``shutdown()`` raises ``can.CanOperationError``;
 * ``Message.timestamp`` is Unix time (the rig's bus time + the rig clock's ``wall_epoch``),
   ``Message.channel`` the channel given to ``can.Bus``, own echoes have ``is_rx=False``;
-* acceptance filters are applied by the rig (filtered frames do not cross the socket).
+* acceptance filters are applied by the rig (filtered frames do not cross the socket);
+* ``listen_only=True`` joins as a bus monitor: the rig-side controller never transmits, never
+  acknowledges and never takes part in arbitration; ``send()`` raises ``can.CanOperationError``.
 """
 
 from __future__ import annotations
@@ -96,8 +98,10 @@ class GatewaylabBus(can.BusABC):
                  name: str = "", connect_timeout: float = 5.0,
                  can_filters: can.typechecking.CanFilters | None = None,
                  tx_queue_len: int = DEFAULT_TX_QUEUE_LEN, shutdown_timeout: float = 5.0,
-                 **kwargs: Any) -> None:
+                 listen_only: bool = False, **kwargs: Any) -> None:
         endpoint = self._endpoint(channel)
+        #: a bus monitor: the rig-side controller never transmits, never acknowledges
+        self.listen_only = listen_only
         if tx_queue_len < 1:
             raise can.CanInitializationError(f"tx_queue_len must be at least 1, got {tx_queue_len}")
         self._channel = channel
@@ -133,7 +137,8 @@ class GatewaylabBus(can.BusABC):
             raise can.CanInitializationError(f"cannot connect to gatewaylab bus {endpoint}: {exc}") from exc
         self._wake_r, self._wake_w = socket.socketpair()
         try:
-            self._sock.sendall(wire.encode_hello(name or f"python-can-{os.getpid()}", receive_own_messages, fd))
+            self._sock.sendall(wire.encode_hello(name or f"python-can-{os.getpid()}", receive_own_messages, fd,
+                                                 listen_only))
             welcome = self._handshake(connect_timeout)
         except BaseException:
             self._close_sockets()
@@ -298,6 +303,8 @@ class GatewaylabBus(can.BusABC):
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         self._check_open()
+        if self.listen_only:
+            raise can.CanOperationError("this bus was opened with listen_only=True: it never transmits")
         if msg.is_fd:
             if not self._fd_enabled:
                 raise can.CanOperationError("this bus was opened with fd=False: CAN FD frames cannot be sent")
@@ -403,13 +410,15 @@ class GatewaylabBus(can.BusABC):
     def state(self) -> BusState:
         if self.controller_state is wire.ControllerStateCode.BUS_OFF:
             return BusState.ERROR
-        return BusState.ACTIVE
+        return BusState.PASSIVE if self.listen_only else BusState.ACTIVE
 
     @state.setter
     def state(self, new_state: BusState) -> None:
-        # python-can tools set ACTIVE by default; listen-only needs a rig-side controller option.
-        if new_state is not BusState.ACTIVE:
-            raise can.CanOperationError("a gatewaylab bus connection is always active (not listen-only)")
+        # listen-only is chosen when connecting (listen_only=True), as the rig-side controller is made then
+        wanted = BusState.PASSIVE if self.listen_only else BusState.ACTIVE
+        if new_state is not wanted:
+            raise can.CanOperationError(f"this gatewaylab connection is {wanted.name.lower()}: open it with "
+                                        f"listen_only={new_state is BusState.PASSIVE} instead")
 
     def shutdown(self) -> None:
         """Stop periodic tasks, wake a recv() in another thread (it returns None), wait at most

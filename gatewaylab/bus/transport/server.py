@@ -200,7 +200,7 @@ class _Client:
             bus = self.server.bus
             self.receive_own = record.receive_own
             self.controller = bus.attach(record.name or self.peer, fd=record.fd, on_frame=self.on_frame,
-                                         on_event=self.on_event)
+                                         on_event=self.on_event, listen_only=record.listen_only)
             self.write(wire.encode_welcome(bus.name, bus.bitrate, bus.data_bitrate))
             self.write(wire.encode_timebase(bus.clock.wall_epoch))
         elif isinstance(record, wire.Bye):
