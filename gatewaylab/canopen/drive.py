@@ -260,7 +260,7 @@ class Drive:
         entries = self.od.entries
         self._actual_keys = tuple(entries[key].key for key in _ACTUAL_KEYS)
         self._statusword_key = (entries[0x6041, 0].key,)
-        self.lss: LssSlave | None = None
+        self._lss: LssSlave | None = None
         if node is not None:
             self.node = node
         else:
@@ -271,8 +271,8 @@ class Drive:
                 rate = BIT_TIMING_TABLE[stored[1]] if stored[1] < len(BIT_TIMING_TABLE) else None
                 if rate is not None:
                     self.node.controller.bitrate = rate
-            self.lss = LssSlave(self.node, LssAddress(MAXON_VENDOR_ID, PRODUCT_CODE, REVISION, serial),
-                                store=lss_store)
+            self._lss = LssSlave(self.node, LssAddress(MAXON_VENDOR_ID, PRODUCT_CODE, REVISION, serial),
+                                 store=lss_store)
         self.plant = Plant(params or AxisParams())
         self.period = CONTROL_PERIOD
         #: what the rig's ready file lists for this drive (set by the rig: its EDS, for monitors)
@@ -340,9 +340,16 @@ class Drive:
         if self._timer is not None:
             self._timer.cancel()
             self._timer = None
-        if self.lss is not None:
-            self.lss.stop()
+        if self._lss is not None:
+            self._lss.stop()
         self.node.stop()
+
+    @property
+    def lss(self) -> LssSlave:
+        """The LSS slave of a CANopen drive (a drive hosted by another protocol has none)."""
+        if self._lss is None:
+            raise ConfigError(f"drive {self.name} has no LSS slave (not on CAN)")
+        return self._lss
 
     def set_external_cycle(self, external: bool) -> None:
         """EtherCAT synchronisation (ETG.1020): ``True`` stops the drive's own control timer, the
