@@ -108,7 +108,7 @@ class Bus:
         return seen
 
 
-def retry(call: Callable[[], Any], accept: Callable[[Any], bool] = lambda r: True, tries: int = 3) -> Any:
+def retry(call: Callable[[], Any], accept: Callable[[Any], bool] = lambda r: True, tries: int = 5) -> Any:
     """A register-level call again when this shared VM answered later than SOEM's 2 ms register
     timeout (shared notes soem-interop: 'A late frame counts as lost')."""
     for left in range(tries - 1, -1, -1):

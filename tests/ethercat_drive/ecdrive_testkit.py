@@ -3,6 +3,7 @@ master brought to OP, the default process image layout (ETG.6010 0x1600 / 0x1A00
 
 from __future__ import annotations
 
+import gc
 import json
 import shutil
 import struct
@@ -127,11 +128,17 @@ def serve_raw(veth: DriveVeth, script: Path, *args: str,
     clock = RealTimeClock()
     drives = [EthercatDrive(clock, f"GL-Drive #{i}", serial=0x3001 + i) for i in range(n)]
     wire = WireTransport(Segment([d.slave for d in drives]), veth.emulator_iface, clock, drive_clock=True)
+    # The test process holds the whole suite's objects: a full garbage collection of them, which the
+    # control periods' allocations trigger now and then, would stall the wire thread for longer than
+    # SOEM's 2 ms register timeout. Frozen, they are not scanned (a `gatewaylab run` heap is small).
+    gc.collect()
+    gc.freeze()
     wire.start()
     try:
         proc = veth.run(script, *args)
     finally:
         wire.stop()
+        gc.unfreeze()
         with clock.lock:
             for d in drives:
                 d.stop()
