@@ -23,10 +23,10 @@ CSP = 8
 def main(iface: str) -> dict[str, Any]:
     bus = None
     for attempt in range(5):
-        # 50 ms per frame: a Python slave on this shared VM answers register reads later than
+        # 100 ms per frame: a Python slave on this shared VM answers register reads later than
         # KickCAT's default allows (shared notes soem-interop, KickCAT)
         link = kickcat.create_link(iface, "")
-        link.set_timeout(0.05)
+        link.set_timeout(0.1)
         try:
             bus = kickcat.Bus(link)
             bus.init(0.5)
