@@ -226,6 +226,34 @@ def demo_ethercat() -> None:
           f"{decode_rx11(master.pdo_read(0, 8, 10), 0)} (the echo node's answer)")
 
 
+def demo_ethercat_drive() -> None:
+    """Two CoE CiA 402 drives (``ethercat_drive``) to Operation Enabled and 1 s of cyclic synchronous
+    position through the default PDOs (ETG.6010), in process on a simulated clock."""
+    import struct
+
+    from ..common.clock import SimulatedClock
+    from ..devices.ethercat_drive.device import EthercatDrive
+    from ..ethercat.esc import AlState
+    from ..ethercat.master import Master
+    from ..ethercat.segment import Segment
+
+    step("EtherCAT CiA 402 drives in process: controlword 0x06/0x07/0x0F by RxPDO 0x1600, 1 s of CSP at 1 kHz")
+    clock = SimulatedClock()
+    drives = [EthercatDrive(clock, f"GL-Drive #{i}", serial=0x3001 + i) for i in range(2)]
+    m = Master(clock, Segment([d.slave for d in drives]))
+    m.bring_up()
+    # RxPDO 0x1600: controlword, target position, target velocity, target torque, mode (8 = CSP)
+    for i, cw in enumerate([0x06] * 3 + [0x07] * 3 + [0x0F] * 3 + [0x0F] * 1000):
+        for p in (0, 1):
+            m.pdo_write(p, 0, struct.pack("<HiihB", cw, 40 * max(0, i - 9), 0, 0, 8))
+        m.exchange_process_data()
+        clock.advance(0.001)
+    for p in (0, 1):
+        sw, x = struct.unpack("<Hi", m.pdo_read(p, 0, 6))
+        print(f"  -> {m.slave(p).name} in {AlState(m.al_status(p)[0] & 0x0F).name}: statusword 0x{sw:04X} "
+              f"(operation enabled), position actual {x} following a ramp to 40,000 (one cycle behind)")
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     config = load_rig(argv[0] if argv else None)
@@ -263,6 +291,7 @@ def main(argv: list[str] | None = None) -> int:
             finally:
                 bus.shutdown()
             demo_ethercat()
+            demo_ethercat_drive()
             step(f"Stopping the rig (SIGTERM); {narrator.count} frames seen; trace written by python-can:")
             proc.terminate()
             proc.wait(timeout=10)
