@@ -778,7 +778,12 @@ class VirtualBus:
         counting = False
         self.stats.error_frames += 1
         for c in list(self.controllers):
-            if not c._connected or c.state is _BUS_OFF or c.synthetic or c._listen_only:
+            if not c._connected or c.state is _BUS_OFF or c.synthetic:
+                continue
+            if c._listen_only:     # sees the error, never counts it (docs/bus.md)
+                if first:
+                    c._stats.error_frames += 1
+                    c._emit(ErrorFrameEvent(ErrorKind.STUFF, now, False, None))
                 continue
             if c.tx_queue or c in jam.transmitters:
                 if c not in jam.transmitters:

@@ -121,12 +121,17 @@ def test_stuck_dominant_sends_transmitters_bus_off_and_recovers_after(clock, bus
 
 def test_stuck_dominant_receivers_only_count_rec(clock, bus, attach) -> None:
     """An idle bus held dominant: nobody transmits, so only REC moves (rules 1 and 6) and nobody goes
-    bus-off; a node whose frame waits for the release sends it then."""
+    bus-off; a node whose frame waits for the release sends it then. ISO 11898-1 bus monitoring
+    mode: a listen-only node detects the error but sends no flag and changes no counter."""
     a, _ = attach("a")
     b, brx = attach("b")
+    spy, spy_rec = attach("spy", listen_only=True)
     bus.stuck_dominant(0.05)
     clock.advance(0.01)
     assert a.tec == 0 and a.state is ErrorState.ERROR_PASSIVE and a.rec > 127
+    # a listen-only controller sees the error but never counts (docs/bus.md)
+    assert [e.kind for e in spy_rec.events if isinstance(e, ErrorFrameEvent)] == [ErrorKind.STUFF]
+    assert spy.rec == 0 and spy.state is ErrorState.ERROR_ACTIVE
     clock.advance(0.05)
     a.send(CanFrame(0x100))
     clock.advance(0.01)
