@@ -40,6 +40,10 @@ examples:
 """
 
 
+#: answer fields printed in hex (the --json output keeps JSON numbers)
+_HEX = ("can_id", "error_code", "al_status")
+
+
 class FaultCliError(GatewaylabError):
     """The rig refused the fault or cannot be reached (exit 1)."""
 
@@ -49,6 +53,13 @@ def _number(text: str) -> int:
         return int(text, 0)
     except ValueError:
         raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+
+
+def _can_id(text: str) -> int:
+    value = _number(text)
+    if not 0 <= value <= 0x1FFFFFFF:
+        raise argparse.ArgumentTypeError(f"CAN id {text} is out of range (0..0x7FF, or 0..0x1FFFFFFF extended)")
+    return value
 
 
 def _seconds(text: str) -> float:
@@ -142,7 +153,8 @@ def cmd_fault(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(answer))
     else:
-        details = ", ".join(f"{k}={v}" for k, v in answer.items() if k not in ("ok", "fault"))
+        details = ", ".join(f"{k}=0x{v:X}" if k in _HEX and isinstance(v, int) else f"{k}={v}"
+                            for k, v in answer.items() if k not in ("ok", "fault"))
         print(f"{answer.get('fault')}: {details}")
     sys.stdout.flush()
     return 0
@@ -184,7 +196,7 @@ def add_subcommand(subparsers: Any) -> None:
     for name, what in (("drop", "vanish (the sender sees success)"), ("corrupt", "end in a CRC error (retransmitted)")):
         p = fault(name, f"the next N frames of a CAN id {what}", f"gatewaylab fault ready.json {name} can0 0x182 -n 3")
         p.add_argument("bus_name", metavar="BUS")
-        p.add_argument("can_id", metavar="CAN-ID", type=_number)
+        p.add_argument("can_id", metavar="CAN-ID", type=_can_id)
         p.add_argument("-n", "--count", type=_number, default=1, help="how many frames (default 1)")
     for name, help, example in (
             ("error-passive", "a device's CAN controller to error-passive (TEC 128)",

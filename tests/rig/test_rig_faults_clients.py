@@ -112,7 +112,7 @@ def test_drive_faults_in_canopens_emcy_consumer(rig: RigProcess, network: canope
     _wait_fault_state(axis2)
     assert struct.unpack("<H", axis2.sdo.upload(0x603F, 0))[0] == 0x8611
     out = _cli_fault(rig, "drive-fault", "3", "--bus", "can0", "over-current")
-    assert "error_code=8976" in out
+    assert "error_code=0x2310" in out
     emcy = _emcy(axis3, 0x2310)      # it may have come while the command was still printing
     assert emcy.register & 0x03 == 0x03
     _wait_fault_state(axis3)
