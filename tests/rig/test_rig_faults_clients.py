@@ -223,8 +223,9 @@ def test_drop_and_corrupt_one_id_seen_by_python_can(rig: RigProcess) -> None:
 
 
 def test_idx_usb_disconnect_seen_by_the_idx_client(rig: RigProcess) -> None:
-    """IDX guide 2.2 (USB virtual serial port): pulled, the host's open port fails (pyserial raises,
-    on the pty and on TCP), new connections are refused; replugged, the host reads objects again."""
+    """IDX guide chapter 2 (USB communication) is silent on a disconnect; as a USB device that
+    disappears (docs/decisions.md): pulled, the host's open port fails (pyserial raises, on the pty
+    and on TCP), new connections are refused; replugged, the host reads objects again."""
     usb = rig.info["usb"]["idx1"]
     tcp = IdxClient(usb["tcp"])
     pty = IdxClient(usb["pty"])
