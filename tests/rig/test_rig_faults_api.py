@@ -220,3 +220,37 @@ def test_fault_cli_help_usage_and_refusal(tmp_path: Path) -> None:
     finally:
         rig.request_stop()
         rig.close()
+
+
+class _Gateway:
+    """A device with several CAN channels, as an EtherCAT-to-CAN gateway registers them."""
+
+    def __init__(self, rig: Rig) -> None:
+        self.name = "gw1"
+        self.ctrls = {"can0": rig.buses["can0"].attach("gw1/can0"), "can1": rig.buses["can1"].attach("gw1/can1")}
+
+    def can_channels(self) -> dict[str, Any]:
+        return self.ctrls
+
+    def start(self) -> None: ...
+
+    def stop(self) -> None: ...
+
+    def ready_info(self) -> dict[str, Any]:
+        return {}
+
+
+def test_a_gateways_can_channels_are_unplugged_one_by_one() -> None:
+    """docs/faults.md 'Devices and faults': a device listing its channels (can_channels) has each
+    unplugged by name; without a channel name the fault is refused (which one?)."""
+    cfg = {**TWO_DRIVES, "bus": [{"name": "can0"}, {"name": "can1"}]}
+    with Rig(parse_rig(cfg)) as rig:
+        gw = _Gateway(rig)
+        rig.participants.append(gw)
+        with pytest.raises(FaultRefused, match="say which"):
+            rig.faults.can_unplug("gw1")
+        answer = rig.faults.can_unplug("gw1", channel="can1")
+        assert answer["bus"] == "can1"
+        assert gw.ctrls["can0"].connected and not gw.ctrls["can1"].connected
+        rig.faults.can_replug("gw1", channel="can1")
+        assert gw.ctrls["can1"].connected
