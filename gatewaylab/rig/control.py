@@ -48,7 +48,8 @@ def answer_line(handler: Handler, line: bytes) -> bytes:
         result = handler(req)
     except GatewaylabError as exc:
         return _encode({"ok": False, "error": " ".join(str(exc).split())})
-    except (TypeError, ValueError, IndexError, KeyError) as exc:   # a device refusing the arguments
+    except Exception as exc:   # a device that failed on the request: answered and logged, the rig goes on
+        log.exception("control request %r failed", req)
         return _encode({"ok": False, "error": f"{type(exc).__name__}: {exc}"})
     return _encode({"ok": True, **result})
 

@@ -18,6 +18,7 @@ How a device takes part (duck-typed, so a plugin needs nothing from here):
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, Any
 
@@ -242,8 +243,8 @@ class Faults:
     def power_cycle(self, device: str | int, bus: str | None = None, off: float = 1.0) -> dict[str, Any]:
         """Switch a drive off for ``off`` s and on again: it leaves the bus, then boots (boot-up
         message, dictionary at its power-on values plus what was stored with 0x1010)."""
-        if off < 0:
-            raise FaultRefused(f"off must be >= 0 s, got {off}")
+        if not (off >= 0 and math.isfinite(off)):
+            raise FaultRefused(f"off must be a finite number of seconds >= 0, got {off}")
 
         def act() -> dict[str, Any]:
             p, drive = self._drive(device, bus)
@@ -353,8 +354,8 @@ class Faults:
 
 
 def _positive(what: str, value: float) -> None:
-    if not value > 0:
-        raise FaultRefused(f"{what} must be > 0 s, got {value}")
+    if not (value > 0 and math.isfinite(value)):
+        raise FaultRefused(f"{what} must be a finite number of seconds > 0, got {value}")
 
 
 def _can_id(can_id: int) -> None:

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import json
+import re
 import socket
 import struct
 import subprocess
@@ -12,6 +13,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from gatewaylab.bus import CanFrame
 from gatewaylab.bus.bus import ErrorState
@@ -20,8 +23,8 @@ from gatewaylab.canopen.drive import Drive
 from gatewaylab.canopen.nmt import NmtState
 from gatewaylab.common.clock import RealTimeClock
 from gatewaylab.rig.config import parse_rig
-from gatewaylab.rig.control import MAX_LINE
-from gatewaylab.rig.faults import FaultRefused
+from gatewaylab.rig.control import MAX_LINE, answer_line
+from gatewaylab.rig.faults import REQUESTS, FaultRefused
 from gatewaylab.rig.runtime import Rig, RigStartError
 
 TWO_DRIVES: dict[str, Any] = {
@@ -150,7 +153,9 @@ def test_control_endpoint_survives_garbage_and_is_removed_on_close(tmp_path: Pat
             for bad in (b"garbage\n", b"[1, 2]\n", b"\xff\xfe\n", b'{"fault": "melt"}\n',
                         b'{"fault": "drop", "bus": "can0"}\n', b'{"fault": "drop", "bus": "can0", "can_id": "x"}\n',
                         b'{"fault": "bus-off", "device": "axis2", "node": 2}\n',
-                        b'{"fault": "drop", "bus": "can0", "can_id": 1, "colour": 1}\n'):
+                        b'{"fault": "drop", "bus": "can0", "can_id": 1, "colour": 1}\n',
+                        b'{"fault": "stuck-dominant", "bus": "can0", "duration": Infinity}\n',
+                        b'{"fault": "power-cycle", "device": "axis2", "off": NaN}\n'):
                 answer = _ask(s, bad)
                 assert answer["ok"] is False and answer["error"], bad
             answer = _ask(s, b'{"fault": "drop", "bus": "can0", "can_id": 386, "count": 2}\n')
@@ -254,3 +259,36 @@ def test_a_gateways_can_channels_are_unplugged_one_by_one() -> None:
         assert gw.ctrls["can0"].connected and not gw.ctrls["can1"].connected
         rig.faults.can_replug("gw1", channel="can1")
         assert gw.ctrls["can1"].connected
+
+
+_ARGS = sorted({k for _, params in REQUESTS.values() for k in params} | {"colour"})
+_JSON_VALUES = st.one_of(st.none(), st.booleans(), st.integers(-2**40, 2**40),
+                         st.floats(allow_nan=True, allow_infinity=True), st.text(max_size=8),
+                         st.sampled_from(["can0", "axis2", "axis3", "nope", "following-error", "over-current"]),
+                         st.lists(st.integers(), max_size=2))
+
+
+@settings(max_examples=300, deadline=None)
+@given(fault=st.one_of(st.sampled_from(sorted(REQUESTS)), st.text(max_size=6), st.integers()),
+       args=st.dictionaries(st.sampled_from(_ARGS), _JSON_VALUES, max_size=4))
+def test_any_request_gets_an_answer_and_only_fault_errors(fault: object, args: dict[str, object]) -> None:
+    """docs/faults.md 'Control protocol': whatever a request holds, the answer is one JSON line with
+    ok true, or ok false and the rig's own refusal (never an exception of the rig's code)."""
+    with _sim_rig() as rig:
+        line = json.dumps({"fault": fault, **args}).encode()
+        raw = answer_line(rig.faults.request, line)
+        assert raw.endswith(b"\n") and raw.count(b"\n") == 1
+        answer = json.loads(raw)
+        assert isinstance(answer["ok"], bool)
+        if not answer["ok"]:
+            assert not re.match(r"[A-Z]\w*(Error|Exception)\b", answer["error"]), answer["error"]
+        rig.clock.advance(0.05)      # what a fault scheduled runs without raising
+
+
+@settings(max_examples=200, deadline=None)
+@given(data=st.binary(max_size=200))
+def test_any_bytes_get_an_answer(data: bytes) -> None:
+    """docs/faults.md: non-UTF-8, non-JSON or non-object lines are answered with ok false."""
+    with _sim_rig() as rig:
+        answer = json.loads(answer_line(rig.faults.request, data))
+        assert isinstance(answer["ok"], bool)
