@@ -69,6 +69,9 @@ class ObjectDef:
     subs: tuple[tuple[str, DataType, int | float | str | bytes, Access], ...] = ()
     pdo_mappable: bool = False
     preop_only: bool = False
+    #: Subindexes of ``subs`` when they are not 1, 2, 3 ... (a record with gaps, e.g. ECAN-Lite
+    #: 0x8001 has no subindex 35); empty = numbered from 1.
+    sub_indexes: tuple[int, ...] = ()
 
 
 @dataclass(frozen=True, slots=True)
@@ -237,7 +240,8 @@ def build_od(desc: DeviceDescription) -> ObjectDictionary:
             od.add_sub(index, sub, ename, dtype, ro, value)
     for o in desc.objects:
         if o.subs:
-            _record(od, o.index, o.name, [(i, *sub) for i, sub in enumerate(o.subs, start=1)],
+            numbers = o.sub_indexes or tuple(range(1, len(o.subs) + 1))
+            _record(od, o.index, o.name, [(i, *sub) for i, sub in zip(numbers, o.subs, strict=True)],
                     pdo_mappable=o.pdo_mappable, preop_only=o.preop_only)
         else:
             od.add_variable(o.index, o.name, o.data_type, o.access, o.value, pdo_mappable=o.pdo_mappable,

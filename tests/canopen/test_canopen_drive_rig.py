@@ -13,13 +13,15 @@ from gatewaylab.canopen.nmt import NmtState
 from gatewaylab.canopen.rig import create_drive
 from gatewaylab.common.clock import SimulatedClock
 from gatewaylab.common.errors import ConfigError
+from gatewaylab.od.eds import import_eds
 from gatewaylab.rig.config import parse_rig
 from gatewaylab.rig.runtime import Rig
 
 
 def test_rig_file_builds_drives(tmp_path: Path) -> None:
     """A rig file with a configured and an unconfigured drive: the configured one boots into
-    Pre-operational with its node-ID, the other waits for LSS (node-ID 0xFF)."""
+    Pre-operational with its node-ID, the other waits for LSS (node-ID 0xFF); the ready file lists each
+    drive with its EDS (issue 14, the monitor's dictionaries "from the rig")."""
     config = parse_rig({
         "clock": "simulated",
         "bus": [{"name": "can0", "endpoint": "none"}],
@@ -37,7 +39,10 @@ def test_rig_file_builds_drives(tmp_path: Path) -> None:
         assert drives[0].node.nmt_state is NmtState.PRE_OPERATIONAL and drives[0].node.node_id == 2
         assert drives[1].node.node_id is None
         assert drives[0].node.get(0x1018, 4) == 0x1002
-        assert drives[0].ready_info() == {}
+        # a drive publishes no endpoint; the ready file lists it with its EDS (for `gatewaylab monitor`)
+        listed = drives[0].ready_info()["canopen"]["can0"]["axis2"]
+        assert (listed["node_id"], listed["serial"]) == (2, 0x1002)
+        assert import_eds(Path(listed["eds"]).read_text(), 2).values[(0x1018, 4)] == 0x1002
     finally:
         for p in rig.participants:
             p.stop()

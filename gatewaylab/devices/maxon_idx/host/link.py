@@ -65,11 +65,13 @@ class SerialLink:
 class UsbLink:
     """pyusb bulk endpoints of a real IDX/EPOS4 (maxon's USB driver is a vendor-class device).
 
-    Untested: no hardware was available. The first bulk OUT and IN endpoints of the first
-    interface carry the same stuffed frames as the serial port.
+    Untested against hardware: no device was available. The first bulk OUT and IN endpoints of
+    the first interface carry the same stuffed frames as the serial port. ``backend`` is any pyusb
+    backend, e.g. :class:`~.usb_backend.IdxUsbBackend` (the emulated IDX over USB; None: pyusb's
+    default, libusb).
     """
 
-    def __init__(self, vendor: int | None = None, product: int | None = None) -> None:
+    def __init__(self, vendor: int | None = None, product: int | None = None, backend: Any = None) -> None:
         import usb.core
         import usb.util
 
@@ -77,7 +79,7 @@ class UsbLink:
         dev: Any = None
         for vid, pid in ids:
             try:
-                dev = usb.core.find(idVendor=vid, idProduct=pid)
+                dev = usb.core.find(idVendor=vid, idProduct=pid, backend=backend)
             except usb.core.NoBackendError as exc:
                 raise ConfigError("pyusb found no USB backend: install libusb-1.0") from exc
             if dev is not None:

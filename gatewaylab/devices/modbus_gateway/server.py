@@ -1,0 +1,175 @@
+"""The gateway's Modbus TCP face: a pymodbus ``ModbusTcpServer`` in its own thread and asyncio loop.
+
+pymodbus parses and answers Modbus TCP (MBAP framing, function codes, exception responses, one
+``SimDevice`` per unit id). Each served node's device has the gateway's register map and an
+``action`` coroutine that pymodbus awaits on every access: it hands the request to the rig's
+thread with ``clock.call_soon_threadsafe`` (docs/architecture.md "Threads": the rig thread owns
+the protocol state) and awaits an asyncio future that the gateway's ``done`` callback resolves
+through ``loop.call_soon_threadsafe``. Nothing sleeps; a request waits at most the SDO timeout.
+
+Unit ids the gateway does not serve fall through to pymodbus's catch-all device 0, whose action
+answers 0x0A (gateway path unavailable). Coils and discrete inputs do not exist: 0x01.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import errno
+import functools
+import logging
+import socket
+import threading
+from collections.abc import Callable
+from typing import Any
+
+from pymodbus.constants import ExcCodes
+from pymodbus.server import ModbusTcpServer
+from pymodbus.simulator import DataType, SimData, SimDevice
+
+from ...common.clock import Clock
+from .gateway import ModbusGateway
+from .mapping import ModbusException, RegisterKind
+
+log = logging.getLogger(__name__)
+
+#: Function codes of coils and discrete inputs: the gateway has neither (0x01 illegal function).
+_BIT_FUNCTIONS = frozenset((1, 2, 5, 15))
+#: Function codes that read registers (22 mask write and 23 read/write read the holding registers first).
+_READ_FUNCTIONS = {3: RegisterKind.HOLDING, 4: RegisterKind.INPUT, 22: RegisterKind.HOLDING, 23: RegisterKind.HOLDING}
+#: Writes whose response pymodbus builds by reading back what it has just stored: nothing to fetch.
+_ECHO_FUNCTIONS = frozenset((6, 16))
+#: How long :meth:`ModbusTcpFace.start` waits for the server thread to listen (or fail).
+START_TIMEOUT = 10.0
+
+
+def _block(registers: list[tuple[int, int]], readonly: bool) -> list[SimData]:
+    """pymodbus register blocks: the mapped registers; every other address is invalid (02)."""
+    if not registers:
+        return [SimData(0, datatype=DataType.INVALID)]
+    return [SimData(first, count=count, datatype=DataType.REGISTERS, readonly=readonly) for first, count in registers]
+
+
+class ModbusTcpFace:
+    """Serves ``gateway`` on ``host:port`` (port 0: a free one, see :attr:`port` after :meth:`start`)."""
+
+    def __init__(self, gateway: ModbusGateway, clock: Clock, port: int = 0, host: str = "127.0.0.1") -> None:
+        self.gateway = gateway
+        self.clock = clock
+        self.host = host
+        self.port = port
+        self.thread: threading.Thread | None = None
+        self.loop: asyncio.AbstractEventLoop | None = None
+        self._stop: asyncio.Event | None = None
+        self._started = threading.Event()
+        self._error: BaseException | None = None
+
+    # -- life cycle (rig thread) -------------------------------------------------------------------------
+    def start(self) -> None:
+        """Listen, or raise the OSError of a port that cannot be used (after cleaning up)."""
+        self._probe()
+        self.thread = threading.Thread(target=self._run, name=f"modbus-{self.gateway.name}", daemon=True)
+        self.thread.start()
+        if not self._started.wait(START_TIMEOUT):
+            self.stop()
+            raise OSError(errno.ETIMEDOUT, f"the Modbus TCP server did not start within {START_TIMEOUT:g} s")
+        if self._error is not None:
+            error = self._error
+            self.stop()
+            if isinstance(error, OSError):
+                raise error
+            raise OSError(errno.EADDRINUSE, f"cannot listen on {self.host}:{self.port}: {error}")
+
+    def _probe(self) -> None:
+        """Bind the port once as asyncio will (SO_REUSEADDR): a port in use fails here with its errno,
+        which pymodbus would only log. Port 0 picks the free port the server then takes."""
+        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            sock.bind((self.host, self.port))
+            sock.listen(1)
+            if self.port == 0:
+                self.port = sock.getsockname()[1]
+
+    def stop(self) -> None:
+        """Close the listener and every connection and end the thread (idempotent)."""
+        loop, stop = self.loop, self._stop
+        if loop is not None and stop is not None:
+            try:
+                loop.call_soon_threadsafe(stop.set)
+            except RuntimeError:        # the loop has ended already
+                pass
+        if self.thread is not None and self.thread is not threading.current_thread():
+            self.thread.join(START_TIMEOUT)
+        self.thread = None
+
+    # -- server thread -------------------------------------------------------------------------------------
+    def _run(self) -> None:
+        try:
+            asyncio.run(self._serve())
+        except BaseException as exc:        # reported to start(), never lost in a thread
+            self._error = exc
+            log.debug("Modbus TCP server %s ended: %r", self.gateway.name, exc)
+        finally:
+            self._started.set()
+
+    def _devices(self) -> list[SimDevice]:
+        holding = self.gateway.map.registers(RegisterKind.HOLDING)
+        inputs = self.gateway.map.registers(RegisterKind.INPUT)
+
+        def device(unit: int) -> SimDevice:
+            bits = [SimData(0, datatype=DataType.BITS, values=False)]
+            return SimDevice(unit, simdata=(list(bits), list(bits), _block(holding, False), _block(inputs, True)),
+                             action=functools.partial(self._action, unit))
+
+        return [device(0)] + [device(unit) for unit in sorted(self.gateway.nodes)]
+
+    async def _serve(self) -> None:
+        self.loop = asyncio.get_running_loop()
+        self._stop = asyncio.Event()
+        server = ModbusTcpServer(self._devices(), address=(self.host, self.port))
+        await server.serve_forever(background=True)     # RuntimeError when it cannot listen
+        try:
+            self._started.set()
+            await self._stop.wait()
+        finally:
+            await server.shutdown()  # type: ignore[no-untyped-call]
+
+    async def _action(self, unit: int, function_code: int, start_address: int, address: int, count: int,
+                      registers: list[int], set_values: list[int] | list[bool] | None) -> ExcCodes | None:
+        """pymodbus's hook on every access of a mapped register: the gateway does the work on the rig thread."""
+        if function_code in _BIT_FUNCTIONS:
+            return ExcCodes.ILLEGAL_FUNCTION
+        if unit == 0 or unit not in self.gateway.nodes:
+            return ExcCodes(int(ModbusException.GATEWAY_PATH_UNAVAILABLE))
+        loop = asyncio.get_running_loop()
+        future: asyncio.Future[Any] = loop.create_future()
+
+        def done(result: Any) -> None:           # rig thread
+            try:
+                loop.call_soon_threadsafe(_resolve, future, result)
+            except RuntimeError:                  # the server loop has ended (rig stopping)
+                pass
+
+        if set_values is None and function_code in _ECHO_FUNCTIONS:
+            return None
+        if set_values is not None:
+            values = [int(v) for v in set_values]
+            self._hand_over(self.gateway.write, unit, address, values, done)
+        elif function_code in _READ_FUNCTIONS:
+            self._hand_over(self.gateway.read, unit, _READ_FUNCTIONS[function_code], address, count, done)
+        else:
+            return ExcCodes.ILLEGAL_FUNCTION
+        result = await future
+        if isinstance(result, ModbusException):
+            return ExcCodes(int(result))
+        if isinstance(result, list):
+            offset = address - start_address
+            registers[offset:offset + len(result)] = result
+        return None
+
+    def _hand_over(self, call: Callable[..., None], *args: Any) -> None:
+        self.clock.call_soon_threadsafe(call, *args)
+
+
+def _resolve(future: asyncio.Future[Any], result: Any) -> None:
+    if not future.done():
+        future.set_result(result)
