@@ -23,7 +23,7 @@ from ..common.errors import GatewaylabError
 
 log = logging.getLogger(__name__)
 
-#: A request line longer than this is refused and the connection closed (a request is tiny).
+#: A request line longer than this is refused and skipped to its end (a request is tiny).
 MAX_LINE = 64 * 1024
 
 
@@ -64,6 +64,7 @@ class _Connection:
         self.sock = sock
         self.fd = sock.fileno()
         self.buf = bytearray()
+        self.skipping = False
         self.closed = False
 
     def on_readable(self) -> None:
@@ -79,10 +80,18 @@ class _Connection:
         self.buf += data
         while not self.closed:
             end = self.buf.find(b"\n")
+            if self.skipping:        # the rest of an over-long line: dropped up to its end
+                if end < 0:
+                    self.buf.clear()
+                    return
+                del self.buf[:end + 1]
+                self.skipping = False
+                continue
             if end < 0:
                 if len(self.buf) > MAX_LINE:
                     self._write(_encode({"ok": False, "error": f"request line longer than {MAX_LINE} bytes"}))
-                    self.close()
+                    self.buf.clear()
+                    self.skipping = True
                 return
             line = bytes(self.buf[:end])
             del self.buf[:end + 1]
