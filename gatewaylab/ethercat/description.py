@@ -96,6 +96,10 @@ class DeviceDescription:
     #: trigger; 0x20 = 3-buffer, ECAT reads. 1-buffer (handshake) layouts use 0x66 / 0x22.
     outputs_control: int = 0x64
     inputs_control: int = 0x20
+    #: SII/ESI default SM2/SM3 sizes when they differ from the default assignment's (ECAN-Lite
+    #: 5.3: 3072 B in the SII while 0x1C12/0x1C13 assign 8 chunks); None = the assignment's size.
+    outputs_sm_size: int | None = None
+    inputs_sm_size: int | None = None
     rx_pdos: tuple[Pdo, ...] = ()
     tx_pdos: tuple[Pdo, ...] = ()
     #: PDO indexes assigned by default (0x1C12 / 0x1C13); None = all of them. A master may assign
@@ -142,6 +146,16 @@ class DeviceDescription:
     def input_bytes(self) -> int:
         """Inputs (SM3) size with the default assignment."""
         return (sum(p.bit_length for p in self.assigned_tx_pdos) + 7) // 8
+
+    @property
+    def outputs_sii_size(self) -> int:
+        """SM2 default size in the SII and ESI."""
+        return self.output_bytes if self.outputs_sm_size is None else self.outputs_sm_size
+
+    @property
+    def inputs_sii_size(self) -> int:
+        """SM3 default size in the SII and ESI."""
+        return self.input_bytes if self.inputs_sm_size is None else self.inputs_sm_size
 
     @property
     def mailbox_protocols(self) -> int:
