@@ -256,26 +256,6 @@ class Esc:
         self.reload_eeprom()
         self._update_dl_status()
 
-    def power_on(self) -> None:
-        """Power-on reset, as when a device is plugged back into a segment: DPRAM and registers
-        cleared, SyncManagers and FMMUs off, the SII configuration reloaded, AL status INIT (the
-        application sees the change to INIT)."""
-        old = self.al_state
-        self._stop_watchdog()
-        if self._sync0_timer is not None:
-            self._sync0_timer.cancel()
-            self._sync0_timer = None
-        self.mem[:] = bytes(self._memlen)
-        self._ro = bytearray(RAM_START)
-        self._fmmus = ()
-        self._sms = ()
-        self._ram_sms = ()
-        self._mbx_last = b""
-        self.pdi_outputs.clear()
-        self._reset_registers()
-        if old != AlState.INIT:
-            self.app.state_changed(old, AlState.INIT, 0)
-
     def set_downstream(self, count: int) -> None:
         """How many slaves follow this one in the line (sets DL status ports and DC delays)."""
         self._downstream = count

@@ -58,7 +58,7 @@ class Segment:
         behind it answers again (those slaves kept their state)."""
         if position in self.unplugged:
             self.unplugged.discard(position)
-            self.slaves[position].esc.power_on()
+            self.slaves[position].esc.power_cycle()
             self._link()
 
     def process(self, frame: bytearray) -> bool:
