@@ -293,3 +293,25 @@ def test_any_bytes_get_an_answer(data: bytes) -> None:
     with _sim_rig() as rig:
         answer = json.loads(answer_line(rig.faults.request, data))
         assert isinstance(answer["ok"], bool)
+
+
+def test_ethercat_gateways_offer_their_can_channels_and_leave_the_line() -> None:
+    """docs/faults.md 'Devices and faults': the ECAN-Lite lists its MCAN channels and the esd gateway
+    its one controller (can_channels), each unplugged by name; both are EtherCAT devices of the
+    segment, so ethercat-unplug cuts them off (ETG.1000.4 working counter)."""
+    cfg = {"clock": "simulated", "bus": [{"name": "can0"}, {"name": "can1"}],
+           "device": [{"kind": "ecanlite", "name": "ecan1", "channels": ["can0", "can1"]},
+                      {"kind": "esd_can_ethercat", "name": "esd1", "bus": "can1"}],
+           "ethercat": {"interface": "gl-none"}}
+    with Rig(parse_rig(cfg)) as rig:
+        rig.start()
+        ecan = next(p for p in rig.participants if p.name == "ecan1")
+        channels = ecan.can_channels()  # type: ignore[attr-defined]
+        assert sorted(channels) == ["mcan0", "mcan1"]
+        answer = rig.faults.can_unplug("ecan1", channel="mcan1")
+        assert answer["bus"] == "can1" and not channels["mcan1"].connected and channels["mcan0"].connected
+        esd = next(p for p in rig.participants if p.name == "esd1")
+        if esd.can_channels():  # type: ignore[attr-defined]
+            assert rig.faults.can_unplug("esd1")["channel"] == "can"
+        assert rig.faults.ethercat_unplug("ecan1")["unreachable"] == ["ecan1", "esd1"]
+        assert rig.faults.ethercat_replug("ecan1")["al_status"] == 1
