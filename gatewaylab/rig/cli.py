@@ -31,6 +31,7 @@ EXTRA_SUBCOMMANDS = (
     "gatewaylab.canopen.plot_cli",
     "gatewaylab.ethercat.net_cli",
     "gatewaylab.devices.ecanlite.cli",
+    "gatewaylab.rig.fault_cli",
 )
 
 RIG_HELP = """\
