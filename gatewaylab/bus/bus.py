@@ -841,10 +841,12 @@ class VirtualBus:
                     c._received()
                 if cb is not None:
                     cb(frame, now)
-        for c in audience.foreign:
-            c._error(ErrorKind.FORM, False, None, now)  # a foreign bit rate sees only garbage
-        for monitor in self._monitors:
-            monitor(frame, now)
+        if audience.foreign:     # (an empty loop still builds an iterator: once per frame)
+            for c in audience.foreign:
+                c._error(ErrorKind.FORM, False, None, now)  # a foreign bit rate sees only garbage
+        if self._monitors:
+            for monitor in self._monitors:
+                monitor(frame, now)
 
     def _foreign_errors(self, now: float) -> None:
         """Controllers at another bit rate see every frame as a form error (and nothing else)."""
