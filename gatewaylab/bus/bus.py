@@ -402,8 +402,9 @@ class _RxCounters:
 
     def count(self, sender: Controller, frame: CanFrame) -> None:
         """One delivered frame."""
-        tally = self.sent.get(sender)
-        if tally is None:
+        try:
+            tally = self.sent[sender]
+        except KeyError:
             tally = self.sent[sender] = [0, 0, 0, 0]
         n = len(frame.data)
         tally[0] += 1
