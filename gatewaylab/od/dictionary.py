@@ -205,6 +205,17 @@ class ObjectDictionary:
         values = self.values
         listeners_of = self._listeners
         changed = False
+        if typed and not listeners_of:
+            # nobody listens to any key (no event-driven TPDO mapped): compare and store only
+            try:
+                for key, value in zip(keys, new):
+                    if values[key] != value:
+                        values[key] = value
+                        changed = True
+            except KeyError:
+                self.entry(*key)     # SdoAbort for an unknown key
+                raise
+            return changed
         for key, value in zip(keys, new):
             try:
                 old = values[key]

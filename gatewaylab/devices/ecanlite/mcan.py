@@ -625,7 +625,7 @@ class McanChannel:
         c = self.controller
         if c is None:
             return
-        on_wire = c.bus._on_wire
+        on_wire = c.bus.on_wire
         busy = on_wire.frame if on_wire is not None and on_wire.sender is c else None
         queue = c.tx_queue
         for entry in list(self._tx):
@@ -847,7 +847,7 @@ class McanChannel:
         queue = c.tx_queue
         if not queue or queue[-1] is not frame:
             return
-        on_wire = c.bus._on_wire
+        on_wire = c.bus.on_wire
         start = 1 if on_wire is not None and on_wire.sender is c else 0
         key = arbitration_key(frame)
         pos = len(queue) - 1
@@ -870,7 +870,8 @@ class McanChannel:
     def _drop_oldest_tx(self, c: Controller) -> bool:
         """TX overflow policy 'drop oldest': the oldest frame not yet on the wire is given up."""
         queue = c.tx_queue
-        start = 1 if c.bus._on_wire is not None and c.bus._on_wire.sender is c else 0
+        on_wire = c.bus.on_wire
+        start = 1 if on_wire is not None and on_wire.sender is c else 0
         for i in range(start, len(self._tx)):
             entry = self._tx[i]
             for j, queued in enumerate(queue):
