@@ -81,6 +81,9 @@ DC_START_DELAY = 0.01
 FOE_BUSY_TIMEOUT = 10.0
 #: Seconds before a DATA packet answered with BUSY is sent again.
 FOE_BUSY_RETRY = 0.01
+#: config_init attempts before a line counts as empty, and the seconds between them.
+SCAN_ATTEMPTS = 3
+SCAN_RETRY = 0.2
 #: A slave's FoE error text may already end in the code FoeError appends.
 FOE_CODE_SUFFIX = re.compile(r"\s*\(FoE error 0x[0-9A-Fa-f]+\)$")
 #: The error flag of AL status (bit 4).
@@ -603,7 +606,12 @@ class PysoemBackend:
         self._master = master
         try:
             master.manual_state_change = 1      # config_init/config_map only configure; we request states
-            count = master.config_init()
+            count = 0
+            for _attempt in range(SCAN_ATTEMPTS):   # a link just brought up may lose the first frames
+                count = master.config_init()
+                if count > 0:
+                    break
+                self.clock.wait(SCAN_RETRY)
             if count <= 0:
                 raise MasterTimeout(f"no EtherCAT slaves answer on {ifname}")
             self._slaves = list(master.slaves)
