@@ -650,10 +650,13 @@ class PysoemBackend:
 
     # -- MasterBackend -----------------------------------------------------------------------
     def slaves(self) -> list[SlaveIdentity]:
-        """The slaves config_init found, in line order (station = 0x1001 + position, as SOEM assigns)."""
+        """The slaves config_init found, in line order (station = 0x1001 + position, as SOEM assigns);
+        the serial number is SII word 0x0E (SOEM keeps no copy)."""
         out = []
         for pos, s in enumerate(self._slaves):
-            serial = U32.unpack(self.sii_read(pos)[0x1C:0x20])[0]
+            cached = self._sii.get(pos)
+            serial_raw = cached[0x1C:0x20] if cached else bytes(s.eeprom_read(0x0E, self.register_timeout_us * 10))
+            serial = U32.unpack(serial_raw[:4])[0]
             out.append(SlaveIdentity(pos, 0x1001 + pos, str(s.name), int(s.man), int(s.id), int(s.rev), serial))
         return out
 
