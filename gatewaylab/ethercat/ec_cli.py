@@ -446,8 +446,7 @@ def cmd_sii_read(backend: MasterBackend, args: argparse.Namespace, out: IO[str])
 
 
 def _binary_out() -> IO[bytes]:
-    buffer: IO[bytes] = getattr(sys.stdout, "buffer", sys.stdout)
-    return buffer
+    return sys.stdout.buffer
 
 
 @contextmanager
@@ -501,8 +500,7 @@ def cmd_foe_write(backend: MasterBackend, args: argparse.Namespace, out: IO[str]
 
 def _read_input(path: str) -> bytes:
     if path == "-":
-        buffer: IO[bytes] = getattr(sys.stdin, "buffer", sys.stdin)
-        return buffer.read()
+        return sys.stdin.buffer.read()
     try:
         return Path(path).read_bytes()
     except OSError as exc:
@@ -529,7 +527,7 @@ def describe(exc: BaseException, where: str = "") -> str:
         return f"SDO abort 0x{exc.code:08X}{where}: {abort_text(exc.code)}"
     if isinstance(exc, FoeError):
         try:
-            name = f" {FoeErrorCode(exc.code).name}"
+            name = f" {FoeErrorCode(exc.code or 0).name}"
         except ValueError:
             name = ""
         return f"FoE error 0x{exc.code:04X}{name}: {FOE_CODE_SUFFIX.sub('', str(exc))}"
@@ -570,7 +568,7 @@ def add_subcommand(subparsers: Any) -> None:
     """``gatewaylab ec VERB``: registered through rig/cli.py EXTRA_SUBCOMMANDS."""
     ec = subparsers.add_parser("ec", help="IgH `ethercat`-like verbs: slaves, upload, download, sdos, pdos, FoE",
                                description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ec.error = types.MethodType(_one_line_error, ec)  # type: ignore[method-assign]
+    ec.error = types.MethodType(_one_line_error, ec)
     verbs = ec.add_subparsers(dest="verb", metavar="VERB", required=True)
     common = argparse.ArgumentParser(add_help=False)
     line = common.add_argument_group("line (one of)")
@@ -582,7 +580,7 @@ def add_subcommand(subparsers: Any) -> None:
         p = verbs.add_parser(verb, parents=[common], help=help_text, description=help_text + ".",
                              epilog=f"example:\n  {EXAMPLES[verb]}",
                              formatter_class=argparse.RawDescriptionHelpFormatter)
-        p.error = types.MethodType(_one_line_error, p)  # type: ignore[method-assign]
+        p.error = types.MethodType(_one_line_error, p)
         p.set_defaults(func=cmd_ec)
         if verb == "slaves":
             p.add_argument("-v", "--verbose", action="store_true", help="identity and status of each slave")
