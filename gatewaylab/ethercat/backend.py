@@ -84,6 +84,8 @@ FOE_BUSY_RETRY = 0.01
 #: config_init attempts before a line counts as empty, and the seconds between them.
 SCAN_ATTEMPTS = 3
 SCAN_RETRY = 0.2
+#: SOEM waits 700 ms for each SDO Information reply; on a loaded machine a request is tried again.
+INFO_ATTEMPTS = 3
 #: A slave's FoE error text may already end in the code FoeError appends.
 FOE_CODE_SUFFIX = re.compile(r"\s*\(FoE error 0x[0-9A-Fa-f]+\)$")
 #: The error flag of AL status (bit 4).
@@ -727,16 +729,28 @@ class PysoemBackend:
 
     def _objects(self, position: int) -> list[Any]:
         p = self._pysoem
-        try:
-            return list(self._mailbox_call("SDO information", lambda: self._slave(position).od))
-        except p.SdoInfoError as exc:
-            raise ProtocolError(f"SDO information: {exc.message}") from None
+        for attempt in range(INFO_ATTEMPTS):
+            try:
+                return list(self._mailbox_call("SDO information", lambda: self._slave(position).od))
+            except p.SdoInfoError as exc:
+                if attempt == INFO_ATTEMPTS - 1:
+                    raise ProtocolError(f"SDO information: {exc.message}") from None
+        return []
 
     @staticmethod
     def _text(value: Any) -> str:
         return value.decode("latin-1") if isinstance(value, bytes) else str(value)
 
     def _info(self, obj: Any) -> ObjectInfo:
+        for attempt in range(INFO_ATTEMPTS):
+            try:
+                return self._info_once(obj)
+            except ProtocolError:
+                if attempt == INFO_ATTEMPTS - 1:
+                    raise
+        raise AssertionError("unreachable")
+
+    def _info_once(self, obj: Any) -> ObjectInfo:
         p = self._pysoem
         try:
             raw_entries = list(obj.entries)

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any, NoReturn
 
+from ..common.clock import Clock
 from ..common.errors import ConfigError, GatewaylabError
 from ..od.aborts import SdoAbort, abort_text
 from .backend import FOE_CODE_SUFFIX, EntryInfo, MasterBackend, MasterTimeout, ProgressFn, al_status_name
@@ -450,8 +451,9 @@ def _binary_out() -> IO[bytes]:
 
 
 @contextmanager
-def _progress(args: argparse.Namespace, what: str, total: int | None) -> Iterator[ProgressFn | None]:
-    """A rich progress bar on stderr when it is a terminal (or ``--progress``), else nothing."""
+def _progress(args: argparse.Namespace, clock: Clock, what: str, total: int | None) -> Iterator[ProgressFn | None]:
+    """A rich progress bar on stderr when it is a terminal (or ``--progress``), else nothing; its
+    speed is measured on the backend's clock (simulated time in process)."""
     show = args.progress if args.progress is not None else sys.stderr.isatty()
     if not show:
         yield None
@@ -461,7 +463,7 @@ def _progress(args: argparse.Namespace, what: str, total: int | None) -> Iterato
 
     console = Console(stderr=True)     # not a terminal (--progress): rich prints the finished bar once
     with Progress(TextColumn("{task.description}"), BarColumn(), DownloadColumn(), TransferSpeedColumn(),
-                  console=console, transient=False) as bar:
+                  console=console, transient=False, get_time=clock.now) as bar:
         task = bar.add_task(what, total=total)
 
         def update(done: int, _total: int) -> None:
@@ -474,7 +476,7 @@ def _progress(args: argparse.Namespace, what: str, total: int | None) -> Iterato
 def cmd_foe_read(backend: MasterBackend, args: argparse.Namespace, out: IO[str]) -> None:
     """IgH ``ethercat foe_read [-o FILE] NAME``: the file to stdout or to FILE."""
     pos = _one(backend, args)
-    with _progress(args, f"foe read {args.name}", None) as progress:
+    with _progress(args, backend.clock, f"foe read {args.name}", None) as progress:
         data = backend.foe_read(pos, args.name, args.password, progress=progress)
     if args.output:
         try:
@@ -490,11 +492,9 @@ def cmd_foe_write(backend: MasterBackend, args: argparse.Namespace, out: IO[str]
     """IgH ``ethercat foe_write [-o NAME] FILE``: FILE (``-`` = stdin) to the slave, named NAME
     (default: FILE's base name)."""
     pos = _one(backend, args)
-    data = _read_input(args.file)
+    data: bytes = args.data if getattr(args, "data", None) is not None else _read_input(args.file)
     name = args.name or Path(args.file).name
-    if args.file == "-" and not args.name:
-        raise EcUsage("foe-write from stdin needs -n NAME")
-    with _progress(args, f"foe write {name}", len(data)) as progress:
+    with _progress(args, backend.clock, f"foe write {name}", len(data)) as progress:
         backend.foe_write(pos, name, data, args.password, progress=progress)
 
 
@@ -536,10 +536,24 @@ def describe(exc: BaseException, where: str = "") -> str:
     return " ".join(str(exc).split())
 
 
+def _precheck(args: argparse.Namespace) -> None:
+    """Command-line errors that need no slave are reported before the line is opened."""
+    if getattr(args, "index", None) is not None:
+        parse_number(args.index, "index", 0xFFFF)
+        parse_number(args.subindex, "subindex", 0xFF)
+    if args.verb == "download" and args.type:
+        parse_value(TYPES[args.type], args.value)
+    if args.verb == "foe-write":
+        if args.file == "-" and not args.name:
+            raise EcUsage("foe-write from stdin needs -n NAME")
+        args.data = _read_input(args.file)
+
+
 def cmd_ec(args: argparse.Namespace) -> int:
     """Run one verb: its own errors to one stderr line and an exit code (never a traceback)."""
     fn, _help = VERBS[args.verb]
     try:
+        _precheck(args)
         with open_backend(args) as backend:
             fn(backend, args, sys.stdout)
         return 0
