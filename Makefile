@@ -19,9 +19,10 @@ $(STAMP): pyproject.toml $(EXAMPLE_DEVICE)/pyproject.toml | $(BIN)/python
 	touch $@
 
 # Debian packages some tests need: iproute2 (veth pairs and namespaces of the EtherCAT wire tests)
-# and tshark (Wireshark's EtherCAT dissector reads our captures). Installed once, as root.
-APT_PACKAGES := iproute2:ip tshark:tshark
-$(APT_STAMP): | $(BIN)/python
+# and tshark (Wireshark's EtherCAT dissector reads our captures), chromium (the esd web pages' browser
+# tests drive it through Playwright; never `playwright install`). Installed once, as root.
+APT_PACKAGES := iproute2:ip tshark:tshark chromium:chromium
+$(APT_STAMP): Makefile | $(BIN)/python
 	@missing=""; for pc in $(APT_PACKAGES); do command -v $${pc#*:} >/dev/null 2>&1 || missing="$$missing $${pc%%:*}"; done; \
 	if [ -n "$$missing" ]; then \
 	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \

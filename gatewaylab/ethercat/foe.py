@@ -35,7 +35,11 @@ def foe_packet(opcode: int, word: int, rest: bytes = b"") -> bytes:
 
 
 class FoeHandler(Protocol):
-    """What a device does with files; raise FoeError with an FoE error code to refuse."""
+    """What a device does with files; raise FoeError with an FoE error code to refuse.
+
+    A handler may also define ``foe_check_write(name, password)``: called on the write request,
+    it refuses with FoeError before any data packet (e.g. a firmware file outside BOOT).
+    """
 
     def foe_read(self, name: str, password: int) -> bytes:
         """The file's contents (FoeError to refuse)."""
@@ -114,6 +118,9 @@ class FoeServer:
                 self.reset()
                 self._name = rest.decode("latin-1").rstrip("\0")
                 self._password = word
+                check = getattr(self.handler, "foe_check_write", None)
+                if check is not None:
+                    check(self._name, word)  # optional: refuse at the request, before any data
                 self.mode = _Mode.WRITING
                 self._packet = 0
                 return [foe_packet(FoeOpcode.ACK, 0)]

@@ -37,6 +37,11 @@ _RANK_ORDER = (AlState.INIT, AlState.PREOP, AlState.BOOT, AlState.SAFEOP, AlStat
 class SlaveApplication:
     """Hooks of a device behind the ESC; every method has a harmless default."""
 
+    #: False: outputs received in OP are not stored into their mapped objects every cycle (a
+    #: device that parses the raw outputs in :meth:`on_outputs`, e.g. large message queues);
+    #: a CoE read of a mapped output then decodes it from the outputs image instead.
+    store_outputs: bool = True
+
     def setup_od(self, slave: Slave, od: ObjectDictionary) -> None:
         """Bind the device's object hooks once the dictionary exists: ``od.on_read`` (status
         objects, counters), ``od.on_write`` / ``od.add_reaction`` ("apply" commands),
@@ -122,6 +127,7 @@ class Slave:
         self.cycles = 0
         self._unbind: list[Callable[[], None]] = []
         self._input_by_key: dict[tuple[int, int], MappedEntry] = {}
+        self._output_by_key: dict[tuple[int, int], MappedEntry] = {}
         self._bind_image()
         for obj in self.od:
             if any(e.tx_pdo or e.rx_pdo for e in obj.entries.values()):
@@ -229,7 +235,8 @@ class Slave:
         if esc.mem[REG_AL_STATUS] & 0x0F == AlState.OP:  # hot path: no enum construction
             self._outputs = data if len(data) == self.output_bytes else data[:self.output_bytes]
             self.outputs_valid = True
-            self._store_outputs()
+            if self.app.store_outputs:
+                self._store_outputs()
             self.app.on_outputs(self, self._outputs)
 
     def sync0(self, t: float) -> None:
@@ -312,6 +319,7 @@ class Slave:
         for unsubscribe in self._unbind:
             unsubscribe()
         self._input_by_key = {m.key: m for m in self.inputs_map}
+        self._output_by_key = {m.key: m for m in self.outputs_map}
         self._unbind = [self.od.subscribe(key, self._input_changed)
                         for key in self._input_by_key if key in self.od.entries]
 
@@ -329,13 +337,18 @@ class Slave:
 
     def _refresh_mapped(self, index: int, subindex: int) -> None:
         """Read hook of mapped objects: an input written as raw bytes (``write_inputs``) is
-        decoded from the image, so a CoE read returns what the master reads."""
+        decoded from the image, so a CoE read returns what the master reads; so is an output in
+        OP when the application does not store outputs (``SlaveApplication.store_outputs``)."""
+        image: bytes | bytearray = self._inputs
         m = self._input_by_key.get((index, subindex))
-        if m is None or m.bit_offset + m.bit_length > 8 * len(self._inputs):
+        if m is None and not self.app.store_outputs and self.outputs_valid:
+            m = self._output_by_key.get((index, subindex))
+            image = self._outputs
+        if m is None or m.bit_offset + m.bit_length > 8 * len(image):
             return
         entry = self.od.entries[m.key]
         try:
-            self.od.values[m.key] = decode(entry, _get_bits(self._inputs, m.bit_offset, m.bit_length))
+            self.od.values[m.key] = decode(entry, _get_bits(image, m.bit_offset, m.bit_length))
         except SdoAbort:
             pass
 

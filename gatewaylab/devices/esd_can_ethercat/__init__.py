@@ -1,1 +1,12 @@
-"""Placeholder until its issue lands."""
+"""esd CAN-EtherCAT gateway (esd manual C.2922.21 chapter 5; issue 11): EtherCAT slave of the
+Modular Device Profile 5000 with one CAN controller on a virtual bus.
+
+``objects`` (description and dictionary), ``codec`` (process image layouts), ``bitrate`` (0xF800),
+``device`` (:class:`EsdGateway`: the counter-handshake queues, status, statistics, FoE),
+``webmodel`` (the web pages' backend), ``rig`` (the ``esd_can_ethercat`` rig kind); ``web`` is the
+HTTP server of chapter 6.
+"""
+
+from .device import EsdGateway, create_esd_gateway
+
+__all__ = ["EsdGateway", "create_esd_gateway"]
