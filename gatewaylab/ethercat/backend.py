@@ -636,10 +636,15 @@ class PysoemBackend:
         return [position]
 
     def _mailbox_call(self, what: str, fn: Callable[..., Any], *args: Any) -> Any:
-        """A pysoem mailbox call with its errors turned into the contract's."""
+        """A pysoem mailbox call with its errors turned into the contract's. A call SOEM saw no
+        answer to is made once more: SOEM gives the slave a fixed 20 ms to take a mailbox write,
+        which a stall of a loaded machine can exceed."""
         p = self._pysoem
         try:
-            return fn(*args)
+            try:
+                return fn(*args)
+            except p.WkcError:
+                return fn(*args)
         except p.SdoError as exc:
             raise SdoAbort(int(exc.abort_code), what) from None
         except p.WkcError:

@@ -86,7 +86,8 @@ EXAMPLES: dict[str, str] = {
     "sii-read": "gatewaylab ec sii-read -i gl-ecat-m -p 0 > slave0.sii\n"
                 "  gatewaylab ec sii-read --rig rig.toml -p 0 --hex",
     "foe-read": "gatewaylab ec foe-read -i gl-ecat-m -p 0 config.bin -o config.bin",
-    "foe-write": "gatewaylab ec foe-write -i gl-ecat-m -p 0 ecan_lite_v140.bin -n ecan_lite_app.bin",
+    "foe-write": "gatewaylab ec foe-write -i gl-ecat-m -p 0 ecan_lite_v140.bin -n ecan_lite_app.bin\n"
+                 "  gatewaylab ec foe-write --rig esd.toml -p 1 --boot firmware.bin -n firmwareUpdate",
 }
 
 
@@ -473,10 +474,23 @@ def _progress(args: argparse.Namespace, clock: Clock, what: str, total: int | No
         bar.update(task, total=bar.tasks[0].completed, completed=bar.tasks[0].completed)
 
 
+@contextmanager
+def _boot(backend: MasterBackend, pos: int, boot: bool) -> Iterator[None]:
+    """``--boot``: INIT -> BOOT around the transfer and back to INIT (a firmware update, ETG.1000.6
+    bootstrap state), what ``ethercat states BOOT`` before the transfer does on IgH's master."""
+    if not boot:
+        yield
+        return
+    for step in state_path(backend.state(pos)[0], AlState.BOOT):
+        backend.request_state(step, pos)
+    yield
+    backend.request_state(AlState.INIT, pos)
+
+
 def cmd_foe_read(backend: MasterBackend, args: argparse.Namespace, out: IO[str]) -> None:
     """IgH ``ethercat foe_read [-o FILE] NAME``: the file to stdout or to FILE."""
     pos = _one(backend, args)
-    with _progress(args, backend.clock, f"foe read {args.name}", None) as progress:
+    with _boot(backend, pos, args.boot), _progress(args, backend.clock, f"foe read {args.name}", None) as progress:
         data = backend.foe_read(pos, args.name, args.password, progress=progress)
     if args.output:
         try:
@@ -494,7 +508,7 @@ def cmd_foe_write(backend: MasterBackend, args: argparse.Namespace, out: IO[str]
     pos = _one(backend, args)
     data: bytes = args.data if getattr(args, "data", None) is not None else _read_input(args.file)
     name = args.name or Path(args.file).name
-    with _progress(args, backend.clock, f"foe write {name}", len(data)) as progress:
+    with _boot(backend, pos, args.boot), _progress(args, backend.clock, f"foe write {name}", len(data)) as progress:
         backend.foe_write(pos, name, data, args.password, progress=progress)
 
 
@@ -621,6 +635,8 @@ def add_subcommand(subparsers: Any) -> None:
                 p.add_argument("-n", "--name", "-o", "--output-file", dest="name", metavar="NAME",
                                help="file name on the slave (default: FILE's base name)")
             p.add_argument("--password", type=lambda t: int(t, 0), default=0, help="FoE password (default 0)")
+            p.add_argument("--boot", action="store_true",
+                           help="go to BOOT (via INIT) for the transfer and back to INIT after it (firmware)")
             bar = p.add_mutually_exclusive_group()
             bar.add_argument("--progress", action="store_true", default=None,
                              help="show the progress bar even when stderr is not a terminal")
