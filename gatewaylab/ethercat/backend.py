@@ -29,7 +29,7 @@ from __future__ import annotations
 import re
 import struct
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
@@ -61,11 +61,10 @@ from .master import Master
 from .sii import CATEGORY_HEADER, Category, SiiInfo, parse_sii
 
 if TYPE_CHECKING:
-    from ..rig.runtime import Rig
     from .segment import Segment
 
 __all__ = ["EntryInfo", "InProcessBackend", "MasterBackend", "MasterTimeout", "ObjectInfo", "ProgressFn",
-           "PysoemBackend", "SlaveIdentity", "al_status_name", "sii_complete"]
+           "PysoemBackend", "RigLike", "SlaveIdentity", "al_status_name", "sii_complete"]
 
 U16 = struct.Struct("<H")
 U32 = struct.Struct("<I")
@@ -328,6 +327,16 @@ def _foe_text(code: int) -> str:
 
 
 # ---------------------------------------------------------------------------------------- in process
+class RigLike(Protocol):
+    """What :meth:`InProcessBackend.from_rig` needs of a rig (``gatewaylab.rig.runtime.Rig``)."""
+
+    @property
+    def clock(self) -> Clock: ...
+
+    @property
+    def participants(self) -> Sequence[Any]: ...
+
+
 class _MasterRegisters:
     """:class:`_Registers` over the in-process master (configured addresses of its scan)."""
 
@@ -379,7 +388,7 @@ class InProcessBackend:
                     self.request_state(AlState.PREOP, s.position)
 
     @classmethod
-    def from_rig(cls, rig: Rig, *, timeout: float = 0.1, preop: bool = True) -> InProcessBackend:
+    def from_rig(cls, rig: RigLike, *, timeout: float = 0.1, preop: bool = True) -> InProcessBackend:
         """A master on the rig's EtherCAT segment (its ``[ethercat]`` section, or its EtherCAT devices
         in file order when it has none), frames under the rig clock's lock. Start the rig first so
         its devices run."""

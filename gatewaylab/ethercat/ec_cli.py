@@ -17,18 +17,23 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO, TYPE_CHECKING, Any, NoReturn
+from typing import IO, Any, NoReturn, Protocol
 
 from ..common.clock import Clock
 from ..common.errors import ConfigError, GatewaylabError
 from ..od.aborts import SdoAbort, abort_text
-from .backend import FOE_CODE_SUFFIX, EntryInfo, MasterBackend, MasterTimeout, ProgressFn, al_status_name
+from .backend import (
+    FOE_CODE_SUFFIX,
+    EntryInfo,
+    MasterBackend,
+    MasterTimeout,
+    ProgressFn,
+    RigLike,
+    al_status_name,
+)
 from .errors import AlStatusError, FoeError, FoeErrorCode
 from .esc import AlState
 from .sii import CATEGORY_HEADER, PDO_ENTRY, PDO_HEADER, Category, SmType
-
-if TYPE_CHECKING:
-    from ..rig.runtime import Rig
 
 PROG = "gatewaylab ec"
 
@@ -210,6 +215,17 @@ def sii_pdos(img: bytes, strings: tuple[str, ...]) -> dict[int, SiiPdo]:
 
 
 # ------------------------------------------------------------------------------- backend
+class OpenRig(RigLike, Protocol):
+    """A started rig the command runs in process (``gatewaylab.rig.runtime.Rig``)."""
+
+    def close(self) -> None: ...
+
+
+#: Builds and starts a rig from a file on a simulated clock; the rig layer injects it
+#: (``gatewaylab.rig.ec``), so this module does not import the layer above it.
+RigOpener = Callable[[str], OpenRig]
+
+
 @contextmanager
 def open_backend(args: argparse.Namespace) -> Iterator[MasterBackend]:
     """``-i IFNAME`` -> PysoemBackend; ``--rig RIG.toml`` -> the rig in process on a simulated clock."""
@@ -224,7 +240,15 @@ def open_backend(args: argparse.Namespace) -> Iterator[MasterBackend]:
         finally:
             backend.close()
         return
-    rig = _open_rig(args.rig)
+    open_rig: RigOpener | None = getattr(args, "open_rig", None)
+    if open_rig is None:
+        raise EcUsage("--rig needs the rig runtime (run through the gatewaylab command)")
+    if not Path(args.rig).is_file():
+        raise EcUsage(f"rig file {args.rig} does not exist")
+    try:
+        rig = open_rig(args.rig)
+    except ConfigError as exc:
+        raise EcUsage(" ".join(str(exc).split())) from None
     try:
         from .backend import InProcessBackend
 
@@ -235,20 +259,6 @@ def open_backend(args: argparse.Namespace) -> Iterator[MasterBackend]:
             backend.close()
     finally:
         rig.close()
-
-
-def _open_rig(path: str) -> Rig:
-    from ..common.clock import SimulatedClock
-    from ..rig.runtime import Rig
-
-    if not Path(path).is_file():
-        raise EcUsage(f"rig file {path} does not exist")
-    try:
-        rig = Rig.from_file(path, clock=SimulatedClock(), endpoints=False)
-    except ConfigError as exc:
-        raise EcUsage(" ".join(str(exc).split())) from None
-    rig.start()
-    return rig
 
 
 def _one(backend: MasterBackend, args: argparse.Namespace) -> int:
@@ -592,8 +602,8 @@ def _one_line_error(parser: argparse.ArgumentParser, message: str) -> NoReturn:
     parser.exit(2, f"{parser.prog}: {' '.join(message.split())} (see --help)\n")
 
 
-def add_subcommand(subparsers: Any) -> None:
-    """``gatewaylab ec VERB``: registered through rig/cli.py EXTRA_SUBCOMMANDS."""
+def add_subcommand(subparsers: Any, open_rig: RigOpener | None = None) -> None:
+    """``gatewaylab ec VERB`` (registered by ``gatewaylab.rig.ec``, which passes ``open_rig``)."""
     ec = subparsers.add_parser("ec", help="IgH `ethercat`-like verbs: slaves, upload, download, sdos, pdos, FoE",
                                description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
     ec.error = types.MethodType(_one_line_error, ec)
@@ -609,7 +619,7 @@ def add_subcommand(subparsers: Any) -> None:
                              epilog=f"example:\n  {EXAMPLES[verb]}",
                              formatter_class=argparse.RawDescriptionHelpFormatter)
         p.error = types.MethodType(_one_line_error, p)
-        p.set_defaults(func=cmd_ec)
+        p.set_defaults(func=cmd_ec, open_rig=open_rig)
         if verb == "slaves":
             p.add_argument("-v", "--verbose", action="store_true", help="identity and status of each slave")
         elif verb == "states":
