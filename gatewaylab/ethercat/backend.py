@@ -52,6 +52,9 @@ from .esc import (
     REG_DC_START_TIME,
     REG_DC_SYNC0_CYCLE,
     REG_DC_SYSTEM_TIME,
+    REG_SII_CONFIG,
+    REG_SII_CONTROL,
+    REG_SII_DATA,
     REG_SM,
     AlState,
 )
@@ -85,6 +88,8 @@ SCAN_ATTEMPTS = 3
 SCAN_RETRY = 0.2
 #: SOEM waits 700 ms for each SDO Information reply; on a loaded machine a request is tried again.
 INFO_ATTEMPTS = 3
+#: Register reads over pysoem tried this often before a slave counts as not answering (a late frame is lost).
+REGISTER_ATTEMPTS = 3
 #: A slave's FoE error text may already end in the code FoeError appends.
 FOE_CODE_SUFFIX = re.compile(r"\s*\(FoE error 0x[0-9A-Fa-f]+\)$")
 #: The error flag of AL status (bit 4).
@@ -218,9 +223,16 @@ class _MailboxPort:
             self.clock.wait(POLL)
 
     def _areas(self, position: int) -> tuple[tuple[int, int], tuple[int, int]]:
-        raw = self.regs.read(position, REG_SM, 16)
-        if raw is None:
-            raise MasterTimeout(f"slave {position} does not answer")
+        got: list[bytes] = []
+
+        def read() -> bool:
+            raw = self.regs.read(position, REG_SM, 16)
+            if raw is not None:
+                got.append(raw)
+            return raw is not None
+
+        self._wait_for(f"slave {position} SyncManagers", read)
+        raw = got[0]
         o_start, o_len, *_ = SM_REG.unpack_from(raw, 0)
         i_start, i_len, *_ = SM_REG.unpack_from(raw, 8)
         if not o_len or not i_len:
@@ -569,12 +581,16 @@ class _PysoemRegisters:
         self.backend = backend
 
     def read(self, position: int, address: int, length: int) -> bytes | None:
-        try:
-            return bytes(self.backend._slave(position)._fprd(address, length, self.backend.register_timeout_us))
-        except self.backend._pysoem.WkcError:
-            return None
+        slave = self.backend._slave(position)
+        for _attempt in range(REGISTER_ATTEMPTS):
+            try:
+                return bytes(slave._fprd(address, length, self.backend.register_timeout_us))
+            except self.backend._pysoem.WkcError:
+                continue
+        return None
 
     def write(self, position: int, address: int, data: bytes) -> bool:
+        """One attempt: a mailbox write the slave refuses (SM0 full) must not be repeated blindly."""
         try:
             self.backend._slave(position)._fpwr(address, bytes(data), self.backend.register_timeout_us)
         except self.backend._pysoem.WkcError:
@@ -586,7 +602,7 @@ class PysoemBackend:
     """:class:`MasterBackend` on a network interface through SOEM (pysoem); needs root or CAP_NET_RAW."""
 
     def __init__(self, ifname: str, *, timeout: float = 3.0, pd_timeout_us: int = 20_000,
-                 register_timeout_us: int = 20_000, preop: bool = True) -> None:
+                 register_timeout_us: int = 50_000, preop: bool = True) -> None:
         try:
             import pysoem
         except ImportError:  # pragma: no cover - pysoem is a test/dev dependency
@@ -601,6 +617,7 @@ class PysoemBackend:
         self.last_wkc = 0
         self._lock = threading.RLock()
         self._sii: dict[int, bytes] = {}
+        self._sii_info: dict[int, SiiInfo] = {}
         self._outputs: list[bytearray] = []
         self._inputs: list[bytes] = []
         self._mapped = False
@@ -666,14 +683,13 @@ class PysoemBackend:
 
     # -- MasterBackend -----------------------------------------------------------------------
     def slaves(self) -> list[SlaveIdentity]:
-        """The slaves config_init found, in line order (station = 0x1001 + position, as SOEM assigns);
-        the serial number is SII word 0x0E (SOEM keeps no copy)."""
+        """The slaves config_init found, in line order (station = 0x1001 + position, as SOEM assigns),
+        with the identity of their SII."""
         out = []
-        for pos, s in enumerate(self._slaves):
-            cached = self._sii.get(pos)
-            serial_raw = cached[0x1C:0x20] if cached else bytes(s.eeprom_read(0x0E, self.register_timeout_us * 10))
-            serial = U32.unpack(serial_raw[:4])[0]
-            out.append(SlaveIdentity(pos, 0x1001 + pos, str(s.name), int(s.man), int(s.id), int(s.rev), serial))
+        for pos in range(len(self._slaves)):
+            info = self.sii_info(pos)     # our own checked SII read, not SOEM's copy
+            out.append(SlaveIdentity(pos, 0x1001 + pos, info.name, info.vendor_id, info.product_code,
+                                     info.revision, info.serial))
         return out
 
     def al_status(self, position: int) -> tuple[int, int]:
@@ -702,7 +718,6 @@ class PysoemBackend:
     def request_state(self, state: AlState, position: int | None = None, timeout: float = 5.0) -> AlState:
         """Request ``state`` (all slaves, or one) and wait until reached, exchanging process data
         meanwhile once mapped; an error flag acknowledges first. AlStatusError carries the code."""
-        regs = _PysoemRegisters(self)
         for pos in self._positions(position):
             status, _code = self.al_status(pos)
             current = status & 0x0F
@@ -710,12 +725,16 @@ class PysoemBackend:
                 self._set_boot_mailbox(pos, True)
             elif current == AlState.BOOT and state != AlState.BOOT:
                 self._set_boot_mailbox(pos, False)
-            control = int(state) | (AL_ERROR if status & AL_ERROR else 0)
-            if not regs.write(pos, REG_AL_CONTROL, U16.pack(control)):
-                raise MasterTimeout(f"slave {pos} does not answer")
+            self._write_control(pos, int(state) | (AL_ERROR if status & AL_ERROR else 0))
             deadline = self.clock.now() + timeout
+            repaired = False
             while True:
                 status, code = self.al_status(pos)
+                if (status & AL_ERROR and state == AlState.PREOP and not repaired
+                        and code in (AlStatusCode.INVALID_MAILBOX_CONFIG, AlStatusCode.INVALID_MAILBOX_CONFIG_BOOT)):
+                    self._repair_mailbox(pos)     # config_init lost a frame programming SM0/SM1
+                    repaired = True
+                    continue
                 if status & AL_ERROR:
                     raise AlStatusError(f"slave {pos} refused {state.name}: AL status 0x{status:02X}, "
                                         f"code {al_status_name(code)}", code)
@@ -728,6 +747,23 @@ class PysoemBackend:
                     self.exchange()
                 self.clock.wait(STATE_POLL)
         return state
+
+    def _write_control(self, pos: int, control: int) -> None:
+        regs = _PysoemRegisters(self)
+        for _attempt in range(REGISTER_ATTEMPTS):
+            if regs.write(pos, REG_AL_CONTROL, U16.pack(control)):
+                return
+        raise MasterTimeout(f"slave {pos} does not answer")
+
+    def _repair_mailbox(self, pos: int) -> None:
+        """Back to INIT (acknowledged), the mailbox SMs from the SII (pysoem amend_mbx updates SOEM's
+        copy too), PREOP again."""
+        self._write_control(pos, int(AlState.INIT) | AL_ERROR)
+        info = self.sii_info(pos)
+        s = self._slave(pos)
+        s.amend_mbx("out", *info.mailbox_out)
+        s.amend_mbx("in", *info.mailbox_in)
+        self._write_control(pos, int(AlState.PREOP))
 
     def sdo_upload(self, position: int, index: int, subindex: int, complete: bool = False) -> bytes:
         """CoE SDO upload through SOEM (objects up to 64 KiB)."""
@@ -804,22 +840,46 @@ class PysoemBackend:
         self._mbx.foe_write(position, name, data, password, progress)
 
     def sii_read(self, position: int) -> bytes:
-        """The SII EEPROM image up to its END category (SOEM's EEPROM reads, 4 bytes each)."""
+        """The SII EEPROM image up to its END category, read through the ESC's EEPROM interface
+        (0x0500-0x050F) with status checks: SOEM's ``eeprom_read`` returns 0 for a failed read."""
         cached = self._sii.get(position)
         if cached is not None:
             return cached
-        s = self._slave(position)
+        regs = _PysoemRegisters(self)
+        if not regs.write(position, REG_SII_CONFIG, b"\x02\x00") or \
+                not regs.write(position, REG_SII_CONFIG, b"\x00\x00"):   # EEPROM to the master (SOEM does so)
+            raise MasterTimeout(f"slave {position} does not answer")
         img = bytearray()
         while len(img) < 65536:
-            img += bytes(s.eeprom_read(len(img) // 2, self.register_timeout_us * 10))
+            img += self._sii_chunk(regs, position, len(img) // 2)
             if len(img) >= 0x84 and sii_complete(img):
                 break
         self._sii[position] = out = bytes(img)
         return out
 
+    def _sii_chunk(self, regs: _PysoemRegisters, position: int, word: int) -> bytes:
+        """4 or 8 bytes from EEPROM word ``word`` (0x0502 bit 6 tells the read size)."""
+        deadline = self.clock.now() + self.timeout
+        while self.clock.now() < deadline:
+            if regs.write(position, REG_SII_CONTROL, U16.pack(0x0100) + U32.pack(word)):
+                status = regs.read(position, REG_SII_CONTROL, 2)
+                while status is not None and U16.unpack(status)[0] & 0x8000 and self.clock.now() < deadline:
+                    self.clock.wait(POLL)               # busy
+                    status = regs.read(position, REG_SII_CONTROL, 2)
+                if status is not None and not U16.unpack(status)[0] & 0xF800:
+                    size = 8 if U16.unpack(status)[0] & 0x0040 else 4
+                    data = regs.read(position, REG_SII_DATA, size)
+                    if data is not None:
+                        return data
+            self.clock.wait(POLL)
+        raise MasterTimeout(f"slave {position}: SII word 0x{word:04X} not readable within {self.timeout:g} s")
+
     def sii_info(self, position: int) -> SiiInfo:
         """The parsed SII (identity, mailboxes, SyncManagers)."""
-        return parse_sii(self.sii_read(position))
+        info = self._sii_info.get(position)
+        if info is None:
+            self._sii_info[position] = info = parse_sii(self.sii_read(position))
+        return info
 
     def config_map(self) -> int:
         """SOEM's config_map (PDO assignment by SDO -> SMs, FMMUs); returns the IO map size (no state change)."""
