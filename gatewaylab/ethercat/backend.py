@@ -554,11 +554,15 @@ class InProcessBackend:
     def outputs(self, position: int) -> memoryview:
         """The slave's RxPDO bytes in the image: write them, the next :meth:`exchange` sends them."""
         s = self.master.slave(position)
+        if not self._mapped:
+            raise MasterError("config_map first")
         return memoryview(self.master.image)[s.output_offset:s.output_offset + s.output_bytes]
 
     def inputs(self, position: int) -> bytes:
         """The slave's TxPDO bytes as the last :meth:`exchange` brought them."""
         s = self.master.slave(position)
+        if not self._mapped:
+            raise MasterError("config_map first")
         return bytes(self.master.image[s.input_offset:s.input_offset + s.input_bytes])
 
     def exchange(self) -> tuple[int, int]:
