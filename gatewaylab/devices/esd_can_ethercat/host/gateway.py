@@ -28,7 +28,7 @@ from ....ethercat.backend import MasterBackend, MasterTimeout
 from ....ethercat.esc import AlState
 from ..codec import CanStatus
 from ..objects import PRODUCT_CODE, STATISTICS, VENDOR_ID
-from .config import EsdConfig, FilterArea, QueueLayout
+from .config import BitRate, EsdConfig, FilterArea, QueueLayout
 from .handshake import DEFAULT_RX_LIMIT, DEFAULT_TX_LIMIT, Handshake, RxFrame, RxOverflowError
 
 #: Seconds a blocking call waits by default (a full local Tx queue of 1000 frames at 125 kbit/s
@@ -114,10 +114,7 @@ class EsdHost:
         SdoAbort (with the gateway's abort code) or ReadbackError on the first refusal."""
         cfg = replace(config, **changes) if config is not None else EsdConfig(**changes)
         self.to_preop()
-        b = cfg.bitrate
-        if b.index == 0xFF:
-            self._write(0xF800, 5, b.api, 4)
-        self._write(0xF800, 2, b.index, 1)
+        self.set_bitrate(cfg.bitrate)
         sizes = ((RX_QUEUE, cfg.rx_queue, 1), (TX_QUEUE, cfg.tx_queue, 1), (LOCAL_RX, cfg.local_rx_queue, 2),
                  (LOCAL_TX, cfg.local_tx_queue, 2))
         if not cfg.extended:
@@ -139,6 +136,17 @@ class EsdHost:
             raise ConfigError(f"the mapping does not follow 0x8000: {layout}")
         self.config, self.layout = cfg, layout
         return layout
+
+    def set_bitrate(self, bitrate: BitRate) -> None:
+        """Write 0xF800 with readback: :05 'API-baud rate' first, then :02 = FFh; or :02 = the
+        Table 6 index (5.1.5.9: an index other than FFh wins over :05). The manual restricts
+        0xF800 to no state (only 0x8000, 0x7000 and 0x2000:01 carry the PREOP-only NOTICE), so
+        this works in OP too, without remapping."""
+        if bitrate.index == 0xFF:
+            self._write(0xF800, 5, bitrate.api, 4)
+        self._write(0xF800, 2, bitrate.index, 1)
+        if self.config is not None:
+            self.config = replace(self.config, bitrate=bitrate)
 
     def _assign(self, index: int, pdos: tuple[int, ...]) -> None:
         self._write(index, 0, 0, 1)
