@@ -43,6 +43,11 @@ _FMT = {1: "<B", 2: "<H", 4: "<I", 8: "<Q"}
 #: the seconds waited before the n-th repetition (n x this): a late answer is flushed meanwhile.
 SDO_ATTEMPTS = 5
 SDO_RETRY_WAIT = 0.05
+#: A waiting call looks at the AL state (and :meth:`EsdHost.recover`) after this many consecutive
+#: cycles with a wrong working counter, and every this many cycles of waiting anyway (a gateway
+#: fallen to SAFEOP may still count the datagrams, but it takes no batches).
+WKC_RECOVER = 10
+STATE_CHECK_CYCLES = 50
 #: config_map runs before the mapped sizes agree with the mapping objects read back.
 MAP_ATTEMPTS = 3
 
@@ -75,6 +80,9 @@ class EsdHost:
         #: Cycles whose working counter was not the expected one (their inputs were not used).
         self.wkc_errors = 0
         self.cycles = 0
+        #: Times :meth:`recover` brought the slave back to OP.
+        self.recoveries = 0
+        self._bad_cycles = 0
         #: SDO services repeated after a timeout.
         self.sdo_retries = 0
         #: config_map calls repeated because the mapped sizes differed from the mapping read back.
@@ -273,7 +281,9 @@ class EsdHost:
         self.cycles += 1
         if wkc != expected:
             self.wkc_errors += 1
+            self._bad_cycles += 1
             return False
+        self._bad_cycles = 0
         with self._lock:
             hs = self.handshake
             if hs is not None:
@@ -288,16 +298,38 @@ class EsdHost:
         wkc, expected = self.backend.exchange()
         return self.after_exchange(wkc, expected)
 
+    def recover(self, timeout: float = DEFAULT_TIMEOUT) -> bool:
+        """Back to OP when the slave fell to SAFEOP (the SM watchdog after a stalled master: AL
+        status 0x001B, 0x2010:08 counts it); the gateway keeps its counters there, so the handshake
+        carries on. True when it had to; ConfigError when the slave is in INIT/PREOP/BOOT (it lost
+        its mapping: configure() and start() again)."""
+        state, code = self.backend.state(self.position)
+        if state == AlState.OP:
+            return False
+        if state != AlState.SAFEOP:
+            raise ConfigError(f"slave {self.position} is in {state.name} (AL status code 0x{code:04X}): "
+                              "configure() and start() again")
+        self.backend.request_state(AlState.OP, self.position, timeout)
+        self.recoveries += 1
+        self._bad_cycles = 0
+        return True
+
     def _wait_for(self, what: str, done: Callable[[], bool], timeout: float) -> None:
         deadline = self.clock.now() + timeout
+        waited = 0
         while True:
             with self._lock:
                 if done():
                     return
             if self.clock.now() >= deadline:
-                raise MasterTimeout(f"{what}: not within {timeout:g} s")
+                state, code = self.backend.state(self.position)
+                raise MasterTimeout(f"{what}: not within {timeout:g} s (slave {self.position} in {state.name}, "
+                                    f"AL status code 0x{code:04X}, {self.wkc_errors} working counter errors)")
             if not self.external_cycle:
                 self.cycle()
+                waited += 1
+                if self._bad_cycles >= WKC_RECOVER or waited % STATE_CHECK_CYCLES == 0:
+                    self.recover()
             self.clock.wait(self.cycle_time)
 
     # ------------------------------------------------------------------ Tx
