@@ -29,7 +29,7 @@ from __future__ import annotations
 import re
 import struct
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
@@ -52,6 +52,9 @@ from .esc import (
     REG_DC_START_TIME,
     REG_DC_SYNC0_CYCLE,
     REG_DC_SYSTEM_TIME,
+    REG_SII_CONFIG,
+    REG_SII_CONTROL,
+    REG_SII_DATA,
     REG_SM,
     AlState,
 )
@@ -61,11 +64,10 @@ from .master import Master
 from .sii import CATEGORY_HEADER, Category, SiiInfo, parse_sii
 
 if TYPE_CHECKING:
-    from ..rig.runtime import Rig
     from .segment import Segment
 
 __all__ = ["EntryInfo", "InProcessBackend", "MasterBackend", "MasterTimeout", "ObjectInfo", "ProgressFn",
-           "PysoemBackend", "SlaveIdentity", "al_status_name", "sii_complete"]
+           "PysoemBackend", "RigLike", "SlaveIdentity", "al_status_name", "sii_complete"]
 
 U16 = struct.Struct("<H")
 U32 = struct.Struct("<I")
@@ -84,6 +86,12 @@ FOE_BUSY_RETRY = 0.01
 #: config_init attempts before a line counts as empty, and the seconds between them.
 SCAN_ATTEMPTS = 3
 SCAN_RETRY = 0.2
+#: SOEM waits 700 ms for each SDO Information reply; on a loaded machine a request is tried again.
+INFO_ATTEMPTS = 3
+#: Register reads over pysoem tried this often before a slave counts as not answering (a late frame is lost).
+REGISTER_ATTEMPTS = 3
+#: Seconds to let a late mailbox reply arrive before a pysoem mailbox call is repeated.
+RETRY_SETTLE = 0.05
 #: A slave's FoE error text may already end in the code FoeError appends.
 FOE_CODE_SUFFIX = re.compile(r"\s*\(FoE error 0x[0-9A-Fa-f]+\)$")
 #: The error flag of AL status (bit 4).
@@ -217,9 +225,16 @@ class _MailboxPort:
             self.clock.wait(POLL)
 
     def _areas(self, position: int) -> tuple[tuple[int, int], tuple[int, int]]:
-        raw = self.regs.read(position, REG_SM, 16)
-        if raw is None:
-            raise MasterTimeout(f"slave {position} does not answer")
+        got: list[bytes] = []
+
+        def read() -> bool:
+            raw = self.regs.read(position, REG_SM, 16)
+            if raw is not None:
+                got.append(raw)
+            return raw is not None
+
+        self._wait_for(f"slave {position} SyncManagers", read)
+        raw = got[0]
         o_start, o_len, *_ = SM_REG.unpack_from(raw, 0)
         i_start, i_len, *_ = SM_REG.unpack_from(raw, 8)
         if not o_len or not i_len:
@@ -326,6 +341,16 @@ def _foe_text(code: int) -> str:
 
 
 # ---------------------------------------------------------------------------------------- in process
+class RigLike(Protocol):
+    """What :meth:`InProcessBackend.from_rig` needs of a rig (``gatewaylab.rig.runtime.Rig``)."""
+
+    @property
+    def clock(self) -> Clock: ...
+
+    @property
+    def participants(self) -> Sequence[Any]: ...
+
+
 class _MasterRegisters:
     """:class:`_Registers` over the in-process master (configured addresses of its scan)."""
 
@@ -377,7 +402,7 @@ class InProcessBackend:
                     self.request_state(AlState.PREOP, s.position)
 
     @classmethod
-    def from_rig(cls, rig: Rig, *, timeout: float = 0.1, preop: bool = True) -> InProcessBackend:
+    def from_rig(cls, rig: RigLike, *, timeout: float = 0.1, preop: bool = True) -> InProcessBackend:
         """A master on the rig's EtherCAT segment (its ``[ethercat]`` section, or its EtherCAT devices
         in file order when it has none), frames under the rig clock's lock. Start the rig first so
         its devices run."""
@@ -529,11 +554,15 @@ class InProcessBackend:
     def outputs(self, position: int) -> memoryview:
         """The slave's RxPDO bytes in the image: write them, the next :meth:`exchange` sends them."""
         s = self.master.slave(position)
+        if not self._mapped:
+            raise MasterError("config_map first")
         return memoryview(self.master.image)[s.output_offset:s.output_offset + s.output_bytes]
 
     def inputs(self, position: int) -> bytes:
         """The slave's TxPDO bytes as the last :meth:`exchange` brought them."""
         s = self.master.slave(position)
+        if not self._mapped:
+            raise MasterError("config_map first")
         return bytes(self.master.image[s.input_offset:s.input_offset + s.input_bytes])
 
     def exchange(self) -> tuple[int, int]:
@@ -558,12 +587,16 @@ class _PysoemRegisters:
         self.backend = backend
 
     def read(self, position: int, address: int, length: int) -> bytes | None:
-        try:
-            return bytes(self.backend._slave(position)._fprd(address, length, self.backend.register_timeout_us))
-        except self.backend._pysoem.WkcError:
-            return None
+        slave = self.backend._slave(position)
+        for _attempt in range(REGISTER_ATTEMPTS):
+            try:
+                return bytes(slave._fprd(address, length, self.backend.register_timeout_us))
+            except self.backend._pysoem.WkcError:
+                continue
+        return None
 
     def write(self, position: int, address: int, data: bytes) -> bool:
+        """One attempt: a mailbox write the slave refuses (SM0 full) must not be repeated blindly."""
         try:
             self.backend._slave(position)._fpwr(address, bytes(data), self.backend.register_timeout_us)
         except self.backend._pysoem.WkcError:
@@ -575,7 +608,7 @@ class PysoemBackend:
     """:class:`MasterBackend` on a network interface through SOEM (pysoem); needs root or CAP_NET_RAW."""
 
     def __init__(self, ifname: str, *, timeout: float = 3.0, pd_timeout_us: int = 20_000,
-                 register_timeout_us: int = 20_000, preop: bool = True) -> None:
+                 register_timeout_us: int = 50_000, preop: bool = True) -> None:
         try:
             import pysoem
         except ImportError:  # pragma: no cover - pysoem is a test/dev dependency
@@ -590,6 +623,7 @@ class PysoemBackend:
         self.last_wkc = 0
         self._lock = threading.RLock()
         self._sii: dict[int, bytes] = {}
+        self._sii_info: dict[int, SiiInfo] = {}
         self._outputs: list[bytearray] = []
         self._inputs: list[bytes] = []
         self._mapped = False
@@ -634,10 +668,22 @@ class PysoemBackend:
         return [position]
 
     def _mailbox_call(self, what: str, fn: Callable[..., Any], *args: Any) -> Any:
-        """A pysoem mailbox call with its errors turned into the contract's."""
+        """A pysoem mailbox call with its errors turned into the contract's. A call SOEM saw no
+        answer to (or got an unexpected reply for) is made once more, after the mailboxes were read
+        out: SOEM gives the slave a fixed 20 ms to take a mailbox write, which a stall of a loaded
+        machine can exceed."""
         p = self._pysoem
         try:
-            return fn(*args)
+            try:
+                return fn(*args)
+            except (p.WkcError, p.PacketError):
+                self.clock.wait(RETRY_SETTLE)     # a late reply of the first attempt arrives meanwhile
+                for s in self._slaves:
+                    try:
+                        s.mbx_receive()           # and is read out before the second attempt
+                    except Exception:  # draining only: emergencies and errors are dropped
+                        pass
+                return fn(*args)
         except p.SdoError as exc:
             raise SdoAbort(int(exc.abort_code), what) from None
         except p.WkcError:
@@ -650,14 +696,13 @@ class PysoemBackend:
 
     # -- MasterBackend -----------------------------------------------------------------------
     def slaves(self) -> list[SlaveIdentity]:
-        """The slaves config_init found, in line order (station = 0x1001 + position, as SOEM assigns);
-        the serial number is SII word 0x0E (SOEM keeps no copy)."""
+        """The slaves config_init found, in line order (station = 0x1001 + position, as SOEM assigns),
+        with the identity of their SII."""
         out = []
-        for pos, s in enumerate(self._slaves):
-            cached = self._sii.get(pos)
-            serial_raw = cached[0x1C:0x20] if cached else bytes(s.eeprom_read(0x0E, self.register_timeout_us * 10))
-            serial = U32.unpack(serial_raw[:4])[0]
-            out.append(SlaveIdentity(pos, 0x1001 + pos, str(s.name), int(s.man), int(s.id), int(s.rev), serial))
+        for pos in range(len(self._slaves)):
+            info = self.sii_info(pos)     # our own checked SII read, not SOEM's copy
+            out.append(SlaveIdentity(pos, 0x1001 + pos, info.name, info.vendor_id, info.product_code,
+                                     info.revision, info.serial))
         return out
 
     def al_status(self, position: int) -> tuple[int, int]:
@@ -686,7 +731,6 @@ class PysoemBackend:
     def request_state(self, state: AlState, position: int | None = None, timeout: float = 5.0) -> AlState:
         """Request ``state`` (all slaves, or one) and wait until reached, exchanging process data
         meanwhile once mapped; an error flag acknowledges first. AlStatusError carries the code."""
-        regs = _PysoemRegisters(self)
         for pos in self._positions(position):
             status, _code = self.al_status(pos)
             current = status & 0x0F
@@ -694,12 +738,16 @@ class PysoemBackend:
                 self._set_boot_mailbox(pos, True)
             elif current == AlState.BOOT and state != AlState.BOOT:
                 self._set_boot_mailbox(pos, False)
-            control = int(state) | (AL_ERROR if status & AL_ERROR else 0)
-            if not regs.write(pos, REG_AL_CONTROL, U16.pack(control)):
-                raise MasterTimeout(f"slave {pos} does not answer")
+            self._write_control(pos, int(state) | (AL_ERROR if status & AL_ERROR else 0))
             deadline = self.clock.now() + timeout
+            repaired = False
             while True:
                 status, code = self.al_status(pos)
+                if (status & AL_ERROR and state == AlState.PREOP and not repaired
+                        and code in (AlStatusCode.INVALID_MAILBOX_CONFIG, AlStatusCode.INVALID_MAILBOX_CONFIG_BOOT)):
+                    self._repair_mailbox(pos)     # config_init lost a frame programming SM0/SM1
+                    repaired = True
+                    continue
                 if status & AL_ERROR:
                     raise AlStatusError(f"slave {pos} refused {state.name}: AL status 0x{status:02X}, "
                                         f"code {al_status_name(code)}", code)
@@ -712,6 +760,23 @@ class PysoemBackend:
                     self.exchange()
                 self.clock.wait(STATE_POLL)
         return state
+
+    def _write_control(self, pos: int, control: int) -> None:
+        regs = _PysoemRegisters(self)
+        for _attempt in range(REGISTER_ATTEMPTS):
+            if regs.write(pos, REG_AL_CONTROL, U16.pack(control)):
+                return
+        raise MasterTimeout(f"slave {pos} does not answer")
+
+    def _repair_mailbox(self, pos: int) -> None:
+        """Back to INIT (acknowledged), the mailbox SMs from the SII (pysoem amend_mbx updates SOEM's
+        copy too), PREOP again."""
+        self._write_control(pos, int(AlState.INIT) | AL_ERROR)
+        info = self.sii_info(pos)
+        s = self._slave(pos)
+        s.amend_mbx("out", *info.mailbox_out)
+        s.amend_mbx("in", *info.mailbox_in)
+        self._write_control(pos, int(AlState.PREOP))
 
     def sdo_upload(self, position: int, index: int, subindex: int, complete: bool = False) -> bytes:
         """CoE SDO upload through SOEM (objects up to 64 KiB)."""
@@ -727,16 +792,28 @@ class PysoemBackend:
 
     def _objects(self, position: int) -> list[Any]:
         p = self._pysoem
-        try:
-            return list(self._mailbox_call("SDO information", lambda: self._slave(position).od))
-        except p.SdoInfoError as exc:
-            raise ProtocolError(f"SDO information: {exc.message}") from None
+        for attempt in range(INFO_ATTEMPTS):
+            try:
+                return list(self._mailbox_call("SDO information", lambda: self._slave(position).od))
+            except p.SdoInfoError as exc:
+                if attempt == INFO_ATTEMPTS - 1:
+                    raise ProtocolError(f"SDO information: {exc.message}") from None
+        return []
 
     @staticmethod
     def _text(value: Any) -> str:
         return value.decode("latin-1") if isinstance(value, bytes) else str(value)
 
     def _info(self, obj: Any) -> ObjectInfo:
+        for attempt in range(INFO_ATTEMPTS):
+            try:
+                return self._info_once(obj)
+            except ProtocolError:
+                if attempt == INFO_ATTEMPTS - 1:
+                    raise
+        raise AssertionError("unreachable")
+
+    def _info_once(self, obj: Any) -> ObjectInfo:
         p = self._pysoem
         try:
             raw_entries = list(obj.entries)
@@ -776,22 +853,46 @@ class PysoemBackend:
         self._mbx.foe_write(position, name, data, password, progress)
 
     def sii_read(self, position: int) -> bytes:
-        """The SII EEPROM image up to its END category (SOEM's EEPROM reads, 4 bytes each)."""
+        """The SII EEPROM image up to its END category, read through the ESC's EEPROM interface
+        (0x0500-0x050F) with status checks: SOEM's ``eeprom_read`` returns 0 for a failed read."""
         cached = self._sii.get(position)
         if cached is not None:
             return cached
-        s = self._slave(position)
+        regs = _PysoemRegisters(self)
+        if not regs.write(position, REG_SII_CONFIG, b"\x02\x00") or \
+                not regs.write(position, REG_SII_CONFIG, b"\x00\x00"):   # EEPROM to the master (SOEM does so)
+            raise MasterTimeout(f"slave {position} does not answer")
         img = bytearray()
         while len(img) < 65536:
-            img += bytes(s.eeprom_read(len(img) // 2, self.register_timeout_us * 10))
+            img += self._sii_chunk(regs, position, len(img) // 2)
             if len(img) >= 0x84 and sii_complete(img):
                 break
         self._sii[position] = out = bytes(img)
         return out
 
+    def _sii_chunk(self, regs: _PysoemRegisters, position: int, word: int) -> bytes:
+        """4 or 8 bytes from EEPROM word ``word`` (0x0502 bit 6 tells the read size)."""
+        deadline = self.clock.now() + self.timeout
+        while self.clock.now() < deadline:
+            if regs.write(position, REG_SII_CONTROL, U16.pack(0x0100) + U32.pack(word)):
+                status = regs.read(position, REG_SII_CONTROL, 2)
+                while status is not None and U16.unpack(status)[0] & 0x8000 and self.clock.now() < deadline:
+                    self.clock.wait(POLL)               # busy
+                    status = regs.read(position, REG_SII_CONTROL, 2)
+                if status is not None and not U16.unpack(status)[0] & 0xF800:
+                    size = 8 if U16.unpack(status)[0] & 0x0040 else 4
+                    data = regs.read(position, REG_SII_DATA, size)
+                    if data is not None:
+                        return data
+            self.clock.wait(POLL)
+        raise MasterTimeout(f"slave {position}: SII word 0x{word:04X} not readable within {self.timeout:g} s")
+
     def sii_info(self, position: int) -> SiiInfo:
         """The parsed SII (identity, mailboxes, SyncManagers)."""
-        return parse_sii(self.sii_read(position))
+        info = self._sii_info.get(position)
+        if info is None:
+            self._sii_info[position] = info = parse_sii(self.sii_read(position))
+        return info
 
     def config_map(self) -> int:
         """SOEM's config_map (PDO assignment by SDO -> SMs, FMMUs); returns the IO map size (no state change)."""

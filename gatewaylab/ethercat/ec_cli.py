@@ -17,17 +17,23 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO, TYPE_CHECKING, Any, NoReturn
+from typing import IO, Any, NoReturn, Protocol
 
+from ..common.clock import Clock
 from ..common.errors import ConfigError, GatewaylabError
 from ..od.aborts import SdoAbort, abort_text
-from .backend import FOE_CODE_SUFFIX, EntryInfo, MasterBackend, MasterTimeout, ProgressFn, al_status_name
+from .backend import (
+    FOE_CODE_SUFFIX,
+    EntryInfo,
+    MasterBackend,
+    MasterTimeout,
+    ProgressFn,
+    RigLike,
+    al_status_name,
+)
 from .errors import AlStatusError, FoeError, FoeErrorCode
 from .esc import AlState
 from .sii import CATEGORY_HEADER, PDO_ENTRY, PDO_HEADER, Category, SmType
-
-if TYPE_CHECKING:
-    from ..rig.runtime import Rig
 
 PROG = "gatewaylab ec"
 
@@ -85,7 +91,8 @@ EXAMPLES: dict[str, str] = {
     "sii-read": "gatewaylab ec sii-read -i gl-ecat-m -p 0 > slave0.sii\n"
                 "  gatewaylab ec sii-read --rig rig.toml -p 0 --hex",
     "foe-read": "gatewaylab ec foe-read -i gl-ecat-m -p 0 config.bin -o config.bin",
-    "foe-write": "gatewaylab ec foe-write -i gl-ecat-m -p 0 ecan_lite_v140.bin -n ecan_lite_app.bin",
+    "foe-write": "gatewaylab ec foe-write -i gl-ecat-m -p 0 ecan_lite_v140.bin -n ecan_lite_app.bin\n"
+                 "  gatewaylab ec foe-write --rig esd.toml -p 1 --boot firmware.bin -n firmwareUpdate",
 }
 
 
@@ -208,6 +215,17 @@ def sii_pdos(img: bytes, strings: tuple[str, ...]) -> dict[int, SiiPdo]:
 
 
 # ------------------------------------------------------------------------------- backend
+class OpenRig(RigLike, Protocol):
+    """A started rig the command runs in process (``gatewaylab.rig.runtime.Rig``)."""
+
+    def close(self) -> None: ...
+
+
+#: Builds and starts a rig from a file on a simulated clock; the rig layer injects it
+#: (``gatewaylab.rig.ec``), so this module does not import the layer above it.
+RigOpener = Callable[[str], OpenRig]
+
+
 @contextmanager
 def open_backend(args: argparse.Namespace) -> Iterator[MasterBackend]:
     """``-i IFNAME`` -> PysoemBackend; ``--rig RIG.toml`` -> the rig in process on a simulated clock."""
@@ -222,7 +240,15 @@ def open_backend(args: argparse.Namespace) -> Iterator[MasterBackend]:
         finally:
             backend.close()
         return
-    rig = _open_rig(args.rig)
+    open_rig: RigOpener | None = getattr(args, "open_rig", None)
+    if open_rig is None:
+        raise EcUsage("--rig needs the rig runtime (run through the gatewaylab command)")
+    if not Path(args.rig).is_file():
+        raise EcUsage(f"rig file {args.rig} does not exist")
+    try:
+        rig = open_rig(args.rig)
+    except ConfigError as exc:
+        raise EcUsage(" ".join(str(exc).split())) from None
     try:
         from .backend import InProcessBackend
 
@@ -233,20 +259,6 @@ def open_backend(args: argparse.Namespace) -> Iterator[MasterBackend]:
             backend.close()
     finally:
         rig.close()
-
-
-def _open_rig(path: str) -> Rig:
-    from ..common.clock import SimulatedClock
-    from ..rig.runtime import Rig
-
-    if not Path(path).is_file():
-        raise EcUsage(f"rig file {path} does not exist")
-    try:
-        rig = Rig.from_file(path, clock=SimulatedClock(), endpoints=False)
-    except ConfigError as exc:
-        raise EcUsage(" ".join(str(exc).split())) from None
-    rig.start()
-    return rig
 
 
 def _one(backend: MasterBackend, args: argparse.Namespace) -> int:
@@ -450,8 +462,9 @@ def _binary_out() -> IO[bytes]:
 
 
 @contextmanager
-def _progress(args: argparse.Namespace, what: str, total: int | None) -> Iterator[ProgressFn | None]:
-    """A rich progress bar on stderr when it is a terminal (or ``--progress``), else nothing."""
+def _progress(args: argparse.Namespace, clock: Clock, what: str, total: int | None) -> Iterator[ProgressFn | None]:
+    """A rich progress bar on stderr when it is a terminal (or ``--progress``), else nothing; its
+    speed is measured on the backend's clock (simulated time in process)."""
     show = args.progress if args.progress is not None else sys.stderr.isatty()
     if not show:
         yield None
@@ -461,7 +474,7 @@ def _progress(args: argparse.Namespace, what: str, total: int | None) -> Iterato
 
     console = Console(stderr=True)     # not a terminal (--progress): rich prints the finished bar once
     with Progress(TextColumn("{task.description}"), BarColumn(), DownloadColumn(), TransferSpeedColumn(),
-                  console=console, transient=False) as bar:
+                  console=console, transient=False, get_time=clock.now) as bar:
         task = bar.add_task(what, total=total)
 
         def update(done: int, _total: int) -> None:
@@ -471,10 +484,23 @@ def _progress(args: argparse.Namespace, what: str, total: int | None) -> Iterato
         bar.update(task, total=bar.tasks[0].completed, completed=bar.tasks[0].completed)
 
 
+@contextmanager
+def _boot(backend: MasterBackend, pos: int, boot: bool) -> Iterator[None]:
+    """``--boot``: INIT -> BOOT around the transfer and back to INIT (a firmware update, ETG.1000.6
+    bootstrap state), what ``ethercat states BOOT`` before the transfer does on IgH's master."""
+    if not boot:
+        yield
+        return
+    for step in state_path(backend.state(pos)[0], AlState.BOOT):
+        backend.request_state(step, pos)
+    yield
+    backend.request_state(AlState.INIT, pos)
+
+
 def cmd_foe_read(backend: MasterBackend, args: argparse.Namespace, out: IO[str]) -> None:
     """IgH ``ethercat foe_read [-o FILE] NAME``: the file to stdout or to FILE."""
     pos = _one(backend, args)
-    with _progress(args, f"foe read {args.name}", None) as progress:
+    with _boot(backend, pos, args.boot), _progress(args, backend.clock, f"foe read {args.name}", None) as progress:
         data = backend.foe_read(pos, args.name, args.password, progress=progress)
     if args.output:
         try:
@@ -490,11 +516,9 @@ def cmd_foe_write(backend: MasterBackend, args: argparse.Namespace, out: IO[str]
     """IgH ``ethercat foe_write [-o NAME] FILE``: FILE (``-`` = stdin) to the slave, named NAME
     (default: FILE's base name)."""
     pos = _one(backend, args)
-    data = _read_input(args.file)
+    data: bytes = args.data if getattr(args, "data", None) is not None else _read_input(args.file)
     name = args.name or Path(args.file).name
-    if args.file == "-" and not args.name:
-        raise EcUsage("foe-write from stdin needs -n NAME")
-    with _progress(args, f"foe write {name}", len(data)) as progress:
+    with _boot(backend, pos, args.boot), _progress(args, backend.clock, f"foe write {name}", len(data)) as progress:
         backend.foe_write(pos, name, data, args.password, progress=progress)
 
 
@@ -536,10 +560,24 @@ def describe(exc: BaseException, where: str = "") -> str:
     return " ".join(str(exc).split())
 
 
+def _precheck(args: argparse.Namespace) -> None:
+    """Command-line errors that need no slave are reported before the line is opened."""
+    if getattr(args, "index", None) is not None:
+        parse_number(args.index, "index", 0xFFFF)
+        parse_number(args.subindex, "subindex", 0xFF)
+    if args.verb == "download" and args.type:
+        parse_value(TYPES[args.type], args.value)
+    if args.verb == "foe-write":
+        if args.file == "-" and not args.name:
+            raise EcUsage("foe-write from stdin needs -n NAME")
+        args.data = _read_input(args.file)
+
+
 def cmd_ec(args: argparse.Namespace) -> int:
     """Run one verb: its own errors to one stderr line and an exit code (never a traceback)."""
     fn, _help = VERBS[args.verb]
     try:
+        _precheck(args)
         with open_backend(args) as backend:
             fn(backend, args, sys.stdout)
         return 0
@@ -564,8 +602,8 @@ def _one_line_error(parser: argparse.ArgumentParser, message: str) -> NoReturn:
     parser.exit(2, f"{parser.prog}: {' '.join(message.split())} (see --help)\n")
 
 
-def add_subcommand(subparsers: Any) -> None:
-    """``gatewaylab ec VERB``: registered through rig/cli.py EXTRA_SUBCOMMANDS."""
+def add_subcommand(subparsers: Any, open_rig: RigOpener | None = None) -> None:
+    """``gatewaylab ec VERB`` (registered by ``gatewaylab.rig.ec``, which passes ``open_rig``)."""
     ec = subparsers.add_parser("ec", help="IgH `ethercat`-like verbs: slaves, upload, download, sdos, pdos, FoE",
                                description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
     ec.error = types.MethodType(_one_line_error, ec)
@@ -581,7 +619,7 @@ def add_subcommand(subparsers: Any) -> None:
                              epilog=f"example:\n  {EXAMPLES[verb]}",
                              formatter_class=argparse.RawDescriptionHelpFormatter)
         p.error = types.MethodType(_one_line_error, p)
-        p.set_defaults(func=cmd_ec)
+        p.set_defaults(func=cmd_ec, open_rig=open_rig)
         if verb == "slaves":
             p.add_argument("-v", "--verbose", action="store_true", help="identity and status of each slave")
         elif verb == "states":
@@ -607,6 +645,8 @@ def add_subcommand(subparsers: Any) -> None:
                 p.add_argument("-n", "--name", "-o", "--output-file", dest="name", metavar="NAME",
                                help="file name on the slave (default: FILE's base name)")
             p.add_argument("--password", type=lambda t: int(t, 0), default=0, help="FoE password (default 0)")
+            p.add_argument("--boot", action="store_true",
+                           help="go to BOOT (via INIT) for the transfer and back to INIT after it (firmware)")
             bar = p.add_mutually_exclusive_group()
             bar.add_argument("--progress", action="store_true", default=None,
                              help="show the progress bar even when stderr is not a terminal")
