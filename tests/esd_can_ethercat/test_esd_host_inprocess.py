@@ -242,3 +242,30 @@ def test_sm_watchdog_fallback_is_recovered_with_the_counters_kept() -> None:
     assert more == [6, 7, 8, 9, 10] and host.recoveries == 1
     assert host.statistics()["Watchdog triggered"] == 1
     assert not host.recover()
+
+
+class _LossyMapBackend(InProcessBackend):
+    """The first config_map loses a SyncManager write: SM2 keeps a wrong length."""
+
+    maps = 0
+
+    def config_map(self) -> int:
+        size = super().config_map()
+        self.maps += 1
+        if self.maps == 1:
+            self.master.fpwr(self.master.slave(0).station, 0x0812, (10).to_bytes(2, "little"))
+        return size
+
+
+def test_start_maps_again_after_a_lost_syncmanager_write() -> None:
+    """ETG.1000.6 AL status 0x001D 'invalid output configuration' when SM2 does not match the mapping:
+    start() acknowledges it in PREOP, maps again and reaches OP (one retry counted)."""
+    clock = SimulatedClock()
+    _bus, gw, _heard = make_can_side(clock)
+    b = _LossyMapBackend(Master(clock, Segment([gw.slave])))
+    host = EsdHost(b)
+    host.configure()
+    host.start()
+    assert b.state(0) == (AlState.OP, 0) and host.map_retries == 1 and b.maps == 2
+    tn = host.send([CanFrame(0x100)])[0]
+    host.wait_sent(tn)

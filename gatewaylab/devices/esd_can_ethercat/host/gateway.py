@@ -25,6 +25,7 @@ from ....bus.frame import CanFrame
 from ....common.clock import Clock
 from ....common.errors import ConfigError, LocalError
 from ....ethercat.backend import MasterBackend, MasterTimeout
+from ....ethercat.errors import AlStatusError
 from ....ethercat.esc import AlState
 from ..codec import CanStatus
 from ..objects import PRODUCT_CODE, STATISTICS, VENDOR_ID
@@ -50,6 +51,9 @@ WKC_RECOVER = 10
 STATE_CHECK_CYCLES = 50
 #: config_map runs before the mapped sizes agree with the mapping objects read back.
 MAP_ATTEMPTS = 3
+#: AL status codes of a SyncManager set up differently from the mapping (ETG.1000.6: 0x001D invalid
+#: output configuration, 0x001E invalid input configuration): mapping again may cure them.
+SM_CONFIG_CODES = (0x001D, 0x001E)
 
 
 class ReadbackError(ConfigError):
@@ -228,12 +232,15 @@ class EsdHost:
             self.backend.config_map()
             try:
                 self._check_sizes()
+                self.backend.request_state(AlState.SAFEOP, self.position, timeout)
                 break
-            except ConfigError:
-                if attempt == MAP_ATTEMPTS - 1:
+            except (ConfigError, AlStatusError) as exc:
+                if attempt == MAP_ATTEMPTS - 1 or (isinstance(exc, AlStatusError) and exc.code not in SM_CONFIG_CODES):
                     raise
-                self.map_retries += 1   # the master's own mapping read lost an SDO answer
-        self.backend.request_state(AlState.SAFEOP, self.position, timeout)
+                # the master's mapping read lost an SDO answer, or a SyncManager write got lost:
+                # back to PREOP (acknowledging the error) and map again
+                self.map_retries += 1
+                self.backend.request_state(AlState.PREOP, self.position, timeout)
         self.backend.request_state(AlState.OP, self.position, timeout)
         self.attach()
 
