@@ -102,7 +102,7 @@ class EsdHost:
 
     # ------------------------------------------------------------------ SDO helpers
     def _upload(self, index: int, sub: int) -> int:
-        """An SDO upload as an unsigned integer; repeated once after a timeout (reads are idempotent)."""
+        """An SDO upload as an unsigned integer; repeated after a timeout (reads are idempotent)."""
         for attempt in range(SDO_ATTEMPTS):
             try:
                 raw = self.backend.sdo_upload(self.position, index, sub)
