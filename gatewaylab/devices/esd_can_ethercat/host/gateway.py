@@ -45,10 +45,10 @@ _FMT = {1: "<B", 2: "<H", 4: "<I", 8: "<Q"}
 SDO_ATTEMPTS = 5
 SDO_RETRY_WAIT = 0.05
 #: A waiting call looks at the AL state (and :meth:`EsdHost.recover`) after this many consecutive
-#: cycles with a wrong working counter, and every this many cycles of waiting anyway (a gateway
-#: fallen to SAFEOP may still count the datagrams, but it takes no batches).
+#: cycles with a wrong working counter, and every this many seconds of waiting anyway (a gateway
+#: fallen to SAFEOP still counts the datagrams, but it takes no batches and delivers no frames).
 WKC_RECOVER = 10
-STATE_CHECK_CYCLES = 50
+STATE_CHECK_PERIOD = 0.05
 #: config_map runs before the mapped sizes agree with the mapping objects read back.
 MAP_ATTEMPTS = 3
 #: AL status codes of a SyncManager set up differently from the mapping (ETG.1000.6: 0x001D invalid
@@ -87,6 +87,9 @@ class EsdHost:
         #: Times :meth:`recover` brought the slave back to OP.
         self.recoveries = 0
         self._bad_cycles = 0
+        self._state_checked_at = self.clock.now()
+        #: AL state reads of the waiting calls that got no answer (tried again later).
+        self.lost_state_reads = 0
         #: SDO services repeated after a timeout.
         self.sdo_retries = 0
         #: config_map calls repeated because the mapped sizes differed from the mapping read back.
@@ -323,7 +326,6 @@ class EsdHost:
 
     def _wait_for(self, what: str, done: Callable[[], bool], timeout: float) -> None:
         deadline = self.clock.now() + timeout
-        waited = 0
         while True:
             with self._lock:
                 if done():
@@ -334,9 +336,13 @@ class EsdHost:
                                     f"AL status code 0x{code:04X}, {self.wkc_errors} working counter errors)")
             if not self.external_cycle:
                 self.cycle()
-                waited += 1
-                if self._bad_cycles >= WKC_RECOVER or waited % STATE_CHECK_CYCLES == 0:
-                    self.recover()
+                now = self.clock.now()
+                if self._bad_cycles >= WKC_RECOVER or now - self._state_checked_at >= STATE_CHECK_PERIOD:
+                    self._state_checked_at = now
+                    try:
+                        self.recover()
+                    except MasterTimeout:
+                        self.lost_state_reads += 1    # a lost register read: looked at again later
             self.clock.wait(self.cycle_time)
 
     # ------------------------------------------------------------------ Tx
