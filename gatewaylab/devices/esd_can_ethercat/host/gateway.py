@@ -23,7 +23,7 @@ from typing import Any
 
 from ....bus.frame import CanFrame
 from ....common.clock import Clock
-from ....common.errors import ConfigError, LocalError
+from ....common.errors import ConfigError, LocalError, ProtocolError
 from ....ethercat.backend import MasterBackend, MasterTimeout
 from ....ethercat.errors import AlStatusError
 from ....ethercat.esc import AlState
@@ -49,6 +49,9 @@ SDO_RETRY_WAIT = 0.05
 #: fallen to SAFEOP still counts the datagrams, but it takes no batches and delivers no frames).
 WKC_RECOVER = 10
 STATE_CHECK_PERIOD = 0.05
+#: An SDO service that got no answer, or a late answer to an earlier request (SOEM's 'unexpected
+#: frame returned', a ProtocolError): repeated, as its outcome is unknown.
+_RETRYABLE = (MasterTimeout, ProtocolError)
 #: config_map runs before the mapped sizes agree with the mapping objects read back.
 MAP_ATTEMPTS = 3
 #: AL status codes of a SyncManager set up differently from the mapping (ETG.1000.6: 0x001D invalid
@@ -105,12 +108,12 @@ class EsdHost:
 
     # ------------------------------------------------------------------ SDO helpers
     def _upload(self, index: int, sub: int) -> int:
-        """An SDO upload as an unsigned integer; repeated after a timeout (reads are idempotent)."""
+        """An SDO upload as an unsigned integer; repeated after a timeout or a late answer (reads are idempotent)."""
         for attempt in range(SDO_ATTEMPTS):
             try:
                 raw = self.backend.sdo_upload(self.position, index, sub)
                 break
-            except MasterTimeout:
+            except _RETRYABLE:
                 if attempt == SDO_ATTEMPTS - 1:
                     raise
                 self._retry_wait(attempt)
@@ -131,7 +134,7 @@ class EsdHost:
             try:
                 self._download(index, sub, value, size)
                 break
-            except MasterTimeout:
+            except _RETRYABLE:
                 if attempt == SDO_ATTEMPTS - 1:
                     raise
                 self._retry_wait(attempt)
