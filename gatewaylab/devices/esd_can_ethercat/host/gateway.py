@@ -42,8 +42,8 @@ _U8_STATISTICS = (0x20, 0x21)
 _FMT = {1: "<B", 2: "<H", 4: "<I", 8: "<Q"}
 #: Tries of one SDO service that timed out (the readback decides whether a download arrived), and
 #: the seconds waited before the n-th repetition (n x this): a late answer is flushed meanwhile.
-SDO_ATTEMPTS = 5
-SDO_RETRY_WAIT = 0.05
+SDO_ATTEMPTS = 8
+SDO_RETRY_WAIT = 0.1
 #: A waiting call looks at the AL state (and :meth:`EsdHost.recover`) after this many consecutive
 #: cycles with a wrong working counter, and every this many seconds of waiting anyway (a gateway
 #: fallen to SAFEOP still counts the datagrams, but it takes no batches and delivers no frames).
