@@ -7,13 +7,13 @@ from __future__ import annotations
 
 import json
 import sys
-import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))
 
 from esd_host_scenarios import SCENARIOS
 
+from gatewaylab.common.clock import RealTimeClock
 from gatewaylab.common.errors import GatewaylabError
 from gatewaylab.ethercat.backend import PysoemBackend
 
@@ -29,7 +29,7 @@ def open_backend(iface: str) -> PysoemBackend:
         except GatewaylabError:
             if attempt == OPEN_ATTEMPTS - 1:
                 raise
-            time.sleep(0.5)  # test driver, outside the library: lets the emulator's wire thread catch up
+            RealTimeClock().wait(0.5)   # lets the emulator's wire thread catch up
     raise AssertionError("unreachable")
 
 
