@@ -88,7 +88,7 @@ SCAN_ATTEMPTS = 3
 SCAN_RETRY = 0.2
 #: SOEM waits 700 ms for each SDO Information reply; on a loaded machine a request is tried again.
 INFO_ATTEMPTS = 3
-#: Register reads over pysoem tried this often before a slave counts as not answering (a late frame is lost).
+#: Reads of the AL status over pysoem tried this often while the answer is implausible.
 REGISTER_ATTEMPTS = 3
 #: Seconds to let a late mailbox reply arrive before a pysoem mailbox call is repeated.
 RETRY_SETTLE = 0.05
@@ -187,6 +187,9 @@ def sii_complete(img: bytes | bytearray) -> bool:
             return True
         pos += CATEGORY_HEADER.size + 2 * words
     return False
+
+
+_STATES = frozenset(int(s) for s in AlState)
 
 
 def _state_of(status: int) -> AlState:
@@ -588,12 +591,14 @@ class _PysoemRegisters:
 
     def read(self, position: int, address: int, length: int) -> bytes | None:
         slave = self.backend._slave(position)
-        for _attempt in range(REGISTER_ATTEMPTS):
+        clock = self.backend.clock
+        deadline = clock.now() + self.backend.timeout
+        while True:          # a stalled slave gets the mailbox timeout, not one frame's 50 ms
             try:
                 return bytes(slave._fprd(address, length, self.backend.register_timeout_us))
             except self.backend._pysoem.WkcError:
-                continue
-        return None
+                if clock.now() >= deadline:
+                    return None
 
     def write(self, position: int, address: int, data: bytes) -> bool:
         """One attempt: a mailbox write the slave refuses (SM0 full) must not be repeated blindly."""
@@ -629,6 +634,7 @@ class PysoemBackend:
         self._mapped = False
         self._dc = False
         self._closed = False
+        self._slaves: list[Any] = []
         self._mbx = _MailboxPort(self.clock, _PysoemRegisters(self), timeout, lambda _pos: 0)
         master = pysoem.Master()
         master.sdo_read_timeout = round(timeout * 1e6)
@@ -640,17 +646,29 @@ class PysoemBackend:
         self._master = master
         try:
             master.manual_state_change = 1      # config_init/config_map only configure; we request states
-            count = 0
-            for _attempt in range(SCAN_ATTEMPTS):   # a link just brought up may lose the first frames
-                count = master.config_init()
-                if count > 0:
+            for attempt in range(SCAN_ATTEMPTS):
+                # A link just brought up may lose the first frames, and a late EEPROM answer leaves
+                # SOEM with a wrong mailbox configuration (the slave refuses PREOP with 0x0016):
+                # config_init again, as a master re-initialises a line.
+                last = attempt == SCAN_ATTEMPTS - 1
+                self._sii.clear()
+                self._sii_info.clear()
+                if master.config_init() <= 0:
+                    if last:
+                        raise MasterTimeout(f"no EtherCAT slaves answer on {ifname}")
+                    self.clock.wait(SCAN_RETRY)
+                    continue
+                self._slaves = list(master.slaves)
+                if not preop:
                     break
-                self.clock.wait(SCAN_RETRY)
-            if count <= 0:
-                raise MasterTimeout(f"no EtherCAT slaves answer on {ifname}")
-            self._slaves = list(master.slaves)
-            if preop:
-                self.request_state(AlState.PREOP)
+                try:
+                    self.request_state(AlState.PREOP)
+                    break
+                except AlStatusError as exc:
+                    if last or exc.code not in (AlStatusCode.INVALID_MAILBOX_CONFIG,
+                                                AlStatusCode.INVALID_MAILBOX_CONFIG_BOOT):
+                        raise
+                    self.clock.wait(SCAN_RETRY)
         except BaseException:
             self.close()
             raise
@@ -707,10 +725,17 @@ class PysoemBackend:
 
     def al_status(self, position: int) -> tuple[int, int]:
         """(AL status register with the error flag, AL status code), read now."""
-        raw = _PysoemRegisters(self).read(position, REG_AL_STATUS, 6)
-        if raw is None:
-            raise MasterTimeout(f"slave {position} does not answer")
-        return U16.unpack_from(raw, 0)[0], U16.unpack_from(raw, 4)[0]
+        regs = _PysoemRegisters(self)
+        for _attempt in range(REGISTER_ATTEMPTS):
+            raw = regs.read(position, REG_AL_STATUS, 6)
+            if raw is None:
+                raise MasterTimeout(f"slave {position} does not answer")
+            status = U16.unpack_from(raw, 0)[0]
+            # SOEM matches a reply by its index byte only: a very late frame of an earlier request
+            # can stand in for the answer (shared notes soem-interop pitfall 2); read again.
+            if not status & 0xFFE0 and status & 0x0F in _STATES:
+                return status, U16.unpack_from(raw, 4)[0]
+        raise ProtocolError(f"slave {position}: implausible AL status 0x{status:04X}")
 
     def state(self, position: int) -> tuple[AlState, int]:
         """(AL state, AL status code) of one slave."""
@@ -740,14 +765,8 @@ class PysoemBackend:
                 self._set_boot_mailbox(pos, False)
             self._write_control(pos, int(state) | (AL_ERROR if status & AL_ERROR else 0))
             deadline = self.clock.now() + timeout
-            repaired = False
             while True:
                 status, code = self.al_status(pos)
-                if (status & AL_ERROR and state == AlState.PREOP and not repaired
-                        and code in (AlStatusCode.INVALID_MAILBOX_CONFIG, AlStatusCode.INVALID_MAILBOX_CONFIG_BOOT)):
-                    self._repair_mailbox(pos)     # config_init lost a frame programming SM0/SM1
-                    repaired = True
-                    continue
                 if status & AL_ERROR:
                     raise AlStatusError(f"slave {pos} refused {state.name}: AL status 0x{status:02X}, "
                                         f"code {al_status_name(code)}", code)
@@ -767,16 +786,6 @@ class PysoemBackend:
             if regs.write(pos, REG_AL_CONTROL, U16.pack(control)):
                 return
         raise MasterTimeout(f"slave {pos} does not answer")
-
-    def _repair_mailbox(self, pos: int) -> None:
-        """Back to INIT (acknowledged), the mailbox SMs from the SII (pysoem amend_mbx updates SOEM's
-        copy too), PREOP again."""
-        self._write_control(pos, int(AlState.INIT) | AL_ERROR)
-        info = self.sii_info(pos)
-        s = self._slave(pos)
-        s.amend_mbx("out", *info.mailbox_out)
-        s.amend_mbx("in", *info.mailbox_in)
-        self._write_control(pos, int(AlState.PREOP))
 
     def sdo_upload(self, position: int, index: int, subindex: int, complete: bool = False) -> bytes:
         """CoE SDO upload through SOEM (objects up to 64 KiB)."""

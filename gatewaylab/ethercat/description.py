@@ -39,6 +39,11 @@ class Pdo:
     index: int
     name: str
     entries: tuple[PdoEntry, ...]
+    #: A fixed PDO: its mapping object is read-only (ESI ``Fixed="1"``).
+    fixed: bool = False
+    #: PDOs that cannot be assigned together with this one (ESI ``<Exclude>``, e.g. alternatives
+    #: mapping the same objects).
+    exclude: tuple[int, ...] = ()
 
     @property
     def bit_length(self) -> int:
@@ -96,6 +101,10 @@ class DeviceDescription:
     #: trigger; 0x20 = 3-buffer, ECAT reads. 1-buffer (handshake) layouts use 0x66 / 0x22.
     outputs_control: int = 0x64
     inputs_control: int = 0x20
+    #: SII/ESI default SM2/SM3 sizes when they differ from the default assignment's (ECAN-Lite
+    #: 5.3: 3072 B in the SII while 0x1C12/0x1C13 assign 8 chunks); None = the assignment's size.
+    outputs_sm_size: int | None = None
+    inputs_sm_size: int | None = None
     rx_pdos: tuple[Pdo, ...] = ()
     tx_pdos: tuple[Pdo, ...] = ()
     #: PDO indexes assigned by default (0x1C12 / 0x1C13); None = all of them. A master may assign
@@ -107,6 +116,8 @@ class DeviceDescription:
     bootstrap: bool = False
     bootstrap_mailbox: tuple[int, int, int, int] = (0x1000, 512, 0x1200, 512)
     dc: bool = True
+    #: ESI ``<Dc><OpMode>`` rows: (name, description, AssignActivate); 0 = no SYNC signal.
+    dc_op_modes: tuple[tuple[str, str, int], ...] = (("SM", "SM-Synchron", 0), ("DC", "DC-Synchron", 0x300))
     device_type: int = 0x00000000
     objects: tuple[ObjectDef, ...] = ()
     #: Further device-specific dictionary setup (hooks on entries, arrays...).
@@ -142,6 +153,16 @@ class DeviceDescription:
     def input_bytes(self) -> int:
         """Inputs (SM3) size with the default assignment."""
         return (sum(p.bit_length for p in self.assigned_tx_pdos) + 7) // 8
+
+    @property
+    def outputs_sii_size(self) -> int:
+        """SM2 default size in the SII and ESI."""
+        return self.output_bytes if self.outputs_sm_size is None else self.outputs_sm_size
+
+    @property
+    def inputs_sii_size(self) -> int:
+        """SM3 default size in the SII and ESI."""
+        return self.input_bytes if self.inputs_sm_size is None else self.inputs_sm_size
 
     @property
     def mailbox_protocols(self) -> int:
@@ -218,8 +239,9 @@ def build_od(desc: DeviceDescription) -> ObjectDictionary:
                                    (desc.tx_pdos, desc.assigned_tx_pdos, 0x1C13)):
         for pdo in pdos:
             n = max(8, len(pdo.entries))
-            od.add_array(pdo.index, pdo.name, u32, n, Access.RW, defaults=[e.mapping for e in pdo.entries],
-                         sub0_access=Access.RW, sub0_default=len(pdo.entries), preop_only=True,
+            access = Access.RO if pdo.fixed else Access.RW
+            od.add_array(pdo.index, pdo.name, u32, n, access, defaults=[e.mapping for e in pdo.entries],
+                         sub0_access=access, sub0_default=len(pdo.entries), preop_only=True,
                          sub0_name="SubIndex 000", sub_names=[f"SubIndex {i:03d}" for i in range(1, n + 1)])
             _mapping_validators(od, pdo.index, assign == 0x1C12, assignment=False)
         n = max(4, len(pdos))

@@ -223,6 +223,9 @@ class Esc:
         self._sync0_cycle = 0.0
         self._mbx_last: bytes = b""
         self.pdi_outputs: dict[int, bytes] = {}
+        #: Powered off / link down (a device resetting itself): datagrams pass untouched, as if the
+        #: slave were not in the line (see :meth:`power_cycle`).
+        self.offline = False
         self._reset_registers()
 
     # ------------------------------------------------------------------ reset / configuration
@@ -367,6 +370,24 @@ class Esc:
         if old != state:
             self.app.state_changed(old, state, code)
 
+    def power_cycle(self) -> None:
+        """Power-on reset (a device restarting after a firmware update): registers and process RAM
+        cleared (station address, SyncManagers, FMMUs, DC lost), timers stopped, SII reloaded, INIT."""
+        old = self.al_state
+        self._stop_watchdog()
+        if self._sync0_timer is not None:
+            self._sync0_timer.cancel()
+            self._sync0_timer = None
+        self.mem[:] = bytes(len(self.mem))
+        self._fmmus = ()
+        self._sms = ()
+        self._ram_sms = ()
+        self.pdi_outputs.clear()
+        self._mbx_last = b""
+        self._reset_registers()
+        if old != AlState.INIT:
+            self.app.state_changed(old, AlState.INIT, 0)
+
     # ------------------------------------------------------------------ ECAT-side memory access
     def ecat_read(self, address: int, length: int) -> bytes | None:
         """A master read; None when the ESC refuses it (empty mailbox): no WKC increment."""
@@ -460,8 +481,8 @@ class Esc:
     def process_datagram(self, buf: bytearray, pos: int, cmd: int, dlen: int) -> None:
         """Execute one datagram of a frame in place (auto-increment address, data, working counter)."""
         self.stats.datagrams += 1
-        if cmd == 0 or cmd > _FRMW:
-            return  # NOP (and anything unknown) passes untouched
+        if cmd == 0 or cmd > _FRMW or self.offline:
+            return  # NOP (and anything unknown) passes untouched; so does everything while offline
         off = pos + 10
         wkc_at = off + dlen
         inc = 0

@@ -29,12 +29,14 @@ def _sub(parent: ET.Element, tag: str, text: str | None = None, **attrs: str) ->
 
 def _pdo(parent: ET.Element, tag: str, pdo: Pdo, sm: int | None) -> None:
     """A PDO; ``Sm`` only on the PDOs assigned by default (the others are optional)."""
-    attrs = {"Fixed": "0", "Mandatory": "0" if sm is None else "1"}
+    attrs = {"Fixed": "1" if pdo.fixed else "0", "Mandatory": "0" if sm is None else "1"}
     if sm is not None:
         attrs["Sm"] = str(sm)
     el = _sub(parent, tag, **attrs)
     _sub(el, "Index", _hex(pdo.index, 4))
     _sub(el, "Name", pdo.name)
+    for other in pdo.exclude:
+        _sub(el, "Exclude", _hex(other, 4))
     for e in pdo.entries:
         entry = _sub(el, "Entry")
         _sub(entry, "Index", _hex(e.index, 4))
@@ -78,10 +80,10 @@ def export_esi(desc: DeviceDescription, od: ObjectDictionary | None = None) -> s
                                           (desc.mailbox_in, DeviceDescription.SM1_CONTROL, "MBoxIn")):
             _sub(device, "Sm", name, MinSize="34", MaxSize=str(size), DefaultSize=str(size),
                  StartAddress=_hex(start, 4), ControlByte=_hex(ctrl, 2), Enable="1")
-    _sub(device, "Sm", "Outputs", DefaultSize=str(desc.output_bytes), StartAddress=_hex(desc.outputs_start, 4),
-         ControlByte=_hex(desc.outputs_control, 2), Enable="1" if desc.output_bytes else "0")
-    _sub(device, "Sm", "Inputs", DefaultSize=str(desc.input_bytes), StartAddress=_hex(desc.inputs_start, 4),
-         ControlByte=_hex(desc.inputs_control, 2), Enable="1" if desc.input_bytes else "0")
+    _sub(device, "Sm", "Outputs", DefaultSize=str(desc.outputs_sii_size), StartAddress=_hex(desc.outputs_start, 4),
+         ControlByte=_hex(desc.outputs_control, 2), Enable="1" if desc.outputs_sii_size else "0")
+    _sub(device, "Sm", "Inputs", DefaultSize=str(desc.inputs_sii_size), StartAddress=_hex(desc.inputs_start, 4),
+         ControlByte=_hex(desc.inputs_control, 2), Enable="1" if desc.inputs_sii_size else "0")
     sm_out = 2 if has_mbx else 0
     for pdo in desc.rx_pdos:
         _pdo(device, "RxPdo", pdo, sm_out if pdo in desc.assigned_rx_pdos else None)
@@ -95,7 +97,7 @@ def export_esi(desc: DeviceDescription, od: ObjectDictionary | None = None) -> s
             _sub(mailbox, "FoE")
     if desc.dc:
         dc = _sub(device, "Dc")
-        for name, text, assign in (("SM", "SM-Synchron", 0), ("DC", "DC-Synchron", 0x300)):
+        for name, text, assign in desc.dc_op_modes:
             mode = _sub(dc, "OpMode")
             _sub(mode, "Name", name)
             _sub(mode, "Desc", text)

@@ -128,10 +128,10 @@ def build_sii(desc: DeviceDescription, alias: int = 0) -> bytes:
                              SmType.MAILBOX_OUT)
         sms += SM_ENTRY.pack(desc.mailbox_in[0], desc.mailbox_in[1], DeviceDescription.SM1_CONTROL, 0, 1,
                              SmType.MAILBOX_IN)
-    sms += SM_ENTRY.pack(desc.outputs_start, desc.output_bytes, desc.outputs_control, 0,
-                         1 if desc.output_bytes else 0, SmType.OUTPUTS)
-    sms += SM_ENTRY.pack(desc.inputs_start, desc.input_bytes, desc.inputs_control, 0,
-                         1 if desc.input_bytes else 0, SmType.INPUTS)
+    sms += SM_ENTRY.pack(desc.outputs_start, desc.outputs_sii_size, desc.outputs_control, 0,
+                         1 if desc.outputs_sii_size else 0, SmType.OUTPUTS)
+    sms += SM_ENTRY.pack(desc.inputs_start, desc.inputs_sii_size, desc.inputs_control, 0,
+                         1 if desc.inputs_sii_size else 0, SmType.INPUTS)
     sm_out = 2 if has_mbx else 0
     txpdo = _pdos(desc.tx_pdos, desc.assigned_tx_pdos, sm_out + 1, strings)
     rxpdo = _pdos(desc.rx_pdos, desc.assigned_rx_pdos, sm_out, strings)

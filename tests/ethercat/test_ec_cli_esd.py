@@ -1,4 +1,4 @@
-"""``gatewaylab ec`` against the esd CAN-EtherCAT gateway, in process (``--rig``) and through SOEM
+"""``gatewaylab ec`` against the gateways (esd CAN-EtherCAT, ECAN-Lite), in process (``--rig``) and through SOEM
 on a veth pair (its own module: its own namespace, so no other wire answers on the interface)."""
 
 from __future__ import annotations
@@ -77,5 +77,37 @@ def test_esd_gateway_verbs(esd_ec: Ec, tmp_path: Path) -> None:
     firmware = tmp_path / "fw.bin"
     firmware.write_bytes(b"esd firmware image" * 20)
     _fails(esd_ec("foe-write", "-p", "1", str(firmware), "-n", "firmwareUpdate"), 1, "FoE error 0x8008")
-    _ok(esd_ec("foe-write", "-p", "1", str(firmware), "-n", "firmwareUpdate", "--boot"))
     _fails(esd_ec("foe-write", "-p", "0", str(firmware), "--boot"), 1, "0x0013 BOOTSTRAP_NOT_SUPPORTED")
+    _ok(esd_ec("foe-write", "-p", "1", str(firmware), "-n", "firmwareUpdate", "--boot"))   # then it reboots
+
+
+# ------------------------------------------------------------------ both gateways on one line
+GATEWAYS_RIG = """clock = "simulated"
+[[bus]]
+name = "can0"
+bitrate = 1000000
+data_bitrate = 5000000
+endpoint = "none"
+[[device]]
+kind = "ecanlite"
+name = "ecan"
+channels = ["can0"]
+[[device]]
+kind = "esd_can_ethercat"
+name = "esd1"
+bus = "can0"
+"""
+
+
+def test_both_gateways_in_process(tmp_path: Path, capsysbinary: pytest.CaptureFixture[bytes]) -> None:
+    """ECAN-Lite (docs/devices/ecanlite.md: SM2 at 0x1100, 1-buffer 0x66, 128-byte chunk PDOs
+    0x1600..) and the esd gateway on one line: names, 0x1008, PDOs, the way to OP."""
+    rig = tmp_path / "gateways.toml"
+    rig.write_text(GATEWAYS_RIG)
+    ec = InProcessEc(rig, capsysbinary)
+    assert _ok(ec("slaves")).text == "0  0:0  PREOP  +  ECAN-Lite\n1  0:1  PREOP  +  CAN-EtherCAT\n"
+    assert _ok(ec("upload", "-p", "0", "--type", "string", "0x1008", "0")).text == "ECAN-Lite\n"
+    pdos = _ok(ec("pdos", "-p", "0")).text.splitlines()
+    assert pdos[2].startswith("SM2: PhysAddr 0x1100,") and pdos[2].endswith("ControlRegister 0x66, Enable 1")
+    assert pdos[3] == '  RxPDO 0x1600 "Chunk 0"' and pdos[4] == '    PDO entry 0x7000:01, 128 bit, "Unit 0"'
+    assert _ok(ec("states", "OP")).text == "0  OP      +  0x0000 NO_ERROR\n1  OP      +  0x0000 NO_ERROR\n"
