@@ -7,6 +7,7 @@ are checked here after the run."""
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 from collections.abc import Callable
@@ -22,6 +23,8 @@ from gatewaylab.ethercat.segment import Segment
 from gatewaylab.ethercat.wire import WireTransport
 
 DRIVER = Path(__file__).with_name("esd_host_driver.py")
+#: Errors of the EtherCAT line itself (not of a check): no answer, a late answer, a lost SM write.
+TRANSPORT_FAILURE = re.compile(r"MasterTimeout|SOEM packet error|code 0x001[D6E]|B outputs / \d+ B inputs, the mapping")
 Runner = Callable[[str], tuple[dict[str, Any], list[CanFrame]]]
 
 
@@ -31,7 +34,7 @@ def run(request: pytest.FixtureRequest) -> Runner:
         return run_inprocess
     veth = request.getfixturevalue("esd_veth")
 
-    def run_pysoem(name: str) -> tuple[dict[str, Any], list[CanFrame]]:
+    def run_once(name: str) -> tuple[subprocess.CompletedProcess[str], list[CanFrame], str]:
         clock = RealTimeClock()
         _bus, gw, heard = make_can_side(clock, SCENARIOS[name][1])
         wire = WireTransport(Segment([gw.slave]), veth.emulator_iface, clock, drive_clock=True)
@@ -43,10 +46,19 @@ def run(request: pytest.FixtureRequest) -> Runner:
         finally:
             wire.stop()
             gw.stop()
-        ctrl = gw.controller
-        assert proc.returncode == 0, (proc.stderr[-3000:] + f" | gateway {gw.setting.mode} detected {gw.detected} "
-                                      f"at {ctrl.bitrate if ctrl else 0} bit/s, {gw.stats}")
         assert not wire.errors
+        ctrl = gw.controller
+        rate = ctrl.bitrate if ctrl else 0
+        state = f" | gateway {gw.setting.mode} detected {gw.detected} at {rate} bit/s, {gw.stats}"
+        return proc, heard, state
+
+    def run_pysoem(name: str) -> tuple[dict[str, Any], list[CanFrame]]:
+        proc, heard, state = run_once(name)
+        if proc.returncode != 0 and TRANSPORT_FAILURE.search(proc.stderr.strip().splitlines()[-1]):
+            # the line lost frames beyond the library's retries (a machine loaded far past its cores):
+            # the scenario runs once more from scratch; a failed check (AssertionError) never does
+            proc, heard, state = run_once(name)
+        assert proc.returncode == 0, proc.stderr[-3000:] + state
         return json.loads(proc.stdout.strip().splitlines()[-1]), heard
 
     return run_pysoem
