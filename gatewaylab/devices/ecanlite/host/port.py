@@ -255,7 +255,7 @@ class McanPort:
         self.held_frames = 0            # frames that waited a cycle: the RxPDO frame area was full
         self.frames_sent = 0
         self.frames_received = 0
-        self._in_cycle = False
+        self._unparsed = False
 
     # ------------------------------------------------------------------ sending
     def _slave(self, k: int) -> _SlavePort:
@@ -339,7 +339,7 @@ class McanPort:
     # ------------------------------------------------------------------ the cycle
     def cycle_begin(self) -> None:
         """Parse every slave's TxPDO from the last exchange (6.1 receiving order)."""
-        self._in_cycle = True
+        self._unparsed = False
         now = self.clock.now()
         for sp in self._slaves:
             self._parse(sp, self.adapter.txpdo(sp.k), now)
@@ -403,8 +403,11 @@ class McanPort:
         if not resend:
             for sp in self._slaves:
                 self._publish(sp)
-        self._in_cycle = False
-        return self.adapter.exchange()
+        if self._unparsed:          # the last exchange's TxPDO was not read: parse it now, lose nothing
+            self.cycle_begin()
+        status = self.adapter.exchange()
+        self._unparsed = True
+        return status
 
     def _publish(self, sp: _SlavePort) -> None:
         layout = sp.rx_layout
