@@ -213,7 +213,7 @@ def cmd_simple_loop(args: argparse.Namespace, out: IO[str]) -> int:
                 else:
                     failed[res.channel] = failed.get(res.channel, 0) + 1
         adapter.stop()
-        report = {"command": "simple-loop", "slave": positions[0],
+        report: dict[str, Any] = {"command": "simple-loop", "slave": positions[0],
                   "master_period": adapter.master_period.summary(adapter.period), "errors": _errors(adapter, port),
                   "channels": {str(ch): {"sent": sent[ch], "tx_ok": ok[ch], "tx_failed": failed.get(ch, 0),
                                          "received": received.get(ch, 0)} for ch in channels}}
@@ -280,7 +280,7 @@ def cmd_cia402(args: argparse.Namespace, out: IO[str]) -> int:
         channels: dict[int, set[int]] = {k: set() for k in range(len(positions))}
         for a in axes:
             channels[a.slave].add(a.channel)
-        for k, chs in channels.items():
+        for chs in channels.values():
             if not chs:
                 chs.add(0)
         adapter, port = _build(line, args, positions, channels)

@@ -28,7 +28,8 @@ def rig_toml(drives_per_channel: Sequence[Sequence[int]] = ((1,),), *, bitrate: 
                 lines.append(f"data_bitrate = {data_bitrate}")
             lines.append("")
             for n in nodes:
-                lines += ["[[drive]]", f'bus = "{name}"', f"node_id = {n}", f"serial = {0x10000 * (s + 1) + 0x100 * k + n}",
+                serial = 0x10000 * (s + 1) + 0x100 * k + n
+                lines += ["[[drive]]", f'bus = "{name}"', f"node_id = {n}", f"serial = {serial}",
                           f'name = "s{s}c{k}n{n}"', ""]
         chans = ", ".join(f'"s{s}can{k}"' for k in range(len(drives_per_channel)))
         lines += ["[[device]]", 'kind = "ecanlite"', f'name = "ecan{s}"', f"channels = [{chans}]", ""]
