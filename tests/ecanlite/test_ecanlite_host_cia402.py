@@ -28,7 +28,7 @@ def test_sdo_probe_through_the_gateway(tmp_path: Path) -> None:
         axis = cia.axes[0].axis
         device_type, serial = cia.sdo_transfer([(axis, 0x1000, 0, None), (axis, 0x1018, 4, None)], 2.0)
         assert struct.unpack("<I", device_type)[0] == 0x00020192
-        assert struct.unpack("<I", serial)[0] == 0x10001       # rig_toml: 0x10000 * (slave + 1) + 0x100 * channel + node
+        assert struct.unpack("<I", serial)[0] == 0x10001   # rig_toml: 0x10000 * (slave + 1) + 0x100 * ch + node
         with pytest.raises(SdoAbort) as exc:
             cia.sdo_transfer([(axis, 0x2FFF, 0, None)], 2.0)
         assert exc.value.code == 0x06020000
