@@ -110,7 +110,7 @@ def main() -> None:
     print(f"ECAN-Lite host, {r['axes']:.0f} CSP axes on 4 channels, 1 kHz, in process (simulated clock)")
     print(f"  {r['sim_s']:.2f} simulated s in {r['wall_s']:.2f} wall s: {r['ratio']:.2f}x real time (target >= 2x)")
     print(f"  baseline, the same drives and buses under a plain CAN master (no EtherCAT, no gateway): "
-          f"{base:.2f}x real time; the EtherCAT + gateway + host path costs {1 - r['ratio'] / base:.0%} of it")
+          f"{base:.2f}x real time; EtherCAT + gateway + host library take {1 - r['ratio'] / base:.0%} of the wall time")
     print(f"  WKC errors {r['wkc_errors']:.0f}, parse errors {r['parse_errors']:.0f}, master_period max "
           f"{r['period_max_us']:.1f} us, axes at target {r['reached']:.0f}/{r['axes']:.0f} "
           f"(largest position error {r['max_pos_error']:.0f} inc)")
