@@ -90,6 +90,8 @@ SCAN_RETRY = 0.2
 INFO_ATTEMPTS = 3
 #: Register reads over pysoem tried this often before a slave counts as not answering (a late frame is lost).
 REGISTER_ATTEMPTS = 3
+#: Seconds to let a late mailbox reply arrive before a pysoem mailbox call is repeated.
+RETRY_SETTLE = 0.05
 #: A slave's FoE error text may already end in the code FoeError appends.
 FOE_CODE_SUFFIX = re.compile(r"\s*\(FoE error 0x[0-9A-Fa-f]+\)$")
 #: The error flag of AL status (bit 4).
@@ -552,11 +554,15 @@ class InProcessBackend:
     def outputs(self, position: int) -> memoryview:
         """The slave's RxPDO bytes in the image: write them, the next :meth:`exchange` sends them."""
         s = self.master.slave(position)
+        if not self._mapped:
+            raise MasterError("config_map first")
         return memoryview(self.master.image)[s.output_offset:s.output_offset + s.output_bytes]
 
     def inputs(self, position: int) -> bytes:
         """The slave's TxPDO bytes as the last :meth:`exchange` brought them."""
         s = self.master.slave(position)
+        if not self._mapped:
+            raise MasterError("config_map first")
         return bytes(self.master.image[s.input_offset:s.input_offset + s.input_bytes])
 
     def exchange(self) -> tuple[int, int]:
@@ -623,6 +629,7 @@ class PysoemBackend:
         self._mapped = False
         self._dc = False
         self._closed = False
+        self._slaves: list[Any] = []
         self._mbx = _MailboxPort(self.clock, _PysoemRegisters(self), timeout, lambda _pos: 0)
         master = pysoem.Master()
         master.sdo_read_timeout = round(timeout * 1e6)
@@ -634,17 +641,29 @@ class PysoemBackend:
         self._master = master
         try:
             master.manual_state_change = 1      # config_init/config_map only configure; we request states
-            count = 0
-            for _attempt in range(SCAN_ATTEMPTS):   # a link just brought up may lose the first frames
-                count = master.config_init()
-                if count > 0:
+            for attempt in range(SCAN_ATTEMPTS):
+                # A link just brought up may lose the first frames, and a late EEPROM answer leaves
+                # SOEM with a wrong mailbox configuration (the slave refuses PREOP with 0x0016):
+                # config_init again, as a master re-initialises a line.
+                last = attempt == SCAN_ATTEMPTS - 1
+                self._sii.clear()
+                self._sii_info.clear()
+                if master.config_init() <= 0:
+                    if last:
+                        raise MasterTimeout(f"no EtherCAT slaves answer on {ifname}")
+                    self.clock.wait(SCAN_RETRY)
+                    continue
+                self._slaves = list(master.slaves)
+                if not preop:
                     break
-                self.clock.wait(SCAN_RETRY)
-            if count <= 0:
-                raise MasterTimeout(f"no EtherCAT slaves answer on {ifname}")
-            self._slaves = list(master.slaves)
-            if preop:
-                self.request_state(AlState.PREOP)
+                try:
+                    self.request_state(AlState.PREOP)
+                    break
+                except AlStatusError as exc:
+                    if last or exc.code not in (AlStatusCode.INVALID_MAILBOX_CONFIG,
+                                                AlStatusCode.INVALID_MAILBOX_CONFIG_BOOT):
+                        raise
+                    self.clock.wait(SCAN_RETRY)
         except BaseException:
             self.close()
             raise
@@ -663,13 +682,20 @@ class PysoemBackend:
 
     def _mailbox_call(self, what: str, fn: Callable[..., Any], *args: Any) -> Any:
         """A pysoem mailbox call with its errors turned into the contract's. A call SOEM saw no
-        answer to is made once more: SOEM gives the slave a fixed 20 ms to take a mailbox write,
-        which a stall of a loaded machine can exceed."""
+        answer to (or got an unexpected reply for) is made once more, after the mailboxes were read
+        out: SOEM gives the slave a fixed 20 ms to take a mailbox write, which a stall of a loaded
+        machine can exceed."""
         p = self._pysoem
         try:
             try:
                 return fn(*args)
-            except p.WkcError:
+            except (p.WkcError, p.PacketError):
+                self.clock.wait(RETRY_SETTLE)     # a late reply of the first attempt arrives meanwhile
+                for s in self._slaves:
+                    try:
+                        s.mbx_receive()           # and is read out before the second attempt
+                    except Exception:  # draining only: emergencies and errors are dropped
+                        pass
                 return fn(*args)
         except p.SdoError as exc:
             raise SdoAbort(int(exc.abort_code), what) from None
@@ -727,14 +753,8 @@ class PysoemBackend:
                 self._set_boot_mailbox(pos, False)
             self._write_control(pos, int(state) | (AL_ERROR if status & AL_ERROR else 0))
             deadline = self.clock.now() + timeout
-            repaired = False
             while True:
                 status, code = self.al_status(pos)
-                if (status & AL_ERROR and state == AlState.PREOP and not repaired
-                        and code in (AlStatusCode.INVALID_MAILBOX_CONFIG, AlStatusCode.INVALID_MAILBOX_CONFIG_BOOT)):
-                    self._repair_mailbox(pos)     # config_init lost a frame programming SM0/SM1
-                    repaired = True
-                    continue
                 if status & AL_ERROR:
                     raise AlStatusError(f"slave {pos} refused {state.name}: AL status 0x{status:02X}, "
                                         f"code {al_status_name(code)}", code)
@@ -754,16 +774,6 @@ class PysoemBackend:
             if regs.write(pos, REG_AL_CONTROL, U16.pack(control)):
                 return
         raise MasterTimeout(f"slave {pos} does not answer")
-
-    def _repair_mailbox(self, pos: int) -> None:
-        """Back to INIT (acknowledged), the mailbox SMs from the SII (pysoem amend_mbx updates SOEM's
-        copy too), PREOP again."""
-        self._write_control(pos, int(AlState.INIT) | AL_ERROR)
-        info = self.sii_info(pos)
-        s = self._slave(pos)
-        s.amend_mbx("out", *info.mailbox_out)
-        s.amend_mbx("in", *info.mailbox_in)
-        self._write_control(pos, int(AlState.PREOP))
 
     def sdo_upload(self, position: int, index: int, subindex: int, complete: bool = False) -> bytes:
         """CoE SDO upload through SOEM (objects up to 64 KiB)."""
