@@ -22,7 +22,6 @@ from pathlib import Path
 from gatewaylab.bus import CanFrame, VirtualBus
 from gatewaylab.canopen.drive import Drive
 from gatewaylab.canopen.nmt import NmtCommand
-
 from gatewaylab.common.clock import SimulatedClock
 from gatewaylab.devices.ecanlite.host.adapter import AdapterConfig, EcanAdapter
 from gatewaylab.devices.ecanlite.host.cia402 import Cia402

@@ -357,9 +357,10 @@ class Cia402:
             if not all(r.reached(window) for r in self.results()):
                 since[0] = None
                 return False
-            if since[0] is None:
-                since[0] = now
-            return now - since[0] >= window_time
+            first = since[0]
+            if first is None:
+                since[0] = first = now
+            return now - first >= window_time
 
         try:
             self._wait(inside, timeout, "settle")
