@@ -41,9 +41,11 @@ def test_sdo_probe_prints_the_value(rig_file: str) -> None:
 
 
 def test_simple_loop_json(rig_file: str) -> None:
-    """15.4 simple loop on CAN0..CAN3: every frame sent is confirmed by a TX_RESULT (chapter 10)."""
-    r = _ecan("simple-loop", "--rig", rig_file, "--cycles", "30", "--json")
+    """15.4 simple loop on CAN0..CAN3: every frame sent is confirmed by a TX_RESULT (chapter 10); the
+    progress bar (forced, stderr is not a terminal here) goes to stderr, the JSON alone to stdout."""
+    r = _ecan("simple-loop", "--rig", rig_file, "--cycles", "30", "--json", "--progress")
     assert r.returncode == 0, r.stderr
+    assert "30/30" in r.stderr
     report = json.loads(r.stdout)
     assert set(report["channels"]) == {"0", "1", "2", "3"}
     for c in report["channels"].values():
