@@ -58,12 +58,12 @@ def test_sdo_probe_and_cia402_over_soem(line: Any) -> None:
     bring-up settings (5 ms cycle, few cycles): the axis is enabled and reaches start + 40 * 25,
     no PDO parse error. Working-counter errors (late frames on a loaded machine) are printed."""
     r = _ecan(line, "sdo-probe", "--node", "1", "--index", "0x1000", "--sub", "0", "--bitrate", "1000000",
-              "--cycle-us", "5000", "--json")
+              "--cycle-us", "5000", "--timeout", "3", "--json")
     assert r.returncode == 0, r.stderr[-3000:]
     report = json.loads(r.stdout)
     assert report["value"] == 0x00020192 and report["errors"]["parse_errors"] == 0
     r = _ecan(line, "cia402", "--axes", "0:0:1", "--cycle-us", "5000", "--cycles", "40", "--step", "25",
-              "--settle-s", "2", "--json")
+              "--settle-s", "2", "--sdo-timeout", "3", "--json")
     report = json.loads(r.stdout) if r.stdout.strip() else {}
     assert report, r.stderr[-3000:]
     print("WKC errors over SOEM:", report["errors"]["wkc_errors"], "master_period:", report["master_period"])

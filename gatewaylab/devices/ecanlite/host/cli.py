@@ -292,12 +292,12 @@ def cmd_cia402(args: argparse.Namespace, out: IO[str]) -> int:
             if not chs:
                 chs.add(0)
         adapter, port = _build(line, args, positions, channels)
-        cia = Cia402(port, axes, motion_div=args.motion_div, sdo_timeout=0.5)
+        cia = Cia402(port, axes, motion_div=args.motion_div, sdo_timeout=args.sdo_timeout)
         if args.sched_rpdo_us is not None or args.sched_sync_us is not None:
             cia.set_scheduled_tx(None if args.sched_rpdo_us is None else args.sched_rpdo_us * 1000,
                                  None if args.sched_sync_us is None else args.sched_sync_us * 1000)
         try:
-            cia.startup(configure=True, timeout=5.0)
+            cia.startup(configure=True, timeout=max(5.0, 10 * args.sdo_timeout))
         except SdoAbort as exc:
             adapter.stop()
             print(f"gatewaylab ecan cia402: SDO abort 0x{exc.code:08X} {exc}", file=sys.stderr)
@@ -411,5 +411,7 @@ def add_host_commands(ecan_sub: Any, open_rig: RigOpener | None) -> None:
     p.add_argument("--sched-rpdo-us", type=int, default=None, metavar="N",
                    help="send the RPDOs N us after SYNC0 (8.4 scheduled transmit; needs --dc-sync0)")
     p.add_argument("--sched-sync-us", type=int, default=None, metavar="N", help="send SYNC N us after SYNC0")
+    p.add_argument("--sdo-timeout", type=float, default=0.5, metavar="S",
+                   help="SDO timeout per transfer to a drive in seconds (default 0.5)")
     p.add_argument("--settle-s", type=float, default=1.0, metavar="S", help="time to reach the final targets")
     p.set_defaults(func=_run(cmd_cia402), open_rig=open_rig)
