@@ -314,6 +314,6 @@ class EcanAdapter:
         if self._deadline is None or self._deadline < now - self.period:
             self._deadline = now
         self._deadline += self.period
-        delay = self._deadline - now
-        if delay > 0:
-            self.clock.wait(delay)
+        # wait(0) too when late: a clock nobody else runs (PysoemBackend's) runs its due timers in
+        # wait(), e.g. the SDO client's timeouts
+        self.clock.wait(max(0.0, self._deadline - now))

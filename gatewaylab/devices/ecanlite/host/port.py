@@ -251,6 +251,7 @@ class McanPort:
         self._requests = itertools.count(1)
         self._rx: deque[RxFrame] = deque()
         self._results: deque[TxResult] = deque()
+        self._resent = False
         self.parse_errors = 0
         self.last_parse_error: StreamError | None = None
         self.torn_images = 0
@@ -408,7 +409,8 @@ class McanPort:
         After a cycle whose working counter was wrong, the same image is sent again: the device
         takes an identical image as an idempotent no-op (13.8) and a lost one as new."""
         last = self.adapter.last
-        resend = last is not None and not last.complete
+        resend = last is not None and not last.complete and not self._resent
+        self._resent = resend        # once: a line that keeps failing must not stop the sending
         if not resend:
             for sp in self._slaves:
                 self._publish(sp)
