@@ -31,8 +31,8 @@ EXTRA_SUBCOMMANDS = (
     "gatewaylab.canopen.plot_cli",
     "gatewaylab.ethercat.net_cli",
     "gatewaylab.rig.ec",
-    "gatewaylab.devices.ecanlite.cli",
     "gatewaylab.rig.fault_cli",
+    "gatewaylab.rig.ecan",
 )
 
 RIG_HELP = """\
