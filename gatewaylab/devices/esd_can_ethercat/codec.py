@@ -27,6 +27,9 @@ RX11 = struct.Struct("<H8s")
 TX11 = struct.Struct("<HH8s")
 RX29 = struct.Struct("<HI8s")
 TX29 = struct.Struct("<HHI8s")
+#: 0x1A85 'CAN Status PDO' (5.1.3.9): 48 bits = F108:01,02,03, 1 bit padding, F108:05,06, 10 bits
+#: padding, F108:11..14, 12 bits padding, F108:21 (REC), F108:22 (TEC).
+STATUS_PDO = struct.Struct("<BBBBBB")
 
 #: Sizes in bytes of one message: (Tx in the outputs, Rx in the inputs) per identifier mode.
 TX_SIZE = {False: TX11.size, True: TX29.size}
@@ -34,6 +37,24 @@ RX_SIZE = {False: RX11.size, True: RX29.size}
 FLAG_29BIT = 0x80000000
 FLAG_RTR29 = 0x40000000
 ID29_MASK = 0x1FFFFFFF
+
+
+@dataclass(frozen=True, slots=True)
+class CanStatus:
+    """0xF108 'CAN Status' (5.1.5.8) as a master reads it, by SDO or from the 0x1A85 PDO."""
+
+    bus_off: bool = False           # :01, from the controller status
+    warning_limit: bool = False     # :02 'Warning Limit reached'
+    rx_overflow: bool = False       # :03 'Rx overflow'
+    rx_errors: int = 0              # :21 Rx error counter
+    tx_errors: int = 0              # :22 Tx error counter
+
+
+def decode_status_pdo(buf: bytes | bytearray | memoryview, offset: int) -> CanStatus:
+    """The 6 bytes of the 0x1A85 status PDO at ``offset`` (5.1.3.9): byte 0 bit 0 bus off, bit 1
+    warning limit, bit 2 Rx overflow; byte 4 Rx error counter, byte 5 Tx error counter."""
+    flags, _b1, _b2, _b3, rec, tec = STATUS_PDO.unpack_from(buf, offset)
+    return CanStatus(bool(flags & 1), bool(flags & 2), bool(flags & 4), rec, tec)
 
 
 class MessageError(RemoteError):
