@@ -1,0 +1,392 @@
+"""python-can over the EtherCAT gateways (issue 12 'python-can on top'): one master, one bus per channel.
+
+:class:`EthercatHost` owns one :class:`~gatewaylab.ethercat.backend.MasterBackend` (SOEM on a NIC
+or the in-process master on a rig) and the gateways of its segment. Each gateway CAN channel is
+handed out as a :class:`GatewayBus` (a ``can.BusABC``), several at once.
+
+The cycle: every ``cycle_us`` the host writes each gateway's outputs, makes one
+``backend.exchange()`` and reads the inputs back (:meth:`EthercatHost.cycle`). On a real-time
+clock a thread runs it; on a :class:`~gatewaylab.common.clock.SimulatedClock` the clock runs it (a
+periodic timer), and ``send()`` runs the simulation until the frame is on the bus and the answers
+to it came back up through the gateway, as ``gatewaylab/bus/transport/inprocess.py`` does, so a
+canopen SDO client gets its answers without anyone advancing the clock.
+
+A channel is anything with ``before_exchange()``, ``after_exchange(wkc, expected)``, ``submit``
+and ``stop``: :class:`EsdChannel` wraps the esd counter handshake
+(:class:`~gatewaylab.devices.esd_can_ethercat.host.EsdHost`).
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+from collections.abc import Callable
+from contextlib import nullcontext
+from typing import Any, Protocol
+
+import can
+from can.bus import BusState, CanProtocol
+
+from ...bus.frame import CanFrame
+from ...common.clock import Clock, PeriodicTimer, SimulatedClock
+from ...common.errors import GatewaylabError, LocalError
+from ...ethercat.backend import MasterBackend
+from ...ethercat.esc import AlState
+from ..esd_can_ethercat.host import BitRate, EsdHost, RxOverflowError, for_bitrate
+
+log = logging.getLogger("can.gatewaylab.ethercat")
+
+#: Seconds a shutdown waits for frames already handed to a gateway to reach the bus.
+SHUTDOWN_TIMEOUT = 2.0
+#: Quiet cycles after which ``send()`` on a simulated clock stops running the simulation.
+SETTLE_CYCLES = 4
+#: Cycles ``send()`` on a simulated clock runs at most for one frame (a lone node never completes).
+MAX_SEND_CYCLES = 2000
+
+
+class Channel(Protocol):
+    """One gateway CAN channel as the host drives it."""
+
+    name: str
+    fd: bool
+
+    def before_exchange(self) -> None: ...
+    def after_exchange(self, wkc: int, expected: int) -> None: ...
+    def submit(self, frame: CanFrame) -> Callable[[], bool]: ...   # returns 'frame done?'
+    def take(self) -> list[can.Message]: ...
+    def idle(self) -> bool: ...                                      # nothing in flight
+    def stop(self) -> None: ...
+    def bus_off(self) -> bool: ...
+
+
+class EsdChannel:
+    """The one CAN channel of an esd CAN-EtherCAT at ``position`` (manual 5.1.5), configured at
+    :meth:`EthercatHost.start`: bit rate (0xF800), status PDO 0x1A85 assigned for bus-off and Rx
+    overflow. Received frames carry the time of the cycle that brought them (the esd Rx PDO has no
+    time stamp, 5.1.5.1)."""
+
+    fd = False
+
+    def __init__(self, host: EthercatHost, position: int, bitrate: int, name: str) -> None:
+        self.host = host
+        self.position = position
+        self.bitrate = bitrate
+        self.name = name
+        self.esd = EsdHost(host.backend, position, cycle_time=host.cycle_s, external_cycle=True)
+        self._errors: list[can.Message] = []
+        self._was_bus_off = False
+
+    def configure(self) -> None:
+        rate: BitRate = for_bitrate(self.bitrate)
+        self.esd.configure(bitrate=rate, status_pdo=True)
+
+    def attach(self) -> None:
+        self.esd.attach()
+
+    def before_exchange(self) -> None:
+        self.esd.before_exchange()
+
+    def after_exchange(self, wkc: int, expected: int) -> None:
+        if not self.esd.after_exchange(wkc, expected):
+            return
+        status = self.esd.pdo_status()
+        off = bool(status is not None and status.bus_off)
+        if off and not self._was_bus_off:
+            self._errors.append(self.host.error_frame(self.name, bus_off=True))
+        self._was_bus_off = off
+
+    def submit(self, frame: CanFrame) -> Callable[[], bool]:
+        tn = self.esd.queue([frame])[0]
+        return lambda: self.esd.completed(tn)
+
+    def take(self) -> list[can.Message]:
+        out, self._errors = self._errors, []
+        hs = self.esd.handshake
+        if hs is None:
+            return out
+        if hs.overflow_reported():
+            out.append(self.host.error_frame(self.name, overflow=True))
+        for rx in hs.take_received():
+            out.append(rx.frame.to_message(self.host.timestamp(rx.timestamp), self.name))
+        return out
+
+    def idle(self) -> bool:
+        hs = self.esd.handshake
+        return hs is None or hs.in_flight == 0
+
+    def bus_off(self) -> bool:
+        return self._was_bus_off
+
+    def stop(self) -> None:
+        self.esd.stop()
+
+
+class EthercatHost:
+    """One master and the gateway channels on its segment; ``bus(name)`` gives a ``can.BusABC``."""
+
+    def __init__(self, backend: MasterBackend, *, cycle_us: int = 1000, owned: Callable[[], None] | None = None,
+                 wall_epoch: float = 0.0) -> None:
+        if cycle_us < 100:
+            raise LocalError(f"cycle_us {cycle_us} is below 100 us")
+        self.backend = backend
+        self.clock: Clock = backend.clock
+        self.cycle_s = cycle_us / 1e6
+        self.simulated = isinstance(self.clock, SimulatedClock)
+        #: added to clock times for Message.timestamp (a simulated clock starts at 0)
+        self.wall_epoch = wall_epoch
+        self.channels: dict[str, Channel] = {}
+        self.buses: list[GatewayBus] = []
+        self.cycles = 0
+        self.wkc_errors = 0
+        self._owned = owned
+        self._timer: PeriodicTimer | None = None
+        self._thread: threading.Thread | None = None
+        self._running = False
+        self._closed = False
+        self._lock = threading.RLock()
+        if self.simulated and isinstance(self.clock.lock, nullcontext):
+            self.clock.lock = threading.RLock()
+
+    # -- set-up --------------------------------------------------------------------------------
+    def add_esd(self, position: int, bitrate: int = 500_000, name: str = "") -> EsdChannel:
+        """An esd CAN-EtherCAT at ``position``; configured when the host starts."""
+        ch = EsdChannel(self, position, bitrate, name or f"esd{position}")
+        self._add(ch)
+        return ch
+
+    def _add(self, ch: Channel) -> None:
+        if self._running:
+            raise LocalError("add channels before start()")
+        if ch.name in self.channels:
+            raise LocalError(f"channel {ch.name!r} twice")
+        self.channels[ch.name] = ch
+
+    def start(self, timeout: float = 5.0) -> None:
+        """Configure every gateway in PREOP, map, SAFEOP, OP, and start cycling."""
+        for ch in self.channels.values():
+            ch.configure()   # type: ignore[attr-defined]
+        self.backend.config_map()
+        positions = sorted({ch.position for ch in self.channels.values()})   # type: ignore[attr-defined]
+        for state in (AlState.SAFEOP, AlState.OP):
+            for pos in positions:
+                self.backend.request_state(state, pos, timeout)
+        for ch in self.channels.values():
+            ch.attach()   # type: ignore[attr-defined]
+        self._running = True
+        if self.simulated:
+            self._timer = self.clock.call_every(self.cycle_s, self.cycle)
+        else:
+            self._thread = threading.Thread(target=self._loop, name="ethercat-host", daemon=True)
+            self._thread.start()
+
+    def _loop(self) -> None:
+        next_t = self.clock.now()
+        while self._running:
+            try:
+                self.cycle()
+            except Exception:   # the loop must go on; the error shows in wkc_errors / logs
+                log.exception("EtherCAT cycle failed")
+            next_t += self.cycle_s
+            delay = next_t - self.clock.now()
+            if delay < 0:
+                next_t = self.clock.now()
+                delay = 0.0
+            self.clock.wait(delay)
+
+    def cycle(self) -> None:
+        """One process-data cycle for every channel, then received frames to their buses."""
+        with self._lock:
+            chans = list(self.channels.values())
+            for ch in chans:
+                ch.before_exchange()
+            wkc, expected = self.backend.exchange()
+            self.cycles += 1
+            if wkc != expected:
+                self.wkc_errors += 1
+            for ch in chans:
+                ch.after_exchange(wkc, expected)
+            for ch in chans:
+                msgs = ch.take()
+                if msgs:
+                    for bus in self.buses:
+                        if bus.channel_name == ch.name:
+                            bus.deliver(msgs)
+
+    def timestamp(self, t: float) -> float:
+        return self.wall_epoch + t
+
+    def error_frame(self, channel: str, *, bus_off: bool = False, overflow: bool = False) -> can.Message:
+        """An error frame as SocketCAN reports them: CAN_ERR_BUSOFF (0x40) or controller problem
+        CAN_ERR_CRTL (0x04) with data[1] = CAN_ERR_CRTL_RX_OVERFLOW (0x01)."""
+        can_id = 0x40 if bus_off else 0x04
+        data = bytes(8) if bus_off else bytes([0, 0x01, 0, 0, 0, 0, 0, 0])
+        return can.Message(timestamp=self.timestamp(self.clock.now()), arbitration_id=can_id,
+                           is_error_frame=True, data=data, channel=channel, check=False)
+
+    def bus(self, name: str | None = None, **kwargs: Any) -> GatewayBus:
+        """A python-can bus on channel ``name`` (the only one when omitted)."""
+        if name is None:
+            if len(self.channels) != 1:
+                raise LocalError(f"name one of {sorted(self.channels)}")
+            name = next(iter(self.channels))
+        if name not in self.channels:
+            raise LocalError(f"no channel {name!r}; this host has {sorted(self.channels)}")
+        return GatewayBus(self, name, **kwargs)
+
+    # -- sending -------------------------------------------------------------------------------
+    def send(self, name: str, frame: CanFrame, timeout: float | None) -> None:
+        ch = self.channels[name]
+        if self._closed or not self._running:
+            raise can.CanOperationError("the EtherCAT host is not running")
+        if ch.bus_off():
+            raise can.CanOperationError(f"{name}: the gateway's CAN controller is bus-off")
+        if not self.simulated:
+            with self._lock:
+                self._submit(ch, frame)
+            return
+        assert isinstance(self.clock, SimulatedClock)
+        with self.clock.lock:
+            done = self._submit(ch, frame)
+            self._settle(done)
+
+    def _submit(self, ch: Channel, frame: CanFrame) -> Callable[[], bool]:
+        try:
+            return ch.submit(frame)
+        except GatewaylabError as exc:
+            raise can.CanOperationError(str(exc)) from exc
+
+    def _settle(self, done: Callable[[], bool]) -> None:
+        """Run the simulated clock cycle by cycle until the frame is done and the channels stayed
+        quiet (nothing received, nothing in flight) for SETTLE_CYCLES cycles."""
+        clock = self.clock
+        assert isinstance(clock, SimulatedClock)
+        quiet = 0
+        for _ in range(MAX_SEND_CYCLES):
+            before = sum(b.received for b in self.buses)
+            clock.advance(self.cycle_s)
+            busy = not done() or any(not ch.idle() for ch in self.channels.values())
+            if busy or sum(b.received for b in self.buses) != before:
+                quiet = 0
+            else:
+                quiet += 1
+                if quiet >= SETTLE_CYCLES:
+                    return
+
+    def run_for(self, seconds: float) -> None:
+        """Let ``seconds`` pass: on a simulated clock the cycles run now; on a real one this waits."""
+        self.clock.wait(seconds)
+
+    # -- shutdown ------------------------------------------------------------------------------
+    def close(self, timeout: float = SHUTDOWN_TIMEOUT) -> None:
+        """Let frames in flight reach the bus (at most ``timeout``), stop cycling, every gateway
+        to PREOP (its queues flushed, outputs no longer taken), close what the host opened."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            if self._running:
+                deadline = self.clock.now() + timeout
+                while (any(not ch.idle() for ch in self.channels.values())
+                       and self.clock.now() < deadline):
+                    self.clock.wait(self.cycle_s)
+            self._running = False
+            if self._timer is not None:
+                self._timer.cancel()
+            if self._thread is not None:
+                self._thread.join(timeout=5.0)
+            for bus in list(self.buses):
+                bus.wake()
+            for ch in self.channels.values():
+                try:
+                    ch.stop()
+                except (GatewaylabError, TimeoutError) as exc:
+                    log.warning("%s: could not bring the gateway to PREOP: %s", ch.name, exc)
+        finally:
+            try:
+                self.backend.close()
+            finally:
+                if self._owned is not None:
+                    self._owned()
+
+    def __enter__(self) -> EthercatHost:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+_WAKE = can.Message(arbitration_id=0, check=False)
+
+
+class GatewayBus(can.BusABC):
+    """``can.BusABC`` on one gateway channel of an :class:`EthercatHost`.
+
+    ``send()`` hands the frame to the gateway in the next cycle (a simulated clock runs until it is
+    on the bus and the answers came back); ``recv()`` returns received frames (Message.timestamp:
+    the host's time of reception plus ``wall_epoch``) and error frames (bus-off, Rx overflow)."""
+
+    def __init__(self, host: EthercatHost, channel_name: str, *, can_filters: can.typechecking.CanFilters | None = None,
+                 owns_host: bool = False, **kwargs: Any) -> None:
+        self.host = host
+        self.channel_name = channel_name
+        self.channel_info = f"gatewaylab EtherCAT {channel_name}"
+        self.received = 0
+        self._owns_host = owns_host
+        self._queue: queue.SimpleQueue[can.Message] = queue.SimpleQueue()
+        fd = host.channels[channel_name].fd
+        super().__init__(channel=channel_name, can_filters=can_filters, **kwargs)
+        self._can_protocol = CanProtocol.CAN_FD if fd else CanProtocol.CAN_20
+        host.buses.append(self)
+
+    def deliver(self, msgs: list[can.Message]) -> None:
+        self.received += len(msgs)
+        for m in msgs:
+            self._queue.put(m)
+
+    def wake(self) -> None:
+        self._queue.put(_WAKE)
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        if self._is_shutdown:
+            raise can.CanOperationError(f"{self.channel_info} was shut down")
+        try:
+            frame = CanFrame.from_message(msg)
+        except GatewaylabError as exc:
+            raise can.CanOperationError(str(exc)) from exc
+        try:
+            self.host.send(self.channel_name, frame, timeout)
+        except RxOverflowError as exc:
+            raise can.CanOperationError(str(exc)) from exc
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        try:
+            if timeout is None:
+                msg = self._queue.get()
+            elif timeout <= 0:
+                msg = self._queue.get_nowait()
+            else:
+                msg = self._queue.get(timeout=timeout)
+        except queue.Empty:
+            return None, False
+        if msg is _WAKE:
+            return None, False
+        return msg, False
+
+    @property
+    def state(self) -> BusState:
+        return BusState.ERROR if self.host.channels[self.channel_name].bus_off() else BusState.ACTIVE
+
+    @state.setter
+    def state(self, new_state: BusState) -> None:
+        if new_state is not BusState.ACTIVE:
+            raise can.CanOperationError("the gateway channels are always active (no listen-only mode)")
+
+    def shutdown(self) -> None:
+        if self._is_shutdown:
+            return
+        super().shutdown()
+        if self in self.host.buses:
+            self.host.buses.remove(self)
+        if self._owns_host:
+            self.host.close()
