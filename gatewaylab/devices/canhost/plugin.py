@@ -28,7 +28,7 @@ def open_line(channel: Any, timeout: float = 0.1) -> tuple[MasterBackend, Callab
     if not isinstance(channel, str) or not channel:
         raise can.CanInitializationError("channel must name a network interface or rig:PATH.toml")
     if channel.startswith(RIG_PREFIX):
-        from ...rig.runtime import Rig   # the rig layer only when a rig is asked for
+        from ...rig.runtime import Rig  # the rig layer only when a rig is asked for
 
         rig = Rig.from_file(channel[len(RIG_PREFIX):], clock=SimulatedClock(), endpoints=False)
         try:
