@@ -90,6 +90,8 @@ SCAN_RETRY = 0.2
 INFO_ATTEMPTS = 3
 #: Register reads over pysoem tried this often before a slave counts as not answering (a late frame is lost).
 REGISTER_ATTEMPTS = 3
+#: Seconds to let a late mailbox reply arrive before a pysoem mailbox call is repeated.
+RETRY_SETTLE = 0.05
 #: A slave's FoE error text may already end in the code FoeError appends.
 FOE_CODE_SUFFIX = re.compile(r"\s*\(FoE error 0x[0-9A-Fa-f]+\)$")
 #: The error flag of AL status (bit 4).
@@ -552,11 +554,15 @@ class InProcessBackend:
     def outputs(self, position: int) -> memoryview:
         """The slave's RxPDO bytes in the image: write them, the next :meth:`exchange` sends them."""
         s = self.master.slave(position)
+        if not self._mapped:
+            raise MasterError("config_map first")
         return memoryview(self.master.image)[s.output_offset:s.output_offset + s.output_bytes]
 
     def inputs(self, position: int) -> bytes:
         """The slave's TxPDO bytes as the last :meth:`exchange` brought them."""
         s = self.master.slave(position)
+        if not self._mapped:
+            raise MasterError("config_map first")
         return bytes(self.master.image[s.input_offset:s.input_offset + s.input_bytes])
 
     def exchange(self) -> tuple[int, int]:
@@ -663,13 +669,20 @@ class PysoemBackend:
 
     def _mailbox_call(self, what: str, fn: Callable[..., Any], *args: Any) -> Any:
         """A pysoem mailbox call with its errors turned into the contract's. A call SOEM saw no
-        answer to is made once more: SOEM gives the slave a fixed 20 ms to take a mailbox write,
-        which a stall of a loaded machine can exceed."""
+        answer to (or got an unexpected reply for) is made once more, after the mailboxes were read
+        out: SOEM gives the slave a fixed 20 ms to take a mailbox write, which a stall of a loaded
+        machine can exceed."""
         p = self._pysoem
         try:
             try:
                 return fn(*args)
-            except p.WkcError:
+            except (p.WkcError, p.PacketError):
+                self.clock.wait(RETRY_SETTLE)     # a late reply of the first attempt arrives meanwhile
+                for s in self._slaves:
+                    try:
+                        s.mbx_receive()           # and is read out before the second attempt
+                    except Exception:  # draining only: emergencies and errors are dropped
+                        pass
                 return fn(*args)
         except p.SdoError as exc:
             raise SdoAbort(int(exc.abort_code), what) from None

@@ -117,7 +117,11 @@ def check_sii(b: MasterBackend) -> dict[str, Any]:
 
 def check_process_data(b: MasterBackend) -> dict[str, Any]:
     """PREOP -> SAFEOP -> OP with process data; expected WKC 2 per output slave + 1 per input slave;
-    the ethercat_io inputs echo the outputs of the same cycle (io_device docstring)."""
+    the ethercat_io inputs echo the outputs of the same cycle (io_device docstring). The images
+    exist only once mapped."""
+    from gatewaylab.ethercat.errors import MasterError
+
+    _raises(MasterError, b.outputs, 0)
     assert b.config_map() == 3 * (5 + 9)
     assert b.state(0)[0] == AlState.PREOP            # config_map only maps
     assert b.request_state(AlState.SAFEOP) == AlState.SAFEOP
