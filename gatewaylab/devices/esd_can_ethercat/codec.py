@@ -142,6 +142,11 @@ def decode_rx11(buf: bytes | bytearray | memoryview, offset: int) -> CanFrame:
 
 
 def decode_rx29(buf: bytes | bytearray | memoryview, offset: int) -> CanFrame:
-    """A 29-bit-queue Rx message as a master reads it (5.1.5.2)."""
+    """A 29-bit-queue Rx message as a master reads it (5.1.5.2). An 11-bit frame (bit 47 clear) with
+    an identifier above 0x7FF raises :class:`MessageError`."""
     length, word, data = RX29.unpack_from(buf, offset)
-    return _frame(word & ID29_MASK, bool(word & FLAG_29BIT), bool(word & FLAG_RTR29), length & 0x0F, data)
+    extended = bool(word & FLAG_29BIT)
+    can_id = word & ID29_MASK
+    if not extended and can_id > 0x7FF:
+        raise MessageError(f"11-bit message with identifier 0x{can_id:X}")
+    return _frame(can_id, extended, bool(word & FLAG_RTR29), length & 0x0F, data)

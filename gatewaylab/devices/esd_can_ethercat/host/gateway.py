@@ -39,6 +39,12 @@ FLAGS, RX_QUEUE, TX_QUEUE, LOCAL_RX, LOCAL_TX = 0x20, 0x21, 0x22, 0x23, 0x24
 #: 0x2010 subindexes of type UINT8 (5.1.4.2 'App. CPU Usage'); the others are UINT32.
 _U8_STATISTICS = (0x20, 0x21)
 _FMT = {1: "<B", 2: "<H", 4: "<I", 8: "<Q"}
+#: Tries of one SDO service that timed out (the readback decides whether a download arrived), and
+#: the seconds waited before the n-th repetition (n x this): a late answer is flushed meanwhile.
+SDO_ATTEMPTS = 5
+SDO_RETRY_WAIT = 0.05
+#: config_map runs before the mapped sizes agree with the mapping objects read back.
+MAP_ATTEMPTS = 3
 
 
 class ReadbackError(ConfigError):
@@ -69,6 +75,10 @@ class EsdHost:
         #: Cycles whose working counter was not the expected one (their inputs were not used).
         self.wkc_errors = 0
         self.cycles = 0
+        #: SDO services repeated after a timeout.
+        self.sdo_retries = 0
+        #: config_map calls repeated because the mapped sizes differed from the mapping read back.
+        self.map_retries = 0
         self._lock = threading.RLock()
         if check_identity:
             ident = next((s for s in backend.slaves() if s.position == position), None)
@@ -80,15 +90,38 @@ class EsdHost:
 
     # ------------------------------------------------------------------ SDO helpers
     def _upload(self, index: int, sub: int) -> int:
-        raw = self.backend.sdo_upload(self.position, index, sub)
+        """An SDO upload as an unsigned integer; repeated once after a timeout (reads are idempotent)."""
+        for attempt in range(SDO_ATTEMPTS):
+            try:
+                raw = self.backend.sdo_upload(self.position, index, sub)
+                break
+            except MasterTimeout:
+                if attempt == SDO_ATTEMPTS - 1:
+                    raise
+                self._retry_wait(attempt)
         return int.from_bytes(raw, "little")
+
+    def _retry_wait(self, attempt: int) -> None:
+        self.sdo_retries += 1
+        self.clock.wait(SDO_RETRY_WAIT * (attempt + 1))
 
     def _download(self, index: int, sub: int, value: int, size: int) -> None:
         self.backend.sdo_download(self.position, index, sub, struct.pack(_FMT[size], value))
 
     def _write(self, index: int, sub: int, value: int, size: int) -> None:
-        """Download, then upload and compare (a readback check as IgH's startup SDOs do)."""
-        self._download(index, sub, value, size)
+        """Download, then upload and compare (a readback check as IgH's startup SDOs do). A download
+        without an answer in time is judged by the readback: a gateway that takes long to apply a
+        value (0x8000 rebuilds the mapping) may have taken it while the master's frame timed out."""
+        for attempt in range(SDO_ATTEMPTS):
+            try:
+                self._download(index, sub, value, size)
+                break
+            except MasterTimeout:
+                if attempt == SDO_ATTEMPTS - 1:
+                    raise
+                self._retry_wait(attempt)
+                if self._upload(index, sub) == value:
+                    return
         got = self._upload(index, sub)
         if got != value:
             raise ReadbackError(index, sub, value, got)
@@ -183,8 +216,15 @@ class EsdHost:
         start-up for a script with this one gateway (4.2: mapping read after configuring)."""
         if self.layout is None:
             raise LocalError("configure() first")
-        self.backend.config_map()
-        self._check_sizes()
+        for attempt in range(MAP_ATTEMPTS):
+            self.backend.config_map()
+            try:
+                self._check_sizes()
+                break
+            except ConfigError:
+                if attempt == MAP_ATTEMPTS - 1:
+                    raise
+                self.map_retries += 1   # the master's own mapping read lost an SDO answer
         self.backend.request_state(AlState.SAFEOP, self.position, timeout)
         self.backend.request_state(AlState.OP, self.position, timeout)
         self.attach()

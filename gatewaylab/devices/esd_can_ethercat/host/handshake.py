@@ -33,6 +33,7 @@ from ..codec import (
     RX_SIZE,
     TX_SIZE,
     CanStatus,
+    MessageError,
     decode_rx11,
     decode_rx29,
     decode_status_pdo,
@@ -86,6 +87,8 @@ class Handshake:
             raise LocalError(f"tx_limit must be 1..{TN_MODULO // 2 - 1}")
         if layout.tx_messages < 1 or layout.rx_messages < 1:
             raise LocalError("the layout needs at least one Tx and one Rx message")
+        if rx_limit < layout.rx_messages:
+            raise LocalError(f"rx_limit {rx_limit} cannot hold one Rx batch of {layout.rx_messages}")
         self.layout = layout
         self.tx_limit = tx_limit
         self.rx_limit = rx_limit
@@ -113,6 +116,7 @@ class Handshake:
         self.rx_batches = 0
         self.rx_frames = 0
         self.rx_deferred = 0                  # cycles an Rx batch waited for buffer room
+        self.rx_invalid = 0                   # Rx messages no CAN frame can carry (skipped)
 
     # ------------------------------------------------------------------ Tx
     def _check(self, frame: CanFrame) -> None:
@@ -225,7 +229,12 @@ class Handshake:
             return
         decode = decode_rx29 if self.layout.extended else decode_rx11
         for i in range(n):
-            self._received.append(RxFrame(decode(data, IN_HEADER.size + i * size), now, in_rx))
+            try:
+                frame = decode(data, IN_HEADER.size + i * size)
+            except MessageError:
+                self.rx_invalid += 1       # no CAN frame carries it: counted, the batch still acknowledged
+                continue
+            self._received.append(RxFrame(frame, now, in_rx))
         self.out_rx = in_rx
         self.rx_batches += 1
         self.rx_frames += n
