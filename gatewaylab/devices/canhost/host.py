@@ -13,7 +13,9 @@ canopen SDO client gets its answers without anyone advancing the clock.
 
 A channel is anything with ``before_exchange()``, ``after_exchange(wkc, expected)``, ``submit``
 and ``stop``: :class:`EsdChannel` wraps the esd counter handshake
-(:class:`~gatewaylab.devices.esd_can_ethercat.host.EsdHost`).
+(:class:`~gatewaylab.devices.esd_can_ethercat.host.EsdHost`), :class:`EcanChannel` one MCAN channel
+of an ECAN-Lite through the MCAN Port (:mod:`gatewaylab.devices.ecanlite.host.port`); with
+ECAN-Lite channels the port's ``cycle_end`` makes the one exchange of the cycle for everybody.
 """
 
 from __future__ import annotations
@@ -33,6 +35,8 @@ from ...common.clock import Clock, PeriodicTimer, SimulatedClock
 from ...common.errors import GatewaylabError, LocalError
 from ...ethercat.backend import MasterBackend
 from ...ethercat.esc import AlState
+from ..ecanlite.host.adapter import AdapterConfig, EcanAdapter, SlaveConfig
+from ..ecanlite.host.port import ChannelConfig, McanPort, PortConfig
 from ..esd_can_ethercat.host import BitRate, EsdHost, RxOverflowError, for_bitrate
 
 log = logging.getLogger("can.gatewaylab.ethercat")
@@ -43,6 +47,11 @@ SHUTDOWN_TIMEOUT = 2.0
 SETTLE_CYCLES = 4
 #: Cycles ``send()`` on a simulated clock runs at most for one frame (a lone node never completes).
 MAX_SEND_CYCLES = 2000
+#: SocketCAN error classes (linux/can/error.h) used for error frames.
+CAN_ERR_CRTL, CAN_ERR_BUSOFF = 0x04, 0x40
+CAN_ERR_CRTL_RX_OVERFLOW = 0x01
+#: Chapter 7 status word bits 0..2 = 3: the MCAN channel is bus-off.
+_ECAN_BUSOFF = 3
 
 
 class Channel(Protocol):
@@ -50,6 +59,7 @@ class Channel(Protocol):
 
     name: str
     fd: bool
+    position: int
 
     def before_exchange(self) -> None: ...
     def after_exchange(self, wkc: int, expected: int) -> None: ...
@@ -122,6 +132,67 @@ class EsdChannel:
         self.esd.stop()
 
 
+class EcanChannel:
+    """One MCAN channel ``can_channel`` (0..3) of an ECAN-Lite at ``position`` through the MCAN
+    Port of the host's adapter (manual 15.1). Configured at :meth:`EthercatHost.start` (classic or
+    FD bit rates, 13.4; PDO multiplier ``pdo_n``, 5.2). The host parses each TxPDO once and hands
+    each channel its frames; the chapter-7 status word's BUSOFF and the header's overflow count
+    become error frames, a rejected TxPDO (parse error) an error frame of class CAN_ERR_CRTL."""
+
+    def __init__(self, host: EthercatHost, position: int, can_channel: int, bitrate: int,
+                 data_bitrate: int | None, fd: bool, pdo_n: int, name: str) -> None:
+        if not 0 <= can_channel <= 3:
+            raise LocalError(f"MCAN channel {can_channel} is not 0..3")
+        self.host = host
+        self.position = position
+        self.can_channel = can_channel
+        self.fd = fd
+        self.pdo_n = pdo_n
+        self.name = name
+        self.config = (ChannelConfig.canfd(bitrate, data_bitrate or bitrate) if fd
+                       else ChannelConfig.classic(bitrate))
+        self.slave_k = -1      # the adapter slave, set at start
+        self._rx: list[can.Message] = []
+        self._was_bus_off = False
+
+    def before_exchange(self) -> None:
+        pass
+
+    def after_exchange(self, wkc: int, expected: int) -> None:
+        port = self.host.port
+        assert port is not None
+        word = port.status_words(self.slave_k)[self.can_channel]
+        off = word & 0x07 == _ECAN_BUSOFF
+        if off and not self._was_bus_off:
+            self._rx.append(self.host.error_frame(self.name, bus_off=True))
+        self._was_bus_off = off
+
+    def deliver(self, msg: can.Message) -> None:
+        self._rx.append(msg)
+
+    def submit(self, frame: CanFrame) -> Callable[[], bool]:
+        port = self.host.port
+        if port is None:
+            raise LocalError("the host is not started")
+        port.send_frame(self.slave_k, self.can_channel, frame)
+        k = self.slave_k
+        return lambda: port.pending(k) == 0
+
+    def take(self) -> list[can.Message]:
+        out, self._rx = self._rx, []
+        return out
+
+    def idle(self) -> bool:
+        port = self.host.port
+        return port is None or port.pending(self.slave_k) == 0
+
+    def bus_off(self) -> bool:
+        return self._was_bus_off
+
+    def stop(self) -> None:
+        pass   # the adapter brings every ECAN-Lite to PREOP (EthercatHost.close)
+
+
 class EthercatHost:
     """One master and the gateway channels on its segment; ``bus(name)`` gives a ``can.BusABC``."""
 
@@ -136,6 +207,11 @@ class EthercatHost:
         #: added to clock times for Message.timestamp (a simulated clock starts at 0)
         self.wall_epoch = wall_epoch
         self.channels: dict[str, Channel] = {}
+        #: the ECAN-Lite adapter and MCAN Port, made at start() when there are ECAN-Lite channels
+        self.adapter: EcanAdapter | None = None
+        self.port: McanPort | None = None
+        self.parse_errors = 0
+        self.device_overflow = 0
         self.buses: list[GatewayBus] = []
         self.cycles = 0
         self.wkc_errors = 0
@@ -155,6 +231,43 @@ class EthercatHost:
         self._add(ch)
         return ch
 
+    def add_ecanlite(self, position: int, can_channel: int = 0, bitrate: int = 1_000_000,
+                     data_bitrate: int | None = None, fd: bool = False, pdo_n: int = 3,
+                     name: str = "") -> EcanChannel:
+        """MCAN channel ``can_channel`` of the ECAN-Lite at ``position``; configured when the host starts.
+        Channels of one slave share its PDO multiplier ``pdo_n``."""
+        for other in self.channels.values():
+            if isinstance(other, EcanChannel) and other.position == position:
+                if other.can_channel == can_channel:
+                    raise LocalError(f"ECAN-Lite {position} channel {can_channel} twice")
+                if other.pdo_n != pdo_n:
+                    raise LocalError(f"ECAN-Lite {position}: one pdo_n per slave ({other.pdo_n} and {pdo_n})")
+        ch = EcanChannel(self, position, can_channel, bitrate, data_bitrate, fd, pdo_n,
+                         name or f"ecan{position}.{can_channel}")
+        self._add(ch)
+        return ch
+
+    def _ecan(self) -> list[EcanChannel]:
+        return [c for c in self.channels.values() if isinstance(c, EcanChannel)]
+
+    def _esd(self) -> list[EsdChannel]:
+        return [c for c in self.channels.values() if isinstance(c, EsdChannel)]
+
+    def _start_ecan(self, timeout: float) -> None:
+        """One adapter over every ECAN-Lite slave with a channel here, one MCAN Port over it;
+        ``adapter.start()`` maps the segment and brings it to SAFEOP, its slaves to OP."""
+        ecan = self._ecan()
+        positions = sorted({c.position for c in ecan})
+        slaves = tuple(SlaveConfig(p, next(c.pdo_n for c in ecan if c.position == p)) for p in positions)
+        adapter = EcanAdapter(self.backend, AdapterConfig(slaves, cycle_us=round(self.cycle_s * 1e6)))
+        configs = {k: PortConfig(channels={c.can_channel: c.config for c in ecan if c.position == p})
+                   for k, p in enumerate(positions)}
+        port = McanPort(adapter, configs)
+        for c in ecan:
+            c.slave_k = positions.index(c.position)
+        adapter.start(op_timeout=timeout)
+        self.adapter, self.port = adapter, port
+
     def _add(self, ch: Channel) -> None:
         if self._running:
             raise LocalError("add channels before start()")
@@ -164,15 +277,23 @@ class EthercatHost:
 
     def start(self, timeout: float = 5.0) -> None:
         """Configure every gateway in PREOP, map, SAFEOP, OP, and start cycling."""
-        for ch in self.channels.values():
-            ch.configure()   # type: ignore[attr-defined]
-        self.backend.config_map()
-        positions = sorted({ch.position for ch in self.channels.values()})   # type: ignore[attr-defined]
+        esd = self._esd()
+        for ch in esd:
+            ch.configure()
+        if self._ecan():
+            self._start_ecan(timeout)
+        else:
+            self.backend.config_map()
+        # config_map maps the whole segment and the working counter counts every slave: the
+        # slaves without a channel here run too, with their default mapping and zero outputs
+        used = {ch.position for ch in self.channels.values()}
+        others = {s.position for s in self.backend.slaves()} - used
+        positions = sorted({ch.position for ch in esd} | others)
         for state in (AlState.SAFEOP, AlState.OP):
             for pos in positions:
                 self.backend.request_state(state, pos, timeout)
-        for ch in self.channels.values():
-            ch.attach()   # type: ignore[attr-defined]
+        for ch in esd:
+            ch.attach()
         self._running = True
         if self.simulated:
             self._timer = self.clock.call_every(self.cycle_s, self.cycle)
@@ -200,7 +321,14 @@ class EthercatHost:
             chans = list(self.channels.values())
             for ch in chans:
                 ch.before_exchange()
-            wkc, expected = self.backend.exchange()
+            port = self.port
+            if port is not None:
+                status = port.cycle_end()         # publish the RxPDOs, exchange
+                wkc, expected = status.wkc, status.expected
+                port.cycle_begin()                # parse the TxPDOs just exchanged
+                self._dispatch_ecan(port)
+            else:
+                wkc, expected = self.backend.exchange()
             self.cycles += 1
             if wkc != expected:
                 self.wkc_errors += 1
@@ -213,14 +341,31 @@ class EthercatHost:
                         if bus.channel_name == ch.name:
                             bus.deliver(msgs)
 
+    def _dispatch_ecan(self, port: McanPort) -> None:
+        by_key = {(c.slave_k, c.can_channel): c for c in self._ecan()}
+        for rx in port.receive():
+            ch = by_key.get((rx.slave, rx.channel))
+            if ch is not None:
+                ch.deliver(rx.frame.to_message(self.timestamp(rx.time), ch.name))
+        if port.parse_errors != self.parse_errors:
+            self.parse_errors = port.parse_errors
+            log.warning("ECAN-Lite TxPDO rejected: %s", port.last_parse_error)
+            for c in by_key.values():
+                c.deliver(self.error_frame(c.name))
+        if port.device_overflow != self.device_overflow:
+            self.device_overflow = port.device_overflow
+            for c in by_key.values():
+                c.deliver(self.error_frame(c.name, overflow=True))
+
     def timestamp(self, t: float) -> float:
         return self.wall_epoch + t
 
     def error_frame(self, channel: str, *, bus_off: bool = False, overflow: bool = False) -> can.Message:
-        """An error frame as SocketCAN reports them: CAN_ERR_BUSOFF (0x40) or controller problem
-        CAN_ERR_CRTL (0x04) with data[1] = CAN_ERR_CRTL_RX_OVERFLOW (0x01)."""
-        can_id = 0x40 if bus_off else 0x04
-        data = bytes(8) if bus_off else bytes([0, 0x01, 0, 0, 0, 0, 0, 0])
+        """An error frame as SocketCAN reports them: CAN_ERR_BUSOFF (0x40), or controller problem
+        CAN_ERR_CRTL (0x04) with data[1] = CAN_ERR_CRTL_RX_OVERFLOW (0x01) for an overflow and
+        data[1] = 0 (unspecified) for process data the host could not parse."""
+        can_id = CAN_ERR_BUSOFF if bus_off else CAN_ERR_CRTL
+        data = bytes([0, CAN_ERR_CRTL_RX_OVERFLOW if overflow else 0, 0, 0, 0, 0, 0, 0])
         return can.Message(timestamp=self.timestamp(self.clock.now()), arbitration_id=can_id,
                            is_error_frame=True, data=data, channel=channel, check=False)
 
@@ -302,6 +447,8 @@ class EthercatHost:
                     ch.stop()
                 except (GatewaylabError, TimeoutError) as exc:
                     log.warning("%s: could not bring the gateway to PREOP: %s", ch.name, exc)
+            if self.adapter is not None:
+                self.adapter.stop()
         finally:
             try:
                 self.backend.close()

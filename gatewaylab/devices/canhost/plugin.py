@@ -1,5 +1,8 @@
 """python-can interfaces over the EtherCAT gateways, one channel each (entry points ``can.interface``).
 
+``can.Bus(interface="ecanlite", channel=LINE, slave=0, can_channel=0, bitrate=1_000_000,
+data_bitrate=None, fd=False, cycle_us=1000, pdo_n=3)``
+
 ``can.Bus(interface="esd_can_ethercat", channel=LINE, slave=0, bitrate=500_000, cycle_us=1000)``
 
 LINE is a network interface (``eth1``: SOEM through pysoem, root) or ``rig:PATH.toml``: the rig of
@@ -72,5 +75,24 @@ class EsdCanEthercatBus(GatewayBus):
         except BaseException:
             host.close()
             raise
+        _start(host)
+        GatewayBus.__init__(self, host, ch.name, owns_host=True, **kwargs)
+
+
+class EcanliteBus(GatewayBus):
+    """``can.Bus(interface="ecanlite", channel=LINE, slave=0, can_channel=0, bitrate=1_000_000,
+    data_bitrate=None, fd=False, cycle_us=1000, pdo_n=3)``: one MCAN channel of an ECAN-Lite."""
+
+    def __init__(self, channel: Any, slave: int = 0, can_channel: int = 0, bitrate: int = 1_000_000,
+                 data_bitrate: int | None = None, fd: bool = False, cycle_us: int = 1000, pdo_n: int = 3,
+                 **kwargs: Any) -> None:
+        host = _host(channel, cycle_us)
+        try:
+            ch = host.add_ecanlite(int(slave), int(can_channel), int(bitrate),
+                                   int(data_bitrate) if data_bitrate else None, bool(fd), int(pdo_n),
+                                   name=str(channel))
+        except GatewaylabError as exc:
+            host.close()
+            raise can.CanInitializationError(str(exc)) from exc
         _start(host)
         GatewayBus.__init__(self, host, ch.name, owns_host=True, **kwargs)

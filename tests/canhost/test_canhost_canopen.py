@@ -1,6 +1,7 @@
-"""python-can over the esd CAN-EtherCAT (issue 12 'python-can on top'): canopen's Network through
-``can.Bus(interface="esd_can_ethercat")`` reads and moves a CiA 402 drive behind the gateway, in
-process on a simulated clock (manual 5.1.5: the counter handshake carries every frame)."""
+"""python-can over the EtherCAT gateways (issue 12 'python-can on top'): canopen's Network through
+``can.Bus(interface="esd_can_ethercat")`` and ``can.Bus(interface="ecanlite")`` reads and moves the
+same CiA 402 drive behind both gateways, in process on a simulated clock (esd manual 5.1.5: the
+counter handshake; ECAN-Lite manual 15.1: the MCAN Port over the frame stream)."""
 
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ from gatewaylab.bus.bus import VirtualBus
 from gatewaylab.canopen.drive import Drive
 from gatewaylab.common.clock import SimulatedClock
 from gatewaylab.devices.canhost import EthercatHost
+from gatewaylab.devices.ecanlite.device import EcanLiteDevice
 from gatewaylab.devices.esd_can_ethercat.device import EsdGateway, create_esd_gateway
 from gatewaylab.ethercat.backend import InProcessBackend
 from gatewaylab.ethercat.esc import AlState
@@ -32,6 +34,11 @@ kind = "esd_can_ethercat"
 name = "esd1"
 bus = "can0"
 
+[[device]]
+kind = "ecanlite"
+name = "ecan"
+channels = ["can0"]
+
 [[drive]]
 bus = "can0"
 node_id = 2
@@ -39,6 +46,9 @@ serial = 0x1002
 name = "axis2"
 """
 NODE = 2
+#: The same application on either gateway: only the interface name and its arguments change.
+INTERFACES = {"esd_can_ethercat": {"slave": 0, "bitrate": 500_000},
+              "ecanlite": {"slave": 1, "can_channel": 0, "bitrate": 500_000, "pdo_n": 3}}
 
 
 def _u32(v: int) -> bytes:
@@ -63,13 +73,13 @@ def move_pp(node: canopen.RemoteNode, host: EthercatHost, target: int) -> tuple[
     return pos, sw
 
 
-@pytest.fixture
-def network(tmp_path: Path) -> Iterator[canopen.Network]:
+@pytest.fixture(params=sorted(INTERFACES))
+def network(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[canopen.Network]:
     rig = tmp_path / "rig.toml"
     rig.write_text(RIG)
     net = canopen.Network()
     net.NOTIFIER_CYCLE = 0.05
-    net.connect(interface="esd_can_ethercat", channel=f"rig:{rig}", slave=0, bitrate=500_000, cycle_us=1000)
+    net.connect(interface=request.param, channel=f"rig:{rig}", cycle_us=1000, **INTERFACES[request.param])
     try:
         yield net
     finally:
@@ -77,9 +87,9 @@ def network(tmp_path: Path) -> Iterator[canopen.Network]:
 
 
 def test_canopen_sdo_upload_through_the_plugin(network: canopen.Network) -> None:
-    """Issue 12: canopen.Network().connect(interface="esd_can_ethercat", channel="rig:PATH") reads
-    0x1008 'Manufacturer device name' of the drive behind the gateway (SDO upload, segmented:
-    several request/answer pairs through the Tx/Rx batches of 5.1.5.1/5.1.5.3)."""
+    """Issue 12: canopen.Network().connect(interface="esd_can_ethercat" or "ecanlite",
+    channel="rig:PATH") reads 0x1008 'Manufacturer device name' of the drive behind the gateway
+    (SDO upload, segmented: several request/answer pairs through the process data)."""
     node = network.add_node(NODE, canopen.ObjectDictionary())
     assert node.sdo.upload(0x1008, 0).startswith(b"IDX")
     assert node.sdo.upload(0x1018, 4) == _u32(0x1002)
@@ -98,20 +108,25 @@ def test_canopen_profile_position_move_through_the_plugin(network: canopen.Netwo
 
 
 class TwoGateways:
-    """Two esd gateways on one segment, each on its own CAN bus with its own drive (node 2 / 3)."""
+    """One segment: esd gateways at 0 and 1 (buses can0, can1), an ECAN-Lite at 2 with its four
+    MCAN channels on can2..can5; one drive on every bus, node 2 + bus number."""
 
     def __init__(self) -> None:
         self.clock = SimulatedClock()
-        self.buses = [VirtualBus(self.clock, f"can{i}", bitrate=500_000) for i in range(2)]
+        self.buses = [VirtualBus(self.clock, f"can{i}", bitrate=500_000) for i in range(6)]
         self.gws: list[EsdGateway] = [create_esd_gateway(self.clock, b, f"esd{i}", serial=0x10 + i)
-                                      for i, b in enumerate(self.buses)]
+                                      for i, b in enumerate(self.buses[:2])]
+        self.ecan = EcanLiteDevice(self.clock, [b.attach(f"ecan.mcan{i}") for i, b in enumerate(self.buses[2:])])
         self.drives = [Drive(self.clock, b, 2 + i, 0x1002 + i) for i, b in enumerate(self.buses)]
         for d in self.drives:
             d.start()
-        backend = InProcessBackend(Master(self.clock, Segment([g.slave for g in self.gws])))
+        segment = Segment([g.slave for g in self.gws] + [self.ecan.slave])
+        backend = InProcessBackend(Master(self.clock, segment))
         self.host = EthercatHost(backend, cycle_us=1000)
         self.host.add_esd(0, 500_000, name="left")
         self.host.add_esd(1, 500_000, name="right")
+        for ch in range(4):
+            self.host.add_ecanlite(2, ch, 500_000, name=f"mcan{ch}")
         self.host.start()
 
     def close(self) -> None:
@@ -130,19 +145,19 @@ def two() -> Iterator[TwoGateways]:
 
 
 def test_several_channels_of_one_host_at_once(two: TwoGateways) -> None:
-    """Issue 12: one EthercatHost hands out a BusABC per gateway channel, several at once; each
-    canopen Network reaches only the drive behind its own gateway."""
+    """Issue 12: one EthercatHost hands out a BusABC per gateway channel, several at once (two esd
+    gateways and all four ECAN-Lite channels of one segment); each canopen Network reaches only the
+    drive behind its own channel."""
     nets = []
-    for name in ("left", "right"):
+    for name in ("left", "right", "mcan0", "mcan1", "mcan2", "mcan3"):
         net = canopen.Network(two.host.bus(name))
         net.NOTIFIER_CYCLE = 0.05
         net.connect()
         nets.append(net)
     try:
-        left = nets[0].add_node(2, canopen.ObjectDictionary())
-        right = nets[1].add_node(3, canopen.ObjectDictionary())
-        assert left.sdo.upload(0x1018, 4) == _u32(0x1002)
-        assert right.sdo.upload(0x1018, 4) == _u32(0x1003)
+        for i, net in enumerate(nets):
+            node = net.add_node(2 + i, canopen.ObjectDictionary())
+            assert node.sdo.upload(0x1018, 4) == _u32(0x1002 + i)
         nets[1].add_node(2, canopen.ObjectDictionary())
         with pytest.raises(canopen.SdoCommunicationError):   # no node 2 behind the right gateway
             nets[1].nodes[2].sdo.upload(0x1018, 4)
@@ -196,13 +211,59 @@ def test_bus_off_surfaces_as_error_frame_and_refused_send(two: TwoGateways) -> N
 
 def test_shutdown_leaves_the_gateways_in_preop(two: TwoGateways) -> None:
     """Issue 12 'shutdown() leaves the slaves in a safe state': after close() every gateway is in
-    PREOP (no process data taken, the queues reset on the next PREOP -> SAFEOP, 5.1.5.1) and a
-    bus of the host refuses send()."""
+    PREOP (no process data taken; esd queues reset on the next PREOP -> SAFEOP, 5.1.5.1; ECAN-Lite
+    leaves OP, 14.2) and a bus of the host refuses send()."""
     bus = two.host.bus("right")
-    assert all(g.slave.esc.al_state == AlState.OP for g in two.gws)
+    slaves = [g.slave for g in two.gws] + [two.ecan.slave]
+    assert all(s.esc.al_state == AlState.OP for s in slaves)
     two.host.close()
-    assert all(g.slave.esc.al_state == AlState.PREOP for g in two.gws)
+    assert all(s.esc.al_state == AlState.PREOP for s in slaves)
     with pytest.raises(can.CanOperationError):
         bus.send(can.Message(arbitration_id=0x603, data=[0x40, 0, 0x10, 0, 0, 0, 0, 0], is_extended_id=False))
     assert bus.recv(0) is None
     bus.shutdown()
+
+
+def _first_error(bus: can.BusABC) -> can.Message | None:
+    msg = bus.recv(1.0)
+    while msg is not None and not msg.is_error_frame:   # boot-up messages first
+        msg = bus.recv(1.0)
+    return msg
+
+
+def test_ecanlite_bus_off_is_an_error_frame(two: TwoGateways) -> None:
+    """ECAN-Lite chapter 7: status word bits 0..2 = 3 (BUSOFF) of an MCAN channel comes out of that
+    channel's recv() as a CAN_ERR_BUSOFF error frame; the other channels see none."""
+    bus, other = two.host.bus("mcan1"), two.host.bus("mcan2")
+    try:
+        ctrl = next(c for c in two.buses[3].controllers if c.name == "ecan.mcan1")
+        two.buses[3].force_bus_off(ctrl)
+        two.host.run_for(0.005)
+        msg = _first_error(bus)
+        assert msg is not None and msg.arbitration_id & 0x40 and msg.channel == "mcan1"
+        while (m := other.recv(0)) is not None:
+            assert not m.is_error_frame
+    finally:
+        bus.shutdown()
+        other.shutdown()
+
+
+def test_ecanlite_parse_error_is_an_error_frame(two: TwoGateways) -> None:
+    """A TxPDO the host rejects (CRC16 wrong, chapter 6; the package's parse_diag) is counted and
+    comes out of recv() as an error frame (CAN_ERR_CRTL, data[1] = 0) on the slave's channels."""
+    bus = two.host.bus("mcan0")
+    try:
+        port = two.host.port
+        assert port is not None
+        with two.clock.lock:
+            image = bytearray(two.host.backend.inputs(2))
+            seq = (int.from_bytes(image[2:4], "little") + 0x100) & 0xFFFF
+            image[2:6] = seq.to_bytes(2, "little") * 2          # a new sequence, committed (seq_begin = seq_end)
+            image[8] ^= 0xFF                                     # payload_crc16 no longer fits
+            port.parse(0, bytes(image))
+        two.host.run_for(0.002)
+        msg = _first_error(bus)
+        assert msg is not None and msg.arbitration_id == 0x04 and msg.data[1] == 0
+        assert two.host.parse_errors >= 1
+    finally:
+        bus.shutdown()
