@@ -447,8 +447,10 @@ class EthercatHost:
                     ch.stop()
                 except (GatewaylabError, TimeoutError) as exc:
                     log.warning("%s: could not bring the gateway to PREOP: %s", ch.name, exc)
-            if self.adapter is not None:
-                self.adapter.stop()
+            try:   # every slave the host brought up, the ECAN-Lites and those without a channel
+                self.backend.request_state(AlState.PREOP, None, timeout)
+            except (GatewaylabError, TimeoutError) as exc:
+                log.warning("could not bring the segment to PREOP: %s", exc)
         finally:
             try:
                 self.backend.close()

@@ -1,0 +1,36 @@
+"""The canopen application of the pysoem test, run inside the test's network namespace.
+
+Usage: python canhost_driver.py INTERFACE_NAME IFNAME  -> one JSON line on stdout; exit 1 + traceback
+on failure. INTERFACE_NAME is the python-can interface (``ecanlite`` or ``esd_can_ethercat``); the
+arguments are those of the in-process test (test_canhost_canopen.INTERFACES).
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+import sys
+from pathlib import Path
+
+import canopen
+
+sys.path.insert(0, str(Path(__file__).parent))
+
+from test_canhost_canopen import INTERFACES, move_pp
+
+if __name__ == "__main__":
+    interface, ifname = sys.argv[1], sys.argv[2]
+    net = canopen.Network()
+    net.NOTIFIER_CYCLE = 0.05
+    net.connect(interface=interface, channel=ifname, cycle_us=1000, **INTERFACES[interface])
+    try:
+        node = net.add_node(2, canopen.ObjectDictionary())
+        node.sdo.RESPONSE_TIMEOUT = 2.0      # a loaded 2-core machine: generous, never asserted
+        name = node.sdo.upload(0x1008, 0).decode()
+        serial = struct.unpack("<I", node.sdo.upload(0x1018, 4))[0]
+        pos, sw = move_pp(node, net.bus.host, 20_000)   # type: ignore[attr-defined]
+        host = net.bus.host   # type: ignore[attr-defined]
+        result = {"name": name, "serial": serial, "position": pos, "statusword": sw, "cycles": host.cycles}
+    finally:
+        net.disconnect()
+    print(json.dumps(result))
