@@ -14,31 +14,15 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from esd_host_scenarios import SCENARIOS, echo_of, make_can_side
+from esd_host_scenarios import SCENARIOS, echo_of, make_can_side, run_inprocess
 
 from gatewaylab.bus.frame import CanFrame
-from gatewaylab.common.clock import RealTimeClock, SimulatedClock
-from gatewaylab.ethercat.backend import InProcessBackend
-from gatewaylab.ethercat.master import Master
+from gatewaylab.common.clock import RealTimeClock
 from gatewaylab.ethercat.segment import Segment
 from gatewaylab.ethercat.wire import WireTransport
 
 DRIVER = Path(__file__).with_name("esd_host_driver.py")
 Runner = Callable[[str], tuple[dict[str, Any], list[CanFrame]]]
-
-
-def run_inprocess(name: str) -> tuple[dict[str, Any], list[CanFrame]]:
-    """The scenario with an InProcessBackend on a simulated clock; returns its result and what the
-    echo node heard."""
-    fn, chatter = SCENARIOS[name]
-    clock = SimulatedClock()
-    _bus, gw, heard = make_can_side(clock, chatter)
-    backend = InProcessBackend(Master(clock, Segment([gw.slave])))
-    try:
-        return fn(backend), heard
-    finally:
-        backend.close()
-        gw.stop()
 
 
 @pytest.fixture(params=["inprocess", pytest.param("pysoem", marks=[pytest.mark.net, pytest.mark.slow])])
@@ -64,11 +48,6 @@ def run(request: pytest.FixtureRequest) -> Runner:
         return json.loads(proc.stdout.strip().splitlines()[-1]), heard
 
     return run_pysoem
-
-
-def _sent(result: dict[str, Any]) -> list[CanFrame]:
-    return [CanFrame(i, bytes.fromhex(d), extended=e, rtr=r, dlc=0 if not r else -1) if not r
-            else CanFrame(i, b"", extended=e, rtr=True, dlc=len(bytes.fromhex(d)) or 3) for i, d, e, r in result["sent"]]
 
 
 @pytest.mark.parametrize("name", ["errors", "queue_limits", "status_statistics", "filters", "bitrates"])

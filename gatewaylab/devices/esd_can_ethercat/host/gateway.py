@@ -25,6 +25,7 @@ from ....bus.frame import CanFrame
 from ....common.clock import Clock
 from ....common.errors import ConfigError, LocalError
 from ....ethercat.backend import MasterBackend, MasterTimeout
+from ....ethercat.errors import AlStatusError
 from ....ethercat.esc import AlState
 from ..codec import CanStatus
 from ..objects import PRODUCT_CODE, STATISTICS, VENDOR_ID
@@ -43,8 +44,16 @@ _FMT = {1: "<B", 2: "<H", 4: "<I", 8: "<Q"}
 #: the seconds waited before the n-th repetition (n x this): a late answer is flushed meanwhile.
 SDO_ATTEMPTS = 5
 SDO_RETRY_WAIT = 0.05
+#: A waiting call looks at the AL state (and :meth:`EsdHost.recover`) after this many consecutive
+#: cycles with a wrong working counter, and every this many cycles of waiting anyway (a gateway
+#: fallen to SAFEOP may still count the datagrams, but it takes no batches).
+WKC_RECOVER = 10
+STATE_CHECK_CYCLES = 50
 #: config_map runs before the mapped sizes agree with the mapping objects read back.
 MAP_ATTEMPTS = 3
+#: AL status codes of a SyncManager set up differently from the mapping (ETG.1000.6: 0x001D invalid
+#: output configuration, 0x001E invalid input configuration): mapping again may cure them.
+SM_CONFIG_CODES = (0x001D, 0x001E)
 
 
 class ReadbackError(ConfigError):
@@ -75,6 +84,9 @@ class EsdHost:
         #: Cycles whose working counter was not the expected one (their inputs were not used).
         self.wkc_errors = 0
         self.cycles = 0
+        #: Times :meth:`recover` brought the slave back to OP.
+        self.recoveries = 0
+        self._bad_cycles = 0
         #: SDO services repeated after a timeout.
         self.sdo_retries = 0
         #: config_map calls repeated because the mapped sizes differed from the mapping read back.
@@ -90,7 +102,7 @@ class EsdHost:
 
     # ------------------------------------------------------------------ SDO helpers
     def _upload(self, index: int, sub: int) -> int:
-        """An SDO upload as an unsigned integer; repeated once after a timeout (reads are idempotent)."""
+        """An SDO upload as an unsigned integer; repeated after a timeout (reads are idempotent)."""
         for attempt in range(SDO_ATTEMPTS):
             try:
                 raw = self.backend.sdo_upload(self.position, index, sub)
@@ -220,12 +232,15 @@ class EsdHost:
             self.backend.config_map()
             try:
                 self._check_sizes()
+                self.backend.request_state(AlState.SAFEOP, self.position, timeout)
                 break
-            except ConfigError:
-                if attempt == MAP_ATTEMPTS - 1:
+            except (ConfigError, AlStatusError) as exc:
+                if attempt == MAP_ATTEMPTS - 1 or (isinstance(exc, AlStatusError) and exc.code not in SM_CONFIG_CODES):
                     raise
-                self.map_retries += 1   # the master's own mapping read lost an SDO answer
-        self.backend.request_state(AlState.SAFEOP, self.position, timeout)
+                # the master's mapping read lost an SDO answer, or a SyncManager write got lost:
+                # back to PREOP (acknowledging the error) and map again
+                self.map_retries += 1
+                self.backend.request_state(AlState.PREOP, self.position, timeout)
         self.backend.request_state(AlState.OP, self.position, timeout)
         self.attach()
 
@@ -273,7 +288,9 @@ class EsdHost:
         self.cycles += 1
         if wkc != expected:
             self.wkc_errors += 1
+            self._bad_cycles += 1
             return False
+        self._bad_cycles = 0
         with self._lock:
             hs = self.handshake
             if hs is not None:
@@ -288,16 +305,38 @@ class EsdHost:
         wkc, expected = self.backend.exchange()
         return self.after_exchange(wkc, expected)
 
+    def recover(self, timeout: float = DEFAULT_TIMEOUT) -> bool:
+        """Back to OP when the slave fell to SAFEOP (the SM watchdog after a stalled master: AL
+        status 0x001B, 0x2010:08 counts it); the gateway keeps its counters there, so the handshake
+        carries on. True when it had to; ConfigError when the slave is in INIT/PREOP/BOOT (it lost
+        its mapping: configure() and start() again)."""
+        state, code = self.backend.state(self.position)
+        if state == AlState.OP:
+            return False
+        if state != AlState.SAFEOP:
+            raise ConfigError(f"slave {self.position} is in {state.name} (AL status code 0x{code:04X}): "
+                              "configure() and start() again")
+        self.backend.request_state(AlState.OP, self.position, timeout)
+        self.recoveries += 1
+        self._bad_cycles = 0
+        return True
+
     def _wait_for(self, what: str, done: Callable[[], bool], timeout: float) -> None:
         deadline = self.clock.now() + timeout
+        waited = 0
         while True:
             with self._lock:
                 if done():
                     return
             if self.clock.now() >= deadline:
-                raise MasterTimeout(f"{what}: not within {timeout:g} s")
+                state, code = self.backend.state(self.position)
+                raise MasterTimeout(f"{what}: not within {timeout:g} s (slave {self.position} in {state.name}, "
+                                    f"AL status code 0x{code:04X}, {self.wkc_errors} working counter errors)")
             if not self.external_cycle:
                 self.cycle()
+                waited += 1
+                if self._bad_cycles >= WKC_RECOVER or waited % STATE_CHECK_CYCLES == 0:
+                    self.recover()
             self.clock.wait(self.cycle_time)
 
     # ------------------------------------------------------------------ Tx
