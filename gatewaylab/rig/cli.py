@@ -31,7 +31,7 @@ EXTRA_SUBCOMMANDS = (
     "gatewaylab.canopen.plot_cli",
     "gatewaylab.ethercat.net_cli",
     "gatewaylab.rig.ec",
-    "gatewaylab.devices.ecanlite.cli",
+    "gatewaylab.rig.ecan",
 )
 
 RIG_HELP = """\

@@ -1,4 +1,5 @@
-"""``gatewaylab ecan ...``: ECAN-Lite tools (``pack``: build a FoE OTA package, manual 15.3.1)."""
+"""``gatewaylab ecan ...``: ECAN-Lite tools (``pack``: build a FoE OTA package, manual 15.3.1; ``simple-loop``,
+``sdo-probe``, ``cia402``: the host programs of 15.4 / 15.6, in ``host/cli.py``)."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from .host.cli import add_host_commands
 from .ota import APP_FILE_NAME, HEADER_SIZE, FirmwareVersion, OtaError, pack
 
 _PACK_EPILOG = f"""\
@@ -93,9 +95,10 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"gatewaylab ecan: {message}\n")
 
 
-def add_subcommand(sub: Any) -> None:
-    """Register ``gatewaylab ecan`` with its sub-commands."""
-    ecan = sub.add_parser("ecan", help="ECAN-Lite tools (OTA package)",
+def add_subcommand(sub: Any, open_rig: Any = None) -> None:
+    """Register ``gatewaylab ecan`` with its sub-commands; ``open_rig`` (injected by the rig layer,
+    ``gatewaylab.rig.ecan``) lets the host programs run on ``--rig RIG.toml``."""
+    ecan = sub.add_parser("ecan", help="ECAN-Lite tools (OTA package, host programs of 15.4/15.6)",
                           description="Tools for the ECAN-Lite EtherCAT to CAN FD gateway.")
     ecan_sub = ecan.add_subparsers(dest="ecan_command", metavar="COMMAND", parser_class=_Parser)
     p = ecan_sub.add_parser("pack", help="build a FoE OTA package from a bare application image",
@@ -111,6 +114,7 @@ def add_subcommand(sub: Any) -> None:
                    help="device type, 0xF000:01 (default 0 = ECAN-Lite)")
     p.add_argument("-o", "--output", required=True, metavar="FILE", help="package to write")
     p.set_defaults(func=cmd_pack)
+    add_host_commands(ecan_sub, open_rig)
 
     def no_command(args: argparse.Namespace) -> int:
         ecan.print_help()

@@ -34,6 +34,7 @@ from ..stream import (
     StreamLayout,
     Tsf,
     TxResultCode,
+    TxResultPacket,
     commit_state,
     decode_stream,
     encode_into,
@@ -41,7 +42,7 @@ from ..stream import (
 )
 from .adapter import CycleStatus, EcanAdapter, StartupSdo
 
-__all__ = ["ChannelConfig", "MessageRam", "McanPort", "PortConfig", "RxFrame", "TxResult", "TxTicket"]
+__all__ = ["ChannelConfig", "McanPort", "MessageRam", "PortConfig", "RxFrame", "TxResult", "TxTicket"]
 
 #: The MCAN channel config objects 0x8001..0x8004 (13.4).
 CHANNEL_CONFIG = 0x8001
@@ -106,9 +107,12 @@ class ChannelConfig:
              u16(position, i, 21, self.nominal_sp[0], "nominal SP min"),
              u16(position, i, 22, self.nominal_sp[1], "nominal SP max")]
         if self.fd:
-            q += [u8(position, i, 16, int(self.tdc), "TDC enable"), u32(position, i, 20, self.data_bitrate, "data bit rate"),
-                  u16(position, i, 23, self.data_sp[0], "data SP min"), u16(position, i, 24, self.data_sp[1], "data SP max"),
-                  u8(position, i, 33, self.tdc_offset, "TDC offset"), u8(position, i, 34, self.tdc_filter, "TDC filter")]
+            q += [u8(position, i, 16, int(self.tdc), "TDC enable"),
+                  u32(position, i, 20, self.data_bitrate, "data bit rate"),
+                  u16(position, i, 23, self.data_sp[0], "data SP min"),
+                  u16(position, i, 24, self.data_sp[1], "data SP max"),
+                  u8(position, i, 33, self.tdc_offset, "TDC offset"),
+                  u8(position, i, 34, self.tdc_filter, "TDC filter")]
         for sub, value, what in ((61, 0, "RX FIFO0 mode"), (62, r.rx_fifo0_size, "RX FIFO0 size"),
                                  (63, 0, "RX FIFO1 mode"), (64, r.rx_fifo1_size, "RX FIFO1 size"),
                                  (65, r.rx_fifo0_data, "RX FIFO0 data"), (66, r.rx_fifo1_data, "RX FIFO1 data"),
@@ -207,7 +211,7 @@ class _SlavePort:
     last_in: bytes | None = None
     in_seq: int | None = None
     status_words: tuple[int, int, int, int] = (0, 0, 0, 0)
-    header_flags: HeaderFlags = HeaderFlags(0)
+    header_flags: HeaderFlags = field(default_factory=lambda: HeaderFlags(0))
     published: dict[int, list[_Pending]] = field(default_factory=dict)
 
 
@@ -255,7 +259,7 @@ class McanPort:
         self.held_frames = 0            # frames that waited a cycle: the RxPDO frame area was full
         self.frames_sent = 0
         self.frames_received = 0
-        self._in_cycle = False
+        self._unparsed = False
 
     # ------------------------------------------------------------------ sending
     def _slave(self, k: int) -> _SlavePort:
@@ -270,6 +274,8 @@ class McanPort:
         The layout's rules are checked now (:class:`StreamEncodeError` with the LastPDOError the
         device would report, e.g. a channel outside the RxPDO mask)."""
         sp = self._slave(slave)
+        if packet.scheduled and not self.adapter.config.dc_sync0:
+            raise LocalError("scheduled transmit needs DC SYNC0 (8.4, 13.8: LastPDOError 16 otherwise)")
         packet_size(packet, sp.rx_layout)
         request = next(self._requests)
         sp.queue.append(_Pending(request, packet))
@@ -339,7 +345,7 @@ class McanPort:
     # ------------------------------------------------------------------ the cycle
     def cycle_begin(self) -> None:
         """Parse every slave's TxPDO from the last exchange (6.1 receiving order)."""
-        self._in_cycle = True
+        self._unparsed = False
         now = self.clock.now()
         for sp in self._slaves:
             self._parse(sp, self.adapter.txpdo(sp.k), now)
@@ -383,7 +389,7 @@ class McanPort:
             if type(p) is CanPacket:
                 self._rx.append(RxFrame(sp.k, p.channel, p.frame, now, seq, p.timestamp))
                 self.frames_received += 1
-            else:
+            elif type(p) is TxResultPacket:
                 pend = sp.published.get(p.ref_packet_seq)
                 match = pend[p.ref_frame_index] if pend is not None and p.ref_frame_index < len(pend) else None
                 self._results.append(TxResult(match.request if match else -1, sp.k, p.channel, p.ref_packet_seq,
@@ -403,8 +409,11 @@ class McanPort:
         if not resend:
             for sp in self._slaves:
                 self._publish(sp)
-        self._in_cycle = False
-        return self.adapter.exchange()
+        if self._unparsed:          # the last exchange's TxPDO was not read: parse it now, lose nothing
+            self.cycle_begin()
+        status = self.adapter.exchange()
+        self._unparsed = True
+        return status
 
     def _publish(self, sp: _SlavePort) -> None:
         layout = sp.rx_layout
