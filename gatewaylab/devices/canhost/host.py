@@ -499,6 +499,9 @@ class GatewayBus(can.BusABC):
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         if self._is_shutdown:
             raise can.CanOperationError(f"{self.channel_info} was shut down")
+        if msg.is_fd and not self.host.channels[self.channel_name].fd:
+            raise can.CanOperationError(f"{self.channel_info} is a classic CAN channel (opened with fd=False): "
+                                        "CAN FD frames cannot be sent")
         try:
             frame = CanFrame.from_message(msg)
         except GatewaylabError as exc:
@@ -535,6 +538,7 @@ class GatewayBus(can.BusABC):
         if self._is_shutdown:
             return
         super().shutdown()
+        self.wake()          # a recv() waiting in a notifier thread returns None
         if self in self.host.buses:
             self.host.buses.remove(self)
         if self._owns_host:
