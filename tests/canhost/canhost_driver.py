@@ -22,7 +22,8 @@ if __name__ == "__main__":
     interface, ifname = sys.argv[1], sys.argv[2]
     net = canopen.Network()
     net.NOTIFIER_CYCLE = 0.05
-    net.connect(interface=interface, channel=ifname, cycle_us=1000, **INTERFACES[interface])
+    # pd_timeout_us: SOEM waits up to 100 ms for the process data (a loaded 2-core machine)
+    net.connect(interface=interface, channel=ifname, cycle_us=1000, pd_timeout_us=100_000, **INTERFACES[interface])
     try:
         node = net.add_node(2, canopen.ObjectDictionary())
         node.sdo.RESPONSE_TIMEOUT = 2.0      # a loaded 2-core machine: generous, never asserted

@@ -211,6 +211,7 @@ class EthercatHost:
         self.adapter: EcanAdapter | None = None
         self.port: McanPort | None = None
         self.parse_errors = 0
+        #: ECAN-Lite overflow_sat + TxPDO images lost, as last reported by an error frame
         self.device_overflow = 0
         self.buses: list[GatewayBus] = []
         self.cycles = 0
@@ -352,8 +353,11 @@ class EthercatHost:
             log.warning("ECAN-Lite TxPDO rejected: %s", port.last_parse_error)
             for c in by_key.values():
                 c.deliver(self.error_frame(c.name))
-        if port.device_overflow != self.device_overflow:
-            self.device_overflow = port.device_overflow
+        lost = port.device_overflow + port.lost_images
+        if lost != self.device_overflow:
+            # frames the device dropped (overflow_sat) or TxPDO images that never reached the host
+            # (a process data frame lost or late: its frames were consumed by the device)
+            self.device_overflow = lost
             for c in by_key.values():
                 c.deliver(self.error_frame(c.name, overflow=True))
 

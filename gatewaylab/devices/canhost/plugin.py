@@ -31,9 +31,10 @@ RIG_PREFIX = "rig:"
 RigOpener = Callable[[str], tuple[MasterBackend, Callable[[], None] | None, float]]
 
 
-def open_line(channel: Any,
-              open_rig: RigOpener | None = None) -> tuple[MasterBackend, Callable[[], None] | None, float]:
-    """(backend, closer of what was opened for it, wall epoch) for ``channel``."""
+def open_line(channel: Any, open_rig: RigOpener | None = None,
+              pd_timeout_us: int = 20_000) -> tuple[MasterBackend, Callable[[], None] | None, float]:
+    """(backend, closer of what was opened for it, wall epoch) for ``channel``; ``pd_timeout_us``:
+    how long SOEM waits for the process data frame to come back."""
     if not isinstance(channel, str) or not channel:
         raise can.CanInitializationError("channel must name a network interface or rig:PATH.toml")
     if channel.startswith(RIG_PREFIX):
@@ -42,12 +43,12 @@ def open_line(channel: Any,
         return open_rig(channel[len(RIG_PREFIX):])
     from ...ethercat.backend import PysoemBackend
 
-    return PysoemBackend(channel), None, 0.0
+    return PysoemBackend(channel, pd_timeout_us=pd_timeout_us), None, 0.0
 
 
-def _host(channel: Any, cycle_us: int, open_rig: RigOpener | None) -> EthercatHost:
+def _host(channel: Any, cycle_us: int, open_rig: RigOpener | None, pd_timeout_us: int) -> EthercatHost:
     try:
-        backend, closer, epoch = open_line(channel, open_rig)
+        backend, closer, epoch = open_line(channel, open_rig, pd_timeout_us)
     except GatewaylabError as exc:
         raise can.CanInitializationError(f"{channel}: {exc}") from exc
     return EthercatHost(backend, cycle_us=cycle_us, owned=closer, wall_epoch=epoch)
@@ -75,8 +76,8 @@ class EsdCanEthercatBus(_LineBus):
     """``can.Bus(interface="esd_can_ethercat", channel=LINE, slave=0, bitrate=500_000, cycle_us=1000)``."""
 
     def __init__(self, channel: Any, slave: int = 0, bitrate: int = 500_000, cycle_us: int = 1000,
-                 **kwargs: Any) -> None:
-        host = _host(channel, cycle_us, self.open_rig)
+                 pd_timeout_us: int = 20_000, **kwargs: Any) -> None:
+        host = _host(channel, cycle_us, self.open_rig, int(pd_timeout_us))
         try:
             ch = host.add_esd(int(slave), int(bitrate), name=str(channel))
         except BaseException:
@@ -92,8 +93,8 @@ class EcanliteBus(_LineBus):
 
     def __init__(self, channel: Any, slave: int = 0, can_channel: int = 0, bitrate: int = 1_000_000,
                  data_bitrate: int | None = None, fd: bool = False, cycle_us: int = 1000, pdo_n: int = 3,
-                 **kwargs: Any) -> None:
-        host = _host(channel, cycle_us, self.open_rig)
+                 pd_timeout_us: int = 20_000, **kwargs: Any) -> None:
+        host = _host(channel, cycle_us, self.open_rig, int(pd_timeout_us))
         try:
             ch = host.add_ecanlite(int(slave), int(can_channel), int(bitrate),
                                    int(data_bitrate) if data_bitrate else None, bool(fd), int(pdo_n),
