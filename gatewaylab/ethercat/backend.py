@@ -629,6 +629,7 @@ class PysoemBackend:
         self._mapped = False
         self._dc = False
         self._closed = False
+        self._slaves: list[Any] = []
         self._mbx = _MailboxPort(self.clock, _PysoemRegisters(self), timeout, lambda _pos: 0)
         master = pysoem.Master()
         master.sdo_read_timeout = round(timeout * 1e6)
@@ -640,17 +641,29 @@ class PysoemBackend:
         self._master = master
         try:
             master.manual_state_change = 1      # config_init/config_map only configure; we request states
-            count = 0
-            for _attempt in range(SCAN_ATTEMPTS):   # a link just brought up may lose the first frames
-                count = master.config_init()
-                if count > 0:
+            for attempt in range(SCAN_ATTEMPTS):
+                # A link just brought up may lose the first frames, and a late EEPROM answer leaves
+                # SOEM with a wrong mailbox configuration (the slave refuses PREOP with 0x0016):
+                # config_init again, as a master re-initialises a line.
+                last = attempt == SCAN_ATTEMPTS - 1
+                self._sii.clear()
+                self._sii_info.clear()
+                if master.config_init() <= 0:
+                    if last:
+                        raise MasterTimeout(f"no EtherCAT slaves answer on {ifname}")
+                    self.clock.wait(SCAN_RETRY)
+                    continue
+                self._slaves = list(master.slaves)
+                if not preop:
                     break
-                self.clock.wait(SCAN_RETRY)
-            if count <= 0:
-                raise MasterTimeout(f"no EtherCAT slaves answer on {ifname}")
-            self._slaves = list(master.slaves)
-            if preop:
-                self.request_state(AlState.PREOP)
+                try:
+                    self.request_state(AlState.PREOP)
+                    break
+                except AlStatusError as exc:
+                    if last or exc.code not in (AlStatusCode.INVALID_MAILBOX_CONFIG,
+                                                AlStatusCode.INVALID_MAILBOX_CONFIG_BOOT):
+                        raise
+                    self.clock.wait(SCAN_RETRY)
         except BaseException:
             self.close()
             raise
@@ -740,14 +753,8 @@ class PysoemBackend:
                 self._set_boot_mailbox(pos, False)
             self._write_control(pos, int(state) | (AL_ERROR if status & AL_ERROR else 0))
             deadline = self.clock.now() + timeout
-            repaired = False
             while True:
                 status, code = self.al_status(pos)
-                if (status & AL_ERROR and state == AlState.PREOP and not repaired
-                        and code in (AlStatusCode.INVALID_MAILBOX_CONFIG, AlStatusCode.INVALID_MAILBOX_CONFIG_BOOT)):
-                    self._repair_mailbox(pos)     # config_init lost a frame programming SM0/SM1
-                    repaired = True
-                    continue
                 if status & AL_ERROR:
                     raise AlStatusError(f"slave {pos} refused {state.name}: AL status 0x{status:02X}, "
                                         f"code {al_status_name(code)}", code)
@@ -767,16 +774,6 @@ class PysoemBackend:
             if regs.write(pos, REG_AL_CONTROL, U16.pack(control)):
                 return
         raise MasterTimeout(f"slave {pos} does not answer")
-
-    def _repair_mailbox(self, pos: int) -> None:
-        """Back to INIT (acknowledged), the mailbox SMs from the SII (pysoem amend_mbx updates SOEM's
-        copy too), PREOP again."""
-        self._write_control(pos, int(AlState.INIT) | AL_ERROR)
-        info = self.sii_info(pos)
-        s = self._slave(pos)
-        s.amend_mbx("out", *info.mailbox_out)
-        s.amend_mbx("in", *info.mailbox_in)
-        self._write_control(pos, int(AlState.PREOP))
 
     def sdo_upload(self, position: int, index: int, subindex: int, complete: bool = False) -> bytes:
         """CoE SDO upload through SOEM (objects up to 64 KiB)."""

@@ -77,5 +77,5 @@ def test_esd_gateway_verbs(esd_ec: Ec, tmp_path: Path) -> None:
     firmware = tmp_path / "fw.bin"
     firmware.write_bytes(b"esd firmware image" * 20)
     _fails(esd_ec("foe-write", "-p", "1", str(firmware), "-n", "firmwareUpdate"), 1, "FoE error 0x8008")
-    _ok(esd_ec("foe-write", "-p", "1", str(firmware), "-n", "firmwareUpdate", "--boot"))
     _fails(esd_ec("foe-write", "-p", "0", str(firmware), "--boot"), 1, "0x0013 BOOTSTRAP_NOT_SUPPORTED")
+    _ok(esd_ec("foe-write", "-p", "1", str(firmware), "-n", "firmwareUpdate", "--boot"))   # then it reboots
