@@ -43,7 +43,9 @@ def run(request: pytest.FixtureRequest) -> Runner:
         finally:
             wire.stop()
             gw.stop()
-        assert proc.returncode == 0, proc.stderr[-3000:]
+        ctrl = gw.controller
+        assert proc.returncode == 0, (proc.stderr[-3000:] + f" | gateway {gw.setting.mode} detected {gw.detected} "
+                                      f"at {ctrl.bitrate if ctrl else 0} bit/s, {gw.stats}")
         assert not wire.errors
         return json.loads(proc.stdout.strip().splitlines()[-1]), heard
 

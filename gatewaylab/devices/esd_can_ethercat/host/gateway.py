@@ -23,7 +23,7 @@ from typing import Any
 
 from ....bus.frame import CanFrame
 from ....common.clock import Clock
-from ....common.errors import ConfigError, LocalError
+from ....common.errors import ConfigError, LocalError, ProtocolError
 from ....ethercat.backend import MasterBackend, MasterTimeout
 from ....ethercat.errors import AlStatusError
 from ....ethercat.esc import AlState
@@ -42,13 +42,16 @@ _U8_STATISTICS = (0x20, 0x21)
 _FMT = {1: "<B", 2: "<H", 4: "<I", 8: "<Q"}
 #: Tries of one SDO service that timed out (the readback decides whether a download arrived), and
 #: the seconds waited before the n-th repetition (n x this): a late answer is flushed meanwhile.
-SDO_ATTEMPTS = 5
-SDO_RETRY_WAIT = 0.05
+SDO_ATTEMPTS = 8
+SDO_RETRY_WAIT = 0.1
 #: A waiting call looks at the AL state (and :meth:`EsdHost.recover`) after this many consecutive
-#: cycles with a wrong working counter, and every this many cycles of waiting anyway (a gateway
-#: fallen to SAFEOP may still count the datagrams, but it takes no batches).
+#: cycles with a wrong working counter, and every this many seconds of waiting anyway (a gateway
+#: fallen to SAFEOP still counts the datagrams, but it takes no batches and delivers no frames).
 WKC_RECOVER = 10
-STATE_CHECK_CYCLES = 50
+STATE_CHECK_PERIOD = 0.05
+#: An SDO service that got no answer, or a late answer to an earlier request (SOEM's 'unexpected
+#: frame returned', a ProtocolError): repeated, as its outcome is unknown.
+_RETRYABLE = (MasterTimeout, ProtocolError)
 #: config_map runs before the mapped sizes agree with the mapping objects read back.
 MAP_ATTEMPTS = 3
 #: AL status codes of a SyncManager set up differently from the mapping (ETG.1000.6: 0x001D invalid
@@ -87,6 +90,9 @@ class EsdHost:
         #: Times :meth:`recover` brought the slave back to OP.
         self.recoveries = 0
         self._bad_cycles = 0
+        self._state_checked_at = self.clock.now()
+        #: AL state reads of the waiting calls that got no answer (tried again later).
+        self.lost_state_reads = 0
         #: SDO services repeated after a timeout.
         self.sdo_retries = 0
         #: config_map calls repeated because the mapped sizes differed from the mapping read back.
@@ -102,12 +108,12 @@ class EsdHost:
 
     # ------------------------------------------------------------------ SDO helpers
     def _upload(self, index: int, sub: int) -> int:
-        """An SDO upload as an unsigned integer; repeated after a timeout (reads are idempotent)."""
+        """An SDO upload as an unsigned integer; repeated after a timeout or a late answer (reads are idempotent)."""
         for attempt in range(SDO_ATTEMPTS):
             try:
                 raw = self.backend.sdo_upload(self.position, index, sub)
                 break
-            except MasterTimeout:
+            except _RETRYABLE:
                 if attempt == SDO_ATTEMPTS - 1:
                     raise
                 self._retry_wait(attempt)
@@ -128,7 +134,7 @@ class EsdHost:
             try:
                 self._download(index, sub, value, size)
                 break
-            except MasterTimeout:
+            except _RETRYABLE:
                 if attempt == SDO_ATTEMPTS - 1:
                     raise
                 self._retry_wait(attempt)
@@ -323,7 +329,6 @@ class EsdHost:
 
     def _wait_for(self, what: str, done: Callable[[], bool], timeout: float) -> None:
         deadline = self.clock.now() + timeout
-        waited = 0
         while True:
             with self._lock:
                 if done():
@@ -334,9 +339,13 @@ class EsdHost:
                                     f"AL status code 0x{code:04X}, {self.wkc_errors} working counter errors)")
             if not self.external_cycle:
                 self.cycle()
-                waited += 1
-                if self._bad_cycles >= WKC_RECOVER or waited % STATE_CHECK_CYCLES == 0:
-                    self.recover()
+                now = self.clock.now()
+                if self._bad_cycles >= WKC_RECOVER or now - self._state_checked_at >= STATE_CHECK_PERIOD:
+                    self._state_checked_at = now
+                    try:
+                        self.recover()
+                    except MasterTimeout:
+                        self.lost_state_reads += 1    # a lost register read: looked at again later
             self.clock.wait(self.cycle_time)
 
     # ------------------------------------------------------------------ Tx
