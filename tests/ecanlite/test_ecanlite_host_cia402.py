@@ -12,8 +12,10 @@ import pytest
 from ecanlite_host_kit import classic_port, host_rig
 
 from gatewaylab.common.errors import LocalError
+from gatewaylab.devices.ecanlite.host.adapter import AdapterConfig, EcanAdapter, SlaveConfig
 from gatewaylab.devices.ecanlite.host.cia402 import Axis, Cia402, parse_axes
 from gatewaylab.devices.ecanlite.host.demo import rig_axes
+from gatewaylab.devices.ecanlite.host.port import ChannelConfig, McanPort, PortConfig
 from gatewaylab.od import SdoAbort
 
 TEN = ((1, 2, 3), (4, 5, 6), (7, 8), (9, 10))
@@ -28,7 +30,7 @@ def test_sdo_probe_through_the_gateway(tmp_path: Path) -> None:
         axis = cia.axes[0].axis
         device_type, serial = cia.sdo_transfer([(axis, 0x1000, 0, None), (axis, 0x1018, 4, None)], 2.0)
         assert struct.unpack("<I", device_type)[0] == 0x00020192
-        assert struct.unpack("<I", serial)[0] == 0x10001       # rig_toml: 0x10000 * (slave + 1) + 0x100 * channel + node
+        assert struct.unpack("<I", serial)[0] == 0x10001   # rig_toml: 0x10000 * (slave + 1) + 0x100 * ch + node
         with pytest.raises(SdoAbort) as exc:
             cia.sdo_transfer([(axis, 0x2FFF, 0, None)], 2.0)
         assert exc.value.code == 0x06020000
@@ -103,3 +105,24 @@ def test_axis_table_parsing() -> None:
     for bad in ("0:0", "0:4:1", "0:0:128", "a:b:c", ""):
         with pytest.raises(LocalError):
             parse_axes(bad)
+
+
+def test_two_slaves_with_their_own_pdo_size(tmp_path: Path) -> None:
+    """15.5.2 step 3: ``ecan_igh_config_set_slave_pdo_multiplier``: slave 0 with N = 3 and slave 1 with
+    N = 2 on one line (SM lengths 384 / 256 B), an axis behind each channel of both, all at target."""
+    with host_rig(tmp_path, ((1,), (2,)), slaves=2) as h:
+        positions, axes = rig_axes(h.rig, 10)
+        assert positions == [0, 1] and len(axes) == 4
+        adapter = EcanAdapter(h.backend, AdapterConfig((SlaveConfig(0, 3), SlaveConfig(1, 2))))
+        port = McanPort(adapter, PortConfig({0: ChannelConfig.classic(), 1: ChannelConfig.classic()}))
+        adapter.start()
+        assert [len(adapter.rxpdo(k)) for k in (0, 1)] == [384, 256]
+        assert [len(adapter.txpdo(k)) for k in (0, 1)] == [384, 256]
+        cia = Cia402(port, axes)
+        cia.startup()
+        cia.run(200)
+        assert cia.settle(1.0)
+        assert [(r.slave, r.channel, r.node_id, r.target - r.start) for r in cia.results()] == [
+            (0, 0, 1, 2000), (0, 1, 2, 2000), (1, 0, 1, 2000), (1, 1, 2, 2000)]
+        assert all(r.reached() for r in cia.results())
+        assert adapter.wkc_errors == 0 and port.parse_errors == 0

@@ -106,7 +106,7 @@ def test_tx_result_matches_requests(tmp_path: Path) -> None:
     RxPDO; the Port gives it back with the request number ``send_can`` returned, and a frame for an
     unconnected channel reports its refusal code, not OK."""
     with host_rig(tmp_path, ((), ())) as h:      # CAN2 and CAN3 unconnected
-        adapter, port = classic_port(h.backend, tx_result=True)
+        _adapter, port = classic_port(h.backend, tx_result=True)
         for ch in (0, 1):
             h.rig.buses[f"s0can{ch}"].attach("ack")         # a second node acknowledges (CAN ACK slot)
         requests = [port.send_can(0, 0, 0x10, b"\x01"), port.send_can(0, 1, 0x11, b"\x02"),
@@ -128,7 +128,7 @@ def test_full_frame_area_holds_frames_in_order(tmp_path: Path) -> None:
     """Chapter 12 / 8.3: a packet never splits; what does not fit the 104-byte area of N = 1 waits
     for the next cycles and leaves in the order sent."""
     with host_rig(tmp_path, ((),)) as h:
-        adapter, port = classic_port(h.backend, channels=(0,), multiplier=1)
+        _adapter, port = classic_port(h.backend, channels=(0,), multiplier=1)
         peer = python_can_bus(h.rig.buses["s0can0"])
         try:
             for i in range(20):
@@ -162,7 +162,7 @@ def test_scheduled_transmit_after_sync0(tmp_path: Path) -> None:
     """8.4 / 15.5.4 step 6: with DC SYNC0 on, a TSF_FULL64 reservation goes out ``offset_ns`` after
     a SYNC0 pulse; the frame completes on the bus after that phase in its cycle."""
     with host_rig(tmp_path, ((),)) as h:
-        adapter, port = classic_port(h.backend, channels=(0,), dc_sync0=True)
+        _adapter, port = classic_port(h.backend, channels=(0,), dc_sync0=True)
         received: list[float] = []
         h.rig.buses["s0can0"].attach("probe", on_frame=lambda f, t: received.append(t))
         port.run_cycles(20)                        # the first SYNC0 pulse comes 10 ms after configure_dc
@@ -179,7 +179,7 @@ def test_parse_diag_on_corrupted_image(tmp_path: Path) -> None:
     parse diagnostic says where: BAD_CRC with seq / payload_len / crc, then (CRC fixed) an unknown
     KIND with offset, packet end, ctrl, ch, dlc, tsf and kind."""
     with host_rig(tmp_path, ((),)) as h:
-        adapter, port = classic_port(h.backend, channels=(0,))
+        _adapter, port = classic_port(h.backend, channels=(0,))
         layout = StreamLayout(3, 0x01, direction=Direction.TX)
         image = bytearray(encode_stream(layout, 77, [CanPacket(0, 0x181, data=b"\x01\x02")]))
         image[28] ^= 0xFF

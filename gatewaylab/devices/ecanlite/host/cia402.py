@@ -347,10 +347,23 @@ class Cia402:
             if progress is not None:
                 progress(i + 1)
 
-    def settle(self, timeout: float = 1.0, window: int = 10) -> bool:
-        """Hold the targets until every axis is within ``window`` (0x6067) or ``timeout`` passes."""
+    def settle(self, timeout: float = 1.0, window: int = 10, window_time: float = 0.005) -> bool:
+        """Hold the targets until every axis has stayed within ``window`` for ``window_time``
+        (0x6067 / 0x6068 defaults: 10 inc, 5 ms), or ``timeout`` passes."""
+        since: list[float | None] = [None]
+
+        def inside() -> bool:
+            now = self.clock.now()
+            if not all(r.reached(window) for r in self.results()):
+                since[0] = None
+                return False
+            first = since[0]
+            if first is None:
+                since[0] = first = now
+            return now - first >= window_time
+
         try:
-            self._wait(lambda: all(r.reached(window) for r in self.results()), timeout, "settle")
+            self._wait(inside, timeout, "settle")
         except TimeoutError_:
             return False
         return True

@@ -261,12 +261,20 @@ def cmd_sdo_probe(args: argparse.Namespace, out: IO[str]) -> int:
 # ------------------------------------------------------------------------------------ cia402
 def cmd_cia402(args: argparse.Namespace, out: IO[str]) -> int:
     """15.6 ``igh_cia402_10axis_demo``: startup, ``--cycles`` of CSP motion by ``--step``, results."""
+    given: list[Axis] = []
+    if args.axes:
+        try:
+            given = parse_axes(args.axes, args.step)
+        except LocalError as exc:
+            raise Usage(f"--axes: {exc}") from None
     with _line(args) as line:
-        if args.axes:
-            axes = parse_axes(args.axes, args.step)
+        if given:
+            axes = given
             positions = _positions(line, args.slaves)
         elif line.rig is not None:
             rig_pos, axes = rig_axes(line.rig, args.step)
+            if args.slaves is not None and args.slaves > len(rig_pos):
+                raise Usage(f"--slaves {args.slaves}: the rig has {len(rig_pos)} ECAN-Lite(s)")
             positions = rig_pos[:args.slaves] if args.slaves else rig_pos
             axes = [a for a in axes if a.slave < len(positions)]
             if not axes:

@@ -16,9 +16,12 @@ __all__ = ["rig_axes", "rig_channel_bitrates", "rig_toml"]
 
 
 def rig_toml(drives_per_channel: Sequence[Sequence[int]] = ((1,),), *, bitrate: int = 1_000_000,
-             data_bitrate: int | None = None, slaves: int = 1, interface: str = "gl-none") -> str:
+             data_bitrate: int | None = None, slaves: int = 1, interface: str | None = None) -> str:
     """A simulated-clock rig: ``slaves`` ECAN-Lites, each with ``len(drives_per_channel)`` buses;
-    channel k of slave s carries drives with the node ids ``drives_per_channel[k]``."""
+    channel k of slave s carries drives with the node ids ``drives_per_channel[k]``. With
+    ``interface`` the rig gets an ``[ethercat]`` section (the segment answers on that interface
+    under ``gatewaylab run``); without it, the in-process master takes the EtherCAT devices in
+    file order."""
     lines = ['clock = "simulated"', ""]
     for s in range(slaves):
         for k, nodes in enumerate(drives_per_channel):
@@ -33,7 +36,8 @@ def rig_toml(drives_per_channel: Sequence[Sequence[int]] = ((1,),), *, bitrate: 
                           f'name = "s{s}c{k}n{n}"', ""]
         chans = ", ".join(f'"s{s}can{k}"' for k in range(len(drives_per_channel)))
         lines += ["[[device]]", 'kind = "ecanlite"', f'name = "ecan{s}"', f"channels = [{chans}]", ""]
-    lines += ["[ethercat]", f'interface = "{interface}"', ""]
+    if interface:
+        lines += ["[ethercat]", f'interface = "{interface}"', ""]
     return "\n".join(lines)
 
 

@@ -213,6 +213,7 @@ class _SlavePort:
     status_words: tuple[int, int, int, int] = (0, 0, 0, 0)
     header_flags: HeaderFlags = field(default_factory=lambda: HeaderFlags(0))
     published: dict[int, list[_Pending]] = field(default_factory=dict)
+    accepted: set[int] = field(default_factory=set)
 
 
 class McanPort:
@@ -276,7 +277,9 @@ class McanPort:
         sp = self._slave(slave)
         if packet.scheduled and not self.adapter.config.dc_sync0:
             raise LocalError("scheduled transmit needs DC SYNC0 (8.4, 13.8: LastPDOError 16 otherwise)")
-        packet_size(packet, sp.rx_layout)
+        if packet.ctrl not in sp.accepted or packet.tsf:   # a control word is judged once (as the codec)
+            packet_size(packet, sp.rx_layout)
+            sp.accepted.add(packet.ctrl)
         request = next(self._requests)
         sp.queue.append(_Pending(request, packet))
         return request
@@ -418,9 +421,11 @@ class McanPort:
     def _publish(self, sp: _SlavePort) -> None:
         layout = sp.rx_layout
         room = layout.frame_area_bytes
+        align4 = layout.align4
         take: list[_Pending] = []
         while sp.queue and len(take) < 255:
-            size = packet_size(sp.queue[0].packet, layout)
+            raw = sp.queue[0].packet.raw_size
+            size = (raw + 3) & ~3 if align4 else raw
             if size > room:
                 break
             room -= size
