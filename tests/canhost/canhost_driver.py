@@ -12,6 +12,7 @@ import struct
 import sys
 from pathlib import Path
 
+import can
 import canopen
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -22,16 +23,29 @@ if __name__ == "__main__":
     interface, ifname = sys.argv[1], sys.argv[2]
     net = canopen.Network()
     net.NOTIFIER_CYCLE = 0.05
-    # pd_timeout_us: SOEM waits up to 100 ms for the process data (a loaded 2-core machine)
-    net.connect(interface=interface, channel=ifname, cycle_us=1000, pd_timeout_us=100_000, **INTERFACES[interface])
+    for attempt in range(3):   # a veth link just brought up may lose the first frames: open again
+        try:
+            # pd_timeout_us: SOEM waits up to 50 ms for the process data (a loaded 2-core machine)
+            net.connect(interface=interface, channel=ifname, cycle_us=1000, pd_timeout_us=50_000,
+                        **INTERFACES[interface])
+            break
+        except can.CanInitializationError:
+            if attempt == 2:
+                raise
     try:
         node = net.add_node(2, canopen.ObjectDictionary())
         node.sdo.RESPONSE_TIMEOUT = 2.0      # a loaded 2-core machine: generous, never asserted
         name = node.sdo.upload(0x1008, 0).decode()
         serial = struct.unpack("<I", node.sdo.upload(0x1018, 4))[0]
-        pos, sw = move_pp(node, net.bus.host, 20_000)   # type: ignore[attr-defined]
         host = net.bus.host   # type: ignore[attr-defined]
-        result = {"name": name, "serial": serial, "position": pos, "statusword": sw, "cycles": host.cycles}
+        try:
+            pos, sw = move_pp(node, host, 20_000)
+        except Exception:
+            print(f"host: {host.cycles} cycles, {host.wkc_errors} WKC errors, {host.recoveries} recoveries",
+                  file=sys.stderr)
+            raise
+        result = {"name": name, "serial": serial, "position": pos, "statusword": sw, "cycles": host.cycles,
+                  "wkc_errors": host.wkc_errors, "recoveries": host.recoveries}
     finally:
         net.disconnect()
     print(json.dumps(result))

@@ -47,6 +47,9 @@ SHUTDOWN_TIMEOUT = 2.0
 SETTLE_CYCLES = 4
 #: Cycles ``send()`` on a simulated clock runs at most for one frame (a lone node never completes).
 MAX_SEND_CYCLES = 2000
+#: Consecutive cycles with a wrong working counter after which the host looks at the slaves'
+#: states and brings those fallen to SAFEOP (SM watchdog after a stalled master) back to OP.
+WKC_RECOVER = 10
 #: SocketCAN error classes (linux/can/error.h) used for error frames.
 CAN_ERR_CRTL, CAN_ERR_BUSOFF = 0x04, 0x40
 CAN_ERR_CRTL_RX_OVERFLOW = 0x01
@@ -216,6 +219,9 @@ class EthercatHost:
         self.buses: list[GatewayBus] = []
         self.cycles = 0
         self.wkc_errors = 0
+        #: slaves brought back from SAFEOP to OP
+        self.recoveries = 0
+        self._bad_cycles = 0
         self._owned = owned
         self._timer: PeriodicTimer | None = None
         self._thread: threading.Thread | None = None
@@ -333,14 +339,37 @@ class EthercatHost:
             self.cycles += 1
             if wkc != expected:
                 self.wkc_errors += 1
+                self._bad_cycles += 1
+            else:
+                self._bad_cycles = 0
             for ch in chans:
                 ch.after_exchange(wkc, expected)
+            if self._bad_cycles >= WKC_RECOVER:
+                self._bad_cycles = 0
+                self._recover()
             for ch in chans:
                 msgs = ch.take()
                 if msgs:
                     for bus in self.buses:
                         if bus.channel_name == ch.name:
                             bus.deliver(msgs)
+
+    def _recover(self) -> None:
+        """Bring slaves that fell to SAFEOP back to OP (their gateways keep their state there: the
+        esd counters, the ECAN-Lite profile); a slave in INIT/PREOP lost its configuration and is
+        only logged (open the bus again)."""
+        for s in self.backend.slaves():
+            try:
+                state, code = self.backend.state(s.position)
+                if state == AlState.SAFEOP:
+                    log.warning("slave %d fell to SAFEOP (AL status code 0x%04X): back to OP", s.position, code)
+                    self.backend.request_state(AlState.OP, s.position, 1.0)
+                    self.recoveries += 1
+                elif state != AlState.OP:
+                    log.error("slave %d is in %s (AL status code 0x%04X): open the bus again",
+                              s.position, state.name, code)
+            except (GatewaylabError, TimeoutError) as exc:
+                log.warning("slave %d: state not read: %s", s.position, exc)
 
     def _dispatch_ecan(self, port: McanPort) -> None:
         by_key = {(c.slave_k, c.can_channel): c for c in self._ecan()}
