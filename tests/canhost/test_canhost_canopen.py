@@ -267,3 +267,24 @@ def test_ecanlite_parse_error_is_an_error_frame(two: TwoGateways) -> None:
         assert two.host.parse_errors >= 1
     finally:
         bus.shutdown()
+
+
+def test_a_gateway_fallen_to_safeop_is_brought_back(two: TwoGateways) -> None:
+    """ETG.1000.6 SM watchdog: a gateway that fell to SAFEOP (here: requested) is found by the
+    host's look at the AL states (every 0.1 s, at once after 10 cycles with a wrong working
+    counter) and brought back to OP; the channel carries frames again (the esd counters survive
+    SAFEOP, 5.1.5.1)."""
+    bus = two.host.bus("left")
+    try:
+        with two.clock.lock:
+            two.host.backend.request_state(AlState.SAFEOP, 0)
+        two.host.run_for(0.25)
+        assert two.host.recoveries == 1
+        assert two.gws[0].slave.esc.al_state == AlState.OP
+        bus.send(can.Message(arbitration_id=0x602, data=[0x40, 0x18, 0x10, 4, 0, 0, 0, 0], is_extended_id=False))
+        msg = bus.recv(1.0)
+        while msg is not None and msg.arbitration_id != 0x582:
+            msg = bus.recv(1.0)
+        assert msg is not None and bytes(msg.data[4:]) == _u32(0x1002)
+    finally:
+        bus.shutdown()

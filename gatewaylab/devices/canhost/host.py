@@ -48,8 +48,11 @@ SETTLE_CYCLES = 4
 #: Cycles ``send()`` on a simulated clock runs at most for one frame (a lone node never completes).
 MAX_SEND_CYCLES = 2000
 #: Consecutive cycles with a wrong working counter after which the host looks at the slaves'
-#: states and brings those fallen to SAFEOP (SM watchdog after a stalled master) back to OP.
+#: states at once and brings those fallen to SAFEOP (SM watchdog after a stalled master) back to OP.
 WKC_RECOVER = 10
+#: Seconds between two looks at the slaves' AL states anyway: a slave in SAFEOP may still count
+#: the datagrams (the working counter stays right) while it takes no outputs.
+STATE_CHECK_PERIOD = 0.1
 #: SocketCAN error classes (linux/can/error.h) used for error frames.
 CAN_ERR_CRTL, CAN_ERR_BUSOFF = 0x04, 0x40
 CAN_ERR_CRTL_RX_OVERFLOW = 0x01
@@ -222,6 +225,7 @@ class EthercatHost:
         #: slaves brought back from SAFEOP to OP
         self.recoveries = 0
         self._bad_cycles = 0
+        self._state_checked_at = self.clock.now()
         self._owned = owned
         self._timer: PeriodicTimer | None = None
         self._thread: threading.Thread | None = None
@@ -344,8 +348,10 @@ class EthercatHost:
                 self._bad_cycles = 0
             for ch in chans:
                 ch.after_exchange(wkc, expected)
-            if self._bad_cycles >= WKC_RECOVER:
+            now = self.clock.now()
+            if self._bad_cycles >= WKC_RECOVER or now - self._state_checked_at >= STATE_CHECK_PERIOD:
                 self._bad_cycles = 0
+                self._state_checked_at = now
                 self._recover()
             for ch in chans:
                 msgs = ch.take()
