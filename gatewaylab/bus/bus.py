@@ -46,6 +46,7 @@ class ErrorKind(Enum):
     CRC = "crc"          # a receiver saw a corrupted frame (fault injection)
     BIT = "bit"          # the controller's bit timing does not match the bus
     FORM = "form"        # a frame sent at a foreign bit rate, seen as garbage
+    STUFF = "stuff"      # more than five equal bits in a row: a bus held dominant (fault injection)
 
 
 class Outcome(Enum):
@@ -482,6 +483,84 @@ class _Audience:
         self.rx = _RxCounters()
 
 
+class _FaultPlan:
+    """Faults planned for the next transmissions: frames to drop or corrupt (any, or of one
+    CAN id) and a span of noise. The bus asks it for the outcome of each transmission while it
+    exists (``outcome``, which changes nothing) and tells it each transmission put on the wire
+    (``commit``, which consumes what was used); when it is spent the bus forgets it."""
+
+    __slots__ = ("corrupt", "drop", "errors_every", "errors_seen", "errors_until")
+
+    def __init__(self) -> None:
+        #: [can_id or None (any frame), frames left], in the order they were asked for
+        self.drop: list[list[int | None]] = []
+        self.corrupt: list[list[int | None]] = []
+        self.errors_until = float("-inf")
+        self.errors_every = 1
+        self.errors_seen = 0
+
+    @staticmethod
+    def add(rules: list[list[int | None]], n: int, can_id: int | None) -> None:
+        if n < 1:
+            raise LocalError(f"the number of frames must be >= 1, got {n}")
+        for rule in rules:
+            if rule[0] == can_id:
+                rule[1] = (rule[1] or 0) + n
+                return
+        rules.append([can_id, n])
+
+    @staticmethod
+    def _match(rules: list[list[int | None]], frame: CanFrame) -> list[int | None] | None:
+        for rule in rules:
+            if rule[0] is None or rule[0] == frame.can_id:
+                return rule
+        return None
+
+    def outcome(self, frame: CanFrame, start: float) -> Outcome | None:
+        """DROPPED or CRC_ERROR when a planned fault hits this frame; None: no fault."""
+        if self.drop and self._match(self.drop, frame) is not None:
+            return _DROPPED
+        if self.corrupt and self._match(self.corrupt, frame) is not None:
+            return _CRC_ERROR
+        if start < self.errors_until and self.errors_seen % self.errors_every == 0:
+            return _CRC_ERROR
+        return None
+
+    def commit(self, tx: Transmission) -> bool:
+        """Consume what hit ``tx`` (the same choice :meth:`outcome` made); True when spent."""
+        frame = tx.frame
+        if tx.outcome is _DROPPED:
+            rules = self.drop
+        elif tx.outcome is _CRC_ERROR and self._match(self.corrupt, frame) is not None:
+            rules = self.corrupt
+        else:
+            rules = None
+        if rules is not None:
+            rule = self._match(rules, frame)
+            assert rule is not None and rule[1] is not None
+            rule[1] -= 1
+            if not rule[1]:
+                rules.remove(rule)
+        elif not tx.sender.synthetic and tx.start < self.errors_until:
+            self.errors_seen += 1
+        return not self.drop and not self.corrupt and tx.start >= self.errors_until
+
+
+class _Jam:
+    """A bus held dominant: until when, who counts as transmitter, the steps of rule 6."""
+
+    __slots__ = ("bus_off", "release", "start", "step", "transmitters", "until", "wire")
+
+    def __init__(self, start: float, until: float, wire: Transmission) -> None:
+        self.start = start
+        self.until = until
+        self.wire = wire
+        self.transmitters: list[Controller] = []
+        self.bus_off: list[Controller] = []
+        self.release = TimerHandle(until, 0, lambda: None, ())
+        self.step = TimerHandle(start, 0, lambda: None, ())
+
+
 @dataclass(slots=True)
 class _Load:
     percent: float
@@ -516,8 +595,10 @@ class VirtualBus:
         #: The pending arbitration a queued frame asked for (see _kick).
         self._arb_timer: TimerHandle | None = None
         self._idle_at = clock.now()
-        self._drop_next = 0
-        self._corrupt_next = 0
+        #: Faults planned for the next transmissions (docs/bus.md); None costs the hot path one test.
+        self._faults: _FaultPlan | None = None
+        #: A bus held dominant (stuck_dominant), until it is released.
+        self._jam: _Jam | None = None
         self._load: _Load | None = None
         #: One end of frame and one arbitration are pending at most: each has one handle that
         #: the bus queues again (clock.reschedule) instead of a new handle per frame.
@@ -611,13 +692,143 @@ class VirtualBus:
         ctrl.tec = 256
         ctrl._update_state()
 
-    def drop_next(self, n: int = 1) -> None:
-        """The next ``n`` frames vanish: the sender sees success, nobody receives them."""
-        self._drop_next += n
+    def drop_next(self, n: int = 1, can_id: int | None = None) -> None:
+        """The next ``n`` frames (of ``can_id`` only, if given) vanish: the sender sees success,
+        nobody receives them."""
+        self._plan().add(self._plan().drop, n, can_id)
 
-    def corrupt_next(self, n: int = 1) -> None:
-        """The next ``n`` frames arrive corrupted: CRC error frame, counters, retransmission."""
-        self._corrupt_next += n
+    def corrupt_next(self, n: int = 1, can_id: int | None = None) -> None:
+        """The next ``n`` frames (of ``can_id`` only, if given) arrive corrupted: CRC error
+        frame, counters, retransmission (a retransmission is a frame of its own)."""
+        self._plan().add(self._plan().corrupt, n, can_id)
+
+    def error_frames(self, duration: float, every: int = 1) -> None:
+        """Noise for ``duration`` seconds: one frame in ``every`` that starts in that span ends
+        in an error frame (a CRC error to its receivers: transmitter TEC + 8, receivers REC + 1,
+        retransmission), as electromagnetic disturbance does (CAN 2.0 §8 rules 1 and 3)."""
+        if duration <= 0 or every < 1:
+            raise LocalError("error_frames: duration must be > 0 and every >= 1")
+        plan = self._plan()
+        plan.errors_until = max(plan.errors_until, self.clock.now() + duration)
+        plan.errors_every = every
+        plan.errors_seen = 0
+
+    def force_error_passive(self, ctrl: Controller) -> None:
+        """Put a controller's TEC at 128 (error-passive, CAN 2.0 §8 rule 9); every successful
+        transmission then counts it down by one, so it is error-active again after its next one
+        (rule 7), as a node that just had a burst of errors."""
+        if ctrl.state is _BUS_OFF:
+            raise LocalError(f"{ctrl.name}: controller is bus-off")
+        ctrl.tec = max(ctrl.tec, 128)
+        ctrl._update_state()
+
+    def stuck_dominant(self, duration: float) -> None:
+        """Hold the bus dominant for ``duration`` seconds (a jammed transceiver, CANH shorted to
+        supply): no frame completes. The frame on the wire is destroyed; every controller that
+        has a frame to send is a transmitter and every other one a receiver, and after the first
+        error (TEC + 8, REC + 1) each counts + 8 per 8 more dominant bits (CAN 2.0 §8 rule 6),
+        so transmitters go bus-off and receivers error-passive. Released, the bus is idle again:
+        bus-off controllers recover after 128 x 11 recessive bits, queued frames go out."""
+        if duration <= 0:
+            raise LocalError("stuck_dominant: duration must be > 0")
+        now = self.clock.now()
+        jam = self._jam
+        if jam is not None:
+            jam.until = max(jam.until, now + duration)
+            jam.release.cancel()
+            jam.release = self.clock.call_at(jam.until, self._release_jam)
+            return
+        tx = self._on_wire
+        sentinel = Controller(self, "<stuck dominant>", self.bitrate, None, False, False, False, False,
+                              False, None, None)
+        jam = self._jam = _Jam(now, now + duration, Transmission(sentinel, CanFrame(0), _ACK_ERROR, now, now))
+        # a cancelled handle stays in the clock's queue: the bus takes fresh ones, so that a later
+        # reschedule of the same handle cannot revive the stale entry
+        if tx is not None:
+            self._eof_handle.cancel()
+            self._eof_handle = TimerHandle(0.0, 0, self._end_of_frame, ())
+            jam.transmitters.append(tx.sender)
+            self.stats.busy_time += now - max(tx.start, self.stats.since)
+        if self._arb_timer is not None:
+            self._arb_timer.cancel()
+            self._arb_timer = None
+            self._arb_handle = TimerHandle(0.0, 0, self._arbitrate, ())
+        self._on_wire = jam.wire        # the bus is busy: nothing arbitrates until the release
+        jam.release = self.clock.call_at(jam.until, self._release_jam)
+        # the first error: a bit error for the transmitter, a stuff error after 6 dominant bits
+        jam.step = self.clock.call_later(6 / self.bitrate, self._jam_step, True)
+
+    @property
+    def stuck(self) -> bool:
+        """True while the bus is held dominant (:meth:`stuck_dominant`)."""
+        return self._jam is not None
+
+    def _plan(self) -> _FaultPlan:
+        plan = self._faults
+        if plan is None:
+            plan = self._faults = _FaultPlan()
+        return plan
+
+    def _jam_step(self, first: bool) -> None:
+        """One step of CAN 2.0 §8 rule 6 on a bus held dominant: + 8 per 8 dominant bits."""
+        jam = self._jam
+        if jam is None:
+            return
+        now = self.clock.now()
+        counting = False
+        self.stats.error_frames += 1
+        for c in list(self.controllers):
+            if not c._connected or c.state is _BUS_OFF or c.synthetic:
+                continue
+            if c._listen_only:     # sees the error, never counts it (docs/bus.md)
+                if first:
+                    c._stats.error_frames += 1
+                    c._emit(ErrorFrameEvent(ErrorKind.STUFF, now, False, None))
+                continue
+            if c.tx_queue or c in jam.transmitters:
+                if c not in jam.transmitters:
+                    jam.transmitters.append(c)
+                c.tec += 8
+                c._stats.error_frames += 1
+                c._emit(ErrorFrameEvent(ErrorKind.BIT, now, True, c.tx_queue[0] if c.tx_queue else None))
+                c._update_state()
+                if c.state is _BUS_OFF:
+                    if c._recovery is not None:   # recovery needs recessive bits: after the release
+                        c._recovery.cancel()
+                        c._recovery = None
+                    jam.bus_off.append(c)
+                else:
+                    counting = True
+            elif c.rec <= 127:
+                c.rec = min(255, c.rec + (1 if first else 8))
+                c._stats.error_frames += 1
+                c._emit(ErrorFrameEvent(ErrorKind.STUFF, now, False, None))
+                if c.rec == 1 and c.timing_matches:
+                    self._invalidate()
+                c._update_state()
+                counting = counting or c.rec <= 127
+        # after the first error flag (6 bits) the 14th dominant bit, then every 8 bits; once every
+        # counter has settled only a node that queues a frame later can change: look each ms
+        delay = (14 if first else 8) / self.bitrate if counting else 0.001
+        jam.step = self.clock.call_later(delay, self._jam_step, False)
+
+    def _release_jam(self) -> None:
+        jam = self._jam
+        if jam is None:
+            return
+        self._jam = None
+        jam.step.cancel()
+        now = self.clock.now()
+        self.stats.busy_time += now - max(jam.start, self.stats.since)
+        self._idle_at = now
+        self._on_wire = None
+        for c in jam.bus_off:
+            if c.state is _BUS_OFF and c.auto_recover and c._recovery is None:
+                c._recovery = self.clock.call_later(BUS_OFF_RECOVERY_BITS / self.bitrate, c.recover)
+        for c in self.controllers:
+            if c.tx_queue and c._connected:
+                self._kick()
+                break
 
     def set_load(self, percent: float, can_id: int = 0x7FF, length: int = 8) -> None:
         """Add synthetic bus load from a phantom node sending ``can_id`` (0 disables)."""
@@ -715,10 +926,8 @@ class VirtualBus:
         acks = audience.fd_acks if frame.fd else audience.acks
         if sender.synthetic:
             outcome = _SENT
-        elif self._drop_next:
-            outcome = _DROPPED
-        elif self._corrupt_next:
-            outcome = _CRC_ERROR
+        elif self._faults is not None and (planned := self._faults.outcome(frame, start)) is not None:
+            outcome = planned
         elif acks and (acks[0] is not sender or len(acks) > 1):
             outcome = _SENT
         else:
@@ -752,10 +961,8 @@ class VirtualBus:
             tx = self._next_transmission(now)
             if tx is None:
                 return
-            if tx.outcome is _DROPPED:
-                self._drop_next -= 1
-            elif tx.outcome is _CRC_ERROR:
-                self._corrupt_next -= 1
+            if self._faults is not None and self._faults.commit(tx):
+                self._faults = None
             self._on_wire = tx
             if tx.end != now:
                 self.clock.reschedule(self._eof_handle, tx.end)

@@ -85,7 +85,6 @@ def build_object_dictionary(serial: int, node_id: int | None, device_name: str =
     p = params or AxisParams()
     od = ObjectDictionary(node_id)
     u8, u16, u32 = DataType.UNSIGNED8, DataType.UNSIGNED16, DataType.UNSIGNED32
-    i8, i16, i32 = DataType.INTEGER8, DataType.INTEGER16, DataType.INTEGER32
     RO, RW, CONST = Access.RO, Access.RW, Access.CONST
 
     def var(index: int, name: str, dt: DataType, access: Access, default: Any = None,
@@ -117,6 +116,24 @@ def build_object_dictionary(serial: int, node_id: int | None, device_name: str =
         od.add_sub(idx, 5, "Event timer", u16, RW, 0)
         od.add_sub(idx, 6, "SYNC start value", u8, RW, 0)
         add_mapping(od, 0x1A00 + n, f"TPDO{n + 1} mapping parameter", pdo.entries)
+    add_profile_objects(od, p)
+    add_communication_objects(od)
+    return od
+
+
+def add_profile_objects(od: ObjectDictionary, params: AxisParams | None = None) -> None:
+    """The drive's own rows: the maxon objects and the CiA 402 profile (0x2006..0x6502). The
+    CANopen drive adds them to its node's dictionary; the EtherCAT drive (CoE, ETG.6010) serves the
+    same rows from its slave's dictionary."""
+    p = params or AxisParams()
+    u8, u16, u32 = DataType.UNSIGNED8, DataType.UNSIGNED16, DataType.UNSIGNED32
+    i8, i16, i32 = DataType.INTEGER8, DataType.INTEGER16, DataType.INTEGER32
+    RO, RW = Access.RO, Access.RW
+
+    def var(index: int, name: str, dt: DataType, access: Access, default: Any = None,
+            mappable: bool = False, low: float | None = None, high: float | None = None) -> None:
+        od.add_variable(index, name, dt, access, default, pdo_mappable=mappable, low=low, high=high)
+
     # maxon objects later issues rely on
     var(0x2006, "USB frame timeout", u16, RW, 500)
     var(0x30B0, "Home position", i32, RW, 0, mappable=True)
@@ -169,8 +186,6 @@ def build_object_dictionary(serial: int, node_id: int | None, device_name: str =
     var(0x60FD, "Digital inputs", u32, RO, 0, mappable=True)
     var(0x60FF, "Target velocity", i32, RW, 0, mappable=True)
     var(0x6502, "Supported drive modes", u32, RO, SUPPORTED_MODES)
-    add_communication_objects(od)
-    return od
 
 
 def _clamp(value: float, low: float, high: float) -> float:
@@ -217,8 +232,13 @@ _MEASURED_RANGES = tuple(limits for _, limits in _ACTUALS if limits is not None)
 class Drive:
     """A maxon IDX-like CiA 402 servo on a virtual CAN bus (see module docstring)."""
 
-    def __init__(self, clock: Clock, bus: VirtualBus, node_id: int | None, serial: int, name: str = "",
-                 store_path: Path | None = None, params: AxisParams | None = None) -> None:
+    def __init__(self, clock: Clock, bus: VirtualBus | None, node_id: int | None, serial: int, name: str = "",
+                 store_path: Path | None = None, params: AxisParams | None = None, *,
+                 od: ObjectDictionary | None = None, node: Node | None = None) -> None:
+        """``od`` and ``node``: another protocol hosts the drive (the EtherCAT drive: its slave's
+        dictionary holds the rows of :func:`add_profile_objects`, ``node`` offers what the drive
+        uses of a Node: set, emcy, nmt_state, on_write/on_nmt_change/on_reset, start/stop); then
+        no CANopen node and no LSS slave are built and ``bus`` is not used."""
         if node_id is not None and not 1 <= node_id <= 127:
             raise ConfigError(f"drive node_id {node_id} outside 1..127")
         if not 0 <= serial <= 0xFFFFFFFF:
@@ -232,7 +252,7 @@ class Drive:
         stored = lss_store.load() if lss_store is not None else None
         if stored is not None:
             node_id = None if stored[0] == UNCONFIGURED else stored[0]
-        self.od = build_object_dictionary(serial, node_id, params=params)
+        self.od = od if od is not None else build_object_dictionary(serial, node_id, params=params)
         #: the dictionary's value table (typed values), read directly on the 1 kHz hot path
         self._v: dict[tuple[int, int], Any] = self.od.values
         #: _ACTUAL_KEYS as the entries' own key objects (Entry.key: a dict finds an identical
@@ -240,13 +260,19 @@ class Drive:
         entries = self.od.entries
         self._actual_keys = tuple(entries[key].key for key in _ACTUAL_KEYS)
         self._statusword_key = (entries[0x6041, 0].key,)
-        self.node = Node(clock, bus, node_id, self.od, name=self.name, store_path=store_path)
-        if stored is not None:
-            rate = BIT_TIMING_TABLE[stored[1]] if stored[1] < len(BIT_TIMING_TABLE) else None
-            if rate is not None:
-                self.node.controller.bitrate = rate
-        self.lss = LssSlave(self.node, LssAddress(MAXON_VENDOR_ID, PRODUCT_CODE, REVISION, serial),
-                            store=lss_store)
+        self._lss: LssSlave | None = None
+        if node is not None:
+            self.node = node
+        else:
+            if bus is None:
+                raise ConfigError(f"drive {self.name}: a CANopen drive needs a bus")
+            self.node = Node(clock, bus, node_id, self.od, name=self.name, store_path=store_path)
+            if stored is not None:
+                rate = BIT_TIMING_TABLE[stored[1]] if stored[1] < len(BIT_TIMING_TABLE) else None
+                if rate is not None:
+                    self.node.controller.bitrate = rate
+            self._lss = LssSlave(self.node, LssAddress(MAXON_VENDOR_ID, PRODUCT_CODE, REVISION, serial),
+                                 store=lss_store)
         self.plant = Plant(params or AxisParams())
         self.period = CONTROL_PERIOD
         #: what the rig's ready file lists for this drive (set by the rig: its EDS, for monitors)
@@ -314,8 +340,32 @@ class Drive:
         if self._timer is not None:
             self._timer.cancel()
             self._timer = None
-        self.lss.stop()
+        if self._lss is not None:
+            self._lss.stop()
         self.node.stop()
+
+    @property
+    def lss(self) -> LssSlave:
+        """The LSS slave of a CANopen drive (a drive hosted by another protocol has none)."""
+        if self._lss is None:
+            raise ConfigError(f"drive {self.name} has no LSS slave (not on CAN)")
+        return self._lss
+
+    def set_external_cycle(self, external: bool) -> None:
+        """EtherCAT synchronisation (ETG.1020): ``True`` stops the drive's own control timer, the
+        host then runs each control period with :meth:`control_period` (SYNC0 or SM event);
+        ``False`` (free run) restarts the timer at the 1 ms control period."""
+        if external and self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+        elif not external and self._timer is None:
+            self.period = CONTROL_PERIOD
+            self._timer = self.clock.call_every(self.period, self._tick)
+
+    def control_period(self, dt: float) -> None:
+        """One control period of ``dt`` seconds run by the host (see :meth:`set_external_cycle`)."""
+        self.period = dt
+        self._tick()
 
     # -- object hooks -----------------------------------------------------------------------
     def _on_mode(self, *args: Any) -> None:
@@ -749,4 +799,5 @@ _TORQUE = ControlMode.TORQUE
 _HOMING_RUNNING = (HomingStatus.IN_PROGRESS, HomingStatus.ATTAINED)
 
 
-__all__ = ["DEVICE_TYPE", "MAXON_VENDOR_ID", "PRODUCT_CODE", "Command", "Demand", "Drive", "build_object_dictionary"]
+__all__ = ["DEVICE_TYPE", "MAXON_VENDOR_ID", "PRODUCT_CODE", "Command", "Demand", "Drive", "add_profile_objects",
+           "build_object_dictionary"]

@@ -88,7 +88,7 @@ SCAN_ATTEMPTS = 3
 SCAN_RETRY = 0.2
 #: SOEM waits 700 ms for each SDO Information reply; on a loaded machine a request is tried again.
 INFO_ATTEMPTS = 3
-#: Register reads over pysoem tried this often before a slave counts as not answering (a late frame is lost).
+#: Reads of the AL status over pysoem tried this often while the answer is implausible.
 REGISTER_ATTEMPTS = 3
 #: Seconds to let a late mailbox reply arrive before a pysoem mailbox call is repeated.
 RETRY_SETTLE = 0.05
@@ -187,6 +187,9 @@ def sii_complete(img: bytes | bytearray) -> bool:
             return True
         pos += CATEGORY_HEADER.size + 2 * words
     return False
+
+
+_STATES = frozenset(int(s) for s in AlState)
 
 
 def _state_of(status: int) -> AlState:
@@ -588,12 +591,14 @@ class _PysoemRegisters:
 
     def read(self, position: int, address: int, length: int) -> bytes | None:
         slave = self.backend._slave(position)
-        for _attempt in range(REGISTER_ATTEMPTS):
+        clock = self.backend.clock
+        deadline = clock.now() + self.backend.timeout
+        while True:          # a stalled slave gets the mailbox timeout, not one frame's 50 ms
             try:
                 return bytes(slave._fprd(address, length, self.backend.register_timeout_us))
             except self.backend._pysoem.WkcError:
-                continue
-        return None
+                if clock.now() >= deadline:
+                    return None
 
     def write(self, position: int, address: int, data: bytes) -> bool:
         """One attempt: a mailbox write the slave refuses (SM0 full) must not be repeated blindly."""
@@ -720,10 +725,17 @@ class PysoemBackend:
 
     def al_status(self, position: int) -> tuple[int, int]:
         """(AL status register with the error flag, AL status code), read now."""
-        raw = _PysoemRegisters(self).read(position, REG_AL_STATUS, 6)
-        if raw is None:
-            raise MasterTimeout(f"slave {position} does not answer")
-        return U16.unpack_from(raw, 0)[0], U16.unpack_from(raw, 4)[0]
+        regs = _PysoemRegisters(self)
+        for _attempt in range(REGISTER_ATTEMPTS):
+            raw = regs.read(position, REG_AL_STATUS, 6)
+            if raw is None:
+                raise MasterTimeout(f"slave {position} does not answer")
+            status = U16.unpack_from(raw, 0)[0]
+            # SOEM matches a reply by its index byte only: a very late frame of an earlier request
+            # can stand in for the answer (shared notes soem-interop pitfall 2); read again.
+            if not status & 0xFFE0 and status & 0x0F in _STATES:
+                return status, U16.unpack_from(raw, 4)[0]
+        raise ProtocolError(f"slave {position}: implausible AL status 0x{status:04X}")
 
     def state(self, position: int) -> tuple[AlState, int]:
         """(AL state, AL status code) of one slave."""

@@ -39,6 +39,11 @@ class Pdo:
     index: int
     name: str
     entries: tuple[PdoEntry, ...]
+    #: A fixed PDO: its mapping object is read-only (ESI ``Fixed="1"``).
+    fixed: bool = False
+    #: PDOs that cannot be assigned together with this one (ESI ``<Exclude>``, e.g. alternatives
+    #: mapping the same objects).
+    exclude: tuple[int, ...] = ()
 
     @property
     def bit_length(self) -> int:
@@ -111,6 +116,8 @@ class DeviceDescription:
     bootstrap: bool = False
     bootstrap_mailbox: tuple[int, int, int, int] = (0x1000, 512, 0x1200, 512)
     dc: bool = True
+    #: ESI ``<Dc><OpMode>`` rows: (name, description, AssignActivate); 0 = no SYNC signal.
+    dc_op_modes: tuple[tuple[str, str, int], ...] = (("SM", "SM-Synchron", 0), ("DC", "DC-Synchron", 0x300))
     device_type: int = 0x00000000
     objects: tuple[ObjectDef, ...] = ()
     #: Further device-specific dictionary setup (hooks on entries, arrays...).
@@ -232,8 +239,9 @@ def build_od(desc: DeviceDescription) -> ObjectDictionary:
                                    (desc.tx_pdos, desc.assigned_tx_pdos, 0x1C13)):
         for pdo in pdos:
             n = max(8, len(pdo.entries))
-            od.add_array(pdo.index, pdo.name, u32, n, Access.RW, defaults=[e.mapping for e in pdo.entries],
-                         sub0_access=Access.RW, sub0_default=len(pdo.entries), preop_only=True,
+            access = Access.RO if pdo.fixed else Access.RW
+            od.add_array(pdo.index, pdo.name, u32, n, access, defaults=[e.mapping for e in pdo.entries],
+                         sub0_access=access, sub0_default=len(pdo.entries), preop_only=True,
                          sub0_name="SubIndex 000", sub_names=[f"SubIndex {i:03d}" for i in range(1, n + 1)])
             _mapping_validators(od, pdo.index, assign == 0x1C12, assignment=False)
         n = max(4, len(pdos))

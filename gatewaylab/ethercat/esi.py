@@ -29,12 +29,14 @@ def _sub(parent: ET.Element, tag: str, text: str | None = None, **attrs: str) ->
 
 def _pdo(parent: ET.Element, tag: str, pdo: Pdo, sm: int | None) -> None:
     """A PDO; ``Sm`` only on the PDOs assigned by default (the others are optional)."""
-    attrs = {"Fixed": "0", "Mandatory": "0" if sm is None else "1"}
+    attrs = {"Fixed": "1" if pdo.fixed else "0", "Mandatory": "0" if sm is None else "1"}
     if sm is not None:
         attrs["Sm"] = str(sm)
     el = _sub(parent, tag, **attrs)
     _sub(el, "Index", _hex(pdo.index, 4))
     _sub(el, "Name", pdo.name)
+    for other in pdo.exclude:
+        _sub(el, "Exclude", _hex(other, 4))
     for e in pdo.entries:
         entry = _sub(el, "Entry")
         _sub(entry, "Index", _hex(e.index, 4))
@@ -95,7 +97,7 @@ def export_esi(desc: DeviceDescription, od: ObjectDictionary | None = None) -> s
             _sub(mailbox, "FoE")
     if desc.dc:
         dc = _sub(device, "Dc")
-        for name, text, assign in (("SM", "SM-Synchron", 0), ("DC", "DC-Synchron", 0x300)):
+        for name, text, assign in desc.dc_op_modes:
             mode = _sub(dc, "OpMode")
             _sub(mode, "Name", name)
             _sub(mode, "Desc", text)

@@ -438,6 +438,17 @@ class Master:
         self._wait(poll)
         return out[0]
 
+    def receive_emergency(self, position: int) -> tuple[int, int, bytes]:
+        """The next CoE emergency (ETG.1000.6) the slave sent: (error code, error register, 5 data
+        bytes); other mailbox messages read meanwhile are dropped. TimeoutError_ without one."""
+
+        def is_emergency(m: MailboxMessage) -> bool:
+            return m.type == MailboxType.COE and len(m.data) >= 10 and m.data[1] >> 4 == CoeService.EMERGENCY
+
+        data = self._next_mailbox(position, is_emergency).data
+        code, register = struct.unpack_from("<HB", data, 2)
+        return code, register, bytes(data[5:10])
+
     def od_list(self, position: int, list_type: int = 1) -> list[int]:
         """The indexes of a slave's dictionary by SDO information (list type 1: all), to browse it without an ESI."""
         data = b"".join(self._info(position, InfoOpcode.OD_LIST_REQ, U16.pack(list_type)))

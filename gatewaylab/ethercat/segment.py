@@ -32,13 +32,40 @@ class Segment:
     def __init__(self, slaves: list[Slave]) -> None:
         self.slaves = list(slaves)
         self.stats = SegmentStats()
+        #: positions of the slaves unplugged from the line (fault injection)
+        self.unplugged: set[int] = set()
         self._escs = [s.esc for s in self.slaves]
-        n = len(self.slaves)
+        self._link()
+
+    def _link(self) -> None:
+        """The slaves a frame reaches: the line up to the first unplugged one, whose upstream
+        neighbour closes its port and returns the frame (ESC automatic port loop-back)."""
+        reach = min(self.unplugged, default=len(self.slaves))
+        self._escs = [s.esc for s in self.slaves[:reach]]
         for i, esc in enumerate(self._escs):
-            esc.set_downstream(n - 1 - i)
+            esc.set_downstream(reach - 1 - i)
+
+    def unplug(self, position: int) -> None:
+        """Pull a slave out of the line: it and every slave behind it stop answering (the working
+        counter of every datagram for them drops)."""
+        if not 0 <= position < len(self.slaves):
+            raise IndexError(f"no slave at position {position}")
+        self.unplugged.add(position)
+        self._link()
+
+    def replug(self, position: int) -> None:
+        """Plug a slave back in: it powers on (AL status INIT, registers reset) and the line
+        behind it answers again (those slaves kept their state)."""
+        if position in self.unplugged:
+            self.unplugged.discard(position)
+            self.slaves[position].esc.power_cycle()
+            self._link()
 
     def process(self, frame: bytearray) -> bool:
-        """Execute every datagram on every slave in place; False for a dropped (bad) frame."""
+        """Execute every datagram on every slave in place; False for a dropped (bad) frame, or
+        when the first slave is unplugged (no link: the frame never comes back)."""
+        if not self._escs and self.unplugged:
+            return False
         parsed = self._parse(frame)
         if parsed is None:
             self.stats.bad_frames += 1

@@ -32,6 +32,7 @@ EXTRA_SUBCOMMANDS = (
     "gatewaylab.ethercat.net_cli",
     "gatewaylab.rig.ec",
     "gatewaylab.rig.ecan",
+    "gatewaylab.rig.fault_cli",
 )
 
 RIG_HELP = """\

@@ -158,6 +158,102 @@ def demo_idx(info: dict[str, Any], nodes: list[int]) -> None:
                 print(f"  -> ReadObject 0x6064 of node {node_id} through the IDX's SDO gateway: {position}")
 
 
+def demo_ethercat() -> None:
+    """The two EtherCAT gateways in process: the in-process master on a simulated clock (no root needed;
+    `make test` drives the same devices with SOEM over veth pairs)."""
+    from dataclasses import replace
+
+    from ..bus import VirtualBus, python_can_bus
+    from ..common.clock import SimulatedClock
+    from ..devices.ecanlite.device import EcanLiteDevice
+    from ..devices.ecanlite.stream import CanPacket, Direction, StreamLayout, decode_stream, encode_stream
+    from ..devices.esd_can_ethercat import create_esd_gateway
+    from ..devices.esd_can_ethercat.codec import IN_HEADER, OUT_HEADER, decode_rx11, encode_tx11
+    from ..ethercat.esc import AlState
+    from ..ethercat.master import Master
+    from ..ethercat.segment import Segment
+
+    step("ECAN-Lite (EtherCAT slave, 4 x CAN FD) in process: bring-up of manual 5.4.3, one CAN_FRAME each way")
+    clock = SimulatedClock()
+    can0 = VirtualBus(clock, "can0", 500_000)
+    ecan = EcanLiteDevice(clock, [can0.attach("ecan.mcan0")])
+    master = Master(clock, Segment([ecan.slave]))
+    master.scan()
+    master.set_state(AlState.PREOP)
+    for sub, value, size in ((15, 0, 1), (19, 500_000, 4), (1, 1, 1)):    # classic CAN, 500 kbit/s, apply
+        (master.sdo_download8 if size == 1 else master.sdo_download32)(0, 0x8001, sub, value)
+    master.bring_up()
+    info = master.slave(0)
+    print(f"  -> {info.name!r} in {AlState(master.al_status(0)[0] & 0x0F).name}: power-on profile N = 8, "
+          f"{info.output_bytes} B of RxPDO and {info.input_bytes} B of TxPDO (128 x N, manual 5.1)")
+    peer = python_can_bus(can0)
+    layout = StreamLayout.default()
+    master.pdo_write(0, 0, encode_stream(layout, 1, [CanPacket(0, 0x123, data=bytes.fromhex("1122334455667788"))]))
+    for _ in range(3):
+        master.exchange_process_data()
+        clock.advance(0.001)
+    msg = peer.recv(0)
+    print(f"  -> RxPDO CAN_FRAME (5.4.4.1) on MCAN0 -> can0: {msg.arbitration_id:03X}#{bytes(msg.data).hex().upper()}"
+          if msg is not None else "  -> nothing on can0")
+    peer.send(can.Message(arbitration_id=0x321, data=b"\xca\xfe", is_extended_id=False))
+    tx_layout = replace(layout, direction=Direction.TX)
+    frames: list[CanPacket] = []
+    for _ in range(3):                        # each cycle's TxPDO image carries what arrived since the last
+        master.exchange_process_data()
+        frames += decode_stream(master.pdo_read(0, 0, layout.pdo_bytes), tx_layout).frames
+        clock.advance(0.001)
+    print("  -> TxPDO: " + (", ".join(f"CAN_FRAME ch {f.channel} {f.can_id:03X}#{f.data.hex().upper()}"
+                                      for f in frames) or "no frame"))
+    peer.shutdown()
+
+    step("esd CAN-EtherCAT in process: MDP 5000 counter handshake, one Tx batch and the echo's Rx batch")
+    clock = SimulatedClock()
+    bus = VirtualBus(clock, "can0", bitrate=500_000)
+    esd = create_esd_gateway(clock, bus, "esd1")
+    echo = bus.attach("echo", on_frame=lambda f, t: echo.send(CanFrame(f.can_id + 1, f.data[::-1])))
+    master = Master(clock, Segment([esd.slave]))
+    master.bring_up()
+    master.sdo_download8(0, 0xF800, 2, 2)        # 500 kbit/s (Table 6)
+    info = master.slave(0)
+    print(f"  -> {info.name!r} in {AlState(master.al_status(0)[0] & 0x0F).name}: {info.output_bytes} B out / "
+          f"{info.input_bytes} B in (11-bit queues of 16: 6 + 16 x 12 and 8 + 16 x 10, manual 5.1.5)")
+    master.pdo_write(0, 0, OUT_HEADER.pack(1, 0, 1) + encode_tx11(7, CanFrame(0x100, b"hello")))
+    for _ in range(3):
+        master.exchange_process_data()
+        clock.advance(0.001)
+    tx, rx, _n, tn = IN_HEADER.unpack(master.pdo_read(0, 0, IN_HEADER.size))
+    print(f"  -> Tx counter {tx} (transaction {tn} sent on the bus), Rx batch {rx}: "
+          f"{decode_rx11(master.pdo_read(0, 8, 10), 0)} (the echo node's answer)")
+
+
+def demo_ethercat_drive() -> None:
+    """Two CoE CiA 402 drives (``ethercat_drive``) to Operation Enabled and 1 s of cyclic synchronous
+    position through the default PDOs (ETG.6010), in process on a simulated clock."""
+    import struct
+
+    from ..common.clock import SimulatedClock
+    from ..devices.ethercat_drive.device import EthercatDrive
+    from ..ethercat.esc import AlState
+    from ..ethercat.master import Master
+    from ..ethercat.segment import Segment
+
+    step("EtherCAT CiA 402 drives in process: controlword 0x06/0x07/0x0F by RxPDO 0x1600, 1 s of CSP at 1 kHz")
+    clock = SimulatedClock()
+    drives = [EthercatDrive(clock, f"GL-Drive #{i}", serial=0x3001 + i) for i in range(2)]
+    m = Master(clock, Segment([d.slave for d in drives]))
+    m.bring_up()
+    # RxPDO 0x1600: controlword, target position, target velocity, target torque, mode (8 = CSP)
+    for i, cw in enumerate([0x06] * 3 + [0x07] * 3 + [0x0F] * 3 + [0x0F] * 1000):
+        for p in (0, 1):
+            m.pdo_write(p, 0, struct.pack("<HiihB", cw, 40 * max(0, i - 9), 0, 0, 8))
+        m.exchange_process_data()
+        clock.advance(0.001)
+    for p in (0, 1):
+        sw, x = struct.unpack("<Hi", m.pdo_read(p, 0, 6))
+        print(f"  -> {m.slave(p).name} in {AlState(m.al_status(p)[0] & 0x0F).name}: statusword 0x{sw:04X} "
+              f"(operation enabled), position actual {x} following a ramp to 40,000 (one cycle behind)")
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     config = load_rig(argv[0] if argv else None)
@@ -194,6 +290,8 @@ def main(argv: list[str] | None = None) -> int:
                 demo_idx(info, nodes)
             finally:
                 bus.shutdown()
+            demo_ethercat()
+            demo_ethercat_drive()
             step(f"Stopping the rig (SIGTERM); {narrator.count} frames seen; trace written by python-can:")
             proc.terminate()
             proc.wait(timeout=10)

@@ -37,6 +37,8 @@ from ..common.clock import Clock, RealTimeClock, SimulatedClock
 from ..common.errors import ConfigError, GatewaylabError
 from . import kinds
 from .config import RigConfig, load_rig
+from .control import ControlServer
+from .faults import Faults
 from .plugin import Participant
 
 __all__ = ["GRACE", "Participant", "Rig", "RigStartError", "merge_info"]
@@ -111,6 +113,9 @@ class Rig:
         self.participants: list[Participant] = []
         self.servers: dict[str, BusServer] = {}
         self.traces: list[Trace] = []
+        #: fault injection (docs/faults.md); ``control`` serves it to other processes
+        self.faults = Faults(self)
+        self.control: ControlServer | None = None
         self.callback_errors = 0
         self._started = False
         self._closed = False
@@ -193,6 +198,14 @@ class Rig:
                                     f"{exc.strerror or exc}") from None
             self.servers[bc.name] = server
             self._resources.sockets.append(server.listener)
+        tcp = any(bc.endpoint == "tcp" for bc in self.config.buses)
+        try:
+            self.control = ControlServer(self, self.faults.request, tcp_port=0 if tcp else None,
+                                         unix_path=None if tcp else self.state_dir / "gatewaylab-control.sock")
+        except OSError as exc:
+            raise RigStartError(f"{self.config.source}: cannot open the control endpoint: "
+                                f"{exc.strerror or exc}") from None
+        self._resources.sockets.append(self.control.listener)
 
     @classmethod
     def from_file(cls, path: str | Path | None = None, **kwargs: Any) -> Rig:
@@ -311,6 +324,8 @@ class Rig:
             if name in self.servers:
                 entry["endpoint"] = self.servers[name].endpoint
             info["buses"][name] = entry
+        if self.control is not None:
+            info["control"] = self.control.endpoint
         for p in self.participants:
             merge_info(info, p.ready_info())
         return info
@@ -405,6 +420,9 @@ class Rig:
         self._finalizer.detach()
         try:
             with self.clock.lock:
+                self.faults.cancel()
+                if self.control is not None:
+                    self.control.close()
                 for p in reversed(self.participants):
                     try:
                         p.stop()

@@ -49,6 +49,7 @@ class EcanLiteParticipant:
                                            f"{', '.join(rig.buses) or 'none'})")
             controllers.append(rig.bus(bus_name).attach(f"{self.name}.mcan{k}"))
         self.channels = list(channels)
+        self._controllers = controllers
         flash = Path(cfg["flash"]) if cfg["flash"] else rig.state_dir / f"{self.name}.flash"
         self.flash_path = flash
         self.device = EcanLiteDevice(rig.clock, controllers, flash_path=flash, name=self.name, serial=cfg["serial"])
@@ -57,6 +58,10 @@ class EcanLiteParticipant:
     def slave(self) -> Any:
         """The EtherCAT slave (the segment's view of the device)."""
         return self.device.slave
+
+    def can_channels(self) -> dict[str, Controller]:
+        """The CAN controller of each MCAN channel, for fault injection (docs/faults.md)."""
+        return {f"mcan{k}": c for k, c in enumerate(self._controllers) if c is not None}
 
     def start(self) -> None:
         """Nothing to open: the segment owns the wire, the buses deliver frames."""

@@ -69,6 +69,11 @@ class EsdParticipant:
             self.url = None
         self.gateway.stop()
 
+    def can_channels(self) -> dict[str, Any]:
+        """The gateway's CAN controller once attached, for fault injection (docs/faults.md)."""
+        ctrl = self.gateway.controller
+        return {"can": ctrl} if ctrl is not None else {}
+
     def ready_info(self) -> dict[str, Any]:
         return {"web": {self.name: self.url}} if self.url else {}
 

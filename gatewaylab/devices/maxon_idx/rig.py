@@ -55,14 +55,38 @@ class IdxParticipant:
                                 store_path=store, sdo_timeout=cfg["sdo_timeout"], segment_size=cfg["segment_size"])
         self.pty: PtyPort | None = None
         self.tcp: TcpServer | None = None
+        self.unplugged = False
 
     def start(self) -> None:
         self.device.start()
+        self._open_usb()
+
+    def _open_usb(self) -> None:
+        if self.unplugged:
+            return
         if self.want_pty and self.pty is None:
             self.pty = PtyPort(self.rig, self.rig.clock, self.device.open_channel, self.latency)
         if self.tcp_port is not None and self.tcp is None:
             self.tcp = TcpServer(self.rig, self.rig.clock, self.device.open_channel, self.tcp_port,
                                  latency=self.latency)
+
+    def usb_unplug(self) -> None:
+        """Fault injection (docs/faults.md): the USB cable is pulled. The host's open port fails
+        (a pty hangs up, TCP connections close) and the port refuses hosts until replugged."""
+        self.unplugged = True
+        if self.pty is not None:
+            self.pty.close()
+            self.pty = None
+        if self.tcp is not None:
+            self.tcp_port = self.tcp.port      # the same port comes back at replug
+            self.tcp.close()
+            self.tcp = None
+
+    def usb_replug(self) -> None:
+        """The cable is back: the port enumerates again (a new pty path, the same TCP port)."""
+        if self.unplugged:
+            self.unplugged = False
+            self._open_usb()
 
     def stop(self) -> None:
         if self.pty is not None:

@@ -1,0 +1,219 @@
+"""EtherCAT CiA 402 drives per segment at 1 kHz over a veth pair with SOEM (pysoem), CSP.
+
+For 1, 2, 4, 8, 16 drives: SOEM brings the line to OP, enables every drive (0x06 / 0x07 / 0x0F)
+and runs a CSP ramp paced at 1 kHz; then the same number of ``ethercat_io`` slaves in the same
+run. Reported: wrong working counters (a frame later than SOEM's 2 ms counts as one), median /
+p99 / max cycle round trip, and the largest number of drives with 0 wrong working counters and
+p99 < 500 us (issue 16). Printed, never asserted.
+
+Needs root (network namespace + veth); prints why and returns otherwise. GL_BENCH_SECONDS sets the
+paced run per line (default 30 s). The master runs in a subprocess inside the namespace on CPU 0,
+the emulator's busy-polling wire thread on CPU 1.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import statistics
+import struct
+import subprocess
+import sys
+import time
+from typing import Any
+
+COUNTS = (1, 2, 4, 8, 16)
+P99_LIMIT_US = 500.0
+RX = struct.Struct("<HiihB")     # the drive's default RxPDO 0x1600
+TX = struct.Struct("<HiihbH")    # the drive's default TxPDO 0x1A00
+
+
+def _pct(values: list[float], q: float) -> float:
+    s = sorted(values)
+    return s[min(len(s) - 1, int(q * len(s)))] if s else float("nan")
+
+
+def _pin(cpu: int) -> None:
+    try:
+        os.sched_setaffinity(0, {cpu % (os.cpu_count() or 1)})
+    except (AttributeError, OSError):
+        pass
+
+
+# ---------------------------------------------------------------------------------- master side
+def _bring_up(m: Any, count: int) -> str:
+    """INIT -> PREOP -> SAFEOP -> OP; an error text or ''."""
+    import pysoem
+
+    try:
+        found = m.config_init()
+        if found != count:
+            return f"config_init found {found} slaves, expected {count}"
+        m.config_map()
+    except (pysoem.ConfigMapError, pysoem.WkcError, pysoem.SdoError) as exc:   # a mailbox frame came too late
+        return f"{type(exc).__name__}"
+    if m.state_check(pysoem.SAFEOP_STATE, 50_000) != pysoem.SAFEOP_STATE:
+        return "SAFEOP not reached"
+    for s in m.slaves:
+        s.output = bytes(len(s.output))
+    m.state = pysoem.OP_STATE
+    m.send_processdata()
+    m.receive_processdata(20_000)
+    m.write_state()
+    for _ in range(400):
+        m.send_processdata()
+        m.receive_processdata(20_000)
+        if m.state_check(pysoem.OP_STATE, 5000) == pysoem.OP_STATE:
+            return ""
+    return "OP not reached"
+
+
+def master(iface: str, kind: str, count: int, seconds: float) -> dict[str, Any]:
+    """SOEM: bring-up, (drives) enable in CSP, then ``seconds`` paced at 1 kHz."""
+    import pysoem
+
+    _pin(0)
+    m = pysoem.Master()
+    m.open(iface)
+    error = ""
+    for _attempt in range(3):   # bring-up again when a register access came later than SOEM's 2 ms
+        error = _bring_up(m, count)
+        if not error:
+            break
+    if error:
+        return {"error": error}
+    expected = m.expected_wkc
+    drives = kind == "drive"
+    if drives:
+        for cw in (0x06, 0x07, 0x0F):
+            for s in m.slaves:
+                s.output = RX.pack(cw, 0, 0, 0, 8)
+            for _ in range(20):
+                m.send_processdata()
+                m.receive_processdata(20_000)
+        enabled = sum(1 for s in m.slaves if TX.unpack(bytes(s.input)[:TX.size])[0] & 0x6F == 0x27)
+    period = 0.001
+    n = int(seconds / period)
+    rtts: list[float] = []
+    wrong = 0
+    t_next = time.perf_counter() + period
+    for i in range(n):
+        if drives:
+            target = 20 * (i % 2000 if (i // 2000) % 2 == 0 else 2000 - i % 2000)   # +-40000 inc ramps
+            data = RX.pack(0x0F, target, 0, 0, 8)
+            for s in m.slaves:
+                s.output = data
+        else:
+            for s in m.slaves:
+                s.output = bytes([i & 0xFF]) * len(s.output)
+        slack = t_next - time.perf_counter() - 0.0003
+        if slack > 0:
+            time.sleep(slack)  # the master sleeps between cycles like a real-time task would
+        while time.perf_counter() < t_next:
+            pass
+        t_next += period
+        t0 = time.perf_counter()
+        m.send_processdata()
+        wkc = m.receive_processdata(2000)
+        rtts.append(time.perf_counter() - t0)
+        if wkc != expected:
+            wrong += 1
+    faults = sum(1 for s in m.slaves if TX.unpack(bytes(s.input)[:TX.size])[0] & 0x08) if drives else 0
+    m.state = pysoem.INIT_STATE
+    m.write_state()
+    m.close()
+    out: dict[str, Any] = {"cycles": n, "wrong_wkc": wrong, "median_us": 1e6 * statistics.median(rtts),
+                           "p99_us": 1e6 * _pct(rtts, 0.99), "max_us": 1e6 * max(rtts), "faults": faults}
+    if drives:
+        out["enabled"] = enabled
+    return out
+
+
+# ---------------------------------------------------------------------------------- emulator side
+def _run_line(ns: str, emu: str, mst: str, kind: str, count: int, seconds: float) -> dict[str, Any]:
+    from gatewaylab.common.clock import RealTimeClock
+    from gatewaylab.devices.ethercat_drive import EthercatDrive
+    from gatewaylab.ethercat.io_device import create_io_slave
+    from gatewaylab.ethercat.segment import Segment
+    from gatewaylab.ethercat.wire import WireTransport
+
+    clock = RealTimeClock()
+    devices = [EthercatDrive(clock, f"GL-Drive #{i}", serial=0x3001 + i) for i in range(count)] \
+        if kind == "drive" else []
+    slaves = [d.slave for d in devices] if devices else \
+        [create_io_slave(clock, f"GL-IO #{i}", revision=i + 1) for i in range(count)]
+    wire = WireTransport(Segment(slaves), emu, clock, drive_clock=True, cpu=1)
+    wire.start()
+    try:
+        proc = subprocess.run(["ip", "netns", "exec", ns, sys.executable, "-X", "faulthandler", "-m",
+                               "benchmarks.bench_ethercat_drive", "--master", mst, kind, str(count), str(seconds)],
+                              capture_output=True, text=True, timeout=seconds * 3 + 120, check=False,
+                              cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    except subprocess.TimeoutExpired:
+        return {"error": "the master did not finish"}
+    finally:
+        wire.stop()
+        with clock.lock:
+            for d in devices:
+                d.stop()
+    if proc.returncode != 0:
+        lines = [ln.strip() for ln in proc.stderr.strip().splitlines() if ln.strip()]
+        if any(ln.startswith("Timeout (") for ln in lines):     # faulthandler: the master hung
+            frames = [ln for ln in lines if ln.startswith("File ") and "benchmarks" in ln]
+            return {"error": "master hung at " + (frames[0].split(", ")[-1] if frames else "?")}
+        return {"error": lines[-1] if lines else "master failed"}
+    result: dict[str, Any] = json.loads(proc.stdout.strip().splitlines()[-1])
+    return result
+
+
+def _ok(r: dict[str, Any]) -> bool:
+    return "error" not in r and r["wrong_wkc"] == 0 and r["p99_us"] < P99_LIMIT_US and not r.get("faults")
+
+
+def _cell(r: dict[str, Any]) -> str:
+    if "error" in r:
+        return f"{r['error'][:44]:<44}"
+    return (f"wrong wkc {r['wrong_wkc']:>4}  median {r['median_us']:6.1f}  p99 {r['p99_us']:7.1f}  "
+            f"max {r['max_us']:8.1f} us")
+
+
+def main() -> None:
+    if os.geteuid() != 0 or shutil.which("ip") is None:
+        print("skipped: needs root and iproute2 to create a namespace and a veth pair")
+        return
+    seconds = float(os.environ.get("GL_BENCH_SECONDS", "30"))
+    tag = f"{os.getpid() % 100000}"
+    ns, emu, mst = f"gl-bd-{tag}", f"glbd{tag}e", f"glbd{tag}m"
+    rows: list[tuple[int, dict[str, Any], dict[str, Any]]] = []
+    subprocess.run(["ip", "netns", "add", ns], check=True)
+    try:
+        subprocess.run(["ip", "link", "add", emu, "type", "veth", "peer", "name", mst, "netns", ns], check=True)
+        subprocess.run(["ip", "link", "set", emu, "up"], check=True)
+        subprocess.run(["ip", "netns", "exec", ns, "ip", "link", "set", mst, "up"], check=True)
+        for count in COUNTS:
+            drive = _run_line(ns, emu, mst, "drive", count, seconds)
+            io = _run_line(ns, emu, mst, "io", count, seconds)
+            rows.append((count, drive, io))
+    finally:
+        subprocess.run(["ip", "link", "del", emu], check=False, capture_output=True)
+        subprocess.run(["ip", "netns", "del", ns], check=False)
+    print(f"CiA 402 drives (CSP) vs ethercat_io slaves per segment, pysoem over veth, {seconds:.0f} s at 1 kHz each")
+    for count, drive, io in rows:
+        enabled = f" enabled {drive.get('enabled', 0)}/{count}" if "error" not in drive else ""
+        print(f"{count:>2} drives: {_cell(drive)}{enabled}")
+        print(f"{count:>2} io:     {_cell(io)}")
+    best_drive = max((c for c, d, _ in rows if _ok(d)), default=0)
+    best_io = max((c for c, _, i in rows if _ok(i)), default=0)
+    print(f"largest segment with 0 wrong working counters and p99 < {P99_LIMIT_US:.0f} us: "
+          f"{best_drive} drives, {best_io} ethercat_io (same run)")
+
+
+if __name__ == "__main__":
+    if len(sys.argv) >= 6 and sys.argv[1] == "--master":
+        import faulthandler
+
+        faulthandler.dump_traceback_later(float(sys.argv[5]) * 3 + 100, exit=True)   # where a master hangs
+        print(json.dumps(master(sys.argv[2], sys.argv[3], int(sys.argv[4]), float(sys.argv[5]))))
+    else:
+        main()

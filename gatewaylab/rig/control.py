@@ -1,0 +1,174 @@
+"""The control endpoint of a running rig: one JSON request per line in, one JSON answer per line out.
+
+A Unix socket ``gatewaylab-control.sock`` in the rig's state folder (127.0.0.1 TCP when the rig's buses use
+TCP endpoints), listed in the ready file as ``"control"``. Served from the rig's own select loop
+(``rig.add_reader``), so every request runs on the rig thread holding ``clock.lock``, between
+frames, like any other client's. Answers: ``{"ok": true, ...}`` or ``{"ok": false, "error": "..."}``;
+nothing a client sends (garbage, half lines, huge lines, vanishing) stops the rig. docs/faults.md.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import os
+import socket
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any, Protocol
+
+from ..common.endpoint import format_tcp, format_unix
+from ..common.errors import GatewaylabError
+
+log = logging.getLogger(__name__)
+
+#: A request line longer than this is refused and skipped to its end (a request is tiny).
+MAX_LINE = 64 * 1024
+
+
+class Reactor(Protocol):
+    def add_reader(self, fd: int, callback: Callable[[], None]) -> None: ...
+
+    def remove_reader(self, fd: int) -> None: ...
+
+
+Handler = Callable[[Mapping[str, Any]], dict[str, Any]]
+
+
+def answer_line(handler: Handler, line: bytes) -> bytes:
+    """The answer to one request line (sans-I/O: what the server writes back, newline included)."""
+    try:
+        req = json.loads(line.decode("utf-8"))
+    except (UnicodeDecodeError, ValueError) as exc:
+        return _encode({"ok": False, "error": f"not a JSON object: {exc}"})
+    if not isinstance(req, dict):
+        return _encode({"ok": False, "error": "a request is one JSON object per line"})
+    try:
+        result = handler(req)
+    except GatewaylabError as exc:
+        return _encode({"ok": False, "error": " ".join(str(exc).split())})
+    except Exception as exc:   # a device that failed on the request: answered and logged, the rig goes on
+        log.exception("control request %r failed", req)
+        return _encode({"ok": False, "error": f"{type(exc).__name__}: {exc}"})
+    return _encode({"ok": True, **result})
+
+
+def _encode(obj: dict[str, Any]) -> bytes:
+    return json.dumps(obj, separators=(",", ":")).encode() + b"\n"
+
+
+class _Connection:
+    def __init__(self, server: ControlServer, sock: socket.socket) -> None:
+        self.server = server
+        self.sock = sock
+        self.fd = sock.fileno()
+        self.buf = bytearray()
+        self.skipping = False
+        self.closed = False
+
+    def on_readable(self) -> None:
+        try:
+            data = self.sock.recv(65536)
+        except BlockingIOError:
+            return
+        except OSError:
+            data = b""
+        if not data:
+            self.close()
+            return
+        self.buf += data
+        while not self.closed:
+            end = self.buf.find(b"\n")
+            if self.skipping:        # the rest of an over-long line: dropped up to its end
+                if end < 0:
+                    self.buf.clear()
+                    return
+                del self.buf[:end + 1]
+                self.skipping = False
+                continue
+            if end < 0:
+                if len(self.buf) > MAX_LINE:
+                    self._write(_encode({"ok": False, "error": f"request line longer than {MAX_LINE} bytes"}))
+                    self.buf.clear()
+                    self.skipping = True
+                return
+            line = bytes(self.buf[:end])
+            del self.buf[:end + 1]
+            if line.strip():
+                self.server.requests += 1
+                self._write(answer_line(self.server.handler, line))
+
+    def _write(self, data: bytes) -> None:
+        """Non-blocking: answers are small and the socket buffer holds hundreds of them; a client
+        that lets them pile up until the buffer is full is disconnected (the rig never waits)."""
+        try:
+            sent = self.sock.send(data)
+        except OSError:
+            sent = -1
+        if sent != len(data):
+            log.warning("control client does not read its answers: disconnected")
+            self.close()
+
+    def close(self) -> None:
+        if self.closed:
+            return
+        self.closed = True
+        self.server.reactor.remove_reader(self.fd)
+        with contextlib.suppress(OSError):
+            self.sock.close()
+        self.server.connections.discard(self)
+
+
+class ControlServer:
+    """Listens on ``unix_path`` or on 127.0.0.1:``tcp_port``; each line goes to ``handler``."""
+
+    def __init__(self, reactor: Reactor, handler: Handler, *, unix_path: Path | None = None,
+                 tcp_port: int | None = None) -> None:
+        self.reactor = reactor
+        self.handler = handler
+        self.connections: set[_Connection] = set()
+        self.requests = 0
+        self.unix_path = unix_path
+        if unix_path is not None:
+            with contextlib.suppress(FileNotFoundError):
+                unix_path.unlink()
+            sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            try:
+                sock.bind(str(unix_path))
+            except OSError:
+                sock.close()
+                raise
+            self.endpoint = format_unix(unix_path)
+        else:
+            sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+            try:
+                sock.bind(("127.0.0.1", tcp_port or 0))
+            except OSError:
+                sock.close()
+                raise
+            self.endpoint = format_tcp("127.0.0.1", sock.getsockname()[1])
+        sock.listen(8)
+        sock.setblocking(False)
+        self.listener = sock
+        reactor.add_reader(sock.fileno(), self._accept)
+
+    def _accept(self) -> None:
+        try:
+            sock, _ = self.listener.accept()
+        except (BlockingIOError, OSError):
+            return
+        sock.setblocking(False)
+        conn = _Connection(self, sock)
+        self.connections.add(conn)
+        self.reactor.add_reader(conn.fd, conn.on_readable)
+
+    def close(self) -> None:
+        for conn in list(self.connections):
+            conn.close()
+        self.reactor.remove_reader(self.listener.fileno())
+        with contextlib.suppress(OSError):
+            self.listener.close()
+        if self.unix_path is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(self.unix_path)

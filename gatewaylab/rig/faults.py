@@ -1,0 +1,405 @@
+"""Fault injection into a rig: ``rig.faults`` (Python) and the request table of the control endpoint.
+
+Every fault is one method of :class:`Faults` that takes names (buses, devices) and numbers,
+changes the rig under ``clock.lock`` and returns a JSON-ready dict saying what it did. The control
+endpoint (``control.py``) and ``gatewaylab fault`` only translate requests into these calls
+(:meth:`Faults.request`), so the three faces cannot drift apart. See docs/faults.md.
+
+How a device takes part (duck-typed, so a plugin needs nothing from here):
+
+* CAN channels: ``can_channels() -> Mapping[str, Controller]`` (an EtherCAT gateway lists its
+  channels, e.g. ``{"can0": ..., "can1": ...}``); a drive or an IDX is found through its CANopen
+  ``node`` (one channel, ``"can"``).
+* power cycle and drive faults: a :class:`~gatewaylab.canopen.drive.Drive`, or a participant with
+  a ``drive`` or ``device.drive`` attribute.
+* EtherCAT: a participant with ``is_ethercat`` and a ``slave`` in the rig's ``[ethercat]`` segment.
+* USB: a participant with ``usb_unplug()`` / ``usb_replug()`` (the maxon IDX).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from typing import TYPE_CHECKING, Any
+
+from ..bus.bus import Controller, VirtualBus
+from ..canopen.drive import Drive
+from ..canopen.emcy import ERR_CURRENT, ERR_PROFILE
+from ..canopen.node import Node
+from ..common.clock import TimerHandle
+from ..common.errors import GatewaylabError
+
+if TYPE_CHECKING:
+    from ..ethercat.segment import Segment
+    from .runtime import Rig
+
+__all__ = ["DRIVE_FAULTS", "FaultRefused", "Faults"]
+
+
+class FaultRefused(GatewaylabError):
+    """The rig cannot inject this fault (unknown bus or device, a device without that part)."""
+
+
+#: CiA 402 drive faults: name -> (EMCY / 0x603F error code, error register bits).
+DRIVE_FAULTS: dict[str, tuple[int, int]] = {
+    "following-error": (0x8611, ERR_PROFILE),    # maxon / CiA 402 'following error'
+    "over-current": (0x2310, ERR_CURRENT),       # CiA 301 table 21 'continuous over-current'
+}
+
+
+def _node_of(p: object) -> Node | None:
+    node = getattr(p, "node", None)
+    if isinstance(node, Node):
+        return node
+    node = getattr(getattr(p, "device", None), "node", None)
+    return node if isinstance(node, Node) else None
+
+
+def _drive_of(p: object) -> Drive | None:
+    if isinstance(p, Drive):
+        return p
+    for candidate in (getattr(p, "drive", None), getattr(getattr(p, "device", None), "drive", None)):
+        if isinstance(candidate, Drive):
+            return candidate
+    return None
+
+
+def can_channels(p: object) -> dict[str, Controller]:
+    """The CAN controllers of a participant by channel name (see the module docstring)."""
+    method = getattr(p, "can_channels", None)
+    if callable(method):
+        return dict(method())
+    node = _node_of(p)
+    return {"can": node.controller} if node is not None else {}
+
+
+class Faults:
+    """The faults of one rig (``rig.faults``); each call returns what it did as a dict."""
+
+    def __init__(self, rig: Rig) -> None:
+        self._rig = rig
+        #: pending power-ons and fault ends, cancelled when the rig closes
+        self._timers: list[TimerHandle] = []
+        self._powered_off: dict[str, Drive] = {}
+
+    # -- lookup ---------------------------------------------------------------------------------
+    def _bus(self, name: str) -> VirtualBus:
+        bus = self._rig.buses.get(name)
+        if bus is None:
+            raise FaultRefused(f"no bus {name!r} in this rig (buses: {', '.join(sorted(self._rig.buses))})")
+        return bus
+
+    def _device(self, name: str) -> Any:
+        for p in self._rig.participants:
+            if p.name == name:
+                return p
+        names = ", ".join(p.name for p in self._rig.participants)
+        raise FaultRefused(f"no device {name!r} in this rig (devices: {names})")
+
+    def _node_device(self, node_id: int, bus: str) -> Any:
+        """The participant whose CANopen node has ``node_id`` on ``bus``."""
+        b = self._bus(bus)
+        for p in self._rig.participants:
+            node = _node_of(p)
+            if node is not None and node.bus is b and node.node_id == node_id:
+                return p
+        raise FaultRefused(f"no node {node_id} on bus {bus!r}")
+
+    def _target(self, device: str | int, bus: str | None) -> Any:
+        """A device by name, or by CANopen node-ID (an int) on ``bus``."""
+        if isinstance(device, int):
+            if bus is None:
+                raise FaultRefused(f"node {device}: which bus? (give bus=...)")
+            return self._node_device(device, bus)
+        return self._device(device)
+
+    def _controller(self, device: str | int, bus: str | None, channel: str | None) -> tuple[Any, str, Controller]:
+        p = self._target(device, bus)
+        channels = can_channels(p)
+        if not channels:
+            raise FaultRefused(f"{p.name} has no CAN controller")
+        if channel is None:
+            if len(channels) > 1:
+                raise FaultRefused(f"{p.name} has CAN channels {', '.join(channels)}: say which (channel=...)")
+            channel = next(iter(channels))
+        ctrl = channels.get(channel)
+        if ctrl is None:
+            raise FaultRefused(f"{p.name} has no CAN channel {channel!r} (channels: {', '.join(channels)})")
+        return p, channel, ctrl
+
+    def _drive(self, device: str | int, bus: str | None) -> tuple[Any, Drive]:
+        p = self._target(device, bus)
+        drive = _drive_of(p)
+        if drive is None:
+            raise FaultRefused(f"{p.name} is not a drive")
+        return p, drive
+
+    def _segment(self, device: str) -> tuple[Segment, int]:
+        from ..ethercat.segment import Segment
+
+        p = self._device(device)
+        slave = getattr(p, "slave", None)
+        if not getattr(p, "is_ethercat", False) or slave is None:
+            raise FaultRefused(f"{device} is not an EtherCAT device")
+        for owner in self._rig.participants:
+            segment = getattr(owner, "segment", None)
+            if isinstance(segment, Segment) and slave in segment.slaves:
+                return segment, segment.slaves.index(slave)
+        raise FaultRefused(f"{device} is in no [ethercat] segment")
+
+    def _locked(self, action: Callable[[], dict[str, Any]]) -> dict[str, Any]:
+        with self._rig.clock.lock:
+            if self._rig.closed:
+                raise FaultRefused("the rig is closed")
+            return action()
+
+    def _run(self, action: Callable[[], None], result: dict[str, Any]) -> dict[str, Any]:
+        def act() -> dict[str, Any]:
+            action()
+            return result
+        return self._locked(act)
+
+    def _later(self, delay: float, callback: Callable[[], None]) -> None:
+        self._timers = [t for t in self._timers if not t.cancelled]
+        handle = self._rig.clock.call_later(delay, callback)
+        self._timers.append(handle)
+
+    def cancel(self) -> None:
+        """Forget pending fault steps (the rig closes)."""
+        for t in self._timers:
+            t.cancel()
+        self._timers.clear()
+
+    # -- bus faults -------------------------------------------------------------------------------
+    def bus_errors(self, bus: str, duration: float, every: int = 1) -> dict[str, Any]:
+        """Error frames on ``bus`` for ``duration`` s: one frame in ``every`` ends in a CRC error."""
+        b = self._bus(bus)
+        _positive("duration", duration)
+        if every < 1:
+            raise FaultRefused(f"every must be >= 1, got {every}")
+        return self._run(lambda: b.error_frames(duration, every), {
+            "fault": "bus-errors", "bus": bus, "duration": duration, "every": every})
+
+    def stuck_dominant(self, bus: str, duration: float) -> dict[str, Any]:
+        """Hold ``bus`` dominant for ``duration`` s: transmitters go bus-off, nothing completes."""
+        b = self._bus(bus)
+        _positive("duration", duration)
+        return self._run(lambda: b.stuck_dominant(duration), {
+            "fault": "stuck-dominant", "bus": bus, "duration": duration})
+
+    def drop(self, bus: str, can_id: int, count: int = 1) -> dict[str, Any]:
+        """The next ``count`` frames of ``can_id`` on ``bus`` vanish (the sender sees success)."""
+        b = self._bus(bus)
+        _can_id(can_id)
+        _count(count)
+        return self._run(lambda: b.drop_next(count, can_id), {
+            "fault": "drop", "bus": bus, "can_id": can_id, "count": count})
+
+    def corrupt(self, bus: str, can_id: int, count: int = 1) -> dict[str, Any]:
+        """The next ``count`` frames of ``can_id`` on ``bus`` end in a CRC error (retransmitted)."""
+        b = self._bus(bus)
+        _can_id(can_id)
+        _count(count)
+        return self._run(lambda: b.corrupt_next(count, can_id), {
+            "fault": "corrupt", "bus": bus, "can_id": can_id, "count": count})
+
+    # -- controller faults ------------------------------------------------------------------------
+    def error_passive(self, device: str | int, bus: str | None = None, channel: str | None = None) -> dict[str, Any]:
+        """A device's CAN controller to error-passive (TEC 128)."""
+        def act() -> dict[str, Any]:
+            p, ch, ctrl = self._controller(device, bus, channel)
+            if ctrl.bus_off:
+                raise FaultRefused(f"{p.name} {ch}: the controller is bus-off")
+            ctrl.bus.force_error_passive(ctrl)
+            return {"fault": "error-passive", "device": p.name, "channel": ch, "tec": ctrl.tec,
+                    "state": ctrl.state.value}
+        return self._locked(act)
+
+    def bus_off(self, device: str | int, bus: str | None = None, channel: str | None = None) -> dict[str, Any]:
+        """A device's CAN controller to bus-off (it recovers after 128 x 11 recessive bits)."""
+        def act() -> dict[str, Any]:
+            p, ch, ctrl = self._controller(device, bus, channel)
+            ctrl.bus.force_bus_off(ctrl)
+            return {"fault": "bus-off", "device": p.name, "channel": ch, "state": ctrl.state.value}
+        return self._locked(act)
+
+    def can_unplug(self, device: str | int, bus: str | None = None, channel: str | None = None) -> dict[str, Any]:
+        """Pull a device's CAN connector: its controller neither sends nor receives."""
+        def act() -> dict[str, Any]:
+            p, ch, ctrl = self._controller(device, bus, channel)
+            ctrl.bus.disconnect(ctrl)
+            return {"fault": "can-unplug", "device": p.name, "channel": ch, "bus": ctrl.bus.name}
+        return self._locked(act)
+
+    def can_replug(self, device: str | int, bus: str | None = None, channel: str | None = None) -> dict[str, Any]:
+        """Plug a device's CAN connector back in (frames it queued meanwhile go out)."""
+        def act() -> dict[str, Any]:
+            p, ch, ctrl = self._controller(device, bus, channel)
+            ctrl.bus.reconnect(ctrl)
+            return {"fault": "can-replug", "device": p.name, "channel": ch, "bus": ctrl.bus.name}
+        return self._locked(act)
+
+    # -- node faults --------------------------------------------------------------------------------
+    def power_cycle(self, device: str | int, bus: str | None = None, off: float = 1.0) -> dict[str, Any]:
+        """Switch a drive off for ``off`` s and on again: it leaves the bus, then boots (boot-up
+        message, dictionary at its power-on values plus what was stored with 0x1010)."""
+        if not (off >= 0 and math.isfinite(off)):
+            raise FaultRefused(f"off must be a finite number of seconds >= 0, got {off}")
+
+        def act() -> dict[str, Any]:
+            p, drive = self._drive(device, bus)
+            if p.name in self._powered_off:
+                raise FaultRefused(f"{p.name} is already switched off")
+            drive.stop()
+            self._powered_off[p.name] = drive
+
+            def power_on() -> None:
+                if self._powered_off.pop(p.name, None) is drive:
+                    drive.start()
+            if off == 0:
+                power_on()
+            else:
+                self._later(off, power_on)
+            return {"fault": "power-cycle", "device": p.name, "off": off}
+        return self._locked(act)
+
+    def drive_fault(self, device: str | int, kind: str = "following-error", bus: str | None = None,
+                    code: int | None = None) -> dict[str, Any]:
+        """A CiA 402 drive fault: EMCY with the error code, 0x603F, Fault state (fault reset clears it)."""
+        if kind not in DRIVE_FAULTS:
+            raise FaultRefused(f"drive fault {kind!r}: one of {', '.join(DRIVE_FAULTS)}")
+        error_code, register = DRIVE_FAULTS[kind]
+        if code is not None:
+            if not 0x1000 <= code <= 0xFFFF:
+                raise FaultRefused(f"error code 0x{code:04X} is not a CiA 301 EMCY error code (0x1000..0xFFFF)")
+            error_code = code
+
+        def act() -> dict[str, Any]:
+            p, drive = self._drive(device, bus)
+            if not drive.node.running:
+                raise FaultRefused(f"{p.name} is switched off")
+            drive.fault(error_code, register)
+            return {"fault": "drive-fault", "device": p.name, "kind": kind, "error_code": error_code,
+                    "state": drive.state.name}
+        return self._locked(act)
+
+    # -- EtherCAT ------------------------------------------------------------------------------------
+    def ethercat_unplug(self, device: str) -> dict[str, Any]:
+        """Pull an EtherCAT device out of its segment: it and the devices behind it stop answering."""
+        def act() -> dict[str, Any]:
+            segment, position = self._segment(device)
+            segment.unplug(position)
+            return {"fault": "ethercat-unplug", "device": device, "position": position,
+                    "unreachable": [s.name for s in segment.slaves[position:]]}
+        return self._locked(act)
+
+    def ethercat_replug(self, device: str) -> dict[str, Any]:
+        """Plug an EtherCAT device back in: it powers on in INIT."""
+        def act() -> dict[str, Any]:
+            segment, position = self._segment(device)
+            segment.replug(position)
+            return {"fault": "ethercat-replug", "device": device, "position": position,
+                    "al_status": segment.slaves[position].esc.al_status}
+        return self._locked(act)
+
+    # -- USB -----------------------------------------------------------------------------------------
+    def usb_unplug(self, device: str) -> dict[str, Any]:
+        """Pull a device's USB cable: its host connections drop, new ones are refused."""
+        def act() -> dict[str, Any]:
+            p = self._device(device)
+            if not callable(getattr(p, "usb_unplug", None)):
+                raise FaultRefused(f"{device} has no USB port")
+            p.usb_unplug()
+            return {"fault": "usb-unplug", "device": device}
+        return self._locked(act)
+
+    def usb_replug(self, device: str) -> dict[str, Any]:
+        """Plug the USB cable back in; the answer gives the port's endpoints (a pty gets a new path)."""
+        def act() -> dict[str, Any]:
+            p = self._device(device)
+            if not callable(getattr(p, "usb_replug", None)):
+                raise FaultRefused(f"{device} has no USB port")
+            p.usb_replug()
+            return {"fault": "usb-replug", "device": device, **p.ready_info()}
+        return self._locked(act)
+
+    # -- the request table (control endpoint, CLI) -------------------------------------------------
+    def request(self, req: Mapping[str, Any]) -> dict[str, Any]:
+        """Run one control request ``{"fault": NAME, ...arguments}`` (docs/faults.md)."""
+        name = req.get("fault")
+        spec = REQUESTS.get(name) if isinstance(name, str) else None
+        if spec is None:
+            raise FaultRefused(f"unknown fault {name!r} (faults: {', '.join(REQUESTS)})")
+        method, params = spec
+        kwargs: dict[str, Any] = {}
+        for key, value in req.items():
+            if key == "fault":
+                continue
+            if key not in params:
+                raise FaultRefused(f"{name}: unknown argument {key!r} (arguments: {', '.join(params)})")
+            want, _required = params[key]
+            if not _accepts(want, value):
+                raise FaultRefused(f"{name}: {key} must be {want}, got {value!r}")
+            kwargs[_PY_NAMES.get(key, key)] = value
+        if "node" in params:
+            if "node" in req and "device" in req:
+                raise FaultRefused(f"{name}: give device or node, not both")
+            if "node" not in req and "device" not in req:
+                raise FaultRefused(f"{name}: missing device (a name) or node (a node-ID, with bus)")
+        missing = [k for k, (_, required) in params.items() if required and k not in req]
+        if missing:
+            raise FaultRefused(f"{name}: missing {', '.join(missing)}")
+        result: dict[str, Any] = getattr(self, method)(**kwargs)
+        return result
+
+
+def _positive(what: str, value: float) -> None:
+    if not (value > 0 and math.isfinite(value)):
+        raise FaultRefused(f"{what} must be a finite number of seconds > 0, got {value}")
+
+
+def _can_id(can_id: int) -> None:
+    if not 0 <= can_id <= 0x1FFFFFFF:
+        raise FaultRefused(f"CAN id 0x{can_id:X} is out of range")
+
+
+def _count(count: int) -> None:
+    if count < 1:
+        raise FaultRefused(f"count must be >= 1, got {count}")
+
+
+def _accepts(want: str, value: object) -> bool:
+    if want == "int":
+        return isinstance(value, int) and not isinstance(value, bool)
+    if want == "number":
+        return isinstance(value, (int, float)) and not isinstance(value, bool)
+    if want == "string":
+        return isinstance(value, str)
+    return (isinstance(value, int) and not isinstance(value, bool)) or isinstance(value, str)  # "device"
+
+
+#: request argument names that differ from the Python ones
+_PY_NAMES = {"node": "device"}
+
+_R, _O = True, False
+_CONTROLLER = {"device": ("device", _O), "node": ("int", _O), "bus": ("string", _O), "channel": ("string", _O)}
+
+#: fault name -> (Faults method, {argument: (JSON type, required)})
+REQUESTS: dict[str, tuple[str, dict[str, tuple[str, bool]]]] = {
+    "bus-errors": ("bus_errors", {"bus": ("string", _R), "duration": ("number", _R), "every": ("int", _O)}),
+    "stuck-dominant": ("stuck_dominant", {"bus": ("string", _R), "duration": ("number", _R)}),
+    "drop": ("drop", {"bus": ("string", _R), "can_id": ("int", _R), "count": ("int", _O)}),
+    "corrupt": ("corrupt", {"bus": ("string", _R), "can_id": ("int", _R), "count": ("int", _O)}),
+    "error-passive": ("error_passive", _CONTROLLER),
+    "bus-off": ("bus_off", _CONTROLLER),
+    "can-unplug": ("can_unplug", _CONTROLLER),
+    "can-replug": ("can_replug", _CONTROLLER),
+    "power-cycle": ("power_cycle", {"device": ("device", _O), "node": ("int", _O), "bus": ("string", _O),
+                                    "off": ("number", _O)}),
+    "drive-fault": ("drive_fault", {"device": ("device", _O), "node": ("int", _O), "bus": ("string", _O),
+                                    "kind": ("string", _O), "code": ("int", _O)}),
+    "ethercat-unplug": ("ethercat_unplug", {"device": ("string", _R)}),
+    "ethercat-replug": ("ethercat_replug", {"device": ("string", _R)}),
+    "usb-unplug": ("usb_unplug", {"device": ("string", _R)}),
+    "usb-replug": ("usb_replug", {"device": ("string", _R)}),
+}
