@@ -31,6 +31,7 @@ EXTRA_SUBCOMMANDS = (
     "gatewaylab.canopen.plot_cli",
     "gatewaylab.ethercat.net_cli",
     "gatewaylab.devices.ecanlite.cli",
+    "gatewaylab.migrate.cli",
 )
 
 RIG_HELP = """\
