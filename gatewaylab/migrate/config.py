@@ -58,18 +58,20 @@ def ecanlite_slave(esd: SlaveConfig, tr: Translation) -> SlaveConfig:
 
 def report(source: str, esd_cmds: list[InitCmd] | tuple[InitCmd, ...], tr: Translation) -> str:
     """The Markdown translation report: settings, capacity arithmetic, every note, the writes."""
+    sp = f", sample point {tr.sample_point / 10:g} %" if tr.sample_point else ""
+    rate = (f"- bit rate {tr.bitrate} bit/s{sp}" + (", listen-only" if tr.listen_only else "") + ", classic CAN"
+            if tr.bitrate else "- no bit rate (off the bus)")
     lines = [f"# esd CAN-EtherCAT -> ECAN-Lite: {source}", "",
              f"- esd CAN port -> MCAN channel {tr.channel} (0x{0x8001 + tr.channel:04X}, channel mask "
-             f"0x{1 << tr.channel:02X} in 0x8010/0x8011)",
-             f"- bit rate {tr.bitrate} bit/s" + (f", sample point {tr.sample_point / 10:g} %" if tr.sample_point else "")
-             + (", listen-only" if tr.listen_only else "") + ", classic CAN" if tr.bitrate else "- no bit rate (off the bus)",
+             f"0x{1 << tr.channel:02X} in 0x8010/0x8011)", rate,
              f"- PDO multiplier N = {tr.multiplier}: {128 * tr.multiplier} B outputs, {128 * tr.multiplier} B inputs",
              "", "## Capacity", ""]
     lines += [f"    {a}" for a in tr.arithmetic]
     lines += ["", "## Not translated one-to-one", ""]
     lines += [f"- **{n.topic}**: {n.reason}. Closest: {n.closest}." for n in tr.notes] or ["- nothing"]
     lines += ["", "## esd startup writes read", "", "```text", format_writes(list(esd_cmds)).rstrip(), "```",
-              "", "## ECAN-Lite startup writes (PREOP -> SAFEOP)", "", "```text", format_writes(tr.cmds).rstrip(), "```", ""]
+              "", "## ECAN-Lite startup writes (PREOP -> SAFEOP)", "", "```text", format_writes(tr.cmds).rstrip(),
+              "```", ""]
     return "\n".join(lines)
 
 

@@ -76,7 +76,7 @@ def _u(index: int, sub: int, value: int, size: int, comment: str = "") -> InitCm
 
 def read_esd(cmds: list[InitCmd] | tuple[InitCmd, ...]) -> EsdSettings:
     """Fold the esd startup writes into the settings they leave (later writes win)."""
-    s: dict[str, object] = {}
+    s: dict[str, int] = {}
     areas: dict[int, int] = {}
     count: int | None = None
     assign13: dict[int, int] = {}
@@ -116,13 +116,13 @@ def read_esd(cmds: list[InitCmd] | tuple[InitCmd, ...]) -> EsdSettings:
             ignored.append(c)
     n_areas = count if count is not None else 0
     return EsdSettings(
-        baud_index=int(s.get("baud_index", esd_rate.INDEX_USE_API)),  # type: ignore[call-overload]
-        api_baud=int(s.get("api_baud", esd_rate.NTCAN_NO_BAUDRATE)),  # type: ignore[call-overload]
-        flags=int(s.get("flags", 0)),  # type: ignore[call-overload]
-        rx_queue=int(s.get("rx_queue", esd_obj.DEFAULT_QUEUE)),  # type: ignore[call-overload]
-        tx_queue=int(s.get("tx_queue", esd_obj.DEFAULT_QUEUE)),  # type: ignore[call-overload]
-        local_rx=int(s.get("local_rx", esd_obj.DEFAULT_LOCAL_QUEUE)),  # type: ignore[call-overload]
-        local_tx=int(s.get("local_tx", esd_obj.DEFAULT_LOCAL_QUEUE)),  # type: ignore[call-overload]
+        baud_index=s.get("baud_index", esd_rate.INDEX_USE_API),
+        api_baud=s.get("api_baud", esd_rate.NTCAN_NO_BAUDRATE),
+        flags=s.get("flags", 0),
+        rx_queue=s.get("rx_queue", esd_obj.DEFAULT_QUEUE),
+        tx_queue=s.get("tx_queue", esd_obj.DEFAULT_QUEUE),
+        local_rx=s.get("local_rx", esd_obj.DEFAULT_LOCAL_QUEUE),
+        local_tx=s.get("local_tx", esd_obj.DEFAULT_LOCAL_QUEUE),
         areas=tuple(areas.get(i, 0) for i in range(1, n_areas + 1)),
         status_pdo=0x1A85 in assign13.values(), ignored=tuple(ignored))
 
@@ -258,8 +258,8 @@ def _filters(esd: EsdSettings, tr: Translation, base: int) -> None:
         merged, widened = _merge(lst, limit)
         if widened:
             tr.notes.append(Note(f"0x8001 {'29' if extended else '11'}-bit areas",
-                                 f"{len(lst)} areas, the ECAN-Lite {'extended' if extended else 'standard'} filter list "
-                                 f"holds {limit} (0x800x:{42 if extended else 41})",
+                                 f"{len(lst)} areas, the ECAN-Lite {'extended' if extended else 'standard'} "
+                                 f"filter list holds {limit} (0x800x:{42 if extended else 41})",
                                  f"neighbouring areas merged: also passes {', '.join(widened)}"))
         idx_sub, cmd_sub, first_sub = (44, 46, 56) if extended else (43, 45, 50)
         for i, (a, b) in enumerate(merged):
@@ -352,11 +352,13 @@ def translate(cmds: list[InitCmd] | tuple[InitCmd, ...], channel: int = 0, compl
                     _u(index, 5, 0, 1, "profile 0: classic inline, no timestamp"),
                     _u(index, 6, 0, 1, "budget Balanced (one channel: the whole frame area)"),
                     _u(index, 7, opts, 1, "TX_RESULT on (esd transaction numbers)" if opts else "no options")]
-    tr.cmds += [_u(image.TX_PROFILE, 1, 1, 1, "apply TxPDO profile"), _u(image.RX_PROFILE, 1, 1, 1, "apply RxPDO profile")]
+    tr.cmds += [_u(image.TX_PROFILE, 1, 1, 1, "apply TxPDO profile"),
+                _u(image.RX_PROFILE, 1, 1, 1, "apply RxPDO profile")]
     tr.cmds += body
-    tr.notes.append(Note("esd local queues", f"0x8000:23/24 = {esd.local_rx} / {esd.local_tx} frames: the ECAN-Lite has "
-                         "no configurable local queue depth", "the MCAN RX FIFO0 / TX FIFO (0x800x:62 / :70, defaults "
-                         "48 / 32) and the device's RX cache; frames beyond are counted in 0x9020.., 0x8010:16"))
+    tr.notes.append(Note("esd local queues", f"0x8000:23/24 = {esd.local_rx} / {esd.local_tx} frames: the "
+                         "ECAN-Lite has no configurable local queue depth",
+                         "the MCAN RX FIFO0 / TX FIFO (0x800x:62 / :70, defaults 48 / 32) and the device's RX "
+                         "cache; frames beyond are counted in 0x9020.., 0x8010:16"))
     if esd.status_pdo:
         tr.notes.append(Note("0x1A85 status PDO", "the ECAN-Lite has no separate status PDO",
                              f"the channel status word of MCAN{channel} in every TxPDO header (chapter 7); "

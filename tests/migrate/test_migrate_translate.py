@@ -190,3 +190,39 @@ def test_eni_parser_only_spec_errors(text: str) -> None:
         parse_eni(text)
     except EniError:
         pass
+
+
+TWINCAT_STYLE = """<?xml version="1.0"?>
+<EtherCATConfig><Config><Master/><Slave>
+ <Info><Name>Box 1 (CAN-EtherCAT)</Name><VendorId>#x00000017</VendorId><ProductCode>2</ProductCode>
+  <RevisionNo>#x1</RevisionNo></Info>
+ <ProcessData><Send><BitStart>0</BitStart><BitLength>1584</BitLength></Send>
+  <Recv><BitLength>1344</BitLength></Recv>
+  <Sm2><Type>Outputs</Type><StartAddress>#x1100</StartAddress><ControlByte>#x64</ControlByte><Enable>true</Enable></Sm2>
+ </ProcessData>
+ <Mailbox DataLinkLayer="true"><Send><Start>4096</Start><Length>256</Length></Send>
+  <Recv><Start>4352</Start><Length>256</Length></Recv><Protocol>CoE</Protocol>
+  <CoE><InitCmds>
+   <InitCmd Fixed="true"><Transition>PS</Transition><Comment>baud</Comment><Timeout>0</Timeout><Ccs>1</Ccs>
+    <Index>#xF800</Index><SubIndex>2</SubIndex><Data>04</Data></InitCmd>
+   <InitCmd><Transition>PS</Transition><Ccs>2</Ccs><Index>0x1018</Index><SubIndex>1</SubIndex><Data>00</Data></InitCmd>
+   <InitCmd CompleteAccess="true"><Transition>PS</Transition><Transition>SO</Transition><Index>7187</Index>
+    <SubIndex>0</SubIndex><Data>0200 001A 851A</Data></InitCmd>
+  </InitCmds></CoE></Mailbox>
+ <DC><CycleTime0>1000000</CycleTime0><ShiftTime>250000</ShiftTime></DC>
+</Slave></Config></EtherCATConfig>"""
+
+
+def test_eni_reader_defensive() -> None:
+    """QEC A.7 elements: identity, mailbox, InitCmds (decimal, 0x, #x numbers; Ccs 2 uploads skipped;
+    CompleteAccess attribute), process data bit lengths and SMs, DC cycle/shift."""
+    (s,) = parse_eni(TWINCAT_STYLE)
+    assert (s.vendor_id, s.product_code, s.revision) == (0x17, 2, 1)
+    assert (s.mailbox_out, s.mailbox_in) == ((0x1000, 256), (0x1100, 256))
+    assert [(c.index, c.subindex, c.data, c.complete_access) for c in s.init_cmds] == [
+        (0xF800, 2, b"\x04", False), (0x1C13, 0, bytes.fromhex("0200001A851A"), True)]
+    assert (s.output_bits, s.input_bits, s.dc_cycle0, s.dc_shift) == (1584, 1344, 1_000_000, 250_000)
+    assert s.sync_managers[0].start == 0x1100
+    assert read_esd(s.init_cmds).status_pdo
+    with pytest.raises(EniError):
+        parse_eni(TWINCAT_STYLE.replace("<Index>#xF800</Index>", "<Index>F800h</Index>"))
