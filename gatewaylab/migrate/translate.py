@@ -362,7 +362,7 @@ def translate(cmds: list[InitCmd] | tuple[InitCmd, ...], channel: int = 0, compl
     if esd.status_pdo:
         tr.notes.append(Note("0x1A85 status PDO", "the ECAN-Lite has no separate status PDO",
                              f"the channel status word of MCAN{channel} in every TxPDO header (chapter 7); "
-                             f"REC/TEC/bus-off in 0x{0x9000 + channel:04X}"))
+                             f"TEC/REC in 0x{0x9000 + channel:04X}:01 (ECR), bus-off / warning in :02 (PSR)"))
     for c in esd.ignored:
         tr.notes.append(Note(f"0x{c.index:04X}:{c.subindex:02X}", "no ECAN-Lite counterpart is known to the translator",
                              "not written"))
