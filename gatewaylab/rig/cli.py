@@ -30,6 +30,7 @@ EXTRA_SUBCOMMANDS = (
     "gatewaylab.canopen.lesson_cli",
     "gatewaylab.canopen.plot_cli",
     "gatewaylab.ethercat.net_cli",
+    "gatewaylab.rig.ec",
     "gatewaylab.devices.ecanlite.cli",
     "gatewaylab.migrate.cli",
 )
