@@ -13,6 +13,7 @@ from gatewaylab.bus.frame import CanFrame
 from gatewaylab.common.clock import SimulatedClock
 from gatewaylab.devices.ecanlite.device import EcanLiteDevice
 from gatewaylab.devices.esd_can_ethercat import create_esd_gateway
+from gatewaylab.ethercat.backend import InProcessBackend
 from gatewaylab.ethercat.esc import AlState
 from gatewaylab.ethercat.master import Master
 from gatewaylab.ethercat.segment import Segment
@@ -96,9 +97,10 @@ def test_read_live_esd_equals_eni() -> None:
     master.set_state(AlState.PREOP)
     for c in ESD_CMDS:
         master.sdo_download(0, c.index, c.subindex, c.data, complete=c.complete_access)
-    live = read_live(master, 0)
-    assert [(c.index, c.subindex, c.value) for c in translate(live).cmds] == \
-        [(c.index, c.subindex, c.value) for c in translate(ESD_CMDS).cmds]
+    expected = [(c.index, c.subindex, c.value) for c in translate(ESD_CMDS).cmds]
+    assert [(c.index, c.subindex, c.value) for c in translate(read_live(master, 0)).cmds] == expected
+    backend = InProcessBackend(master)                         # the host libraries' master API (issue 12)
+    assert [(c.index, c.subindex, c.value) for c in translate(read_live(backend, 0)).cmds] == expected
 
 
 def test_cli_config_and_esi(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
