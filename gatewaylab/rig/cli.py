@@ -33,6 +33,7 @@ EXTRA_SUBCOMMANDS = (
     "gatewaylab.rig.ec",
     "gatewaylab.rig.fault_cli",
     "gatewaylab.rig.ecan",
+    "gatewaylab.migrate.cli",
 )
 
 RIG_HELP = """\

@@ -1,0 +1,2 @@
+"""esd CAN-EtherCAT -> ECAN-Lite migration kit (issue 13): configuration translation and the
+``gatewaylab migrate`` command. Depends on the devices, never the reverse."""

@@ -1,0 +1,121 @@
+"""``gatewaylab migrate``: ``config`` (esd ENI or startup list -> ECAN-Lite ENI + report) and ``esi``
+(a device's ESI file), docs/migration-esd-to-ecanlite.md."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+from ..common.errors import ConfigError
+from ..ethercat.backend import PysoemBackend
+from .config import DEVICES, device_slave, ecanlite_slave, esi_text, find_esd, read_live, report
+from .eni import SlaveConfig, format_writes, parse_eni, parse_writes, write_eni
+from .translate import DEFAULT_FALLBACK_RATE, translate
+
+_EPILOG = """\
+examples:
+  gatewaylab migrate config esd.xml -o ecanlite.xml --report report.md
+  gatewaylab migrate config startup.txt -o ecanlite.xml --channel 2 --complete-access
+  gatewaylab migrate config -i eth0 -p 1 -o ecanlite.xml --report report.md
+  gatewaylab migrate esi --device ecanlite -o ECAN-Lite.xml
+
+INPUT is an ENI (ETG.2100 XML) holding an esd CAN-EtherCAT (vendor 0x17, product 2), or a plain
+list of CoE startup writes, one per line: INDEX:SUB TYPE VALUE [ca] (TYPE u8/u16/u32/u64/hex).
+The output is an ENI with the ECAN-Lite in the esd's place (or, for an output file ending .txt,
+the startup list). Everything not translated one-to-one is listed in the report.
+"""
+
+
+def _read_wire(ifname: str, position: int) -> SlaveConfig:
+    """The running esd gateway at ``position`` on ``ifname`` (SOEM through pysoem, needs root)."""
+    backend = PysoemBackend(ifname)
+    try:
+        ident = backend.slaves()[position] if position < len(backend.slaves()) else None
+        if ident is None:
+            raise ConfigError(f"no slave at position {position} on {ifname}")
+        desc = device_slave("esd_can_ethercat").desc
+        if (ident.vendor_id, ident.product_code) != (desc.vendor_id, desc.product_code):
+            raise ConfigError(f"slave {position} on {ifname} is vendor 0x{ident.vendor_id:X} product "
+                             f"0x{ident.product_code:X}, not an esd CAN-EtherCAT")
+        return SlaveConfig(f"esd CAN-EtherCAT at {ifname}:{position}", ident.vendor_id, ident.product_code,
+                           ident.revision, ident.serial, init_cmds=tuple(read_live(backend, position)))
+    finally:
+        backend.close()
+
+
+def cmd_config(args: argparse.Namespace) -> int:
+    if (args.input is None) == (args.ifname is None):
+        raise ConfigError("give either INPUT or -i IFNAME (with -p POS)")
+    if args.ifname is not None:
+        esd = _read_wire(args.ifname, args.position)
+        source = f"{args.ifname} position {args.position}"
+    else:
+        text = Path(args.input).read_text(encoding="utf-8")
+        source = Path(args.input).name
+        if text.lstrip().startswith("<"):
+            esd = find_esd(parse_eni(text))
+        else:
+            esd = SlaveConfig("esd CAN-EtherCAT", 0x17, 2, init_cmds=tuple(parse_writes(text)))
+    tr = translate(esd.init_cmds, args.channel, args.complete_access, args.bitrate)
+    out = Path(args.output)
+    if out.suffix == ".txt":
+        out.write_text(format_writes(tr.cmds), encoding="utf-8")
+    else:
+        out.write_text(write_eni([ecanlite_slave(esd, tr)]), encoding="utf-8")
+    md = report(source, esd.init_cmds, tr)
+    if args.report:
+        Path(args.report).write_text(md, encoding="utf-8")
+    print(f"{out}: ECAN-Lite MCAN{tr.channel}, N = {tr.multiplier} ({128 * tr.multiplier} B each way), "
+          f"{len(tr.cmds)} InitCmds, {len(tr.notes)} notes" + (f"; report {args.report}" if args.report else ""))
+    for n in tr.notes:
+        print(f"  note: {n.topic}: {n.reason}. Closest: {n.closest}.")
+    return 0
+
+
+def cmd_esi(args: argparse.Namespace) -> int:
+    Path(args.output).write_text(esi_text(args.device), encoding="utf-8")
+    print(f"{args.output}: ESI of {args.device}")
+    return 0
+
+
+def _channel(text: str) -> int:
+    try:
+        k = int(text, 0)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not 0 <= k <= 3:
+        raise argparse.ArgumentTypeError(f"channel {k} is not 0..3")
+    return k
+
+
+def add_subcommand(sub: Any) -> None:
+    """Register ``gatewaylab migrate``."""
+    m = sub.add_parser("migrate", help="esd CAN-EtherCAT -> ECAN-Lite migration (config translation, ESI)",
+                       description="esd CAN-EtherCAT -> ECAN-Lite migration kit.")
+    msub = m.add_subparsers(dest="migrate_command", metavar="COMMAND")
+    c = msub.add_parser("config", help="translate an esd ENI / startup list into the ECAN-Lite's",
+                        epilog=_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    c.add_argument("input", metavar="INPUT", nargs="?", help="esd ENI (XML) or startup-write list")
+    c.add_argument("-i", "--interface", dest="ifname", metavar="IFNAME",
+                   help="read a running esd gateway's dictionary over this interface instead (SOEM, root)")
+    c.add_argument("-p", "--position", type=int, default=0, metavar="POS", help="its position on the line (0)")
+    c.add_argument("-o", "--output", required=True, metavar="FILE", help="ECAN-Lite ENI (or .txt startup list)")
+    c.add_argument("--report", metavar="FILE", help="Markdown translation report")
+    c.add_argument("--channel", type=_channel, default=0, metavar="K", help="MCAN channel 0..3 for the esd's port")
+    c.add_argument("--complete-access", action="store_true", help="write 0x1C12/0x1C13 by complete access")
+    c.add_argument("--bitrate", type=int, default=DEFAULT_FALLBACK_RATE, metavar="BIT/S",
+                   help="rate for an esd set to autobaud (default %(default)s)")
+    c.set_defaults(func=cmd_config)
+    e = msub.add_parser("esi", help="write a device's ESI file")
+    e.add_argument("--device", required=True, choices=DEVICES)
+    e.add_argument("-o", "--output", required=True, metavar="FILE")
+    e.set_defaults(func=cmd_esi)
+
+    def no_command(args: argparse.Namespace) -> int:
+        m.print_help()
+        return 2
+    m.set_defaults(func=no_command)
+
+
+__all__ = ["add_subcommand"]
