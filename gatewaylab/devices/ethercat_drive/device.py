@@ -548,6 +548,11 @@ class EthercatDrive:
         """The axes' CiA 402 drives (axis 0 first)."""
         return self.app.drives
 
+    @property
+    def drive(self) -> Drive:
+        """Axis 0: what `gatewaylab fault drive-fault NAME` (rig.faults) acts on."""
+        return self.app.drives[0]
+
     def stop(self) -> None:
         """Stop the control periods."""
         self.app.stop()
