@@ -75,6 +75,56 @@ def _dictionaries(args: argparse.Namespace) -> dict[int, ObjectDictionary]:
     return out
 
 
+class EthercatWatcher:
+    """The EtherCAT side of a rig as the monitor shows it: the AL state of each EtherCAT device, asked
+    twice a second from the rig's control endpoint (ready file "control", request "ethercat-states",
+    docs/faults.md); each change is one log event ("EtherCAT ecan1: PREOP -> OP")."""
+
+    def __init__(self, endpoint: str, period: float = 0.5) -> None:
+        self.endpoint = endpoint
+        self.period = period
+        self.states: dict[str, str] = {}
+        self._next = 0.0
+        self.failed: str | None = None
+
+    def _ask(self) -> dict[str, Any]:
+        import socket
+
+        from ..common.endpoint import EndpointKind, parse_endpoint
+        ep = parse_endpoint(self.endpoint, bare_path=EndpointKind.UNIX)
+        if ep.kind is EndpointKind.UNIX:
+            sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            sock.settimeout(2.0)
+            sock.connect(ep.path)
+        else:
+            sock = socket.create_connection((ep.host, ep.port), timeout=2.0)
+        with sock, sock.makefile("rwb") as f:
+            f.write(b'{"fault": "ethercat-states"}\n')
+            f.flush()
+            answer: dict[str, Any] = json.loads(f.readline() or b"{}")
+        return answer
+
+    def poll(self, now: float) -> list[MonitorEvent]:
+        """Events for the devices whose AL state changed since the last poll (none before it is due)."""
+        if self.failed is not None or now < self._next:
+            return []
+        self._next = now + self.period
+        try:
+            answer = self._ask()
+        except (OSError, ValueError, EndpointError) as exc:
+            self.failed = str(exc)
+            return []
+        events = []
+        for name, st in (answer.get("devices") or {}).items():
+            text = st.get("state", "?") + (f", AL status code 0x{st['code']:04X}" if st.get("error") else "")
+            old = self.states.get(name)
+            if old != text:
+                self.states[name] = text
+                events.append(MonitorEvent(now, "ethercat", f"EtherCAT {name}: {old + ' -> ' if old else ''}{text}",
+                                           None, {"device": name, **st}))
+        return events
+
+
 def _frames_live(bus: can.BusABC, until: float | None) -> Iterator[tuple[CanFrame, float] | None]:
     """Frames as they come (None every 0.2 s without one, so the view can redraw)."""
     while until is None or time.monotonic() < until:
@@ -140,6 +190,18 @@ class _Screen:
                          refresh=True)
 
 
+def _watcher(args: argparse.Namespace) -> EthercatWatcher | None:
+    """An EtherCAT watcher when TARGET is the ready file of a rig with a control endpoint."""
+    target = Path(args.target)
+    if args.replay or not target.is_file():
+        return None
+    try:
+        control = json.loads(target.read_text()).get("control")
+    except (OSError, ValueError):
+        return None
+    return EthercatWatcher(control) if isinstance(control, str) else None
+
+
 def cmd_monitor(args: argparse.Namespace) -> int:
     """``gatewaylab monitor TARGET``: decode frames until Ctrl-C, ``--duration`` or the trace's end."""
     bus: can.BusABC | None = None
@@ -166,11 +228,14 @@ def cmd_monitor(args: argparse.Namespace) -> int:
             title = f"{args.bus} ({endpoint})"
             if args.json or args.plain:
                 print(f"monitoring {title}, listen-only", file=sys.stderr, flush=True)
+        watcher = _watcher(args)
         if args.json or args.plain:
-            _print_events(monitor, frames, args.json)
+            _print_events(monitor, frames, args.json, watcher)
         else:
             with _Screen(monitor, title) as screen:
                 for item in frames:
+                    for event in watcher.poll(time.time()) if watcher is not None else []:
+                        screen.add(event)
                     if item is not None:
                         for event in monitor.feed(*item):
                             screen.add(event)
@@ -187,13 +252,17 @@ def cmd_monitor(args: argparse.Namespace) -> int:
     return 0
 
 
-def _print_events(monitor: BusMonitor, frames: Iterator[tuple[CanFrame, float] | None], as_json: bool) -> None:
+def _print_events(monitor: BusMonitor, frames: Iterator[tuple[CanFrame, float] | None], as_json: bool,
+                  watcher: EthercatWatcher | None = None) -> None:
     out = sys.stdout
     for item in frames:
-        if item is None:
+        events = watcher.poll(time.time()) if watcher is not None else []
+        if item is not None:
+            events += monitor.feed(*item)
+        elif not events:
             out.flush()
             continue
-        for event in monitor.feed(*item):
+        for event in events:
             line: Any = json.dumps(event.to_json()) if as_json else f"{event.t:.6f}  {event.text}"
             out.write(line + "\n")
     out.flush()

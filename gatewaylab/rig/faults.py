@@ -28,6 +28,7 @@ from ..canopen.emcy import ERR_CURRENT, ERR_PROFILE
 from ..canopen.node import Node
 from ..common.clock import TimerHandle
 from ..common.errors import GatewaylabError
+from ..ethercat.esc import AlState
 
 if TYPE_CHECKING:
     from ..ethercat.segment import Segment
@@ -323,6 +324,24 @@ class Faults:
             return {"fault": "usb-replug", "device": device, **p.ready_info()}
         return self._locked(act)
 
+    # -- status (not a fault: what `gatewaylab monitor` shows of the EtherCAT side) -------------------
+    def ethercat_states(self) -> dict[str, Any]:
+        """AL state and AL status code of every EtherCAT device of the rig (ETG.1000.6 AL status)."""
+        def act() -> dict[str, Any]:
+            states: dict[str, Any] = {}
+            for p in self._rig.participants:
+                slave = getattr(p, "slave", None)
+                if getattr(p, "is_ethercat", False) and slave is not None:
+                    esc = slave.esc
+                    status = esc.al_status
+                    try:
+                        state = AlState(status & 0x0F).name
+                    except ValueError:
+                        state = f"0x{status & 0x0F:X}"
+                    states[p.name] = {"state": state, "error": bool(status & 0x10), "code": esc.al_status_code}
+            return {"fault": "ethercat-states", "devices": states}
+        return self._locked(act)
+
     # -- the request table (control endpoint, CLI) -------------------------------------------------
     def request(self, req: Mapping[str, Any]) -> dict[str, Any]:
         """Run one control request ``{"fault": NAME, ...arguments}`` (docs/faults.md)."""
@@ -402,4 +421,5 @@ REQUESTS: dict[str, tuple[str, dict[str, tuple[str, bool]]]] = {
     "ethercat-replug": ("ethercat_replug", {"device": ("string", _R)}),
     "usb-unplug": ("usb_unplug", {"device": ("string", _R)}),
     "usb-replug": ("usb_replug", {"device": ("string", _R)}),
+    "ethercat-states": ("ethercat_states", {}),
 }
