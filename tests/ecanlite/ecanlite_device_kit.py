@@ -5,14 +5,14 @@ manual 5.4.3, and a veth pair in a namespace for pysoem."""
 from __future__ import annotations
 
 import contextlib
-import itertools
-import os
-import shutil
 import subprocess
 import sys
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+
+import wire_kit
+from wire_kit import veth_namespace
 
 from gatewaylab.bus import VirtualBus
 from gatewaylab.common.clock import SimulatedClock
@@ -101,27 +101,11 @@ def make_rig(tmp_path: Path, n_buses: int = 4, fd: bool = True) -> Rig:
 
 # ---------------------------------------------------------------------------------------- veth + pysoem
 DRIVER = Path(__file__).with_name("ecanlite_soem_driver.py")
-_counter = itertools.count()
 
 
 def net_capable() -> str | None:
-    """None when we may create namespaces and raw sockets, else the reason to skip."""
-    if not sys.platform.startswith("linux"):
-        return "EtherCAT wire tests need Linux AF_PACKET sockets"
-    if shutil.which("ip") is None:
-        return "the 'ip' tool (iproute2) is missing"
-    try:
-        import pysoem  # noqa: F401
-    except ImportError:
-        return "pysoem is not installed"
-    try:
-        status = Path("/proc/self/status").read_text()
-        cap_eff = int(next(line for line in status.splitlines() if line.startswith("CapEff:")).split()[1], 16)
-    except (OSError, StopIteration, ValueError):
-        return "cannot read process capabilities"
-    if not (cap_eff >> 12) & 1 or not (cap_eff >> 13) & 1:
-        return "process lacks CAP_NET_ADMIN/CAP_NET_RAW (run as root to create veth pairs)"
-    return None
+    """None when we may create namespaces and raw sockets, else the reason to skip (tests/wire_kit.py)."""
+    return wire_kit.net_capable("pysoem")
 
 
 @dataclass(frozen=True)
@@ -140,15 +124,5 @@ class VethNs:
 
 @contextlib.contextmanager
 def veth_pair() -> Iterator[VethNs]:
-    tag = f"{os.getpid() % 100000}{next(_counter)}"
-    ns = f"gl-ecan-{tag}"
-    emu, mst = f"gle{tag}e", f"gle{tag}m"
-    subprocess.run(["ip", "netns", "add", ns], check=True)
-    try:
-        subprocess.run(["ip", "link", "add", emu, "type", "veth", "peer", "name", mst, "netns", ns], check=True)
-        subprocess.run(["ip", "link", "set", emu, "up"], check=True)
-        subprocess.run(["ip", "netns", "exec", ns, "ip", "link", "set", mst, "up"], check=True)
+    with veth_namespace("gl-ecan-", "gle") as (ns, emu, mst):
         yield VethNs(ns, emu, mst)
-    finally:
-        subprocess.run(["ip", "link", "del", emu], check=False, capture_output=True)
-        subprocess.run(["ip", "netns", "del", ns], check=False)

@@ -5,9 +5,6 @@ test-made network namespace for pysoem (driver script ``esd_soem_driver.py``).""
 
 from __future__ import annotations
 
-import itertools
-import os
-import shutil
 import subprocess
 import sys
 from collections.abc import Callable, Iterator
@@ -15,6 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+from wire_kit import net_capable, veth_namespace
 
 from gatewaylab.bus.bus import Controller, VirtualBus
 from gatewaylab.bus.frame import CanFrame
@@ -37,7 +35,6 @@ from gatewaylab.ethercat.segment import Segment
 DRIVER = Path(__file__).with_name("esd_soem_driver.py")
 BITRATE = 500_000
 CYCLE = 0.001
-_counter = itertools.count()
 
 
 class EsdKit:
@@ -167,17 +164,8 @@ def kit_factory() -> Callable[..., EsdKit]:
 
 # ---------------------------------------------------------------------------------- veth + pysoem
 def _net_capable() -> str | None:
-    """None when we may create namespaces and raw sockets, else the reason to skip."""
-    if not sys.platform.startswith("linux") or shutil.which("ip") is None:
-        return "needs Linux and iproute2"
-    try:
-        status = Path("/proc/self/status").read_text()
-        cap = int(next(line for line in status.splitlines() if line.startswith("CapEff:")).split()[1], 16)
-    except (OSError, StopIteration, ValueError):
-        return "cannot read process capabilities"
-    if not (cap >> 12) & 1 or not (cap >> 13) & 1:
-        return "process lacks CAP_NET_ADMIN/CAP_NET_RAW (run as root to create veth pairs)"
-    return None
+    """None when we may create namespaces and raw sockets, else the reason to skip (tests/wire_kit.py)."""
+    return net_capable()
 
 
 @dataclass(frozen=True)
@@ -199,14 +187,5 @@ def esd_veth() -> Iterator[EsdVeth]:
     reason = _net_capable()
     if reason is not None:
         pytest.skip(reason)
-    tag = f"{os.getpid() % 100000}{next(_counter)}"
-    ns, emu, mst = f"gl-esd-{tag}", f"gle{tag}e", f"gle{tag}m"
-    subprocess.run(["ip", "netns", "add", ns], check=True)
-    try:
-        subprocess.run(["ip", "link", "add", emu, "type", "veth", "peer", "name", mst, "netns", ns], check=True)
-        subprocess.run(["ip", "link", "set", emu, "up"], check=True)
-        subprocess.run(["ip", "netns", "exec", ns, "ip", "link", "set", mst, "up"], check=True)
+    with veth_namespace("gl-esd-", "gle") as (ns, emu, mst):
         yield EsdVeth(ns, emu, mst)
-    finally:
-        subprocess.run(["ip", "link", "del", emu], check=False, capture_output=True)
-        subprocess.run(["ip", "netns", "del", ns], check=False)

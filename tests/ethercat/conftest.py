@@ -3,9 +3,6 @@ inside a network namespace the test creates and deletes (for SOEM through pysoem
 
 from __future__ import annotations
 
-import itertools
-import os
-import shutil
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -13,6 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+from wire_kit import net_capable, veth_namespace
 
 from gatewaylab.common.clock import SimulatedClock
 from gatewaylab.ethercat.description import DeviceDescription, ObjectDef, Pdo, PdoEntry
@@ -22,7 +20,6 @@ from gatewaylab.ethercat.segment import Segment
 from gatewaylab.od import Access, DataType
 
 DRIVER = Path(__file__).with_name("ethercat_soem_driver.py")
-_counter = itertools.count()
 
 
 @pytest.fixture
@@ -69,19 +66,8 @@ def chunked_description() -> DeviceDescription:
 
 
 def _net_capable() -> str | None:
-    """None when we may create namespaces and raw sockets, else the reason to skip."""
-    if not sys.platform.startswith("linux"):
-        return "EtherCAT wire tests need Linux AF_PACKET sockets"
-    if shutil.which("ip") is None:
-        return "the 'ip' tool (iproute2) is missing"
-    try:
-        status = Path("/proc/self/status").read_text()
-        cap_eff = int(next(line for line in status.splitlines() if line.startswith("CapEff:")).split()[1], 16)
-    except (OSError, StopIteration, ValueError):
-        return "cannot read process capabilities"
-    if not (cap_eff >> 12) & 1 or not (cap_eff >> 13) & 1:
-        return "process lacks CAP_NET_ADMIN/CAP_NET_RAW (run as root to create veth pairs)"
-    return None
+    """None when we may create namespaces and raw sockets, else the reason to skip (tests/wire_kit.py)."""
+    return net_capable()
 
 
 @dataclass(frozen=True)
@@ -103,15 +89,5 @@ def veth_ns() -> Iterator[VethNs]:
     reason = _net_capable()
     if reason is not None:
         pytest.skip(reason)
-    tag = f"{os.getpid() % 100000}{next(_counter)}"
-    ns = f"gl-test-{tag}"
-    emu, mst = f"glt{tag}e", f"glt{tag}m"
-    subprocess.run(["ip", "netns", "add", ns], check=True)
-    try:
-        subprocess.run(["ip", "link", "add", emu, "type", "veth", "peer", "name", mst, "netns", ns], check=True)
-        subprocess.run(["ip", "link", "set", emu, "up"], check=True)
-        subprocess.run(["ip", "netns", "exec", ns, "ip", "link", "set", mst, "up"], check=True)
+    with veth_namespace("gl-test-", "glt") as (ns, emu, mst):
         yield VethNs(ns, emu, mst)
-    finally:
-        subprocess.run(["ip", "link", "del", emu], check=False, capture_output=True)
-        subprocess.run(["ip", "netns", "del", ns], check=False)

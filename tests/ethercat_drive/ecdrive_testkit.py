@@ -5,13 +5,14 @@ from __future__ import annotations
 
 import gc
 import json
-import shutil
 import struct
 import subprocess
 import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+import wire_kit
 
 from gatewaylab.common.clock import RealTimeClock, SimulatedClock
 from gatewaylab.devices.ethercat_drive import EthercatDrive
@@ -92,19 +93,8 @@ def to_op(line: Line, *, dc: bool = False) -> None:
 
 
 def net_capable() -> str | None:
-    """None when we may create namespaces and raw sockets, else the reason to skip."""
-    if not sys.platform.startswith("linux"):
-        return "EtherCAT wire tests need Linux AF_PACKET sockets"
-    if shutil.which("ip") is None:
-        return "the 'ip' tool (iproute2) is missing"
-    try:
-        status = Path("/proc/self/status").read_text()
-        cap_eff = int(next(line for line in status.splitlines() if line.startswith("CapEff:")).split()[1], 16)
-    except (OSError, StopIteration, ValueError):
-        return "cannot read process capabilities"
-    if not (cap_eff >> 12) & 1 or not (cap_eff >> 13) & 1:
-        return "process lacks CAP_NET_ADMIN/CAP_NET_RAW (run as root to create veth pairs)"
-    return None
+    """None when we may create namespaces and raw sockets, else the reason to skip (tests/wire_kit.py)."""
+    return wire_kit.net_capable()
 
 
 @dataclass(frozen=True)

@@ -4,9 +4,6 @@ tests/ethercat/conftest.py ``veth_ns``), translated as its ENI would be (issue 1
 
 from __future__ import annotations
 
-import itertools
-import os
-import shutil
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -14,6 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+from wire_kit import net_capable, veth_namespace
 
 from gatewaylab.bus.bus import VirtualBus
 from gatewaylab.common.clock import RealTimeClock
@@ -23,21 +21,11 @@ from gatewaylab.ethercat.wire import WireTransport
 from gatewaylab.migrate.eni import parse_eni
 
 pytestmark = [pytest.mark.net, pytest.mark.slow]
-_counter = itertools.count()
 
 
 def _net_reason() -> str | None:
-    if not sys.platform.startswith("linux") or shutil.which("ip") is None:
-        return "needs Linux and iproute2"
-    status = Path("/proc/self/status").read_text()
-    cap = int(next(line for line in status.splitlines() if line.startswith("CapEff:")).split()[1], 16)
-    if not (cap >> 12) & 1 or not (cap >> 13) & 1:
-        return "needs CAP_NET_ADMIN/CAP_NET_RAW (veth pair, raw socket)"
-    try:
-        import pysoem  # noqa: F401
-    except ImportError:
-        return "pysoem is not installed"
-    return None
+    """None when we may create namespaces and raw sockets, else the reason to skip (tests/wire_kit.py)."""
+    return net_capable("pysoem")
 
 
 @dataclass(frozen=True)
@@ -52,17 +40,8 @@ def veth() -> Iterator[Veth]:
     reason = _net_reason()
     if reason is not None:
         pytest.skip(reason)
-    tag = f"{os.getpid() % 100000}{next(_counter)}"
-    ns, emu, mst = f"gl-mig-{tag}", f"glm{tag}e", f"glm{tag}m"
-    subprocess.run(["ip", "netns", "add", ns], check=True)
-    try:
-        subprocess.run(["ip", "link", "add", emu, "type", "veth", "peer", "name", mst, "netns", ns], check=True)
-        subprocess.run(["ip", "link", "set", emu, "up"], check=True)
-        subprocess.run(["ip", "netns", "exec", ns, "ip", "link", "set", mst, "up"], check=True)
+    with veth_namespace("gl-mig-", "glm") as (ns, emu, mst):
         yield Veth(ns, emu, mst)
-    finally:
-        subprocess.run(["ip", "link", "del", emu], check=False, capture_output=True)
-        subprocess.run(["ip", "netns", "del", ns], check=False)
 
 
 def test_migrate_config_from_running_esd(veth: Veth, tmp_path: Path) -> None:
