@@ -175,6 +175,8 @@ class EsdGateway(SlaveApplication):
         self._out_rx = 0
         self._op = False
         self._img = bytearray(input_size(False, DEFAULT_QUEUE))
+        #: (29-bit, Rx queue, Tx queue) the queue objects and mappings were last built for
+        self._layout = (False, DEFAULT_QUEUE, DEFAULT_QUEUE)
         self._status_cache: tuple[Any, ...] = ()
         # firmware update (5.3, 6.1.2)
         self.firmware_version = esd_description().software_version
@@ -231,17 +233,22 @@ class EsdGateway(SlaveApplication):
             raise SdoAbort(SdoAbortCode.VALUE_TOO_HIGH,
                            f"at most {max_rx_queue(extended)} Rx / {max_tx_queue(extended)} Tx messages fit")
 
-    def _apply_config(self) -> None:
+    def _apply_config(self, rebuild: bool = False) -> None:
         """New 0x8000 values: queue objects, mappings and local queues follow (4.2: a master that
-        reads the mapping afterwards gets the new sizes)."""
+        reads the mapping afterwards gets the new sizes). The objects are rebuilt only when the
+        layout changed (or ``rebuild``, after a reboot reset them): a write that keeps the sizes,
+        or sets a local queue depth, costs no rebuild (a master's SDO answer stays in time)."""
         od = self.slave.od
         self.extended = bool(int(od.get(0x8000, FLAGS)) & FLAG_29BIT)
         self.rx_queue_size = int(od.get(0x8000, RX_QUEUE))
         self.tx_queue_size = int(od.get(0x8000, TX_QUEUE))
         self.local_rx_size = int(od.get(0x8000, LOCAL_RX))
         self.local_tx_size = int(od.get(0x8000, LOCAL_TX))
-        resize_queues(od, self.extended, self.rx_queue_size, self.tx_queue_size)
-        self._img = bytearray(input_size(self.extended, self.rx_queue_size))
+        layout = (self.extended, self.rx_queue_size, self.tx_queue_size)
+        if rebuild or layout != self._layout:
+            resize_queues(od, *layout)
+            self._img = bytearray(input_size(self.extended, self.rx_queue_size))
+            self._layout = layout
         while len(self.rx_local) > self.local_rx_size:
             self.rx_local.pop()
             self.stats.fifo_overrun += 1
@@ -658,7 +665,7 @@ class EsdGateway(SlaveApplication):
         od = self.slave.od
         od.reset_values(range(0x1600, 0x10000))
         od.put(0x100A, 0, self.firmware_version)
-        self._apply_config()
+        self._apply_config(rebuild=True)
         self._compile_filter()
         self.rx_local.clear()
         self.tx_local.clear()
