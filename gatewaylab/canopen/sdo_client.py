@@ -21,7 +21,7 @@ from ..common.clock import Clock, TimerHandle
 from ..common.errors import LocalError
 from ..od import SdoAbort, SdoAbortCode
 from ..od import sdo as codec
-from ..od.sdo import SDO_HEADER, SDO_HEADER_U32, ClientCommand, ServerCommand
+from ..od.sdo import SDO_HEADER, SDO_HEADER_U32, ServerCommand
 from .crc import crc16_ccitt
 
 UploadCallback = Callable[[bytes | SdoAbort], None]
@@ -48,7 +48,9 @@ class _Transfer:
     phase: _Phase = _Phase.INITIATE
     buf: bytearray = field(default_factory=bytearray)
     pos: int = 0
-    toggle: int = 0
+    #: the segmented transfer's client half (od/sdo.py), made when the server chose segments
+    upload_segments: codec.ClientSegmentedUpload | None = None
+    download_segments: codec.ClientSegmentedDownload | None = None
     size: int | None = None
     crc: bool = False
     blksize: int = 127
@@ -228,23 +230,17 @@ class SdoClient:
                 n = (cs >> 2) & 0x03 if cs & 0x01 else 0
                 self._finish(tr, bytes(data[4:8 - n]))
                 return
-            tr.size = struct.unpack_from("<I", data, 4)[0] if cs & 0x01 else None
+            size = struct.unpack_from("<I", data, 4)[0] if cs & 0x01 else None
             tr.phase = _Phase.SEGMENTS
-            tr.toggle = 0
-            self._req(tr, codec.segment_ack(ClientCommand.UPLOAD_SEGMENT << 5, 0))
+            tr.upload_segments = codec.ClientSegmentedUpload(size)
+            self._req(tr, tr.upload_segments.request())
             return
-        if cs >> 5 != ServerCommand.UPLOAD_SEGMENT:
-            raise SdoAbort(SdoAbortCode.COMMAND_SPECIFIER_UNKNOWN)
-        if (cs >> 4) & 1 != tr.toggle:
-            raise SdoAbort(SdoAbortCode.TOGGLE_BIT_NOT_ALTERNATED)
-        tr.buf += codec.segment_data(data)
-        if cs & 0x01:
-            if tr.size is not None and len(tr.buf) != tr.size:
-                raise SdoAbort(SdoAbortCode.LENGTH_MISMATCH)
-            self._finish(tr, bytes(tr.buf))
+        up = tr.upload_segments
+        assert up is not None
+        if up.response(data):
+            self._finish(tr, up.data)
             return
-        tr.toggle ^= 1
-        self._req(tr, codec.segment_ack(ClientCommand.UPLOAD_SEGMENT << 5, tr.toggle))
+        self._req(tr, up.request())
 
     def _download_response(self, tr: _Transfer, data: bytes) -> None:
         cs = data[0]
@@ -256,27 +252,16 @@ class SdoClient:
                 self._finish(tr, None)
                 return
             tr.phase = _Phase.SEGMENTS
-            tr.toggle = 0
-            tr.pos = 0
-            self._send_segment(tr)
+            tr.download_segments = codec.ClientSegmentedDownload(tr.data)
+            self._req(tr, tr.download_segments.next_segment())
             return
-        if cs & 0xEF != ServerCommand.DOWNLOAD_SEGMENT << 5:
-            raise SdoAbort(SdoAbortCode.COMMAND_SPECIFIER_UNKNOWN)
-        if (cs >> 4) & 1 != tr.toggle:
-            raise SdoAbort(SdoAbortCode.TOGGLE_BIT_NOT_ALTERNATED)
-        if tr.pos >= len(tr.data):
+        down = tr.download_segments
+        assert down is not None
+        down.response(data)
+        if down.done:
             self._finish(tr, None)
             return
-        tr.toggle ^= 1
-        self._send_segment(tr)
-
-    def _send_segment(self, tr: _Transfer) -> None:
-        chunk = tr.data[tr.pos:tr.pos + 7]
-        tr.pos += 7
-        last = tr.pos >= len(tr.data)
-        self._req(tr, codec.segment(ClientCommand.DOWNLOAD_SEGMENT << 5, tr.toggle, chunk, last))
-        if last:
-            tr.pos = len(tr.data)
+        self._req(tr, down.next_segment())
 
     # -- block upload ----------------------------------------------------------------------------
     def _block_upload_response(self, tr: _Transfer, data: bytes) -> None:

@@ -15,10 +15,9 @@ from dataclasses import dataclass
 from ..common.clock import Clock, PeriodicTimer
 from ..common.errors import TimeoutError_
 from ..od import sdo as sdo_codec
-from ..od.sdo import ClientCommand
 from .coe import SDO, CoeService, InfoOpcode, coe_header
 from .datagram import MAX_DATAGRAM_DATA, Command, Datagram, Frame, decode_frame, encode_frame
-from .errors import AlStatusError, FoeError, FrameFormatError, MasterError, SdoAbort, SdoAbortCode, WorkingCounterError
+from .errors import AlStatusError, FoeError, FrameFormatError, MasterError, SdoAbort, WorkingCounterError
 from .esc import (
     REG_AL_CONTROL,
     REG_AL_STATUS,
@@ -325,18 +324,10 @@ class Master:
         cmd, _i, _s, word = SDO.unpack_from(body, 0)
         if cmd & 0x02:                                  # expedited: the data is in the initiate
             return body[4:4 + (sdo_codec.expedited_size(cmd) or 4)]
-        size = word
-        data = bytearray(body[8:8 + size])
-        toggle = 0
-        while len(data) < size:
-            seg = self._sdo(position, sdo_codec.segment_ack(ClientCommand.UPLOAD_SEGMENT << 5, toggle))
-            if (seg[0] >> 4) & 1 != toggle:
-                raise SdoAbort(SdoAbortCode.TOGGLE_BIT_NOT_ALTERNATED, "toggle bit in segment response")
-            data += sdo_codec.segment_data(seg)
-            toggle ^= 1
-            if seg[0] & 0x01:
-                break
-        return bytes(data[:size])
+        up = sdo_codec.ClientSegmentedUpload(word, bytearray(body[8:8 + word]))
+        while not up.done:
+            up.response(self._sdo(position, up.request()))
+        return up.data[:word]
 
     def sdo_download(self, position: int, index: int, subindex: int, data: bytes,
                      complete: bool = False) -> None:
@@ -350,13 +341,9 @@ class Master:
         max_first = s.mailbox_out[1] - 16
         first = data[:max_first]
         self._sdo(position, SDO.pack(0x21 | ca, index, subindex, len(data)) + first)
-        rest = data[len(first):]
-        toggle = 0
-        max_seg = s.mailbox_out[1] - 9
-        while rest:
-            chunk, rest = rest[:max_seg], rest[max_seg:]
-            self._sdo(position, sdo_codec.segment(ClientCommand.DOWNLOAD_SEGMENT << 5, toggle, chunk, not rest))
-            toggle ^= 1
+        down = sdo_codec.ClientSegmentedDownload(data[len(first):], s.mailbox_out[1] - 9)
+        while not down.done:
+            down.response(self._sdo(position, down.next_segment()))
 
     def _typed_up(self, position: int, index: int, sub: int, fmt: str) -> int:
         raw = self.sdo_upload(position, index, sub)

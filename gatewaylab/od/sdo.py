@@ -3,8 +3,10 @@
 CiA 301 7.2.4 defines the command byte, the expedited/segmented transfers and the block
 transfers; ETG.1000.6 CoE carries the same SDO in a mailbox (segments may be longer than 7
 bytes, an initiate upload response may carry the first part of the data). What is the same lives
-here: named command specifiers, pure encode/decode functions, and the two segmented transfer
-state machines (:class:`SegmentedDownload`, :class:`SegmentedUpload`). The servers add framing.
+here: named command specifiers, pure encode/decode functions, the two server-side segmented
+transfer state machines (:class:`SegmentedDownload`, :class:`SegmentedUpload`) and their two
+client-side counterparts (:class:`ClientSegmentedUpload`, :class:`ClientSegmentedDownload`) used by
+the CANopen SDO client and the EtherCAT master. The servers and clients add framing.
 """
 
 from __future__ import annotations
@@ -192,3 +194,75 @@ class SegmentedUpload:
         last = self.pos >= len(self.data)
         self.toggle ^= 1
         return segment(0x00, toggle, chunk, last), last
+
+
+@dataclass(slots=True)
+class ClientSegmentedUpload:
+    """The client's half of a segmented upload (CiA 301 7.2.4.3.5/7.2.4.3.6): the segment request
+    to send next, the toggle it expects back, the data collected, the announced size checked."""
+
+    size: int | None
+    buf: bytearray = field(default_factory=bytearray)
+    toggle: int = 0
+    done: bool = False
+
+    def __post_init__(self) -> None:
+        # CoE: the initiate response may already carry everything announced
+        if self.size is not None and len(self.buf) >= self.size:
+            self.done = True
+
+    def request(self) -> bytes:
+        """The upload segment request for the segment expected next."""
+        return segment_ack(ClientCommand.UPLOAD_SEGMENT << 5, self.toggle)
+
+    def response(self, data: bytes) -> bool:
+        """Take one upload segment response; True when it was the last. SdoAbort on a wrong
+        command specifier (0x05040001), toggle (0x05030000) or total size (0x06070010)."""
+        cs = data[0]
+        if cs >> 5 != ServerCommand.UPLOAD_SEGMENT:
+            raise SdoAbort(SdoAbortCode.COMMAND_SPECIFIER_UNKNOWN, "not an upload segment response")
+        if (cs >> 4) & 1 != self.toggle:
+            raise SdoAbort(SdoAbortCode.TOGGLE_BIT_NOT_ALTERNATED, "toggle bit in segment response")
+        self.buf += segment_data(data)
+        self.toggle ^= 1
+        if cs & 0x01:
+            if self.size is not None and len(self.buf) != self.size:
+                raise SdoAbort(SdoAbortCode.LENGTH_MISMATCH, f"{len(self.buf)} bytes, {self.size} announced")
+            self.done = True
+        return self.done
+
+    @property
+    def data(self) -> bytes:
+        return bytes(self.buf)
+
+
+@dataclass(slots=True)
+class ClientSegmentedDownload:
+    """The client's half of a segmented download (CiA 301 7.2.4.3.3/7.2.4.3.4): the data cut
+    into segments of ``max_segment`` bytes (7 on CAN, more in a CoE mailbox), the toggle checked in
+    every download segment response."""
+
+    data: bytes
+    max_segment: int = SEGMENT_DATA
+    pos: int = 0
+    toggle: int = 0
+
+    @property
+    def done(self) -> bool:
+        """Every segment was sent."""
+        return self.pos >= len(self.data)
+
+    def next_segment(self) -> bytes:
+        """The next download segment request (the c bit set on the last one)."""
+        chunk = self.data[self.pos:self.pos + self.max_segment]
+        self.pos += len(chunk)
+        return segment(ClientCommand.DOWNLOAD_SEGMENT << 5, self.toggle, chunk, self.done)
+
+    def response(self, data: bytes) -> None:
+        """Check one download segment response (scs 1 with the toggle of the segment it answers)."""
+        cs = data[0]
+        if cs & 0xEF != ServerCommand.DOWNLOAD_SEGMENT << 5:
+            raise SdoAbort(SdoAbortCode.COMMAND_SPECIFIER_UNKNOWN, "not a download segment response")
+        if (cs >> 4) & 1 != self.toggle:
+            raise SdoAbort(SdoAbortCode.TOGGLE_BIT_NOT_ALTERNATED, "toggle bit in segment response")
+        self.toggle ^= 1

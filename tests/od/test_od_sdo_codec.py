@@ -55,3 +55,49 @@ def test_toggle_and_size_errors() -> None:
     with pytest.raises(SdoAbort) as err:
         codec.check_size(5, 4)
     assert err.value.code == SdoAbortCode.LENGTH_MISMATCH
+
+
+@given(st.binary(min_size=0, max_size=200), st.integers(min_value=7, max_value=60))
+def test_client_halves_talk_to_server_halves(data: bytes, max_segment: int) -> None:
+    """CiA 301 7.2.4.3.3-7.2.4.3.6: the client's segment requests (one toggle, starting at 0) are
+    what the server halves accept, and the client collects exactly what the server sent; the
+    same state machines serve CAN (7-byte segments) and CoE (longer ones)."""
+    # upload: client requests, server answers
+    server_up = codec.SegmentedUpload(0x2000, 1, data, max_segment)
+    client_up = codec.ClientSegmentedUpload(len(data))
+    while not client_up.done:
+        answer, _last = server_up.segment(client_up.request()[0])
+        client_up.response(answer)
+    assert client_up.data == data
+    # download: client segments, server acknowledges with the segment's toggle
+    server_down = codec.SegmentedDownload(0x2000, 1, len(data), len(data), SdoAbortCode.LENGTH_TOO_HIGH)
+    client_down = codec.ClientSegmentedDownload(data, max_segment)
+    while True:
+        toggle, last = server_down.segment(client_down.next_segment())
+        client_down.response(codec.segment_ack(codec.ServerCommand.DOWNLOAD_SEGMENT << 5, toggle))
+        if last:
+            break
+    assert client_down.done and bytes(server_down.buf) == data
+
+
+def test_client_detects_server_errors() -> None:
+    """CiA 301 7.2.4.3.16 abort codes a client raises itself: 0x05030000 toggle bit not alternated,
+    0x05040001 a segment of the wrong kind, 0x06070010 a total other than the announced size."""
+    up = codec.ClientSegmentedUpload(10)
+    with pytest.raises(SdoAbort) as err:
+        up.response(codec.segment(0x00, 1, b"abc", False))              # toggle 1 where 0 is due
+    assert err.value.code == SdoAbortCode.TOGGLE_BIT_NOT_ALTERNATED
+    with pytest.raises(SdoAbort) as err:
+        up.response(codec.segment_ack(0x20, 0))                         # a download segment response
+    assert err.value.code == SdoAbortCode.COMMAND_SPECIFIER_UNKNOWN
+    up.response(codec.segment(0x00, 0, b"abcdefg", False))
+    with pytest.raises(SdoAbort) as err:
+        up.response(codec.segment(0x00, 1, b"hi", True))                # 9 bytes, 10 announced
+    assert err.value.code == SdoAbortCode.LENGTH_MISMATCH
+    down = codec.ClientSegmentedDownload(bytes(20))
+    down.next_segment()
+    with pytest.raises(SdoAbort) as err:
+        down.response(codec.segment_ack(0x20, 1))                        # answers toggle 1, 0 was sent
+    assert err.value.code == SdoAbortCode.TOGGLE_BIT_NOT_ALTERNATED
+    # CoE: an initiate response that carried every announced byte needs no segment
+    assert codec.ClientSegmentedUpload(3, bytearray(b"abc")).done
