@@ -212,7 +212,8 @@ def by_identifier(c: Comparison) -> tuple[IdSummary, ...]:
     for key in sorted(counts, key=lambda k: (k[1], k[0])):
         who = senders[key]
         sender = "both" if len(who) == 2 else ("application" if True in who else "other nodes")
-        out.append(IdSummary(key[0], key[1], *counts[key], sender))
+        only_a, only_b, moved, payload = counts[key]
+        out.append(IdSummary(key[0], key[1], only_a, only_b, moved, payload, sender))
     return tuple(out)
 
 
@@ -287,13 +288,13 @@ def _align(a: Sequence[Frame], b: Sequence[Frame]) -> tuple[list[Only], list[Mov
         for i in ia:
             if i in paired_a:
                 continue
-            j = next((j for j in rest_b if (b[j].can_id, b[j].extended) == (a[i].can_id, a[i].extended)), None)
-            if j is None:
+            hit = next((j for j in rest_b if (b[j].can_id, b[j].extended) == (a[i].can_id, a[i].extended)), None)
+            if hit is None:
                 continue
-            rest_b.remove(j)
-            payload.append(PayloadDiff(i, j, a[i], b[j]))
+            rest_b.remove(hit)
+            payload.append(PayloadDiff(i, hit, a[i], b[hit]))
             paired_a.add(i)
-            paired_b.add(j)
+            paired_b.add(hit)
     # 3. the rest is in one trace only
     only = [Only(0, i, a[i]) for i in left_a if i not in paired_a]
     only += [Only(1, j, b[j]) for j in left_b if j not in paired_b]
@@ -312,5 +313,6 @@ def frames(items: Iterable[tuple[float, int, bytes]]) -> tuple[Frame, ...]:
     return tuple(Frame(t, i, bytes(d)) for t, i, d in items)
 
 
-__all__ = ["AppEvent", "AppEventKind", "Comparison", "Frame", "IdSummary", "by_identifier", "Latencies", "MAX_LISTED", "Moved", "Only",
-           "PayloadDiff", "Recording", "Stats", "compare", "frames", "latencies", "ms", "percentile"]
+__all__ = ["MAX_LISTED", "AppEvent", "AppEventKind", "Comparison", "Frame", "IdSummary", "Latencies", "Moved",
+           "Only", "PayloadDiff", "Recording", "Stats", "by_identifier", "compare", "frames", "latencies", "ms",
+           "percentile"]
