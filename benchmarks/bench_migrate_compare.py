@@ -18,7 +18,7 @@ from pathlib import Path
 from gatewaylab.migrate.compare import compare
 from gatewaylab.migrate.compare_report import write_report
 from gatewaylab.migrate.compare_run import GATEWAYS, load_app, run_once
-from gatewaylab.rig.migrate import open_compare
+from gatewaylab.rig.migrate import compare_config, line_opener
 
 ROOT = Path(__file__).resolve().parent.parent
 SECONDS = 1.0
@@ -26,7 +26,7 @@ SECONDS = 1.0
 
 def main() -> None:
     app = load_app(ROOT / "examples" / "migrate_cia402_csp.py")
-    opener = open_compare(str(ROOT / "examples" / "migrate_rig.toml"), "can0")
+    opener = line_opener(compare_config(ROOT / "examples" / "migrate_rig.toml", "can0"), "can0")
     recs = []
     walls = []
     for gateway in GATEWAYS:

@@ -18,8 +18,8 @@ from .config import DEVICES, device_slave, ecanlite_slave, esi_text, find_esd, r
 from .eni import SlaveConfig, format_writes, parse_eni, parse_writes, write_eni
 from .translate import DEFAULT_FALLBACK_RATE, translate
 
-#: ``open_compare(rig_path, bus)`` -> the line opener of ``migrate compare`` (the rig layer's)
-CompareOpener = Callable[[str, str], Any]
+#: ``open_compare(rig_path, bus, wire)`` -> the runner of ``migrate compare`` (the rig layer's)
+CompareOpener = Callable[[str, str, bool], Any]
 
 _EPILOG = """\
 examples:
@@ -95,8 +95,10 @@ examples:
 RIG holds the buses and drives (no gateways). APP.py defines run(bus) taking a can.BusABC (and
 optionally seconds=S, given by --seconds). The application runs once through an esd CAN-EtherCAT
 and once through an ECAN-Lite (MCAN channel 0) attached to BUS, each on a fresh copy of the rig,
-in process on a simulated clock. DIR gets both buses' traces (python-can CSV), report.md,
-report.html, latency.png and timeline.png.
+in process on a simulated clock (deterministic: the same inputs give the same report), or with
+--wire in real time: the rig on one end of a veth pair, SOEM (pysoem) on the other end inside a
+network namespace (root; both are removed again however the run ends). DIR gets both buses'
+traces (python-can CSV), report.md, report.html, latency.png and timeline.png.
 
 exit status: 0 the CAN traffic is the same (timing differences alone do not count), 1 it
 differs, 2 usage error (bad arguments, rig or application file), 3 the application or a gateway
@@ -107,18 +109,16 @@ failed during a run.
 def cmd_compare(args: argparse.Namespace, open_compare: CompareOpener | None) -> int:
     from .compare import compare
     from .compare_report import latency_summary, read_recording, write_recording, write_report
-    from .compare_run import GATEWAYS, load_app, run_once, takes_seconds
+    from .compare_run import GATEWAYS, Runner, load_app, takes_seconds
 
     if open_compare is None:
         raise ConfigError("migrate compare needs the rig layer (run it as `gatewaylab migrate compare`)")
-    if args.wire:
-        raise ConfigError("--wire is not available in this version: compare runs on the simulated clock only")
     if args.seconds is not None and args.seconds <= 0:
         raise ConfigError(f"--seconds {args.seconds}: must be positive")
     app = load_app(args.app)
     if args.seconds is not None and not takes_seconds(app):
         raise ConfigError(f"{args.app}: run() takes no seconds parameter, so --seconds cannot be used")
-    opener = open_compare(args.rig, args.bus)
+    runner: Runner = open_compare(args.rig, args.bus, args.wire)
     folder = Path(args.report)
     folder.mkdir(parents=True, exist_ok=True)
     traces: list[str] = []
@@ -126,7 +126,7 @@ def cmd_compare(args: argparse.Namespace, open_compare: CompareOpener | None) ->
     for gateway in GATEWAYS:
         try:
             with contextlib.redirect_stdout(sys.stderr):   # stdout keeps the verdict (or the JSON) alone
-                rec = run_once(opener, gateway, app, seconds=args.seconds, cycle_us=args.cycle_us)
+                rec = runner(gateway, Path(args.app), args.seconds, args.cycle_us)
         except Exception as exc:     # the application's own errors included: report, exit 3
             print(f"gatewaylab: {args.app} through {gateway[2]} failed: {type(exc).__name__}: {exc}")
             return 3
@@ -136,7 +136,8 @@ def cmd_compare(args: argparse.Namespace, open_compare: CompareOpener | None) ->
     a, b = (read_recording(folder, g[1], g[2], d) for g, d in zip(GATEWAYS, durations))
     result = compare(a, b)
     setup = (("rig", Path(args.rig).name), ("bus", args.bus), ("application", Path(args.app).name),
-             ("clock", f"simulated, EtherCAT cycle {args.cycle_us} us"),
+             ("clock", ("real time over veth pairs (SOEM through pysoem)" if args.wire else "simulated")
+                       + f", EtherCAT cycle {args.cycle_us} us"),
              ("seconds", "-" if args.seconds is None else f"{args.seconds:g}"),
              ("gateways", f"{a.gateway} (its CAN port) / {b.gateway} (N = 3)"))
     md = write_report(folder, result, f"migrate compare: {Path(args.app).name}", setup, traces)
@@ -193,7 +194,8 @@ def add_subcommand(sub: Any, open_compare: CompareOpener | None = None) -> None:
                    help="folder for traces and report (default %(default)s)")
     k.add_argument("--seconds", type=float, metavar="S", help="passed to run(bus, seconds=S)")
     k.add_argument("--cycle-us", type=int, default=1000, metavar="US", help="EtherCAT cycle (default %(default)s)")
-    k.add_argument("--wire", action="store_true", help="real time over veth pairs with pysoem (not available yet)")
+    k.add_argument("--wire", action="store_true",
+                   help="real time over a veth pair with SOEM (pysoem) as master (root); not deterministic")
     k.add_argument("--json", action="store_true", help="print the summary as JSON instead of the verdict line")
     k.set_defaults(func=lambda args: cmd_compare(args, open_compare))
 

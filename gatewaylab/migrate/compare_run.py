@@ -61,6 +61,23 @@ LineOpener = Callable[[str], Line]
 App = Callable[..., Any]
 
 
+class Runner(Protocol):
+    """One run of the application file through one gateway (in process or over the wire)."""
+
+    def __call__(self, gateway: tuple[str, str, str], app_path: Path, seconds: float | None,
+                 cycle_us: int) -> Recording: ...
+
+
+def simulated_runner(opener: LineOpener) -> Runner:
+    """Runs in process on fresh copies of the rig (``opener``), the application file loaded anew
+    for each run (module state does not carry over from one gateway to the other)."""
+
+    def run(gateway: tuple[str, str, str], app_path: Path, seconds: float | None, cycle_us: int) -> Recording:
+        return run_once(opener, gateway, load_app(app_path), seconds=seconds, cycle_us=cycle_us)
+
+    return run
+
+
 def load_app(path: str | Path) -> App:
     """``run`` of the application file ``path`` (a ConfigError when there is none)."""
     try:
@@ -120,7 +137,7 @@ class RecordingBus(GatewayBus):
         super().deliver(msgs)
 
 
-def _position(backend: MasterBackend, kind: str) -> int:
+def position_of(backend: MasterBackend, kind: str) -> int:
     vendor, product = IDENTITY[kind]
     found = [s.position for s in backend.slaves() if (s.vendor_id, s.product_code) == (vendor, product)]
     if not found:
@@ -135,7 +152,7 @@ def run_once(opener: LineOpener, gateway: tuple[str, str, str], app: App, *, sec
     line = opener(kind)
     try:
         host = EthercatHost(line.backend, cycle_us=cycle_us)
-        pos = _position(line.backend, kind)
+        pos = position_of(line.backend, kind)
         bitrate = line.bus.bitrate
         if kind == ESD[0]:
             host.add_esd(pos, bitrate, name=prefix)
@@ -161,5 +178,5 @@ def run_once(opener: LineOpener, gateway: tuple[str, str, str], app: App, *, sec
     return Recording(display, tuple(rec.bus), tuple(rec.app), duration)
 
 
-__all__ = ["ECANLITE", "ESD", "GATEWAYS", "IDENTITY", "Line", "LineOpener", "Recorder", "RecordingBus",
-           "load_app", "run_once", "takes_seconds"]
+__all__ = ["ECANLITE", "ESD", "GATEWAYS", "IDENTITY", "Line", "LineOpener", "Recorder", "RecordingBus", "Runner",
+           "load_app", "position_of", "run_once", "simulated_runner", "takes_seconds"]
