@@ -11,11 +11,12 @@ import dataclasses
 from pathlib import Path
 from typing import Any
 
-from ..common.clock import SimulatedClock
+from ..common.clock import RealTimeClock, SimulatedClock
 from ..common.errors import ConfigError
 from ..ethercat.backend import InProcessBackend
 from ..migrate import cli as migrate_cli
-from ..migrate.compare_run import GATEWAYS, Line, LineOpener
+from ..migrate.compare_run import GATEWAYS, Line, LineOpener, Runner, simulated_runner
+from ..migrate.compare_wire import RealtimeOpener, WireLine, wire_runner, wire_unavailable
 from .config import RigConfig, load_rig
 from .runtime import Rig
 
@@ -58,9 +59,40 @@ def line_opener(config: RigConfig, bus: str) -> LineOpener:
     return open_line
 
 
-def open_compare(path: str, bus: str) -> LineOpener:
-    """What ``migrate compare --rig PATH --bus BUS`` runs on (the config is checked now)."""
-    return line_opener(compare_config(path, bus), bus)
+def realtime_opener(config: RigConfig, bus: str) -> RealtimeOpener:
+    """Opens a fresh copy of ``config`` with a gateway, in real time, its EtherCAT segment on an
+    interface (``migrate compare --wire``), its loop running in a thread until ``stop()``."""
+
+    def open_rig(kind: str, interface: str) -> WireLine:
+        config_k = dataclasses.replace(with_gateway(config, kind, bus), clock="realtime",
+                                       ethercat={"interface": interface})
+        rig = Rig(config_k, clock=RealTimeClock(), endpoints=False)
+        try:
+            rig.start()
+            thread = rig.run_in_thread()
+        except BaseException:
+            rig.close()
+            raise
+
+        def stop() -> None:
+            rig.request_stop()
+            thread.join(timeout=5.0)
+            rig.close()
+
+        return WireLine(rig.bus(bus), rig.clock.wall_epoch, stop)
+
+    return open_rig
+
+
+def open_compare(path: str, bus: str, wire: bool = False) -> Runner:
+    """What ``migrate compare --rig PATH --bus BUS [--wire]`` runs with (the config is checked now)."""
+    config = compare_config(path, bus)
+    if not wire:
+        return simulated_runner(line_opener(config, bus))
+    reason = wire_unavailable()
+    if reason is not None:
+        raise ConfigError(f"--wire {reason}")
+    return wire_runner(realtime_opener(config, bus))
 
 
 def add_subcommand(subparsers: Any) -> None:
