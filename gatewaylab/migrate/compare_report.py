@@ -11,6 +11,7 @@ seconds since the application started). Then ``report.md``, ``report.html``, ``l
 from __future__ import annotations
 
 import html
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -185,8 +186,6 @@ def markdown(bl: Sequence[Block]) -> str:
 
 def _inline_html(text: str) -> str:
     """Markdown's **bold**, `code` and [text](link) in a paragraph, escaped."""
-    import re
-
     out = html.escape(text, quote=False)
     out = re.sub(r"\*\*(.+?)\*\*", r"<strong>\1</strong>", out)
     out = re.sub(r"`(.+?)`", r"<code>\1</code>", out)
