@@ -1,9 +1,14 @@
-"""``gatewaylab migrate``: ``config`` (esd ENI or startup list -> ECAN-Lite ENI + report) and ``esi``
-(a device's ESI file), docs/migration-esd-to-ecanlite.md."""
+"""``gatewaylab migrate``: ``config`` (esd ENI or startup list -> ECAN-Lite ENI + report), ``esi``
+(a device's ESI file) and ``compare`` (one application through both gateways, side by side),
+docs/migration-esd-to-ecanlite.md."""
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import json
+import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -12,6 +17,9 @@ from ..ethercat.backend import PysoemBackend
 from .config import DEVICES, device_slave, ecanlite_slave, esi_text, find_esd, read_live, report
 from .eni import SlaveConfig, format_writes, parse_eni, parse_writes, write_eni
 from .translate import DEFAULT_FALLBACK_RATE, translate
+
+#: ``open_compare(rig_path, bus, wire)`` -> the runner of ``migrate compare`` (the rig layer's)
+CompareOpener = Callable[[str, str, bool], Any]
 
 _EPILOG = """\
 examples:
@@ -79,6 +87,72 @@ def cmd_esi(args: argparse.Namespace) -> int:
     return 0
 
 
+_COMPARE_EPILOG = """\
+examples:
+  gatewaylab migrate compare --rig examples/migrate_rig.toml --bus can0 \\
+      --app examples/migrate_cia402_csp.py --report report/ --seconds 0.5
+
+RIG holds the buses and drives (no gateways). APP.py defines run(bus) taking a can.BusABC (and
+optionally seconds=S, given by --seconds). The application runs once through an esd CAN-EtherCAT
+and once through an ECAN-Lite (MCAN channel 0) attached to BUS, each on a fresh copy of the rig,
+in process on a simulated clock (deterministic: the same inputs give the same report), or with
+--wire in real time: the rig on one end of a veth pair, SOEM (pysoem) on the other end inside a
+network namespace (root; both are removed again however the run ends). DIR gets both buses'
+traces (python-can CSV), report.md, report.html, latency.png and timeline.png.
+
+exit status: 0 the CAN traffic is the same (timing differences alone do not count), 1 it
+differs, 2 usage error (bad arguments, rig or application file), 3 the application or a gateway
+failed during a run.
+"""
+
+
+def cmd_compare(args: argparse.Namespace, open_compare: CompareOpener | None) -> int:
+    from .compare import compare
+    from .compare_report import latency_summary, read_recording, write_recording, write_report
+    from .compare_run import GATEWAYS, Runner, load_app, takes_seconds
+
+    if open_compare is None:
+        raise ConfigError("migrate compare needs the rig layer (run it as `gatewaylab migrate compare`)")
+    if args.seconds is not None and args.seconds <= 0:
+        raise ConfigError(f"--seconds {args.seconds}: must be positive")
+    app = load_app(args.app)
+    if args.seconds is not None and not takes_seconds(app):
+        raise ConfigError(f"{args.app}: run() takes no seconds parameter, so --seconds cannot be used")
+    runner: Runner = open_compare(args.rig, args.bus, args.wire)
+    folder = Path(args.report)
+    folder.mkdir(parents=True, exist_ok=True)
+    traces: list[str] = []
+    durations = []
+    for gateway in GATEWAYS:
+        try:
+            with contextlib.redirect_stdout(sys.stderr):   # stdout keeps the verdict (or the JSON) alone
+                rec = runner(gateway, Path(args.app), args.seconds, args.cycle_us)
+        except Exception as exc:     # the application's own errors included: report, exit 3
+            print(f"gatewaylab: {args.app} through {gateway[2]} failed: {type(exc).__name__}: {exc}")
+            return 3
+        traces += [p.name for p in write_recording(folder, gateway[1], rec)]
+        durations.append(rec.duration)
+    # the report is made from the trace files, as anyone re-reading them would see it
+    a, b = (read_recording(folder, g[1], g[2], d) for g, d in zip(GATEWAYS, durations))
+    result = compare(a, b)
+    setup = (("rig", Path(args.rig).name), ("bus", args.bus), ("application", Path(args.app).name),
+             ("clock", ("real time over veth pairs (SOEM through pysoem)" if args.wire else "simulated")
+                       + f", EtherCAT cycle {args.cycle_us} us"),
+             ("seconds", "-" if args.seconds is None else f"{args.seconds:g}"),
+             ("gateways", f"{a.gateway} (its CAN port) / {b.gateway} (N = 3)"))
+    md = write_report(folder, result, f"migrate compare: {Path(args.app).name}", setup, traces)
+    if args.json:
+        print(json.dumps({"identical": result.identical, "verdict": result.verdict(), "report": str(md),
+                          "frames": [len(a.bus), len(b.bus)],
+                          "only": [len(result.only_in(0)), len(result.only_in(1))],
+                          "order": len(result.moved), "payload": len(result.payload),
+                          "latency": {a.gateway: latency_summary(result.latency_a),
+                                      b.gateway: latency_summary(result.latency_b)}}, indent=2))
+    else:
+        print(result.verdict())
+    return 0 if result.identical else 1
+
+
 def _channel(text: str) -> int:
     try:
         k = int(text, 0)
@@ -89,8 +163,8 @@ def _channel(text: str) -> int:
     return k
 
 
-def add_subcommand(sub: Any) -> None:
-    """Register ``gatewaylab migrate``."""
+def add_subcommand(sub: Any, open_compare: CompareOpener | None = None) -> None:
+    """Register ``gatewaylab migrate``; ``open_compare`` (the rig layer's) makes ``compare`` work."""
     m = sub.add_parser("migrate", help="esd CAN-EtherCAT -> ECAN-Lite migration (config translation, ESI)",
                        description="esd CAN-EtherCAT -> ECAN-Lite migration kit.")
     msub = m.add_subparsers(dest="migrate_command", metavar="COMMAND")
@@ -111,6 +185,19 @@ def add_subcommand(sub: Any) -> None:
     e.add_argument("--device", required=True, choices=DEVICES)
     e.add_argument("-o", "--output", required=True, metavar="FILE")
     e.set_defaults(func=cmd_esi)
+    k = msub.add_parser("compare", help="run one application through both gateways and compare the CAN traffic",
+                        epilog=_COMPARE_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    k.add_argument("--rig", required=True, metavar="RIG.toml", help="buses and drives, no gateways")
+    k.add_argument("--bus", required=True, metavar="BUS", help="the [[bus]] both gateways are attached to")
+    k.add_argument("--app", required=True, metavar="APP.py", help="defines run(bus) taking a can.BusABC")
+    k.add_argument("--report", default="compare-report", metavar="DIR",
+                   help="folder for traces and report (default %(default)s)")
+    k.add_argument("--seconds", type=float, metavar="S", help="passed to run(bus, seconds=S)")
+    k.add_argument("--cycle-us", type=int, default=1000, metavar="US", help="EtherCAT cycle (default %(default)s)")
+    k.add_argument("--wire", action="store_true",
+                   help="real time over a veth pair with SOEM (pysoem) as master (root); not deterministic")
+    k.add_argument("--json", action="store_true", help="print the summary as JSON instead of the verdict line")
+    k.set_defaults(func=lambda args: cmd_compare(args, open_compare))
 
     def no_command(args: argparse.Namespace) -> int:
         m.print_help()

@@ -33,7 +33,7 @@ EXTRA_SUBCOMMANDS = (
     "gatewaylab.rig.ec",
     "gatewaylab.rig.fault_cli",
     "gatewaylab.rig.ecan",
-    "gatewaylab.migrate.cli",
+    "gatewaylab.rig.migrate",
 )
 
 RIG_HELP = """\

@@ -230,6 +230,7 @@ class EthercatHost:
         self._timer: PeriodicTimer | None = None
         self._thread: threading.Thread | None = None
         self._running = False
+        self._driver = 0
         self._closed = False
         self._lock = threading.RLock()
         if self.simulated and isinstance(self.clock.lock, nullcontext):
@@ -306,6 +307,8 @@ class EthercatHost:
         for ch in esd:
             ch.attach()
         self._running = True
+        #: the thread that started the host drives a simulated clock in recv() (a notifier thread does not)
+        self._driver = threading.get_ident()
         if self.simulated:
             self._timer = self.clock.call_every(self.cycle_s, self.cycle)
         else:
@@ -457,6 +460,19 @@ class EthercatHost:
                 if quiet >= SETTLE_CYCLES:
                     return
 
+    def pass_time(self, bus: GatewayBus, timeout: float) -> bool:
+        """recv() on a simulated clock: run the cycles until ``bus`` has a frame or ``timeout`` passed,
+        only on the thread that started the host (others wait in wall time, as a notifier thread must
+        not run the simulation on its own)."""
+        clock = self.clock
+        if not isinstance(clock, SimulatedClock) or threading.get_ident() != self._driver:
+            return False
+        with clock.lock:
+            end = clock.now() + timeout
+            while bus._queue.empty() and self._running and clock.now() < end:
+                clock.advance(min(self.cycle_s, end - clock.now()))
+        return True
+
     def run_for(self, seconds: float) -> None:
         """Let ``seconds`` pass: on a simulated clock the cycles run now; on a real one this waits."""
         self.clock.wait(seconds)
@@ -549,6 +565,20 @@ class GatewayBus(can.BusABC):
             self.host.send(self.channel_name, frame, timeout)
         except RxOverflowError as exc:
             raise can.CanOperationError(str(exc)) from exc
+
+    def recv(self, timeout: float | None = None) -> can.Message | None:
+        """On a simulated clock, ``recv(timeout)`` on the thread that started the host lets up to
+        ``timeout`` of simulated time pass (the cycles run) instead of waiting wall time."""
+        if not (self.host.simulated and timeout is not None and timeout > 0):
+            return super().recv(timeout)
+        clock = self.host.clock
+        end = clock.now() + timeout
+        while True:
+            if self._queue.empty() and not self.host.pass_time(self, end - clock.now()):
+                return super().recv(timeout)       # another thread (a notifier): wall time
+            msg = super().recv(0)
+            if msg is not None or clock.now() >= end or self._is_shutdown:
+                return msg
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
         try:
