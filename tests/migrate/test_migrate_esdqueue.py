@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import can
@@ -43,6 +44,7 @@ from gatewaylab.ethercat.backend import InProcessBackend, MasterTimeout
 from gatewaylab.ethercat.master import Master
 from gatewaylab.ethercat.segment import Segment
 from gatewaylab.migrate.esdqueue import NO_SOURCE, EsdQueueOnEcanLite
+from gatewaylab.rig.runtime import Rig
 
 ECHO_OFFSET = 0x100
 T = 5.0
@@ -502,3 +504,40 @@ def test_same_application_same_bus_traffic(both: tuple[Side, Side]) -> None:
     results = [(application(s.host), s.heard) for s in both]
     assert results[0] == results[1]
     assert len(results[0][0]) == 50
+
+
+def _rig_toml(kind: str) -> str:
+    device = ('kind = "esd_can_ethercat"\nname = "esd1"\nbus = "can0"' if kind == "esd"
+              else 'kind = "ecanlite"\nname = "ecan"\nchannels = ["can0"]')
+    return (f'clock = "simulated"\n\n[[bus]]\nname = "can0"\nbitrate = 500000\n\n'
+            f'[[drive]]\nbus = "can0"\nnode_id = 1\nserial = 0x1001\n\n[[device]]\n{device}\n')
+
+
+def _sdo_answers(kind: str, tmp_path: Path) -> list[tuple[int, str, int]]:
+    path = tmp_path / f"{kind}.toml"
+    path.write_text(_rig_toml(kind))
+    with Rig.from_file(str(path), clock=SimulatedClock(), endpoints=False) as rig:
+        rig.start()
+        backend = InProcessBackend.from_rig(rig)
+        host: EsdQueueApi = EsdHost(backend) if kind == "esd" else EsdQueueOnEcanLite(backend)
+        host.configure(bitrate=BitRate.table6(2), filters=(FilterArea(0x581, 0x581),))
+        host.start(timeout=T)
+        answers = []
+        for index, sub in ((0x1000, 0), (0x1018, 1), (0x1018, 4)):
+            request = bytes([0x40, index & 0xFF, index >> 8, sub, 0, 0, 0, 0])
+            tn = host.send([CanFrame(0x601, request)], timeout=T)[0]
+            host.wait_sent(tn, timeout=T)
+            (answer,) = frames_of(receive_n(host, 1))
+            answers.append((answer.can_id, answer.data[:4].hex(), int.from_bytes(answer.data[4:], "little")))
+        host.stop()
+    return answers
+
+
+def test_canopen_drive_behind_either_gateway(tmp_path: Path) -> None:
+    """A rig with a CANopen drive (node 1) behind the gateway: expedited SDO uploads (CiA 301
+    7.2.4.3.6: request 0x601 ccs 2, answer 0x581 scs 2) of 0x1000, 0x1018:01 and 0x1018:04 written
+    with the esd API give the same answers through either gateway."""
+    esd, ecan = _sdo_answers("esd", tmp_path), _sdo_answers("ecanlite", tmp_path)
+    assert esd == ecan
+    assert esd[0] == (0x581, "43001000", 0x00020192)
+    assert [a[:2] for a in esd[1:]] == [(0x581, "43181001"), (0x581, "43181004")] and esd[2][2] == 0x1001
