@@ -313,6 +313,7 @@ class EsdQueueOnEcanLite:
         self.completed_seq = 0
         self._received: deque[RxFrame] = deque()
         self._status_word = 0
+        self._status_seen = False                        # a TxPDO header was read since start
         self._pressure_seen = False
         self._overflow_new = False
 
@@ -415,6 +416,7 @@ class EsdQueueOnEcanLite:
             _count_kind(c, "rx", f)
         sw = port.status_words(0)[self.channel]
         self._status_word = sw
+        self._status_seen = True
         pressure = bool(sw & SW_RX_PRESSURE)
         if pressure and not self._pressure_seen:
             self._overflow_new = True
@@ -549,11 +551,14 @@ class EsdQueueOnEcanLite:
     def pdo_status(self) -> CanStatus | None:
         """With ``status_pdo``: the last TxPDO header's channel status word (chapter 7) as a
         CanStatus -- bus_off (bit 5 / state 3), warning (bit 4 'warn'), rx_overflow (bit 6
-        rx_pressure); the header has no error counters, they read 0. None without ``status_pdo``."""
+        rx_pressure); the header has no error counters, they read 0. None without ``status_pdo`` or
+        before the first cycle (as the esd's 0x1A85)."""
         cfg = self.config
         if cfg is None or not cfg.status_pdo:
             return None
         with self._lock:
+            if not self._status_seen:
+                return None
             sw = self._status_word
         bus_off = bool(sw & SW_BUS_OFF) or sw & SW_STATE == STATE_BUSOFF
         return CanStatus(bus_off, bool(sw & SW_WARN) or bus_off, bool(sw & SW_RX_PRESSURE), 0, 0)

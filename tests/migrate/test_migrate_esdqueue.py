@@ -361,6 +361,7 @@ def test_bus_off_status_and_held_frames(side: Side) -> None:
     host = side.host
     host.configure(status_pdo=True)
     host.start(timeout=T)
+    assert host.pdo_status() is None                              # no process data read yet
     side.cycles(2)
     assert host.pdo_status() == CanStatus()
     side.bus.force_bus_off(side.controller)
