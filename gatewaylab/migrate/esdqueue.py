@@ -483,6 +483,7 @@ class EsdQueueOnEcanLite:
         return tns
 
     def _issue(self, tn: int) -> int:
+        self._require()
         try:
             return self._seq_of[tn]
         except KeyError:
@@ -552,7 +553,8 @@ class EsdQueueOnEcanLite:
         """With ``status_pdo``: the last TxPDO header's channel status word (chapter 7) as a
         CanStatus -- bus_off (bit 5 / state 3), warning (bit 4 'warn'), rx_overflow (bit 6
         rx_pressure); the header has no error counters, they read 0. None without ``status_pdo`` or
-        before the first cycle (as the esd's 0x1A85)."""
+        before the first cycle (as the esd's 0x1A85); LocalError when not started (as EsdHost)."""
+        self._require()
         cfg = self.config
         if cfg is None or not cfg.status_pdo:
             return None

@@ -148,7 +148,14 @@ def test_both_gateways_satisfy_the_protocol(side: Side) -> None:
     sizes = (198, 168) if side.esd else (384, 384)
     assert (layout.output_bytes, layout.input_bytes) == sizes
     assert side.host.config is not None and side.host.layout == layout
-    raises(LocalError, side.host.queue, [CanFrame(0x100)])        # not started
+    for call, args in ((side.host.queue, ([CanFrame(0x100)],)), (side.host.pdo_status, ()),
+                       (side.host.receive, ())):
+        raises(LocalError, call, *args)                          # not started
+    side.host.start(timeout=T)
+    tn = side.host.send([CanFrame(0x100)], timeout=T)[0]
+    side.host.stop()
+    for call, args in ((side.host.completed, (tn,)), (side.host.accepted, (tn,)), (side.host.receive, ())):
+        raises(LocalError, call, *args)                          # stopped: the queues are gone
 
 
 # ---------------------------------------------------------------------------------- Tx
