@@ -326,10 +326,17 @@ class EsdQueueOnEcanLite:
     def cycle(self) -> bool:
         """One process-data cycle: the next batch into the RxPDO, exchange, the TxPDO parsed
         (frames, TX_RESULTs, the channel status word). False when the working counter was wrong."""
-        _adapter, port = self._require()
+        adapter, port = self._require()
         with self._lock:
             self._fill(port)
-        status = port.cycle_end()
+            repeat = bool(self._published) and self._bad_cycles > 0
+        if repeat:
+            # the image carrying a batch went out with a wrong working counter: the same image again,
+            # for as long as it takes (13.8: an identical image is a no-op if it did arrive); the
+            # Port's own rule repeats an image once, then publishes a new one, which would lose it
+            status = adapter.exchange()
+        else:
+            status = port.cycle_end()
         port.cycle_begin()
         self.cycles += 1
         with self._lock:

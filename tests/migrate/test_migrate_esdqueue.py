@@ -64,6 +64,7 @@ class Side:
     bus: VirtualBus
     host: EsdQueueApi
     controller: Controller            # the gateway's CAN controller (for bus off)
+    backend: InProcessBackend
     heard: list[CanFrame] = field(default_factory=list)
     echo_on: bool = True
 
@@ -86,16 +87,17 @@ def make_side(kind: str, bus_rate: int = 500_000, **host_kwargs: Any) -> Side:
         gw = create_esd_gateway(clock, bus, "esd1")
         assert gw.controller is not None
         controller = gw.controller
-        host = EsdHost(InProcessBackend(Master(clock, Segment([gw.slave]))), **host_kwargs)
+        backend = InProcessBackend(Master(clock, Segment([gw.slave])))
+        host = EsdHost(backend, **host_kwargs)
     else:
         channel = 2 if kind.endswith("ch2") else 0
         controller = bus.attach("ecan.mcan")
         controllers: list[Controller | None] = [None] * 4
         controllers[channel] = controller
         dev = EcanLiteDevice(clock, controllers)
-        host = EsdQueueOnEcanLite(InProcessBackend(Master(clock, Segment([dev.slave]))), channel=channel,
-                                  **host_kwargs)
-    side = Side(kind, clock, bus, host, controller)
+        backend = InProcessBackend(Master(clock, Segment([dev.slave])))
+        host = EsdQueueOnEcanLite(backend, channel=channel, **host_kwargs)
+    side = Side(kind, clock, bus, host, controller, backend)
     echo = bus.attach("echo")
 
     def answer(frame: CanFrame, t: float) -> None:
@@ -549,3 +551,22 @@ def test_canopen_drive_behind_either_gateway(tmp_path: Path) -> None:
     assert esd == ecan
     assert esd[0] == (0x581, "43001000", 0x00020192)
     assert [a[:2] for a in esd[1:]] == [(0x581, "43181001"), (0x581, "43181004")] and esd[2][2] == 0x1001
+
+
+def test_wrong_working_counter_leaves_the_queues_alone(side: Side) -> None:
+    """A cycle whose working counter is short brought no valid inputs (ETG.1000.4 working counter;
+    ECAN-Lite 15.5.2 step 8 'domain complete'): cycle() returns False, the error is counted, the
+    batch is not accepted; once the line is back the frames go out once, in order."""
+    host = side.host
+    host.configure()
+    host.start(timeout=T)
+    side.cycles(2)
+    tns = host.queue([CanFrame(0x100 + i, b"w") for i in range(3)])
+    master = side.backend.master
+    saved = master.fprd(master.slave(0).station, 0x0600, 32)
+    master.fpwr(master.slave(0).station, 0x0600, bytes(32))     # FMMUs off: the slave no longer counts
+    assert [host.cycle() for _ in range(5)] == [False] * 5
+    assert host.wkc_errors == 5 and not host.accepted(tns[0])
+    master.fpwr(master.slave(0).station, 0x0600, saved)
+    host.wait_sent(tns[-1], timeout=T)
+    assert side.heard == [CanFrame(0x100 + i, b"w") for i in range(3)]
