@@ -330,13 +330,10 @@ class EsdQueueOnEcanLite:
         with self._lock:
             self._fill(port)
             repeat = bool(self._published) and self._bad_cycles > 0
-        if repeat:
-            # the image carrying a batch went out with a wrong working counter: the same image again,
-            # for as long as it takes (13.8: an identical image is a no-op if it did arrive); the
-            # Port's own rule repeats an image once, then publishes a new one, which would lose it
-            status = adapter.exchange()
-        else:
-            status = port.cycle_end()
+        # the image carrying a batch went out with a wrong working counter: the same image again, for
+        # as long as it takes (13.8: an identical image is a no-op if it did arrive); the Port's own
+        # rule repeats an image once, then publishes a new one, which would lose the batch
+        status = adapter.exchange() if repeat else port.cycle_end()
         port.cycle_begin()
         self.cycles += 1
         with self._lock:
