@@ -44,7 +44,7 @@ from typing import TYPE_CHECKING, Any
 
 from ..bus.frame import CanFrame
 from ..common.clock import Clock
-from ..common.errors import ConfigError, FrameError, LocalError
+from ..common.errors import ConfigError, LocalError
 from ..devices.ecanlite.host.adapter import AdapterConfig, EcanAdapter, SlaveConfig, StartupSdo, find_ecanlite
 from ..devices.ecanlite.host.port import McanPort, PortConfig
 from ..devices.ecanlite.stream import CanPacket, TxResultCode
@@ -63,13 +63,13 @@ from ..devices.esd_can_ethercat.host.handshake import (
     TN_MODULO,
     RxFrame,
     RxOverflowError,
-    TxQueueFull,
 )
 from ..devices.esd_can_ethercat.objects import STATISTICS
 from ..ethercat.backend import MasterBackend, MasterTimeout
 from ..ethercat.esc import AlState
 from .eni import InitCmd
 from .translate import DEFAULT_FALLBACK_RATE, Translation, translate
+from .txbook import TxBook
 
 __all__ = ["NO_SOURCE", "EsdQueueOnEcanLite", "esd_writes"]
 
@@ -92,7 +92,6 @@ NO_SOURCE = frozenset(STATISTICS[s] for s in (0x01, 0x02, 0x03, 0x04, 0x05, 0x06
 #: Waiting calls look at the AL state after this many bad cycles, and every this many seconds (as EsdHost).
 WKC_RECOVER = 10
 STATE_CHECK_PERIOD = 0.05
-_FINAL = frozenset(c for c in TxResultCode if c != TxResultCode.QUEUED)
 
 
 def esd_writes(cfg: EsdConfig) -> list[InitCmd]:
@@ -167,16 +166,13 @@ class EsdQueueOnEcanLite:
         self.cycles = 0
         self.recoveries = 0
         self.lost_state_reads = 0
-        #: TX_RESULTs whose (RefPacketSeq, RefFrameIndex) is in no table entry (e.g. from before a restart).
-        self.unmatched_results = 0
         #: Frames received while the host already held ``rx_limit`` (kept anyway).
         self.rx_over_limit = 0
-        #: Cycles a batch waited because the TX FIFO had no room for all of it, or the channel was bus-off.
-        self.tx_held = 0
         self._bad_cycles = 0
         self._state_checked_at = self.clock.now()
         self._lock = threading.RLock()
         self._running = False
+        self.book: TxBook | None = None
         self._reset_queues()
         self._counts = _Counts()
         self._base_dropped = 0
@@ -232,7 +228,7 @@ class EsdQueueOnEcanLite:
             adapter.add_startup_sdo(StartupSdo.expect(p, pol, 3, b"\x00", "data path policy apply status"))
         adapter.run_startup_queue()
         tx_room = self._up(base, 70)
-        if on_bus and cfg.tx_queue > tx_room:
+        if cfg.tx_queue > tx_room:
             raise ConfigError(f"Tx queue size {cfg.tx_queue} (0x8000:22) exceeds the MCAN TX FIFO of {tx_room} "
                               f"elements (0x{base:04X}:46): a batch could not be taken whole")
         area = slave.rx_layout.frame_area_bytes
@@ -297,39 +293,39 @@ class EsdQueueOnEcanLite:
         return True
 
     def _reset_queues(self) -> None:
-        self._next_tn = 1
-        self._seq = 0
-        self._seq_of: dict[int, int] = {}
-        self._pending: deque[tuple[int, CanFrame]] = deque()
-        self._handed: list[tuple[int, int]] = []          # (port request, tn) given to the port, not published
-        self._published: list[int] = []                   # tns in an image not yet exchanged with a full WKC
-        self._by_ref: dict[tuple[int, int], int] = {}      # (RefPacketSeq, RefFrameIndex) -> tn
-        self._frames: dict[int, CanFrame] = {}
-        self._inflight: deque[int] = deque()              # published, in order, until completed
-        self._results: dict[int, TxResultCode] = {}      # final results of in-flight tns
-        self._outcome: dict[int, TxResultCode] = {}      # final result of every completed tn (last 2 x tx_limit)
-        self._open = 0                                    # published without a final result (TX FIFO use)
-        self.accepted_seq = 0
-        self.completed_seq = 0
+        cfg = self.config
+        self.book = (TxBook(cfg.tx_queue, self.tx_room, extended=cfg.extended, tx_limit=self.tx_limit)
+                     if cfg is not None else None)
+        self._handed: list[tuple[int, int, CanFrame]] = []   # (port request, tn, frame): taken, not published
         self._received: deque[RxFrame] = deque()
         self._status_word = 0
         self._status_seen = False                        # a TxPDO header was read since start
         self._pressure_seen = False
         self._overflow_new = False
 
+    @property
+    def unmatched_results(self) -> int:
+        """TX_RESULTs whose (RefPacketSeq, RefFrameIndex) named no frame of the table."""
+        return self.book.unmatched if self.book is not None else 0
+
+    @property
+    def tx_held(self) -> int:
+        """Cycles a batch waited: the TX FIFO had no room for all of it, or the channel was bus off."""
+        return self.book.held if self.book is not None else 0
+
     # ------------------------------------------------------------------ the cycle
-    def _require(self) -> tuple[EcanAdapter, McanPort]:
-        if not self._running or self.adapter is None or self.port is None:
+    def _require(self) -> tuple[EcanAdapter, McanPort, TxBook]:
+        if not self._running or self.adapter is None or self.port is None or self.book is None:
             raise LocalError("the queues are not running: configure(), then start()")
-        return self.adapter, self.port
+        return self.adapter, self.port, self.book
 
     def cycle(self) -> bool:
         """One process-data cycle: the next batch into the RxPDO, exchange, the TxPDO parsed
         (frames, TX_RESULTs, the channel status word). False when the working counter was wrong."""
-        adapter, port = self._require()
+        adapter, port, book = self._require()
         with self._lock:
-            self._fill(port)
-            repeat = bool(self._published) and self._bad_cycles > 0
+            self._fill(port, book)
+            repeat = book.unaccepted and self._bad_cycles > 0
         # the image carrying a batch went out with a wrong working counter: the same image again, for
         # as long as it takes (13.8: an identical image is a no-op if it did arrive); the Port's own
         # rule repeats an image once, then publishes a new one, which would lose the batch
@@ -338,75 +334,40 @@ class EsdQueueOnEcanLite:
         self.cycles += 1
         with self._lock:
             if self._handed and port.pending(0) == 0:
-                self._publish_done(port)
+                where = {t.request: (t.seq, t.index) for t in port.tickets(0)}
+                book.published((tn, f, where[request]) for request, tn, f in self._handed)
+                self._handed.clear()
             if not status.complete:
                 self.wkc_errors += 1
                 self._bad_cycles += 1
                 return False
             self._bad_cycles = 0
-            self._absorb(port)
+            self._absorb(port, book)
         return True
 
-    def _fill(self, port: McanPort) -> None:
-        """A batch of up to the Tx queue size into the next image, whole, when the TX FIFO has room for it."""
-        if self._handed or not self._pending:
-            return
-        cfg = self.config
-        assert cfg is not None
-        n = min(len(self._pending), cfg.tx_queue)
+    def _fill(self, port: McanPort, book: TxBook) -> None:
+        """A batch into the next image, whole, when the TX FIFO has room for it; held while bus off."""
         sw = self._status_word
-        if self._open + n > self.tx_room or sw & SW_BUS_OFF or sw & SW_STATE == STATE_BUSOFF:
-            self.tx_held += 1
-            return
-        for _ in range(n):
-            tn, f = self._pending.popleft()
+        for tn, f in book.take_batch(hold=bool(sw & SW_BUS_OFF) or sw & SW_STATE == STATE_BUSOFF):
             packet = CanPacket(self.channel, f.can_id, f.extended, False, False, f.rtr, False, f.data,
                                dlc=f.dlc if f.rtr else -1)
-            self._handed.append((port.send_packet(0, packet), tn))
-            self._frames[tn] = f
+            self._handed.append((port.send_packet(0, packet), tn, f))
 
-    def _publish_done(self, port: McanPort) -> None:
-        """The handed batch is in a published image: its (sequence, index) -> tn table entries."""
-        where = {t.request: (t.seq, t.index) for t in port.tickets(0)}
-        for request, tn in self._handed:
-            self._by_ref[where[request]] = tn
-            self._published.append(tn)
-            self._inflight.append(tn)
-            self._open += 1
-        self._handed.clear()
-
-    def _absorb(self, port: McanPort) -> None:
+    def _absorb(self, port: McanPort, book: TxBook) -> None:
         """After a cycle with a complete working counter: acceptance, TX_RESULTs, received frames, status."""
         cfg = self.config
         assert cfg is not None
         c = self._counts
-        if self._published:
-            c.tx_requested += len(self._published)
-            self.accepted_seq = self._seq_of[self._published[-1]]
-            self._published.clear()
+        c.tx_requested += book.accept()
         for res in port.take_tx_results():
-            code = TxResultCode(res.code)
-            if code not in _FINAL:
+            done = book.on_result(res.seq, res.index, res.code)
+            if done is None:
                 continue
-            tn = self._by_ref.pop((res.seq, res.index), None)
-            if tn is None:
-                self.unmatched_results += 1
-                continue
-            self._results[tn] = code
-            self._open -= 1
-            frame = self._frames.pop(tn)
-            if code == TxResultCode.OK:
+            if res.code == TxResultCode.OK:
                 c.tx_ok += 1
-                _count_kind(c, "tx", frame)
+                _count_kind(c, "tx", done[1])
             else:
                 c.tx_failed += 1
-        while self._inflight and self._inflight[0] in self._results:
-            tn = self._inflight.popleft()
-            self._outcome[tn] = self._results.pop(tn)
-            self.completed_seq = self._seq_of[tn]
-        if len(self._outcome) > 2 * self.tx_limit:
-            for tn in list(self._outcome)[:self.tx_limit]:
-                del self._outcome[tn]
         for r in port.receive():
             if r.channel != self.channel:
                 continue
@@ -448,72 +409,45 @@ class EsdQueueOnEcanLite:
             self.clock.wait(self.cycle_time)
 
     # ------------------------------------------------------------------ Tx
-    def _check(self, frame: CanFrame) -> None:
-        cfg = self.config
-        assert cfg is not None
-        if frame.fd:
-            raise FrameError("the esd queue API sends classic CAN frames only (5.1.5.3: 0..8 bytes)")
-        if frame.extended and not cfg.extended:
-            raise FrameError(f"29-bit frame 0x{frame.can_id:X} needs the 29-bit queues (0x8000:20 bit 0, "
-                             "manual 5.1.5.4)")
-
     def queue(self, frames: Iterable[CanFrame]) -> list[int]:
-        """Queue frames in order; their transaction numbers. TxQueueFull (nothing queued) beyond ``tx_limit``."""
-        self._require()
-        batch = list(frames)
+        """Queue frames in order; their transaction numbers. FrameError (29-bit frame on the 11-bit
+        queues, an FD frame) or TxQueueFull (beyond ``tx_limit``): nothing is queued."""
+        _adapter, _port, book = self._require()
         with self._lock:
-            for f in batch:
-                self._check(f)
-            in_use = len(self._pending) + len(self._handed) + len(self._inflight)
-            if in_use + len(batch) > self.tx_limit:
-                raise TxQueueFull(f"{in_use} frames queued or in flight, {len(batch)} more exceed "
-                                  f"the limit of {self.tx_limit}", in_use)
-            tns = []
-            for f in batch:
-                tn = self._next_tn
-                self._next_tn = tn % (TN_MODULO - 1) + 1
-                self._seq += 1
-                self._seq_of[tn] = self._seq
-                self._outcome.pop(tn, None)
-                self._pending.append((tn, f))
-                tns.append(tn)
-            return tns
+            return book.submit(frames)
 
     def send(self, frames: Iterable[CanFrame], timeout: float = DEFAULT_TIMEOUT) -> list[int]:
         """Queue ``frames`` and wait until every batch was accepted (exchanged with a full working counter)."""
         tns = self.queue(frames)
         if tns:
-            self._wait_for("Tx batch accepted", lambda: self._issue(tns[-1]) <= self.accepted_seq, timeout)
+            book = self._require()[2]
+            self._wait_for("Tx batch accepted", lambda: book.accepted(tns[-1]), timeout)
         return tns
-
-    def _issue(self, tn: int) -> int:
-        self._require()
-        try:
-            return self._seq_of[tn]
-        except KeyError:
-            raise LocalError(f"transaction number {tn} was not handed out") from None
 
     def accepted(self, tn: int) -> bool:
         """The RxPDO image carrying frame ``tn`` reached the ECAN-Lite."""
+        book = self._require()[2]
         with self._lock:
-            return self._issue(tn) <= self.accepted_seq
+            return book.accepted(tn)
 
     def completed(self, tn: int) -> bool:
         """Frame ``tn`` and every frame before it have their final TX_RESULT (chapter 10)."""
+        book = self._require()[2]
         with self._lock:
-            return self._issue(tn) <= self.completed_seq
+            return book.completed(tn)
 
     def result(self, tn: int) -> TxResultCode | None:
         """The final TX_RESULT of a completed frame (0 OK; 2..5 not sent), None while it is not
         completed (not part of the esd API: the esd has no per-frame result)."""
+        book = self._require()[2]
         with self._lock:
-            self._issue(tn)
-            return self._outcome.get(tn)
+            return book.result(tn)
 
     def wait_sent(self, tn: int, timeout: float = DEFAULT_TIMEOUT) -> None:
         """Wait until :meth:`completed`; MasterTimeout when not in time."""
-        self._issue(tn)
-        self._wait_for(f"transaction {tn}", lambda: self._issue(tn) <= self.completed_seq, timeout)
+        book = self._require()[2]
+        book.completed(tn)
+        self._wait_for(f"transaction {tn}", lambda: book.completed(tn), timeout)
 
     # ------------------------------------------------------------------ Rx
     def receive(self, timeout: float = 0.0, limit: int | None = None) -> list[RxFrame]:
