@@ -16,7 +16,8 @@ is the only line that changes. How each esd notion is carried (docs/migration-es
   adapter writes the profile (0x1C12/0x1C13, 0x8010/0x8011 with TX_RESULT on, 0x8010:07 bit 0), the
   channel writes follow with their apply status check, and the channel's data path policy
   (0x802x, 13.2.2) drains the whole RX cache every cycle, as the esd delivers a whole Rx batch.
-* Tx: frames wait in order on the host, each with its transaction number (1..FFFFh, as the esd's);
+* Tx (the bookkeeping is the sans-I/O :class:`~.txbook.TxBook`): frames wait in order on the host,
+  each with its transaction number (1..FFFFh, as the esd's);
   a batch of at most the Tx queue size (0x8000:22) goes into one RxPDO image whole, and only when
   the MCAN TX FIFO (0x800x:70) has room for all of it -- otherwise it waits, never split.
   *Accepted* = the image carrying it was exchanged with a complete working counter. Each frame's
@@ -44,7 +45,7 @@ from typing import TYPE_CHECKING, Any
 
 from ..bus.frame import CanFrame
 from ..common.clock import Clock
-from ..common.errors import ConfigError, LocalError
+from ..common.errors import ConfigError, LocalError, ProtocolError
 from ..devices.ecanlite.host.adapter import AdapterConfig, EcanAdapter, SlaveConfig, StartupSdo, find_ecanlite
 from ..devices.ecanlite.host.port import McanPort, PortConfig
 from ..devices.ecanlite.stream import CanPacket, TxResultCode
@@ -57,6 +58,7 @@ from ..devices.esd_can_ethercat.host.config import (
     QueueLayout,
     for_bitrate,
 )
+from ..devices.esd_can_ethercat.host.gateway import SDO_ATTEMPTS, SDO_RETRY_WAIT
 from ..devices.esd_can_ethercat.host.handshake import (
     DEFAULT_RX_LIMIT,
     DEFAULT_TX_LIMIT,
@@ -92,6 +94,8 @@ NO_SOURCE = frozenset(STATISTICS[s] for s in (0x01, 0x02, 0x03, 0x04, 0x05, 0x06
 #: Waiting calls look at the AL state after this many bad cycles, and every this many seconds (as EsdHost).
 WKC_RECOVER = 10
 STATE_CHECK_PERIOD = 0.05
+#: An SDO service without an answer, or a late answer to an earlier one: repeated (as EsdHost).
+_RETRYABLE = (MasterTimeout, ProtocolError)
 
 
 def esd_writes(cfg: EsdConfig) -> list[InitCmd]:
@@ -166,6 +170,8 @@ class EsdQueueOnEcanLite:
         self.cycles = 0
         self.recoveries = 0
         self.lost_state_reads = 0
+        #: SDO services repeated after a timeout or a late answer (reads, window writes).
+        self.sdo_retries = 0
         #: Frames received while the host already held ``rx_limit`` (kept anyway).
         self.rx_over_limit = 0
         self._bad_cycles = 0
@@ -182,11 +188,25 @@ class EsdQueueOnEcanLite:
             raise ConfigError(f"slave {position} is not an ECAN-Lite")
 
     # ------------------------------------------------------------------ SDO helpers
+    def _retry(self, call: Callable[[], bytes | None]) -> bytes | None:
+        """An idempotent SDO service, repeated after a timeout or a late answer (as EsdHost's reads)."""
+        for attempt in range(SDO_ATTEMPTS):
+            try:
+                return call()
+            except _RETRYABLE:
+                if attempt == SDO_ATTEMPTS - 1:
+                    raise
+                self.sdo_retries += 1
+                self.clock.wait(SDO_RETRY_WAIT * (attempt + 1))
+        raise AssertionError("unreachable")
+
     def _up(self, index: int, sub: int) -> int:
-        return int.from_bytes(self.backend.sdo_upload(self.position, index, sub), "little")
+        raw = self._retry(lambda: self.backend.sdo_upload(self.position, index, sub))
+        assert raw is not None
+        return int.from_bytes(raw, "little")
 
     def _down(self, index: int, sub: int, value: int, size: int) -> None:
-        self.backend.sdo_download(self.position, index, sub, value.to_bytes(size, "little"))
+        self._retry(lambda: self.backend.sdo_download(self.position, index, sub, value.to_bytes(size, "little")))
 
     # ------------------------------------------------------------------ configuration
     def to_preop(self, timeout: float = DEFAULT_TIMEOUT) -> None:
@@ -255,7 +275,7 @@ class EsdQueueOnEcanLite:
         if not cmds:
             raise ConfigError("no baud rate takes the channel off the PDO (0x8010/0x8011:04): use configure()")
         for c in cmds:
-            self.backend.sdo_download(self.position, c.index, c.subindex, c.data)
+            self._down(c.index, c.subindex, c.value, len(c.data))
         self._down(base, 1, 1, 1)
         status = self._up(base, 2)
         if status:
