@@ -570,3 +570,34 @@ def test_wrong_working_counter_leaves_the_queues_alone(side: Side) -> None:
     master.fpwr(master.slave(0).station, 0x0600, saved)
     host.wait_sent(tns[-1], timeout=T)
     assert side.heard == [CanFrame(0x100 + i, b"w") for i in range(3)]
+
+
+def test_latency_in_cycles_as_documented(side: Side) -> None:
+    """The documented difference in cycles (simulated clock, 1 ms cycle, 500 kbit/s; guide 'The esd
+    queue API on the ECAN-Lite'): one frame is accepted after 1 cycle on both; completed after 2
+    (esd: the input Tx Transaction Number, 5.1.5.1) or 3 cycles (ECAN-Lite: the TX_RESULT rides in
+    the TxPDO built after the master's read, chapter 10); a frame from the bus reaches receive()
+    1 ms (esd) or 2 ms (ECAN-Lite) after it ended on the wire."""
+    host = side.host
+    host.configure()
+    host.start(timeout=T)
+    side.cycles(3)
+    side.echo_on = False
+    tn = host.queue([CanFrame(0x100, b"x")])[0]
+    accepted_after = completed_after = 0
+    for n in range(1, 10):
+        side.cycles(1)
+        if not accepted_after and host.accepted(tn):
+            accepted_after = n
+        if host.completed(tn):
+            completed_after = n
+            break
+    assert (accepted_after, completed_after) == ((1, 2) if side.esd else (1, 3))
+    side.bus.attach("peer").send(CanFrame(0x300, b"p"))
+    for n in range(1, 10):
+        side.cycles(1)
+        if host.receive():
+            break
+    # the first of these exchanges comes while the frame is still on the wire: 1 ms later on the
+    # esd (it writes the frame into the inputs at once), 2 ms later on the ECAN-Lite
+    assert n == (2 if side.esd else 3)
