@@ -203,12 +203,23 @@ _CTRL_STD = struct.Struct("<HH")
 _CTRL_EXT = struct.Struct("<HI")
 _SCHEDULE = struct.Struct("<BBHI")
 _TX_RESULT = struct.Struct("<HHBB")
+#: A CAN_FRAME's control word, id field and timestamp field in one format (8.1, 8.4), by
+#: [IDE][shape]: shape 0 no timestamp, 1 delta16, 2 delta32, 3 full64, 4 the RxPDO reservation
+#: (format u8, flags u8, tag u16, offset_ns u32). The packet packs its head with these, the
+#: decoder unpacks a head with one call.
+_PACKET_HEADS = tuple(tuple(struct.Struct("<H" + id_fmt + ts_fmt) for ts_fmt in ("", "H", "I", "Q", "BBHI"))
+                      for id_fmt in ("H", "I"))
 _LAYOUT_CRC = struct.Struct("<IHH")
 #: Control-word bits a TX_RESULT leaves 0: DLC, IDE, FDF, BRS, X, TSF, D64 (chapter 10: CH + KIND).
 _TX_RESULT_CTRL_ZERO = 0x9FF8
 #: Zeros for a D64 window tail (< 64) plus ALIGN4 padding (< 4).
 _ZERO_PAD = bytes(68)
 _new_object = object.__new__
+#: Appended to the decoder's copy of an image, so a packet head can be unpacked before the check
+#: that it ends inside payload_len (a full64 head is 2 + 4 + 8 bytes).
+_DECODE_TAIL = bytes(16)
+#: What the decoder needs of a control word that passed :func:`_ctrl_error` (:func:`_ctrl_geometry`).
+_Geometry = tuple[Any, ...]
 
 
 def dlc_to_len(dlc: int) -> int:
@@ -298,6 +309,9 @@ class StreamLayout:
     _rx: bool = field(init=False, repr=False, compare=False, default=True)
     _align4: bool = field(init=False, repr=False, compare=False, default=False)
     _crc: bool = field(init=False, repr=False, compare=False, default=True)
+    # Control word -> its checked geometry (:func:`_ctrl_geometry`), filled on first sight: a
+    # stream repeats few distinct control words, so each is judged once per layout, not per packet.
+    _geo: dict[int, _Geometry] = field(init=False, repr=False, compare=False, default_factory=dict)
 
     def __post_init__(self) -> None:
         status = check_layout(self.multiplier, self.channel_mask, self.profile, int(self.budget_policy),
@@ -548,10 +562,16 @@ class CanPacket:
                    tsf, timestamp, False, 0, 0, id_aux, d64, frame.dlc if frame.rtr else -1)
 
 
-#: The slot setters of CanPacket in field order: the decoder builds packets it has already checked
-#: without the generated __init__ (half the cost per packet; the same trick as CanFrame).
-_CAN_PACKET_SETTERS: tuple[Callable[[CanPacket, Any], None], ...] = tuple(
-    vars(CanPacket)[f.name].__set__ for f in fields(CanPacket))
+class _CanPacketDraft:
+    """A CanPacket under construction: the same slots without the frozen ``__setattr__``.
+
+    The decoder fills one slot by slot with plain attribute stores, then turns it into the frozen
+    :class:`CanPacket` it is by assigning ``__class__`` (the layouts are identical). A frozen
+    dataclass's ``__init__`` + ``__post_init__`` costs ~3.3 us, slot-descriptor calls ~0.9 us, this
+    ~0.3 us per packet, and the packet is checked already (docs/decisions.md, issue 10 speed).
+    """
+
+    __slots__ = CanPacket.__slots__  # type: ignore[attr-defined]
 
 
 @dataclass(frozen=True, slots=True)
@@ -871,21 +891,15 @@ def decode_stream(image: bytes | bytearray | memoryview, layout: StreamLayout) -
     if layout_id != layout.layout_id or mask != layout.channel_mask:
         raise fail(PdoError.ACTIVE_AREA, f"layout_id 0x{layout_id:04X} / channel_mask 0x{mask:02X}, active "
                                          f"0x{layout.layout_id:04X} / 0x{layout.channel_mask:02X} (5.4.4.1)")
-    data = image if type(image) is bytes else bytes(image)
+    # One copy of the image (bytes, so no view pins the caller's buffer) with a zero tail.
+    data = b"".join((image, _DECODE_TAIL))
     packets: list[Packet] = []
     append = packets.append
-    # Control word -> its checked geometry, filled on first sight: an image repeats few distinct
-    # control words, so each is validated once per image instead of once per packet.
-    geo: dict[int, tuple[int, int, int, int, Tsf, bool, bool, bool, bool, bool, int]] = {}
-    geometry = _ctrl_geometry
+    geo = layout._geo
     new = _new_object
-    (s_ch, s_id, s_ext, s_fd, s_brs, s_rtr, s_esi, s_data, s_tsf, s_ts, s_sched, s_off, s_tag, s_aux, s_d64,
-     s_dlc, s_ctrl, s_raw) = _CAN_PACKET_SETTERS
-    schedule_ok = layout._schedule_ok
-    scheduled = schedule_ok     # in an RxPDO every packet with a TSF is a TSF_FULL64 reservation
-    align4 = layout._align4
+    draft = _CanPacketDraft
+    final = CanPacket
     u16 = _U16.unpack_from
-    u32 = _U32.unpack_from
     off = HEADER_SIZE
     while off < end:
         if off + 2 > end:
@@ -896,68 +910,61 @@ def decode_stream(image: bytes | bytearray | memoryview, layout: StreamLayout) -
             code, why = _ctrl_error(ctrl, layout)
             if code:
                 raise fail(code, why, off, -1, ctrl)
-            g = geo[ctrl] = geometry(ctrl)
-        id_bytes, ts_bytes, data_bytes, n, tsf, ide, fdf, brs, rtr, esi, dlc = g
-        if id_bytes == 0:   # TX_RESULT (checked by _ctrl_error: KIND 1 allowed here)
-            pend = off + 6
-            nxt = off + 8 if align4 else pend
-            if nxt > end:
-                raise fail(PdoError.TRUNCATED, "TX_RESULT cut by payload_len (10)", off, nxt, ctrl)
-            _c, ref_seq, ref_index, result = _TX_RESULT.unpack_from(data, off)
+            g = geo[ctrl] = _ctrl_geometry(ctrl, layout)
+        unpack, shape, raw, step, head, n, ch, tsf, ide, fdf, brs, rtr, esi, d64, dlc, reserved, id_mask, aux_shift, \
+            tail = g
+        pend = off + raw
+        nxt = off + step
+        if nxt > end:
+            raise fail(PdoError.TRUNCATED, "TX_RESULT cut by payload_len (10)" if shape == 3 else
+                       f"packet ends at {nxt} beyond payload end {end} (8.3)", off, nxt, ctrl)
+        if shape == 0:
+            word = unpack(data, off)[1]
+            stamp = offset_ns = tag = 0
+        elif shape == 1:
+            _c, word, stamp = unpack(data, off)
+            offset_ns = tag = 0
+        elif shape == 2:    # RxPDO: TSF_FULL64 is only the reservation format (8.4)
+            _c, word, fmt, sflags, tag, offset_ns = unpack(data, off)
+            if fmt != 1 or sflags:
+                raise fail(PdoError.BAD_SCHEDULE, f"reservation format {fmt} flags {sflags}, expected 1 / 0 "
+                                                  "(8.4)", off, nxt, ctrl)
+            stamp = 0
+        else:               # TX_RESULT (checked by _ctrl_error: KIND 1 allowed here)
+            _c, ref_seq, ref_index, result = unpack(data, off)
             if result > 5:
                 raise fail(PdoError.UNKNOWN_KIND, f"ResultCode {result} undefined (10)", off, nxt, ctrl)
             if nxt != pend and data[pend] | data[pend + 1]:
                 raise fail(PdoError.RESERVED_BIT, "ALIGN4 padding must be 0 (8.3)", off, nxt, ctrl)
-            append(TxResultPacket(ctrl & 7, ref_seq, ref_index, _RESULT_CODES[result]))
+            append(TxResultPacket(ch, ref_seq, ref_index, _RESULT_CODES[result]))
             off = nxt
             continue
-        o = off + 2 + id_bytes
-        data_at = o + ts_bytes
-        pend = data_at + data_bytes
-        nxt = off + (pend - off + 3 & ~3) if align4 else pend
-        if nxt > end:
-            raise fail(PdoError.TRUNCATED, f"packet ends at {nxt} beyond payload end {end} (8.3)", off, nxt, ctrl)
-        if ide:
-            word = u32(data, off + 2)[0]
-            can_id = word & 0x1FFFFFFF
-            id_aux = word >> 29
-        else:
-            word = u16(data, off + 2)[0]
-            if word & 0xC000:
-                raise fail(PdoError.RESERVED_BIT, "StdIdField bits 14/15 must be 0 (8.1)", off, nxt, ctrl)
-            can_id = word & 0x7FF
-            id_aux = word >> 11
-        stamp = offset_ns = tag = 0
-        if ts_bytes:
-            if schedule_ok:     # RxPDO: TSF_FULL64 is only the reservation format (8.4)
-                fmt, sflags, tag, offset_ns = _SCHEDULE.unpack_from(data, o)
-                if fmt != 1 or sflags:
-                    raise fail(PdoError.BAD_SCHEDULE, f"reservation format {fmt} flags {sflags}, expected 1 / 0 "
-                                                      "(8.4)", off, nxt, ctrl)
-            else:
-                stamp = (u16 if ts_bytes == 2 else u32 if ts_bytes == 4 else _U64.unpack_from)(data, o)[0]
-        # The packet, slot by slot (checked above; no __init__ / __post_init__ round).
-        pkt = new(CanPacket)
-        s_ch(pkt, ctrl & 7)
-        s_id(pkt, can_id)
-        s_ext(pkt, ide)
-        s_fd(pkt, fdf)
-        s_brs(pkt, brs)
-        s_rtr(pkt, rtr)
-        s_esi(pkt, esi)
-        s_data(pkt, data[data_at:data_at + n])
-        s_tsf(pkt, tsf)
-        s_ts(pkt, stamp)
-        s_sched(pkt, scheduled and ts_bytes != 0)
-        s_off(pkt, offset_ns)
-        s_tag(pkt, tag)
-        s_aux(pkt, id_aux)
-        s_d64(pkt, ctrl >= 0x8000)
-        s_dlc(pkt, dlc)
-        s_ctrl(pkt, ctrl)
-        s_raw(pkt, pend - off)
+        if word & reserved:
+            raise fail(PdoError.RESERVED_BIT, "StdIdField bits 14/15 must be 0 (8.1)", off, nxt, ctrl)
         if nxt != pend and data[pend:nxt].count(0) != nxt - pend:
             raise fail(PdoError.RESERVED_BIT, "ALIGN4 padding must be 0 (8.3)", off, nxt, ctrl)
+        # The packet, slot by slot (checked above; no __init__ / __post_init__ round).
+        head += off
+        pkt: Any = new(draft)
+        pkt.channel = ch
+        pkt.can_id = word & id_mask
+        pkt.extended = ide
+        pkt.fd = fdf
+        pkt.brs = brs
+        pkt.rtr = rtr
+        pkt.esi = esi
+        pkt.data = data[head:head + n]
+        pkt.tsf = tsf
+        pkt.timestamp = stamp
+        pkt.scheduled = shape == 2
+        pkt.offset_ns = offset_ns
+        pkt.tag = tag
+        pkt.id_aux = word >> aux_shift
+        pkt.d64 = d64
+        pkt.dlc = dlc
+        pkt.ctrl = ctrl
+        pkt.raw_size = raw
+        pkt.__class__ = final
         append(pkt)
         off = nxt
     if len(packets) != count:
@@ -994,18 +1001,26 @@ def _ctrl_error(ctrl: int, layout: StreamLayout) -> tuple[PdoError, str]:
     return PdoError.OK, ""
 
 
-def _ctrl_geometry(ctrl: int) -> tuple[int, int, int, int, Tsf, bool, bool, bool, bool, bool, int]:
-    """(id bytes (0 = TX_RESULT), timestamp bytes, data bytes on the wire, data bytes of the frame,
-    TSF, IDE, FDF, BRS, RTR, ESI, DLC) of a control word that passed
-    :func:`_ctrl_error` (8.3)."""
+def _ctrl_geometry(ctrl: int, layout: StreamLayout) -> _Geometry:
+    """What the decoder needs of a control word that passed :func:`_ctrl_error` in ``layout`` (8.1-8.4):
+    (head unpack, shape (0 plain, 1 timestamp, 2 reservation, 3 TX_RESULT), raw packet bytes,
+    bytes to the next packet (ALIGN4), head bytes, data bytes of the frame, CH, TSF, IDE, FDF, BRS,
+    RTR, ESI, D64, DLC, reserved id bits, id mask, ID_AUX shift, D64 window tail bytes)."""
+    align4 = layout._align4
     if ctrl >> 13 & 3:
-        return 0, 0, 0, 0, Tsf.NONE, False, False, False, False, False, -1
+        return (_TX_RESULT.unpack_from, 3, 6, 8 if align4 else 6, 6, 0, ctrl & 7, Tsf.NONE, False, False, False,
+                False, False, False, -1, 0, 0, 0, 0)
     dlc = ctrl >> 3 & 15
+    ide = ctrl & 0x80 != 0
     fdf = ctrl & 0x100 != 0
     x = ctrl & 0x400 != 0
     rtr = x and not fdf
+    d64 = ctrl >= 0x8000
     tsf = _TSFS[ctrl >> 11 & 3]
+    shape = 0 if not tsf else 2 if layout._schedule_ok else 1
     n = 0 if rtr else FD_DLC_TO_LEN[dlc]
-    wire = 64 if ctrl & 0x8000 else n
-    return (4 if ctrl & 0x80 else 2, _TSF_BYTES[tsf], wire, n, tsf, ctrl & 0x80 != 0, fdf, ctrl & 0x200 != 0, rtr,
-            x and fdf, dlc)
+    head = (6 if ide else 4) + _TSF_BYTES[tsf]
+    raw = head + (64 if d64 else n)
+    return (_PACKET_HEADS[ide][4 if shape == 2 else tsf].unpack_from, shape, raw, (raw + 3) & ~3 if align4 else raw,
+            head, n, ctrl & 7, tsf, ide, fdf, ctrl & 0x200 != 0, rtr, x and fdf, d64, dlc, 0 if ide else 0xC000,
+            0x1FFFFFFF if ide else 0x7FF, 29 if ide else 11, 64 - n if d64 else 0)
