@@ -22,10 +22,11 @@ from __future__ import annotations
 
 import binascii
 import enum
+import operator
 import struct
 import zlib
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, fields
+from collections.abc import Sequence
+from dataclasses import dataclass, field
 from typing import Any
 
 from ...bus.frame import FD_DLC_TO_LEN, FD_LEN_TO_DLC, MAX_EXT_ID, MAX_STD_ID, CanFrame
@@ -212,6 +213,8 @@ _PACKET_HEADS = tuple(tuple(struct.Struct("<H" + id_fmt + ts_fmt) for ts_fmt in 
 _LAYOUT_CRC = struct.Struct("<IHH")
 #: Control-word bits a TX_RESULT leaves 0: DLC, IDE, FDF, BRS, X, TSF, D64 (chapter 10: CH + KIND).
 _TX_RESULT_CTRL_ZERO = 0x9FF8
+#: Control-word TSF bits 11-12 both set: TSF_FULL64 (a TX_RESULT leaves them 0).
+_TSF_FULL64 = 0x1800
 #: Zeros for a D64 window tail (< 64) plus ALIGN4 padding (< 4).
 _ZERO_PAD = bytes(68)
 _new_object = object.__new__
@@ -482,6 +485,8 @@ class CanPacket:
     # The control word (KIND 0) and the unaligned packet length, computed once (8.3).
     ctrl: int = field(init=False, repr=False, compare=False, default=0)
     raw_size: int = field(init=False, repr=False, compare=False, default=0)
+    # The packet's bytes on the wire (8.1, 8.3 without ALIGN4 padding): encoding joins them.
+    _wire: bytes = field(init=False, repr=False, compare=False, default=b"")
 
     def __post_init__(self) -> None:
         data = self.data
@@ -537,11 +542,21 @@ class CanPacket:
             raise _refuse(PdoError.INVALID_TSF, f"timestamp {self.timestamp} does not fit TSF {tsf} (8.4)")
         if not 0 <= self.can_id <= (MAX_EXT_ID if self.extended else MAX_STD_ID) or not 0 <= self.id_aux <= 7:
             raise _refuse(PdoError.RESERVED_BIT, f"id 0x{self.can_id:X} / ID_AUX {self.id_aux} out of range (8.1)")
+        ide = 1 if self.extended else 0
+        ctrl = ch | dlc << 3 | ide << 7 | bool(self.fd) << 8 | bool(self.brs) << 9 | bool(x) << 10 | tsf << 11 \
+            | bool(self.d64) << 15
+        ident = self.can_id | self.id_aux << (29 if ide else 11)
+        if self.scheduled:
+            wire = _PACKET_HEADS[ide][4].pack(ctrl, ident, 1, 0, self.tag, self.offset_ns)
+        elif tsf:
+            wire = _PACKET_HEADS[ide][tsf].pack(ctrl, ident, self.timestamp)
+        else:
+            wire = _PACKET_HEADS[ide][0].pack(ctrl, ident)
+        wire += data + _ZERO_PAD[:64 - n] if self.d64 else data
         object.__setattr__(self, "dlc", dlc)
-        object.__setattr__(self, "ctrl", ch | dlc << 3 | bool(self.extended) << 7 | bool(self.fd) << 8
-                           | bool(self.brs) << 9 | bool(x) << 10 | tsf << 11 | bool(self.d64) << 15)
-        object.__setattr__(self, "raw_size", (6 if self.extended else 4) + _TSF_BYTES[tsf]
-                           + (0 if self.rtr else 64 if self.d64 else n))
+        object.__setattr__(self, "ctrl", ctrl)
+        object.__setattr__(self, "raw_size", len(wire))
+        object.__setattr__(self, "_wire", wire)
 
     @property
     def kind(self) -> PacketKind:
@@ -571,7 +586,7 @@ class _CanPacketDraft:
     ~0.3 us per packet, and the packet is checked already (docs/decisions.md, issue 10 speed).
     """
 
-    __slots__ = CanPacket.__slots__  # type: ignore[attr-defined]
+    __slots__ = CanPacket.__slots__
 
 
 @dataclass(frozen=True, slots=True)
@@ -583,6 +598,8 @@ class TxResultPacket:
     ref_packet_seq: int
     ref_frame_index: int
     result: TxResultCode
+    # The 6 bytes on the wire (chapter 10): encoding joins them.
+    _wire: bytes = field(init=False, repr=False, compare=False, default=b"")
 
     def __post_init__(self) -> None:
         ch = self.channel
@@ -595,6 +612,7 @@ class TxResultPacket:
             if self.result not in _RESULT_VALUES:
                 raise _refuse(PdoError.UNKNOWN_KIND, f"ResultCode {self.result!r} is not 0..5 (10)")
             object.__setattr__(self, "result", TxResultCode(self.result))
+        object.__setattr__(self, "_wire", _TX_RESULT.pack(ch | 1 << 13, seq, index, self.result))
 
     @property
     def kind(self) -> PacketKind:
@@ -609,6 +627,9 @@ class TxResultPacket:
 
 Packet = CanPacket | TxResultPacket
 _RESULT_CODES = tuple(TxResultCode)
+_PACKET_TYPES = frozenset((CanPacket, TxResultPacket))
+_get_ctrl = operator.attrgetter("ctrl")
+_get_wire = operator.attrgetter("_wire")
 _RESULT_VALUES = frozenset(range(6))
 
 
@@ -681,15 +702,19 @@ def _refuse(code: PdoError, message: str) -> StreamEncodeError:
     return StreamEncodeError(code, message)
 
 
-def _layout_refusal(p: Packet, layout: StreamLayout) -> StreamEncodeError | None:
-    """Why ``layout`` cannot carry ``p``, by the receiver's own rules (:func:`_ctrl_error`)."""
-    code, why = _ctrl_error(p.ctrl, layout)
+def _ctrl_refusal(ctrl: int, layout: StreamLayout) -> StreamEncodeError | None:
+    """Why ``layout`` refuses a packet with this control word, by the receiver's own rules
+    (:func:`_ctrl_error`); an accepted one joins the layout's geometry cache."""
+    code, why = _ctrl_error(ctrl, layout)
     if code:
         return _refuse(code, why)
-    if type(p) is CanPacket and p.tsf is Tsf.FULL64 and p.scheduled != layout._schedule_ok:
-        return _refuse(PdoError.BAD_SCHEDULE, "TSF_FULL64 is the reservation format in the RxPDO and a timestamp "
-                                              "in the TxPDO (8.4)")
+    layout._geo[ctrl] = _ctrl_geometry(ctrl, layout)
     return None
+
+
+def _schedule_refusal() -> StreamEncodeError:
+    return _refuse(PdoError.BAD_SCHEDULE, "TSF_FULL64 is the reservation format in the RxPDO and a timestamp in the "
+                                          "TxPDO (8.4)")
 
 
 def packet_size(packet: Packet, layout: StreamLayout) -> int:
@@ -699,10 +724,14 @@ def packet_size(packet: Packet, layout: StreamLayout) -> int:
     """
     if type(packet) is not CanPacket and type(packet) is not TxResultPacket:
         raise LocalError(f"not a packet: {packet!r}")
-    refusal = _layout_refusal(packet, layout)
-    if refusal is not None:
-        raise refusal
-    raw = packet.raw_size if type(packet) is CanPacket else 6
+    ctrl = packet.ctrl
+    if ctrl not in layout._geo:
+        refusal = _ctrl_refusal(ctrl, layout)
+        if refusal is not None:
+            raise refusal
+    if ctrl & _TSF_FULL64 == _TSF_FULL64 and packet.scheduled != layout._schedule_ok:  # type: ignore[union-attr]
+        raise _schedule_refusal()
+    raw = len(packet._wire)
     return (raw + 3) & ~3 if layout._align4 else raw
 
 
@@ -714,7 +743,8 @@ def encode_into(buf: bytearray | memoryview, layout: StreamLayout, seq: int, pac
     Order of 5.4.4.1 step 4: packets from offset 24, the rest of the frame area zeroed (left as it
     is with PAYLOAD_ONLY_ENABLE, whose receivers ignore it, 9.1), header, seq_end last.
     TX_RESULT_PRESENT is set when a TX_RESULT is among ``packets``; ``overflow_sat`` saturates.
-    Nothing is written when a packet is refused (:class:`StreamEncodeError`).
+    Nothing is written when a packet is refused (:class:`StreamEncodeError`: the first control
+    word, in stream order, the layout refuses; then TSF_FULL64 packets of the wrong direction).
     """
     if len(buf) != layout.pdo_bytes:
         raise LocalError(f"image buffer is {len(buf)} bytes, the layout needs {layout.pdo_bytes}")
@@ -722,81 +752,43 @@ def encode_into(buf: bytearray | memoryview, layout: StreamLayout, seq: int, pac
         raise _refuse(PdoError.PACKET_OVERRUN, f"{len(packets)} packets; frame_count holds at most 255")
     if len(status_words) != 4:
         raise LocalError("four channel status words (chapter 7)")
-    end = layout.pdo_bytes
-    align4 = layout._align4
-    # Check every packet before writing one (a refused image leaves the buffer as it was); each
-    # distinct control word is judged once.
-    accepted: set[int] = set()
-    off = HEADER_SIZE
-    for p in packets:
-        if type(p) is CanPacket:
-            raw = p.raw_size
-            if p.ctrl not in accepted or p.tsf is Tsf.FULL64:
-                refusal = _layout_refusal(p, layout)
-                if refusal is not None:
-                    raise refusal
-                accepted.add(p.ctrl)
-        elif type(p) is TxResultPacket:
-            raw = 6
-            refusal = _layout_refusal(p, layout)
+    kinds = set(map(type, packets))
+    if not kinds <= _PACKET_TYPES:
+        raise LocalError(f"not a packet: {next(p for p in packets if type(p) not in _PACKET_TYPES)!r}")
+    # Each distinct control word is judged once per layout (cached in layout._geo, shared with
+    # the decoder); a packet packed its own bytes when it was built, so writing is one join.
+    geo = layout._geo
+    full64 = False
+    for ctrl in dict.fromkeys(map(_get_ctrl, packets)):
+        if ctrl not in geo:
+            refusal = _ctrl_refusal(ctrl, layout)
             if refusal is not None:
                 raise refusal
-        else:
-            raise LocalError(f"not a packet: {p!r}")
-        off += (raw + 3) & ~3 if align4 else raw
+        if ctrl & _TSF_FULL64 == _TSF_FULL64:
+            full64 = True
+    if full64:
+        schedule_ok = layout._schedule_ok
+        for p in packets:
+            if p.ctrl & _TSF_FULL64 == _TSF_FULL64 and p.scheduled != schedule_ok:  # type: ignore[union-attr]
+                raise _schedule_refusal()
+    if layout._align4:
+        blob = b"".join([w + _ZERO_PAD[:-len(w) & 3] for w in map(_get_wire, packets)])
+    else:
+        blob = b"".join(map(_get_wire, packets))
+    end = layout.pdo_bytes
+    off = HEADER_SIZE + len(blob)
     if off > end:
         raise _refuse(PdoError.PACKET_OVERRUN, f"packets need {off - HEADER_SIZE} bytes, the frame area has "
                                                f"{end - HEADER_SIZE} (chapter 12)")
     flags = int(flags) & 0x3F
-    off = HEADER_SIZE
-    pack_std = _CTRL_STD.pack_into
-    pack_ext = _CTRL_EXT.pack_into
-    for p in packets:
-        if type(p) is CanPacket:
-            raw = p.raw_size
-            if p.extended:
-                pack_ext(buf, off, p.ctrl, p.can_id | p.id_aux << 29)
-                o = off + 6
-            else:
-                pack_std(buf, off, p.ctrl, p.can_id | p.id_aux << 11)
-                o = off + 4
-            tsf = p.tsf
-            if tsf:
-                if p.scheduled:
-                    _SCHEDULE.pack_into(buf, o, 1, 0, p.tag, p.offset_ns)
-                    o += 8
-                elif tsf == 1:
-                    _U16.pack_into(buf, o, p.timestamp)
-                    o += 2
-                elif tsf == 2:
-                    _U32.pack_into(buf, o, p.timestamp)
-                    o += 4
-                else:
-                    _U64.pack_into(buf, o, p.timestamp)
-                    o += 8
-            data = p.data
-            n = len(data)
-            buf[o:o + n] = data
-            nxt = off + raw
-            if align4 and raw & 3:
-                nxt = off + (raw + 3 & ~3)
-            if o + n != nxt:      # D64 window tail and ALIGN4 padding: zeros (8.1, 8.3)
-                buf[o + n:nxt] = _ZERO_PAD[:nxt - o - n]
-            off = nxt
-        else:
-            assert type(p) is TxResultPacket
-            _TX_RESULT.pack_into(buf, off, p.ctrl, p.ref_packet_seq, p.ref_frame_index, p.result)
-            if align4:
-                buf[off + 6:off + 8] = b"\0\0"
-                off += 8
-            else:
-                off += 6
-            flags |= 0x04  # HeaderFlags.TX_RESULT_PRESENT
+    if TxResultPacket in kinds:
+        flags |= 0x04  # HeaderFlags.TX_RESULT_PRESENT
+    buf[HEADER_SIZE:off] = blob
     if not layout.options & Option.PAYLOAD_ONLY_ENABLE:
         buf[off:end] = bytes(end - off)
     payload_len = off - HEADER_SIZE
     if layout._crc:
-        crc = binascii.crc_hqx(memoryview(buf)[HEADER_SIZE:off], 0xFFFF)
+        crc = binascii.crc_hqx(blob, 0xFFFF)
         alg = CRC_ALG_CCITT_FALSE
     else:
         crc = alg = 0
@@ -964,6 +956,8 @@ def decode_stream(image: bytes | bytearray | memoryview, layout: StreamLayout) -
         pkt.dlc = dlc
         pkt.ctrl = ctrl
         pkt.raw_size = raw
+        # a D64 window's tail is written 0 whatever the sender left there (8.1, 8.3)
+        pkt._wire = data[off:pend] if not tail else data[off:head + n] + _ZERO_PAD[:tail]
         pkt.__class__ = final
         append(pkt)
         off = nxt
