@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import binascii
 import enum
-import operator
 import struct
 import zlib
 from collections.abc import Sequence
@@ -215,6 +214,8 @@ _LAYOUT_CRC = struct.Struct("<IHH")
 _TX_RESULT_CTRL_ZERO = 0x9FF8
 #: Control-word TSF bits 11-12 both set: TSF_FULL64 (a TX_RESULT leaves them 0).
 _TSF_FULL64 = 0x1800
+#: TSF bits and KIND bits: a control word with none of them needs no per-packet check on encoding.
+_TSF_FULL64_OR_KIND = 0x7800
 #: Zeros for a D64 window tail (< 64) plus ALIGN4 padding (< 4).
 _ZERO_PAD = bytes(68)
 _new_object = object.__new__
@@ -315,6 +316,9 @@ class StreamLayout:
     # Control word -> its checked geometry (:func:`_ctrl_geometry`), filled on first sight: a
     # stream repeats few distinct control words, so each is judged once per layout, not per packet.
     _geo: dict[int, _Geometry] = field(init=False, repr=False, compare=False, default_factory=dict)
+    # The accepted control words of CAN_FRAMEs without TSF_FULL64: an encoder whose control words
+    # are all here needs no further check (FULL64 depends on the packet, TX_RESULT sets a flag).
+    _plain: set[int] = field(init=False, repr=False, compare=False, default_factory=set)
 
     def __post_init__(self) -> None:
         status = check_layout(self.multiplier, self.channel_mask, self.profile, int(self.budget_policy),
@@ -627,9 +631,7 @@ class TxResultPacket:
 
 Packet = CanPacket | TxResultPacket
 _RESULT_CODES = tuple(TxResultCode)
-_PACKET_TYPES = frozenset((CanPacket, TxResultPacket))
-_get_ctrl = operator.attrgetter("ctrl")
-_get_wire = operator.attrgetter("_wire")
+_PACKET_TYPES = (CanPacket, TxResultPacket)
 _RESULT_VALUES = frozenset(range(6))
 
 
@@ -704,12 +706,20 @@ def _refuse(code: PdoError, message: str) -> StreamEncodeError:
 
 def _ctrl_refusal(ctrl: int, layout: StreamLayout) -> StreamEncodeError | None:
     """Why ``layout`` refuses a packet with this control word, by the receiver's own rules
-    (:func:`_ctrl_error`); an accepted one joins the layout's geometry cache."""
+    (:func:`_ctrl_error`); an accepted one is learnt (:func:`_learn_ctrl`)."""
     code, why = _ctrl_error(ctrl, layout)
     if code:
         return _refuse(code, why)
-    layout._geo[ctrl] = _ctrl_geometry(ctrl, layout)
+    _learn_ctrl(ctrl, layout)
     return None
+
+
+def _learn_ctrl(ctrl: int, layout: StreamLayout) -> _Geometry:
+    """Cache the geometry of a control word :func:`_ctrl_error` accepted in ``layout``."""
+    g = layout._geo[ctrl] = _ctrl_geometry(ctrl, layout)
+    if not ctrl & _TSF_FULL64_OR_KIND:
+        layout._plain.add(ctrl)
+    return g
 
 
 def _schedule_refusal() -> StreamEncodeError:
@@ -752,37 +762,23 @@ def encode_into(buf: bytearray | memoryview, layout: StreamLayout, seq: int, pac
         raise _refuse(PdoError.PACKET_OVERRUN, f"{len(packets)} packets; frame_count holds at most 255")
     if len(status_words) != 4:
         raise LocalError("four channel status words (chapter 7)")
-    kinds = set(map(type, packets))
-    if not kinds <= _PACKET_TYPES:
-        raise LocalError(f"not a packet: {next(p for p in packets if type(p) not in _PACKET_TYPES)!r}")
-    # Each distinct control word is judged once per layout (cached in layout._geo, shared with
+    # Each distinct control word is judged once per layout (cached in the layout, shared with
     # the decoder); a packet packed its own bytes when it was built, so writing is one join.
-    geo = layout._geo
-    full64 = False
-    for ctrl in dict.fromkeys(map(_get_ctrl, packets)):
-        if ctrl not in geo:
-            refusal = _ctrl_refusal(ctrl, layout)
-            if refusal is not None:
-                raise refusal
-        if ctrl & _TSF_FULL64 == _TSF_FULL64:
-            full64 = True
-    if full64:
-        schedule_ok = layout._schedule_ok
-        for p in packets:
-            if p.ctrl & _TSF_FULL64 == _TSF_FULL64 and p.scheduled != schedule_ok:  # type: ignore[union-attr]
-                raise _schedule_refusal()
-    if layout._align4:
-        blob = b"".join([w + _ZERO_PAD[:-len(w) & 3] for w in map(_get_wire, packets)])
-    else:
-        blob = b"".join(map(_get_wire, packets))
+    try:
+        ctrls = {p.ctrl for p in packets}
+        wires = [p._wire for p in packets]
+    except AttributeError:
+        raise LocalError(f"not a packet: {next(p for p in packets if not isinstance(p, _PACKET_TYPES))!r}") \
+            from None
+    flags = int(flags) & 0x3F
+    if not ctrls <= layout._plain:
+        flags |= _judge_ctrls(ctrls, packets, layout)
+    blob = b"".join([w + _ZERO_PAD[:-len(w) & 3] for w in wires] if layout._align4 else wires)
     end = layout.pdo_bytes
     off = HEADER_SIZE + len(blob)
     if off > end:
         raise _refuse(PdoError.PACKET_OVERRUN, f"packets need {off - HEADER_SIZE} bytes, the frame area has "
                                                f"{end - HEADER_SIZE} (chapter 12)")
-    flags = int(flags) & 0x3F
-    if TxResultPacket in kinds:
-        flags |= 0x04  # HeaderFlags.TX_RESULT_PRESENT
     buf[HEADER_SIZE:off] = blob
     if not layout.options & Option.PAYLOAD_ONLY_ENABLE:
         buf[off:end] = bytes(end - off)
@@ -800,6 +796,32 @@ def encode_into(buf: bytearray | memoryview, layout: StreamLayout, seq: int, pac
                       s0 & 0xFFFF, s1 & 0xFFFF, s2 & 0xFFFF, s3 & 0xFFFF)
     _HEADER_SEQ_END.pack_into(buf, 4, seq)
     return payload_len
+
+
+def _judge_ctrls(ctrls: set[int], packets: Sequence[Packet], layout: StreamLayout) -> int:
+    """Check what the plain-control-word set does not cover: control words not seen yet in
+    ``layout`` (refused in stream order), TSF_FULL64 (reservation in the RxPDO, timestamp in the
+    TxPDO, 8.4) and TX_RESULT; returns TX_RESULT_PRESENT if one is there (chapter 6)."""
+    geo = layout._geo
+    if not geo.keys() >= ctrls:
+        for p in packets:
+            if p.ctrl not in geo:
+                refusal = _ctrl_refusal(p.ctrl, layout)
+                if refusal is not None:
+                    raise refusal
+    flags = 0
+    full64 = set()
+    for ctrl in ctrls - layout._plain:
+        if ctrl & 0x6000:
+            flags = 0x04    # HeaderFlags.TX_RESULT_PRESENT
+        else:
+            full64.add(ctrl)
+    if full64:
+        schedule_ok = layout._schedule_ok
+        for p in packets:
+            if p.ctrl in full64 and p.scheduled != schedule_ok:  # type: ignore[union-attr]
+                raise _schedule_refusal()
+    return flags
 
 
 def encode_stream(layout: StreamLayout, seq: int, packets: Sequence[Packet], *,
@@ -902,7 +924,7 @@ def decode_stream(image: bytes | bytearray | memoryview, layout: StreamLayout) -
             code, why = _ctrl_error(ctrl, layout)
             if code:
                 raise fail(code, why, off, -1, ctrl)
-            g = geo[ctrl] = _ctrl_geometry(ctrl, layout)
+            g = _learn_ctrl(ctrl, layout)
         unpack, shape, raw, step, head, n, ch, tsf, ide, fdf, brs, rtr, esi, d64, dlc, reserved, id_mask, aux_shift, \
             tail = g
         pend = off + raw
