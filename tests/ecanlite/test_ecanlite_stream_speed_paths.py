@@ -208,3 +208,24 @@ def test_truncated_control_word_after_it_was_judged() -> None:
         decode_stream(image, layout)
     assert info.value.pdo_error is PdoError.TRUNCATED
     assert info.value.diag.offset == 24 + len(body) and info.value.diag.packet_end == 24 + len(body) + 2
+
+
+def test_written_out_init_matches_the_fields() -> None:
+    """8.1: CanPacket's hand-written __init__ takes exactly its init fields, in order, with their
+    defaults (the dataclass fields stay the one record of a packet), and refuses what the
+    generated one refused."""
+    import inspect
+
+    params = list(inspect.signature(CanPacket.__init__).parameters.values())[1:]
+    init_fields = [f for f in dataclasses.fields(CanPacket) if f.init]
+    assert [p.name for p in params] == [f.name for f in init_fields]
+    for p, f in zip(params, init_fields, strict=True):
+        assert p.default == (inspect.Parameter.empty if f.default is dataclasses.MISSING else f.default)
+    assert [f.name for f in dataclasses.fields(CanPacket) if not f.init] == ["ctrl", "raw_size", "_wire"]
+    for bad, code in ((dict(channel=8), PdoError.INVALID_CHANNEL), (dict(data=bytes(9)), PdoError.INVALID_DLC),
+                      (dict(tsf=4), PdoError.INVALID_TSF), (dict(can_id=0x800), PdoError.RESERVED_BIT),
+                      (dict(tag=1), PdoError.BAD_SCHEDULE), (dict(can_id=1.0), PdoError.RESERVED_BIT)):
+        kwargs: dict[str, object] = dict(channel=0, can_id=1) | bad
+        with pytest.raises(StreamEncodeError) as info:
+            CanPacket(**kwargs)  # type: ignore[arg-type]
+        assert info.value.pdo_error is code
