@@ -229,3 +229,17 @@ def test_written_out_init_matches_the_fields() -> None:
         with pytest.raises(StreamEncodeError) as info:
             CanPacket(**kwargs)  # type: ignore[arg-type]
         assert info.value.pdo_error is code
+
+
+def test_a_warm_layout_pickles_and_copies_as_its_profile() -> None:
+    """9.1, 13.2: a layout is its profile word, direction and features; one that has judged
+    control words pickles and copies to an equal layout that parses the same image."""
+    import copy
+
+    layout = StreamLayout(multiplier=3, channel_mask=0x05, profile=5, options=Option.ALIGN_4_ENABLE)
+    packets = [CanPacket(0, 0x7FF, fd=True, d64=True, data=b"abc"), CanPacket(2, 0x1ABCDEF, extended=True)]
+    image = encode_stream(layout, 4, packets)
+    decode_stream(image, layout)
+    for other in (pickle.loads(pickle.dumps(layout)), copy.copy(layout), copy.deepcopy(layout)):
+        assert other == layout and hash(other) == hash(layout) and other.layout_id == layout.layout_id
+        assert decode_stream(image, other).packets == tuple(packets)

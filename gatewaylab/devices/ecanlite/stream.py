@@ -349,6 +349,11 @@ class StreamLayout:
         object.__setattr__(self, "_align4", bool(self.options & Option.ALIGN_4_ENABLE))
         object.__setattr__(self, "_crc", not self.options & Option.NO_CRC16_ENABLE)
 
+    def __reduce__(self) -> tuple[type[StreamLayout], tuple[Any, ...]]:
+        # Pickled / copied by its profile fields: the caches are rebuilt, never carried along.
+        return (StreamLayout, (self.multiplier, self.channel_mask, self.profile, self.budget_policy, self.options,
+                               self.direction, self.features))
+
     @classmethod
     def default(cls, direction: Direction = Direction.RX) -> StreamLayout:
         """The power-on requested profile (9.2): N 8, mask 0x0F, profile 0, Balanced, options 0."""
