@@ -986,7 +986,7 @@ def decode_stream(image: bytes | bytearray | memoryview, layout: StreamLayout) -
             raise fail(PdoError.RESERVED_BIT, "StdIdField bits 14/15 must be 0 (8.1)", off, nxt, ctrl)
         if nxt != pend and data[pend:nxt].count(0) != nxt - pend:
             raise fail(PdoError.RESERVED_BIT, "ALIGN4 padding must be 0 (8.3)", off, nxt, ctrl)
-        # The packet, slot by slot (checked above; no __init__ / __post_init__ round).
+        # The packet, slot by slot on a draft, then frozen (checked above; no __init__ round).
         head += off
         pkt: Any = new(draft)
         pkt.channel = ch
