@@ -631,31 +631,42 @@ class TxResultPacket:
     ref_packet_seq: int
     ref_frame_index: int
     result: TxResultCode
-    # The 6 bytes on the wire (chapter 10): encoding joins them.
+    # The control word (CH and KIND 1, chapter 10) and the 6 bytes on the wire: encoding joins them.
+    ctrl: int = field(init=False, repr=False, compare=False, default=0)
     _wire: bytes = field(init=False, repr=False, compare=False, default=b"")
 
-    def __post_init__(self) -> None:
-        ch = self.channel
-        if type(ch) is not int or not 0 <= ch <= 7:
-            raise _refuse(PdoError.INVALID_CHANNEL, f"channel {ch!r} does not fit CH (0..7, chapter 8)")
-        seq, index = self.ref_packet_seq, self.ref_frame_index
+    def __init__(self, channel: int, ref_packet_seq: int, ref_frame_index: int, result: TxResultCode) -> None:
+        # Written out like CanPacket.__init__: checked, then stored on a draft and frozen.
+        if type(channel) is not int or not 0 <= channel <= 7:
+            raise _refuse(PdoError.INVALID_CHANNEL, f"channel {channel!r} does not fit CH (0..7, chapter 8)")
+        seq, index = ref_packet_seq, ref_frame_index
         if not isinstance(seq, int) or not isinstance(index, int) or not 0 <= seq <= 0xFFFF or not 0 <= index <= 0xFF:
             raise _refuse(PdoError.UNKNOWN_KIND, "RefPacketSeq is u16, RefFrameIndex u8 (10)")
-        if type(self.result) is not TxResultCode:
-            if self.result not in _RESULT_VALUES:
-                raise _refuse(PdoError.UNKNOWN_KIND, f"ResultCode {self.result!r} is not 0..5 (10)")
-            object.__setattr__(self, "result", TxResultCode(self.result))
-        object.__setattr__(self, "_wire", _TX_RESULT.pack(ch | 1 << 13, seq, index, self.result))
+        if type(result) is not TxResultCode:
+            if result not in _RESULT_VALUES:
+                raise _refuse(PdoError.UNKNOWN_KIND, f"ResultCode {result!r} is not 0..5 (10)")
+            result = TxResultCode(result)
+        ctrl = channel | 1 << 13
+        me: Any = self
+        _set_class(me, "__class__", _TxResultDraft)
+        me.channel = channel
+        me.ref_packet_seq = seq
+        me.ref_frame_index = index
+        me.result = result
+        me.ctrl = ctrl
+        me._wire = _TX_RESULT.pack(ctrl, seq, index, result)
+        me.__class__ = TxResultPacket
 
     @property
     def kind(self) -> PacketKind:
         """KIND 1."""
         return PacketKind.TX_RESULT
 
-    @property
-    def ctrl(self) -> int:
-        """The control word: CH and KIND 1 (chapter 10)."""
-        return self.channel | 1 << 13
+
+class _TxResultDraft:
+    """A TxResultPacket under construction (see :class:`_CanPacketDraft`)."""
+
+    __slots__ = TxResultPacket.__slots__
 
 
 Packet = CanPacket | TxResultPacket
@@ -979,7 +990,15 @@ def decode_stream(image: bytes | bytearray | memoryview, layout: StreamLayout) -
                 raise fail(PdoError.UNKNOWN_KIND, f"ResultCode {result} undefined (10)", off, nxt, ctrl)
             if nxt != pend and data[pend] | data[pend + 1]:
                 raise fail(PdoError.RESERVED_BIT, "ALIGN4 padding must be 0 (8.3)", off, nxt, ctrl)
-            append(TxResultPacket(ch, ref_seq, ref_index, _RESULT_CODES[result]))
+            txr: Any = new(_TxResultDraft)
+            txr.channel = ch
+            txr.ref_packet_seq = ref_seq
+            txr.ref_frame_index = ref_index
+            txr.result = _RESULT_CODES[result]
+            txr.ctrl = ctrl
+            txr._wire = data[off:pend]
+            txr.__class__ = TxResultPacket
+            append(txr)
             off = nxt
             continue
         if word & reserved:
