@@ -211,17 +211,25 @@ def test_truncated_control_word_after_it_was_judged() -> None:
 
 
 def test_written_out_init_matches_the_fields() -> None:
-    """8.1: CanPacket's hand-written __init__ takes exactly its init fields, in order, with their
-    defaults (the dataclass fields stay the one record of a packet), and refuses what the
-    generated one refused."""
+    """8.1, 10: the packets' hand-written __init__ take exactly their init fields, in order, with
+    their defaults (the dataclass fields stay the one record of a packet), and refuse what the
+    generated ones refused."""
     import inspect
 
-    params = list(inspect.signature(CanPacket.__init__).parameters.values())[1:]
-    init_fields = [f for f in dataclasses.fields(CanPacket) if f.init]
-    assert [p.name for p in params] == [f.name for f in init_fields]
-    for p, f in zip(params, init_fields, strict=True):
-        assert p.default == (inspect.Parameter.empty if f.default is dataclasses.MISSING else f.default)
-    assert [f.name for f in dataclasses.fields(CanPacket) if not f.init] == ["ctrl", "raw_size", "_wire"]
+    for cls, derived in ((CanPacket, ["ctrl", "raw_size", "_wire"]), (TxResultPacket, ["ctrl", "_wire"])):
+        params = list(inspect.signature(cls.__init__).parameters.values())[1:]
+        init_fields = [f for f in dataclasses.fields(cls) if f.init]
+        assert [p.name for p in params] == [f.name for f in init_fields]
+        for p, f in zip(params, init_fields, strict=True):
+            assert p.default == (inspect.Parameter.empty if f.default is dataclasses.MISSING else f.default)
+        assert [f.name for f in dataclasses.fields(cls) if not f.init] == derived
+    assert TxResultPacket(5, 1, 2, 4) == TxResultPacket(5, 1, 2, TxResultCode.TX_FIFO_FULL)
+    assert TxResultPacket(5, 1, 2, 4).ctrl == 0x2005
+    for args, code in (((8, 0, 0, 0), PdoError.INVALID_CHANNEL), ((0, 0x10000, 0, 0), PdoError.UNKNOWN_KIND),
+                       ((0, 0, 256, 0), PdoError.UNKNOWN_KIND), ((0, 0, 0, 6), PdoError.UNKNOWN_KIND)):
+        with pytest.raises(StreamEncodeError) as err:
+            TxResultPacket(*args)  # type: ignore[arg-type]
+        assert err.value.pdo_error is code
     for bad, code in ((dict(channel=8), PdoError.INVALID_CHANNEL), (dict(data=bytes(9)), PdoError.INVALID_DLC),
                       (dict(tsf=4), PdoError.INVALID_TSF), (dict(can_id=0x800), PdoError.RESERVED_BIT),
                       (dict(tag=1), PdoError.BAD_SCHEDULE), (dict(can_id=1.0), PdoError.RESERVED_BIT)):
