@@ -197,11 +197,6 @@ _HEADER = struct.Struct("<BBHHHHHBBBB4H")
 _HEADER_SEQ_END = struct.Struct("<H")
 _U16 = struct.Struct("<H")
 _COMMIT = struct.Struct("<HHHH")
-_U32 = struct.Struct("<I")
-_U64 = struct.Struct("<Q")
-_CTRL_STD = struct.Struct("<HH")
-_CTRL_EXT = struct.Struct("<HI")
-_SCHEDULE = struct.Struct("<BBHI")
 _TX_RESULT = struct.Struct("<HHBB")
 #: A CAN_FRAME's control word, id field and timestamp field in one format (8.1, 8.4), by
 #: [IDE][shape]: shape 0 no timestamp, 1 delta16, 2 delta32, 3 full64, 4 the RxPDO reservation
@@ -808,8 +803,8 @@ def encode_into(buf: bytearray | memoryview, layout: StreamLayout, seq: int, pac
         ctrls = {p.ctrl for p in packets}
         wires = [p._wire for p in packets]
     except AttributeError:
-        raise LocalError(f"not a packet: {next(p for p in packets if not isinstance(p, _PACKET_TYPES))!r}") \
-            from None
+        bad = next((p for p in packets if not (isinstance(p, _PACKET_TYPES) and hasattr(p, "_wire"))), None)
+        raise LocalError(f"not a packet: {bad!r}") from None
     flags = int(flags) & 0x3F
     if not ctrls <= layout._plain:
         flags |= _judge_ctrls(ctrls, packets, layout)
