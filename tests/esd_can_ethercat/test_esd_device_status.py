@@ -111,9 +111,10 @@ class _TickingClock:
     def __init__(self, inner: Any) -> None:
         self.inner = inner
         self.extra = 0.0
+        self.step = 7e-6
 
     def now(self) -> float:
-        self.extra += 7e-6
+        self.extra += self.step
         return float(self.inner.now()) + self.extra
 
     def __getattr__(self, name: str) -> Any:
@@ -133,6 +134,27 @@ def test_cyclic_and_can_handler_times_are_measured_on_the_clock(kit: Any) -> Non
     can = [m.sdo_upload32(0, 0x2010, s) for s in (5, 6, 7)]
     assert cyc[0] >= 6 and cyc[0] <= cyc[2] <= cyc[1]
     assert can[0] >= 6 and can[0] <= can[2] <= can[1]
+
+
+def test_can_handler_time_forgets_calls_older_than_the_last_1000(kit: Any) -> None:
+    """5.1.4.2 'CAN handler time (max.)': 'Maximum time in application's CAN handler within its last
+    1000 calls': one slow call shows, and is gone after 1000 quick ones."""
+    kit.op()
+    clock = _TickingClock(kit.clock)
+    kit.gw.clock = clock
+    clock.step = 500e-6
+    kit.peer.send(CanFrame(0x5, b"x"))
+    kit.clock.advance(0.01)
+    clock.step = 7e-6
+    m = kit.master
+    assert m.sdo_upload32(0, 0x2010, 6) >= 400
+    for i in range(999):
+        kit.peer.send(CanFrame(0x6, bytes([i & 0xFF])))
+    kit.clock.advance(1.0)
+    assert m.sdo_upload32(0, 0x2010, 6) >= 400          # the slow call is one of the last 1000
+    kit.peer.send(CanFrame(0x7, b"y"))
+    kit.clock.advance(0.01)
+    assert m.sdo_upload32(0, 0x2010, 6) < 100
 
 
 def test_other_settings_2000_local_mode_in_preop_only_and_led_state_as_written(kit: Any) -> None:
