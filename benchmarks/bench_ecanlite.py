@@ -57,6 +57,17 @@ def open_master(iface: str) -> Any:
     raise SystemExit("expected 1 slave")
 
 
+def preop_session(iface: str) -> Any:
+    """A fresh session in PREOP for reading counters after a run: after long runs SOEM's SDO reads on
+    the old context kept getting a stale mailbox answer (see docs/devices/ecanlite.md)."""
+    import pysoem
+    master = open_master(iface)
+    master.state = pysoem.PREOP_STATE
+    master.write_state()
+    master.state_check(pysoem.PREOP_STATE, 500_000)
+    return master
+
+
 def _sdo(call: Any, *args: Any) -> Any:
     """An idempotent SDO access, again after a mailbox frame lost to a stall of the machine."""
     return retry(call, *args, attempts=5, pause=0.05)
@@ -103,7 +114,6 @@ def master_io(iface: str, seconds: float) -> dict[str, Any]:
 
 def master_ecan(iface: str, seconds: float) -> dict[str, Any]:
     """4 frames (one per channel) in every RxPDO, the TxPDO parsed every cycle."""
-    import pysoem
 
     from gatewaylab.devices.ecanlite.stream import (
         CanPacket,
@@ -156,12 +166,7 @@ def master_ecan(iface: str, seconds: float) -> dict[str, Any]:
         time.sleep(0.001)
     out.update({"sent": state["sent"], "received": state["received"], "parse_errors": state["parse_errors"]})
     go_init(master)
-    # The counters from a fresh session (PREOP): after long runs SOEM's SDO reads on the old context
-    # kept getting a stale mailbox answer (see docs/devices/ecanlite.md).
-    master = open_master(iface)
-    master.state = pysoem.PREOP_STATE
-    master.write_state()
-    master.state_check(pysoem.PREOP_STATE, 500_000)
+    master = preop_session(iface)
     s0 = master.slaves[0]
     out.update({"pdo_errors": int.from_bytes(_sdo(s0.sdo_read, 0x8011, 15), "little"),
                 "tx_overflows": int.from_bytes(_sdo(s0.sdo_read, 0x8010, 16), "little"),
