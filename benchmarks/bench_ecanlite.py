@@ -11,14 +11,21 @@ Needs root (namespace + veth); GL_BENCH_SECONDS shortens the run (default 60 s).
 from __future__ import annotations
 
 import json
-import os
-import shutil
-import statistics
 import struct
-import subprocess
 import sys
 import time
 from typing import Any
+
+from benchmarks.wire import (
+    bench_seconds,
+    go_init,
+    paced,
+    pin,
+    request_op,
+    retry,
+    run_master,
+    veth_namespace,
+)
 
 N = 3
 RATE = 1000.0
@@ -26,107 +33,73 @@ RATE = 1000.0
 RX_TIMEOUT_US = 20_000
 
 
-def _pin(cpu: int) -> None:
-    try:
-        os.sched_setaffinity(0, {cpu % (os.cpu_count() or 1)})
-    except (AttributeError, OSError):
-        pass
-
-
-def _pct(values: list[float], q: float) -> float:
-    s = sorted(values)
-    return s[min(len(s) - 1, int(q * len(s)))] if s else float("nan")
-
-
 # ---------------------------------------------------------------------------------- master side
 def _to_op(master: Any) -> None:
     import pysoem
     master.config_map()
     master.state_check(pysoem.SAFEOP_STATE, 50000)
-    master.state = pysoem.OP_STATE
-    master.send_processdata()
-    master.receive_processdata(RX_TIMEOUT_US)
-    master.write_state()
-    for _ in range(400):
-        master.send_processdata()
-        master.receive_processdata(RX_TIMEOUT_US)
-        if master.state_check(pysoem.OP_STATE, 5000) == pysoem.OP_STATE:
-            return
-    raise SystemExit("the slave did not reach OP")
+    if not request_op(master, RX_TIMEOUT_US, 400):
+        raise SystemExit("the slave did not reach OP")
 
 
-def _open(iface: str) -> Any:
+def open_master(iface: str) -> Any:
+    """pysoem on ``iface`` with long SDO timeouts, one slave found (the scan again when a register read
+    was answered too late on a busy machine)."""
     import pysoem
     master = pysoem.Master()
     master.sdo_read_timeout = 3_000_000
     master.sdo_write_timeout = 3_000_000
     master.open(iface)
-    for _ in range(10):  # a register read answered too late on a busy machine fails the scan
+    for _ in range(10):
         if master.config_init() == 1:
             return master
         time.sleep(0.5)
     raise SystemExit("expected 1 slave")
 
 
+def preop_session(iface: str) -> Any:
+    """A fresh session in PREOP for reading counters after a run: after long runs SOEM's SDO reads on
+    the old context kept getting a stale mailbox answer (see docs/devices/ecanlite.md)."""
+    import pysoem
+    master = open_master(iface)
+    master.state = pysoem.PREOP_STATE
+    master.write_state()
+    master.state_check(pysoem.PREOP_STATE, 500_000)
+    return master
+
+
 def _sdo(call: Any, *args: Any) -> Any:
     """An idempotent SDO access, again after a mailbox frame lost to a stall of the machine."""
-    import pysoem
-    for attempt in range(5):
-        try:
-            return call(*args)
-        except (pysoem.WkcError, pysoem.MailboxError, pysoem.PacketError):
-            if attempt == 4:
-                raise
-            time.sleep(0.05)
-    return None
+    return retry(call, *args, attempts=5, pause=0.05)
 
 
-def _configure_ecan(s0: Any) -> None:
-    """Manual 5.4.3 phases B, C, E with N chunks, all four channels CAN FD 1M/5M, RX drain policy
-    'performance' and a 32-frame RX cache (0x8021..0x8024)."""
+def configure_ecan(s0: Any, n: int = N, channels: int = 4, fd: bool = True, bitrate: int = 1_000_000,
+                   data_bitrate: int = 5_000_000) -> None:
+    """Manual 5.4.3 phases B, C, E with n chunks on the first ``channels`` channels (CAN FD 1M/5M by
+    default, else classic CAN at ``bitrate``), RX drain policy 'performance' and a 32-frame RX cache
+    (0x8021..)."""
+    mask = (1 << channels) - 1
     for assign, base in ((0x1C12, 0x1600), (0x1C13, 0x1A00)):
         _sdo(s0.sdo_write, assign, 0, bytes([0]))
-        for i in range(N):
+        for i in range(n):
             _sdo(s0.sdo_write, assign, i + 1, struct.pack("<H", base + i))
-        _sdo(s0.sdo_write, assign, 0, bytes([N]))
+        _sdo(s0.sdo_write, assign, 0, bytes([n]))
     for index in (0x8010, 0x8011):
-        for sub, value in ((3, N), (4, 0x0F), (5, 0), (6, 0), (7, 0), (1, 1)):
+        for sub, value in ((3, n), (4, mask), (5, 0), (6, 0), (7, 0), (1, 1)):
             _sdo(s0.sdo_write, index, sub, bytes([value]))
-    for k in range(4):
-        for sub, fmt, value in ((7, "<B", 0), (15, "<B", 1), (19, "<I", 1_000_000), (20, "<I", 5_000_000),
-                                (1, "<B", 1)):
+    for k in range(channels):
+        rates = [(19, "<I", bitrate)] + ([(20, "<I", data_bitrate)] if fd else [])
+        for sub, fmt, value in [(7, "<B", 0), (15, "<B", int(fd)), *rates, (1, "<B", 1)]:
             _sdo(s0.sdo_write, 0x8001 + k, sub, struct.pack(fmt, value))
         # 13.2.2 budgets for a 1,000 frames/s channel on a shared VM: drain what fits, 32-deep cache
         for sub, value in ((6, 2), (7, 32), (2, 1)):
             _sdo(s0.sdo_write, 0x8021 + k, sub, bytes([value]))
 
 
-def _paced(seconds: float, cycle: Any) -> dict[str, Any]:
-    period = 1.0 / RATE
-    rtts: list[float] = []
-    late = 0
-    t_next = time.perf_counter() + period
-    for _ in range(int(seconds * RATE)):
-        slack = t_next - time.perf_counter() - 0.0003
-        if slack > 0:
-            time.sleep(slack)
-        while time.perf_counter() < t_next:
-            pass
-        t_next += period
-        t0 = time.perf_counter()
-        ok = cycle()
-        rtts.append(time.perf_counter() - t0)
-        if not ok:
-            late += 1
-    return {"cycles": len(rtts), "late": late, "median_us": 1e6 * statistics.median(rtts),
-            "p99_us": 1e6 * _pct(rtts, 0.99), "max_us": 1e6 * max(rtts)}
-
-
 def master_io(iface: str, seconds: float) -> dict[str, Any]:
     """The ``ethercat_io`` box, same master, same pacing: the EtherCAT floor of this run."""
-    import pysoem
-    _pin(0)
-    master = _open(iface)
+    pin(0)
+    master = open_master(iface)
     _to_op(master)
     expected = master.expected_wkc
 
@@ -134,16 +107,13 @@ def master_io(iface: str, seconds: float) -> dict[str, Any]:
         master.send_processdata()
         return bool(master.receive_processdata(RX_TIMEOUT_US) == expected)
 
-    out = _paced(seconds, cycle)
-    master.state = pysoem.INIT_STATE
-    master.write_state()
-    master.close()
+    out = paced(RATE, seconds, cycle, "late")
+    go_init(master)
     return out
 
 
 def master_ecan(iface: str, seconds: float) -> dict[str, Any]:
     """4 frames (one per channel) in every RxPDO, the TxPDO parsed every cycle."""
-    import pysoem
 
     from gatewaylab.devices.ecanlite.stream import (
         CanPacket,
@@ -155,10 +125,10 @@ def master_ecan(iface: str, seconds: float) -> dict[str, Any]:
         decode_stream,
         encode_stream,
     )
-    _pin(0)
-    master = _open(iface)
+    pin(0)
+    master = open_master(iface)
     s0 = master.slaves[0]
-    _configure_ecan(s0)
+    configure_ecan(s0)
     s0.set_watchdog("processdata", 1000)
     _to_op(master)
     rx = StreamLayout(multiplier=N, direction=Direction.RX)
@@ -188,22 +158,15 @@ def master_ecan(iface: str, seconds: float) -> dict[str, Any]:
         take_inputs()
         return True
 
-    out = _paced(seconds, cycle)
+    out = paced(RATE, seconds, cycle, "late")
     for _ in range(100):  # drain what is still on its way
         master.send_processdata()
         if master.receive_processdata(RX_TIMEOUT_US) == expected:
             take_inputs()
         time.sleep(0.001)
     out.update({"sent": state["sent"], "received": state["received"], "parse_errors": state["parse_errors"]})
-    master.state = pysoem.INIT_STATE
-    master.write_state()
-    master.close()
-    # The counters from a fresh session (PREOP): after long runs SOEM's SDO reads on the old context
-    # kept getting a stale mailbox answer (see docs/devices/ecanlite.md).
-    master = _open(iface)
-    master.state = pysoem.PREOP_STATE
-    master.write_state()
-    master.state_check(pysoem.PREOP_STATE, 500_000)
+    go_init(master)
+    master = preop_session(iface)
     s0 = master.slaves[0]
     out.update({"pdo_errors": int.from_bytes(_sdo(s0.sdo_read, 0x8011, 15), "little"),
                 "tx_overflows": int.from_bytes(_sdo(s0.sdo_read, 0x8010, 16), "little"),
@@ -216,14 +179,7 @@ def master_ecan(iface: str, seconds: float) -> dict[str, Any]:
 
 # ---------------------------------------------------------------------------------- emulator side
 def _run_master(ns: str, iface: str, kind: str, seconds: float) -> dict[str, Any]:
-    proc = subprocess.run(["ip", "netns", "exec", ns, sys.executable, "-m", "benchmarks.bench_ecanlite",
-                           "--master", kind, iface, str(seconds)],
-                          capture_output=True, text=True, timeout=seconds * 3 + 180, check=False,
-                          cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-    if proc.returncode != 0:
-        raise RuntimeError(proc.stderr[-2000:])
-    result: dict[str, Any] = json.loads(proc.stdout.strip().splitlines()[-1])
-    return result
+    return run_master(ns, "benchmarks.bench_ecanlite", ["--master", kind, iface, str(seconds)], seconds * 3 + 180)
 
 
 def _line(label: str, r: dict[str, Any]) -> str:
@@ -232,13 +188,8 @@ def _line(label: str, r: dict[str, Any]) -> str:
 
 
 def main() -> None:
-    if os.geteuid() != 0 or shutil.which("ip") is None:
-        print("skipped: needs root and iproute2 to create a namespace and a veth pair")
-        return
-    try:
-        import pysoem  # noqa: F401
-    except ImportError:
-        print("skipped: pysoem is not installed")
+    seconds = bench_seconds(60, "pysoem")
+    if seconds is None:
         return
     from gatewaylab.bus import VirtualBus
     from gatewaylab.bus.frame import CanFrame
@@ -249,14 +200,7 @@ def main() -> None:
     from gatewaylab.ethercat.segment import Segment
     from gatewaylab.ethercat.wire import WireTransport
 
-    seconds = float(os.environ.get("GL_BENCH_SECONDS", "60"))
-    tag = f"{os.getpid() % 100000}"
-    ns, emu, mst = f"gl-becan-{tag}", f"glc{tag}e", f"glc{tag}m"
-    subprocess.run(["ip", "netns", "add", ns], check=True)
-    try:
-        subprocess.run(["ip", "link", "add", emu, "type", "veth", "peer", "name", mst, "netns", ns], check=True)
-        subprocess.run(["ip", "link", "set", emu, "up"], check=True)
-        subprocess.run(["ip", "netns", "exec", ns, "ip", "link", "set", mst, "up"], check=True)
+    with veth_namespace("gl-becan-", "glc") as (ns, emu, mst):
         clock = RealTimeClock()
         wire = WireTransport(Segment([create_io_slave(clock, "GL-IO")]), emu, clock, drive_clock=True, cpu=1)
         wire.start()
@@ -305,8 +249,6 @@ def main() -> None:
         finally:
             wire.stop()
         emulator_errors = list(wire.errors)
-    finally:
-        subprocess.run(["ip", "netns", "del", ns], check=False)
     print(f"ECAN-Lite over veth, pysoem, N={N} (384 B each way), 1 kHz for {seconds:.0f} s, "
           f"4 CAN FD channels x 1,000 frames/s each way")
     print(_line("ethercat_io (floor)", io))

@@ -10,56 +10,18 @@ the emulator's busy-polling wire thread on CPU 1.
 from __future__ import annotations
 
 import json
-import os
-import shutil
 import socket
 import statistics
 import struct
-import subprocess
 import sys
 import threading
 import time
 from typing import Any
 
+from benchmarks.wire import bench_seconds, go_init, paced, pct, pin, request_op, run_master, veth_namespace
+
 ETHERTYPE = 0x88A4
 PACKET_OUTGOING = 4
-
-
-def _pct(values: list[float], q: float) -> float:
-    if not values:
-        return float("nan")
-    s = sorted(values)
-    return s[min(len(s) - 1, int(q * len(s)))]
-
-
-def _pin(cpu: int) -> None:
-    try:
-        os.sched_setaffinity(0, {cpu % (os.cpu_count() or 1)})
-    except (AttributeError, OSError):
-        pass
-
-
-# ---------------------------------------------------------------------------------- master side
-def _pace(rate: float, seconds: float, cycle: Any) -> dict[str, Any]:
-    period = 1.0 / rate
-    n = int(seconds * rate)
-    rtts: list[float] = []
-    lost = 0
-    t_next = time.perf_counter() + period
-    for _ in range(n):
-        slack = t_next - time.perf_counter() - 0.0003
-        if slack > 0:
-            time.sleep(slack)  # the master sleeps between cycles like a real-time task would
-        while time.perf_counter() < t_next:
-            pass
-        t_next += period
-        t0 = time.perf_counter()
-        ok = cycle()
-        rtts.append(time.perf_counter() - t0)
-        if not ok:
-            lost += 1
-    return {"cycles": n, "lost": lost, "median_us": 1e6 * statistics.median(rtts),
-            "p99_us": 1e6 * _pct(rtts, 0.99), "max_us": 1e6 * max(rtts)}
 
 
 def _back_to_back(n: int, cycle: Any) -> dict[str, Any]:
@@ -74,44 +36,34 @@ def _back_to_back(n: int, cycle: Any) -> dict[str, Any]:
             lost += 1
     elapsed = time.perf_counter() - t_start
     return {"cycles": n, "lost": lost, "cycles_per_s": n / elapsed, "median_us": 1e6 * statistics.median(rtts),
-            "p99_us": 1e6 * _pct(rtts, 0.99)}
+            "p99_us": 1e6 * pct(rtts, 0.99)}
 
 
 def master_pysoem(iface: str, n: int, seconds: float) -> dict[str, Any]:
     import pysoem
 
-    _pin(0)
+    pin(0)
     master = pysoem.Master()
     master.open(iface)
     if master.config_init() != 3:
         raise SystemExit("expected 3 slaves")
     master.config_map()
     master.state_check(pysoem.SAFEOP_STATE, 50000)
-    master.state = pysoem.OP_STATE
-    master.send_processdata()
-    master.receive_processdata(2000)
-    master.write_state()
-    for _ in range(200):
-        master.send_processdata()
-        master.receive_processdata(2000)
-        if master.state_check(pysoem.OP_STATE, 5000) == pysoem.OP_STATE:
-            break
+    request_op(master, 2000, 200)
     expected = master.expected_wkc
 
     def cycle() -> bool:
         master.send_processdata()
         return bool(master.receive_processdata(2000) == expected)
 
-    out = {"b2b": _back_to_back(n, cycle), "paced": _pace(1000.0, seconds, cycle)}
-    master.state = pysoem.INIT_STATE
-    master.write_state()
-    master.close()
+    out = {"b2b": _back_to_back(n, cycle), "paced": paced(1000.0, seconds, cycle)}
+    go_init(master)
     return out
 
 
 def master_raw(iface: str, n: int, seconds: float) -> dict[str, Any]:
     """A minimal raw-socket master: one 32-byte LRW per cycle, waits (busy) for its answer up to 2 ms."""
-    _pin(0)
+    pin(0)
     sock = socket.socket(socket.AF_PACKET, socket.SOCK_RAW, socket.htons(ETHERTYPE))
     sock.bind((iface, ETHERTYPE))
     sock.setblocking(False)
@@ -136,7 +88,7 @@ def master_raw(iface: str, n: int, seconds: float) -> dict[str, Any]:
                 return True
         return False
 
-    out = {"b2b": _back_to_back(n, cycle), "paced": _pace(1000.0, seconds, cycle)}
+    out = {"b2b": _back_to_back(n, cycle), "paced": paced(1000.0, seconds, cycle)}
     sock.close()
     return out
 
@@ -154,7 +106,7 @@ class Echo:
         self.thread.start()
 
     def run(self) -> None:
-        _pin(1)
+        pin(1)
         buf = bytearray(2048)
         while self.running:
             try:
@@ -173,14 +125,8 @@ class Echo:
 
 
 def _run_master(ns: str, iface: str, kind: str, n: int, seconds: float) -> dict[str, Any]:
-    proc = subprocess.run(["ip", "netns", "exec", ns, sys.executable, "-m", "benchmarks.bench_ethercat",
-                           "--master", kind, iface, str(n), str(seconds)],
-                          capture_output=True, text=True, timeout=seconds * 3 + 120, check=False,
-                          cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-    if proc.returncode != 0:
-        raise RuntimeError(proc.stderr[-2000:])
-    result: dict[str, Any] = json.loads(proc.stdout.strip().splitlines()[-1])
-    return result
+    return run_master(ns, "benchmarks.bench_ethercat", ["--master", kind, iface, str(n), str(seconds)],
+                      seconds * 3 + 120)
 
 
 def _line(label: str, r: dict[str, Any]) -> str:
@@ -191,23 +137,16 @@ def _line(label: str, r: dict[str, Any]) -> str:
 
 
 def main() -> None:
-    if os.geteuid() != 0 or shutil.which("ip") is None:
-        print("skipped: needs root and iproute2 to create a namespace and a veth pair")
+    seconds = bench_seconds(60)
+    if seconds is None:
         return
     from gatewaylab.common.clock import RealTimeClock
     from gatewaylab.ethercat.io_device import create_io_slave
     from gatewaylab.ethercat.segment import Segment
     from gatewaylab.ethercat.wire import WireTransport
 
-    seconds = float(os.environ.get("GL_BENCH_SECONDS", "60"))
     n = 20_000
-    tag = f"{os.getpid() % 100000}"
-    ns, emu, mst = f"gl-bench-{tag}", f"glb{tag}e", f"glb{tag}m"
-    subprocess.run(["ip", "netns", "add", ns], check=True)
-    try:
-        subprocess.run(["ip", "link", "add", emu, "type", "veth", "peer", "name", mst, "netns", ns], check=True)
-        subprocess.run(["ip", "link", "set", emu, "up"], check=True)
-        subprocess.run(["ip", "netns", "exec", ns, "ip", "link", "set", mst, "up"], check=True)
+    with veth_namespace("gl-bench-", "glb") as (ns, emu, mst):
         echo = Echo(emu)
         try:
             floor = _run_master(ns, mst, "raw", n, seconds)
@@ -222,8 +161,6 @@ def main() -> None:
             soem = _run_master(ns, mst, "pysoem", n, seconds)
         finally:
             wire.stop()
-    finally:
-        subprocess.run(["ip", "netns", "del", ns], check=False)
     print(f"EtherCAT over veth, {n} back-to-back cycles, then {seconds:.0f} s paced at 1 kHz")
     print(_line("minimal echo (raw master)", floor))
     print(_line("3 emulated slaves (raw master)", raw))

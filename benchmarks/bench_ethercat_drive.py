@@ -14,31 +14,28 @@ the emulator's busy-polling wire thread on CPU 1.
 from __future__ import annotations
 
 import json
-import os
-import shutil
-import statistics
 import struct
 import subprocess
 import sys
 import time
 from typing import Any
 
+from benchmarks.wire import (
+    bench_seconds,
+    go_init,
+    last_json,
+    pin,
+    request_op,
+    rtt_summary,
+    run_in_namespace,
+    ticks,
+    veth_namespace,
+)
+
 COUNTS = (1, 2, 4, 8, 16)
 P99_LIMIT_US = 500.0
 RX = struct.Struct("<HiihB")     # the drive's default RxPDO 0x1600
 TX = struct.Struct("<HiihbH")    # the drive's default TxPDO 0x1A00
-
-
-def _pct(values: list[float], q: float) -> float:
-    s = sorted(values)
-    return s[min(len(s) - 1, int(q * len(s)))] if s else float("nan")
-
-
-def _pin(cpu: int) -> None:
-    try:
-        os.sched_setaffinity(0, {cpu % (os.cpu_count() or 1)})
-    except (AttributeError, OSError):
-        pass
 
 
 # ---------------------------------------------------------------------------------- master side
@@ -57,23 +54,14 @@ def _bring_up(m: Any, count: int) -> str:
         return "SAFEOP not reached"
     for s in m.slaves:
         s.output = bytes(len(s.output))
-    m.state = pysoem.OP_STATE
-    m.send_processdata()
-    m.receive_processdata(20_000)
-    m.write_state()
-    for _ in range(400):
-        m.send_processdata()
-        m.receive_processdata(20_000)
-        if m.state_check(pysoem.OP_STATE, 5000) == pysoem.OP_STATE:
-            return ""
-    return "OP not reached"
+    return "" if request_op(m, 20_000, 400) else "OP not reached"
 
 
 def master(iface: str, kind: str, count: int, seconds: float) -> dict[str, Any]:
     """SOEM: bring-up, (drives) enable in CSP, then ``seconds`` paced at 1 kHz."""
     import pysoem
 
-    _pin(0)
+    pin(0)
     m = pysoem.Master()
     m.open(iface)
     error = ""
@@ -97,8 +85,7 @@ def master(iface: str, kind: str, count: int, seconds: float) -> dict[str, Any]:
     n = int(seconds / period)
     rtts: list[float] = []
     wrong = 0
-    t_next = time.perf_counter() + period
-    for i in range(n):
+    for i in ticks(n, period):
         if drives:
             target = 20 * (i % 2000 if (i // 2000) % 2 == 0 else 2000 - i % 2000)   # +-40000 inc ramps
             data = RX.pack(0x0F, target, 0, 0, 8)
@@ -107,12 +94,6 @@ def master(iface: str, kind: str, count: int, seconds: float) -> dict[str, Any]:
         else:
             for s in m.slaves:
                 s.output = bytes([i & 0xFF]) * len(s.output)
-        slack = t_next - time.perf_counter() - 0.0003
-        if slack > 0:
-            time.sleep(slack)  # the master sleeps between cycles like a real-time task would
-        while time.perf_counter() < t_next:
-            pass
-        t_next += period
         t0 = time.perf_counter()
         m.send_processdata()
         wkc = m.receive_processdata(2000)
@@ -120,11 +101,8 @@ def master(iface: str, kind: str, count: int, seconds: float) -> dict[str, Any]:
         if wkc != expected:
             wrong += 1
     faults = sum(1 for s in m.slaves if TX.unpack(bytes(s.input)[:TX.size])[0] & 0x08) if drives else 0
-    m.state = pysoem.INIT_STATE
-    m.write_state()
-    m.close()
-    out: dict[str, Any] = {"cycles": n, "wrong_wkc": wrong, "median_us": 1e6 * statistics.median(rtts),
-                           "p99_us": 1e6 * _pct(rtts, 0.99), "max_us": 1e6 * max(rtts), "faults": faults}
+    go_init(m)
+    out: dict[str, Any] = {"cycles": n, "wrong_wkc": wrong, **rtt_summary(rtts), "faults": faults}
     if drives:
         out["enabled"] = enabled
     return out
@@ -146,10 +124,9 @@ def _run_line(ns: str, emu: str, mst: str, kind: str, count: int, seconds: float
     wire = WireTransport(Segment(slaves), emu, clock, drive_clock=True, cpu=1)
     wire.start()
     try:
-        proc = subprocess.run(["ip", "netns", "exec", ns, sys.executable, "-X", "faulthandler", "-m",
-                               "benchmarks.bench_ethercat_drive", "--master", mst, kind, str(count), str(seconds)],
-                              capture_output=True, text=True, timeout=seconds * 3 + 120, check=False,
-                              cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+        proc = run_in_namespace(ns, "benchmarks.bench_ethercat_drive",
+                                ["--master", mst, kind, str(count), str(seconds)], seconds * 3 + 120,
+                                python_flags=("-X", "faulthandler"))
     except subprocess.TimeoutExpired:
         return {"error": "the master did not finish"}
     finally:
@@ -163,8 +140,7 @@ def _run_line(ns: str, emu: str, mst: str, kind: str, count: int, seconds: float
             frames = [ln for ln in lines if ln.startswith("File ") and "benchmarks" in ln]
             return {"error": "master hung at " + (frames[0].split(", ")[-1] if frames else "?")}
         return {"error": lines[-1] if lines else "master failed"}
-    result: dict[str, Any] = json.loads(proc.stdout.strip().splitlines()[-1])
-    return result
+    return last_json(proc)
 
 
 def _ok(r: dict[str, Any]) -> bool:
@@ -179,25 +155,15 @@ def _cell(r: dict[str, Any]) -> str:
 
 
 def main() -> None:
-    if os.geteuid() != 0 or shutil.which("ip") is None:
-        print("skipped: needs root and iproute2 to create a namespace and a veth pair")
+    seconds = bench_seconds(30)
+    if seconds is None:
         return
-    seconds = float(os.environ.get("GL_BENCH_SECONDS", "30"))
-    tag = f"{os.getpid() % 100000}"
-    ns, emu, mst = f"gl-bd-{tag}", f"glbd{tag}e", f"glbd{tag}m"
     rows: list[tuple[int, dict[str, Any], dict[str, Any]]] = []
-    subprocess.run(["ip", "netns", "add", ns], check=True)
-    try:
-        subprocess.run(["ip", "link", "add", emu, "type", "veth", "peer", "name", mst, "netns", ns], check=True)
-        subprocess.run(["ip", "link", "set", emu, "up"], check=True)
-        subprocess.run(["ip", "netns", "exec", ns, "ip", "link", "set", mst, "up"], check=True)
+    with veth_namespace("gl-bd-", "glbd") as (ns, emu, mst):
         for count in COUNTS:
             drive = _run_line(ns, emu, mst, "drive", count, seconds)
             io = _run_line(ns, emu, mst, "io", count, seconds)
             rows.append((count, drive, io))
-    finally:
-        subprocess.run(["ip", "link", "del", emu], check=False, capture_output=True)
-        subprocess.run(["ip", "netns", "del", ns], check=False)
     print(f"CiA 402 drives (CSP) vs ethercat_io slaves per segment, pysoem over veth, {seconds:.0f} s at 1 kHz each")
     for count, drive, io in rows:
         enabled = f" enabled {drive.get('enabled', 0)}/{count}" if "error" not in drive else ""

@@ -149,9 +149,12 @@ def _rig(web_port: int) -> Any:
 
 
 def test_rig_kind_ready_info_and_web_server(tmp_path: Any) -> None:
-    """Issue 11 'Rig': listed in ethercat.slaves, the web base URL under "web"; the server answers."""
+    """Issue 11 'Rig': listed in ethercat.slaves, the web base URL under "web"; the server answers;
+    the rig's ``serial`` is 0x1018:04 (5.1.3.5)."""
     with Rig(_rig(0)) as rig:
         rig.start()
+        (esd,) = [p for p in rig.participants if getattr(p, "name", "") == "esd1"]
+        assert int(esd.gateway.slave.od.get(0x1018, 4)) == 0x99
         info = json.loads(json.dumps(rig.ready_info()))
         slaves = info["ethercat"]["slaves"]
         assert slaves == [{"name": "esd1", "position": 0, "vendor_id": 0x17, "product_code": 2}]

@@ -8,6 +8,8 @@ from typing import Any
 import pytest
 
 from gatewaylab.devices.esd_can_ethercat.objects import esd_description
+from gatewaylab.ethercat.errors import AlStatusCode, AlStatusError
+from gatewaylab.ethercat.esc import AlState
 from gatewaylab.ethercat.esi import export_esi
 from gatewaylab.ethercat.sii import build_sii, parse_sii
 from gatewaylab.od import DataType
@@ -108,3 +110,42 @@ def test_esi_carries_identity_and_pdos(kit: Any, text: str) -> None:
     """4.2 'ESD CAN-EtherCAT.xml': the ESI names vendor, product, the PDOs and the dictionary."""
     esi = export_esi(kit.gw.slave.desc, kit.gw.slave.od)
     assert text in esi
+
+
+def _assign(kit: Any, index: int, pdos: list[int]) -> None:
+    m = kit.master
+    m.sdo_download8(0, index, 0, 0)
+    for i, pdo in enumerate(pdos):
+        m.sdo_download16(0, index, i + 1, pdo)
+    m.sdo_download8(0, index, 0, len(pdos))
+
+
+@pytest.mark.parametrize(("rx", "tx", "code"), [
+    ([], [0x1A00], AlStatusCode.INVALID_OUTPUT_MAPPING),
+    ([0x1600], [], AlStatusCode.INVALID_INPUT_MAPPING),
+    ([0x1600], [0x1A85, 0x1A00], AlStatusCode.INVALID_INPUT_MAPPING),
+    ([0x1600], [0x1A85], AlStatusCode.INVALID_INPUT_MAPPING),
+])
+def test_pdo_assignment_without_the_queues_is_refused_at_safeop(kit: Any, rx: list[int], tx: list[int],
+                                                                  code: int) -> None:
+    """5.1.3.10 / 5.1.3.11: 0x1C12 assigns the CAN RxPDO 0x1600, 0x1C13 the CAN TxPDO 0x1A00 (4.2 'the
+    PDOs 0x1600 and 0x1a00 should be mapped'; 0x1A85 is optional, after them): without the queues the
+    gateway cannot run its handshake and refuses PREOP -> SAFEOP with the AL status code of the
+    missing direction; it stays in PREOP."""
+    kit.preop()
+    _assign(kit, 0x1C12, rx)
+    _assign(kit, 0x1C13, tx)
+    kit.master.config_map()                         # the SyncManagers as the assignment asks for
+    with pytest.raises(AlStatusError) as err:
+        kit.master.request_state(0, AlState.SAFEOP)
+    assert err.value.code == code
+    assert kit.gw.slave.state == AlState.PREOP
+
+
+def test_status_pdo_after_the_queues_reaches_op(kit: Any) -> None:
+    """5.1.3.11 + 4.2 '(The optional PDO 0x1a85 contains CAN Status information)': 0x1C13 = 0x1A00,
+    0x1A85 is accepted; inputs 168 + 6 bytes."""
+    kit.preop()
+    _assign(kit, 0x1C13, [0x1A00, 0x1A85])
+    kit.op()
+    assert kit.gw.slave.state == AlState.OP and kit.in_size == 168 + 6

@@ -3,11 +3,18 @@
 
 from __future__ import annotations
 
+import struct
 from typing import Any
 
+import pytest
+
 from gatewaylab.bus.frame import CanFrame
-from gatewaylab.ethercat.errors import AlStatusCode
+from gatewaylab.devices.esd_can_ethercat.objects import esd_description
+from gatewaylab.ethercat.errors import AlStatusCode, FrameFormatError
 from gatewaylab.ethercat.esc import AlState
+from gatewaylab.ethercat.mailbox import MBX_ERROR, MailboxErrorCode, MailboxType
+from gatewaylab.ethercat.sii import build_sii, parse_sii
+from gatewaylab.od import SdoAbort, SdoAbortCode
 
 
 def _assign_status_pdo(kit: Any) -> None:
@@ -104,9 +111,10 @@ class _TickingClock:
     def __init__(self, inner: Any) -> None:
         self.inner = inner
         self.extra = 0.0
+        self.step = 7e-6
 
     def now(self) -> float:
-        self.extra += 7e-6
+        self.extra += self.step
         return float(self.inner.now()) + self.extra
 
     def __getattr__(self, name: str) -> Any:
@@ -126,3 +134,60 @@ def test_cyclic_and_can_handler_times_are_measured_on_the_clock(kit: Any) -> Non
     can = [m.sdo_upload32(0, 0x2010, s) for s in (5, 6, 7)]
     assert cyc[0] >= 6 and cyc[0] <= cyc[2] <= cyc[1]
     assert can[0] >= 6 and can[0] <= can[2] <= can[1]
+
+
+def test_can_handler_time_forgets_calls_older_than_the_last_1000(kit: Any) -> None:
+    """5.1.4.2 'CAN handler time (max.)': 'Maximum time in application's CAN handler within its last
+    1000 calls': one slow call shows, and is gone after 1000 quick ones."""
+    kit.op()
+    clock = _TickingClock(kit.clock)
+    kit.gw.clock = clock
+    clock.step = 500e-6
+    kit.peer.send(CanFrame(0x5, b"x"))
+    kit.clock.advance(0.01)
+    clock.step = 7e-6
+    m = kit.master
+    assert m.sdo_upload32(0, 0x2010, 6) >= 400
+    for i in range(999):
+        kit.peer.send(CanFrame(0x6, bytes([i & 0xFF])))
+    kit.clock.advance(1.0)
+    assert m.sdo_upload32(0, 0x2010, 6) >= 400          # the slow call is one of the last 1000
+    kit.peer.send(CanFrame(0x7, b"y"))
+    kit.clock.advance(0.01)
+    assert m.sdo_upload32(0, 0x2010, 6) < 100
+
+
+def test_other_settings_2000_local_mode_in_preop_only_and_led_state_as_written(kit: Any) -> None:
+    """5.1.4.1 NOTICE 'can only be written in Pre-Operational state: Index 2000h, Sub-Index 1';
+    'Custom LED state ... Reading this value reflects only the value that was last written'."""
+    m = kit.master
+    kit.preop()
+    m.sdo_download8(0, 0x2000, 1, 1)
+    m.sdo_download8(0, 0x2000, 2, 13)                # 13: Blink
+    kit.op()
+    assert (m.sdo_upload8(0, 0x2000, 1), m.sdo_upload8(0, 0x2000, 2)) == (1, 13)
+    with pytest.raises(SdoAbort) as err:
+        m.sdo_download8(0, 0x2000, 1, 0)
+    assert err.value.code == SdoAbortCode.DATA_CANNOT_BE_STORED_DEVICE_STATE
+    m.sdo_download8(0, 0x2000, 2, 15)                # 15: On, in any state
+    assert (m.sdo_upload8(0, 0x2000, 1), m.sdo_upload8(0, 0x2000, 2)) == (1, 15)
+
+
+def test_no_eoe_offered_an_eoe_request_gets_the_mailbox_error_and_2010_eoe_counts_stay_0(kit: Any) -> None:
+    """5.2 EoE and 5.1.4.2 'EoE Frames ...' (2010h:10-16) are not emulated (docs/decisions.md): the
+    SII offers CoE and FoE only (so a master set up from this ESI sends no EoE; 5.2.1 'usually
+    configuration tools don't send a configuration' in the default Switch Port mode either); an EoE
+    'Set IP Parameter' request gets the mailbox error 'unsupported protocol' (ETG.1000.4), the
+    gateway goes on, and the EoE counters read 0."""
+    assert parse_sii(build_sii(esd_description())).mailbox_protocols == 0x0C     # CoE | FoE, no EoE (0x02)
+    m = kit.master
+    kit.preop()
+    set_ip = struct.pack("<HHI", 0x0002, 0, 0x0E) + bytes([192, 168, 0, 10, 255, 255, 255, 0, 192, 168, 0, 1])
+    with pytest.raises(FrameFormatError) as err:
+        m.mailbox_exchange(0, MailboxType.EOE, set_ip)
+    assert str(err.value).endswith(MBX_ERROR.pack(0x0001, MailboxErrorCode.UNSUPPORTED_PROTOCOL).hex())
+    kit.op()
+    kit.send([CanFrame(0x1, b"a")])
+    kit.cycle(3)
+    assert kit.heard == [CanFrame(0x1, b"a")]
+    assert [m.sdo_upload32(0, 0x2010, sub) for sub in range(0x10, 0x17)] == [0] * 7
