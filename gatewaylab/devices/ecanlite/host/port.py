@@ -288,7 +288,9 @@ class McanPort:
     def send_can(self, slave: int, channel: int, can_id: int, data: bytes = b"", *, extended: bool = False,
                  rtr: bool = False, dlc: int = -1) -> int:
         """``igh_mcan_port_send_can``: one classic frame in the next cycle."""
-        return self.send_packet(slave, CanPacket(channel, can_id, extended, rtr=rtr, data=bytes(data), dlc=dlc))
+        if extended or rtr or dlc != -1:
+            return self.send_packet(slave, CanPacket(channel, can_id, extended, rtr=rtr, data=bytes(data), dlc=dlc))
+        return self.send_packet(slave, CanPacket.classic(channel, can_id, bytes(data)))
 
     def send_canfd(self, slave: int, channel: int, can_id: int, data: bytes = b"", *, extended: bool = False,
                    brs: bool = True) -> int:
