@@ -223,3 +223,31 @@ def test_classic_packet_is_the_full_constructors(channel: int, can_id: int, data
     assert fast == full
     if isinstance(fast, CanPacket) and isinstance(full, CanPacket):
         assert (fast.ctrl, fast.raw_size, fast.dlc) == (full.ctrl, full.raw_size, full.dlc)
+
+
+def test_delta16_timestamps_give_the_bus_receive_instant(tmp_path: Path) -> None:
+    """8.4: in the TxPDO the timestamp 'describes the time when the slave receives the CAN frame',
+    delta16 relative to the cycle's time base (profile 1, chapter 9). The Port turns it into the
+    receive instant on the host clock: the end of the frame on the bus, to the 1 us tick."""
+    with host_rig(tmp_path, ((),)) as h:
+        _adapter, port = classic_port(h.backend, (0,), profile=1)
+        bus = h.rig.buses["s0can0"]
+        ends: list[float] = []
+        bus.attach("witness", on_frame=lambda _f, t: ends.append(t))
+        peer = bus.attach("peer")
+        port.run_cycles(3)
+        sent_at = []
+        rx = []
+        for k, phase in enumerate((0.00013, 0.00071, 0.00094)):   # into three different cycles
+            t = h.rig.clock.now() + phase
+            sent_at.append(t)
+            h.rig.clock.call_at(t, peer.send, CanFrame(0x300 + k, bytes([k] * 8)))
+            rx += port.run_cycles(1)
+        rx += port.run_cycles(4)
+        assert [r.frame.can_id for r in rx] == [0x300, 0x301, 0x302]
+        assert len(ends) == 3
+        for r, t_sent, t_end in zip(rx, sent_at, ends, strict=True):
+            assert r.received is not None and t_sent < t_end
+            assert abs(r.received - t_end) <= 1e-6 + 1e-9
+            assert r.received < r.time                  # before the cycle that brought it
+        assert port.parse_errors == 0
