@@ -199,7 +199,7 @@ class _Registers(Protocol):
     """Register access of one backend: None / False when the slave did not answer (working counter 0)."""
 
     def read(self, position: int, address: int, length: int) -> bytes | None: ...
-    def write(self, position: int, address: int, data: bytes) -> bool: ...
+    def write(self, position: int, address: int, data: bytes) -> bool | None: ...   # None: answer lost
 
 
 class _MailboxPort:
@@ -246,7 +246,20 @@ class _MailboxPort:
         if len(raw) > o_len:
             raise MasterError(f"mailbox message of {len(raw)} bytes exceeds the {o_len}-byte mailbox")
         padded = raw.ljust(o_len, b"\0")
-        self._wait_for("mailbox write", lambda: self.regs.write(position, o_start, padded))
+
+        def attempt() -> bool:
+            took = self.regs.write(position, o_start, padded)
+            if took is None:     # the answer was lost: did the request land? (a repeat would be a
+                return self._landed(position)   # second request, e.g. an FoE packet number twice)
+            return took
+
+        self._wait_for("mailbox write", attempt)
+
+    def _landed(self, position: int) -> bool:
+        """After a write whose answer was lost: the request is in (SM0 'mailbox full') or already
+        answered (SM1 full); requests here go one at a time, so SM0 was empty before."""
+        raw = self.regs.read(position, REG_SM, 16)
+        return raw is not None and bool(raw[5] & 0x08 or raw[13] & 0x08)
 
     def receive(self, position: int, mtype: int) -> MailboxMessage:
         """The next reply of type ``mtype`` from SM1 (other messages, e.g. emergencies, are dropped)."""

@@ -59,12 +59,13 @@ class _PysoemRegisters:
                 if clock.now() >= deadline:
                     return None
 
-    def write(self, position: int, address: int, data: bytes) -> bool:
-        """One attempt: a mailbox write the slave refuses (SM0 full) must not be repeated blindly."""
+    def write(self, position: int, address: int, data: bytes) -> bool | None:
+        """One attempt: a mailbox write the slave refuses (SM0 full) must not be repeated blindly;
+        None when no answer came back (SOEM's EC_NOFRAME: the write may have landed)."""
         try:
             self.backend._slave(position)._fpwr(address, bytes(data), self.backend.register_timeout_us)
-        except self.backend._pysoem.WkcError:
-            return False
+        except self.backend._pysoem.WkcError as exc:
+            return None if (getattr(exc, "wkc", 0) or 0) < 0 else False
         return True
 
 
