@@ -249,17 +249,24 @@ class _MailboxPort:
 
         def attempt() -> bool:
             took = self.regs.write(position, o_start, padded)
-            if took is None:     # the answer was lost: did the request land? (a repeat would be a
-                return self._landed(position)   # second request, e.g. an FoE packet number twice)
+            if took is None:     # refused, or the answer was lost: did the request land? (a repeat
+                return self._landed(position)   # would be a second request, e.g. an FoE packet twice)
             return took
 
         self._wait_for("mailbox write", attempt)
 
     def _landed(self, position: int) -> bool:
-        """After a write whose answer was lost: the request is in (SM0 'mailbox full') or already
-        answered (SM1 full); requests here go one at a time, so SM0 was empty before."""
-        raw = self.regs.read(position, REG_SM, 16)
-        return raw is not None and bool(raw[5] & 0x08 or raw[13] & 0x08)
+        """After a write not known to have landed: the request is in (SM0 'mailbox full') or already
+        answered (SM1 full) within RETRY_SETTLE (a slave that took it may need a moment to post
+        its reply); requests here go one at a time, so SM0 was empty before."""
+        deadline = self.clock.now() + RETRY_SETTLE
+        while True:
+            raw = self.regs.read(position, REG_SM, 16)
+            if raw is not None and (raw[5] & 0x08 or raw[13] & 0x08):
+                return True
+            if self.clock.now() >= deadline:
+                return False
+            self.clock.wait(POLL)
 
     def receive(self, position: int, mtype: int) -> MailboxMessage:
         """The next reply of type ``mtype`` from SM1 (other messages, e.g. emergencies, are dropped)."""

@@ -60,12 +60,13 @@ class _PysoemRegisters:
                     return None
 
     def write(self, position: int, address: int, data: bytes) -> bool | None:
-        """One attempt: a mailbox write the slave refuses (SM0 full) must not be repeated blindly;
-        None when no answer came back (SOEM's EC_NOFRAME: the write may have landed)."""
+        """One attempt; None when it is not known to have failed: pysoem's WkcError does not say
+        whether the slave refused the write (working counter 0) or its answer came back too late
+        (EC_NOFRAME), after which the write may well have landed."""
         try:
             self.backend._slave(position)._fpwr(address, bytes(data), self.backend.register_timeout_us)
-        except self.backend._pysoem.WkcError as exc:
-            return None if (getattr(exc, "wkc", 0) or 0) < 0 else False
+        except self.backend._pysoem.WkcError:
+            return None
         return True
 
 
