@@ -134,8 +134,12 @@ def test_ecanlite_ota_by_foe_write(ec: Ec, tmp_path: Path) -> None:
     _fails(ec("foe-write", "-p", "0", str(bare), "-n", APP_FILE_NAME), 1, "FoE error 0x800B")
     package = tmp_path / "ecan_lite_app"
     package.write_bytes(pack(b"\x13" * 3000, FirmwareVersion(1, 4, 0x0494)))
-    r = _ok(ec("foe-write", "-p", "0", str(package), "--progress"))
+    r = ec("foe-write", "-p", "0", str(package), "--progress")
     assert f"foe write {APP_FILE_NAME}" in r.err and "3.0/3.0 kB" in r.err     # 3032 bytes sent
+    if r.rc != 0:
+        # over a wire the device may restart before SOEM read the ACK of the last packet: the
+        # transfer is complete (3.0/3.0 kB), the readback below shows whether it took
+        assert ec.kind == "pysoem" and "no answer within" in r.err, r.err
     if ec.kind == "pysoem":        # the line is the same device: it restarted with the new version
         rows: list[str] = []
         for _attempt in range(20):  # gone from the line while it restarts (RESET_TIME)
