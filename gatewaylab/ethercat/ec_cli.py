@@ -232,7 +232,7 @@ def open_backend(args: argparse.Namespace) -> Iterator[MasterBackend]:
     if bool(args.interface) == bool(args.rig):
         raise EcUsage("give the line: -i IFNAME (real interface, root) or --rig RIG.toml (in process)")
     if args.interface:
-        from .backend import PysoemBackend
+        from .wire_backend import PysoemBackend
 
         backend: MasterBackend = PysoemBackend(args.interface)
         try:

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from ..common.errors import ConfigError
-from ..ethercat.backend import PysoemBackend
+from ..ethercat.wire_backend import PysoemBackend
 from .config import DEVICES, device_slave, ecanlite_slave, esi_text, find_esd, read_live, report
 from .eni import SlaveConfig, format_writes, parse_eni, parse_writes, write_eni
 from .translate import DEFAULT_FALLBACK_RATE, translate

@@ -6,11 +6,14 @@ and the parse diagnostic of a corrupted TxPDO (16.2)."""
 from __future__ import annotations
 
 import struct
+from collections.abc import Callable
 from pathlib import Path
 
 import can
 import pytest
 from ecanlite_host_kit import classic_port, host_rig
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from gatewaylab.bus import CanFrame, python_can_bus
 from gatewaylab.common.errors import LocalError
@@ -20,7 +23,9 @@ from gatewaylab.devices.ecanlite.stream import (
     CanPacket,
     Direction,
     PdoError,
+    StreamEncodeError,
     StreamLayout,
+    Tsf,
     TxResultCode,
     crc16,
     encode_stream,
@@ -198,3 +203,51 @@ def test_parse_diag_on_corrupted_image(tmp_path: Path) -> None:
         assert diag is not None and (diag.offset, diag.ch, diag.dlc, diag.kind, diag.tsf) == (24, 0, 2, 3, 0)
         assert diag.ctrl == struct.unpack_from("<H", image, 24)[0]
         assert diag.layout_id == layout.layout_id
+
+
+@settings(max_examples=300, deadline=None)
+@given(channel=st.integers(-2, 9), can_id=st.integers(-1, 0x900), data=st.binary(max_size=10),
+       tsf=st.sampled_from(list(Tsf)), timestamp=st.integers(-1, 1 << 17))
+def test_classic_packet_is_the_full_constructors(channel: int, can_id: int, data: bytes, tsf: Tsf,
+                                                 timestamp: int) -> None:
+    """8.1 / 8.2 / 8.4: ``CanPacket.classic`` (the Port's per-cycle packet) builds the same packet,
+    control word and size as the full constructor, and refuses what it refuses with the same
+    LastPDOError."""
+    def build(fn: Callable[[], CanPacket]) -> CanPacket | int:
+        try:
+            return fn()
+        except StreamEncodeError as exc:
+            return int(exc.pdo_error)
+    fast = build(lambda: CanPacket.classic(channel, can_id, data, tsf=tsf, timestamp=timestamp))
+    full = build(lambda: CanPacket(channel, can_id, data=data, tsf=tsf, timestamp=timestamp))
+    assert fast == full
+    if isinstance(fast, CanPacket) and isinstance(full, CanPacket):
+        assert (fast.ctrl, fast.raw_size, fast.dlc) == (full.ctrl, full.raw_size, full.dlc)
+
+
+def test_delta16_timestamps_give_the_bus_receive_instant(tmp_path: Path) -> None:
+    """8.4: in the TxPDO the timestamp 'describes the time when the slave receives the CAN frame',
+    delta16 relative to the cycle's time base (profile 1, chapter 9). The Port turns it into the
+    receive instant on the host clock: the end of the frame on the bus, to the 1 us tick."""
+    with host_rig(tmp_path, ((),)) as h:
+        _adapter, port = classic_port(h.backend, (0,), profile=1)
+        bus = h.rig.buses["s0can0"]
+        ends: list[float] = []
+        bus.attach("witness", on_frame=lambda _f, t: ends.append(t))
+        peer = bus.attach("peer")
+        port.run_cycles(3)
+        sent_at = []
+        rx = []
+        for k, phase in enumerate((0.00013, 0.00071, 0.00094)):   # into three different cycles
+            t = h.rig.clock.now() + phase
+            sent_at.append(t)
+            h.rig.clock.call_at(t, peer.send, CanFrame(0x300 + k, bytes([k] * 8)))
+            rx += port.run_cycles(1)
+        rx += port.run_cycles(4)
+        assert [r.frame.can_id for r in rx] == [0x300, 0x301, 0x302]
+        assert len(ends) == 3
+        for r, t_sent, t_end in zip(rx, sent_at, ends, strict=True):
+            assert r.received is not None and t_sent < t_end
+            assert abs(r.received - t_end) <= 1e-6 + 1e-9
+            assert r.received < r.time                  # before the cycle that brought it
+        assert port.parse_errors == 0

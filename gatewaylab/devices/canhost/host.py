@@ -58,6 +58,9 @@ CAN_ERR_CRTL, CAN_ERR_BUSOFF = 0x04, 0x40
 CAN_ERR_CRTL_RX_OVERFLOW = 0x01
 #: Chapter 7 status word bits 0..2 = 3: the MCAN channel is bus-off.
 _ECAN_BUSOFF = 3
+#: The ECAN-Lite encapsulation profile the host selects (0x8010/0x8011:05): compact inline,
+#: variable DLC, delta16 timestamps of the bus receive instant in the TxPDO (manual 8.4, 9).
+TIMESTAMP_PROFILE = 1
 
 
 class Channel(Protocol):
@@ -70,6 +73,7 @@ class Channel(Protocol):
     def before_exchange(self) -> None: ...
     def after_exchange(self, wkc: int, expected: int) -> None: ...
     def submit(self, frame: CanFrame) -> Callable[[], bool]: ...   # returns 'frame done?'
+    def room(self, frame: CanFrame) -> bool: ...                     # the Tx path takes it now
     def take(self) -> list[can.Message]: ...
     def idle(self) -> bool: ...                                      # nothing in flight
     def stop(self) -> None: ...
@@ -80,7 +84,8 @@ class EsdChannel:
     """The one CAN channel of an esd CAN-EtherCAT at ``position`` (manual 5.1.5), configured at
     :meth:`EthercatHost.start`: bit rate (0xF800), status PDO 0x1A85 assigned for bus-off and Rx
     overflow. Received frames carry the time of the cycle that brought them (the esd Rx PDO has no
-    time stamp, 5.1.5.1)."""
+    time stamp, 5.1.5.1). Its Tx path holds the gateway's local Tx queue (0x8000:24) plus one Tx
+    batch (0x8000:22): the frames queued or in flight beyond that wait in ``send()``."""
 
     fd = False
 
@@ -98,6 +103,9 @@ class EsdChannel:
         self.esd.configure(bitrate=rate, status_pdo=True)
 
     def attach(self) -> None:
+        cfg = self.esd.config
+        if cfg is not None:
+            self.esd.tx_limit = cfg.local_tx_queue + cfg.tx_queue
         self.esd.attach()
 
     def before_exchange(self) -> None:
@@ -115,6 +123,10 @@ class EsdChannel:
     def submit(self, frame: CanFrame) -> Callable[[], bool]:
         tn = self.esd.queue([frame])[0]
         return lambda: self.esd.completed(tn)
+
+    def room(self, frame: CanFrame) -> bool:
+        hs = self.esd.handshake
+        return hs is None or hs.pending + hs.in_flight < hs.tx_limit
 
     def take(self) -> list[can.Message]:
         out, self._errors = self._errors, []
@@ -143,7 +155,10 @@ class EcanChannel:
     Port of the host's adapter (manual 15.1). Configured at :meth:`EthercatHost.start` (classic or
     FD bit rates, 13.4; PDO multiplier ``pdo_n``, 5.2). The host parses each TxPDO once and hands
     each channel its frames; the chapter-7 status word's BUSOFF and the header's overflow count
-    become error frames, a rejected TxPDO (parse error) an error frame of class CAN_ERR_CRTL."""
+    become error frames, a rejected TxPDO (parse error) an error frame of class CAN_ERR_CRTL.
+    The TxPDO profile is 1 (delta16 timestamps, chapter 9): received frames carry the device's bus
+    receive instant (8.4). Its Tx path is the next RxPDO's frame area: frames beyond one image
+    wait in ``send()``."""
 
     def __init__(self, host: EthercatHost, position: int, can_channel: int, bitrate: int,
                  data_bitrate: int | None, fd: bool, pdo_n: int, name: str) -> None:
@@ -183,6 +198,10 @@ class EcanChannel:
         port.send_frame(self.slave_k, self.can_channel, frame)
         k = self.slave_k
         return lambda: port.pending(k) == 0
+
+    def room(self, frame: CanFrame) -> bool:
+        port = self.host.port
+        return port is None or port.fits_next_image(self.slave_k, port.frame_packet(self.can_channel, frame))
 
     def take(self) -> list[can.Message]:
         out, self._rx = self._rx, []
@@ -233,6 +252,8 @@ class EthercatHost:
         self._driver = 0
         self._closed = False
         self._lock = threading.RLock()
+        #: notified after every cycle (a send() waiting for room in a Tx path looks again)
+        self._cycled = threading.Condition(self._lock)
         if self.simulated and isinstance(self.clock.lock, nullcontext):
             self.clock.lock = threading.RLock()
 
@@ -272,7 +293,9 @@ class EthercatHost:
         positions = sorted({c.position for c in ecan})
         slaves = tuple(SlaveConfig(p, next(c.pdo_n for c in ecan if c.position == p)) for p in positions)
         adapter = EcanAdapter(self.backend, AdapterConfig(slaves, cycle_us=round(self.cycle_s * 1e6)))
-        configs = {k: PortConfig(channels={c.can_channel: c.config for c in ecan if c.position == p})
+        # profile 1: the TxPDO carries delta16 receive timestamps (8.4, 9); the RxPDO sends TSF_NONE
+        configs = {k: PortConfig(channels={c.can_channel: c.config for c in ecan if c.position == p},
+                                 profile=TIMESTAMP_PROFILE)
                    for k, p in enumerate(positions)}
         port = McanPort(adapter, configs)
         for c in ecan:
@@ -362,6 +385,7 @@ class EthercatHost:
                     for bus in self.buses:
                         if bus.channel_name == ch.name:
                             bus.deliver(msgs)
+            self._cycled.notify_all()
 
     def _recover(self) -> None:
         """Bring slaves that fell to SAFEOP back to OP (their gateways keep their state there: the
@@ -385,7 +409,8 @@ class EthercatHost:
         for rx in port.receive():
             ch = by_key.get((rx.slave, rx.channel))
             if ch is not None:
-                ch.deliver(rx.frame.to_message(self.timestamp(rx.time), ch.name))
+                t = rx.received if rx.received is not None else rx.time
+                ch.deliver(rx.frame.to_message(self.timestamp(t), ch.name))
         if port.parse_errors != self.parse_errors:
             self.parse_errors = port.parse_errors
             log.warning("ECAN-Lite TxPDO rejected: %s", port.last_parse_error)
@@ -423,19 +448,51 @@ class EthercatHost:
 
     # -- sending -------------------------------------------------------------------------------
     def send(self, name: str, frame: CanFrame, timeout: float | None) -> None:
+        """python-can's send: wait up to ``timeout`` seconds (None: as long as it takes, 0: not at
+        all) for room in the channel's Tx path, else :class:`can.CanOperationError`. On a simulated
+        clock the waiting runs the cycles (simulated seconds), and a frame sent with a timeout other
+        than 0 is then run through as before (on the bus, answers back)."""
         ch = self.channels[name]
         if self._closed or not self._running:
             raise can.CanOperationError("the EtherCAT host is not running")
         if ch.bus_off():
             raise can.CanOperationError(f"{name}: the gateway's CAN controller is bus-off")
         if not self.simulated:
-            with self._lock:
+            with self._cycled:
+                self._wait_room(ch, frame, timeout)
                 self._submit(ch, frame)
             return
         assert isinstance(self.clock, SimulatedClock)
         with self.clock.lock:
+            self._wait_room(ch, frame, timeout)
             done = self._submit(ch, frame)
-            self._settle(done)
+            if timeout != 0:
+                self._settle(done)
+
+    def _wait_room(self, ch: Channel, frame: CanFrame, timeout: float | None) -> None:
+        """Return once ``ch`` takes ``frame``; cycles pass meanwhile (the cycle thread, or the
+        simulated clock advanced here). A simulated clock waits at most MAX_SEND_CYCLES cycles
+        for timeout=None: nobody else would ever make room."""
+        clock = self.clock
+        deadline = None if timeout is None else clock.now() + max(0.0, timeout)
+        cycles = 0
+        while True:
+            try:
+                if ch.room(frame):
+                    return
+            except GatewaylabError as exc:
+                raise can.CanOperationError(str(exc)) from exc
+            if self._closed or not self._running:
+                raise can.CanOperationError("the EtherCAT host is not running")
+            left = None if deadline is None else deadline - clock.now()
+            if (left is not None and left <= 1e-12) or (self.simulated and cycles >= MAX_SEND_CYCLES):
+                raise can.CanOperationError(f"{ch.name}: no room in the gateway's Tx path within "
+                                            f"{'the wait limit' if timeout is None else f'{timeout:g} s'}")
+            if isinstance(clock, SimulatedClock):
+                clock.advance(self.cycle_s if left is None else min(self.cycle_s, left))
+            else:
+                self._cycled.wait(STATE_CHECK_PERIOD if left is None else min(left, STATE_CHECK_PERIOD))
+            cycles += 1
 
     def _submit(self, ch: Channel, frame: CanFrame) -> Callable[[], bool]:
         try:
@@ -495,6 +552,8 @@ class EthercatHost:
                 self._timer.cancel()
             if self._thread is not None:
                 self._thread.join(timeout=5.0)
+            with self._cycled:
+                self._cycled.notify_all()     # a send() waiting for room gives up
             for bus in list(self.buses):
                 bus.wake()
             for ch in self.channels.values():

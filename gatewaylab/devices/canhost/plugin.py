@@ -41,7 +41,7 @@ def open_line(channel: Any, open_rig: RigOpener | None = None,
         if open_rig is None:
             raise can.CanInitializationError(f"{channel}: rig lines need gatewaylab.rig.canhost's interfaces")
         return open_rig(channel[len(RIG_PREFIX):])
-    from ...ethercat.backend import PysoemBackend
+    from ...ethercat.wire_backend import PysoemBackend
 
     return PysoemBackend(channel, pd_timeout_us=pd_timeout_us), None, 0.0
 

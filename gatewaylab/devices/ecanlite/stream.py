@@ -603,6 +603,13 @@ class CanPacket:
         return cls(channel, frame.can_id, frame.extended, frame.fd, frame.brs, frame.rtr, frame.esi, frame.data,
                    tsf, timestamp, False, 0, 0, id_aux, d64, frame.dlc if frame.rtr else -1)
 
+    @classmethod
+    def classic(cls, channel: int, can_id: int, data: bytes = b"", *, tsf: Tsf = Tsf.NONE,
+                timestamp: int = 0) -> CanPacket:
+        """A classic 11-bit data frame, the packet of almost every cycle (the MCAN Port's
+        ``send_can``): the constructor with the other fields at their defaults."""
+        return cls(channel, can_id, data=data, tsf=tsf, timestamp=timestamp)
+
 
 class _CanPacketDraft:
     """A CanPacket under construction: the same slots without the frozen ``__setattr__``.

@@ -10,6 +10,7 @@ and ``PysoemBackend`` (a real line).
 
 from __future__ import annotations
 
+import bisect
 import math
 import struct
 from collections.abc import Sequence
@@ -122,6 +123,10 @@ class CycleStatus:
         return self.wkc == self.expected
 
 
+#: A master period longer than this many nominal periods counts as a late cycle.
+LATE_FACTOR = 1.5
+
+
 @dataclass(slots=True)
 class PeriodStats:
     """master_period: time between two exchanges (13.9), in seconds."""
@@ -135,13 +140,16 @@ class PeriodStats:
         self.last = t
 
     def summary(self, nominal: float) -> dict[str, float]:
-        """min / max / mean / p99 in microseconds and the largest deviation from ``nominal``."""
+        """min / max / mean / p99 in microseconds, the largest deviation from ``nominal`` and ``late``:
+        the periods longer than LATE_FACTOR x ``nominal`` (the master missed a cycle's slot)."""
         s = sorted(self.samples)
         if not s:
-            return {"count": 0, "min_us": 0.0, "max_us": 0.0, "mean_us": 0.0, "p99_us": 0.0, "max_error_us": 0.0}
+            return {"count": 0, "min_us": 0.0, "max_us": 0.0, "mean_us": 0.0, "p99_us": 0.0, "max_error_us": 0.0,
+                    "late": 0}
         p99 = s[min(len(s) - 1, math.ceil(0.99 * len(s)) - 1)]
         return {"count": len(s), "min_us": s[0] * 1e6, "max_us": s[-1] * 1e6, "mean_us": sum(s) / len(s) * 1e6,
-                "p99_us": p99 * 1e6, "max_error_us": max(abs(s[0] - nominal), abs(s[-1] - nominal)) * 1e6}
+                "p99_us": p99 * 1e6, "max_error_us": max(abs(s[0] - nominal), abs(s[-1] - nominal)) * 1e6,
+                "late": len(s) - bisect.bisect_right(s, LATE_FACTOR * nominal)}
 
 
 def find_ecanlite(backend: MasterBackend) -> list[SlaveIdentity]:

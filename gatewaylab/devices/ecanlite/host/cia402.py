@@ -19,6 +19,7 @@ from ....bus.frame import CanFrame
 from ....canopen.sdo_client import SdoClient
 from ....common.errors import LocalError, TimeoutError_
 from ....od import SdoAbort
+from ..stream import CanPacket
 from .port import McanPort, RxFrame
 
 __all__ = ["Axis", "AxisResult", "Cia402", "NmtCommand", "parse_axes"]
@@ -148,6 +149,8 @@ class Cia402:
         self.sched_rpdo_ns: int | None = None
         self.sched_sync_ns: int | None = None
         self.cycle_count = 0
+        # SYNC is the same packet every cycle: built once per bus (packets are frozen).
+        self._sync = {(slave, channel): CanPacket(channel, 0x080) for slave, channel in self.buses}
         self.sdo_errors = 0
         self.other_frames = 0
 
@@ -207,7 +210,7 @@ class Cia402:
             if self.sched_sync_ns is not None:
                 self.port.schedule_can(slave, channel, 0x080, b"", offset_ns=self.sched_sync_ns)
             else:
-                self.port.send_can(slave, channel, 0x080)
+                self.port.send_packet(slave, self._sync[(slave, channel)])
 
     def send_target_step(self) -> None:
         """``igh_cia402_send_target_step``: every enabled axis advances by its step, then targets go out."""

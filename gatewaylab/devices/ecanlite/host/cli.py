@@ -63,7 +63,7 @@ def _line(args: argparse.Namespace) -> Iterator[Line]:
     if bool(args.interface) == bool(args.rig):
         raise Usage("give the line: -i IFNAME (real interface, root) or --rig RIG.toml (in process)")
     if args.interface:
-        from ....ethercat.backend import PysoemBackend
+        from ....ethercat.wire_backend import PysoemBackend
 
         backend: MasterBackend = PysoemBackend(args.interface)
         try:

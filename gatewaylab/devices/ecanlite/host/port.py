@@ -25,6 +25,7 @@ from dataclasses import dataclass, field, replace
 from ....bus.frame import CanFrame
 from ....common.errors import LocalError
 from ..stream import (
+    TIMESTAMP_UNIT_S,
     CanPacket,
     Commit,
     HeaderFlags,
@@ -166,6 +167,9 @@ class RxFrame:
     time: float          # clock time of the cycle that brought it
     seq: int             # TxPDO sequence
     timestamp: int = 0   # delta16 ticks (profiles 1/5), else 0
+    #: the device's bus receive instant on this host's clock, from a delta16/delta32 timestamp
+    #: (profiles 1/5, 8.4); None without one
+    received: float | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -252,6 +256,9 @@ class McanPort:
         self._rx: deque[RxFrame] = deque()
         self._results: deque[TxResult] = deque()
         self._resent = False
+        # clock times of the last three exchanges: the TxPDO read at the last one was built by the
+        # device at the one before, its delta timestamps count from the build before that (8.4)
+        self._exchanges: deque[float] = deque(maxlen=3)
         self.parse_errors = 0
         self.last_parse_error: StreamError | None = None
         self.torn_images = 0
@@ -288,7 +295,9 @@ class McanPort:
     def send_can(self, slave: int, channel: int, can_id: int, data: bytes = b"", *, extended: bool = False,
                  rtr: bool = False, dlc: int = -1) -> int:
         """``igh_mcan_port_send_can``: one classic frame in the next cycle."""
-        return self.send_packet(slave, CanPacket(channel, can_id, extended, rtr=rtr, data=bytes(data), dlc=dlc))
+        if extended or rtr or dlc != -1:
+            return self.send_packet(slave, CanPacket(channel, can_id, extended, rtr=rtr, data=bytes(data), dlc=dlc))
+        return self.send_packet(slave, CanPacket.classic(channel, can_id, bytes(data)))
 
     def send_canfd(self, slave: int, channel: int, can_id: int, data: bytes = b"", *, extended: bool = False,
                    brs: bool = True) -> int:
@@ -310,9 +319,26 @@ class McanPort:
 
     def send_frame(self, slave: int, channel: int, frame: CanFrame) -> int:
         """A bus :class:`CanFrame` as it is (classic, remote or FD)."""
-        return self.send_packet(slave, CanPacket(channel, frame.can_id, frame.extended, frame.fd, frame.brs,
-                                                 frame.rtr, frame.esi, frame.data,
-                                                 dlc=frame.dlc if frame.rtr else -1))
+        return self.send_packet(slave, self.frame_packet(channel, frame))
+
+    @staticmethod
+    def frame_packet(channel: int, frame: CanFrame) -> CanPacket:
+        """The RxPDO packet that carries ``frame`` on ``channel`` (send now, 8.1)."""
+        return CanPacket(channel, frame.can_id, frame.extended, frame.fd, frame.brs, frame.rtr, frame.esi,
+                         frame.data, dlc=frame.dlc if frame.rtr else -1)
+
+    def fits_next_image(self, slave: int, packet: CanPacket) -> bool:
+        """Whether ``packet`` still goes out with the next RxPDO: the frames queued for ``slave`` and
+        it fit into one frame area (chapter 12; at most 255 packets, 6). A sender that waits for
+        this never queues more than one image ahead (python-can's send timeout)."""
+        sp = self._slave(slave)
+        layout = sp.rx_layout
+        align4 = layout.align4
+        used = 0
+        for pend in sp.queue:
+            raw = pend.packet.raw_size
+            used += (raw + 3) & ~3 if align4 else raw
+        return len(sp.queue) < 255 and used + packet_size(packet, layout) <= layout.frame_area_bytes
 
     def pending(self, slave: int | None = None) -> int:
         """Frames queued and not yet in a published RxPDO."""
@@ -389,9 +415,13 @@ class McanPort:
         if h.incomplete:
             self.incomplete_images += 1
             self.device_overflow += h.overflow_sat
+        base = self._exchanges[0] if len(self._exchanges) == 3 else None
         for p in decoded.packets:
             if type(p) is CanPacket:
-                self._rx.append(RxFrame(sp.k, p.channel, p.frame, now, seq, p.timestamp))
+                received = None
+                if p.tsf and base is not None and not p.scheduled and p.tsf is not Tsf.FULL64:
+                    received = base + _signed_ticks(p.timestamp, p.tsf) * TIMESTAMP_UNIT_S
+                self._rx.append(RxFrame(sp.k, p.channel, p.frame, now, seq, p.timestamp, received))
                 self.frames_received += 1
             elif type(p) is TxResultPacket:
                 pend = sp.published.get(p.ref_packet_seq)
@@ -417,6 +447,7 @@ class McanPort:
         if self._unparsed:          # the last exchange's TxPDO was not read: parse it now, lose nothing
             self.cycle_begin()
         status = self.adapter.exchange()
+        self._exchanges.append(status.time)
         self._unparsed = True
         return status
 
@@ -468,3 +499,11 @@ class McanPort:
 def frames_of(rx: Sequence[RxFrame], slave: int | None = None, channel: int | None = None) -> list[CanFrame]:
     """The bus frames of ``rx``, optionally of one slave / channel."""
     return [r.frame for r in rx if (slave is None or r.slave == slave) and (channel is None or r.channel == channel)]
+
+
+def _signed_ticks(ticks: int, tsf: Tsf) -> int:
+    """A delta16/delta32 timestamp as a signed difference: a frame the device received before the
+    cycle's time base (left over from an earlier image) counts back, not 65 ms forward (8.4 'handle
+    wrap as an unsigned difference')."""
+    bits = 16 if tsf is Tsf.DELTA16 else 32
+    return ticks - (1 << bits) if ticks >> (bits - 1) else ticks
