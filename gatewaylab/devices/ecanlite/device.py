@@ -98,6 +98,8 @@ FLAG_TRUNCATED, FLAG_CHANNEL_ERROR, FLAG_TX_RESULT, FLAG_STATUS_CHANGED, FLAG_SE
 _STATUS_ERROR_BITS = 0x10 | 0x20 | 0x40 | 0x80
 #: How long the device is gone from the line while it resets after an OTA update (15.3.1).
 RESET_TIME = 0.5
+#: How long an accepted OTA update waits for the master to read the FoE answer before resetting.
+ANSWER_WAIT = 1.0
 #: Scheduled frames waiting for the next SYNC0 (firmware queue depth, 0xF000:29 TX cache max depth).
 SCHED_QUEUE_MAX = 64
 #: Smallest packet: ctrl + standard id, no data: bounds how many frames one image can take.
@@ -650,7 +652,15 @@ class EcanLiteDevice:
 
     def _ota_accepted(self) -> None:
         """A good firmware image: answer the FoE transfer, then leave the line and restart (15.3.1)."""
-        self.clock.call_soon(self._go_offline)
+        self.clock.call_soon(self._reset_after_answer, self.clock.now())
+
+    def _reset_after_answer(self, since: float) -> None:
+        """The reset waits until the master has read the FoE answer from the mailbox (at most
+        :data:`ANSWER_WAIT`): a master that polls the mailbox late still sees its ACK."""
+        if self.slave.esc.mailbox_full(1) and self.clock.now() - since < ANSWER_WAIT:
+            self.clock.call_later(0.001, self._reset_after_answer, since)
+            return
+        self._go_offline()
 
     def _go_offline(self) -> None:
         self.slave.esc.offline = True
