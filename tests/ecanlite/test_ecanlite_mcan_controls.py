@@ -5,9 +5,11 @@ and register-service writes that re-program the channel (13.6 write whitelist)."
 from __future__ import annotations
 
 from ecanlite_mcan_kit import Rig, make_rig
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from gatewaylab.bus import CanFrame
-from gatewaylab.devices.ecanlite.mcan import ChannelState, NodeMode
+from gatewaylab.devices.ecanlite.mcan import WRITE_WHITELIST, ChannelState, NodeMode
 
 # M_CAN IR bits (13.5 'IR raw').
 RF0N, RF1N, RF1F, RF1L = 1 << 0, 1 << 4, 1 << 6, 1 << 7
@@ -290,3 +292,34 @@ def test_gfc_and_xidam_writes_change_acceptance() -> None:
     rig.run()
     assert [r.frame.can_id for r in rig.model.channels[0].peek(8)] == [0x1ABCDE42]
     assert _reg(rig, 1, 0x0080) == 0 and rig.r(0xA000, 5) == 2 << 4 | 2 << 2
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.lists(st.tuples(st.sampled_from(sorted(WRITE_WHITELIST)),
+                          st.one_of(st.integers(0, 0xFFFFFFFF), st.sampled_from([0, 0x100, 0x120, 0x10, 0x30]))),
+                max_size=12),
+       st.integers(0, 8), st.integers(0, 1))
+def test_random_register_writes_only_status_codes(writes: list[tuple[int, int]], budget: int, enable: int) -> None:
+    """13.6: any whitelisted write with any value answers status 0 or 2 (never a crash), the channel
+    keeps carrying frames or reporting TX_RESULT codes 0..5, and 0x8001:01 = 1 brings the SDO
+    configuration back (13.4 apply) so frames flow again at the bus's rate."""
+    rig = make_rig()
+    assert rig.configure(0) == 0
+    assert _policy(rig, s1=enable, s12=budget) == 0
+    _engineering(rig)
+    ch = rig.model.channels[0]
+    for offset, value in writes:
+        assert _reg(rig, 2, offset, value) in (0, 2)
+        assert ch.submit(CanFrame(0x77, b"\x01"), "r") in range(6)
+        rig.model.on_cycle(rig.clock.now())
+        rig.run(0.002)
+    rig.w(0x8001, 1, 1)
+    assert rig.r(0x8001, 2) == 0
+    for _ in range(3):
+        rig.model.on_cycle(rig.clock.now())
+        rig.run(0.02)
+    assert all(code in range(6) for _ref, code in ch.take_tx_results())
+    ch.consume(ch.pending_rx())
+    rig.peers[0].send(CanFrame(0x7FF, b"\x02"))
+    rig.run(0.01)
+    assert [r.frame.can_id for r in ch.peek(32)] == [0x7FF]
