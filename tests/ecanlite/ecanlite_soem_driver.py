@@ -2,6 +2,8 @@
 5.4.3 phases A-D and F, the 5.4.4.1 frame, TxPDO parsing; prints one JSON result.
 
 Usage: python ecanlite_soem_driver.py INTERFACE bringup N[,N...] CYCLES
+       python ecanlite_soem_driver.py INTERFACE datapath CYCLES
+       python ecanlite_soem_driver.py INTERFACE ota PACKAGE_FILE
 """
 
 from __future__ import annotations
@@ -18,9 +20,11 @@ from gatewaylab.devices.ecanlite.stream import (
     Direction,
     StreamError,
     StreamLayout,
+    TxResultPacket,
     commit_state,
     crc16,
     decode_stream,
+    encode_stream,
 )
 
 #: Correctness, not timing: a frame only counts as lost after 100 ms (the VM is shared and noisy).
@@ -61,7 +65,7 @@ class _Retry:
         self._call(self.slave.sdo_write, *args)
 
 
-def _configure(slave: Any, n: int, tx_options: int = 0) -> dict[str, Any]:
+def _configure(slave: Any, n: int, tx_options: int = 0, rx_options: int = 0) -> dict[str, Any]:
     """5.4.3 phases A-D over CoE."""
     s0 = _Retry(slave)
     out: dict[str, Any] = {}
@@ -74,7 +78,7 @@ def _configure(slave: Any, n: int, tx_options: int = 0) -> dict[str, Any]:
         for i in range(n):
             s0.sdo_write(assign, i + 1, struct.pack("<H", base + i))
         s0.sdo_write(assign, 0, bytes([n]))
-    for index, options in ((0x8010, tx_options), (0x8011, 0)):                     # phase C
+    for index, options in ((0x8010, tx_options), (0x8011, rx_options)):            # phase C
         for sub, value in ((3, n), (4, 0x0F), (5, 0), (6, 0), (7, options), (1, 1)):
             s0.sdo_write(index, sub, bytes([value]))
     out["D"] = {hex(index): [_u(s0.sdo_read(index, 2)), _u(s0.sdo_read(index, 9)), _u(s0.sdo_read(index, 10)),
@@ -202,9 +206,115 @@ def scenario_bringup(iface: str, sizes: list[int], cycles: int) -> dict[str, Any
     return out
 
 
+
+
+def scenario_datapath(iface: str, cycles: int) -> dict[str, Any]:
+    """N = 3 with TX_RESULT + ALIGN4 on the TxPDO and ALIGN4 on the RxPDO: one image with a frame
+    for each channel (classic, extended, CAN FD + BRS 64 B, remote-free empty), the TX_RESULTs and
+    the peers' frames in the TxPDO, then an image with a bad CRC (LastPDOError 15, nothing sent)
+    and a good one after it."""
+    import pysoem
+    master = _open(iface)
+    out: dict[str, Any] = {"count": _init(master)}
+    s0 = master.slaves[0]
+    out.update(_configure(s0, 3, tx_options=0x03, rx_options=0x02))
+    s0.set_watchdog("processdata", 1000)
+    tx = StreamLayout(multiplier=3, options=0x03, direction=Direction.TX)
+    rx = StreamLayout(multiplier=3, options=0x02, direction=Direction.RX)
+    packets: list[list[Any]] = []
+    results: list[list[int]] = []
+    errors: list[int] = []
+    previous: list[bytes | None] = [None]
+
+    def seen(image: bytes) -> None:
+        if len(image) != tx.pdo_bytes or commit_state(image, previous[0]) is not Commit.NEW:
+            return
+        previous[0] = image
+        try:
+            for p in decode_stream(image, tx).packets:
+                if isinstance(p, CanPacket):
+                    packets.append([p.channel, p.can_id, p.data.hex(), p.fd, p.brs, p.extended])
+                elif isinstance(p, TxResultPacket):
+                    results.append([p.channel, p.ref_packet_seq, p.ref_frame_index, int(p.result)])
+        except StreamError as exc:
+            errors.append(int(exc.pdo_error))
+
+    def run(n: int) -> int:
+        bad = 0
+        for _ in range(n):
+            time.sleep(0.0005)
+            master.send_processdata()
+            if master.receive_processdata(RX_TIMEOUT_US) != master.expected_wkc:
+                bad += 1
+                continue
+            seen(bytes(s0.input))
+        return bad
+
+    out["op"] = _to_op(master, seen)
+    bad = run(20)
+    frames = [CanPacket(0, 0x101, data=b"\x01\x02\x03"), CanPacket(1, 0x1ABCDE0, extended=True, data=b"ext"),
+              CanPacket(2, 0x202, data=bytes(range(64)), fd=True, brs=True), CanPacket(3, 0x303, data=b"")]
+    s0.output = encode_stream(rx, 1, frames)
+    bad += run(cycles)
+    image = bytearray(encode_stream(rx, 2, [CanPacket(0, 0x666, data=b"bad")]))
+    image[28] ^= 0xFF                                  # a data byte: payload_crc16 no longer matches
+    s0.output = bytes(image)
+    bad += run(cycles)
+    r = _Retry(s0)
+    out["after_bad"] = [_u(r.sdo_read(0x8011, 14)), _u(r.sdo_read(0x8011, 15)), _u(r.sdo_read(0x8011, 2))]
+    s0.output = encode_stream(rx, 3, [CanPacket(0, 0x102, data=b"ok")])
+    bad += run(cycles)
+    out["bad_wkc"] = bad
+    out["rx_packets"] = packets
+    out["tx_results"] = results
+    out["tx_errors"] = errors
+    out["retries"] = _Retry.retries
+    master.state = pysoem.INIT_STATE
+    master.write_state()
+    master.close()
+    return out
+
+
+def scenario_ota(iface: str, package_file: str) -> dict[str, Any]:
+    """15.3.1 with SOEM instead of IgH: PREOP, FoE write of ``ecan_lite_app`` with a wrong password
+    and a wrong name (refused, version unchanged), then the package (accepted); the device leaves
+    the segment and comes back in INIT with the new 0x100A and 0xF000:05/06."""
+    import pysoem
+    data = open(package_file, "rb").read()  # noqa: SIM115 - a one-shot driver
+    master = _open(iface)
+    out: dict[str, Any] = {"count": _init(master)}
+    s0 = master.slaves[0]
+    r = _Retry(s0)
+    out["before"] = [_u(r.sdo_read(0xF000, 5)), _u(r.sdo_read(0xF000, 6)), r.sdo_read(0x100A, 0).decode()]
+    master.state = pysoem.PREOP_STATE
+    master.write_state()
+    master.state_check(pysoem.PREOP_STATE, 50000)
+    out["wrong_password"] = int(s0.foe_write("ecan_lite_app", 7, data, SLOW_US))
+    out["wrong_name"] = int(s0.foe_write("other_file", 0, data, SLOW_US))
+    out["bare"] = int(s0.foe_write("ecan_lite_app", 0, data[32:], SLOW_US))
+    out["unchanged"] = [_u(r.sdo_read(0xF000, 5)), _u(r.sdo_read(0xF000, 6))]
+    out["good"] = int(s0.foe_write("ecan_lite_app", 0, data, SLOW_US))
+    master.close()
+    time.sleep(1.5)                                    # the device resets (about 0.5 s off the line)
+    again = _open(iface)
+    out["count_after"] = _init(again)
+    a0 = again.slaves[0]
+    ra = _Retry(a0)
+    out["state_after"] = int(again.read_state())
+    out["after"] = [_u(ra.sdo_read(0xF000, 5)), _u(ra.sdo_read(0xF000, 6)), ra.sdo_read(0x100A, 0).decode()]
+    out["retries"] = _Retry.retries
+    again.close()
+    return out
+
+
 if __name__ == "__main__":
     iface, scenario = sys.argv[1], sys.argv[2]
-    if scenario != "bringup":
+    if scenario == "bringup":
+        result = scenario_bringup(iface, [int(n) for n in sys.argv[3].split(",")], int(sys.argv[4]))
+    elif scenario == "datapath":
+        result = scenario_datapath(iface, int(sys.argv[3]))
+    elif scenario == "ota":
+        result = scenario_ota(iface, sys.argv[3])
+    else:
         raise SystemExit(f"unknown scenario {scenario!r}")
-    result = scenario_bringup(iface, [int(n) for n in sys.argv[3].split(",")], int(sys.argv[4]))
     print(json.dumps(result))

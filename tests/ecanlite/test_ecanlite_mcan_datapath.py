@@ -136,7 +136,8 @@ def test_degraded_after_threshold() -> None:
 
 def test_tx_ring_results() -> None:
     """Chapter 10 TX_RESULT: frames handed to the MCAN finish with OK once acknowledged;
-    take_tx_results reports each ref once, in order."""
+    take_tx_results reports each ref once, in order. 13.2.2 SI12 'TX budget max' (default 4):
+    the fifth frame of a cycle waits for the next cycle (McanModel.on_cycle)."""
     rig = _rig()
     ch = rig.model.channels[0]
     for i in range(5):
@@ -144,7 +145,10 @@ def test_tx_ring_results() -> None:
     assert ch.pending_tx() == 5
     assert (ch.status_word() >> 13) & 7 == 5
     rig.run()
-    assert ch.take_tx_results() == [(("seq", i), 0) for i in range(5)]
+    assert ch.take_tx_results() == [(("seq", i), 0) for i in range(4)]
+    rig.model.on_cycle(rig.clock.now())
+    rig.run()
+    assert ch.take_tx_results() == [(("seq", 4), 0)]
     assert ch.take_tx_results() == []
     assert [f.can_id for f, _ in rig.recorders[0].frames] == [0x40 + i for i in range(5)]
 

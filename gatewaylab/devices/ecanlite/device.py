@@ -59,7 +59,11 @@ from .image import (
 )
 from .mcan import McanModel
 from .stream import (
+    HEADER_SIZE,
+    OPTION_MASK,
+    PROFILE_MASK,
     TIMESTAMP_UNIT_S,
+    VER_IHL,
     ApplyStatus,
     CanPacket,
     Commit,
@@ -72,9 +76,12 @@ from .stream import (
     TxResultPacket,
     check_layout,
     commit_state,
+    crc16,
     decode_stream,
     encode_stream,
+    fold_layout_id,
     packet_size,
+    profile_word,
 )
 from .system import DiagFlag
 
@@ -91,10 +98,16 @@ FLAG_TRUNCATED, FLAG_CHANNEL_ERROR, FLAG_TX_RESULT, FLAG_STATUS_CHANGED, FLAG_SE
 _STATUS_ERROR_BITS = 0x10 | 0x20 | 0x40 | 0x80
 #: How long the device is gone from the line while it resets after an OTA update (15.3.1).
 RESET_TIME = 0.5
+#: How long an accepted OTA update waits for the master to read the FoE answer before resetting.
+ANSWER_WAIT = 1.0
 #: Scheduled frames waiting for the next SYNC0 (firmware queue depth, 0xF000:29 TX cache max depth).
 SCHED_QUEUE_MAX = 64
 #: Smallest packet: ctrl + standard id, no data: bounds how many frames one image can take.
 _MIN_PACKET = 4
+#: 0x8030:02 TxPDO fine bypass BUILD / COPY and :03 RxPDO STAGE / PARSE (13.2.3; MCAN_READ,
+#: TX_RING and MCAN_WRITE act in the MCAN channels).
+TX_BYPASS_BUILD, TX_BYPASS_COPY = 1 << 3, 1 << 4
+RX_BYPASS_STAGE, RX_BYPASS_PARSE = 1 << 2, 1 << 3
 
 
 @dataclass(slots=True)
@@ -323,8 +336,8 @@ class EcanLiteApplication(SlaveApplication):
             phase = round((t0 - self._last_sync0) * self.cpu_hz)
             self.phase_min = phase if self.phase_min is None else min(self.phase_min, phase)
             self.phase_max = phase if self.phase_max is None else max(self.phase_max, phase)
-        if data != self._last_rx:
-            self._rx_image(data)
+        if data != self._last_rx and not self.model.system.test.rx_bypass & RX_BYPASS_STAGE:
+            self._rx_image(data)  # (0x8030:03 STAGE: the image is not taken in at all, 13.2.3)
             self._cost(4, t0)
         self._cost(0, t0)
         if self._staged is None:  # else the image staged after the last read stands (one build per cycle)
@@ -350,10 +363,23 @@ class EcanLiteApplication(SlaveApplication):
         if commit is Commit.DUPLICATE:
             self._error(rx, PdoError.DUPLICATE_SEQUENCE)
             return
+        test = self.model.system.test
+        if test.rx_bypass & RX_BYPASS_PARSE:
+            # 0x8030:03 PARSE (13.2.3): the header is taken (sequence), the payload is not parsed
+            if data[0] != VER_IHL:
+                self._error(rx, PdoError.BAD_HEADER)
+            else:
+                rx.seq = int.from_bytes(data[2:4], "little")
+            return
         try:
+            if test.crc_policy:
+                data = _crc_policy_rx(data, rx.active, force=test.crc_policy == 1)
             decoded = decode_stream(data, rx.active)
         except StreamError as exc:
-            self._error(rx, exc.pdo_error)
+            code: int = exc.pdo_error
+            if code == PdoError.ACTIVE_AREA:
+                code = _layout_error(data, rx.active)
+            self._error(rx, code)
             return
         seq = decoded.seq
         rx.seq = seq
@@ -363,8 +389,8 @@ class EcanLiteApplication(SlaveApplication):
         if any(p.scheduled for p in frames) and not self._sync0_active():
             self._error(rx, PdoError.BAD_SCHEDULE)  # no SYNC0 to schedule against (13.8)
             return
-        if rx.active.options & OPT_APP_BYPASS:
-            return  # 9.1: the RxPDO does not enter the MCAN path
+        if rx.active.options & OPT_APP_BYPASS or test.app_bypass & 2:
+            return  # 9.1 / 0x8030:06 Rx: the RxPDO does not enter the MCAN path
         channels = self.model.channels
         tx_result = bool(self.tx.active.options & OPT_TX_RESULT)
         results = self._results
@@ -493,7 +519,9 @@ class EcanLiteApplication(SlaveApplication):
         area = layout.frame_area_bytes
         packets: list[CanPacket | TxResultPacket] = []
         n_results = 0
-        bypass = bool(layout.options & OPT_APP_BYPASS)
+        test = self.model.system.test
+        # 9.1 APP_BYPASS, 0x8030:06 Tx and 0x8030:02 BUILD: a header (status words) without packets
+        bypass = bool(layout.options & OPT_APP_BYPASS or test.app_bypass & 1 or test.tx_bypass & TX_BYPASS_BUILD)
         if layout.options & OPT_TX_RESULT and not bypass:
             for r in self._results:
                 size = packet_size(r, layout)
@@ -534,9 +562,66 @@ class EcanLiteApplication(SlaveApplication):
         if left:
             flags |= FLAG_TRUNCATED | FLAG_OVERFLOW_VALID
         image = encode_stream(layout, seq, packets, status_words=status_words, flags=flags, overflow_sat=left)
+        if test.tx_bypass & TX_BYPASS_COPY:
+            # 0x8030:02 COPY (13.2.3): built, not published: the master keeps reading the last image
+            # and nothing is consumed
+            self._staged = _Staged({}, 0, 0, self.tx.seq)
+            return
+        if test.crc_policy:
+            image = _with_crc(image, test.crc_policy == 1)
         self._last_status = status_words
         self._staged = _Staged(counts, n_results, left, seq)
-        slave.write_inputs(image)
+        if test.payload_only & 1:
+            # 0x8030:05 Tx: only the header and the valid payload are written (9.1 PAYLOAD_ONLY)
+            slave.write_inputs(image[:HEADER_SIZE + int.from_bytes(image[6:8], "little")])
+        else:
+            slave.write_inputs(image)
+
+
+def _with_crc(image: bytes, on: bool) -> bytes:
+    """0x8030:04 CRC test policy on a built image: 1 force CRC16 (crc_alg 1 + CRC-16/CCITT-FALSE
+    over the payload), 2 force no CRC16 (crc_alg 0, payload_crc16 0), whatever 9.1 NO_CRC16 says."""
+    b = bytearray(image)
+    n = int.from_bytes(b[6:8], "little")
+    b[8:10] = (crc16(b[HEADER_SIZE:HEADER_SIZE + n]) if on else 0).to_bytes(2, "little")
+    b[15] = 1 if on else 0
+    return bytes(b)
+
+
+def _crc_policy_rx(data: bytes, layout: StreamLayout, *, force: bool) -> bytes:
+    """0x8030:04 on an RxPDO image: 1 force CRC16 = the image must carry crc_alg 1 and a good
+    payload_crc16 even with NO_CRC16 (else LastPDOError 14 / 15); 2 force no CRC16 = the CRC is not
+    checked. Returns the image as the active profile's decoder expects it."""
+    n = int.from_bytes(data[6:8], "little")
+    if n > len(data) - HEADER_SIZE:
+        return data                      # the decoder reports the overrun
+    calc = crc16(data[HEADER_SIZE:HEADER_SIZE + n])
+    if force:
+        if data[15] != 1:
+            raise StreamError(PdoError.BAD_HEADER)
+        if int.from_bytes(data[8:10], "little") != calc:
+            raise StreamError(PdoError.BAD_CRC)
+    return _with_crc(data, layout.crc_enabled)
+
+
+def _layout_error(data: bytes, layout: StreamLayout) -> PdoError:
+    """Refine 'active area' (layout_id / channel_mask differ, 6.1): the fold of 5.4.4.1 keeps the
+    profile's low 3 bits (13..15) and the option flags (5..12, given the header's channel mask)
+    apart from everything else, so an image built for a profile outside 0xF000:12 is 9 'unsupported
+    profile' and one with option bits outside 0xF000:15 is 11 'unsupported option'."""
+    if len(data) < HEADER_SIZE:
+        return PdoError.ACTIVE_AREA
+    layout_id = int.from_bytes(data[10:12], "little")
+    base = fold_layout_id(profile_word(layout.multiplier, data[12], 0, layout.budget_policy, 0))
+    x = layout_id ^ base
+    if x & 0x1F:
+        return PdoError.ACTIVE_AREA      # multiplier, budget or profile bits 3..5: ambiguous
+    profile, options = x >> 13 & 7, x >> 5 & 0xFF
+    if not PROFILE_MASK >> profile & 1:
+        return PdoError.UNSUPPORTED_PROFILE
+    if options & ~OPTION_MASK:
+        return PdoError.UNSUPPORTED_OPTION
+    return PdoError.ACTIVE_AREA
 
 
 def _i32(value: int) -> int:
@@ -567,7 +652,15 @@ class EcanLiteDevice:
 
     def _ota_accepted(self) -> None:
         """A good firmware image: answer the FoE transfer, then leave the line and restart (15.3.1)."""
-        self.clock.call_soon(self._go_offline)
+        self.clock.call_soon(self._reset_after_answer, self.clock.now())
+
+    def _reset_after_answer(self, since: float) -> None:
+        """The reset waits until the master has read the FoE answer from the mailbox (at most
+        :data:`ANSWER_WAIT`): a master that polls the mailbox late still sees its ACK."""
+        if self.slave.esc.mailbox_full(1) and self.clock.now() - since < ANSWER_WAIT:
+            self.clock.call_later(0.001, self._reset_after_answer, since)
+            return
+        self._go_offline()
 
     def _go_offline(self) -> None:
         self.slave.esc.offline = True

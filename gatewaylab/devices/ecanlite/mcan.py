@@ -232,10 +232,12 @@ def _abort(code: SdoAbortCode, text: str) -> SdoAbort:
 # -- frames, filters, configuration ----------------------------------------------------------------
 @dataclass(frozen=True, slots=True)
 class ReceivedFrame:
-    """A frame the channel accepted: the frame and the bus receive instant (clock seconds)."""
+    """A frame the channel accepted: the frame, the bus receive instant (clock seconds) and the
+    Message RAM store it sits in (0 RX FIFO0, 1 RX FIFO1, 2 RX buffers; 13.4 filter action)."""
 
     frame: CanFrame
     t: float
+    fifo: int = 0
 
 
 @dataclass(frozen=True, slots=True)
@@ -253,7 +255,10 @@ class FilterElement:
 
 
 _EMPTY_FILTER = FilterElement()
-_STORE_ACTIONS = frozenset({1, 2, 5, 6, 7})
+#: Filter action (SFEC/EFEC) -> store: 0 RX FIFO0, 1 RX FIFO1, 2 RX buffer; absent = not stored.
+_STORE_OF_ACTION: Mapping[int, int] = MappingProxyType({1: 0, 2: 1, 5: 0, 6: 1, 7: 2})
+#: The RX stores of a channel: FIFO0, FIFO1, dedicated RX buffers.
+RX_STORES = 3
 
 
 def filter_match(f: FilterElement, can_id: int, extended: bool, xidam: int) -> bool:
@@ -317,6 +322,10 @@ class ChannelRuntime:
     rx_fifo1: int
     rx_buffers: int
     rx_data_bytes: int
+    #: Per store (FIFO0, FIFO1, RX buffers): element count, data bytes, overwrite mode (13.4 :61/:63).
+    rx_sizes: tuple[int, int, int]
+    rx_store_bytes: tuple[int, int, int]
+    rx_overwrite: tuple[bool, bool, bool]
     tx_elements: int
     tx_data_bytes: int
     tx_queue_mode: bool
@@ -400,7 +409,10 @@ def build(v: ChannelSettings) -> ChannelRuntime:
         non_match_std=v.get(36), non_match_ext=v.get(37), reject_remote_std=v.get(38) != 0,
         reject_remote_ext=v.get(39) != 0, xidam=v.get(40) & 0x1FFFFFFF,
         rx_fifo0=v.get(62), rx_fifo1=v.get(64), rx_buffers=v.get(67),
-        rx_data_bytes=DATA_SIZE_BYTES[v.get(65)], tx_elements=v.get(70) + v.get(71),
+        rx_data_bytes=DATA_SIZE_BYTES[v.get(65)],
+        rx_sizes=(v.get(62), v.get(64), v.get(67)),
+        rx_store_bytes=(DATA_SIZE_BYTES[v.get(65)], DATA_SIZE_BYTES[v.get(66)], DATA_SIZE_BYTES[v.get(68)]),
+        rx_overwrite=(v.get(61) == 1, v.get(63) == 1, False), tx_elements=v.get(70) + v.get(71),
         tx_data_bytes=DATA_SIZE_BYTES[v.get(72)], tx_queue_mode=v.get(69) == 1, tx_event_fifo=v.get(73),
         ram_words=words, settings=v)
 
@@ -514,6 +526,9 @@ WRITE_WHITELIST = frozenset({0x000C, 0x0010, 0x0014, 0x0018, 0x001C, 0x0048, 0x0
                              0x005C, 0x0080, 0x0090, 0x00A8, 0x00B8, 0x00D0, 0x00D4, 0x00F8})
 # IR bits (M_CAN): RF0N 0, RF0F 2, RF0L 3, TC 9, TFE 11, PEA 27, PED 28, EP 23, EW 24, BO 25.
 IR_RF0N, IR_RF0F, IR_RF0L, IR_HPM, IR_TC, IR_TFE = 1 << 0, 1 << 2, 1 << 3, 1 << 8, 1 << 9, 1 << 11
+IR_RF1N, IR_RF1F, IR_RF1L = 1 << 4, 1 << 6, 1 << 7
+#: IR new message / full / lost bits of FIFO0 and FIFO1 (RX buffers: DRX 19, no full/lost bits).
+_IR_NEW, _IR_FULL, _IR_LOST = (IR_RF0N, IR_RF1N, 1 << 19), (IR_RF0F, IR_RF1F, 0), (IR_RF0L, IR_RF1L, 0)
 IR_EP, IR_EW, IR_BO, IR_PEA, IR_PED = 1 << 23, 1 << 24, 1 << 25, 1 << 27, 1 << 28
 #: PSR.LEC of an error kind: 2 form, 3 ack, 5 bit0, 6 crc.
 _LEC = {ErrorKind.FORM: 2, ErrorKind.ACK: 3, ErrorKind.BIT: 5, ErrorKind.CRC: 6}
@@ -540,13 +555,18 @@ class McanChannel:
         self.counters = ChannelCounters()
         self._rx: deque[ReceivedFrame] = deque()
         self._tx: deque[_TxEntry] = deque()
+        #: The firmware TX ring: frames over this cycle's TX budget (0x802x:12), not yet in the MCAN.
+        self._ring: deque[_TxEntry] = deque()
+        self._tx_served = 0
         self._results: list[tuple[object, int]] = []
         self._events = EventFlag(0)
         self._detail_pending = False
         self._ir = 0
         self._hpms = 0
         self._lec = 0
-        self._rx_lost = False
+        #: Frames of each RX store (FIFO0, FIFO1, RX buffers) in the cache; lost flags (RXFnS.RFnL).
+        self._fill = [0] * RX_STORES
+        self._lost = [False] * RX_STORES
         self._rx_recent_drop = False
         self._tx_recent_full = False
         self._degraded = Degraded(0)
@@ -637,6 +657,8 @@ class McanChannel:
                     break
             self._tx.remove(entry)
             self._results.append((entry.ref, TxResult.BUS_BUSY))
+        while self._ring:
+            self._results.append((self._ring.popleft().ref, TxResult.BUS_BUSY))
         if busy is not None:
             for entry in list(self._tx):
                 self._tx.remove(entry)
@@ -664,7 +686,7 @@ class McanChannel:
         self.counters.tx_policy_refusals = 0
         self._backoff_cycles = self._backoff_level = 0
         while len(self._rx) > self._depth:
-            self._rx.popleft()
+            self._fill[self._rx.popleft().fifo] -= 1
             self.counters.rx_dropped_old += 1
             self.counters.rx_dropped_total += 1
         self._apply_recovery()
@@ -690,40 +712,60 @@ class McanChannel:
         return ChannelSettings(MappingProxyType(dict(values)), tuple(self.std_filters), tuple(self.ext_filters))
 
     # -- receive path ----------------------------------------------------------------------------
-    def _accept(self, frame: CanFrame) -> bool:
+    def _accept(self, frame: CanFrame) -> int:
+        """The store an accepted frame goes to (0 FIFO0, 1 FIFO1, 2 RX buffer), -1 = not stored:
+        the first matching element's action, else the non-match rule (0 FIFO0, 1 FIFO1, 2/3 reject)."""
         rt = self.runtime
         if rt is None:
-            return False
+            return -1
         ext = frame.extended
         if frame.rtr and (rt.reject_remote_ext if ext else rt.reject_remote_std):
-            return False
+            return -1
         for i, f in enumerate(rt.ext_filters if ext else rt.std_filters):
             if filter_match(f, frame.can_id, ext, rt.xidam):
                 if f.action in (4, 5, 6):
                     # high priority message: HPMS FIDX 8..14, FLST 15, MSI 6..7 (0 none, 2 FIFO0, 3 FIFO1)
                     self._hpms = i << 8 | ext << 15 | (0, 2, 3)[f.action - 4] << 6
                     self._ir |= IR_HPM
-                return f.action in _STORE_ACTIONS
-        return (rt.non_match_ext if ext else rt.non_match_std) < 2
+                return _STORE_OF_ACTION.get(f.action, -1)
+        rule = rt.non_match_ext if ext else rt.non_match_std
+        return rule if rule < 2 else -1
 
     def _on_frame(self, frame: CanFrame, t: float) -> None:
         self._lec = 0
-        if not self._accept(frame):
-            return
+        store = self._accept(frame)
         rt = self.runtime
-        if rt is not None and len(frame.data) > rt.rx_data_bytes:
+        if store < 0 or rt is None:
+            return
+        size = rt.rx_store_bytes[store]
+        if len(frame.data) > size:
             # M_CAN stores only the element's data field; the DLC stays: the rest reads as zero
-            frame = replace(frame, data=frame.data[:rt.rx_data_bytes].ljust(len(frame.data), b"\0"))
-        self._ir |= IR_RF0N
-        self._store(ReceivedFrame(frame, t))
+            frame = replace(frame, data=frame.data[:size].ljust(len(frame.data), b"\0"))
+        self._ir |= _IR_NEW[store]
+        if self._fill[store] >= rt.rx_sizes[store]:
+            # the Message RAM FIFO / buffers are full (13.4 :61/:63 op mode): blocking loses the new
+            # frame (RFnL), overwrite gives up the oldest frame of that FIFO
+            self._ir |= _IR_FULL[store]
+            if rt.rx_overwrite[store] and self._fill[store]:
+                rx = self._rx
+                for i, old in enumerate(rx):
+                    if old.fifo == store:
+                        del rx[i]
+                        self._fill[store] -= 1
+                        break
+                self._drop("rx_dropped_old", store)
+            else:
+                self._drop("rx_dropped_new", store)
+                return
+        self._store(ReceivedFrame(frame, t, store))
 
-    def _drop(self, attr: str) -> None:
+    def _drop(self, attr: str, store: int = 0) -> None:
         c = self.counters
         setattr(c, attr, getattr(c, attr) + 1)
         c.rx_dropped_total += 1
         c.rx_policy_drops += 1
-        self._rx_lost = self._rx_recent_drop = True
-        self._ir |= IR_RF0L
+        self._lost[store] = self._rx_recent_drop = True
+        self._ir |= _IR_LOST[store]
         self._latch(EventFlag.RX_PRESSURE)
         p = self.policy
         if p.enable and p.rx_overflow == 3 and c.rx_policy_drops >= p.degraded_threshold:
@@ -731,26 +773,29 @@ class McanChannel:
 
     def _store(self, rf: ReceivedFrame) -> None:
         rx = self._rx
+        fill = self._fill
         if len(rx) >= self._depth:
             self._ir |= IR_RF0F
             p = self.policy
             policy = p.rx_overflow if p.enable else 1
             if policy == 0:
-                rx.popleft()
+                fill[rx.popleft().fifo] -= 1
                 self._drop("rx_dropped_old")
             elif policy == 2 and is_critical(rf.frame, p.critical):
                 for i, old in enumerate(rx):
                     if not is_critical(old.frame, p.critical):
                         del rx[i]
+                        fill[old.fifo] -= 1
                         self._drop("rx_dropped_critical")
                         break
                 else:
-                    rx.popleft()
+                    fill[rx.popleft().fifo] -= 1
                     self._drop("rx_dropped_old")
             else:
-                self._drop("rx_dropped_new")
+                self._drop("rx_dropped_new", rf.fifo)
                 return
         rx.append(rf)
+        fill[rf.fifo] += 1
         if len(rx) > self.counters.rx_high_watermark:
             self.counters.rx_high_watermark = len(rx)
 
@@ -778,8 +823,9 @@ class McanChannel:
     def consume(self, n: int) -> None:
         """Remove the ``n`` oldest frames (they went into a TxPDO)."""
         n = max(0, min(n, len(self._rx)))
+        rx, fill = self._rx, self._fill
         for _ in range(n):
-            self._rx.popleft()
+            fill[rx.popleft().fifo] -= 1
         c = self.counters
         c.rx_drain_last = c.consumed_last = n
         c.rx_drain_max = max(c.rx_drain_max, n)
@@ -790,8 +836,8 @@ class McanChannel:
         return len(self._rx)
 
     def pending_tx(self) -> int:
-        """Frames handed to the MCAN and not finished."""
-        return len(self._tx)
+        """Frames handed to the channel and not finished (in the TX ring or the MCAN)."""
+        return len(self._tx) + len(self._ring)
 
     # -- transmit path ---------------------------------------------------------------------------
     def submit(self, frame: CanFrame, ref: object = None) -> int:
@@ -814,7 +860,7 @@ class McanChannel:
         if self._backoff_cycles > 0:
             self._tx_full()
             return TxResult.TX_FIFO_FULL
-        if len(self._tx) >= rt.tx_elements:
+        if len(self._tx) + len(self._ring) >= rt.tx_elements:
             policy = p.tx_overflow if p.enable else 0
             if policy == 1 and rt.node_mode is not NodeMode.INTERNAL_LOOPBACK and self._drop_oldest_tx(c):
                 pass
@@ -827,6 +873,25 @@ class McanChannel:
         if len(frame.data) > rt.tx_data_bytes:
             frame = replace(frame, data=frame.data[:rt.tx_data_bytes].ljust(len(frame.data), bytes((TX_PAD,))))
         entry = _TxEntry(frame, ref)
+        if p.enable and (self._ring or self._tx_served >= p.tx_budget_max):
+            # 13.2.2 SI12: at most 'TX budget max' frames per cycle go to the MCAN; the rest wait in
+            # the firmware TX ring (same capacity) for the next cycles (on_cycle), in order
+            self._ring.append(entry)
+            return TxResult.OK
+        return self._to_mcan(entry)
+
+    def _to_mcan(self, entry: _TxEntry) -> int:
+        """Hand one frame to the MCAN TX FIFO/queue (one unit of this cycle's TX budget)."""
+        c = self.controller
+        rt = self.runtime
+        if c is None or rt is None:
+            return TxResult.INVALID_CHANNEL
+        if rt.node_mode in (NodeMode.LISTEN, NodeMode.RESTRICTED):
+            return TxResult.INVALID_CHANNEL
+        if c.state is ErrorState.BUS_OFF:
+            return TxResult.BUS_OFF
+        frame = entry.frame
+        self._tx_served += 1
         self._tx.append(entry)
         if rt.node_mode is NodeMode.INTERNAL_LOOPBACK:
             self.clock.call_soon(self._loopback, entry)
@@ -881,6 +946,11 @@ class McanChannel:
                     self.counters.tx_stale_dropped += 1
                     self._results.append((entry.ref, TxResult.TX_FIFO_FULL))
                     return True
+        if self._ring:
+            entry = self._ring.popleft()
+            self.counters.tx_stale_dropped += 1
+            self._results.append((entry.ref, TxResult.TX_FIFO_FULL))
+            return True
         return False
 
     def _loopback(self, entry: _TxEntry) -> None:
@@ -942,7 +1012,17 @@ class McanChannel:
                 self._degraded |= Degraded.BUS_OFF
 
     def on_cycle(self, t: float) -> None:
-        """Per-cycle tick: TX backoff counts down."""
+        """Per-cycle tick: a new TX budget (0x802x:12) serves the firmware TX ring; TX backoff
+        counts down."""
+        self._tx_served = 0
+        ring = self._ring
+        if ring:
+            budget = self.policy.tx_budget_max if self.policy.enable else len(ring)
+            while ring and self._tx_served < budget:
+                entry = ring.popleft()
+                code = self._to_mcan(entry)
+                if code:
+                    self._results.append((entry.ref, code))
         if self._backoff_cycles > 0:
             self._backoff_cycles -= 1
             if self._backoff_cycles == 0 and not self._tx_recent_full:
@@ -979,11 +1059,11 @@ class McanChannel:
             word |= 1 << 6
         rt = self.runtime
         tx_cap = rt.tx_elements if rt is not None else 32
-        if self._tx_recent_full or self._backoff_cycles or 4 * len(self._tx) >= 3 * tx_cap:
+        if self._tx_recent_full or self._backoff_cycles or 4 * (len(self._tx) + len(self._ring)) >= 3 * tx_cap:
             word |= 1 << 7
         if self._detail_pending:
             word |= 1 << 8
-        rxp, txp = len(self._rx), len(self._tx)
+        rxp, txp = len(self._rx), len(self._tx) + len(self._ring)
         if rxp > 7 or txp > 7:
             word |= 1 << 9
         return word | min(rxp, 7) << 10 | min(txp, 7) << 13
@@ -1051,13 +1131,14 @@ class McanChannel:
             return rt.xidam
         if offset == 0x0094:
             return self._hpms
-        if offset == 0x00A0:      # RXF0C: F0S 16..22
-            return rt.rx_fifo0 << 16
-        if offset == 0x00A4:      # RXF0S: F0FL 0..6, F0F 24, RF0L 25
-            fill = len(self._rx)
-            return min(fill, 127) | (fill >= self._depth) << 24 | self._rx_lost << 25
-        if offset == 0x00B0:
-            return rt.rx_fifo1 << 16
+        if offset in (0x00A0, 0x00B0):      # RXFnC: FnS 16..22, FnOM 31
+            fifo = int(offset == 0x00B0)
+            return rt.rx_sizes[fifo] << 16 | rt.rx_overwrite[fifo] << 31
+        if offset in (0x00A4, 0x00B4):      # RXFnS: FnFL 0..6, FnF 24, RFnL 25
+            fifo = int(offset == 0x00B4)
+            fill = self._fill[fifo]
+            full = fill >= rt.rx_sizes[fifo] or (fifo == 0 and len(self._rx) >= self._depth)
+            return min(fill, 127) | full << 24 | self._lost[fifo] << 25
         if offset == 0x00C0:      # TXBC: NDTB 16..21, TFQS 24..29, TFQM 30
             return (rt.tx_elements << 24) | rt.tx_queue_mode << 30
         if offset == 0x00C4:      # TXFQS: TFFL 0..5, TFQF 21
@@ -1067,24 +1148,48 @@ class McanChannel:
             return rt.tx_event_fifo << 16
         return 0
 
-    def write_register(self, offset: int, value: int) -> None:
-        """A whitelisted write (13.6): IR is write-1-to-clear; the rest is kept as an expert
-        override that reads return (it does not re-program the emulated channel)."""
+    def write_register(self, offset: int, value: int) -> bool:
+        """A whitelisted write (13.6); False = the channel cannot take this value (status 2).
+
+        IR is write-1-to-clear. NBTP, DBTP, TDCR, CCCR, TEST, GFC and XIDAM re-program the running
+        channel as the M_CAN register would (bit timing re-times the bus controller, CCCR/TEST set
+        the node mode, FD, retransmission, GFC/XIDAM the global filter); 0x800x keeps the requested
+        configuration, and its next apply (or a reset) programs that again. The other whitelisted
+        registers (interrupt routing, acknowledges, TX buffer requests) are kept and read back."""
         value &= 0xFFFFFFFF
         if offset == 0x0050:
             self._ir &= ~value
             if value & IR_RF0L:
-                self._rx_lost = False
-            return
-        self._expert[offset] = value
+                self._lost[0] = False
+            if value & IR_RF1L:
+                self._lost[1] = False
+            return True
+        if offset not in _PROGRAMMING:
+            self._expert[offset] = value
+            return True
+        rt = self.runtime
+        if rt is None:
+            return False          # nothing applied yet: no running channel to re-program
+        try:
+            new = _reprogram(rt, offset, value)
+        except (BitTimingError, ValueError):
+            return False
+        try:
+            self._activate(new)
+        except GatewaylabError:
+            self._activate(rt)
+            return False
+        self.runtime = new
+        return True
 
     def info(self) -> dict[int, int]:
         """0x900x values by subindex (13.5)."""
         c = self.counters
         return {1: self.register(0x0040), 2: self.register(0x0044), 3: self.register(0x0050),
-                4: self.register(0x00A4), 5: 0, 6: self.register(0x00C4), 7: 0, 8: self.register(0x0094),
+                4: self.register(0x00A4), 5: self.register(0x00B4), 6: self.register(0x00C4), 7: 0,
+                8: self.register(0x0094),
                 9: self._status(),
-                10: min(len(self._rx), 0xFFFF), 11: min(len(self._tx), 0xFFFF), 12: int(self._events),
+                10: min(len(self._rx), 0xFFFF), 11: min(self.pending_tx(), 0xFFFF), 12: int(self._events),
                 13: c.rx_dropped_total, 14: c.tx_fifo_full, 15: c.bus_off, 16: c.detail_sequence}
 
     def take_events(self) -> int:
@@ -1109,7 +1214,48 @@ class McanChannel:
         self._detail_pending = False
         self._degraded = Degraded(0)
         self._ir = 0
-        self._rx_lost = False
+        self._lost = [False] * RX_STORES
+
+
+#: Registers whose write re-programs the running channel (13.6 whitelist, M_CAN layout).
+_PROGRAMMING = frozenset({0x000C, 0x0010, 0x0018, 0x001C, 0x0048, 0x0080, 0x0090})
+
+
+def _reprogram(rt: ChannelRuntime, offset: int, v: int) -> ChannelRuntime:
+    """The runtime after an M_CAN register write (fields as Bosch M_CAN: value - 1 encodings);
+    BitTimingError / ValueError when the channel cannot run it."""
+    if offset == 0x001C:      # NBTP: NSJW 25..31, NBRP 16..24, NTSEG1 8..15, NTSEG2 0..6
+        nominal = bittiming.manual((v >> 16 & 0x1FF) + 1, (v >> 8 & 0xFF) + 1, (v & 0x7F) + 1, (v >> 25) + 1)
+        return replace(rt, nominal=nominal)
+    if offset == 0x000C:      # DBTP: TDC 23, DBRP 16..20, DTSEG1 8..12, DTSEG2 4..7, DSJW 0..3
+        data = bittiming.manual((v >> 16 & 0x1F) + 1, (v >> 8 & 0x1F) + 1, (v >> 4 & 0xF) + 1, (v & 0xF) + 1,
+                                bittiming.DATA, what="data")
+        auto = bittiming.tdc(bool(v >> 23 & 1), data)
+        old = rt.tdc
+        tdc = Tdc(auto.enabled, old.offset if old else auto.offset, old.filter if old else auto.filter)
+        return replace(rt, data=data, tdc=tdc)
+    if offset == 0x0048:      # TDCR: TDCF 0..6, TDCO 8..14
+        if rt.data is None:
+            raise ValueError("TDCR needs a CAN FD data phase")
+        enabled = rt.tdc.enabled if rt.tdc is not None else rt.data.bitrate >= bittiming.TDC_FORCED_BITRATE
+        return replace(rt, tdc=Tdc(enabled, v >> 8 & 0x7F, v & 0x7F))
+    if offset == 0x0018:      # CCCR: ASM 2, MON 5, DAR 6, TEST 7, FDOE 8, TXP 14, NISO 15
+        fd = bool(v >> 8 & 1)
+        if fd and rt.data is None:
+            raise ValueError("FDOE without a data bit timing (write DBTP first)")
+        loopback = bool(v >> 7 & 1) and rt.node_mode is NodeMode.INTERNAL_LOOPBACK
+        mode = (NodeMode.INTERNAL_LOOPBACK if loopback else NodeMode.LISTEN if v >> 5 & 1
+                else NodeMode.RESTRICTED if v >> 2 & 1 else NodeMode.NORMAL)
+        return replace(rt, fd=fd, node_mode=mode, auto_retransmit=not v >> 6 & 1,
+                       transmit_pause=bool(v >> 14 & 1), non_iso=bool(v >> 15 & 1))
+    if offset == 0x0010:      # TEST: LBCK 4 (internal loopback; CCCR.TEST/MON are implied)
+        if v >> 4 & 1:
+            return replace(rt, node_mode=NodeMode.INTERNAL_LOOPBACK)
+        return replace(rt, node_mode=NodeMode.NORMAL) if rt.node_mode is NodeMode.INTERNAL_LOOPBACK else rt
+    if offset == 0x0080:      # GFC: RRFE 0, RRFS 1, ANFE 2..3, ANFS 4..5
+        return replace(rt, reject_remote_ext=bool(v & 1), reject_remote_std=bool(v >> 1 & 1),
+                       non_match_ext=v >> 2 & 3, non_match_std=v >> 4 & 3)
+    return replace(rt, xidam=v & 0x1FFFFFFF)      # XIDAM
 
 
 def _put(od: ObjectDictionary, index: int, values: Mapping[int, int]) -> None:
@@ -1227,6 +1373,7 @@ class McanModel:
                     c.on_event = None
                 c.flush_tx()
             ch._tx.clear()
+            ch._ring.clear()
 
     def reset(self) -> None:
         """A device reset (after an OTA update or 0x8000:01): channels restart from the flash image."""
@@ -1236,6 +1383,7 @@ class McanModel:
             ch.runtime = None
             ch.clear_diagnostics()
             ch._rx.clear()
+            ch._fill = [0] * RX_STORES
         self.system.power_on()
 
     # -- settings <-> dictionary -----------------------------------------------------------------

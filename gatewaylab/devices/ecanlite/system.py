@@ -565,9 +565,10 @@ class SystemModel:
             status = RegisterStatus.WRITE_DENIED
         elif self.access_mode() is AccessMode.RUN:
             status = RegisterStatus.ACCESS_DENIED
-        else:
-            ch.write_register(offset, int(od.values[(index, 4)]))
+        elif ch.write_register(offset, int(od.values[(index, 4)])):
             status = RegisterStatus.OK
+        else:
+            status = RegisterStatus.WRITE_DENIED   # a value the channel cannot run (docs/decisions.md)
         ns = int(self.clock.now() * 1e9) & 0xFFFFFFFFFFFFFFFF
         out.update({3: int(status), 6: ns & 0xFFFFFFFF, 7: ns >> 32})
         self._put(index, out)
