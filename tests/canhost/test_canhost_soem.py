@@ -8,9 +8,9 @@ import json
 import subprocess
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import pytest
-from conftest import CanhostVeth
 
 from gatewaylab.bus.bus import VirtualBus
 from gatewaylab.canopen.drive import Drive
@@ -18,6 +18,9 @@ from gatewaylab.common.clock import RealTimeClock
 from gatewaylab.devices.ecanlite.device import EcanLiteDevice
 from gatewaylab.devices.esd_can_ethercat.device import create_esd_gateway
 from gatewaylab.ethercat.esc import AlState
+
+if TYPE_CHECKING:      # 'conftest' names another package's conftest when several are collected
+    from conftest import CanhostVeth
 from gatewaylab.ethercat.segment import Segment
 from gatewaylab.ethercat.wire import WireTransport
 
