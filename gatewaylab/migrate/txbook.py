@@ -17,9 +17,9 @@ from collections import deque
 from collections.abc import Iterable
 
 from ..bus.frame import CanFrame
-from ..common.errors import FrameError, LocalError
+from ..common.errors import LocalError
 from ..devices.ecanlite.stream import TxResultCode
-from ..devices.esd_can_ethercat.host.handshake import TN_MODULO, TxQueueFull
+from ..devices.esd_can_ethercat.host.handshake import TransactionNumbers
 
 __all__ = ["TxBook"]
 
@@ -27,21 +27,16 @@ __all__ = ["TxBook"]
 FINAL = frozenset(c for c in TxResultCode if c != TxResultCode.QUEUED)
 
 
-class TxBook:
+class TxBook(TransactionNumbers):
     """Transaction numbers, batches and completion of one esd queue on one MCAN channel (no I/O)."""
 
     def __init__(self, tx_queue: int, tx_room: int, *, extended: bool, tx_limit: int) -> None:
-        if not 0 < tx_limit < TN_MODULO // 2:
-            raise LocalError(f"tx_limit must be 1..{TN_MODULO // 2 - 1}")
+        super().__init__(tx_limit)
         if not 0 < tx_queue <= tx_room:
             raise LocalError(f"Tx queue size {tx_queue} must be 1..{tx_room} (the TX FIFO takes a batch whole)")
         self.tx_queue = tx_queue
         self.tx_room = tx_room
         self.extended = extended
-        self.tx_limit = tx_limit
-        self._next_tn = 1
-        self._seq = 0                                      # issue order
-        self._seq_of: dict[int, int] = {}                  # tn -> its latest issue
         self._pending: deque[tuple[int, CanFrame]] = deque()
         self._taken = 0                                    # given out by take_batch, not yet published
         self._unaccepted: list[int] = []                   # published, the image not yet through
@@ -51,8 +46,6 @@ class TxBook:
         self._results: dict[int, TxResultCode] = {}        # final results not yet a completed prefix
         self._outcome: dict[int, TxResultCode] = {}        # results of completed tns (the recent ones)
         self._open = 0                                     # published without a final result: TX FIFO use
-        self.accepted_seq = 0
-        self.completed_seq = 0
         #: TX_RESULTs naming no (sequence, index) of the table (e.g. from before a restart).
         self.unmatched = 0
         #: take_batch calls that gave nothing though frames waited (no room, or held).
@@ -63,25 +56,11 @@ class TxBook:
         """Queue ``frames`` in order; their transaction numbers. FrameError (a frame the esd queues
         cannot carry) or TxQueueFull (beyond ``tx_limit``): nothing is queued."""
         batch = list(frames)
-        for f in batch:
-            if f.fd:
-                raise FrameError("the esd queue API sends classic CAN frames only (5.1.5.3: 0..8 bytes)")
-            if f.extended and not self.extended:
-                raise FrameError(f"29-bit frame 0x{f.can_id:X} needs the 29-bit queues (0x8000:20 bit 0, "
-                                 "manual 5.1.5.4)")
-        in_use = len(self._pending) + self._taken + len(self._inflight)
-        if in_use + len(batch) > self.tx_limit:
-            raise TxQueueFull(f"{in_use} frames queued or in flight, {len(batch)} more exceed "
-                              f"the limit of {self.tx_limit}", in_use)
-        tns = []
-        for f in batch:
-            tn = self._next_tn
-            self._next_tn = tn % (TN_MODULO - 1) + 1
-            self._seq += 1
-            self._seq_of[tn] = self._seq
+        tns = self._number(batch, extended=self.extended,
+                           in_use=len(self._pending) + self._taken + len(self._inflight))
+        for tn, f in zip(tns, batch, strict=True):
             self._outcome.pop(tn, None)
             self._pending.append((tn, f))
-            tns.append(tn)
         return tns
 
     def take_batch(self, hold: bool = False) -> list[tuple[int, CanFrame]]:
@@ -147,20 +126,6 @@ class TxBook:
         return tn, frame
 
     # ------------------------------------------------------------------ queries
-    def _issue(self, tn: int) -> int:
-        try:
-            return self._seq_of[tn]
-        except KeyError:
-            raise LocalError(f"transaction number {tn} was not handed out") from None
-
-    def accepted(self, tn: int) -> bool:
-        """The image carrying ``tn`` reached the device."""
-        return self._issue(tn) <= self.accepted_seq
-
-    def completed(self, tn: int) -> bool:
-        """``tn`` and every transaction before it have a final TX_RESULT."""
-        return self._issue(tn) <= self.completed_seq
-
     def result(self, tn: int) -> TxResultCode | None:
         """The final TX_RESULT of a completed ``tn``; None while it is not completed."""
         self._issue(tn)

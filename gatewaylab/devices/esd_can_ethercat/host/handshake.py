@@ -78,19 +78,71 @@ class RxFrame:
     batch: int          # the input Rx counter of its batch
 
 
-class Handshake:
+class TransactionNumbers:
+    """The esd API's transaction numbers (5.1.5.1), shared by every implementation of that API:
+    1..FFFFh in issue order, then 1 again; a number is *accepted* once the gateway took the batch
+    carrying it and *completed* once it and every frame before it are done (the completed ones are
+    always a prefix, as the input Tx Transaction Number reports them)."""
+
+    def __init__(self, tx_limit: int) -> None:
+        if not 0 < tx_limit < TN_MODULO // 2:
+            raise LocalError(f"tx_limit must be 1..{TN_MODULO // 2 - 1}")
+        self.tx_limit = tx_limit
+        self._next_tn = 1
+        self._seq = 0                         # issue order of transaction numbers
+        self._seq_of: dict[int, int] = {}     # transaction number -> its latest issue
+        self.accepted_seq = 0
+        self.completed_seq = 0
+
+    def _number(self, batch: list[CanFrame], *, extended: bool, in_use: int) -> list[int]:
+        """Transaction numbers for ``batch`` (all or none): FrameError for a frame the esd queues
+        cannot carry, TxQueueFull when the host would keep more than ``tx_limit`` frames."""
+        for f in batch:
+            if f.fd:
+                raise FrameError("the esd queues carry classic CAN frames only (5.1.5.3: 0..8 bytes)")
+            if f.extended and not extended:
+                raise FrameError(f"29-bit frame 0x{f.can_id:X} needs the 29-bit queues (0x8000:20 bit 0, "
+                                 "manual 5.1.5.4)")
+        if in_use + len(batch) > self.tx_limit:
+            raise TxQueueFull(f"{in_use} frames queued or in flight, {len(batch)} more exceed "
+                              f"the limit of {self.tx_limit}", in_use)
+        tns = []
+        for _ in batch:
+            tn = self._next_tn
+            self._next_tn = tn % (TN_MODULO - 1) + 1          # 1 .. 0xFFFF, then 1 again
+            self._seq += 1
+            self._seq_of[tn] = self._seq
+            tns.append(tn)
+        return tns
+
+    def _issue(self, tn: int) -> int:
+        try:
+            return self._seq_of[tn]
+        except KeyError:
+            raise LocalError(f"transaction number {tn} was not handed out") from None
+
+    def accepted(self, tn: int) -> bool:
+        """The gateway took the batch carrying ``tn`` (esd: its Tx counter came back; ECAN-Lite: the
+        image carrying it went through)."""
+        return self._issue(tn) <= self.accepted_seq
+
+    def completed(self, tn: int) -> bool:
+        """The gateway is done with ``tn`` and every frame before it (in-order sending; a frame the
+        gateway aborted completes with the next one sent)."""
+        return self._issue(tn) <= self.completed_seq
+
+
+class Handshake(TransactionNumbers):
     """Counter handshake of one gateway on its output and input bytes (no I/O, no clock)."""
 
     def __init__(self, layout: QueueLayout, *, tx_counter: int = 0, rx_counter: int = 0,
                  tx_limit: int = DEFAULT_TX_LIMIT, rx_limit: int = DEFAULT_RX_LIMIT) -> None:
-        if not 0 < tx_limit < TN_MODULO // 2:
-            raise LocalError(f"tx_limit must be 1..{TN_MODULO // 2 - 1}")
+        super().__init__(tx_limit)
         if layout.tx_messages < 1 or layout.rx_messages < 1:
             raise LocalError("the layout needs at least one Tx and one Rx message")
         if rx_limit < layout.rx_messages:
             raise LocalError(f"rx_limit {rx_limit} cannot hold one Rx batch of {layout.rx_messages}")
         self.layout = layout
-        self.tx_limit = tx_limit
         self.rx_limit = rx_limit
         self.out_tx = tx_counter & 0xFFFF     # output Tx Counter Application
         self.out_rx = rx_counter & 0xFFFF     # output Rx Counter Application
@@ -98,15 +150,10 @@ class Handshake:
         self.in_rx = -1
         self.in_tn = 0                        # input Tx Transaction Number
         self._num_tx = 0
-        self._next_tn = 1
-        self._seq = 0                         # issue order of transaction numbers
-        self._seq_of: dict[int, int] = {}     # transaction number -> its latest issue
         self._pending: deque[tuple[int, CanFrame]] = deque()
         self._batch: list[int] = []           # written, not yet acknowledged by the Tx counter
         self._copied: deque[int] = deque()    # acknowledged (copied), not yet reported sent
         self._copied_set: set[int] = set()
-        self.accepted_seq = 0
-        self.completed_seq = 0
         self._received: deque[RxFrame] = deque()
         self.status: CanStatus | None = None  # from the 0x1A85 PDO when assigned
         self._overflow_seen = False
@@ -119,47 +166,14 @@ class Handshake:
         self.rx_invalid = 0                   # Rx messages no CAN frame can carry (skipped)
 
     # ------------------------------------------------------------------ Tx
-    def _check(self, frame: CanFrame) -> None:
-        if frame.fd:
-            raise FrameError("the CAN-EtherCAT sends classic CAN frames only (5.1.5.3: 0..8 bytes)")
-        if frame.extended and not self.layout.extended:
-            raise FrameError(f"29-bit frame 0x{frame.can_id:X} needs the 29-bit queues (0x8000:20 bit 0, "
-                             "manual 5.1.5.4)")
-
     def submit(self, frames: Iterable[CanFrame]) -> list[int]:
         """Queue ``frames`` in order; returns their transaction numbers. Raises TxQueueFull (nothing
         queued) when the host would keep more than ``tx_limit`` frames."""
         batch = list(frames)
-        for f in batch:
-            self._check(f)
         in_use = len(self._pending) + len(self._batch) + len(self._copied)
-        if in_use + len(batch) > self.tx_limit:
-            raise TxQueueFull(f"{in_use} frames queued or in flight, {len(batch)} more exceed "
-                              f"the limit of {self.tx_limit}", in_use)
-        tns = []
-        for f in batch:
-            tn = self._next_tn
-            self._next_tn = tn % (TN_MODULO - 1) + 1          # 1 .. 0xFFFF, then 1 again
-            self._seq += 1
-            self._seq_of[tn] = self._seq
-            self._pending.append((tn, f))
-            tns.append(tn)
+        tns = self._number(batch, extended=self.layout.extended, in_use=in_use)
+        self._pending.extend(zip(tns, batch, strict=True))
         return tns
-
-    def _issue(self, tn: int) -> int:
-        try:
-            return self._seq_of[tn]
-        except KeyError:
-            raise LocalError(f"transaction number {tn} was not handed out") from None
-
-    def accepted(self, tn: int) -> bool:
-        """The gateway copied the frame into its local Tx queue (its batch's Tx counter came back)."""
-        return self._issue(tn) <= self.accepted_seq
-
-    def completed(self, tn: int) -> bool:
-        """The gateway is done with the frame: the input Tx Transaction Number reached it or a later
-        frame (in-order sending; a frame the gateway aborted completes with the next one sent)."""
-        return self._issue(tn) <= self.completed_seq
 
     @property
     def pending(self) -> int:
