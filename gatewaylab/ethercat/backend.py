@@ -187,6 +187,33 @@ def sii_complete(img: bytes | bytearray) -> bool:
 _STATES = frozenset(int(s) for s in AlState)
 
 
+class _StatePolled(Protocol):
+    clock: Clock
+
+    def al_status(self, position: int) -> tuple[int, int]: ...
+    def exchange(self) -> tuple[int, int]: ...
+
+
+def await_state(backend: _StatePolled, pos: int, state: AlState, timeout: float, *, exchanging: bool) -> None:
+    """Poll slave ``pos``'s AL status every STATE_POLL until it shows ``state``, exchanging process
+    data meanwhile when the segment is mapped and the target is SAFEOP/OP (the SM watchdog); the
+    one wait of every backend. AlStatusError with the slave's code when refused, MasterTimeout."""
+    deadline = backend.clock.now() + timeout
+    while True:
+        status, code = backend.al_status(pos)
+        if status & AL_ERROR:
+            raise AlStatusError(f"slave {pos} refused {state.name}: AL status 0x{status:02X}, "
+                                f"code {al_status_name(code)}", code)
+        if status & 0x0F == state:
+            return
+        if backend.clock.now() >= deadline:
+            raise MasterTimeout(f"slave {pos} did not reach {state.name} within {timeout:g} s "
+                                f"(AL status 0x{status:02X})")
+        if exchanging and state in (AlState.SAFEOP, AlState.OP):
+            backend.exchange()
+        backend.clock.wait(STATE_POLL)
+
+
 def _state_of(status: int) -> AlState:
     try:
         return AlState(status & 0x0F)
@@ -488,21 +515,8 @@ class InProcessBackend:
                 self._call(m.request_state, pos, state, ack=bool(status & AL_ERROR))
             except AlStatusError:
                 pass  # checked below: the slave may still be on its way
-            deadline = self.clock.now() + timeout
-            while True:
-                status, code = self.al_status(pos)
-                if status & AL_ERROR:
-                    raise AlStatusError(f"slave {pos} refused {state.name}: AL status 0x{status:02X}, "
-                                        f"code {al_status_name(code)}", code)
-                if status & 0x0F == state:
-                    m.slave(pos).boot = state == AlState.BOOT
-                    break
-                if self.clock.now() >= deadline:
-                    raise MasterTimeout(f"slave {pos} did not reach {state.name} within {timeout:g} s "
-                                        f"(AL status 0x{status:02X})")
-                if self._mapped and state in (AlState.SAFEOP, AlState.OP):
-                    self.exchange()
-                self.clock.wait(STATE_POLL)
+            await_state(self, pos, state, timeout, exchanging=self._mapped)
+            m.slave(pos).boot = state == AlState.BOOT
         return state
 
     def sdo_upload(self, position: int, index: int, subindex: int, complete: bool = False) -> bytes:

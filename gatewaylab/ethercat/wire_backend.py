@@ -22,7 +22,6 @@ from .backend import (
     RETRY_SETTLE,
     SCAN_ATTEMPTS,
     SCAN_RETRY,
-    STATE_POLL,
     U16,
     U32,
     EntryInfo,
@@ -32,7 +31,7 @@ from .backend import (
     SlaveIdentity,
     _MailboxPort,
     _state_of,
-    al_status_name,
+    await_state,
     sii_complete,
 )
 from .errors import AlStatusCode, AlStatusError, MailboxError, MasterError, SdoAbort
@@ -225,20 +224,7 @@ class PysoemBackend:
             elif current == AlState.BOOT and state != AlState.BOOT:
                 self._set_boot_mailbox(pos, False)
             self._write_control(pos, int(state) | (AL_ERROR if status & AL_ERROR else 0))
-            deadline = self.clock.now() + timeout
-            while True:
-                status, code = self.al_status(pos)
-                if status & AL_ERROR:
-                    raise AlStatusError(f"slave {pos} refused {state.name}: AL status 0x{status:02X}, "
-                                        f"code {al_status_name(code)}", code)
-                if status & 0x0F == state:
-                    break
-                if self.clock.now() >= deadline:
-                    raise MasterTimeout(f"slave {pos} did not reach {state.name} within {timeout:g} s "
-                                        f"(AL status 0x{status:02X})")
-                if self._mapped and state in (AlState.SAFEOP, AlState.OP):
-                    self.exchange()
-                self.clock.wait(STATE_POLL)
+            await_state(self, pos, state, timeout, exchanging=self._mapped)
         return state
 
     def _write_control(self, pos: int, control: int) -> None:
