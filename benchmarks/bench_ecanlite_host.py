@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import struct
 import subprocess
 import sys
@@ -38,6 +37,7 @@ from gatewaylab.devices.ecanlite.host.cia402 import Cia402
 from gatewaylab.devices.ecanlite.host.demo import rig_axes, rig_toml
 from gatewaylab.devices.ecanlite.host.port import ChannelConfig, McanPort, PortConfig
 from gatewaylab.ethercat.backend import InProcessBackend
+from gatewaylab.ethercat.wire_netns import net_unavailable, veth_namespace
 from gatewaylab.rig.runtime import Rig
 
 LAYOUT = ((1, 2, 3), (4, 5, 6), (7, 8), (9, 10))
@@ -115,24 +115,15 @@ def baseline(sim_seconds: float, step: int = 20) -> float:
 def wire_run(cycles: int, step: int = 20) -> dict[str, Any] | str:
     """The ten axes over veth with pysoem: the report of ``gatewaylab ecan cia402 --json``, or why
     the run was skipped."""
-    if os.geteuid() != 0 or shutil.which("ip") is None:
-        return "needs root and iproute2 to create a namespace and a veth pair"
-    try:
-        import pysoem  # noqa: F401
-    except ImportError:
-        return "pysoem is not installed"
+    skip = net_unavailable("pysoem")
+    if skip:
+        return skip
     from gatewaylab.common.clock import RealTimeClock
     from gatewaylab.devices.ecanlite.device import EcanLiteDevice
     from gatewaylab.ethercat.segment import Segment
     from gatewaylab.ethercat.wire import WireTransport
 
-    tag = f"{os.getpid() % 100000}"
-    ns, emu, mst = f"gl-bhost-{tag}", f"glh{tag}e", f"glh{tag}m"
-    subprocess.run(["ip", "netns", "add", ns], check=True)
-    try:
-        subprocess.run(["ip", "link", "add", emu, "type", "veth", "peer", "name", mst, "netns", ns], check=True)
-        subprocess.run(["ip", "link", "set", emu, "up"], check=True)
-        subprocess.run(["ip", "netns", "exec", ns, "ip", "link", "set", mst, "up"], check=True)
+    with veth_namespace("gl-bhost-", "glh") as (ns, emu, mst):
         clock = RealTimeClock()
         buses = [VirtualBus(clock, f"can{k}", 1_000_000) for k in range(len(LAYOUT))]
         drives = [Drive(clock, bus, n, 0x1000 + n, store_path=None)
@@ -153,9 +144,6 @@ def wire_run(cycles: int, step: int = 20) -> dict[str, Any] | str:
                     capture_output=True, text=True, timeout=cycles / 1000 * 10 + 300, check=False)
             finally:
                 wire.stop()
-    finally:
-        subprocess.run(["ip", "link", "del", emu], check=False, capture_output=True)
-        subprocess.run(["ip", "netns", "del", ns], check=False)
     if not proc.stdout.strip():
         return f"the master failed (exit {proc.returncode}): {proc.stderr.strip()[-500:]}"
     report: dict[str, Any] = json.loads(proc.stdout)

@@ -11,16 +11,16 @@ Not imported by ``gatewaylab``: the benchmarks are the only users (the tests hav
 
 from __future__ import annotations
 
-import contextlib
-import importlib.util
 import json
 import os
-import shutil
 import subprocess
 import sys
 import time
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
+
+from gatewaylab.ethercat.wire_netns import net_unavailable
+from gatewaylab.ethercat.wire_netns import veth_namespace as veth_namespace  # the benches take it from here
 
 #: the project root: the master subprocess runs ``python -m benchmarks.X`` from there
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -31,12 +31,8 @@ SPIN_S = 0.0003
 def skip_reason(*modules: str) -> str | None:
     """None when this process may create a namespace and a veth pair (and can import ``modules``), else
     the line the benchmark prints instead of running."""
-    if os.geteuid() != 0 or shutil.which("ip") is None:
-        return "skipped: needs root and iproute2 to create a namespace and a veth pair"
-    for module in modules:
-        if importlib.util.find_spec(module) is None:
-            return f"skipped: {module} is not installed"
-    return None
+    reason = net_unavailable(*modules)
+    return f"skipped: {reason}" if reason else None
 
 
 def bench_seconds(default: float, *modules: str) -> float | None:
@@ -63,23 +59,6 @@ def pct(values: Sequence[float], q: float) -> float:
         return float("nan")
     s = sorted(values)
     return s[min(len(s) - 1, int(q * len(s)))]
-
-
-@contextlib.contextmanager
-def veth_namespace(ns_prefix: str, if_prefix: str) -> Iterator[tuple[str, str, str]]:
-    """(namespace, emulator interface here, master interface inside the namespace), both ends up; the
-    pair and the namespace are deleted on exit. Names carry the process id (Linux: 15 characters)."""
-    tag = f"{os.getpid() % 100000}"
-    ns, emu, mst = f"{ns_prefix}{tag}", f"{if_prefix}{tag}e", f"{if_prefix}{tag}m"
-    subprocess.run(["ip", "netns", "add", ns], check=True)
-    try:
-        subprocess.run(["ip", "link", "add", emu, "type", "veth", "peer", "name", mst, "netns", ns], check=True)
-        subprocess.run(["ip", "link", "set", emu, "up"], check=True)
-        subprocess.run(["ip", "netns", "exec", ns, "ip", "link", "set", mst, "up"], check=True)
-        yield ns, emu, mst
-    finally:
-        subprocess.run(["ip", "link", "del", emu], check=False, capture_output=True)
-        subprocess.run(["ip", "netns", "del", ns], check=False)
 
 
 def run_in_namespace(ns: str, module: str, args: Sequence[str], timeout: float,

@@ -13,26 +13,22 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import importlib.util
 import itertools
 import json
-import os
-import shutil
-import signal
 import subprocess
 import sys
 import tempfile
 import threading
 import traceback
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from types import FrameType
 from typing import Any
 
 from ..bus.frame import CanFrame
 from ..devices.canhost.host import EthercatHost
 from ..ethercat.backend import PysoemBackend
+from ..ethercat.wire_netns import net_unavailable, veth_namespace
 from .compare import AppEvent, AppEventKind, Frame, Recording
 from .compare_run import PDO_N, SETTLE_S, CanRecorder, Recorder, RecordingBus, Runner, load_app, position_of, to_frame
 
@@ -63,50 +59,7 @@ RealtimeOpener = Callable[[str, str], WireLine]
 
 def wire_unavailable() -> str | None:
     """None when this process may make a veth pair in a namespace and run SOEM, else why not."""
-    if not sys.platform.startswith("linux"):
-        return "needs Linux (AF_PACKET sockets, network namespaces)"
-    if shutil.which("ip") is None:
-        return "needs the ip tool (iproute2)"
-    if importlib.util.find_spec("pysoem") is None:
-        return "needs pysoem (pip install pysoem)"
-    try:
-        status = Path("/proc/self/status").read_text()
-        cap = int(next(line for line in status.splitlines() if line.startswith("CapEff:")).split()[1], 16)
-    except (OSError, StopIteration, ValueError):
-        return "cannot read the process capabilities"
-    if not (cap >> 12) & 1 or not (cap >> 13) & 1:
-        return "needs CAP_NET_ADMIN and CAP_NET_RAW (run as root)"
-    return None
-
-
-def _ip(*args: str) -> None:
-    subprocess.run(["ip", *args], check=True, capture_output=True, text=True)
-
-
-@contextlib.contextmanager
-def veth_namespace() -> Iterator[tuple[str, str, str]]:
-    """(namespace, rig end here, master end inside the namespace); both removed on every exit path
-    (SIGTERM included: it is turned into SystemExit while the pair exists, on the main thread)."""
-    tag = f"{os.getpid() % 100000}{next(_names)}"
-    ns, emu, mst = f"gl-cmp-{tag}", f"glcmp{tag}e", f"glcmp{tag}m"
-    previous: Any = None
-    if threading.current_thread() is threading.main_thread():
-        def terminate(signum: int, frame: FrameType | None) -> None:
-            raise SystemExit(128 + signum)
-        previous = signal.signal(signal.SIGTERM, terminate)
-    try:
-        _ip("netns", "add", ns)
-        try:
-            _ip("link", "add", emu, "type", "veth", "peer", "name", mst, "netns", ns)
-            _ip("link", "set", emu, "up")
-            _ip("netns", "exec", ns, "ip", "link", "set", mst, "up")
-            yield ns, emu, mst
-        finally:
-            subprocess.run(["ip", "link", "del", emu], check=False, capture_output=True)
-            subprocess.run(["ip", "netns", "del", ns], check=False, capture_output=True)
-    finally:
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
+    return net_unavailable("pysoem")
 
 
 def wire_runner(open_rig: RealtimeOpener) -> Runner:
@@ -116,7 +69,7 @@ def wire_runner(open_rig: RealtimeOpener) -> Runner:
     def run(gateway: tuple[str, str, str], app_path: Path, seconds: float | None, cycle_us: int) -> Recording:
         kind, _prefix, display = gateway
         frames: list[tuple[CanFrame, float]] = []
-        with veth_namespace() as (ns, emu, mst), tempfile.TemporaryDirectory() as tmp:
+        with veth_namespace("gl-cmp-", "glcmp") as (ns, emu, mst), tempfile.TemporaryDirectory() as tmp:
             line = open_rig(kind, emu)
             epoch = line.wall_epoch
 
