@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import struct
+import xml.etree.ElementTree as ET
 from collections.abc import Callable
 from pathlib import Path
 
@@ -20,6 +21,7 @@ from gatewaylab.devices.ecanlite.device import EcanLiteDevice
 from gatewaylab.devices.ecanlite.image import ecanlite_description
 from gatewaylab.devices.esd_can_ethercat.device import EsdGateway
 from gatewaylab.devices.ethercat_drive import EthercatDrive
+from gatewaylab.ethercat.esi import export_esi
 from gatewaylab.ethercat.io_device import create_io_slave
 from gatewaylab.ethercat.master import Master
 from gatewaylab.ethercat.segment import Segment
@@ -138,3 +140,13 @@ def test_sii_control_configuration_bits_are_read_only() -> None:
         master.fpwr(station, 0x0502, struct.pack("<HHH", 0x0100, word, 0))
         assert struct.unpack("<H", master.fprd(station, 0x0502, 2))[0] == 0x00C0
         assert master.fprd(station, 0x0508, 4) == bytes(slave.sii[2 * word:2 * word + 4])
+
+
+@pytest.mark.parametrize("kind", sorted(KINDS))
+def test_esi_of_every_kind_is_well_formed(kind: str, tmp_path: Path) -> None:
+    """ETG.2000: the ESI is XML 1.0 (no NUL in a DefaultString: empty STRING(16) units go out as hex
+    DefaultData), and its Eeprom element gives the SII's size and configuration area."""
+    slave = KINDS[kind](SimulatedClock(), tmp_path)
+    root = ET.fromstring(export_esi(slave.desc, slave.od))
+    assert root.findtext("Descriptions/Devices/Device/Eeprom/ByteSize") == str(len(slave.sii))
+    assert root.findtext("Descriptions/Devices/Device/Eeprom/ConfigData") == bytes(slave.sii[:14]).hex().upper()
