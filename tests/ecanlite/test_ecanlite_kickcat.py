@@ -1,7 +1,7 @@
 """KickCAT (PyPI ``kickcat``, an independent C++ master) drives the ECAN-Lite over a veth pair as manual 5.4
 tells a third-party master to: the power-on default (5.1: N = 8, 1024 B each way) reaches OP untouched;
-back in PREOP 5.4.3 phases A-E over CoE set N = 3 and the channels, OP again, and the 5.4.4.1 frame
-written into the RxPDO reaches CAN0. KickCAT runs in a subprocess inside a network namespace."""
+on a new scan 5.4.3 phases A-E over CoE set N = 3 and the channels, OP, and the 5.4.4.1 frame written
+into the RxPDO reaches CAN0. KickCAT runs in a subprocess inside a network namespace."""
 
 from __future__ import annotations
 

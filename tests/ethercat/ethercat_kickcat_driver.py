@@ -16,7 +16,7 @@ from typing import Any
 import kickcat
 
 #: Link timeouts of the bring-up attempts, short first (see tests/ecanlite/ecanlite_kickcat_driver.py).
-INIT_TIMEOUTS_S = (0.03, 0.05, 0.1, 0.1, 0.2, 0.2)
+INIT_TIMEOUTS_S = (0.03, 0.05, 0.1, 0.2, 0.3)
 CYCLE_TIMEOUT_S = 0.05
 OUT = struct.Struct("<Bhh")
 IN = struct.Struct("<BhhI")
