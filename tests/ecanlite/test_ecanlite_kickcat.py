@@ -61,7 +61,7 @@ def run() -> Iterator[dict[str, Any]]:
             gc.freeze()     # no full collection of the suite's objects stalls the wire thread
             wire.start()
             try:
-                for _attempt in range(2):   # a new master after a scan the loaded VM answered too late
+                for _attempt in range(3):   # a new master after a scan the loaded VM answered too late
                     proc = subprocess.run(["ip", "netns", "exec", ns, sys.executable, str(DRIVER), mst, str(CYCLES)],
                                           capture_output=True, text=True, timeout=900, check=False)
                     if proc.returncode == 0 or "KickCAT init failed" not in proc.stderr:
