@@ -68,6 +68,8 @@ SII_ERR_CHECKSUM = 0x0800
 SII_ERR_ACK = 0x2000
 SII_ERR_WRITE_ENABLE = 0x4000
 SII_READ8 = 0x0040
+#: 0x0502 bit 7: EEPROM above 16 kbit, two address bytes (ET1100: bits 5..7 are read-only configuration)
+SII_TWO_ADDRESS_BYTES = 0x0080
 SM_STATUS_FULL = 0x08
 SM_STATUS_WRITE_EVENT = 0x01
 SM_STATUS_READ_EVENT = 0x02
@@ -245,7 +247,7 @@ class Esc:
         U16.pack_into(m, REG_WD_TIME_PDI, 1000)
         U16.pack_into(m, REG_WD_TIME_SM, 1000)  # 100 ms
         # 8-byte reads; 'two address bytes' (bit 7) for EEPROMs above 16 kbit
-        U16.pack_into(m, REG_SII_CONTROL, SII_READ8 | (0x0080 if len(self.eeprom) > 2048 else 0))
+        U16.pack_into(m, REG_SII_CONTROL, self._sii_config_bits())
         for lo, hi in ((0x0000, 0x0010), (0x0110, 0x0112), (0x0130, 0x0138), (0x0140, 0x0142),
                        (0x0150, 0x0154), (0x0210, 0x0214), (0x0440, 0x0444), (0x0918, 0x0920),
                        (REG_DC_SYNC0_STATUS, REG_DC_SYNC0_STATUS + 2)):
@@ -756,11 +758,17 @@ class Esc:
         self.force_state(AlState.SAFEOP, AlStatusCode.SM_WATCHDOG)
 
     # ------------------------------------------------------------------ SII EEPROM interface
+    def _sii_config_bits(self) -> int:
+        """0x0502 bits 5..7, fixed by the hardware: 8-byte reads, address bytes by EEPROM size."""
+        return SII_READ8 | (SII_TWO_ADDRESS_BYTES if len(self.eeprom) > 2048 else 0)
+
     def _sii_command(self) -> None:
         mem = self.mem
         ctrl = U16.unpack_from(mem, REG_SII_CONTROL)[0]
         cmd = (ctrl >> 8) & 0x07
-        status = (ctrl & 0x00E0) | SII_READ8  # keep config bits, clear errors/command/busy
+        # A master writes the whole word (KickCAT: 0x0100 for a read): the configuration bits stay what
+        # the hardware says; errors, command and busy are cleared.
+        status = self._sii_config_bits()
         if cmd == 0:
             U16.pack_into(mem, REG_SII_CONTROL, status)
             return

@@ -45,7 +45,9 @@ def _pdo(parent: ET.Element, tag: str, pdo: Pdo, sm: int | None) -> None:
         _sub(entry, "BitLen", str(e.bit_length))
         if e.index:
             _sub(entry, "Name", e.name)
-            _sub(entry, "DataType", ESI_TYPE_NAMES.get(e.data_type, "USINT"))
+            name = ESI_TYPE_NAMES.get(e.data_type, "USINT")
+            # a string entry names its length, as the dictionary part does (ETG.2000: STRING(n))
+            _sub(entry, "DataType", f"STRING({e.bit_length // 8})" if name == "STRING" else name)
 
 
 def export_esi(desc: DeviceDescription, od: ObjectDictionary | None = None) -> str:

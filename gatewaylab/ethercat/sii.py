@@ -74,12 +74,13 @@ def _category(kind: int, data: bytes) -> bytes:
     return CATEGORY_HEADER.pack(kind, len(data) // 2) + data
 
 
-def _pdos(pdos: tuple[Pdo, ...], assigned: tuple[Pdo, ...], sm: int, strings: _Strings) -> bytes:
-    """PDO category; PDOs not assigned by default carry SyncM 0xFF (not assigned)."""
+def _pdos(assigned: tuple[Pdo, ...], sm: int, strings: _Strings) -> bytes:
+    """PDO category: the PDOs assigned at power-on, the default a master without CoE uses. The
+    alternatives a CoE master may assign are in the ESI only: masters read the SII 4 bytes per
+    round trip (KickCAT), so every listed PDO lengthens their scan (docs/decisions.md, issue 10)."""
     out = bytearray()
-    for pdo in pdos:
-        out += PDO_HEADER.pack(pdo.index, len(pdo.entries), sm if pdo in assigned else 0xFF, 0,
-                               strings.add(pdo.name), 0)
+    for pdo in assigned:
+        out += PDO_HEADER.pack(pdo.index, len(pdo.entries), sm, 0, strings.add(pdo.name), 0)
         for e in pdo.entries:
             out += PDO_ENTRY.pack(e.index, e.subindex, strings.add(e.name) if e.index else 0,
                                   int(e.data_type) if e.index else 0, e.bit_length, 0)
@@ -133,8 +134,8 @@ def build_sii(desc: DeviceDescription, alias: int = 0) -> bytes:
     sms += SM_ENTRY.pack(desc.inputs_start, desc.inputs_sii_size, desc.inputs_control, 0,
                          1 if desc.inputs_sii_size else 0, SmType.INPUTS)
     sm_out = 2 if has_mbx else 0
-    txpdo = _pdos(desc.tx_pdos, desc.assigned_tx_pdos, sm_out + 1, strings)
-    rxpdo = _pdos(desc.rx_pdos, desc.assigned_rx_pdos, sm_out, strings)
+    txpdo = _pdos(desc.assigned_tx_pdos, sm_out + 1, strings)
+    rxpdo = _pdos(desc.assigned_rx_pdos, sm_out, strings)
     cats = bytearray()
     cats += _category(Category.STRINGS, strings.encode())
     cats += _category(Category.GENERAL, general)

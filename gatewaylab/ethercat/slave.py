@@ -176,10 +176,25 @@ class Slave:
         return all(a[1] <= b[0] for a, b in itertools.pairwise(ranges))
 
     def _pd_sm_ok(self, index: int, start: int, length: int, mode: int) -> bool:
+        """Start, length and direction as the SII says. The buffer type may differ from the SII's (KickCAT
+        programs 3-buffer process data SyncManagers whatever the SII says) when the buffers then still
+        fit: three times the length inside the process RAM, clear of every other SyncManager
+        (docs/decisions.md, issue 10: KickCAT interop)."""
         sm = self.esc.sm_config(index)
         if length == 0:
             return not sm.enabled
-        return sm.enabled and sm.start == start and sm.length == length and (sm.control & 0x0F) == mode
+        if not (sm.enabled and sm.start == start and sm.length == length and (sm.control & 0x0C) == mode & 0x0C):
+            return False
+        if (sm.control & 0x03) == mode & 0x03:
+            return True
+        end = start + length * (1 if sm.mailbox else 3)
+        if end > len(self.esc.mem):
+            return False
+        for i in range(self.esc.n_sm):
+            other = self.esc.sm_config(i)
+            if i != index and self.esc.sm_in_use(i) and other.start < end and start < other.start + other.length:
+                return False
+        return True
 
     def state_changed(self, old: AlState, new: AlState, code: int) -> None:
         """ESC callback after an AL state change: mailbox reset, safe outputs, application."""

@@ -48,7 +48,9 @@ def _flags(parent: ET.Element, e: Entry) -> None:
 
 def _default(parent: ET.Element, od: ObjectDictionary, e: Entry) -> None:
     raw = od.get_bytes(e.index, e.subindex)
-    if e.data_type == DataType.VISIBLE_STRING:
+    # XML 1.0 has no NUL or other control characters: a string holding any (an empty STRING(16) unit
+    # is 16 NULs) goes out as hex DefaultData, or the ESI would not be well-formed
+    if e.data_type == DataType.VISIBLE_STRING and all(0x20 <= b < 0x7F for b in raw):
         _sub(parent, "DefaultString", raw.decode("latin-1"))
     else:
         _sub(parent, "DefaultData", raw.hex().upper())

@@ -189,7 +189,7 @@ def test_soem_with_a_slave_without_mailbox(veth_ns: Any) -> None:
 
 def test_soem_with_one_buffer_chunked_layout(veth_ns: Any, chunked_description: Any) -> None:
     """ECAN-Lite manual 5.3 layout (SM2 0x1100 / SM3 0x1D00, control 0x66 / 0x22, first N = 3
-    chunks of 0x1600../0x1A00.. assigned, 48 PDOs in an SII above 16 kbit): SOEM maps 384 B each way
+    chunks of 0x1600../0x1A00.. assigned, 48 PDOs in the dictionary): SOEM maps 384 B each way
     and every cycle of the 1-buffer handshake gets the expected working counter."""
     import dataclasses
 
