@@ -251,3 +251,43 @@ def test_delta16_timestamps_give_the_bus_receive_instant(tmp_path: Path) -> None
             assert abs(r.received - t_end) <= 1e-6 + 1e-9
             assert r.received < r.time                  # before the cycle that brought it
         assert port.parse_errors == 0
+
+
+def test_frames_survive_several_wrong_working_counters(tmp_path: Path) -> None:
+    """15.5.2 step 8 (domain incomplete) and 13.8 (an identical RxPDO image is an idempotent no-op):
+    an image carrying frames is repeated, unchanged, while the working counter stays wrong, so its
+    frames reach the bus exactly once when the line is back; after RESEND_LIMIT cycles the Port gives
+    it up (counted as unconfirmed) and new frames go out again."""
+    with host_rig(tmp_path, ((),)) as h:
+        adapter, port = classic_port(h.backend, channels=(0,), multiplier=1)
+        peer = python_can_bus(h.rig.buses["s0can0"])
+        master = h.backend.master
+        station = master.slave(0).station
+        saved = master.fprd(station, 0x0600, 32)
+        try:
+            port.run_cycles(2)
+            for i in range(3):
+                port.send_can(0, 0, 0x100 + i, bytes([i]))
+            master.fpwr(station, 0x0600, bytes(32))          # FMMUs off: the image does not arrive
+            port.run_cycles(5)
+            assert adapter.wkc_errors >= 5 and peer.recv(0) is None
+            master.fpwr(station, 0x0600, saved)
+            port.run_cycles(4)
+            heard = []
+            while (msg := peer.recv(0)) is not None:
+                heard.append((msg.arbitration_id, bytes(msg.data)))
+            assert heard == [(0x100 + i, bytes([i])) for i in range(3)]
+            assert port.unconfirmed_frames == 0
+            # a line that keeps failing: given up after the limit, counted, sending goes on
+            port.RESEND_LIMIT = 3
+            port.send_can(0, 0, 0x200, b"x")
+            master.fpwr(station, 0x0600, bytes(32))
+            port.run_cycles(6)
+            assert port.unconfirmed_frames == 1
+            master.fpwr(station, 0x0600, saved)
+            port.send_can(0, 0, 0x201, b"y")
+            port.run_cycles(4)
+            msg = peer.recv(0)
+            assert msg is not None and msg.arbitration_id == 0x201
+        finally:
+            peer.shutdown()

@@ -229,6 +229,10 @@ class McanPort:
 
     #: How many published RxPDO images are remembered to match late TX_RESULTs.
     TICKET_HISTORY = 64
+    #: Cycles an RxPDO image carrying frames is sent again while the working counter stays wrong
+    #: (the device takes a repeated image as a no-op, 13.8); after that its frames count as
+    #: ``unconfirmed_frames`` and new images go out (a line that keeps failing must not stop sending).
+    RESEND_LIMIT = 100
 
     def __init__(self, adapter: EcanAdapter, config: PortConfig | Mapping[int, PortConfig] | None = None) -> None:
         self.adapter = adapter
@@ -255,7 +259,7 @@ class McanPort:
         self._requests = itertools.count(1)
         self._rx: deque[RxFrame] = deque()
         self._results: deque[TxResult] = deque()
-        self._resent = False
+        self._resends = 0
         # clock times of the last three exchanges: the TxPDO read at the last one was built by the
         # device at the one before, its delta timestamps count from the build before that (8.4)
         self._exchanges: deque[float] = deque(maxlen=3)
@@ -267,6 +271,8 @@ class McanPort:
         self.device_overflow = 0        # sum of overflow_sat
         self.held_frames = 0            # frames that waited a cycle: the RxPDO frame area was full
         self.frames_sent = 0
+        #: frames of images given up after RESEND_LIMIT wrong working counters (maybe never sent)
+        self.unconfirmed_frames = 0
         self.frames_received = 0
         self._unparsed = False
 
@@ -436,11 +442,17 @@ class McanPort:
     def cycle_end(self) -> CycleStatus:
         """Publish every slave's RxPDO (a new sequence each cycle) and run the exchange.
 
-        After a cycle whose working counter was wrong, the same image is sent again: the device
-        takes an identical image as an idempotent no-op (13.8) and a lost one as new."""
+        After a cycle whose working counter was wrong, an image that carried frames is sent again,
+        unchanged, until a cycle is complete (at most RESEND_LIMIT times): the device takes an
+        identical image as an idempotent no-op (13.8) and a lost one as new, so no frame is lost
+        or sent twice. An image without frames is simply followed by the next one."""
         last = self.adapter.last
-        resend = last is not None and not last.complete and not self._resent
-        self._resent = resend        # once: a line that keeps failing must not stop the sending
+        carrying = [len(sp.published.get(sp.seq, ())) for sp in self._slaves]
+        resend = last is not None and not last.complete and any(carrying)
+        if resend and self._resends >= self.RESEND_LIMIT:
+            self.unconfirmed_frames += sum(carrying)
+            resend = False
+        self._resends = self._resends + 1 if resend else 0
         if not resend:
             for sp in self._slaves:
                 self._publish(sp)
