@@ -47,7 +47,7 @@ from ..bus.frame import CanFrame
 from ..common.clock import Clock
 from ..common.errors import ConfigError, LocalError, ProtocolError
 from ..devices.ecanlite.host.adapter import AdapterConfig, EcanAdapter, SlaveConfig, StartupSdo, find_ecanlite
-from ..devices.ecanlite.host.port import McanPort, PortConfig
+from ..devices.ecanlite.host.port import McanPort, PortConfig, drain_all_sdos
 from ..devices.ecanlite.stream import CanPacket, TxResultCode
 from ..devices.esd_can_ethercat.bitrate import NTCAN_NO_BAUDRATE
 from ..devices.esd_can_ethercat.codec import CanStatus
@@ -77,12 +77,8 @@ __all__ = ["NO_SOURCE", "EsdQueueOnEcanLite", "esd_writes"]
 
 #: Seconds a blocking call waits by default (as EsdHost).
 DEFAULT_TIMEOUT = 5.0
-#: 0x8001..0x8004 channel config, 0x8021..0x8024 data path control, 0x9000.. info, 0x9020.. diagnostics.
-CONFIG_BASE, POLICY_BASE, INFO_BASE, DIAG_BASE = 0x8001, 0x8021, 0x9000, 0x9020
-#: 0x802x values written after the channel (13.2.2): drain budget max 8, policy 2 'performance'
-#: (the whole cache each cycle), cache depth 32 frames -- the esd hands over a whole Rx batch.
-RX_POLICY = ((5, 8, 1, "RX drain budget max"), (6, 2, 1, "RX budget policy: performance"),
-             (7, 32, 1, "RX cache depth 32"))
+#: 0x8001..0x8004 channel config, 0x9000.. info, 0x9020.. diagnostics (0x8021.. data path: drain_all_sdos).
+CONFIG_BASE, INFO_BASE, DIAG_BASE = 0x8001, 0x9000, 0x9020
 #: Chapter 7 status word bits.
 SW_STATE, SW_WARN, SW_BUS_OFF, SW_RX_PRESSURE = 0x07, 0x10, 0x20, 0x40
 STATE_BUSOFF = 3
@@ -241,11 +237,8 @@ class EsdQueueOnEcanLite:
                 adapter.add_startup_sdo(StartupSdo(p, c.index, c.subindex, c.data, False, c.comment))
         if on_bus:
             adapter.add_startup_sdo(StartupSdo.expect(p, base, 2, b"\x00", f"MCAN{self.channel} apply status"))
-            pol = POLICY_BASE + self.channel
-            for sub, value, size, what in RX_POLICY:
-                adapter.add_startup_sdo(StartupSdo(p, pol, sub, value.to_bytes(size, "little"), False, what))
-            adapter.add_startup_sdo(StartupSdo.u8(p, pol, 2, 1, "apply data path policy"))
-            adapter.add_startup_sdo(StartupSdo.expect(p, pol, 3, b"\x00", "data path policy apply status"))
+            for sdo in drain_all_sdos(p, self.channel):      # the esd hands over a whole Rx batch
+                adapter.add_startup_sdo(sdo)
         adapter.run_startup_queue()
         tx_room = self._up(base, 70)
         if cfg.tx_queue > tx_room:

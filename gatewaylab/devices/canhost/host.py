@@ -25,6 +25,7 @@ import queue
 import threading
 from collections.abc import Callable
 from contextlib import nullcontext
+from dataclasses import replace
 from typing import Any, Protocol
 
 import can
@@ -170,8 +171,9 @@ class EcanChannel:
         self.fd = fd
         self.pdo_n = pdo_n
         self.name = name
-        self.config = (ChannelConfig.canfd(bitrate, data_bitrate or bitrate) if fd
-                       else ChannelConfig.classic(bitrate))
+        # a python-can bus hands over every frame: the data path drains the whole RX cache each cycle
+        self.config = replace(ChannelConfig.canfd(bitrate, data_bitrate or bitrate) if fd
+                              else ChannelConfig.classic(bitrate), drain_all=True)
         self.slave_k = -1      # the adapter slave, set at start
         self._rx: list[can.Message] = []
         self._was_bus_off = False

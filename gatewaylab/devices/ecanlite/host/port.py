@@ -47,6 +47,20 @@ __all__ = ["ChannelConfig", "McanPort", "MessageRam", "PortConfig", "RxFrame", "
 
 #: The MCAN channel config objects 0x8001..0x8004 (13.4).
 CHANNEL_CONFIG = 0x8001
+#: 0x8021..0x8024 data path control of MCAN0..3 (13.2.2).
+DATA_PATH = 0x8021
+
+
+def drain_all_sdos(position: int, channel: int) -> list[StartupSdo]:
+    """The data path policy that hands the master every received frame (13.2.2): RX drain budget
+    max 8 with policy 2 'performance', RX cache depth 32, applied with its status checked. The
+    device's defaults (drain at most 2 frames per cycle into a 16-frame cache) lose frames on any
+    bus carrying more than 2 frames per cycle."""
+    i = DATA_PATH + channel
+    u8 = StartupSdo.u8
+    return [u8(position, i, 5, 8, "RX drain budget max"), u8(position, i, 6, 2, "RX budget policy: performance"),
+            u8(position, i, 7, 32, "RX cache depth 32"), u8(position, i, 2, 1, "apply data path policy"),
+            StartupSdo.expect(position, i, 3, b"\x00", f"CAN{channel} data path policy apply status")]
 
 
 @dataclass(frozen=True, slots=True)
@@ -86,6 +100,8 @@ class ChannelConfig:
     non_iso: bool = False
     node_mode: int = 0                           # SI 8: 0 normal, 2 internal loopback, ...
     ram: MessageRam = field(default_factory=MessageRam.classic)
+    #: also write :func:`drain_all_sdos` (0x802x); False keeps the device's data path defaults
+    drain_all: bool = False
 
     @classmethod
     def classic(cls, bitrate: int = 1_000_000, sample_point: tuple[int, int] = (750, 875)) -> ChannelConfig:
@@ -124,6 +140,8 @@ class ChannelConfig:
             q.append(u8(position, i, sub, value, what))
         q.append(u8(position, i, 1, 1, "apply channel"))
         q.append(StartupSdo.expect(position, i, 2, b"\x00", f"CAN{channel} apply status"))
+        if self.drain_all:
+            q += drain_all_sdos(position, channel)
         return q
 
 
