@@ -37,14 +37,12 @@ is the only line that changes. How each esd notion is carried (docs/migration-es
 
 from __future__ import annotations
 
-import threading
 from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 from ..bus.frame import CanFrame
-from ..common.clock import Clock
 from ..common.errors import ConfigError, LocalError, ProtocolError
 from ..devices.ecanlite.host.adapter import AdapterConfig, EcanAdapter, SlaveConfig, StartupSdo, find_ecanlite
 from ..devices.ecanlite.host.port import McanPort, PortConfig, drain_all_sdos
@@ -66,6 +64,7 @@ from ..devices.esd_can_ethercat.host.handshake import (
     RxFrame,
     RxOverflowError,
 )
+from ..devices.esd_can_ethercat.host.loop import DEFAULT_TIMEOUT, HostLoop
 from ..devices.esd_can_ethercat.objects import STATISTICS
 from ..ethercat.backend import MasterBackend, MasterTimeout
 from ..ethercat.esc import AlState
@@ -75,8 +74,6 @@ from .txbook import TxBook
 
 __all__ = ["NO_SOURCE", "EsdQueueOnEcanLite", "esd_writes"]
 
-#: Seconds a blocking call waits by default (as EsdHost).
-DEFAULT_TIMEOUT = 5.0
 #: 0x8001..0x8004 channel config, 0x9000.. info, 0x9020.. diagnostics (0x8021.. data path: drain_all_sdos).
 CONFIG_BASE, INFO_BASE, DIAG_BASE = 0x8001, 0x9000, 0x9020
 #: Chapter 7 status word bits.
@@ -87,9 +84,6 @@ PSR_EW, PSR_BO, ECR_RP = 0x40, 0x80, 0x8000
 #: The 0x2010 names the ECAN-Lite has no source for: statistics() gives None (docs/decisions.md).
 NO_SOURCE = frozenset(STATISTICS[s] for s in (0x01, 0x02, 0x03, 0x04, 0x05, 0x06, 0x07, 0x08, 0x10, 0x11, 0x12,
                                               0x13, 0x14, 0x15, 0x16, 0x20, 0x21, 0x34))
-#: Waiting calls look at the AL state after this many bad cycles, and every this many seconds (as EsdHost).
-WKC_RECOVER = 10
-STATE_CHECK_PERIOD = 0.05
 #: An SDO service without an answer, or a late answer to an earlier one: repeated (as EsdHost).
 _RETRYABLE = (MasterTimeout, ProtocolError)
 
@@ -134,7 +128,7 @@ def _count_kind(c: _Counts, prefix: str, frame: CanFrame) -> None:
     setattr(c, name, getattr(c, name) + 1)
 
 
-class EsdQueueOnEcanLite:
+class EsdQueueOnEcanLite(HostLoop):
     """The esd queue API (:class:`EsdQueueApi`) on MCAN ``channel`` of the ECAN-Lite at ``position``."""
 
     def __init__(self, backend: MasterBackend, position: int = 0, *, channel: int = 0, cycle_time: float = 0.001,
@@ -144,12 +138,8 @@ class EsdQueueOnEcanLite:
             raise LocalError(f"MCAN channel {channel} is not 0..3")
         if not 0 < tx_limit < TN_MODULO // 2:
             raise LocalError(f"tx_limit must be 1..{TN_MODULO // 2 - 1}")
-        self.backend = backend
-        self.position = position
+        super().__init__(backend, position, cycle_time, external_cycle)
         self.channel = channel
-        self.clock: Clock = backend.clock
-        self.cycle_time = cycle_time
-        self.external_cycle = external_cycle
         self.tx_limit = tx_limit
         #: Received frames the host keeps before counting ``rx_over_limit`` (none is dropped: the
         #: ECAN-Lite has no acknowledgement that could hold them back in the gateway).
@@ -162,17 +152,10 @@ class EsdQueueOnEcanLite:
         self.port: McanPort | None = None
         #: MCAN TX FIFO elements (0x800x:70): frames in flight at most.
         self.tx_room = 0
-        self.wkc_errors = 0
-        self.cycles = 0
-        self.recoveries = 0
-        self.lost_state_reads = 0
         #: SDO services repeated after a timeout or a late answer (reads, window writes).
         self.sdo_retries = 0
         #: Frames received while the host already held ``rx_limit`` (kept anyway).
         self.rx_over_limit = 0
-        self._bad_cycles = 0
-        self._state_checked_at = self.clock.now()
-        self._lock = threading.RLock()
         self._running = False
         self.book: TxBook | None = None
         self._reset_queues()
@@ -292,19 +275,6 @@ class EsdQueueOnEcanLite:
         """Back to PREOP: the channel stops; queued frames stay unsent."""
         self.to_preop(timeout)
 
-    def recover(self, timeout: float = DEFAULT_TIMEOUT) -> bool:
-        """Back to OP from SAFEOP (SM watchdog); ConfigError in INIT/PREOP/BOOT (configure and start again)."""
-        state, code = self.backend.state(self.position)
-        if state == AlState.OP:
-            return False
-        if state != AlState.SAFEOP:
-            raise ConfigError(f"slave {self.position} is in {state.name} (AL status code 0x{code:04X}): "
-                              "configure() and start() again")
-        self.backend.request_state(AlState.OP, self.position, timeout)
-        self.recoveries += 1
-        self._bad_cycles = 0
-        return True
-
     def _reset_queues(self) -> None:
         cfg = self.config
         self.book = (TxBook(cfg.tx_queue, self.tx_room, extended=cfg.extended, tx_limit=self.tx_limit)
@@ -399,27 +369,6 @@ class EsdQueueOnEcanLite:
         if pressure and not self._pressure_seen:
             self._overflow_new = True
         self._pressure_seen = pressure
-
-    def _wait_for(self, what: str, done: Callable[[], bool], timeout: float) -> None:
-        deadline = self.clock.now() + timeout
-        while True:
-            with self._lock:
-                if done():
-                    return
-            if self.clock.now() >= deadline:
-                state, code = self.backend.state(self.position)
-                raise MasterTimeout(f"{what}: not within {timeout:g} s (slave {self.position} in {state.name}, "
-                                    f"AL status code 0x{code:04X}, {self.wkc_errors} working counter errors)")
-            if not self.external_cycle:
-                self.cycle()
-                now = self.clock.now()
-                if self._bad_cycles >= WKC_RECOVER or now - self._state_checked_at >= STATE_CHECK_PERIOD:
-                    self._state_checked_at = now
-                    try:
-                        self.recover()
-                    except MasterTimeout:
-                        self.lost_state_reads += 1
-            self.clock.wait(self.cycle_time)
 
     # ------------------------------------------------------------------ Tx
     def queue(self, frames: Iterable[CanFrame]) -> list[int]:

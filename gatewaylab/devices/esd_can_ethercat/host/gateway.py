@@ -16,13 +16,11 @@ cycles themselves, unless ``external_cycle`` says another thread does.
 from __future__ import annotations
 
 import struct
-import threading
-from collections.abc import Callable, Iterable
+from collections.abc import Iterable
 from dataclasses import replace
 from typing import Any
 
 from ....bus.frame import CanFrame
-from ....common.clock import Clock
 from ....common.errors import ConfigError, LocalError, ProtocolError
 from ....ethercat.backend import MasterBackend, MasterTimeout
 from ....ethercat.errors import AlStatusError
@@ -31,10 +29,10 @@ from ..codec import CanStatus
 from ..objects import PRODUCT_CODE, STATISTICS, VENDOR_ID
 from .config import BitRate, EsdConfig, FilterArea, QueueLayout
 from .handshake import DEFAULT_RX_LIMIT, DEFAULT_TX_LIMIT, Handshake, RxFrame, RxOverflowError
+from .loop import DEFAULT_TIMEOUT, HostLoop
 
-#: Seconds a blocking call waits by default (a full local Tx queue of 1000 frames at 125 kbit/s
-#: takes about a second to drain).
-DEFAULT_TIMEOUT = 5.0
+#: DEFAULT_TIMEOUT (5 s: a full local Tx queue of 1000 frames at 125 kbit/s takes about a second to
+#: drain), WKC_RECOVER and STATE_CHECK_PERIOD live in loop.py with the waiting they govern.
 #: 0x8000 subindexes (5.1.5.5).
 FLAGS, RX_QUEUE, TX_QUEUE, LOCAL_RX, LOCAL_TX = 0x20, 0x21, 0x22, 0x23, 0x24
 #: 0x2010 subindexes of type UINT8 (5.1.4.2 'App. CPU Usage'); the others are UINT32.
@@ -44,11 +42,6 @@ _FMT = {1: "<B", 2: "<H", 4: "<I", 8: "<Q"}
 #: the seconds waited before the n-th repetition (n x this): a late answer is flushed meanwhile.
 SDO_ATTEMPTS = 8
 SDO_RETRY_WAIT = 0.1
-#: A waiting call looks at the AL state (and :meth:`EsdHost.recover`) after this many consecutive
-#: cycles with a wrong working counter, and every this many seconds of waiting anyway (a gateway
-#: fallen to SAFEOP still counts the datagrams, but it takes no batches and delivers no frames).
-WKC_RECOVER = 10
-STATE_CHECK_PERIOD = 0.05
 #: An SDO service that got no answer, or a late answer to an earlier request (SOEM's 'unexpected
 #: frame returned', a ProtocolError): repeated, as its outcome is unknown.
 _RETRYABLE = (MasterTimeout, ProtocolError)
@@ -67,37 +60,22 @@ class ReadbackError(ConfigError):
         self.index, self.subindex, self.wrote, self.read = index, subindex, wrote, read
 
 
-class EsdHost:
+class EsdHost(HostLoop):
     """The counter handshake of one esd CAN-EtherCAT at ``position`` on ``backend``."""
 
     def __init__(self, backend: MasterBackend, position: int = 0, *, cycle_time: float = 0.001,
                  external_cycle: bool = False, check_identity: bool = True,
                  tx_limit: int = DEFAULT_TX_LIMIT, rx_limit: int = DEFAULT_RX_LIMIT) -> None:
-        self.backend = backend
-        self.position = position
-        self.clock: Clock = backend.clock
-        self.cycle_time = cycle_time
-        #: True when another thread calls :meth:`cycle` every ``cycle_time``: the blocking calls then only wait.
-        self.external_cycle = external_cycle
+        super().__init__(backend, position, cycle_time, external_cycle)
         self.tx_limit = tx_limit
         self.rx_limit = rx_limit
         self.config: EsdConfig | None = None
         self.layout: QueueLayout | None = None
         self.handshake: Handshake | None = None
-        #: Cycles whose working counter was not the expected one (their inputs were not used).
-        self.wkc_errors = 0
-        self.cycles = 0
-        #: Times :meth:`recover` brought the slave back to OP.
-        self.recoveries = 0
-        self._bad_cycles = 0
-        self._state_checked_at = self.clock.now()
-        #: AL state reads of the waiting calls that got no answer (tried again later).
-        self.lost_state_reads = 0
         #: SDO services repeated after a timeout.
         self.sdo_retries = 0
         #: config_map calls repeated because the mapped sizes differed from the mapping read back.
         self.map_retries = 0
-        self._lock = threading.RLock()
         if check_identity:
             ident = next((s for s in backend.slaves() if s.position == position), None)
             if ident is None:
@@ -310,43 +288,6 @@ class EsdHost:
         self.before_exchange()
         wkc, expected = self.backend.exchange()
         return self.after_exchange(wkc, expected)
-
-    def recover(self, timeout: float = DEFAULT_TIMEOUT) -> bool:
-        """Back to OP when the slave fell to SAFEOP (the SM watchdog after a stalled master: AL
-        status 0x001B, 0x2010:08 counts it); the gateway keeps its counters there, so the handshake
-        carries on. True when it had to; ConfigError when the slave is in INIT/PREOP/BOOT (it lost
-        its mapping: configure() and start() again)."""
-        state, code = self.backend.state(self.position)
-        if state == AlState.OP:
-            return False
-        if state != AlState.SAFEOP:
-            raise ConfigError(f"slave {self.position} is in {state.name} (AL status code 0x{code:04X}): "
-                              "configure() and start() again")
-        self.backend.request_state(AlState.OP, self.position, timeout)
-        self.recoveries += 1
-        self._bad_cycles = 0
-        return True
-
-    def _wait_for(self, what: str, done: Callable[[], bool], timeout: float) -> None:
-        deadline = self.clock.now() + timeout
-        while True:
-            with self._lock:
-                if done():
-                    return
-            if self.clock.now() >= deadline:
-                state, code = self.backend.state(self.position)
-                raise MasterTimeout(f"{what}: not within {timeout:g} s (slave {self.position} in {state.name}, "
-                                    f"AL status code 0x{code:04X}, {self.wkc_errors} working counter errors)")
-            if not self.external_cycle:
-                self.cycle()
-                now = self.clock.now()
-                if self._bad_cycles >= WKC_RECOVER or now - self._state_checked_at >= STATE_CHECK_PERIOD:
-                    self._state_checked_at = now
-                    try:
-                        self.recover()
-                    except MasterTimeout:
-                        self.lost_state_reads += 1    # a lost register read: looked at again later
-            self.clock.wait(self.cycle_time)
 
     # ------------------------------------------------------------------ Tx
     def queue(self, frames: Iterable[CanFrame]) -> list[int]:
