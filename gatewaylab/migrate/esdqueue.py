@@ -305,14 +305,11 @@ class EsdQueueOnEcanLite(HostLoop):
     def cycle(self) -> bool:
         """One process-data cycle: the next batch into the RxPDO, exchange, the TxPDO parsed
         (frames, TX_RESULTs, the channel status word). False when the working counter was wrong."""
-        adapter, port, book = self._require()
+        _adapter, port, book = self._require()
         with self._lock:
             self._fill(port, book)
-            repeat = book.unaccepted and self._bad_cycles > 0
-        # the image carrying a batch went out with a wrong working counter: the same image again, for
-        # as long as it takes (13.8: an identical image is a no-op if it did arrive); the Port's own
-        # rule repeats an image once, then publishes a new one, which would lose the batch
-        status = adapter.exchange() if repeat else port.cycle_end()
+        # after a wrong working counter the Port sends the image carrying the batch again (13.8)
+        status = port.cycle_end()
         port.cycle_begin()
         self.cycles += 1
         with self._lock:
