@@ -24,7 +24,8 @@ def test_the_limiter_admits_a_burst_per_window_and_counts_the_rest() -> None:
     ("Invalid Modbus protocol id: 24016\n>>>>> recv: 0xef 0xfe 0x5d extra data: ", "Invalid Modbus protocol id: 24016"),
     ("Datastore unable to fulfill request: 4660; Traceback (most recent call last):\n  File \"x.py\", line 1",
      "Datastore unable to fulfill request: 4660"),
-    ("Unable to decode frame Modbus Error: Unknown response 99", "Unable to decode frame Modbus Error: Unknown response 99"),
+    ("Unable to decode frame Modbus Error: Unknown response 99",
+     "Unable to decode frame Modbus Error: Unknown response 99"),
 ])
 def test_one_line_drops_frame_dumps_and_tracebacks(text: str, line: str) -> None:
     """What pymodbus appends to an error (its last frames byte by byte, a traceback) never reaches the log."""
