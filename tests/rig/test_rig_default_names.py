@@ -9,6 +9,7 @@ stays as it is (``drive2``, what docs and users already type); defaults that mee
 
 from __future__ import annotations
 
+import argparse
 import subprocess
 import sys
 import time
@@ -20,6 +21,7 @@ import pytest
 
 from gatewaylab.canopen.cia402 import PdsState
 from gatewaylab.canopen.drive import Drive
+from gatewaylab.canopen.monitor_cli import _dictionaries
 from gatewaylab.common.errors import ConfigError
 from gatewaylab.rig.config import parse_rig
 from gatewaylab.rig.process import RigProcess
@@ -160,6 +162,9 @@ def test_gatewaylab_run_lists_both_and_gatewaylab_fault_takes_each_name(tmp_path
         canopen = rig.info["canopen"]
         assert set(canopen["can0"]) == {"drive2@can0"} and set(canopen["can1"]) == {"drive2@can1", "drive3"}
         assert canopen["can0"]["drive2@can0"]["node_id"] == canopen["can1"]["drive2@can1"]["node_id"] == 2
+        # `gatewaylab monitor READY --bus can1` decodes the PDOs of can1's drives with their EDS files
+        monitor_args = argparse.Namespace(target=str(rig.ready_file), bus="can1", replay=False, eds=None)
+        assert set(_dictionaries(monitor_args)) == {2, 3}
         with can.Bus(interface="gatewaylab", channel=rig.endpoint("can0")) as bus0, \
                 can.Bus(interface="gatewaylab", channel=rig.endpoint("can1")) as bus1:
             out = _fault_cli(rig, "drive-fault", "drive2@can1", "following-error")
