@@ -27,21 +27,11 @@ from gatewaylab.rig.process import RigProcess
 
 WAIT = 20.0
 
+#: drive 2 on can0 and a gateway serving it (unit 2), its TCP port chosen by the rig
 RIG = """
-[[bus]]
-name = "can0"
-
-[[drive]]
-bus = "can0"
-node_id = 2
-serial = 0x1002
-
-[[device]]
-kind = "modbus_gateway"
-name = "mb1"
-bus = "can0"
-node_id = 100
-nodes = [2]
+bus = [{ name = "can0" }]
+drive = [{ bus = "can0", node_id = 2, serial = 0x1002 }]
+device = [{ kind = "modbus_gateway", name = "mb1", bus = "can0", node_id = 100, nodes = [2] }]
 """
 
 #: what pymodbus writes when it dumps frames ("0x0 0x1 0x0 ...") or a traceback
