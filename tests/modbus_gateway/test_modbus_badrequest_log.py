@@ -41,9 +41,10 @@ def test_the_handler_writes_one_line_per_record_within_the_limit(caplog: pytest.
     source.addHandler(handler)
     try:
         with caplog.at_level(logging.WARNING, logger="test.modbus.badrequests"):
-            for n in range(5):
+            for n in range(4):
                 source.error("Invalid Modbus protocol id: %d\n>>>>> recv: 0x0 0x1 0x2", n)
-            handler.flush()
+            source.error("Repeating....")
+            handler.report_held()
     finally:
         source.removeHandler(handler)
     lines = [r.getMessage() for r in caplog.records]
@@ -51,3 +52,14 @@ def test_the_handler_writes_one_line_per_record_within_the_limit(caplog: pytest.
                      "Modbus TCP: bad request: Invalid Modbus protocol id: 1",
                      "Modbus TCP: 3 more bad requests not logged (at most 2 lines per 3600 s)"]
     assert handler.count == 5
+
+
+def test_a_folded_repeat_names_what_repeated(caplog: pytest.LogCaptureFixture) -> None:
+    """pymodbus writes 'Repeating....' for a message equal to the one before: the line says which."""
+    target = logging.getLogger("test.modbus.repeats")
+    handler = BadRequestLog(target, LogLimiter(burst=5, window=3600.0))
+    with caplog.at_level(logging.WARNING, logger="test.modbus.repeats"):
+        for text in ("Unable to decode frame Modbus Error: Unknown response 99", "Repeating...."):
+            handler.handle(logging.makeLogRecord({"msg": text, "levelno": logging.WARNING}))
+    assert [r.getMessage() for r in caplog.records][-1] == \
+        "Modbus TCP: bad request: Unable to decode frame Modbus Error: Unknown response 99 (again)"

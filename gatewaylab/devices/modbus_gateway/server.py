@@ -103,16 +103,21 @@ class BadRequestLog(logging.Handler):
         self.limiter = limiter or LogLimiter()
         self.count = 0
         self._guard = threading.Lock()
+        self._last = ""
 
     def emit(self, record: logging.LogRecord) -> None:
         try:
             text = one_line(record.getMessage())
         except Exception:           # a record pymodbus could not format: still one line
             text = str(record.msg).split("\n", 1)[0]
+        if text == "Repeating....":  # pymodbus folds a message that repeats the one before it
+            text = f"{self._last} (again)"
+        self._last = text
         self.report(text, record.levelno)
 
-    def flush(self) -> None:
-        """Say how many lines the limit kept back so far (a server stops)."""
+    def report_held(self) -> None:
+        """Say how many lines the limit kept back so far (a server stops). Not ``flush``: logging's
+        shutdown flushes handlers when the rig's stderr handler may be gone."""
         with self._guard:
             held, self.limiter.held = self.limiter.held, 0
         if held:
@@ -210,7 +215,7 @@ class ModbusTcpFace:
             self.thread.join(START_TIMEOUT)
         self.thread = None
         if self._digest is not None:
-            self._digest.flush()
+            self._digest.report_held()
 
     # -- server thread -------------------------------------------------------------------------------------
     def _run(self) -> None:
