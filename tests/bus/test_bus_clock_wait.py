@@ -5,7 +5,6 @@ the rig loop's timeout)."""
 
 from __future__ import annotations
 
-
 from gatewaylab.common.clock import RealTimeClock, SimulatedClock
 
 
