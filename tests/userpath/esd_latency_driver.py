@@ -3,14 +3,15 @@ the test's network namespace; prints one JSON line.
 
 Usage: python esd_latency_driver.py INTERFACE BATCHES EVERY_MS
 
-Brings the gateway up as the manual's 4.3 says (PREOP: 0xF800:02 = 2, 500 kbit/s; the mapping read by
-SDO; SAFEOP; OP while exchanging process data at 1 ms cycles), then sends ``BATCHES`` Tx batches
+Brings the gateway up as the manual's 4.3 says, with the esd wire tests' SOEM steps
+(tests/esd_can_ethercat/esd_soem_driver.py: PREOP, 0xF800:02 = 2 for 500 kbit/s, the mapping read by
+SDO, SAFEOP, OP while exchanging process data), then sends ``BATCHES`` Tx batches
 through the MDP 5000 counter handshake (5.1.5.3): the first one in the very first cycle after OP, the
 next ones ``EVERY_MS`` apart (each once the last one was acknowledged). Batch ``b`` carries
 ``FRAMES`` frames, id ``BASE_ID + k``, data ``(b, k)`` as two bytes. For each batch it records the
 wall time (``time.time()``) of the cycle that wrote it and of the cycle that saw it acknowledged
 (input Tx counter equal); the test matches them with a python-can client's receive timestamps.
-Its own struct packing, independent of the emulator's codec.
+Struct packing of its own (and of esd_soem_driver.py), independent of the emulator's codec.
 """
 
 from __future__ import annotations
@@ -19,33 +20,19 @@ import json
 import struct
 import sys
 import time
+from pathlib import Path
 from typing import Any
 
 import pysoem
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # tests/: the esd wire tests' driver
+from esd_can_ethercat.esd_soem_driver import IN_HDR, OUT_HDR, _init, _open, _retry, _to_op
+
 CYCLE = 0.001
 RX_TIMEOUT_US = 20_000          # 20 ms for process data (a loaded 2-CPU machine)
-SLOW_US = 3_000_000
-OUT_HDR = struct.Struct("<HHH")
-IN_HDR = struct.Struct("<HHHH")
 TX11 = struct.Struct("<HH8s")
 BASE_ID = 0x300
 FRAMES = 4
-MAILBOX_ERRORS = ("WkcError", "PacketError", "ConfigMapError", "MailboxError")
-
-
-def _retry(fn: Any, *args: Any) -> Any:
-    """A mailbox service repeated when a reply came later than SOEM's timeout (shared machine);
-    every call here is idempotent."""
-    kinds = tuple(getattr(pysoem, name) for name in MAILBOX_ERRORS)
-    for attempt in range(20):
-        try:
-            return fn(*args)
-        except kinds:
-            if attempt == 19:
-                raise
-            time.sleep(0.25)
-    return None
 
 
 def _ticks() -> Any:
@@ -62,38 +49,18 @@ def _ticks() -> Any:
 
 
 def main(iface: str, batches: int, every_ms: float) -> dict[str, Any]:
-    master = pysoem.Master()
-    master.sdo_read_timeout = master.sdo_write_timeout = SLOW_US
-    master.open(iface)
-    for _ in range(10):
-        if master.config_init() > 0:
-            break
-        time.sleep(0.2)
+    master = _open(iface)
+    if not _init(master):
+        return {"op": False, "state": "no slave found"}
     s = master.slaves[0]
     _retry(s.sdo_write, 0xF800, 2, bytes([2]))               # 500 kbit/s (Table 6)
     _retry(s.set_watchdog, "processdata", 1000)
-    for _ in range(5):
-        _retry(master.config_map)
-        if len(s.input) and len(s.output):
-            break
-        time.sleep(0.2)
-    master.state_check(pysoem.SAFEOP_STATE, 50_000)
-    outputs = bytearray(len(s.output))
-    master.state = pysoem.OP_STATE
-    master.send_processdata()
-    master.receive_processdata(RX_TIMEOUT_US)
-    master.write_state()
+    state = _to_op(master)
+    if state != "OP":
+        return {"op": False, "state": state}
+    op_at = time.time()
     ticks = _ticks()
-    op_at = 0.0
-    for _ in range(4000):
-        next(ticks)
-        master.send_processdata()
-        master.receive_processdata(RX_TIMEOUT_US)
-        if master.state_check(pysoem.OP_STATE, 1000) == pysoem.OP_STATE:
-            op_at = time.time()
-            break
-    if not op_at:
-        return {"op": False, "state": master.state_check(pysoem.OP_STATE, 5000)}
+    outputs = bytearray(len(s.output))
     sent: list[float] = []
     acked: list[float] = []
     late = 0
