@@ -10,8 +10,8 @@ and schedules callbacks with ``call_at``/``call_later``. Two implementations exi
   outside the protocol code (the rig runtime's I/O loop) calls :meth:`RealTimeClock.run_due` and
   waits until the next event (:meth:`Clock.begin_wait`); other threads hand work in with
   :meth:`Clock.call_soon_threadsafe` or schedule under :attr:`Clock.lock`, and either wakes the
-  loop when the work is due before it would wake by itself. Each ``run_due`` pass runs a bounded number of events, so
-  that loop serves its I/O between passes whatever the protocols schedule.
+  loop when the work is due before it would wake by itself. Each ``run_due`` pass runs a bounded
+  number of events, so that loop serves its I/O between passes whatever the protocols schedule.
 
 A blocking caller outside the protocol cores (an in-process EtherCAT master polling a mailbox)
 lets time pass with :meth:`Clock.wait`, never by moving a simulated clock or spinning itself.
