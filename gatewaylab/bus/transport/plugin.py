@@ -266,9 +266,13 @@ class GatewaylabBus(can.BusABC):
         One thread at a time reads the socket and takes every record for everybody (frames for
         recv, TXDONE for send); the others wait on ``_cond`` and look again after each read.
         Stops early when the connection is lost, and, if ``interruptible``, when shutdown()
-        began. Returns ``ready()``."""
+        began. Returns ``ready()``.
+
+        A timeout that is over before this thread read (``recv(0)``, the poll of a cyclic task)
+        still takes what the socket already holds: one read that does not wait."""
         deadline = None if timeout is None else time.monotonic() + timeout
         cond = self._cond
+        polled = False
         with cond:
             while True:
                 if ready():
@@ -277,10 +281,13 @@ class GatewaylabBus(can.BusABC):
                     return False
                 remaining = None if deadline is None else deadline - time.monotonic()
                 if remaining is not None and remaining <= 0:
-                    return False
+                    if polled or self._reading:   # read once, or another thread is reading
+                        return False
+                    remaining = 0.0
                 if self._reading:
                     cond.wait(remaining)
                     continue
+                polled = True
                 self._reading = True
                 cond.release()
                 try:
