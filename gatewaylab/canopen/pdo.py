@@ -151,28 +151,36 @@ class Rpdo(_Pdo):
             self.apply(data)
 
     def apply(self, data: bytes) -> None:
+        """Write the mapped objects. Plain values (set-points) first, then the objects a device
+        hooks (controlword, mode), each group in mapping order: a controlword in the same PDO as
+        its target (RPDO1 of CiA 402: controlword + target position) acts on that target, as a
+        device that copies the whole PDO into its dictionary before its application reads it."""
         node = self.node
-        store = node.od.store
+        od = node.od
+        intercepted = od.intercepted
         whole = self._whole
+        values: list[tuple[Entry, Any]] = []
         if whole is not None:   # unlimited fixed-size objects: decoding cannot fail
-            for target, value in zip(self._entries, whole.unpack_from(data)):
+            values = list(zip(self._entries, whole.unpack_from(data)))
+        else:
+            for m in self.mapped:
+                entry = m.entry
+                if entry is None:
+                    continue        # dummy mapping
                 try:
-                    store(target, value)
+                    codec = entry.codec
+                    if codec is not None and not entry.limited:
+                        values.append((entry, codec.unpack_from(data, m.offset)[0]))
+                    else:
+                        values.append((entry, decode(entry, data[m.offset:m.offset + m.size])))
                 except SdoAbort:
                     node.count("rpdo_value_errors")
-                except Exception:   # device hook misbehaved: count it, the bus carries on
-                    node.count("hook_errors")
-            return
-        for m in self.mapped:
-            entry = m.entry
-            if entry is None:
-                continue        # dummy mapping
+        hooked = [(entry, value) for entry, value in values if entry.index in intercepted]
+        if hooked:
+            values = [(entry, value) for entry, value in values if entry.index not in intercepted] + hooked
+        store = od.store
+        for entry, value in values:
             try:
-                codec = entry.codec
-                if codec is not None and not entry.limited:
-                    value = codec.unpack_from(data, m.offset)[0]
-                else:
-                    value = decode(entry, data[m.offset:m.offset + m.size])
                 store(entry, value)
             except SdoAbort:
                 node.count("rpdo_value_errors")
