@@ -14,7 +14,8 @@ What a SocketCAN user expects holds here too (docs/bus-wire.md):
 * ``shutdown()`` waits (at most ``shutdown_timeout``) until the rig has put every accepted frame
   on the bus; frames still queued after that stay queued in the rig, as in a SocketCAN device;
 * a ``recv()`` in another thread (a ``can.Notifier``) interrupted by ``shutdown()`` returns
-  None; any call after ``shutdown()`` raises ``can.CanOperationError``;
+  None; any call after ``shutdown()`` raises ``can.CanOperationError``; ``recv(0)`` returns what
+  the socket already holds (the poll loop of a cyclic task);
 * ``Message.timestamp`` is Unix time (the rig's bus time + the rig clock's ``wall_epoch``),
   ``Message.channel`` the channel given to ``can.Bus``, own echoes have ``is_rx=False``;
 * acceptance filters are applied by the rig (filtered frames do not cross the socket);
