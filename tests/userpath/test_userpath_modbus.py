@@ -14,7 +14,7 @@ from collections.abc import Callable, Iterator
 import canopen
 import pytest
 from pymodbus.client import ModbusTcpClient
-from userpath_kit import Latencies
+from userpath_kit import Latencies, measured
 
 from gatewaylab.rig.process import RigProcess
 
@@ -63,6 +63,7 @@ def plc(rig: RigProcess) -> Iterator[ModbusTcpClient]:
         yield client
 
 
+@measured
 def test_first_answer_after_connect_and_cyclic_poll(rig: RigProcess) -> None:
     """Modbus Application Protocol V1.1b3 6.4 (FC 4, read input registers): statusword, mode display and the
     32-bit position actual value of drive 2 (input registers 0-3). The first answer after connecting within a

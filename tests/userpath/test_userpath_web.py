@@ -18,7 +18,7 @@ from typing import Any
 
 import can
 import pytest
-from userpath_kit import Latencies
+from userpath_kit import Latencies, bound, measured
 
 from gatewaylab.rig.process import RigProcess
 
@@ -74,6 +74,7 @@ def page(browser: Any) -> Iterator[Any]:
         context.close()
 
 
+@measured
 def test_live_page_shows_buses_and_nodes_and_follows_the_bus(rig: RigProcess, page: Any) -> None:
     """docs/rig.md `--web`: the node table (bus can0, drive 2 and the NMT state a client commands, CiA 301
     7.2.8.3.1) and the decoded log update by server-sent events while the page stays open. Latency: a
@@ -102,10 +103,12 @@ def test_live_page_shows_buses_and_nodes_and_follows_the_bus(rig: RigProcess, pa
                 lat.first = time.time() - sent
             else:
                 lat.add(time.time() - sent)
-    lat.check(first_bound=2.0, p99_bound=0.5)     # a browser on a shared machine: generous
+    # a browser driven through Playwright on a shared machine: generous
+    lat.check(first_bound=2.0, median_bound=0.25, p99_bound=1.0)
     assert "Operational" in page.inner_text("#node-can0-2")
 
 
+@measured
 def test_esd_web_interface_is_served_by_a_rig_without_ethercat(rig: RigProcess, page: Any) -> None:
     """Manual 6.1.1 (Figure 37 menu) and 6.2.1 (Figure 41 'CAN' status): the esd gateway's pages, served by a
     rig that has the gateway on its CAN bus but no EtherCAT segment; with no master there is no bit rate set
@@ -126,4 +129,4 @@ def test_esd_web_interface_is_served_by_a_rig_without_ethercat(rig: RigProcess, 
     for field in ("Actual Bitrate", "Rcv frames", "Xmit frames", "Err counter"):
         assert field in shown
     assert page.title() == "EtherCAT-CAN-Gateway - CAN"
-    assert first < 5.0
+    bound(first, 5.0, "esd web: overview + CAN page")

@@ -2,25 +2,37 @@
 
 Latency is measured as users see it: the sender puts its wall clock (``time.time()``) into the frame,
 the receiver takes its own wall clock when its program gets the frame, both on this host. Bounds are
-generous (a shared CI machine): the first frame after connect within a second, p99 of the steady state
-within :data:`P99_BOUND`; the numbers are printed (``pytest -s``) so a slow path shows before a bound
-breaks.
+generous (a shared CI machine): the first frame after connect within a second, the steady state's median
+within :data:`MEDIAN_BOUND` (a lag that every frame has, like a loop that sleeps through work handed to
+it) and its p99 within :data:`P99_BOUND` (stalls). The numbers are printed (``pytest -s``) so a slow path
+shows before a bound breaks.
+
+Why these bounds: on the 2-CPU development VM at a load average of 9-12 (other jobs) the steady state of
+a healthy rig had medians of 0.2-2 ms and p99 of 1-12 ms in most runs, but single runs had p99 of
+67-284 ms and once a median of 372 ms: the scheduler stalls a process for a while and every frame queued
+meanwhile is late. So a broken bound raises :class:`LatencyBoundError` and a test decorated with
+:func:`measured` measures once more: a systematic lag breaks both runs, a stall of the shared machine
+rarely does (both runs' numbers are printed).
 """
 
 from __future__ import annotations
 
+import functools
 import statistics
 import struct
 import threading
 import time
 from collections.abc import Callable
+from typing import Any, TypeVar
 
 import can
 
 #: the first frame (answer, page update) after connect or start
 FIRST_BOUND = 1.0
+#: median of send -> receive in the steady state
+MEDIAN_BOUND = 0.020
 #: p99 of send -> receive in the steady state
-P99_BOUND = 0.050
+P99_BOUND = 0.250
 
 #: the stamp in 8 bytes (a classic frame): sequence number (16 bits), the sender's ``time.time()`` in
 #: microseconds modulo 2**48 (8.9 years: the receiver takes the latest such instant before its own clock)
@@ -40,6 +52,31 @@ def unstamp(data: bytes | bytearray) -> tuple[int, float]:
     now = int(time.time() * 1e6)
     sent = now - (now - (high << 32 | low)) % _WRAP
     return int(seq), sent / 1e6
+
+
+class LatencyBoundError(AssertionError):
+    """A latency bound broke (order, content and counts are plain assertions: never measured twice)."""
+
+
+def bound(seconds: float, limit: float, what: str) -> None:
+    """Raise :class:`LatencyBoundError` unless ``seconds < limit``."""
+    if not seconds < limit:
+        raise LatencyBoundError(f"{what}: {seconds * 1e3:.1f} ms, bound {limit * 1e3:.0f} ms")
+
+
+_Test = TypeVar("_Test", bound=Callable[..., Any])
+
+
+def measured(test: _Test) -> _Test:
+    """Run a test once more if (only) a latency bound broke: see the module's docstring."""
+    @functools.wraps(test)
+    def run(*args: Any, **kwargs: Any) -> Any:
+        try:
+            return test(*args, **kwargs)
+        except LatencyBoundError as exc:
+            print(f"\n{test.__name__}: {exc}; measuring once more (a stall of a shared machine?)")
+            return test(*args, **kwargs)
+    return run  # type: ignore[return-value]
 
 
 class Latencies:
@@ -62,15 +99,17 @@ class Latencies:
         ordered = sorted(self.samples)
         return ordered[min(len(ordered) - 1, int(len(ordered) * 0.99))]
 
-    def check(self, first_bound: float = FIRST_BOUND, p99_bound: float = P99_BOUND) -> None:
-        """Print the numbers, then assert the first sample (if any) and the steady state's p99."""
+    def check(self, first_bound: float = FIRST_BOUND, p99_bound: float = P99_BOUND,
+              median_bound: float = MEDIAN_BOUND) -> None:
+        """Print the numbers, then assert the first sample (if any) and the steady state's median and p99."""
         assert self.samples, f"{self.label}: nothing measured"
         first = "" if self.first is None else f"first {self.first * 1e3:.1f} ms, "
         print(f"\n{self.label}: {first}n={len(self.samples)} median {self.median * 1e3:.2f} ms "
               f"p99 {self.p99 * 1e3:.2f} ms max {max(self.samples) * 1e3:.2f} ms")
         if self.first is not None:
-            assert self.first < first_bound, f"{self.label}: first after {self.first:.3f} s"
-        assert self.p99 < p99_bound, f"{self.label}: p99 {self.p99 * 1e3:.1f} ms"
+            bound(self.first, first_bound, f"{self.label}: first")
+        bound(self.median, median_bound, f"{self.label}: median")
+        bound(self.p99, p99_bound, f"{self.label}: p99")
 
 
 Received = list[tuple[can.Message, float]]
