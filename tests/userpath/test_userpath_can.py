@@ -154,9 +154,11 @@ def by_iteration(bus: can.BusABC, count: int) -> Received:
     return got
 
 
-def by_buffered_reader(bus: can.BusABC, count: int) -> Received:
+def by_buffered_reader(bus: can.BusABC, count: int, *others: can.Listener) -> Received:
+    """A Notifier feeding a BufferedReader (and ``others``, e.g. a can.Logger); stopping the notifier
+    stops its listeners (a logger closes its file)."""
     reader = can.BufferedReader()
-    notifier = can.Notifier(bus, [reader])
+    notifier = can.Notifier(bus, [reader, *others])
     got: Received = []
     try:
         while len(got) < count:
@@ -203,22 +205,7 @@ def test_notifier_with_logger_file_read_back(rig: RigProcess, tmp_path: Path, su
     .csv) beside a BufferedReader, as a logging program does; the file read back with can.LogReader holds
     every frame, in order, with its data."""
     path = tmp_path / f"trace{suffix}"
-
-    def receive(bus: can.BusABC, count: int) -> Received:
-        reader = can.BufferedReader()
-        logger = can.Logger(str(path))
-        notifier = can.Notifier(bus, [reader, logger])
-        got: Received = []
-        try:
-            while len(got) < count:
-                msg = reader.get_message(2.0)
-                assert msg is not None, f"BufferedReader gave nothing after {len(got)} frames"
-                got.append((msg, time.time()))
-        finally:
-            notifier.stop()   # stops the listeners: the logger's file is closed
-        return got
-
-    got = exchange(endpoint(rig), receive)
+    got = exchange(endpoint(rig), lambda bus, count: by_buffered_reader(bus, count, can.Logger(str(path))))
     check_exchange(f"Notifier + Logger({suffix})", got)
     logged = [m for m in can.LogReader(str(path)) if not m.is_error_frame]
     assert [(m.arbitration_id, bytes(m.data)) for m in logged] == [(ID, bytes(m.data)) for m, _ in got]

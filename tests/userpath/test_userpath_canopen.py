@@ -16,27 +16,11 @@ from collections.abc import Callable, Iterator
 
 import canopen
 import pytest
-from userpath_kit import Latencies, bound, measured, wait_until
+from userpath_kit import RIG_TWO_DRIVES, Latencies, bound, measured, wait_until
 
 from gatewaylab.rig.process import RigProcess
 
-RIG = """
-clock = "realtime"
-
-[[bus]]
-name = "can0"
-bitrate = 1000000
-
-[[drive]]
-bus = "can0"
-node_id = 2
-serial = 0x1002
-
-[[drive]]
-bus = "can0"
-node_id = 3
-serial = 0x1003
-"""
+RIG = RIG_TWO_DRIVES
 
 DEADLINE = 20.0
 # BaseNode402 warns for every object it reaches by SDO instead of PDO (the drive's defaults map some only)

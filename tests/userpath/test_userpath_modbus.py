@@ -14,27 +14,11 @@ from collections.abc import Callable, Iterator
 import canopen
 import pytest
 from pymodbus.client import ModbusTcpClient
-from userpath_kit import Latencies, measured
+from userpath_kit import RIG_TWO_DRIVES, Latencies, measured
 
 from gatewaylab.rig.process import RigProcess
 
-RIG = """
-clock = "realtime"
-
-[[bus]]
-name = "can0"
-bitrate = 1000000
-
-[[drive]]
-bus = "can0"
-node_id = 2
-serial = 0x1002
-
-[[drive]]
-bus = "can0"
-node_id = 3
-serial = 0x1003
-
+RIG = RIG_TWO_DRIVES + """
 [[device]]
 kind = "modbus_gateway"
 name = "plc"

@@ -27,6 +27,25 @@ from typing import Any, TypeVar
 
 import can
 
+#: a rig file of a 1 Mbit/s bus with drives 2 and 3 (CiA 402, docs/canopen-drive.md); add sections to it
+RIG_TWO_DRIVES = """
+clock = "realtime"
+
+[[bus]]
+name = "can0"
+bitrate = 1000000
+
+[[drive]]
+bus = "can0"
+node_id = 2
+serial = 0x1002
+
+[[drive]]
+bus = "can0"
+node_id = 3
+serial = 0x1003
+"""
+
 #: the first frame (answer, page update) after connect or start
 FIRST_BOUND = 1.0
 #: median of send -> receive in the steady state
