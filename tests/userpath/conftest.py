@@ -11,6 +11,11 @@ Fixtures (generic, for every ``test_userpath_*.py`` module):
   file is written (``rig.info`` is the ready file's contents). Module-scoped: a module starts its rigs
   once and shares them between its tests (rig start-up is most of this folder's time); every rig the
   module started is stopped (SIGTERM, then SIGKILL) when the module ends.
+
+Helpers for any module: ``userpath_kit.py`` -- frames stamped with the sender's wall clock, ``Latencies``
+(first + steady state, median/p99 bounds, printed), ``@measured`` (measure once more when only a latency
+bound broke), ``CyclicDrain`` (a cyclic task's ``recv(0)`` loop), ``wait_until``, ``RIG_TWO_DRIVES``.
+Keep the folder fast: one rig per module, a few hundred frames per measurement.
 """
 
 from __future__ import annotations
