@@ -1,0 +1,91 @@
+"""The ECAN-Lite on the user's path (issue 21): ``gatewaylab run`` with the device on the ``[ethercat]``
+segment of a veth pair, pysoem and KickCAT as masters in a namespace following manual 5.4.3 (phases A-E over
+CoE: capabilities, 0x1C12/0x1C13 = 3 chunks, 0x8010/0x8011 profile, 0x8001.. MCAN channels; OP; 5.4.4.1
+frames in the RxPDO; chapter 6 TxPDO parsing), python-can clients on can0 through the ready file's endpoint.
+One rig for the module; every run measures the first frame after OP and the steady state both ways."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from ethercat_userpath_kit import (
+    NotifierClient,
+    PollLoopClient,
+    TimeoutClient,
+    UserRig,
+    check_bounds,
+    ethercat_rig,
+    exchange,
+)
+
+pytestmark = [pytest.mark.net, pytest.mark.slow]
+
+RIG = """
+clock = "realtime"
+
+[[bus]]
+name = "can0"
+bitrate = 1000000
+data_bitrate = 5000000
+
+[[bus]]
+name = "can1"
+bitrate = 1000000
+data_bitrate = 5000000
+
+[[device]]
+kind = "ecanlite"
+name = "ecan"
+channels = ["can0", "can1"]
+
+[ethercat]
+interface = "{interface}"
+"""
+
+
+@pytest.fixture(scope="module")
+def user(tmp_path_factory: pytest.TempPathFactory) -> Iterator[UserRig]:
+    with ethercat_rig(tmp_path_factory.mktemp("ecan"), RIG) as u:
+        assert [s["name"] for s in u.rig.info["ethercat"]["slaves"]] == ["ecan"]
+        yield u
+
+
+def test_soem_master_with_a_recv0_poll_loop(user: UserRig) -> None:
+    """Manual 5.4.3 with SOEM, then 5.4.4.1: a frame written at offset 24 of the RxPDO reaches CAN0 (a
+    new header sequence per frame, the repeated image an idempotent no-op, 13.8: each frame exactly once);
+    a python-can node's frames come up in the TxPDO (chapter 8). The client drains the bus in a 1 ms cyclic
+    task with ``recv(0)``. First frame after OP < 100 ms, steady p99 < 50 ms, both directions."""
+    s = exchange(user, "soem", "ecanlite", PollLoopClient(user.endpoint()))
+    assert s.done is not None and s.done["op"] == "OP"
+    assert s.done["stream_errors"] == [] and s.client.duplicates == []
+    check_bounds(s.m2c, s.c2m)
+    if s.done["bad_wkc"] == 0:
+        assert s.m2c.missing == [] and s.c2m.missing == []
+
+
+def test_kickcat_master_with_a_notifier(user: UserRig) -> None:
+    """The same bring-up (5.4.3 A-E) through KickCAT's mailbox, its create_mapping reading the new
+    assignment (3 chunks), OP, frames both ways; the client is a ``can.Notifier`` feeding a
+    ``BufferedReader``. Same bounds."""
+    s = exchange(user, "kickcat", "ecanlite", NotifierClient(user.endpoint()))
+    assert s.done is not None and s.done["op"] == "OP"
+    assert s.done["stream_errors"] == [] and s.client.duplicates == []
+    check_bounds(s.m2c, s.c2m)
+    if s.done["bad_wkc"] == 0:
+        assert s.m2c.missing == [] and s.c2m.missing == []
+
+
+def test_a_killed_master_is_replaced_without_restarting_the_rig(user: UserRig) -> None:
+    """A master process SIGKILLed mid-exchange (its SM watchdog then takes the device to SAFEOP with AL
+    status 0x001B) and a new master process: its scan (INIT, error acknowledged) and 5.4.3 bring the same
+    rig process back to OP, and frames flow both ways again within the bounds (14: the start-up path works
+    from any state)."""
+    pid = user.rig.pid
+    first = exchange(user, "soem", "ecanlite", TimeoutClient(user.endpoint()), kill_after=0.5)
+    assert first.master.proc.returncode == -9
+    again = exchange(user, "kickcat", "ecanlite", TimeoutClient(user.endpoint()))
+    assert again.done is not None and again.done["op"] == "OP"
+    assert user.rig.pid == pid and user.rig.proc.poll() is None
+    check_bounds(again.m2c, again.c2m)
