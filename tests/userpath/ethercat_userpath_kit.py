@@ -29,7 +29,7 @@ import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, ClassVar
 
 import can
 import pytest
@@ -173,6 +173,7 @@ class CanClient:
     and, once :meth:`start_sending` was called, sends one frame each ``SEND_PERIOD`` (seq -> wall time just
     before ``send``). Subclasses are the ways users write the receiving side."""
 
+    style: ClassVar[str] = "python-can"
     endpoint: str
     received: dict[int, float] = field(default_factory=dict)
     duplicates: list[int] = field(default_factory=list)

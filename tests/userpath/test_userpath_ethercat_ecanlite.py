@@ -7,7 +7,6 @@ One rig for the module; every run measures the first frame after OP and the stea
 from __future__ import annotations
 
 from collections.abc import Iterator
-from pathlib import Path
 
 import pytest
 from ethercat_userpath_kit import (
