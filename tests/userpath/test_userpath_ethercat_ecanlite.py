@@ -84,7 +84,7 @@ def test_a_killed_master_is_replaced_without_restarting_the_rig(user: UserRig) -
     pid = user.rig.pid
     first = exchange(user, "soem", "ecanlite", TimeoutClient(user.endpoint()), kill_after=0.5)
     assert first.master.proc.returncode == -9
-    again = exchange(user, "kickcat", "ecanlite", TimeoutClient(user.endpoint()))
+    again = exchange(user, "soem", "ecanlite", TimeoutClient(user.endpoint()))
     assert again.done is not None and again.done["op"] == "OP"
     assert user.rig.pid == pid and user.rig.proc.poll() is None
     check_bounds(again.m2c, again.c2m)
