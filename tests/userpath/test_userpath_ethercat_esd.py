@@ -79,7 +79,7 @@ def test_soem_first_tx_batch_after_op(soem: Session) -> None:
     measured ~240 ms before the fix."""
     written = soem.master.times("tx")[0]
     acked = soem.master.times("ack")[0]
-    on_can = soem.client.received[0]
+    on_can = soem.client.received_from(soem.master.proc.pid)[0]
     print(f"esd first Tx batch after OP: acknowledged after {1e3 * (acked - written):.1f} ms, on CAN "
           f"{1e3 * (on_can - acked):.1f} ms after the acknowledgement ({1e3 * (on_can - written):.1f} ms after "
           "it was written)")
