@@ -43,6 +43,8 @@ MASTER = Path(__file__).with_name("ethercat_userpath_master.py")
 M2C_ID, C2M_ID = 0x123, 0x2A5
 #: the client's frames to the master: one each SEND_PERIOD (the master sends one each 5 ms too)
 SEND_PERIOD = 0.005
+#: the client's first frame waits at most this long for the master's first one
+QUIET_S = 0.3
 #: bounds of the user's path on a loaded 2-CPU machine (issue 21): generous, they catch lags, not jitter
 FIRST_FRAME_S = 0.100
 STEADY_P99_S = 0.050
@@ -201,7 +203,7 @@ class CanClient:
     def __post_init__(self) -> None:
         self._stop = threading.Event()
         self._sending = threading.Event()
-        self._send_until = 0.0
+        self._send_until = self._send_from = 0.0
         self._opened = threading.Event()
         self._threads: list[threading.Thread] = []
         self.tag = os.getpid() << 8 | next(_tags) & 0xFF
@@ -222,9 +224,14 @@ class CanClient:
         return {seq: t for (tag, seq), t in self.received.items() if tag == src}
 
     def send_due(self, bus: can.BusABC, next_at: list[float]) -> None:
-        """Send the next frame when its time came (called from a cyclic loop)."""
+        """Send the next frame when its time came (called from a cyclic loop). The first one waits until the
+        master's first frame arrived (at most ``QUIET_S``): the master's first frame after OP crosses a quiet
+        bus, as it does for a user whose nodes answer the master (the rig's loop is not woken by this
+        client's traffic meanwhile: issue 21 defect 3 hid behind it)."""
         now = time.monotonic()
         if not self._sending.is_set() or now < next_at[0] or now > self._send_until:
+            return
+        if not self.sent and not self.received and now < self._send_from + QUIET_S:
             return
         seq = len(self.sent)
         self.sent[seq] = time.time()
@@ -233,7 +240,8 @@ class CanClient:
         next_at[0] = max(next_at[0] + SEND_PERIOD, now)
 
     def start_sending(self, seconds: float) -> None:
-        self._send_until = time.monotonic() + seconds
+        self._send_from = time.monotonic()
+        self._send_until = self._send_from + seconds
         self._sending.set()
 
     def _guard(self, target: Any) -> Any:
