@@ -176,11 +176,12 @@ class Task:
         self.bad = 0
         self.cycles = 0
 
-    def run(self, seconds: float, step: Any, after: Any) -> None:
+    def run(self, seconds: float, step: Any, after: Any, until: Any = None) -> None:
+        """Cycles for ``seconds``, or until ``until()`` holds."""
         t_next = time.perf_counter()
         end = t_next + seconds
         i = 0
-        while t_next < end:
+        while t_next < end and not (until is not None and until()):
             step(i)
             ok = self.line.cycle()
             self.cycles += 1
@@ -291,7 +292,7 @@ def run_drive_io(line: Soem | Kickcat, seconds: float) -> dict[str, Any]:
     value every cycle and the time until the inputs echo it is measured (the io box is a loop-back). The
     drive's axis is enabled by PDO (CiA 402 controlwords: 0x80 fault reset, 0x06, 0x07, 0x0F; the target
     follows the actual position until then) in CSP and follows a ramp of 20 increments per cycle for 500
-    cycles, then holds."""
+    cycles, then holds (ending 300 cycles after the ramp, or after SECONDS)."""
     op = line.to_op()
     t_op = time.time()
     emit("op", t=t_op, state=op)
@@ -341,7 +342,9 @@ def run_drive_io(line: Soem | Kickcat, seconds: float) -> dict[str, Any]:
             st["ramp_from"], st["x0"] = i + 1, x
 
     task = Task(line)
-    task.run(seconds, step, after)
+    settle = 300       # cycles after the ramp: the axis reaches its last target, the io keeps echoing
+    task.run(seconds, step, after,
+             until=lambda: st["ramp_from"] is not None and task.cycles - st["ramp_from"] > ramp + settle)
     return {"op": op, "first_echo_after_op": st["first_after_op"], "echoes": echoes, "statuswords": st["sw"],
             "enabled_after": st["enabled_at"],
             "ramp_done": st["ramp_from"] is not None and task.cycles - st["ramp_from"] > ramp,
