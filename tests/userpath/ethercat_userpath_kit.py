@@ -196,6 +196,7 @@ class CanClient:
     endpoint: str
     #: (sender's tag, seq) -> wall time, of the master's frames: a master's tag is its pid
     received: dict[tuple[int, int], float] = field(default_factory=dict)
+    bus_times: dict[tuple[int, int], float] = field(default_factory=dict)
     duplicates: list[tuple[int, int]] = field(default_factory=list)
     sent: dict[int, float] = field(default_factory=dict)
     errors: list[str] = field(default_factory=list)
@@ -218,10 +219,13 @@ class CanClient:
             self.duplicates.append((src, seq))
         else:
             self.received[src, seq] = t
+            self.bus_times[src, seq] = msg.timestamp
 
-    def received_from(self, src: int) -> dict[int, float]:
-        """seq -> wall time of the frames of the master with tag (pid) ``src``."""
-        return {seq: t for (tag, seq), t in self.received.items() if tag == src}
+    def received_from(self, src: int, bus_time: bool = False) -> dict[int, float]:
+        """seq -> wall time the client got each frame of the master with tag (pid) ``src`` (with ``bus_time``:
+        the frame's ``Message.timestamp``, its end on the bus)."""
+        times = self.bus_times if bus_time else self.received
+        return {seq: t for (tag, seq), t in times.items() if tag == src}
 
     def send_due(self, bus: can.BusABC, next_at: list[float]) -> None:
         """Send the next frame when its time came (called from a cyclic loop). The first one waits until the
@@ -365,6 +369,9 @@ class Latency:
     first: float
     steady: list[float]
     missing: list[int]
+    #: master -> CAN: the same measured to the frame's end on the bus (python-can's ``Message.timestamp``, the
+    #: rig's bus time in Unix time): the gateway's share, without the delivery to the client
+    on_bus: list[float] = field(default_factory=list)
 
     @property
     def median(self) -> float:
@@ -378,11 +385,15 @@ class Latency:
         text = (f"{self.name}: first frame after OP {1e3 * self.first:.1f} ms, steady median "
                 f"{1e3 * self.median:.2f} ms p99 {1e3 * self.p99:.2f} ms max {1e3 * max(self.steady):.2f} ms "
                 f"({len(self.steady)} frames, {len(self.missing)} missing)")
+        if self.on_bus:
+            text += (f"; to the end of the frame on the bus: median {1e3 * statistics.median(self.on_bus):.2f} ms "
+                     f"p99 {1e3 * pct(self.on_bus, 0.99):.2f} ms")
         print(text)
         return text
 
 
-def latency(name: str, sent: dict[int, float], got: dict[int, float], tail: float = 0.2) -> Latency:
+def latency(name: str, sent: dict[int, float], got: dict[int, float], tail: float = 0.2,
+            on_bus: dict[int, float] | None = None) -> Latency:
     """Latencies of the frames ``got`` of those ``sent`` (seq -> wall time); frames sent in the last ``tail``
     seconds may still be in flight and do not count as missing."""
     assert sent and 0 in sent, f"{name}: nothing sent"
@@ -391,7 +402,8 @@ def latency(name: str, sent: dict[int, float], got: dict[int, float], tail: floa
     steady = [got[s] - t for s, t in sent.items() if s > 0 and s in got]
     missing = sorted(s for s, t in sent.items() if s not in got and t < last)
     assert len(steady) >= 20, f"{name}: only {len(steady)} frames arrived"
-    return Latency(name, got[0] - sent[0], steady, missing)
+    bus = [on_bus[s] - t for s, t in sent.items() if on_bus and s in on_bus]
+    return Latency(name, got[0] - sent[0], steady, missing, bus)
 
 
 def check_bounds(*lats: Latency) -> None:
@@ -440,8 +452,10 @@ def exchange(user: UserRig, lib: str, kind: str, client: CanClient, seconds: flo
     finally:
         master.kill()
         client.stop()
+    if done is not None:
+        print(f"{lib} {kind}: {done['cycles']} cycles, {done['bad_wkc']} lost or wrong, {done['late']} late > 20 ms")
     tail = 0.2 if kill_after is None else 1.0
     m2c = latency(f"{lib} {kind} master -> CAN ({client.style})", master.times("tx"),
-                  client.received_from(master.proc.pid), tail)
+                  client.received_from(master.proc.pid), tail, client.received_from(master.proc.pid, bus_time=True))
     c2m = latency(f"{lib} {kind} CAN -> master ({client.style})", client.sent, master.times("rx", client.tag), tail)
     return Session(master, client, done, m2c, c2m)

@@ -48,6 +48,8 @@ from gatewaylab.devices.ecanlite.stream import (  # noqa: E402
 
 #: the cyclic task's period; a frame to the CAN side every FRAME_EVERY cycles
 PERIOD = 0.001
+#: process data: an answer later than this counts as a lost cycle (counted, never fatal)
+PD_TIMEOUT_S = 0.020
 FRAME_EVERY = 5
 #: master -> CAN frames carry this id, CAN -> master frames the client's (tests/userpath/ethercat_userpath_kit.py)
 M2C_ID, C2M_ID = 0x123, 0x2A5
@@ -106,7 +108,7 @@ class Soem:
 
     def cycle(self) -> bool:
         self.m.send_processdata()
-        return bool(self.m.receive_processdata(es.RX_TIMEOUT_US) == self.m.expected_wkc)
+        return bool(self.m.receive_processdata(int(PD_TIMEOUT_S * 1e6)) == self.m.expected_wkc)
 
     def write(self, k: int, data: bytes) -> None:
         self.slaves[k].output = data
@@ -151,6 +153,7 @@ class Kickcat:
 
     def to_op(self) -> str:
         state = self.s.to_op()
+        self.s.link.set_timeout(PD_TIMEOUT_S)
         return "OP" if state == "State.OPERATIONAL" else state
 
     def cycle(self) -> bool:
