@@ -16,6 +16,7 @@ the endpoint the ready file names. This kit does exactly that and nothing more p
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import itertools
 import json
@@ -95,6 +96,14 @@ def ethercat_rig(workdir: Path, rig_toml: str) -> Iterator[UserRig]:
             assert rig.info["ethercat"]["interface"] == emu
             yield UserRig(rig, ns, mst, workdir)
             assert rig.proc.poll() is None, f"the rig died: {rig.log_text()[-2000:]}"
+
+
+def module_rig(factory: pytest.TempPathFactory, rig_toml: str, slaves: list[str]) -> Iterator[UserRig]:
+    """The body of a module's rig fixture: :func:`ethercat_rig` in a fresh folder, its ready file listing
+    ``slaves`` (names, in segment order) on the veth interface."""
+    with ethercat_rig(factory.mktemp("rig"), rig_toml) as user:
+        assert [s["name"] for s in user.rig.info["ethercat"]["slaves"]] == slaves
+        yield user
 
 
 class MasterRun:
@@ -455,6 +464,10 @@ def exchange(user: UserRig, lib: str, kind: str, client: CanClient, seconds: flo
     if done is not None:
         print(f"{lib} {kind}: {done['cycles']} cycles, {done['bad_wkc']} lost or wrong, {done['late']} late > 20 ms")
     tail = 0.2 if kill_after is None else 1.0
+    sources = collections.Counter(src for src, _seq in client.received)
+    context = (f"master pid {master.proc.pid}: {len(master.times('tx'))} frames sent, {len(master.times('rx'))} "
+               f"received; the client received {dict(sources)} (frames by sender), sent {len(client.sent)}")
+    print(f"{lib} {kind}: {context}")
     m2c = latency(f"{lib} {kind} master -> CAN ({client.style})", master.times("tx"),
                   client.received_from(master.proc.pid), tail, client.received_from(master.proc.pid, bus_time=True))
     c2m = latency(f"{lib} {kind} CAN -> master ({client.style})", client.sent, master.times("rx", client.tag), tail)

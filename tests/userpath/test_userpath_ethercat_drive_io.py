@@ -14,7 +14,7 @@ from collections.abc import Iterator
 from typing import Any
 
 import pytest
-from ethercat_userpath_kit import FIRST_FRAME_S, STEADY_P99_S, UserRig, ethercat_rig, pct
+from ethercat_userpath_kit import FIRST_FRAME_S, STEADY_P99_S, UserRig, module_rig, pct
 
 pytestmark = [pytest.mark.net, pytest.mark.slow]
 
@@ -38,9 +38,7 @@ FOLLOWING_LIMIT = 200
 
 @pytest.fixture(scope="module")
 def user(tmp_path_factory: pytest.TempPathFactory) -> Iterator[UserRig]:
-    with ethercat_rig(tmp_path_factory.mktemp("drio"), RIG) as u:
-        assert [s["name"] for s in u.rig.info["ethercat"]["slaves"]] == ["axis", "io"]
-        yield u
+    yield from module_rig(tmp_path_factory, RIG, ["axis", "io"])
 
 
 def run(user: UserRig, lib: str, seconds: float = 10.0) -> dict[str, Any]:

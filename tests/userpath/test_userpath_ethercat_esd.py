@@ -18,8 +18,8 @@ from ethercat_userpath_kit import (
     TimeoutClient,
     UserRig,
     check_bounds,
-    ethercat_rig,
     exchange,
+    module_rig,
 )
 
 pytestmark = [pytest.mark.net, pytest.mark.slow]
@@ -43,9 +43,7 @@ interface = "{interface}"
 
 @pytest.fixture(scope="module")
 def user(tmp_path_factory: pytest.TempPathFactory) -> Iterator[UserRig]:
-    with ethercat_rig(tmp_path_factory.mktemp("esd"), RIG) as u:
-        assert [s["name"] for s in u.rig.info["ethercat"]["slaves"]] == ["esd"]
-        yield u
+    yield from module_rig(tmp_path_factory, RIG, ["esd"])
 
 
 @pytest.fixture(scope="module")
