@@ -28,7 +28,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any, ClassVar
@@ -162,9 +162,10 @@ class MasterRun:
                     out.setdefault(int(e["seq"]), float(e["t"]))
             return out
 
-    def seqs(self, ev: str) -> list[int]:
+    def stalls(self) -> list[tuple[float, float]]:
+        """(from, to) wall times of each cycle the master started more than 20 ms late."""
         with self._cond:
-            return [int(e["seq"]) for e in self.events if e["ev"] == ev]
+            return [(float(e["t0"]), float(e["t"])) for e in self.events if e["ev"] == "late"]
 
     def stderr(self) -> str:
         return self.stderr_path.read_text(errors="replace")[-3000:]
@@ -372,7 +373,9 @@ def pct(values: list[float], q: float) -> float:
 
 @dataclass(frozen=True)
 class Latency:
-    """One direction: the first frame after OP and the steady state after it, in seconds."""
+    """One direction: the first frame after OP and the steady state after it, in seconds. Frames whose way
+    overlapped a stall of the master process (a cycle more than 20 ms late: the shared machine did not run
+    it) are counted apart, not judged (the brief of the wire tests: count late cycles, do not assert them)."""
 
     name: str
     first: float
@@ -381,6 +384,9 @@ class Latency:
     #: master -> CAN: the same measured to the frame's end on the bus (python-can's ``Message.timestamp``, the
     #: rig's bus time in Unix time): the gateway's share, without the delivery to the client
     on_bus: list[float] = field(default_factory=list)
+    #: latencies of the frames that crossed a stall of the master (the first frame's included when it did)
+    stalled: list[float] = field(default_factory=list)
+    first_stalled: bool = False
 
     @property
     def median(self) -> float:
@@ -391,35 +397,43 @@ class Latency:
         return pct(self.steady, 0.99)
 
     def show(self) -> str:
-        text = (f"{self.name}: first frame after OP {1e3 * self.first:.1f} ms, steady median "
+        text = (f"{self.name}: first frame after OP {1e3 * self.first:.1f} ms"
+                f"{' (across a stall of the master)' if self.first_stalled else ''}, steady median "
                 f"{1e3 * self.median:.2f} ms p99 {1e3 * self.p99:.2f} ms max {1e3 * max(self.steady):.2f} ms "
                 f"({len(self.steady)} frames, {len(self.missing)} missing)")
         if self.on_bus:
             text += (f"; to the end of the frame on the bus: median {1e3 * statistics.median(self.on_bus):.2f} ms "
                      f"p99 {1e3 * pct(self.on_bus, 0.99):.2f} ms")
+        if self.stalled:
+            text += f"; {len(self.stalled)} frames across a stall of the master, max {1e3 * max(self.stalled):.1f} ms"
         print(text)
         return text
 
 
 def latency(name: str, sent: dict[int, float], got: dict[int, float], tail: float = 0.2,
-            on_bus: dict[int, float] | None = None) -> Latency:
+            on_bus: dict[int, float] | None = None, stalls: Sequence[tuple[float, float]] = ()) -> Latency:
     """Latencies of the frames ``got`` of those ``sent`` (seq -> wall time); frames sent in the last ``tail``
-    seconds may still be in flight and do not count as missing."""
+    seconds may still be in flight and do not count as missing; ``stalls`` are the master's (from, to)."""
     assert sent and 0 in sent, f"{name}: nothing sent"
     assert 0 in got, f"{name}: the first frame never arrived ({len(got)} of {len(sent)} did)"
     last = max(sent.values()) - tail
-    steady = [got[s] - t for s, t in sent.items() if s > 0 and s in got]
+
+    def crossed(s: int) -> bool:
+        return any(a < got[s] and b > sent[s] for a, b in stalls)
+
+    steady = [got[s] - t for s, t in sent.items() if s > 0 and s in got and not crossed(s)]
+    stalled = [got[s] - t for s, t in sent.items() if s > 0 and s in got and crossed(s)]
     missing = sorted(s for s, t in sent.items() if s not in got and t < last)
-    assert len(steady) >= 20, f"{name}: only {len(steady)} frames arrived"
-    bus = [on_bus[s] - t for s, t in sent.items() if on_bus and s in on_bus]
-    return Latency(name, got[0] - sent[0], steady, missing, bus)
+    assert len(steady) >= 20, f"{name}: only {len(steady)} frames arrived outside the master's stalls"
+    bus = [on_bus[s] - t for s, t in sent.items() if on_bus and s in on_bus and not crossed(s)]
+    return Latency(name, got[0] - sent[0], steady, missing, bus, stalled, crossed(0))
 
 
 def check_bounds(*lats: Latency) -> None:
     """Issue 21's bounds on every direction: first frame < 100 ms, steady p99 < 50 ms."""
     texts = [lat.show() for lat in lats]
     for lat, text in zip(lats, texts):
-        assert lat.first < FIRST_FRAME_S, text
+        assert lat.first < FIRST_FRAME_S or lat.first_stalled, text
         assert lat.p99 < STEADY_P99_S, text
 
 
@@ -468,7 +482,10 @@ def exchange(user: UserRig, lib: str, kind: str, client: CanClient, seconds: flo
     context = (f"master pid {master.proc.pid}: {len(master.times('tx'))} frames sent, {len(master.times('rx'))} "
                f"received; the client received {dict(sources)} (frames by sender), sent {len(client.sent)}")
     print(f"{lib} {kind}: {context}")
+    stalls = master.stalls()
     m2c = latency(f"{lib} {kind} master -> CAN ({client.style})", master.times("tx"),
-                  client.received_from(master.proc.pid), tail, client.received_from(master.proc.pid, bus_time=True))
-    c2m = latency(f"{lib} {kind} CAN -> master ({client.style})", client.sent, master.times("rx", client.tag), tail)
+                  client.received_from(master.proc.pid), tail, client.received_from(master.proc.pid, bus_time=True),
+                  stalls)
+    c2m = latency(f"{lib} {kind} CAN -> master ({client.style})", client.sent, master.times("rx", client.tag), tail,
+                  stalls=stalls)
     return Session(master, client, done, m2c, c2m)

@@ -5,7 +5,8 @@ the device kind's bring-up from its manual, then a paced 1 kHz cyclic task for S
 It prints one JSON line per event as it happens (flushed, so the test can act on ``op`` while this runs and
 can kill it mid-exchange): ``op`` (OP reached), ``tx`` (a frame put into the outputs, wall time of the cycle
 that carried it first), ``ack`` (esd: the gateway acknowledged the batch), ``rx`` (a frame from the CAN
-side seen in the inputs), and a final ``done`` with the counters. Every time is ``time.time()``: the test's
+side seen in the inputs), ``late`` (a cycle started more than 20 ms late: from when to when this process
+stalled), and a final ``done`` with the counters. Every time is ``time.time()``: the test's
 python-can client stamps with the same clock of the same machine.
 
 The bring-ups are the project's drivers' (imported, not written again): ECAN-Lite manual 5.4.3 phases A-E
@@ -197,6 +198,8 @@ class Task:
                 time.sleep(slack)
             elif slack < -0.02:      # a cycle later than 20 ms: counted, the schedule starts again
                 self.late += 1
+                now = time.time()
+                emit("late", t0=now + slack - PERIOD, t=now)    # this process (or its answer) stalled
                 t_next = time.perf_counter()
             i += 1
 
