@@ -452,6 +452,13 @@ class Session:
     c2m: Latency
 
 
+def describe(master: MasterRun, client: CanClient) -> str:
+    """What each side sent and received (the client's frames by sender)."""
+    sources = collections.Counter(src for src, _seq in client.received)
+    return (f"master pid {master.proc.pid}: {len(master.times('tx'))} frames sent, {len(master.times('rx'))} "
+            f"received; the client received {dict(sources)} (frames by sender), sent {len(client.sent)}")
+
+
 def exchange(user: UserRig, lib: str, kind: str, client: CanClient, seconds: float = 1.5,
              kill_after: float | None = None) -> Session:
     """``client`` connected first (a user's bus monitor is up before the master), then the master: once it
@@ -469,7 +476,10 @@ def exchange(user: UserRig, lib: str, kind: str, client: CanClient, seconds: flo
         if kill_after is None:
             done = master.finish(60.0)
         else:
-            master.wait("rx", 30.0, n=int(kill_after / SEND_PERIOD))   # frames flow both ways
+            try:
+                master.wait("rx", 30.0, n=int(kill_after / SEND_PERIOD))   # frames flow both ways
+            except AssertionError as exc:
+                raise AssertionError(f"{exc}; {describe(master, client)}") from None
             master.kill()
         threading.Event().wait(0.2)      # the last frames reach the client
     finally:
@@ -478,10 +488,7 @@ def exchange(user: UserRig, lib: str, kind: str, client: CanClient, seconds: flo
     if done is not None:
         print(f"{lib} {kind}: {done['cycles']} cycles, {done['bad_wkc']} lost or wrong, {done['late']} late > 20 ms")
     tail = 0.2 if kill_after is None else 1.0
-    sources = collections.Counter(src for src, _seq in client.received)
-    context = (f"master pid {master.proc.pid}: {len(master.times('tx'))} frames sent, {len(master.times('rx'))} "
-               f"received; the client received {dict(sources)} (frames by sender), sent {len(client.sent)}")
-    print(f"{lib} {kind}: {context}")
+    print(f"{lib} {kind}: {describe(master, client)}")
     stalls = master.stalls()
     m2c = latency(f"{lib} {kind} master -> CAN ({client.style})", master.times("tx"),
                   client.received_from(master.proc.pid), tail, client.received_from(master.proc.pid, bus_time=True),

@@ -305,7 +305,8 @@ def run_drive_io(line: Soem | Kickcat, seconds: float) -> dict[str, Any]:
     written: dict[int, float] = {}
     echoes: list[float] = []
     st: dict[str, Any] = {"cw": 0x06, "sw": [], "enabled_at": None, "ramp_from": None, "x0": 0, "worst": 0,
-                          "target": 0, "x": 0, "last": -1, "first_after_op": None}
+                          "target": 0, "x": 0, "last": -1, "first_after_op": None,
+                          "last_after": t_op, "skip": 0, "skipped": 0}
     ramp = 500
 
     def step(i: int) -> None:
@@ -330,8 +331,14 @@ def run_drive_io(line: Soem | Kickcat, seconds: float) -> dict[str, Any]:
         st["x"] = x
         if not st["sw"] or st["sw"][-1] != sw:
             st["sw"].append(sw)
+        gap, st["last_after"] = t - st["last_after"], t
+        if gap > PD_TIMEOUT_S:          # this process stalled: the following error is not judged for 5 cycles
+            st["skip"] = 5
         if st["enabled_at"] is not None:
-            if st["ramp_from"] < i <= st["ramp_from"] + ramp:
+            if st["skip"]:
+                st["skip"] -= 1
+                st["skipped"] += 1
+            elif st["ramp_from"] < i <= st["ramp_from"] + ramp:
                 st["worst"] = max(st["worst"], abs(st["target"] - x))
             return
         st["target"] = x
@@ -354,7 +361,8 @@ def run_drive_io(line: Soem | Kickcat, seconds: float) -> dict[str, Any]:
     return {"op": op, "first_echo_after_op": st["first_after_op"], "echoes": echoes, "statuswords": st["sw"],
             "enabled_after": st["enabled_at"],
             "ramp_done": st["ramp_from"] is not None and task.cycles - st["ramp_from"] > ramp,
-            "following_worst": st["worst"], "final": st["x"] - st["x0"], "ramp_end": 20 * ramp,
+            "following_worst": st["worst"], "following_skipped": st["skipped"], "final": st["x"] - st["x0"],
+            "ramp_end": 20 * ramp,
             "bad_wkc": task.bad, "late": task.late, "cycles": task.cycles}
 
 

@@ -58,7 +58,8 @@ def check(done: dict[str, Any], lib: str) -> None:
     print(f"{lib} drive_io: operation enabled {1e3 * done['enabled_after']:.1f} ms after OP; io: first echo "
           f"{1e3 * done['first_echo_after_op']:.1f} ms after OP, round trip median "
           f"{1e3 * statistics.median(echoes):.2f} ms p99 {1e3 * pct(echoes, 0.99):.2f} ms ({len(echoes)} values); "
-          f"CSP worst following error {done['following_worst']}, bad wkc {done['bad_wkc']}, late {done['late']}")
+          f"CSP worst following error {done['following_worst']} ({done['following_skipped']} cycles after a stall of "
+          f"the master not judged), bad wkc {done['bad_wkc']}, late {done['late']}")
     assert done["op"] == "OP"
     states = [sw & 0x6F for sw in done["statuswords"]]
     path = [s for i, s in enumerate(states) if not i or s != states[i - 1]]
