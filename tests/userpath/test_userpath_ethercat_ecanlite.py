@@ -76,10 +76,9 @@ def test_kickcat_master_with_a_notifier(user: UserRig) -> None:
 
 
 def test_a_killed_master_is_replaced_without_restarting_the_rig(user: UserRig) -> None:
-    """A master process SIGKILLed mid-exchange (its SM watchdog then takes the device to SAFEOP with AL
-    status 0x001B) and a new master process: its scan (INIT, error acknowledged) and 5.4.3 bring the same
-    rig process back to OP, and frames flow both ways again within the bounds (14: the start-up path works
-    from any state)."""
+    """A master process SIGKILLed mid-exchange leaves the device in OP with nobody cycling; a new master
+    process scans (INIT), runs the start-up of 14.1 again (5.4.3: assignment, profile, MCAN channels) and
+    brings the same rig process back to OP, and frames flow both ways again within the bounds."""
     pid = user.rig.pid
     first = exchange(user, "soem", "ecanlite", TimeoutClient(user.endpoint()), kill_after=0.5)
     assert first.master.proc.returncode == -9

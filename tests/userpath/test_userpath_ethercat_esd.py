@@ -94,10 +94,10 @@ def test_kickcat_master_with_for_msg_in_bus(user: UserRig) -> None:
 
 
 def test_a_killed_master_is_replaced_without_restarting_the_rig(user: UserRig) -> None:
-    """A pysoem master SIGKILLed mid-exchange (a batch may be half-acknowledged; the SM watchdog takes the
-    gateway to SAFEOP) and a new master process: INIT with the error acknowledged, 0xF800:02 again, OP, the
-    handshake from counters 0 (5.1.5: the gateway resets its counters on the way to OP), frames both ways
-    within the bounds, the same rig process throughout."""
+    """A pysoem master SIGKILLed mid-exchange (a batch may be acknowledged but not yet on CAN, an Rx batch
+    unread) and a new master process: INIT, 0xF800:02 again, OP, the handshake from counters 0 (the gateway
+    starts a new handshake on PREOP -> SAFEOP, docs/decisions.md), frames both ways within the bounds, the
+    same rig process throughout."""
     pid = user.rig.pid
     first = exchange(user, "soem", "esd", PollLoopClient(user.endpoint()), kill_after=0.5)
     assert first.master.proc.returncode == -9
