@@ -32,8 +32,9 @@ name = "io"
 [ethercat]
 interface = "{interface}"
 """
-#: CSP: 20 increments per 1 ms cycle; the axis follows within a few cycles' worth
-FOLLOWING_LIMIT = 200
+#: CSP: 20 increments per 1 ms cycle; the axis follows within 20 cycles' worth (the drive's following error
+#: window 0x6065 is 2000, tests/ethercat_drive/test_ecdrive_kickcat.py; a jittery master's targets come unevenly)
+FOLLOWING_LIMIT = 400
 
 
 @pytest.fixture(scope="module")
