@@ -11,7 +11,11 @@ the endpoint the ready file names. This kit does exactly that and nothing more p
 * four python-can clients, each written the way users write one: a ``recv(0)`` poll loop inside a cyclic
   task, ``recv(timeout)``, ``for msg in bus``, ``can.Notifier`` + ``BufferedReader``; all open
   ``can.Bus(interface="gatewaylab", channel=ENDPOINT)`` as a context manager;
-* :func:`latency`: first-frame and steady-state latencies from the wall times both sides took.
+* :func:`exchange`: one session (client up, master to OP, frames both ways every 5 ms, each tagged with its
+  sender so frames a killed master left behind are told apart), :func:`latency`: first-frame and
+  steady-state latencies from the wall times both sides took (frames across a stall of the master process
+  counted apart), :func:`bounded`: issue 21's bounds (first frame after OP < 100 ms, steady p99 < 50 ms),
+  a session beyond them measured once more.
 """
 
 from __future__ import annotations
