@@ -514,14 +514,14 @@ def bounded(session: Session, again: Callable[[], Session], check: Callable[[Ses
     too: a stall of this shared machine (the rig process not scheduled for 100-200 ms, seen about once in ten
     sessions with eight test suites on two CPUs) is rare and does not repeat, a lag of the gateway (issue 21
     defect 3: 250 ms) does. Both sessions' numbers are printed."""
-    check(session)
-    failed = [t for lat, first in ((session.m2c, m2c_first), (session.c2m, True))
-              if (t := beyond_bounds(lat, first)) is not None]
-    if failed:
-        print(f"beyond the bounds once, measuring again: {failed}")
-        session = again()
+    failed: list[str] = []
+    for attempt in range(2):
+        if attempt:
+            print(f"beyond the bounds once, measuring again: {failed}")
+            session = again()
         check(session)
         failed = [t for lat, first in ((session.m2c, m2c_first), (session.c2m, True))
                   if (t := beyond_bounds(lat, first)) is not None]
-    assert not failed, failed
-    return session
+        if not failed:
+            return session
+    raise AssertionError(failed)
