@@ -18,23 +18,18 @@ Usage: python storm_kit.py INTERFACE SEED MAX_FRAMES MAX_SECONDS CYCLES
 from __future__ import annotations
 
 import json
-import select
-import socket
 import struct
 import sys
-import time
 from pathlib import Path
 from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "ethercat"))
 
-from ethercat_soem_driver import RX_TIMEOUT_US, SLOW_US, _open, _to_op
+from ethercat_soem_driver import SLOW_US, _open, _to_op
 from ethercat_storm import MasterTemplates, mutated_storm
+from ethercat_storm_driver import WD_TIME_1S, reset_watchdogs, send_storm, soem_after_storm
 
-ETHERTYPE = 0x88A4
 SM = struct.Struct("<HHBBBB")
-WD_DIVIDER = struct.pack("<H", 2498)  # 100 us ticks (ET1100 0x0400 after power-on)
-WD_TIME_1S = struct.pack("<H", 10_000)  # 0x0410 / 0x0420: 10,000 ticks of 100 us
 
 
 def learn_line(iface: str) -> tuple[list[int], list[tuple[int, int, int, int]], dict[str, Any]]:
@@ -53,70 +48,13 @@ def learn_line(iface: str) -> tuple[list[int], list[tuple[int, int, int, int]], 
     return stations, mailboxes, info
 
 
-def send_storm(iface: str, frames: list[bytes], max_seconds: float) -> dict[str, int]:
-    rx = socket.socket(socket.AF_PACKET, socket.SOCK_RAW, socket.htons(ETHERTYPE))
-    rx.bind((iface, ETHERTYPE))
-    rx.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 22)
-    tx = socket.socket(socket.AF_PACKET, socket.SOCK_RAW, 0)
-    tx.bind((iface, 0))
-    sent = replies = 0
-    deadline = time.monotonic() + max_seconds
-    for i, frame in enumerate(frames):
-        if time.monotonic() >= deadline:
-            break
-        tx.send(frame.ljust(60, b"\0"))
-        sent += 1
-        if i % 32 == 31:  # let the rig keep up a little (its socket buffer is 1 MB)
-            while select.select([rx], [], [], 0.001)[0]:
-                rx.recv(2048)
-                replies += 1
-    quiet = time.monotonic() + 10.0
-    while time.monotonic() < quiet and select.select([rx], [], [], 0.3)[0]:
-        rx.recv(2048)
-        replies += 1
-    tx.close()
-    rx.close()
-    return {"sent": sent, "replies": replies}
-
-
-def reinitialise(iface: str, cycles: int) -> dict[str, Any]:
-    """A normal master start-up on a line in an unknown state; a start that lost a register frame to a
-    stall of the shared VM (SOEM waits 2 ms for those) is begun again, at most three times."""
-    master = _open(iface)
-    out: dict[str, Any] = {"attempts": []}
-    out.update(op=0, count=0, names=[])
-    for _ in range(3):
-        try:
-            out["count"] = master.config_init()
-            out["names"] = [s.name for s in master.slaves]
-            for s in master.slaves:
-                s._fpwr(0x0600, bytes(16 * 16), SLOW_US)  # every FMMU
-                s._fpwr(0x0820, bytes(8 * 12), SLOW_US)  # SyncManagers 4-15 (config_init programmed 0-1)
-                s._fpwr(0x0981, b"\0", SLOW_US)  # DC SYNC activation off
-                s._fpwr(0x0400, WD_DIVIDER, SLOW_US)
-                s._fpwr(0x0410, WD_TIME_1S, SLOW_US)
-                s._fpwr(0x0420, WD_TIME_1S, SLOW_US)
-            out.update(_to_op(master))
-            master.read_state()
-            out["attempts"].append({"op": out["op"], "states": [(s.state, s.al_status) for s in master.slaves]})
-        except Exception as exc:  # a line that never recovers: reported, not a crash of the driver
-            out["attempts"].append({"error": f"{type(exc).__name__}: {exc}"})
-            continue
-        if out["op"] == 8:
-            break
-    bad = cycles
-    if out["op"] == 8:
-        bad = 0
-        for _ in range(cycles):
-            master.send_processdata()
-            if master.receive_processdata(RX_TIMEOUT_US) != master.expected_wkc:
-                bad += 1
-        master.read_state()
-    out["bad_wkc"] = bad
-    out["cycles"] = cycles
-    out["states"] = [s.state for s in master.slaves]
-    master.close()
-    return out
+def full_reset(slave: Any) -> None:
+    """What IgH and KickCAT clear and set on every start-up besides SOEM's config_init."""
+    slave._fpwr(0x0600, bytes(16 * 16), SLOW_US)  # every FMMU
+    slave._fpwr(0x0820, bytes(8 * 12), SLOW_US)  # SyncManagers 4-15 (config_init programmed 0-1)
+    slave._fpwr(0x0981, b"\0", SLOW_US)  # DC SYNC activation off
+    slave._fpwr(0x0410, WD_TIME_1S, SLOW_US)  # PDI watchdog 1 s
+    reset_watchdogs(slave)  # divider 100 us, SM watchdog 1 s
 
 
 if __name__ == "__main__":
@@ -126,5 +64,5 @@ if __name__ == "__main__":
     frames = mutated_storm(seed, max_frames, MasterTemplates(stations, mailboxes))
     result: dict[str, Any] = {"before": before, "stations": stations, "mailboxes": mailboxes,
                               "storm": send_storm(iface, frames, max_seconds)}
-    result.update(reinitialise(iface, cycles))
+    result.update(soem_after_storm(iface, cycles, reset=full_reset))
     print(json.dumps(result))
