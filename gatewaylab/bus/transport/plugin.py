@@ -14,7 +14,8 @@ What a SocketCAN user expects holds here too (docs/bus-wire.md):
 * ``shutdown()`` waits (at most ``shutdown_timeout``) until the rig has put every accepted frame
   on the bus; frames still queued after that stay queued in the rig, as in a SocketCAN device;
 * a ``recv()`` in another thread (a ``can.Notifier``) interrupted by ``shutdown()`` returns
-  None; any call after ``shutdown()`` raises ``can.CanOperationError``;
+  None; any call after ``shutdown()`` raises ``can.CanOperationError``; ``recv(0)`` returns what
+  the socket already holds (the poll loop of a cyclic task);
 * ``Message.timestamp`` is Unix time (the rig's bus time + the rig clock's ``wall_epoch``),
   ``Message.channel`` the channel given to ``can.Bus``, own echoes have ``is_rx=False``;
 * acceptance filters are applied by the rig (filtered frames do not cross the socket);
@@ -266,9 +267,13 @@ class GatewaylabBus(can.BusABC):
         One thread at a time reads the socket and takes every record for everybody (frames for
         recv, TXDONE for send); the others wait on ``_cond`` and look again after each read.
         Stops early when the connection is lost, and, if ``interruptible``, when shutdown()
-        began. Returns ``ready()``."""
+        began. Returns ``ready()``.
+
+        A timeout that is over before this thread read (``recv(0)``, the poll of a cyclic task)
+        still takes what the socket already holds: one read that does not wait."""
         deadline = None if timeout is None else time.monotonic() + timeout
         cond = self._cond
+        polled = False
         with cond:
             while True:
                 if ready():
@@ -277,10 +282,13 @@ class GatewaylabBus(can.BusABC):
                     return False
                 remaining = None if deadline is None else deadline - time.monotonic()
                 if remaining is not None and remaining <= 0:
-                    return False
+                    if polled or self._reading:   # read once, or another thread is reading
+                        return False
+                    remaining = 0.0
                 if self._reading:
                     cond.wait(remaining)
                     continue
+                polled = True
                 self._reading = True
                 cond.release()
                 try:
