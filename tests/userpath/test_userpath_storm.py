@@ -13,7 +13,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -44,17 +44,18 @@ class StormLine:
 
 
 @pytest.fixture(scope="module")
-def storm_line(tmp_path_factory: pytest.TempPathFactory) -> Iterator[StormLine]:
-    """One rig for the module: the four kinds on the [ethercat] segment of a veth end."""
+def storm_line(start_rig: Callable[..., RigProcess]) -> Iterator[StormLine]:
+    """One rig for the module (the folder's ``start_rig``): the four kinds on the [ethercat] segment of a
+    veth end; stopped before its interface goes away."""
     reason = net_capable("pysoem")
     if reason:
         pytest.skip(reason)
-    tmp = tmp_path_factory.mktemp("storm")
     with veth_namespace("glst", "gls") as (ns, emu, mst):
-        rig_file = tmp / "rig.toml"
-        rig_file.write_text(rig_text(KINDS, interface=emu, clock="realtime"))
-        with RigProcess(rig_file, workdir=tmp, timeout=60) as rig:
+        rig = start_rig(rig_text(KINDS, interface=emu, clock="realtime"))
+        try:
             yield StormLine(rig, ns, mst)
+        finally:
+            rig.stop(20)
 
 
 def _storm(line: StormLine, seed: int) -> dict[str, Any]:
