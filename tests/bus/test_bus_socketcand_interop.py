@@ -88,12 +88,10 @@ def test_canopen_reads_1008_and_runs_a_pdo_loop(rig: RigProcess) -> None:
     try:
         node = network.add_node(2, eds)
         assert "gatewaylab" in node.sdo[0x1008].raw
-        node.tpdo.read()
-        node.rpdo.read()
-        node.tpdo[1].trans_type = 1
-        node.tpdo[1].save()
-        node.rpdo[1].trans_type = 1
-        node.rpdo[1].save()
+        for maps in (node.tpdo, node.rpdo):              # PDO 1 both ways synchronous (type 1)
+            maps.read()
+            maps[1].trans_type = 1
+            maps[1].save()
         node.sdo[0x6060].raw = 8
         for cw in (0x06, 0x07, 0x0F):
             node.sdo[0x6040].raw = cw

@@ -16,6 +16,7 @@ from ...common.errors import LocalError
 from .. import socketcand as sc
 from ..bus import BusEvent, Controller, ErrorFrameEvent, ErrorKind, ErrorState, StateChangeEvent, VirtualBus
 from ..frame import CanFrame
+from .outbox import Outbox
 from .server import Reactor
 
 log = logging.getLogger(__name__)
@@ -47,8 +48,7 @@ class _Client:
         self.peer = peer
         self.session = sc.Session((server.bus.name,))
         self.controller: Controller | None = None
-        self.out = bytearray()
-        self.writing = False
+        self.outbox = Outbox(sock, server.reactor, server.max_backlog, self._send_failed, self._overflow)
         self.closed = False
         #: RAW mode: frames held until the settle timer after ``< ok >`` fires
         self.held: list[bytes] | None = None
@@ -105,40 +105,14 @@ class _Client:
             self.write(b"".join(held))
 
     def write(self, data: bytes) -> None:
-        if self.closed:
-            return
-        if self.out:
-            self.out += data
-        else:
-            try:
-                sent = self.sock.send(data)
-            except BlockingIOError:
-                sent = 0
-            except OSError as exc:
-                self.server.drop(self, f"send failed: {exc}", level=logging.INFO)
-                return
-            if sent < len(data):
-                self.out += data[sent:]
-        if self.out:
-            if len(self.out) > self.server.max_backlog:
-                self.server.drop(self, f"client does not read: {len(self.out)} bytes backlog")
-                return
-            if not self.writing:
-                self.writing = True
-                self.server.reactor.add_writer(self.sock.fileno(), self.flush)
+        if not self.closed:
+            self.outbox.write(data)
 
-    def flush(self) -> None:
-        try:
-            sent = self.sock.send(self.out)
-        except BlockingIOError:
-            return
-        except OSError as exc:
-            self.server.drop(self, f"send failed: {exc}", level=logging.INFO)
-            return
-        del self.out[:sent]
-        if not self.out and self.writing:
-            self.writing = False
-            self.server.reactor.remove_writer(self.sock.fileno())
+    def _send_failed(self, exc: OSError) -> None:
+        self.server.drop(self, f"send failed: {exc}", level=logging.INFO)
+
+    def _overflow(self, size: int) -> None:
+        self.server.drop(self, f"client does not read: {size} bytes backlog")
 
     # -- client -> bus -----------------------------------------------------------------------
     def readable(self) -> None:
@@ -281,17 +255,15 @@ class SocketcandServer:
         log.log(level, "bus %s: socketcand: disconnecting %s: %s", self.bus.name, client.peer, reason)
         client.held = None
         client.stop_timers()
-        if client.out:   # a last answer (an error before the end) goes out if it fits
+        if client.outbox.out:   # a last answer (an error before the end) goes out if it fits
             try:
-                client.sock.send(client.out)
+                client.sock.send(client.outbox.out)
             except OSError:
                 pass
         client.closed = True
         self.dropped.append(reason)
-        fd = client.sock.fileno()
-        self.reactor.remove_reader(fd)
-        if client.writing:
-            self.reactor.remove_writer(fd)
+        self.reactor.remove_reader(client.sock.fileno())
+        client.outbox.close()
         client.sock.close()
         self.clients.remove(client)
         if client.controller is not None:
