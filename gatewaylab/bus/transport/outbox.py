@@ -1,4 +1,5 @@
-"""Non-blocking writes to one client socket of a server in the rig loop (server.py, socketcand.py).
+"""Client sockets of the servers in the rig loop (server.py, socketcand.py): accepting them, and
+non-blocking writes to each.
 
 What the socket does not take at once waits here and goes out when the reactor says the socket is
 writable; a client that lets more than ``limit`` bytes pile up is reported (``on_overflow``) so its
@@ -10,6 +11,19 @@ from __future__ import annotations
 import socket
 from collections.abc import Callable
 from typing import Protocol
+
+
+def accept(listener: socket.socket, index: int) -> tuple[socket.socket, str] | None:
+    """The next waiting connection, non-blocking (TCP_NODELAY on TCP), with a name for logs
+    (``HOST:PORT``, or ``unix-clientN`` with ``index``); None when none waits."""
+    try:
+        sock, addr = listener.accept()
+    except BlockingIOError:
+        return None
+    sock.setblocking(False)
+    if sock.family in (socket.AF_INET, socket.AF_INET6):
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+    return sock, f"{addr[0]}:{addr[1]}" if isinstance(addr, tuple) else f"unix-client{index}"
 
 
 class WriterReactor(Protocol):

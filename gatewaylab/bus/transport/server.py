@@ -27,7 +27,7 @@ from ..bus import (
     VirtualBus,
 )
 from ..frame import CanFrame
-from .outbox import Outbox
+from .outbox import Outbox, accept
 
 log = logging.getLogger(__name__)
 
@@ -212,14 +212,10 @@ class BusServer:
         reactor.add_reader(self.listener.fileno(), self._accept)
 
     def _accept(self) -> None:
-        try:
-            sock, addr = self.listener.accept()
-        except BlockingIOError:
+        accepted = accept(self.listener, len(self.clients))
+        if accepted is None:
             return
-        sock.setblocking(False)
-        if sock.family == socket.AF_INET:
-            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        peer = f"{addr[0]}:{addr[1]}" if isinstance(addr, tuple) else f"unix-client{len(self.clients)}"
+        sock, peer = accepted
         client = _Client(self, sock, peer)
         self.clients.append(client)
         self.reactor.add_reader(sock.fileno(), client.readable)

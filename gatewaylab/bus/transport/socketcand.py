@@ -16,7 +16,7 @@ from ...common.errors import LocalError
 from .. import socketcand as sc
 from ..bus import BusEvent, Controller, ErrorFrameEvent, ErrorKind, ErrorState, StateChangeEvent, VirtualBus
 from ..frame import CanFrame
-from .outbox import Outbox
+from .outbox import Outbox, accept
 from .server import Reactor
 
 log = logging.getLogger(__name__)
@@ -237,13 +237,11 @@ class SocketcandServer:
         reactor.add_reader(self.listener.fileno(), self._accept)
 
     def _accept(self) -> None:
-        try:
-            sock, addr = self.listener.accept()
-        except BlockingIOError:
+        accepted = accept(self.listener, len(self.clients))
+        if accepted is None:
             return
-        sock.setblocking(False)
-        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        client = _Client(self, sock, f"{addr[0]}:{addr[1]}")
+        sock, peer = accepted
+        client = _Client(self, sock, peer)
         self.clients.append(client)
         self.reactor.add_reader(sock.fileno(), client.readable)
         client.write(sc.Session.greeting())
