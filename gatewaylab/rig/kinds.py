@@ -20,8 +20,9 @@ if TYPE_CHECKING:
 
 #: The entry-point group a device package registers its :class:`DeviceKind` objects in.
 GROUP = "gatewaylab.devices"
-#: Sections of gatewaylab's own that are not devices (``[[bridge]]``): known without an entry point.
-BUILTIN = {"bridge": "gatewaylab.bus.transport.bridge:KIND"}
+#: Sections of gatewaylab's own that are not devices (``[[bridge]]``, ``[[tunnel]]``): known without an
+#: entry point.
+BUILTIN = {"bridge": "gatewaylab.bus.transport.bridge:KIND", "tunnel": "gatewaylab.bus.transport.cannelloni:KIND"}
 
 
 def registered() -> dict[str, EntryPoint]:

@@ -31,17 +31,19 @@ class RigProcess:
     ``rig_file`` None runs the default rig; ``extra`` are more ``gatewaylab run`` options
     (``--acker``, ``--trace can0=x.log``). The rig's log (stderr) goes to ``stderr`` or, by default,
     to ``rig-*.log`` in ``workdir`` (a file, not a pipe: a long run that logs a lot never blocks);
-    its tail is shown when the start fails.
+    its tail is shown when the start fails. ``prefix`` runs it through another command that then
+    executes it, e.g. ``("ip", "netns", "exec", "NS")`` for a rig in a network namespace.
     """
 
     def __init__(self, rig_file: str | Path | None, *extra: str, workdir: str | Path,
-                 timeout: float = 60.0, stderr: IO[Any] | int | None = None) -> None:
+                 timeout: float = 60.0, stderr: IO[Any] | int | None = None,
+                 prefix: tuple[str, ...] = ()) -> None:
         tag = f"{os.getpid()}-{id(self):x}"
         self.ready_file = Path(workdir) / f"ready-{tag}.json"
         self.log_file: Path | None = None
         if stderr is None:
             self.log_file = Path(workdir) / f"rig-{tag}.log"
-        args = [sys.executable, "-m", "gatewaylab", "run", *([str(rig_file)] if rig_file else []),
+        args = [*prefix, sys.executable, "-m", "gatewaylab", "run", *([str(rig_file)] if rig_file else []),
                 "--ready-file", str(self.ready_file), *extra]
         log = self.log_file.open("wb") if self.log_file is not None else None
         try:
