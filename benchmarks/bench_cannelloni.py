@@ -16,12 +16,11 @@ import statistics
 import tempfile
 from pathlib import Path
 
-from benchmarks.bench_scale import free_udp_ports
 from gatewaylab.bus import CanFrame
 from gatewaylab.common.clock import RealTimeClock
 from gatewaylab.rig.config import parse_rig
 from gatewaylab.rig.process import RigProcess
-from gatewaylab.rig.pytest_plugin import rig_toml
+from gatewaylab.rig.pytest_plugin import free_udp_ports, rig_toml
 from gatewaylab.rig.runtime import Rig
 
 SECONDS = float(os.environ.get("TUNNEL_SECONDS", "10"))

@@ -29,7 +29,7 @@ from gatewaylab.bus import CanFrame
 from gatewaylab.common.clock import RealTimeClock
 from gatewaylab.rig.config import parse_rig
 from gatewaylab.rig.process import RigProcess
-from gatewaylab.rig.pytest_plugin import rig_toml
+from gatewaylab.rig.pytest_plugin import free_udp_ports, rig_toml
 from gatewaylab.rig.runtime import Rig
 
 SECONDS = float(os.environ.get("SCALE_SECONDS", "60"))
@@ -39,19 +39,6 @@ BUSES, PER_BUS, PERIOD = 8, 8, 0.004
 CONTROL = PERIOD
 SETTLE = 1.0
 RPDO = struct.Struct("<Hi")
-
-
-def free_udp_ports(n: int) -> list[int]:
-    import socket
-
-    socks = [socket.socket(socket.AF_INET, socket.SOCK_DGRAM) for _ in range(n)]
-    try:
-        for s in socks:
-            s.bind(("127.0.0.1", 0))
-        return [s.getsockname()[1] for s in socks]
-    finally:
-        for s in socks:
-            s.close()
 
 
 def plant(drives: Callable[[int], range], tunnels: list[tuple[str, str]] | None = None) -> dict[str, Any]:

@@ -30,7 +30,7 @@ if TYPE_CHECKING:
     from .process import RigProcess
     from .runtime import Rig
 
-__all__ = ["RigHandle", "rig_toml"]
+__all__ = ["RigHandle", "free_udp_ports", "rig_toml"]
 
 MARKERS = {
     "gatewaylab_root": "the test needs root (skipped otherwise)",
@@ -72,6 +72,21 @@ def rig_toml(data: Mapping[str, Any]) -> str:
         else:
             lines.append(f"{_key(key)} = {_value(value)}")
     return "\n".join(lines + tables) + "\n"
+
+
+def free_udp_ports(n: int, host: str = "127.0.0.1") -> list[int]:
+    """``n`` UDP ports free on ``host`` right now: the two ends of rigs joined by cannelloni tunnels
+    need each other's port before either starts."""
+    import socket
+
+    socks = [socket.socket(socket.AF_INET, socket.SOCK_DGRAM) for _ in range(n)]
+    try:
+        for sock in socks:
+            sock.bind((host, 0))
+        return [sock.getsockname()[1] for sock in socks]
+    finally:
+        for sock in socks:
+            sock.close()
 
 
 class RigHandle:

@@ -19,26 +19,17 @@ from typing import Any
 
 import canopen
 import pytest
+from csp_loop_kit import csp_loop
 
 from gatewaylab.bus import CanFrame, python_can_bus
 from gatewaylab.bus.transport.cannelloni import CannelloniTunnel
 from gatewaylab.common.errors import ConfigError
 from gatewaylab.rig.config import parse_rig
 from gatewaylab.rig.process import RigProcess
+from gatewaylab.rig.pytest_plugin import free_udp_ports
 from gatewaylab.rig.runtime import Rig
 
 DRIVE = {"bus": "can0", "node_id": 2, "serial": 0x1002, "name": "axis2"}
-
-
-def free_udp_ports(n: int) -> list[int]:
-    socks = [socket.socket(socket.AF_INET, socket.SOCK_DGRAM) for _ in range(n)]
-    try:
-        for s in socks:
-            s.bind(("127.0.0.1", 0))
-        return [s.getsockname()[1] for s in socks]
-    finally:
-        for s in socks:
-            s.close()
 
 
 class Pair:
@@ -106,26 +97,7 @@ def sdo_and_pdo(network: canopen.Network, eds_file: str, cycles: int = 100) -> i
     """CiA 301 SDO upload of 0x1008, then a SYNC loop with RPDO1/TPDO1 (type 1): TPDOs received."""
     node = network.add_node(2, eds_file)
     assert "gatewaylab" in node.sdo[0x1008].raw
-    for maps in (node.tpdo, node.rpdo):
-        maps.read()
-        maps[1].trans_type = 1
-        maps[1].save()
-    node.sdo[0x6060].raw = 8
-    for cw in (0x06, 0x07, 0x0F):
-        node.sdo[0x6040].raw = cw
-    node.nmt.state = "OPERATIONAL"
-    target = int(node.sdo[0x6064].raw)
-    received = 0
-    for _ in range(cycles):
-        target += 40
-        node.rpdo[1]["Controlword"].raw = 0x0F
-        node.rpdo[1]["Target position"].raw = target
-        node.rpdo[1].transmit()
-        network.send_message(0x80, b"")
-        if node.tpdo[1].wait_for_reception(2.0) is not None:
-            received += 1
-    node.nmt.state = "PRE-OPERATIONAL"
-    return received
+    return csp_loop(network, node, cycles)[0]
 
 
 def test_canopen_sdo_and_pdo_through_the_tunnel(pair: Pair) -> None:

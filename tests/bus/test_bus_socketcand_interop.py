@@ -13,6 +13,7 @@ from pathlib import Path
 import can
 import canopen
 import pytest
+from csp_loop_kit import csp_loop
 from socketcand_kit import RawClient
 
 from gatewaylab.rig.process import RigProcess
@@ -88,29 +89,12 @@ def test_canopen_reads_1008_and_runs_a_pdo_loop(rig: RigProcess) -> None:
     try:
         node = network.add_node(2, eds)
         assert "gatewaylab" in node.sdo[0x1008].raw
-        for maps in (node.tpdo, node.rpdo):              # PDO 1 both ways synchronous (type 1)
-            maps.read()
-            maps[1].trans_type = 1
-            maps[1].save()
-        node.sdo[0x6060].raw = 8
-        for cw in (0x06, 0x07, 0x0F):
-            node.sdo[0x6040].raw = cw
-        node.nmt.state = "OPERATIONAL"
-        start = int(node.sdo[0x6064].raw)
-        target, received, cycles = start, 0, 200
-        for _ in range(cycles):
-            target += 40
-            node.rpdo[1]["Controlword"].raw = 0x0F
-            node.rpdo[1]["Target position"].raw = target
-            node.rpdo[1].transmit()
-            network.send_message(0x80, b"")
-            if node.tpdo[1].wait_for_reception(2.0) is not None:
-                received += 1
+        cycles = 200
+        received, start, _ = csp_loop(network, node, cycles)
         assert received >= cycles - 5, f"{received} of {cycles} TPDOs"
         sw = node.tpdo[1]["Statusword"].raw
         assert sw & 0x6F == 0x27                      # operation enabled
         assert node.tpdo[1]["Position actual value"].raw > start + 40 * cycles // 2
-        node.nmt.state = "PRE-OPERATIONAL"
     finally:
         network.disconnect()
 
