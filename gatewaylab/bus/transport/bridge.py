@@ -143,6 +143,9 @@ class PythonCanBridge:
         except Exception as exc:  # every driver fails its own way (CanError, OSError, serial, usb ...)
             self._failed(exc, LinkState.DOWN)
             return False
+        if self._stop.is_set():          # stopped while the adapter was opening
+            real.shutdown()
+            return False
         with self._lock:
             self._real = real
         if self._failures:
