@@ -21,6 +21,7 @@ import bridge_kit
 import can
 import canopen
 import pytest
+from csp_loop_kit import csp_loop
 
 from gatewaylab.bus import CanFrame
 from gatewaylab.bus.bridge import Backoff, EchoFilter, LinkState, Verdict, classify
@@ -130,8 +131,9 @@ def test_frames_both_ways_with_timestamps_and_no_echo(rigs: list) -> None:
 
 
 def test_canopen_on_the_far_side_reads_and_moves_a_drive(rigs: list) -> None:
-    """CiA 301 SDO (0x1008, segmented) and CiA 402 profile position (0x6060 = 1, 0x607A, controlword
-    0x1F then 0x0F, statusword bit 10 target reached) from a canopen master behind the bridge."""
+    """CiA 301 SDO (0x1008, segmented), CiA 402 profile position (0x6060 = 1, 0x607A, controlword
+    0x1F then 0x0F, statusword bit 10 target reached) and a CSP loop of SYNC/RPDO1/TPDO1 from a
+    canopen master behind the bridge."""
     logging.getLogger("canopen").setLevel(logging.ERROR)
     rig, thread, _ = start_rig({"bus": "can0", "interface": "virtual", "channel": "far-master"}, drive=True)
     rigs.append((rig, thread))
@@ -152,6 +154,8 @@ def test_canopen_on_the_far_side_reads_and_moves_a_drive(rigs: list) -> None:
                 break
         assert node.sdo[0x6041].raw & 0x400
         assert abs(node.sdo[0x6064].raw - 3000) <= node.sdo[0x6067].raw
+        received, _, _ = csp_loop(network, node, 100)     # and PDOs: SYNC + RPDO1 out, TPDO1 back
+        assert received >= 95
     finally:
         network.disconnect()
 
