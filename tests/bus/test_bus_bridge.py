@@ -267,8 +267,8 @@ def _netns_unavailable() -> str | None:
 def test_udp_multicast_as_the_real_side_in_a_loopback_only_namespace() -> None:
     """python-can's udp_multicast binds to every interface and joins its group on the default one, so it
     runs in a network namespace with only lo (hop limit 0): `gatewaylab run` bridges can0 to it and a
-    canopen master on the far side reads 0x1008 and moves the drive (tests/bus/bridge_netns_child.py)."""
-    run = subprocess.run(["unshare", "-n", sys.executable, str(HERE / "bridge_netns_child.py")],
+    canopen master on the far side reads 0x1008 and moves the drive (tests/bus/bridge_netns_driver.py)."""
+    run = subprocess.run(["unshare", "-n", sys.executable, str(HERE / "bridge_netns_driver.py")],
                          capture_output=True, text=True, timeout=120)
     assert run.returncode == 0, run.stdout + run.stderr
     assert run.stdout.startswith("OK IDX")
