@@ -13,6 +13,26 @@ from can.interfaces.virtual import VirtualBus
 INTERFACE = "gatewaylab_flaky"
 
 
+def bridge_rig(interface: str, channel: str, options: str = "") -> str:
+    """A rig file: can0 with drive 2 (axis2), bridged to ``interface``/``channel`` (``options``: an inline
+    TOML table of more can.Bus arguments, e.g. ``{ hop_limit = 0 }``)."""
+    extra = f"\noptions = {options}" if options else ""
+    return f"""
+clock = "realtime"
+[[bus]]
+name = "can0"
+[[drive]]
+bus = "can0"
+node_id = 2
+serial = 0x1002
+name = "axis2"
+[[bridge]]
+bus = "can0"
+interface = "{interface}"
+channel = "{channel}"{extra}
+"""
+
+
 class Adapter:
     """One pretend adapter: plugged in or not, and events a test waits on (no sleeping)."""
 

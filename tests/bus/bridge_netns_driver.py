@@ -14,25 +14,12 @@ from pathlib import Path
 
 import can
 import canopen
+from bridge_kit import bridge_rig
 
 from gatewaylab.rig.process import RigProcess
 
 GROUP = "239.74.163.2"
-RIG = f"""
-clock = "realtime"
-[[bus]]
-name = "can0"
-[[drive]]
-bus = "can0"
-node_id = 2
-serial = 0x1002
-name = "axis2"
-[[bridge]]
-bus = "can0"
-interface = "udp_multicast"
-channel = "{GROUP}"
-options = {{ hop_limit = 0 }}
-"""
+RIG = bridge_rig("udp_multicast", GROUP, "{ hop_limit = 0 }")
 
 
 def main() -> int:

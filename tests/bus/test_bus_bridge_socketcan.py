@@ -14,23 +14,11 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from bridge_kit import bridge_rig
 
 from gatewaylab.rig.process import RigProcess
 
-RIG = """
-clock = "realtime"
-[[bus]]
-name = "can0"
-[[drive]]
-bus = "can0"
-node_id = 2
-serial = 0x1002
-name = "axis2"
-[[bridge]]
-bus = "can0"
-interface = "socketcan"
-channel = "vcan0"
-"""
+RIG = bridge_rig("socketcan", "vcan0")
 
 
 def _vcan_unavailable() -> str | None:

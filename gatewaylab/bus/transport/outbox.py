@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import socket
 from collections.abc import Callable
-from typing import Protocol
+from typing import Protocol, TypeVar
 
 
 def accept(listener: socket.socket, index: int) -> tuple[socket.socket, str] | None:
@@ -29,6 +29,31 @@ def accept(listener: socket.socket, index: int) -> tuple[socket.socket, str] | N
 class WriterReactor(Protocol):
     def add_writer(self, fd: int, callback: Callable[[], None]) -> None: ...
     def remove_writer(self, fd: int) -> None: ...
+
+
+class ClientReactor(WriterReactor, Protocol):
+    def add_reader(self, fd: int, callback: Callable[[], None]) -> None: ...
+
+
+class Client(Protocol):
+    sock: socket.socket
+
+    def readable(self) -> None: ...
+
+
+C = TypeVar("C", bound=Client)
+
+
+def accept_client(listener: socket.socket, clients: list[C], make: Callable[[socket.socket, str], C],
+                  reactor: ClientReactor) -> C | None:
+    """Accept the next connection (:func:`accept`), make its client, list it and read from it."""
+    accepted = accept(listener, len(clients))
+    if accepted is None:
+        return None
+    client = make(*accepted)
+    clients.append(client)
+    reactor.add_reader(client.sock.fileno(), client.readable)
+    return client
 
 
 class Outbox:

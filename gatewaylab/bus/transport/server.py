@@ -27,7 +27,7 @@ from ..bus import (
     VirtualBus,
 )
 from ..frame import CanFrame
-from .outbox import Outbox, accept
+from .outbox import Outbox, accept_client
 
 log = logging.getLogger(__name__)
 
@@ -212,13 +212,7 @@ class BusServer:
         reactor.add_reader(self.listener.fileno(), self._accept)
 
     def _accept(self) -> None:
-        accepted = accept(self.listener, len(self.clients))
-        if accepted is None:
-            return
-        sock, peer = accepted
-        client = _Client(self, sock, peer)
-        self.clients.append(client)
-        self.reactor.add_reader(sock.fileno(), client.readable)
+        accept_client(self.listener, self.clients, lambda sock, peer: _Client(self, sock, peer), self.reactor)
 
     def drop(self, client: _Client, reason: str, notify: bool = True, level: int = logging.WARNING) -> None:
         """Disconnect one client with a logged reason; the bus and the other clients carry on.

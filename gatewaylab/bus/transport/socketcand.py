@@ -16,7 +16,7 @@ from ...common.errors import LocalError
 from .. import socketcand as sc
 from ..bus import BusEvent, Controller, ErrorFrameEvent, ErrorKind, ErrorState, StateChangeEvent, VirtualBus
 from ..frame import CanFrame
-from .outbox import Outbox, accept
+from .outbox import Outbox, accept_client
 from .server import Reactor
 
 log = logging.getLogger(__name__)
@@ -237,14 +237,10 @@ class SocketcandServer:
         reactor.add_reader(self.listener.fileno(), self._accept)
 
     def _accept(self) -> None:
-        accepted = accept(self.listener, len(self.clients))
-        if accepted is None:
-            return
-        sock, peer = accepted
-        client = _Client(self, sock, peer)
-        self.clients.append(client)
-        self.reactor.add_reader(sock.fileno(), client.readable)
-        client.write(sc.Session.greeting())
+        client = accept_client(self.listener, self.clients, lambda sock, peer: _Client(self, sock, peer),
+                               self.reactor)
+        if client is not None:
+            client.write(sc.Session.greeting())
 
     def drop(self, client: _Client, reason: str, level: int = logging.WARNING) -> None:
         """Disconnect one client with a logged reason; the bus and the other clients carry on."""
