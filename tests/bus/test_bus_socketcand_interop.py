@@ -79,6 +79,24 @@ def test_python_can_socketcand_exchanges_classic_frames(rig: RigProcess) -> None
         b.shutdown()
 
 
+def test_handshake_holds_on_a_busy_bus(rig: RigProcess) -> None:
+    """python-can reads the answer to '< rawmode >' with one recv(256) and wants exactly '< ok >': while
+    another client keeps the bus busy (a frame every 0.5 ms), ten connections in a row all succeed
+    (the server holds frames briefly after '< ok >', docs/decisions.md)."""
+    flood = can.Bus(interface="gatewaylab", channel=rig.endpoint("can0"))
+    task = flood.send_periodic(can.Message(arbitration_id=0x7F1, data=bytes(8), is_extended_id=False), 0.0005)
+    try:
+        for _ in range(10):
+            bus = socketcand_bus(rig)
+            try:
+                assert recv_id(bus, 0x7F1).arbitration_id == 0x7F1
+            finally:
+                bus.shutdown()
+    finally:
+        task.stop()
+        flood.shutdown()
+
+
 def test_canopen_reads_1008_and_runs_a_pdo_loop(rig: RigProcess) -> None:
     """CiA 301 SDO upload of 0x1008 (segmented) and a CiA 402 CSP loop: RPDO1 + SYNC out, TPDO1 (type 1)
     back each cycle, all through python-can's socketcand interface."""
