@@ -200,6 +200,30 @@ def test_an_adapter_that_vanishes_and_comes_back(rigs: list, caplog: pytest.LogC
         far.shutdown()
 
 
+def test_an_adapter_missing_at_start_is_one_line_and_the_rig_runs(rigs: list,
+                                                                  caplog: pytest.LogCaptureFixture) -> None:
+    """No adapter when the rig starts: one warning line naming the bridge and the adapter, the rig runs
+    (state down); the adapter plugged in later is opened by the next attempt."""
+    adapter = bridge_kit.register("late-usb")
+    adapter.plugged = False
+    with caplog.at_level(logging.WARNING, logger="gatewaylab.bus.transport.bridge"):
+        rig, thread, seen = start_rig({"bus": "can0", "interface": bridge_kit.INTERFACE, "channel": "late-usb",
+                                       "retry_initial": 0.02, "retry_max": 0.1})
+        rigs.append((rig, thread))
+        bridge = bridge_of(rig)
+        wait_state(bridge, LinkState.DOWN, thread)
+        adapter.plugged = True
+        wait_state(bridge, LinkState.UP, thread)
+    [line] = [r.getMessage() for r in caplog.records if "down" in r.getMessage()]
+    assert "bridge-can0-gatewaylab_flaky" in line and "late-usb" in line and "unplugged" in line
+    far = can.Bus(interface="virtual", channel="late-usb")
+    try:
+        far.send(can.Message(arbitration_id=0x104, data=b"\x04", is_extended_id=False))
+        assert seen.event(0x104).wait(10)
+    finally:
+        far.shutdown()
+
+
 def test_bus_off_of_the_real_side_restarts_the_link(rigs: list, caplog: pytest.LogCaptureFixture) -> None:
     """An error frame with CAN_ERR_BUSOFF from the real side: reported (state bus-off, one warning),
     the adapter reopened after the back-off; nothing of it reaches the virtual bus."""
