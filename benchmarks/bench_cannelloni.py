@@ -19,8 +19,7 @@ from pathlib import Path
 from gatewaylab.bus import CanFrame
 from gatewaylab.common.clock import RealTimeClock
 from gatewaylab.rig.config import parse_rig
-from gatewaylab.rig.process import RigProcess
-from gatewaylab.rig.pytest_plugin import free_udp_ports, rig_toml
+from gatewaylab.rig.process import RigProcess, free_udp_ports, rig_toml
 from gatewaylab.rig.runtime import Rig
 
 SECONDS = float(os.environ.get("TUNNEL_SECONDS", "10"))

@@ -28,8 +28,7 @@ from typing import Any
 from gatewaylab.bus import CanFrame
 from gatewaylab.common.clock import RealTimeClock
 from gatewaylab.rig.config import parse_rig
-from gatewaylab.rig.process import RigProcess
-from gatewaylab.rig.pytest_plugin import free_udp_ports, rig_toml
+from gatewaylab.rig.process import RigProcess, free_udp_ports, rig_toml
 from gatewaylab.rig.runtime import Rig
 
 SECONDS = float(os.environ.get("SCALE_SECONDS", "60"))

@@ -15,7 +15,6 @@ their master software (docs/testing-your-master.md).
 
 from __future__ import annotations
 
-import json
 import os
 from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
@@ -30,6 +29,8 @@ if TYPE_CHECKING:
     from .process import RigProcess
     from .runtime import Rig
 
+from .process import free_udp_ports, rig_toml
+
 __all__ = ["RigHandle", "free_udp_ports", "rig_toml"]
 
 MARKERS = {
@@ -37,56 +38,6 @@ MARKERS = {
     "gatewaylab_veth": "the test needs veth pairs and raw sockets: root or CAP_NET_ADMIN + CAP_NET_RAW and "
                        "iproute2 (skipped otherwise)",
 }
-
-
-def _value(value: Any) -> str:
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, int | float):
-        return repr(value)
-    if isinstance(value, str):
-        return json.dumps(value)        # a JSON string is a TOML basic string
-    if isinstance(value, Mapping):
-        return "{ " + ", ".join(f"{_key(k)} = {_value(v)}" for k, v in value.items()) + " }"
-    if isinstance(value, list | tuple):
-        return "[" + ", ".join(_value(v) for v in value) + "]"
-    raise TypeError(f"a rig file has no values of type {type(value).__name__} ({value!r})")
-
-
-def _key(key: str) -> str:
-    return key if key.replace("_", "").replace("-", "").isalnum() and key.isascii() else json.dumps(key)
-
-
-def rig_toml(data: Mapping[str, Any]) -> str:
-    """A rig given as a dict (the shape of a parsed rig file) as rig-file text."""
-    lines: list[str] = []
-    tables: list[str] = []
-    for key, value in data.items():
-        if isinstance(value, list) and value and all(isinstance(v, Mapping) for v in value):
-            for entry in value:
-                tables.append(f"\n[[{_key(key)}]]")
-                tables.extend(f"{_key(k)} = {_value(v)}" for k, v in entry.items())
-        elif isinstance(value, Mapping):
-            tables.append(f"\n[{_key(key)}]")
-            tables.extend(f"{_key(k)} = {_value(v)}" for k, v in value.items())
-        else:
-            lines.append(f"{_key(key)} = {_value(value)}")
-    return "\n".join(lines + tables) + "\n"
-
-
-def free_udp_ports(n: int, host: str = "127.0.0.1") -> list[int]:
-    """``n`` UDP ports free on ``host`` right now: the two ends of rigs joined by cannelloni tunnels
-    need each other's port before either starts."""
-    import socket
-
-    socks = [socket.socket(socket.AF_INET, socket.SOCK_DGRAM) for _ in range(n)]
-    try:
-        for sock in socks:
-            sock.bind((host, 0))
-        return [sock.getsockname()[1] for sock in socks]
-    finally:
-        for sock in socks:
-            sock.close()
 
 
 class RigHandle:

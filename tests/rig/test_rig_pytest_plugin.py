@@ -16,7 +16,7 @@ import can
 import canopen
 import pytest
 
-from gatewaylab.rig.pytest_plugin import rig_toml
+from gatewaylab.rig.process import rig_toml
 
 DRIVE = {"bus": "can0", "node_id": 2, "serial": 0x1002, "name": "axis2"}
 ROOT = Path(__file__).resolve().parents[2]
