@@ -113,6 +113,9 @@ def _start_web(rig: Rig, port: int) -> RigWeb:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
+    from .config import load_rig
     from .runtime import Rig
 
     _check_rig_file(args.rig)
@@ -121,14 +124,17 @@ def cmd_run(args: argparse.Namespace) -> int:
         _check_writable("--trace", path)
     if args.ready_file:
         _check_writable("--ready-file", args.ready_file)
-    rig = Rig.from_file(args.rig)
+    config = load_rig(args.rig)
+    if args.socketcand:
+        config = replace(config, buses=tuple(replace(b, socketcand=True) for b in config.buses))
+    rig = Rig(config)
     if not rig.realtime:
         print("note: the rig file asks for a simulated clock; `gatewaylab run` always runs in real time",
               file=sys.stderr)
         rig.close()
         from ..common.clock import RealTimeClock
 
-        rig = Rig.from_file(args.rig, clock=RealTimeClock())
+        rig = Rig(config, clock=RealTimeClock())
     ready_written = False
     web: RigWeb | None = None
     try:
@@ -161,6 +167,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         for name, bus in info["buses"].items():
             print(f"  bus {name}: {bus.get('endpoint', '(no endpoint)')}"
                   f"  ->  can.Bus(interface='gatewaylab', channel={bus.get('endpoint', '')!r})")
+            if "socketcand" in bus:
+                print(f"  bus {name}: socketcand 127.0.0.1:{bus['socketcand']}  ->  can.Bus(interface='socketcand', "
+                      f"host='127.0.0.1', port={bus['socketcand']}, channel={name!r})")
         for key, value in info.items():
             if key not in ("pid", "buses"):
                 print(f"  {key}: {json.dumps(value)}")
@@ -223,6 +232,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help="serve a live page of the rig (node table, decoded log, drive plot) on "
                           "http://127.0.0.1:PORT/ (no PORT: any free port; listed in the ready file as "
                           "web.monitor)")
+    run.add_argument("--socketcand", action="store_true",
+                     help="serve every bus also over the socketcand protocol on 127.0.0.1 (a free port each, "
+                          "listed in the ready file as buses.NAME.socketcand; or socketcand = true per [[bus]])")
     run.add_argument("--acker", action="store_true",
                      help="attach to every bus a passive node that only acknowledges frames, so a lone "
                           "client's frames are not ACK errors (see docs/bus.md)")

@@ -21,6 +21,9 @@ if TYPE_CHECKING:
 
 #: The entry-point group a device package registers its :class:`DeviceKind` objects in.
 GROUP = "gatewaylab.devices"
+#: Sections of gatewaylab's own that are not devices (``[[bridge]]``, ``[[tunnel]]``): known without an
+#: entry point.
+BUILTIN = {"bridge": "gatewaylab.bus.transport.bridge:KIND", "tunnel": "gatewaylab.bus.transport.cannelloni:KIND"}
 
 
 def registered() -> dict[str, EntryPoint]:
@@ -32,6 +35,8 @@ def registered() -> dict[str, EntryPoint]:
             raise ConfigError(f"device kind {ep.name!r} is registered twice ({other.value} and {ep.value}); "
                               f"uninstall one of the packages")
         found[ep.name] = ep
+    for name, value in BUILTIN.items():
+        found.setdefault(name, EntryPoint(name, value, GROUP))
     return found
 
 
