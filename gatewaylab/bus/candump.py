@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 from ..common.errors import FrameError, LocalError
 from .errorframe import CAN_ERR_FLAG, CAN_ERR_MASK, ErrorFrame
-from .frame import CanFrame
+from .frame import FD_DLC_TO_LEN, CanFrame
 
 #: SocketCAN can_id flags (linux/can.h): extended frame, remote frame, inverted filter.
 CAN_EFF_FLAG = 0x80000000
@@ -229,6 +229,9 @@ def parse_cansend(spec: str) -> CanFrame:
     if len(data) > limit:
         raise CandumpSyntaxError(f"frame {spec!r}: {len(data)} data bytes, at most {limit} "
                                  f"{'in CAN FD' if fd else 'in classic CAN (use ## for CAN FD)'}")
+    if fd:
+        # cansend.c: "ensure discrete CAN FD length values": padded with zeros to the next DLC length
+        data += bytes(next(n for n in FD_DLC_TO_LEN if n >= len(data)) - len(data))
     try:
         return CanFrame(can_id, bytes(data), extended, fd=fd, brs=brs, esi=esi)
     except FrameError as exc:

@@ -27,6 +27,7 @@ EXTRA_SUBCOMMANDS = (
     "gatewaylab.devices.maxon_idx.host.cli",
     "gatewaylab.canopen.lss_cli",
     "gatewaylab.canopen.monitor_cli",
+    "gatewaylab.bus.transport.send_cli",
     "gatewaylab.canopen.lesson_cli",
     "gatewaylab.canopen.plot_cli",
     "gatewaylab.ethercat.net_cli",
