@@ -9,7 +9,9 @@ much. Timestamps are Unix time: ``clock.wall_epoch + t`` for a frame that comple
 
 from __future__ import annotations
 
+import fcntl
 import io
+import os
 import re
 import struct
 from pathlib import Path
@@ -54,6 +56,25 @@ def check_trace_path(path: str | Path) -> str:
         raise ConfigError(f"trace file {path}: format {suffix or '(no suffix)'!r} is not supported "
                           f"(supported: {', '.join(TRACE_FORMATS)})")
     return suffix
+
+
+def lock_trace_file(path: Path) -> int:
+    """Create ``path`` if needed and take an exclusive lock on it (``flock``), before anything truncates
+    it: a second rig given the same trace file is refused with a clear error instead of both writing
+    into it (a sparse file of NULs). Returns the descriptor that holds the lock until closed."""
+    try:
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_CLOEXEC, 0o644)
+    except OSError as exc:
+        raise ConfigError(f"trace file {path}: {exc.strerror or exc}") from None
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        os.close(fd)
+        raise ConfigError(f"trace file {path} is being written by another rig (it holds the file's lock); "
+                          "give each rig its own --trace file") from None
+    except OSError:
+        pass          # a file system without locks: record anyway
+    return fd
 
 
 def socketcan_record(frame: CanFrame) -> bytes:
@@ -182,6 +203,7 @@ class Trace:
         suffix = check_trace_path(path)
         self.bus = bus
         self.path = Path(path)
+        self._lock_fd = lock_trace_file(self.path)
         #: Unix time of bus time 0 (the clock's ``wall_epoch``): every timestamp is ``epoch + t``.
         self.epoch = bus.clock.wall_epoch if epoch is None else epoch
         self.frames = 0
@@ -189,12 +211,16 @@ class Trace:
         #: The pending flush: scheduled by the first frame after a flush, so an idle bus has no timer.
         self._flush_timer: TimerHandle | None = None
         self._sink: _Sink
-        if suffix == ".pcap":
-            self._sink = PcapSink(self.path, self.epoch)
-        elif suffix == ".pcapng":
-            self._sink = PcapngSink(self.path, self.epoch, bus.name)
-        else:
-            self._sink = PythonCanSink(self.path, self.epoch, bus.name)
+        try:
+            if suffix == ".pcap":
+                self._sink = PcapSink(self.path, self.epoch)
+            elif suffix == ".pcapng":
+                self._sink = PcapngSink(self.path, self.epoch, bus.name)
+            else:
+                self._sink = PythonCanSink(self.path, self.epoch, bus.name)
+        except BaseException:
+            os.close(self._lock_fd)
+            raise
         bus.add_monitor(self._on_frame)
 
     def _on_frame(self, frame: CanFrame, t: float) -> None:
@@ -215,7 +241,12 @@ class Trace:
             self._flush_timer.cancel()
             self._flush_timer = None
         self.bus.remove_monitor(self._on_frame)
-        self._sink.close()
+        try:
+            self._sink.close()
+        finally:
+            if self._lock_fd >= 0:
+                os.close(self._lock_fd)
+                self._lock_fd = -1
 
 
 # -- reading traces back (gatewaylab monitor --replay, gatewaylab plot) ------------------------------
