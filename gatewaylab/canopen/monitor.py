@@ -617,3 +617,50 @@ class BusMonitor:
                     tr.phase = "last"
                     return []
         return self._other(node_id, 0x580 + node_id, d, t)
+
+
+class ControllerWatch:
+    """What changed among the CAN controllers of a bus between two looks (sans-I/O): the rig's
+    ``can-states`` answer for ``gatewaylab monitor``, the bus's controllers for the --web page.
+    ``states`` maps a controller's name to ``state`` (error-active, error-passive, bus-off), ``tec``,
+    ``rec``, ``connected`` and ``bus_offs`` (how often it went bus-off: a short bus-off with
+    auto-recovery between two looks still shows). One ``can`` event per change."""
+
+    def __init__(self) -> None:
+        self.states: dict[str, Mapping[str, Any]] = {}
+        self._first = True
+
+    def update(self, states: Mapping[str, Mapping[str, Any]], now: float) -> list[MonitorEvent]:
+        events: list[MonitorEvent] = []
+
+        def say(name: str, text: str, st: Mapping[str, Any]) -> None:
+            events.append(MonitorEvent(now, "can", f"CAN {name}: {text}", None, {"controller": name, **st}))
+
+        for name, st in states.items():
+            old = self.states.get(name)
+            counters = f"TEC {st.get('tec')}, REC {st.get('rec')}"
+            if old is None:
+                if not self._first:
+                    say(name, "joined the bus", st)
+                if st.get("state", "error-active") != "error-active":
+                    say(name, f"{st.get('state')} ({counters})", st)
+                if not st.get("connected", True):
+                    say(name, "unplugged, off the bus", st)
+                continue
+            if old.get("connected") != st.get("connected"):
+                say(name, "plugged in again" if st.get("connected") else "unplugged, left the bus", st)
+            went = (st.get("bus_offs") or 0) - (old.get("bus_offs") or 0)
+            times = f"{went} time{'s' * (went > 1)}"
+            if old.get("state") != st.get("state"):
+                how = " (recovered)" if old.get("state") == "bus-off" else ""
+                if went > 0 and st.get("state") != "bus-off":
+                    how = f" (went bus-off {times} in between)"
+                say(name, f"{old.get('state')} -> {st.get('state')}{how} ({counters})", st)
+            elif went > 0:
+                say(name, f"went bus-off and recovered ({times}; now {st.get('state')}, {counters})", st)
+        if not self._first:
+            for name in self.states.keys() - states.keys():
+                say(name, "left the bus (detached)", self.states[name])
+        self.states = dict(states)
+        self._first = False
+        return events

@@ -38,7 +38,7 @@ from ..common.endpoint import EndpointError, bus_endpoint
 from ..common.errors import GatewaylabError
 from ..od import ObjectDictionary
 from ..od.eds import import_eds
-from .monitor import BusMonitor, MonitorEvent
+from .monitor import BusMonitor, ControllerWatch, MonitorEvent
 
 _DESCRIPTION = """\
 Watch a bus of a running rig, decoded: a node table (NMT state, heartbeat age, CiA 402 state,
@@ -166,43 +166,18 @@ class EthercatWatcher(_ControlPoller):
 class CanWatcher(_ControlPoller):
     """The CAN controllers of the rig's devices on one bus (request "can-states", docs/faults.md): a
     listen-only monitor cannot see another node's error counters, bus-off or unplugged cable, the
-    rig can. Each change is one ``can`` event: "CAN axis2: error-active -> bus-off (TEC 256, REC 0)",
-    "CAN axis2: unplugged, left the bus"."""
+    rig can. Each change is one ``can`` event (:class:`~.monitor.ControllerWatch`): "CAN axis2:
+    went bus-off and recovered", "CAN axis3: unplugged, left the bus"."""
 
     request = "can-states"
 
     def __init__(self, endpoint: str, bus: str, period: float = 0.5) -> None:
         super().__init__(endpoint, period)
         self.bus = bus
-        self.states: dict[str, dict[str, Any]] = {}
+        self.watch = ControllerWatch()
 
     def changes(self, answer: dict[str, Any], now: float) -> list[MonitorEvent]:
-        events = []
-        for name, st in ((answer.get("buses") or {}).get(self.bus) or {}).items():
-            old = self.states.get(name)
-            self.states[name] = st
-            texts = []
-            if old is None:
-                if st.get("state") != "error-active":
-                    texts.append(f"{st.get('state')} (TEC {st.get('tec')}, REC {st.get('rec')})")
-                if not st.get("connected", True):
-                    texts.append("unplugged, off the bus")
-            else:
-                if old.get("connected") != st.get("connected"):
-                    texts.append("plugged in again" if st.get("connected") else "unplugged, left the bus")
-                went = (st.get("bus_offs") or 0) - (old.get("bus_offs") or 0)
-                if old.get("state") != st.get("state"):
-                    how = " (recovered)" if old.get("state") == "bus-off" else ""
-                    if went > 0 and st.get("state") != "bus-off":
-                        how = f" (went bus-off {went} time{'s' * (went > 1)} in between)"
-                    texts.append(f"{old.get('state')} -> {st.get('state')}{how} (TEC {st.get('tec')}, "
-                                 f"REC {st.get('rec')})")
-                elif went > 0:
-                    texts.append(f"went bus-off and recovered ({went} time{'s' * (went > 1)}; now "
-                                 f"{st.get('state')}, TEC {st.get('tec')}, REC {st.get('rec')})")
-            for text in texts:
-                events.append(MonitorEvent(now, "can", f"CAN {name}: {text}", None, {"controller": name, **st}))
-        return events
+        return self.watch.update((answer.get("buses") or {}).get(self.bus) or {}, now)
 
 
 def _error_of(msg: can.Message) -> ErrorFrame:

@@ -19,12 +19,16 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import Any
 
 from ..bus import CanFrame, VirtualBus
+from ..bus.bus import BusEvent, Controller, ErrorFrameEvent, StateChangeEvent
+from ..bus.errorframe import bus_error, state_change
 from ..canopen.drive import Drive
-from ..canopen.monitor import BusMonitor, MonitorEvent
+from ..canopen.monitor import BusMonitor, ControllerWatch, MonitorEvent
 from ..od.eds import import_eds
 
 #: log lines kept for a page that connects later
 _KEEP = 500
+#: how often the page looks at the controllers of each bus and at silent nodes (seconds)
+WATCH_PERIOD = 0.1
 
 
 class RigWeb:
@@ -35,11 +39,21 @@ class RigWeb:
         self._events: deque[tuple[int, dict[str, Any]]] = deque(maxlen=_KEEP)
         self._seq = 0
         self.monitors: dict[str, BusMonitor] = {}
+        self.buses = dict(buses)
+        #: per bus: the page's own listen-only controller (it sees error frames) and the controller watch
+        self._listeners: dict[str, Controller] = {}
+        self._watches: dict[str, ControllerWatch] = {}
+        self.controllers: dict[str, dict[str, dict[str, Any]]] = {}
         for name, bus in buses.items():
             dictionaries = {d.node.node_id: import_eds(d.node.to_eds(), d.node.node_id)
                             for d in drives if d.bus is bus and d.node.node_id is not None}
             monitor = self.monitors[name] = BusMonitor(dictionaries, bus.bitrate, bus.data_bitrate)
             bus.add_monitor(self._hook(name, monitor))
+            self._listeners[name] = bus.attach("gatewaylab-web", listen_only=True,
+                                               on_event=self._event_hook(name, monitor))
+            self._watches[name] = ControllerWatch()
+        clock = next(iter(buses.values())).clock if buses else None
+        self._timer = clock.call_every(WATCH_PERIOD, self._watch) if clock is not None else None
         self._server = ThreadingHTTPServer(("127.0.0.1", port), self._handler())
         self._server.daemon_threads = True
         self._thread: threading.Thread | None = None
@@ -53,6 +67,35 @@ class RigWeb:
                 if events:
                     self._publish(bus_name, events)
         return on_frame
+
+    def _event_hook(self, bus_name: str, monitor: BusMonitor) -> Any:
+        """Error frames and state changes of the page's listen-only controller, as SocketCAN reports them."""
+        def on_event(ev: BusEvent) -> None:
+            ctrl = self._listeners.get(bus_name)
+            if isinstance(ev, ErrorFrameEvent) and ctrl is not None:
+                err = bus_error(ev.kind.value, ev.transmitter, ctrl.tec, ctrl.rec)
+            elif isinstance(ev, StateChangeEvent):
+                err = state_change(ev.old.value, ev.new.value, ev.tec, ev.rec)
+            else:
+                return
+            with self._lock:
+                self._publish(bus_name, monitor.feed_error(err, ev.timestamp))
+        return on_event
+
+    def _watch(self) -> None:
+        """In the rig thread, every WATCH_PERIOD: the controllers of each bus (bus-off, recovery, unplugged,
+        joined, left) and the nodes whose heartbeat stopped."""
+        for name, bus in self.buses.items():
+            mine = self._listeners.get(name)
+            states = {c.name: {"state": c.state.value, "tec": c.tec, "rec": c.rec, "connected": c.connected,
+                               "bus_offs": c.stats.bus_offs}
+                      for c in bus.controllers if c is not mine and not c.listen_only and not c.synthetic}
+            events = self._watches[name].update(states, bus.clock.now())
+            with self._lock:
+                events += self.monitors[name].tick(bus.clock.now())
+                self.controllers[name] = states
+                if events:
+                    self._publish(name, events)
 
     def _publish(self, bus_name: str, events: list[MonitorEvent]) -> None:
         with self._lock:
@@ -68,7 +111,8 @@ class RigWeb:
             for name, m in self.monitors.items():
                 buses[name] = {
                     "load": round(m.load_percent(), 2), "frames_per_s": round(m.frames_per_second(), 1),
-                    "frames": m.frames,
+                    "frames": m.frames, "error_frames": m.error_frames,
+                    "controllers": self.controllers.get(name, {}),
                     "nodes": [{"node": v.node_id, "nmt": v.nmt, "heartbeat_t": v.heartbeat_t,
                                "cia402": v.cia402_state, "statusword": v.statusword, "mode": v.mode_name,
                                "position": v.position, "velocity": v.velocity, "emcy": v.emcy}
@@ -150,6 +194,12 @@ class RigWeb:
         with self._lock:
             self.closing = True
             self._lock.notify_all()
+        if self._timer is not None:
+            clock = next(iter(self.buses.values())).clock
+            with clock.lock:
+                self._timer.cancel()
+                for name, ctrl in self._listeners.items():
+                    self.buses[name].detach(ctrl)
         if self._thread is not None:
             self._server.shutdown()
             self._thread.join(5)
@@ -172,6 +222,9 @@ canvas { border: 1px solid #bbb; }
 <h2>Position of the drives</h2>
 <canvas id="plot" width="900" height="220"></canvas>
 <h2>Decoded log</h2>
+<div id="filters">hide: <label><input type="checkbox" id="hide-heartbeat" checked> heartbeats</label>
+<label><input type="checkbox" id="hide-pdo"> PDOs</label> <label><input type="checkbox" id="hide-sync"> SYNC</label>
+&nbsp; only lines containing: <input id="grep" size="20"></div>
 <div id="log"></div>
 <script>
 const history = {};
@@ -182,7 +235,18 @@ function showState(state) {
   let html = "";
   for (const [name, bus] of Object.entries(state.buses)) {
     html += `<h2>bus ${esc(name)}: load ${bus.load.toFixed(1)} %, ${bus.frames_per_s.toFixed(0)} frames/s,
-      ${bus.frames} frames</h2><table><tr><th>node</th><th>NMT</th><th>CiA 402</th><th>statusword</th>
+      ${bus.frames} frames, ${bus.error_frames} error frames</h2>`;
+    const ctrls = Object.entries(bus.controllers || {});
+    if (ctrls.length) {
+      html += `<table class="controllers"><tr><th>controller</th><th>state</th><th>TEC</th><th>REC</th>
+        <th>cable</th><th>bus-offs</th></tr>`;
+      for (const [cname, c] of ctrls)
+        html += `<tr id="ctrl-${esc(name)}-${esc(cname)}"><td>${esc(cname)}</td><td class="state">${esc(c.state)}</td>
+          <td>${c.tec}</td><td>${c.rec}</td><td>${c.connected ? "plugged" : "unplugged"}</td>
+          <td>${c.bus_offs}</td></tr>`;
+      html += "</table>";
+    }
+    html += `<table><tr><th>node</th><th>NMT</th><th>CiA 402</th><th>statusword</th>
       <th>mode</th><th>position</th><th>velocity</th><th>last EMCY</th></tr>`;
     for (const n of bus.nodes) {
       html += `<tr id="node-${esc(name)}-${n.node}"><td>${n.node}</td><td class="nmt">${esc(n.nmt)}</td>
@@ -216,8 +280,15 @@ function draw() {
 const log = document.getElementById("log");
 const source = new EventSource("/events");
 source.addEventListener("state", e => showState(JSON.parse(e.data)));
+function shown(ev) {
+  for (const kind of ["heartbeat", "pdo", "sync"])
+    if (ev.kind === kind && document.getElementById("hide-" + kind).checked) return false;
+  const grep = document.getElementById("grep").value;
+  return !grep || ev.text.includes(grep) || ev.bus.includes(grep);
+}
 source.addEventListener("log", e => {
   const ev = JSON.parse(e.data);
+  if (!shown(ev)) return;
   const line = document.createElement("div");
   line.textContent = `${ev.t.toFixed(6)}  ${ev.bus}  ${ev.text}`;
   log.appendChild(line);
