@@ -301,7 +301,7 @@ def cmd_monitor(args: argparse.Namespace) -> int:
         if args.replay:
             path = Path(args.target)
             if not path.is_file():
-                raise GatewaylabError(f"{path}: no such trace file")
+                raise TraceError(f"{path}: no such trace file")
             frames: Iterator[Item] = _frames_replay(path)
             bitrate, data_bitrate = args.bitrate, args.data_bitrate
             title = str(path)
@@ -445,9 +445,8 @@ def _viewer(frames: Iterator[Item], filters: FilterSet, title: str) -> None:
     table = IdTable()
     errors = 0
     last = 0.0
-    tty = sys.stdout.isatty()
     live = None
-    if tty:
+    if sys.stdout.isatty():
         from rich.live import Live
         live = Live(auto_refresh=False)
         live.__enter__()
@@ -467,9 +466,9 @@ def _viewer(frames: Iterator[Item], filters: FilterSet, title: str) -> None:
     finally:
         if live is not None:
             live.__exit__(None, None, None)
-    if not tty:
-        now = time.time() if last > 1e9 else last
-        print("\n".join([f"{title}   {errors} error frames", *table.lines(now)]))
+        else:          # also when the rig went away: the table so far
+            now = time.time() if last > 1e9 else last
+            print("\n".join([f"{title}   {errors} error frames", *table.lines(now)]), flush=True)
 
 
 _COMMON_EPILOG = """filters (-f, can-utils' candump syntax, comma separated or repeated):

@@ -190,22 +190,22 @@ def cmd_plot(args: argparse.Namespace) -> int:
     trace = Path(args.trace)
     out = Path(args.output) if args.output else trace.with_suffix(".png")
     if out.suffix.lower() not in (".png", ".svg"):
-        print(f"error: {out}: the picture is .png or .svg", file=sys.stderr)
+        print(f"gatewaylab: {out}: the picture is .png or .svg", file=sys.stderr)
         return 2
     if not trace.is_file():
-        print(f"error: {trace}: no such trace file", file=sys.stderr)
+        print(f"gatewaylab: {trace}: no such trace file", file=sys.stderr)
         return 2
     dictionaries: dict[int, ObjectDictionary] = {}
     try:
         for node_id, path in args.eds or ():
             dictionaries[node_id] = import_eds(Path(path).read_text(), node_id)
     except (OSError, ValueError) as exc:
-        print(f"gatewaylab plot: --eds: {exc}", file=sys.stderr)
+        print(f"gatewaylab: --eds: {exc}", file=sys.stderr)
         return 2
     try:
         picture = read_trace(trace, dictionaries, args.bitrate, args.data_bitrate)
     except TraceError as exc:
-        print(f"gatewaylab plot: {exc}", file=sys.stderr)
+        print(f"gatewaylab: {exc}", file=sys.stderr)
         return 2
     drawn = draw(picture, out, f"{trace.name}", args.node)
     print(f"{out}: bus load over {len(picture.load)} x 10 ms"

@@ -66,6 +66,17 @@ def _parse_trace(value: str) -> tuple[str, str]:
     return bus, path
 
 
+def _tcp_port(value: str) -> int:
+    """A TCP port for --web: 0 (any free one) .. 65535; anything else is a usage error (exit 2)."""
+    try:
+        port = int(value, 0)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--web wants a TCP port 0..65535, got {value!r}") from None
+    if not 0 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"--web wants a TCP port 0..65535 (0: any free port), got {port}")
+    return port
+
+
 def _check_rig_file(path: str | None) -> None:
     """A missing or unreadable rig file is the user's to fix: say which and why (exit 2)."""
     if path is None:
@@ -220,7 +231,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--trace", metavar="BUS=FILE", action="append", type=_parse_trace,
                      help="record BUS to FILE, streamed (flushed every 100 ms), in the format of its suffix: "
                           f"{', '.join(TRACE_FORMATS)}; may be repeated")
-    run.add_argument("--web", type=int, nargs="?", const=0, default=None, metavar="PORT",
+    run.add_argument("--web", type=_tcp_port, nargs="?", const=0, default=None, metavar="PORT",
                      help="serve a live page of the rig (node table, decoded log, drive plot) on "
                           "http://127.0.0.1:PORT/ (no PORT: any free port; listed in the ready file as "
                           "web.monitor)")

@@ -44,13 +44,13 @@ def cmd_send(args: argparse.Namespace) -> int:
         frame = parse_cansend(args.frame)
         endpoint = bus_endpoint(args.endpoint, args.bus)
     except (CandumpSyntaxError, EndpointError) as exc:
-        print(f"gatewaylab send: {exc}", file=sys.stderr)
+        print(f"gatewaylab: {exc}", file=sys.stderr)
         return 2
     try:
         bus = can.Bus(interface="gatewaylab", channel=endpoint, receive_own_messages=True, name="gatewaylab-send",
                       shutdown_timeout=0.5)
     except (can.CanError, OSError) as exc:
-        print(f"gatewaylab send: cannot open bus {endpoint}: {exc}", file=sys.stderr)
+        print(f"gatewaylab: cannot open bus {endpoint}: {exc}", file=sys.stderr)
         return 1
     try:
         bus.send(frame.to_message(), timeout=args.timeout)
@@ -65,11 +65,11 @@ def cmd_send(args: argparse.Namespace) -> int:
                 break
         state = getattr(bus, "controller_state", None)
         how = f" (controller {state.name.lower().replace('_', '-')})" if state is not None else ""
-        print(f"gatewaylab send: {frame} was not acknowledged within {args.timeout} s{how}: is another node on "
+        print(f"gatewaylab: {frame} was not acknowledged within {args.timeout} s{how}: is another node on "
               "the bus? (a lone client: run the rig with --acker)", file=sys.stderr)
         return 1
     except can.CanError as exc:
-        print(f"gatewaylab send: {exc}", file=sys.stderr)
+        print(f"gatewaylab: {exc}", file=sys.stderr)
         return 1
     finally:
         bus.shutdown()
