@@ -214,13 +214,21 @@ table { border-collapse: collapse; margin-bottom: 1em; }
 td, th { border: 1px solid #bbb; padding: 2px 8px; font-size: 90%; }
 #log { font-family: monospace; font-size: 85%; height: 20em; overflow-y: scroll; border: 1px solid #bbb;
        white-space: pre; padding: 4px; }
-canvas { border: 1px solid #bbb; }
+#scope { border: 1px solid #bbb; background: #fff; }
+#scope .grid { stroke: #e4e4e4; } #scope text { font-size: 11px; fill: #333; }
+#legend span { margin-right: 1.5em; } #legend i { display: inline-block; width: 1.5em; height: 3px;
+  vertical-align: middle; margin-right: 0.3em; }
 </style></head>
 <body>
 <h1>gatewaylab rig</h1>
 <div id="buses">waiting for the rig...</div>
 <h2>Position of the drives</h2>
-<canvas id="plot" width="900" height="220"></canvas>
+<div id="scope-controls">window <select id="window"><option value="10">10 s</option>
+<option value="30" selected>30 s</option><option value="60">60 s</option><option value="300">5 min</option></select>
+<label><input type="checkbox" id="pause"> pause</label>
+<span id="scope-note">time: seconds since the rig started (the bus clock)</span></div>
+<svg id="scope" width="900" height="260" xmlns="http://www.w3.org/2000/svg"></svg>
+<div id="legend"></div>
 <h2>Decoded log</h2>
 <div id="filters">hide: <label><input type="checkbox" id="hide-heartbeat" checked> heartbeats</label>
 <label><input type="checkbox" id="hide-pdo"> PDOs</label> <label><input type="checkbox" id="hide-sync"> SYNC</label>
@@ -252,30 +260,63 @@ function showState(state) {
       html += `<tr id="node-${esc(name)}-${n.node}"><td>${n.node}</td><td class="nmt">${esc(n.nmt)}</td>
         <td>${esc(n.cia402)}</td><td>${hex(n.statusword)}</td><td>${esc(n.mode)}</td>
         <td>${esc(n.position)}</td><td>${esc(n.velocity)}</td><td>${esc(n.emcy)}</td></tr>`;
-      if (n.position != null) {
-        const h = history[name + "/" + n.node] = history[name + "/" + n.node] || [];
-        h.push(n.position); if (h.length > 300) h.shift();
-      }
     }
     html += "</table>";
   }
   document.getElementById("buses").innerHTML = html;
   draw();
 }
+const COLORS = ["#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b"];
+function record(ev) {
+  // every position a PDO or an SDO read carries, at its bus time (CiA 402 0x6064)
+  const v = ev.values ? ev.values["0x6064:00"] : (ev.index === 0x6064 ? ev.value : undefined);
+  if (typeof v !== "number") return;
+  const key = ev.bus + " node " + ev.node, h = history[key] = history[key] || [];
+  h.push([ev.t, v]);
+  while (h.length > 20000) h.shift();
+}
+function ticks(lo, hi, n) {
+  const raw = (hi - lo) / n, mag = Math.pow(10, Math.floor(Math.log10(raw)));
+  const step = [1, 2, 5, 10].map(m => m * mag).find(s => s >= raw);
+  const out = [];
+  for (let v = Math.ceil(lo / step) * step; v <= hi + 1e-9; v += step) out.push(+v.toPrecision(12));
+  return out;
+}
 function draw() {
-  const c = document.getElementById("plot"), g = c.getContext("2d");
-  g.clearRect(0, 0, c.width, c.height);
-  const series = Object.entries(history), colors = ["#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd"];
+  if (document.getElementById("pause").checked) return;
+  const svg = document.getElementById("scope"), W = +svg.getAttribute("width"), H = +svg.getAttribute("height");
+  const L = 70, R = 10, T = 10, B = 35, win = +document.getElementById("window").value;
+  const series = Object.entries(history).filter(([, h]) => h.length);
+  let tmax = -Infinity;
+  for (const [, h] of series) tmax = Math.max(tmax, h[h.length - 1][0]);
+  if (!isFinite(tmax)) { svg.innerHTML = `<text x="${L}" y="${H / 2}">no position values yet</text>`; return; }
+  const tmin = tmax - win;
   let lo = Infinity, hi = -Infinity;
-  for (const [, h] of series) for (const v of h) { lo = Math.min(lo, v); hi = Math.max(hi, v); }
-  if (!isFinite(lo)) return;
+  for (const [, h] of series) for (const [t, v] of h) if (t >= tmin) { lo = Math.min(lo, v); hi = Math.max(hi, v); }
   if (hi === lo) { hi += 1; lo -= 1; }
+  const pad = (hi - lo) * 0.05; lo -= pad; hi += pad;
+  const x = t => L + (t - tmin) / win * (W - L - R), y = v => T + (hi - v) / (hi - lo) * (H - T - B);
+  let out = "";
+  for (const v of ticks(lo, hi, 5))
+    out += `<line class="grid" x1="${L}" x2="${W - R}" y1="${y(v)}" y2="${y(v)}"/>` +
+           `<text class="ytick" x="${L - 5}" y="${y(v) + 4}" text-anchor="end">${v}</text>`;
+  for (const t of ticks(tmin, tmax, 6))
+    out += `<line class="grid" x1="${x(t)}" x2="${x(t)}" y1="${T}" y2="${H - B}"/>` +
+           `<text class="xtick" x="${x(t)}" y="${H - B + 14}" text-anchor="middle">${t}</text>`;
+  out += `<line x1="${L}" x2="${L}" y1="${T}" y2="${H - B}" stroke="#333"/>` +
+         `<line x1="${L}" x2="${W - R}" y1="${H - B}" y2="${H - B}" stroke="#333"/>` +
+         `<text class="xlabel" x="${(L + W) / 2}" y="${H - 4}" text-anchor="middle">time (s)</text>` +
+         `<text class="ylabel" x="12" y="${(T + H - B) / 2}" transform="rotate(-90 12 ${(T + H - B) / 2})"
+            text-anchor="middle">position (increments)</text>`;
+  let legend = "";
   series.forEach(([key, h], i) => {
-    g.strokeStyle = colors[i % colors.length]; g.beginPath();
-    h.forEach((v, x) => { const y = c.height - 10 - (v - lo) / (hi - lo) * (c.height - 20);
-      x === 0 ? g.moveTo(x * 3, y) : g.lineTo(x * 3, y); });
-    g.stroke(); g.fillStyle = g.strokeStyle; g.fillText(key, 5, 12 + 12 * i);
+    const pts = h.filter(([t]) => t >= tmin).map(([t, v]) => `${x(t).toFixed(1)},${y(v).toFixed(1)}`);
+    out += `<polyline class="trace" data-key="${esc(key)}" fill="none" stroke="${COLORS[i % COLORS.length]}"
+              stroke-width="1.5" points="${pts.join(" ")}"/>`;
+    legend += `<span><i style="background:${COLORS[i % COLORS.length]}"></i>${esc(key)}</span>`;
   });
+  svg.innerHTML = out;
+  document.getElementById("legend").innerHTML = legend;
 }
 const log = document.getElementById("log");
 const source = new EventSource("/events");
@@ -286,8 +327,11 @@ function shown(ev) {
   const grep = document.getElementById("grep").value;
   return !grep || ev.text.includes(grep) || ev.bus.includes(grep);
 }
+document.getElementById("window").addEventListener("change", draw);
+document.getElementById("pause").addEventListener("change", draw);
 source.addEventListener("log", e => {
   const ev = JSON.parse(e.data);
+  record(ev);
   if (!shown(ev)) return;
   const line = document.createElement("div");
   line.textContent = `${ev.t.toFixed(6)}  ${ev.bus}  ${ev.text}`;

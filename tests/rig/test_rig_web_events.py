@@ -127,3 +127,55 @@ def test_page_shows_the_controllers_table_and_filters_heartbeats(rig: RigProcess
             assert "heartbeat of node 3" not in log and "plugged in again" in log
         finally:
             browser.close()
+
+
+def test_scope_has_axes_a_time_window_and_pause(rig: RigProcess, tmp_path: Path) -> None:
+    """Issue 25, web page: the position scope has a y axis with value labels that span the values shown,
+    a time axis in seconds of bus time, a legend outside the traces, and pause freezes the picture
+    (checked by content: the SVG's tick labels and trace points, plus a screenshot)."""
+    playwright = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (make install)")
+    if not Path(CHROMIUM).exists():
+        pytest.skip("no chromium browser installed (the Makefile installs Debian's chromium)")
+    import struct
+
+    def positions(values: list[int]) -> None:
+        with can.Bus(interface="gatewaylab", channel=rig.endpoint("can0")) as bus:
+            for v in values:     # node 2's TPDO1: statusword, position actual value (INTEGER32)
+                bus.send(can.Message(arbitration_id=0x182, data=struct.pack("<Hi", 0x0237, v), is_extended_id=False))
+                time.sleep(0.01)
+
+    def ticks(page: Any, axis: str) -> list[float]:
+        labels = page.eval_on_selector_all(f"#scope text.{axis}", "els => els.map(e => e.textContent)")
+        return [float(t) for t in labels]
+
+    def points(page: Any) -> int:
+        return int(page.evaluate("document.querySelector('#scope polyline.trace[data-key=\"can0 node 2\"]')"
+                                 ".getAttribute('points').trim().split(' ').length"))
+
+    with playwright.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=["--no-sandbox"])
+        try:
+            page = browser.new_page()
+            page.goto(rig.info["web"]["monitor"])
+            page.wait_for_selector("#buses h2", timeout=30_000)
+            positions(list(range(-5000, 5001, 500)))
+            page.wait_for_function("document.querySelector('#scope polyline.trace') && "
+                                   "document.querySelector('#scope polyline.trace').getAttribute('points')"
+                                   ".trim().split(' ').length >= 21", timeout=30_000)
+            y = ticks(page, "ytick")
+            assert len(y) >= 3 and min(y) <= -4000 and max(y) >= 4000 and -6000 <= min(y) <= max(y) <= 6000
+            x = ticks(page, "xtick")
+            assert len(x) >= 3 and x == sorted(x)
+            assert page.text_content("#scope text.xlabel") == "time (s)"
+            assert "can0 node 2" in page.inner_text("#legend")
+            page.screenshot(path=str(tmp_path / "scope.png"))
+            page.check("#pause")
+            frozen = points(page)
+            positions([20000] * 5)
+            time.sleep(1.5)                          # three state events
+            assert points(page) == frozen and max(ticks(page, "ytick")) <= 6000
+            page.uncheck("#pause")
+            page.wait_for_function("Math.max(...[...document.querySelectorAll('#scope text.ytick')]"
+                                   ".map(e => +e.textContent)) >= 19000", timeout=30_000)
+        finally:
+            browser.close()
