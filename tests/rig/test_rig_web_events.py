@@ -11,6 +11,7 @@ import sys
 import time
 import urllib.request
 from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -68,6 +69,22 @@ def fault(rig: RigProcess, *args: str) -> None:
                    capture_output=True, timeout=60)
 
 
+@contextmanager
+def browser_page(rig: RigProcess) -> Iterator[Any]:
+    """The rig's page in headless Chromium (Playwright, Debian's browser); skipped without them."""
+    playwright = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (make install)")
+    if not Path(CHROMIUM).exists():
+        pytest.skip("no chromium browser installed (the Makefile installs Debian's chromium)")
+    with playwright.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=["--no-sandbox"])
+        try:
+            page = browser.new_page()
+            page.goto(rig.info["web"]["monitor"])
+            yield page
+        finally:
+            browser.close()
+
+
 def log_has(text: str) -> Callable[[dict[str, Any]], bool]:
     return lambda s: any(text in e["text"] for e in s["log"])
 
@@ -106,36 +123,25 @@ def test_bus_off_unplug_error_frames_and_a_leaving_client_are_logged(rig: RigPro
 def test_page_shows_the_controllers_table_and_filters_heartbeats(rig: RigProcess, tmp_path: Path) -> None:
     """In Chromium: the controllers table shows an unplugged cable; with 'hide heartbeats' (the default)
     the log has no heartbeat lines while other lines arrive."""
-    playwright = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (make install)")
-    if not Path(CHROMIUM).exists():
-        pytest.skip("no chromium browser installed (the Makefile installs Debian's chromium)")
-    with playwright.sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=["--no-sandbox"])
-        try:
-            page = browser.new_page()
-            page.goto(rig.info["web"]["monitor"])
-            page.wait_for_selector("#ctrl-can0-axis3", timeout=30_000)
-            fault(rig, "can-unplug", "axis3")
-            page.wait_for_function("document.querySelector('#ctrl-can0-axis3').textContent.includes('unplugged')",
-                                   timeout=30_000)
-            fault(rig, "can-replug", "axis3")
-            with can.Bus(interface="gatewaylab", channel=rig.endpoint("can0")) as bus:
-                bus.send(can.Message(arbitration_id=0x703, data=b"\x05", is_extended_id=False))   # a heartbeat
-                bus.send(can.Message(arbitration_id=0x100, data=b"\xca\xfe", is_extended_id=False))
-            page.wait_for_function("document.getElementById('log').textContent.includes('CA FE')", timeout=30_000)
-            log = page.inner_text("#log")
-            assert "heartbeat of node 3" not in log and "plugged in again" in log
-        finally:
-            browser.close()
+    with browser_page(rig) as page:
+        page.wait_for_selector("#ctrl-can0-axis3", timeout=30_000)
+        fault(rig, "can-unplug", "axis3")
+        page.wait_for_function("document.querySelector('#ctrl-can0-axis3').textContent.includes('unplugged')",
+                               timeout=30_000)
+        fault(rig, "can-replug", "axis3")
+        with can.Bus(interface="gatewaylab", channel=rig.endpoint("can0")) as bus:
+            bus.send(can.Message(arbitration_id=0x703, data=b"\x05", is_extended_id=False))   # a heartbeat
+            bus.send(can.Message(arbitration_id=0x100, data=b"\xca\xfe", is_extended_id=False))
+        page.wait_for_function("document.getElementById('log').textContent.includes('CA FE')", timeout=30_000)
+        log = page.inner_text("#log")
+        assert "heartbeat of node 3" not in log and "plugged in again" in log
+
 
 
 def test_scope_has_axes_a_time_window_and_pause(rig: RigProcess, tmp_path: Path) -> None:
     """Issue 25, web page: the position scope has a y axis with value labels that span the values shown,
     a time axis in seconds of bus time, a legend outside the traces, and pause freezes the picture
     (checked by content: the SVG's tick labels and trace points, plus a screenshot)."""
-    playwright = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (make install)")
-    if not Path(CHROMIUM).exists():
-        pytest.skip("no chromium browser installed (the Makefile installs Debian's chromium)")
     import struct
 
     def positions(values: list[int]) -> None:
@@ -152,30 +158,25 @@ def test_scope_has_axes_a_time_window_and_pause(rig: RigProcess, tmp_path: Path)
         return int(page.evaluate("document.querySelector('#scope polyline.trace[data-key=\"can0 node 2\"]')"
                                  ".getAttribute('points').trim().split(' ').length"))
 
-    with playwright.sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=["--no-sandbox"])
-        try:
-            page = browser.new_page()
-            page.goto(rig.info["web"]["monitor"])
-            page.wait_for_selector("#buses h2", timeout=30_000)
-            positions(list(range(-5000, 5001, 500)))
-            page.wait_for_function("document.querySelector('#scope polyline.trace') && "
-                                   "document.querySelector('#scope polyline.trace').getAttribute('points')"
-                                   ".trim().split(' ').length >= 21", timeout=30_000)
-            y = ticks(page, "ytick")
-            assert len(y) >= 3 and min(y) <= -4000 and max(y) >= 4000 and -6000 <= min(y) <= max(y) <= 6000
-            x = ticks(page, "xtick")
-            assert len(x) >= 3 and x == sorted(x)
-            assert page.text_content("#scope text.xlabel") == "time (s)"
-            assert "can0 node 2" in page.inner_text("#legend")
-            page.screenshot(path=str(tmp_path / "scope.png"))
-            page.check("#pause")
-            frozen = points(page)
-            positions([20000] * 5)
-            time.sleep(1.5)                          # three state events
-            assert points(page) == frozen and max(ticks(page, "ytick")) <= 6000
-            page.uncheck("#pause")
-            page.wait_for_function("Math.max(...[...document.querySelectorAll('#scope text.ytick')]"
-                                   ".map(e => +e.textContent)) >= 19000", timeout=30_000)
-        finally:
-            browser.close()
+    with browser_page(rig) as page:
+        page.wait_for_selector("#buses h2", timeout=30_000)
+        positions(list(range(-5000, 5001, 500)))
+        page.wait_for_function("document.querySelector('#scope polyline.trace') && "
+                               "document.querySelector('#scope polyline.trace').getAttribute('points')"
+                               ".trim().split(' ').length >= 21", timeout=30_000)
+        y = ticks(page, "ytick")
+        assert len(y) >= 3 and min(y) <= -4000 and max(y) >= 4000 and -6000 <= min(y) <= max(y) <= 6000
+        x = ticks(page, "xtick")
+        assert len(x) >= 3 and x == sorted(x)
+        assert page.text_content("#scope text.xlabel") == "time (s)"
+        assert "can0 node 2" in page.inner_text("#legend")
+        page.screenshot(path=str(tmp_path / "scope.png"))
+        page.check("#pause")
+        frozen = points(page)
+        positions([20000] * 5)
+        time.sleep(1.5)                          # three state events
+        assert points(page) == frozen and max(ticks(page, "ytick")) <= 6000
+        page.uncheck("#pause")
+        page.wait_for_function("Math.max(...[...document.querySelectorAll('#scope text.ytick')]"
+                               ".map(e => +e.textContent)) >= 19000", timeout=30_000)
+
