@@ -20,7 +20,8 @@ from .faults import DRIVE_FAULTS
 
 _DESCRIPTION = """\
 Inject a fault into a running rig through its control endpoint (listed in the ready file of
-`gatewaylab run --ready-file`). Targets are device names (as in the rig file) or, with --bus,
+`gatewaylab run --ready-file`). Targets are device names (as in the rig file, or the default
+names the ready file lists: drive2, drive2@can1 when drive 2 is on two buses) or, with --bus,
 CANopen node-IDs. Numbers may be decimal or 0x-hex.
 """
 

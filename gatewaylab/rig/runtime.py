@@ -333,11 +333,15 @@ class Rig:
     def poll(self, timeout: float | None) -> None:
         """One loop iteration: wait for I/O or the next timer, then run what is due."""
         clock = self.clock
-        deadline = clock.next_deadline()
+        deadline = clock.begin_wait()  # an event another thread schedules before it wakes us
         if deadline is not None:
             wait = max(0.0, deadline - clock.now())
             timeout = wait if timeout is None else min(timeout, wait)
-        for key, events in self._selector.select(timeout):
+        try:
+            ready = self._selector.select(timeout)
+        finally:
+            clock.end_wait()
+        for key, events in ready:
             fd = key.fd
             with clock.lock:
                 try:
