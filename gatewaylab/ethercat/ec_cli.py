@@ -10,6 +10,7 @@ on stderr.
 from __future__ import annotations
 
 import argparse
+import base64
 import struct
 import sys
 import types
@@ -64,8 +65,10 @@ STATES = {"INIT": AlState.INIT, "PREOP": AlState.PREOP, "BOOT": AlState.BOOT, "S
 
 DESCRIPTION = """\
 The everyday verbs of IgH's `ethercat` tool, on a real line through SOEM (-i IFNAME, needs root)
-or in process on a rig file (--rig RIG.toml: simulated clock, the segment brought to PREOP).
-Every verb takes -i/--rig and -p POSITION after the verb, in IgH's argument order.
+or in process on a rig file (--rig RIG.toml: simulated clock, the segment brought to PREOP), or
+through a persistent master (`gatewaylab ec master -i IFNAME --serve SOCKET`, then --master SOCKET),
+which keeps the line open and the process data cycling, so slaves stay in OP between calls.
+Every verb takes -i/--rig/--master and -p POSITION after the verb, in IgH's argument order.
 
 examples:
   gatewaylab ec slaves -i gl-ecat-m
@@ -93,6 +96,10 @@ EXAMPLES: dict[str, str] = {
     "foe-read": "gatewaylab ec foe-read -i gl-ecat-m -p 0 config.bin -o config.bin",
     "foe-write": "gatewaylab ec foe-write -i gl-ecat-m -p 0 ecan_lite_v140.bin -n ecan_lite_app.bin\n"
                  "  gatewaylab ec foe-write --rig esd.toml -p 1 --boot firmware.bin -n firmwareUpdate",
+    "master": "gatewaylab ec master -i gl-ecat-m --serve /tmp/ec.sock &   # a persistent master\n"
+              "  gatewaylab ec states --master /tmp/ec.sock OP               # slaves stay in OP between calls\n"
+              "  gatewaylab ec master --master /tmp/ec.sock                  # its state\n"
+              "  gatewaylab ec master --master /tmp/ec.sock --stop",
 }
 
 
@@ -230,7 +237,8 @@ RigOpener = Callable[[str], OpenRig]
 def open_backend(args: argparse.Namespace) -> Iterator[MasterBackend]:
     """``-i IFNAME`` -> PysoemBackend; ``--rig RIG.toml`` -> the rig in process on a simulated clock."""
     if bool(args.interface) == bool(args.rig):
-        raise EcUsage("give the line: -i IFNAME (real interface, root) or --rig RIG.toml (in process)")
+        raise EcUsage("give the line: -i IFNAME (real interface, root), --rig RIG.toml (in process) or "
+                      "--master SOCKET (a persistent master)")
     if args.interface:
         from .wire_backend import PysoemBackend
 
@@ -531,6 +539,33 @@ def _read_input(path: str) -> bytes:
         raise EcUsage(f"cannot read {path}: {exc.strerror or exc}") from None
 
 
+def cmd_master(backend: MasterBackend, args: argparse.Namespace, out: IO[str]) -> None:
+    """``master``: the master's state (IgH ``ethercat master``); with ``--serve SOCKET`` it stays up
+    as a persistent master the other verbs attach to with ``--master SOCKET``."""
+    if getattr(args, "serve", None):
+        from .ec_server import EcMasterServer
+
+        line = f"-i {args.interface}" if args.interface else f"--rig {args.rig}"
+        server = EcMasterServer(backend, args.serve, run_verb, cycle=args.cycle_ms / 1000, line=line)
+
+        def ready() -> None:
+            print(f"master serving {line} on {args.serve} ({len(backend.slaves())} slaves, cycle "
+                  f"{args.cycle_ms:g} ms); verbs attach with --master {args.serve}; stop: Ctrl-C or "
+                  f"gatewaylab ec master --master {args.serve} --stop", file=out, flush=True)
+
+        try:
+            server.serve(ready)
+        except KeyboardInterrupt:
+            pass
+        return
+    if getattr(args, "stop", False):
+        raise EcUsage("--stop needs --master SOCKET")
+    slaves = backend.slaves()
+    print("Master0", file=out)
+    print(f"  Line: {f'-i {args.interface}' if args.interface else f'--rig {args.rig}'} (one-shot)", file=out)
+    print(f"  Slaves: {len(slaves)}", file=out)
+
+
 VERBS: dict[str, tuple[Callable[[MasterBackend, argparse.Namespace, IO[str]], None], str]] = {
     "slaves": (cmd_slaves, "list the slaves: position, alias:position, state, error flag, name"),
     "states": (cmd_states, "list the AL states, or request STATE (INIT, PREOP, BOOT, SAFEOP, OP)"),
@@ -541,6 +576,7 @@ VERBS: dict[str, tuple[Callable[[MasterBackend, argparse.Namespace, IO[str]], No
     "sii-read": (cmd_sii_read, "dump the SII EEPROM (binary to stdout, or --hex)"),
     "foe-read": (cmd_foe_read, "read a file by FoE: foe-read NAME [-o FILE]"),
     "foe-write": (cmd_foe_write, "write a file by FoE: foe-write FILE [-n NAME]"),
+    "master": (cmd_master, "the master's state; --serve SOCKET keeps a persistent master up for --master"),
 }
 
 
@@ -573,28 +609,107 @@ def _precheck(args: argparse.Namespace) -> None:
         args.data = _read_input(args.file)
 
 
+def _failure(args: argparse.Namespace, exc: BaseException) -> tuple[int, str]:
+    """The exit code and the one stderr line of a verb's error."""
+    if isinstance(exc, EcUsage):
+        return 2, f"{PROG} {args.verb}: {exc}"
+    where = ""
+    if getattr(args, "index", None) is not None:
+        try:
+            where = f" for 0x{int(args.index, 0):04X}:{int(args.subindex, 0):02X}"
+        except ValueError:
+            pass
+    return 1, f"{PROG} {args.verb}: {describe(exc, where)}"
+
+
 def cmd_ec(args: argparse.Namespace) -> int:
     """Run one verb: its own errors to one stderr line and an exit code (never a traceback)."""
     fn, _help = VERBS[args.verb]
     try:
         _precheck(args)
+        if getattr(args, "master", None):
+            if args.verb == "master" and not args.serve:
+                return _master_info(args)
+            return _remote(args)
         with open_backend(args) as backend:
             fn(backend, args, sys.stdout)
         return 0
-    except EcUsage as exc:
-        print(f"{PROG} {args.verb}: {exc}", file=sys.stderr)
-        return 2
     except BrokenPipeError:
         return 0
     except (GatewaylabError, OSError, MasterTimeout) as exc:
-        where = ""
-        if getattr(args, "index", None) is not None:
-            try:
-                where = f" for 0x{int(args.index, 0):04X}:{int(args.subindex, 0):02X}"
-            except ValueError:
-                pass
-        print(f"{PROG} {args.verb}: {describe(exc, where)}", file=sys.stderr)
-        return 1
+        code, line = _failure(args, exc)
+        print(line, file=sys.stderr)
+        return code
+
+
+# ------------------------------------------------------------------------------- persistent master
+#: Arguments that name the line or the program, not the verb: not sent to a persistent master.
+_LOCAL_ARGS = ("func", "open_rig", "master", "interface", "rig", "command", "verbose_log")
+
+
+def _remote(args: argparse.Namespace) -> int:
+    """Run the verb on the persistent master at ``--master SOCKET`` (ec_server.py)."""
+    from .ec_server import request
+
+    if args.interface or args.rig:
+        raise EcUsage("give the line once: --master SOCKET attaches to a master that has it")
+    if args.verb == "master" and args.serve:
+        raise EcUsage("--serve starts a master on -i IFNAME or --rig RIG.toml, not on another master")
+    if (args.verb == "sii-read" and not args.hex) or (args.verb == "foe-read" and not args.output):
+        raise EcUsage(f"{args.verb} through --master writes no binary to stdout: give "
+                      f"{'--hex' if args.verb == 'sii-read' else '-o FILE'}")
+    payload: dict[str, Any] = {}
+    for key, value in vars(args).items():
+        if key in _LOCAL_ARGS or callable(value):
+            continue
+        if isinstance(value, bytes):
+            payload[key + "_b64"] = base64.b64encode(value).decode()
+        else:
+            payload[key] = value
+    if args.verb == "foe-read":
+        payload["output"] = str(Path(args.output).resolve())
+    answer = request(args.master, {"verb": args.verb, "args": payload})
+    sys.stdout.write(answer.get("stdout", ""))
+    sys.stderr.write(answer.get("stderr", ""))
+    return int(answer.get("code", 1))
+
+
+def run_verb(backend: MasterBackend, verb: str, payload: dict[str, Any]) -> tuple[int, str, str]:
+    """A persistent master runs a client's verb on its backend: (exit code, stdout, stderr)."""
+    from io import StringIO
+
+    fields = {k: v for k, v in payload.items() if not k.endswith("_b64")}
+    fields.update({k[:-4]: base64.b64decode(v) for k, v in payload.items() if k.endswith("_b64")})
+    args = argparse.Namespace(**fields, interface=None, rig=None, master=None)
+    args.verb = verb
+    out = StringIO()
+    if verb not in VERBS:
+        return 2, "", f"{PROG}: unknown verb {verb!r}\n"
+    try:
+        VERBS[verb][0](backend, args, out)
+        return 0, out.getvalue(), ""
+    except (GatewaylabError, OSError, MasterTimeout) as exc:
+        code, line = _failure(args, exc)
+        return code, out.getvalue(), line + "\n"
+    except (AttributeError, TypeError, ValueError) as exc:     # a client of another version
+        return 2, out.getvalue(), f"{PROG} {verb}: bad request: {exc}\n"
+
+
+def _master_info(args: argparse.Namespace) -> int:
+    from .ec_server import request
+
+    if args.stop:
+        request(args.master, {"stop": True})
+        print(f"master at {args.master} stopped")
+        return 0
+    info = request(args.master, {"info": True})
+    print("Master0")
+    print(f"  Line: {info['line']} (persistent, pid {info['pid']}, socket {info['socket']})")
+    print(f"  Slaves: {info['slaves']}")
+    print(f"  Process data: {'mapped' if info['mapped'] else 'not mapped'}, cycle {info['cycle_ms']:g} ms, "
+          f"{info['exchanges']} exchanges, last working counter {info['working_counter']}")
+    print(f"  Requests served: {info['requests']}")
+    return 0
 
 
 def _one_line_error(parser: argparse.ArgumentParser, message: str) -> NoReturn:
@@ -612,6 +727,8 @@ def add_subcommand(subparsers: Any, open_rig: RigOpener | None = None) -> None:
     line = common.add_argument_group("line (one of)")
     line.add_argument("-i", "--interface", metavar="IFNAME", help="network interface of the line (SOEM, root)")
     line.add_argument("--rig", metavar="RIG.toml", help="run the rig file in process on a simulated clock")
+    line.add_argument("--master", metavar="SOCKET", help="attach to a persistent master (gatewaylab ec master "
+                      "--serve SOCKET), which keeps the line open and the process data cycling")
     common.add_argument("-p", "--position", type=int, metavar="POSITION",
                         help="slave position (default: all slaves for listings, the only slave otherwise)")
     for verb, (_fn, help_text) in VERBS.items():
@@ -622,6 +739,11 @@ def add_subcommand(subparsers: Any, open_rig: RigOpener | None = None) -> None:
         p.set_defaults(func=cmd_ec, open_rig=open_rig)
         if verb == "slaves":
             p.add_argument("-v", "--verbose", action="store_true", help="identity and status of each slave")
+        elif verb == "master":
+            p.add_argument("--serve", metavar="SOCKET", help="stay up as a persistent master on this Unix socket")
+            p.add_argument("--cycle-ms", type=float, default=2.0, metavar="MS",
+                           help="process data cycle of a persistent master once mapped (default 2 ms)")
+            p.add_argument("--stop", action="store_true", help="stop the persistent master at --master SOCKET")
         elif verb == "states":
             p.add_argument("state", nargs="?", type=str.upper, choices=list(STATES), metavar="STATE",
                            help="state to request: INIT, PREOP, BOOT, SAFEOP, OP (omit to list)")
