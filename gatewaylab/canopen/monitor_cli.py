@@ -10,6 +10,7 @@ scrolling log with rich, one line per event with ``--plain``, one JSON object pe
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import sys
 import time
@@ -305,6 +306,7 @@ def cmd_monitor(args: argparse.Namespace) -> int:
             frames: Iterator[Item] = _frames_replay(path)
             bitrate, data_bitrate = args.bitrate, args.data_bitrate
             title = str(path)
+            frames, base = _replay_base(frames, args.absolute)
         else:
             endpoint = bus_endpoint(args.target, args.bus)
             try:
@@ -316,6 +318,10 @@ def cmd_monitor(args: argparse.Namespace) -> int:
             frames = _frames_live(bus, until)
             bitrate, data_bitrate = getattr(bus, "bitrate", args.bitrate), getattr(bus, "data_bitrate", None)
             title = f"{args.bus} ({endpoint})"
+            epoch = getattr(bus, "wall_epoch", None)
+            base = (0.0, "Unix time") if args.absolute or not epoch else (
+                float(epoch), f"seconds since the rig started (its time 0 is Unix time {epoch:.6f}; --absolute "
+                              "for Unix time)")
         if args.count is not None:
             frames = _first(frames, args.count)
         if args.raw:
@@ -328,8 +334,11 @@ def cmd_monitor(args: argparse.Namespace) -> int:
         watchers = _watchers(args)
         if args.json or args.plain:
             if not args.replay:
-                print(f"monitoring {title}, listen-only", file=sys.stderr, flush=True)
-            _print_events(monitor, frames, filters, args.json, watchers, stamps if args.timestamp else None)
+                print(f"monitoring {title}, listen-only; times: {base[1]}", file=sys.stderr, flush=True)
+            else:
+                print(f"replaying {title}; times: {base[1]}", file=sys.stderr, flush=True)
+            _print_events(monitor, frames, filters, args.json, watchers, stamps if args.timestamp else None,
+                          base[0])
         else:
             with _Screen(monitor, title) as screen:
                 for item in frames:
@@ -396,8 +405,20 @@ def _decode(monitor: BusMonitor, item: Item, filters: FilterSet, watchers: list[
     return events
 
 
+def _replay_base(frames: Iterator[Item], absolute: bool) -> tuple[Iterator[Item], tuple[float, str]]:
+    """The time base of a replay: a trace in Unix time (.log, .pcap, ...) counts from its first frame
+    (the rig's start is not in the file); one already relative to the rig's start (.asc) stays."""
+    first = next(frames, None)
+    rest: Iterator[Item] = itertools.chain([first], frames) if first is not None else iter(())
+    if absolute or first is None or first[1] < 1e8:
+        return rest, (0.0, "as the trace has them" + ("" if absolute else " (seconds since the rig started)"))
+    return rest, (first[1], f"seconds since the trace's first frame (Unix time {first[1]:.6f}; --absolute for "
+                            "Unix time)")
+
+
 def _print_events(monitor: BusMonitor, frames: Iterator[Item], filters: FilterSet, as_json: bool,
-                  watchers: list[_ControlPoller], stamps: Timestamps | None) -> None:
+                  watchers: list[_ControlPoller], stamps: Timestamps | None, base: float = 0.0) -> None:
+    """One line (or JSON object) per event; times count from ``base`` (see the stderr header)."""
     out = sys.stdout
     for item in frames:
         events = _decode(monitor, item, filters, watchers, live=True)
@@ -406,11 +427,11 @@ def _print_events(monitor: BusMonitor, frames: Iterator[Item], filters: FilterSe
             continue
         for event in events:
             if as_json:
-                text = json.dumps(event.to_json())
+                text = json.dumps({**event.to_json(), "t": round(event.t - base, 6)})
             elif stamps is not None:
                 text = f"{stamps.text(event.t)} {event.text}"
             else:
-                text = f"{event.t:.6f}  {event.text}"
+                text = f"{event.t - base:.6f}  {event.text}"
             out.write(text + "\n")
     out.flush()
 
@@ -489,6 +510,8 @@ def _add_common(p: argparse.ArgumentParser) -> None:
     p.add_argument("-t", "--timestamp", choices=TIMESTAMP_MODES, default=None,
                    help="candump timestamps: a absolute, A absolute with date, d delta, z from the first frame")
     p.add_argument("-n", "--count", type=int, default=None, metavar="N", help="stop after N frames")
+    p.add_argument("--absolute", action="store_true",
+                   help="decoded view: Unix times instead of seconds since the rig started (stderr says which)")
     p.add_argument("--replay", action="store_true",
                    help="TARGET is a trace file the rig wrote (.asc .blf .csv .log .trc .txt .pcap .pcapng)")
     p.add_argument("--bitrate", type=int, default=1_000_000, help="bit rate for the load figure of a replay")

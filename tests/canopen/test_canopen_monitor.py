@@ -177,7 +177,8 @@ def test_live_monitor_from_another_process(tmp_path: Path) -> None:
         watchdog.start()
         try:
             assert mon.stderr is not None and mon.stdout is not None
-            assert "listen-only" in mon.stderr.readline()
+            header = mon.stderr.readline()      # and the time base (issue 25): since the rig's start
+            assert "listen-only" in header and "times: seconds since the rig started" in header
             network = canopen.Network()
             network.connect(interface="gatewaylab", channel=rig.endpoint("can0"))
             try:

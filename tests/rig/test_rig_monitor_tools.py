@@ -4,6 +4,7 @@ events, `--viewer`, and `--replay` of the traces `run --trace` writes."""
 
 from __future__ import annotations
 
+import json
 import os
 import queue
 import re
@@ -175,3 +176,16 @@ def test_a_bad_trace_is_one_clear_line(tmp_path: Path, name: str, content: bytes
     err = out.stderr.strip()
     assert "\n" not in err and "Traceback" not in err and "\0" not in err
     assert err.startswith(f"gatewaylab: {path}: ") and where in err, err
+
+
+def test_decoded_times_count_from_the_start_and_say_so(tmp_path: Path) -> None:
+    """Issue 25, one time base: the decoded view counts seconds from the start (a trace in Unix time from
+    its first frame) and says so on stderr; --absolute prints Unix time."""
+    trace = tmp_path / "unix.log"
+    trace.write_text("(1700000000.500000) can0 100#DEADBEEF\n(1700000001.750000) can0 000#0100\n")
+    rel = gl("monitor", "--replay", str(trace), "--plain")
+    assert rel.returncode == 0, rel.stderr
+    assert [ln.split("  ")[0] for ln in rel.stdout.splitlines()] == ["0.000000", "1.250000"]
+    assert "times: seconds since the trace's first frame (Unix time 1700000000.500000" in rel.stderr
+    absolute = gl("monitor", "--replay", str(trace), "--json", "--absolute")
+    assert [json.loads(ln)["t"] for ln in absolute.stdout.splitlines()] == [1700000000.5, 1700000001.75]

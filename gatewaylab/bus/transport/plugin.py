@@ -169,6 +169,12 @@ class GatewaylabBus(can.BusABC):
         super().__init__(channel=channel, can_filters=can_filters, **kwargs)
         self._can_protocol = CanProtocol.CAN_FD if (welcome.fd and fd) else CanProtocol.CAN_20
 
+    @property
+    def wall_epoch(self) -> float:
+        """Unix time of the rig's bus time 0 (its TIMEBASE record): ``Message.timestamp - wall_epoch`` is the
+        time since the rig started, the time base of its traces and of ``gatewaylab monitor``."""
+        return self._epoch
+
     def _endpoint(self, channel: Any) -> str:
         """The endpoint to connect to for ``channel`` (which Message.channel reports as given)."""
         if not isinstance(channel, str) or not channel:
