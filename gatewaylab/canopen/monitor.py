@@ -17,7 +17,7 @@ import struct
 from collections import deque
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 from ..bus.candump import long_frame
 from ..bus.errorframe import (
@@ -30,6 +30,7 @@ from ..bus.errorframe import (
     summary,
 )
 from ..bus.frame import CanFrame
+from ..bus.signals import DecodedMessage
 from ..bus.timing import frame_duration
 from ..od import ObjectDictionary
 from ..od.aborts import SdoAbort, abort_text
@@ -51,13 +52,19 @@ _VIEW_FIELDS = {(0x6041, 0): "statusword", (0x6060, 0): "mode", (0x6061, 0): "mo
                 (0x606C, 0): "velocity"}
 
 
+class SignalSource(Protocol):
+    """A signal database (bus/signals.py SignalDecoder): the frames it defines, decoded."""
+
+    def decode(self, frame: CanFrame) -> DecodedMessage | None: ...
+
+
 @dataclass(frozen=True, slots=True)
 class MonitorEvent:
     """One line of the decoded log; ``fields`` carries the same facts for ``--json``."""
 
     t: float
     #: sdo, sdo-abort, pdo, nmt, sync, time, heartbeat, boot-up, emcy, lss, frame (raw), bus (error
-    #: frames, controller states), node (a node left), ethercat, can (rig controllers)
+    #: frames, controller states), node (a node left), ethercat, can (rig controllers), signal (--db)
     kind: str
     text: str
     node: int | None = None
@@ -215,12 +222,14 @@ class BusMonitor:
 
     def __init__(self, dictionaries: Mapping[int, ObjectDictionary] | None = None, bitrate: int = 1_000_000,
                  data_bitrate: int | None = None, window: float = 1.0, known: Iterable[int] = (),
-                 silence: float = 0.5) -> None:
+                 silence: float = 0.5, signals: SignalSource | None = None) -> None:
         #: node-id -> its dictionary (a copy the monitor updates from observed SDO writes)
         self.dictionaries: dict[int, ObjectDictionary] = dict(dictionaries or {})
         self.nodes: dict[int, NodeView] = {}
         self.bitrate = bitrate
         self.data_bitrate = data_bitrate
+        #: a signal database (``--db``, bus/signals.py): the frames it defines are decoded by it first
+        self.signals = signals
         self.frames = 0
         self.error_frames = 0
         #: the monitor's own controller as its last state-change error frame said
@@ -273,6 +282,12 @@ class BusMonitor:
         for a node's own objects (PDO, EMCY) a node the monitor knows (a dictionary, the rig's list,
         a heartbeat or an SDO seen). Anything else is shown raw, as candump prints it."""
         self._count(frame, t)
+        if self.signals is not None:
+            message = self.signals.decode(frame)
+            if message is not None:
+                return [MonitorEvent(t, "signal", message.text(), None,
+                                     {"id": frame.can_id, "message": message.name,
+                                      "signals": {n: v for n, v, _ in message.signals}})]
         cid, d = frame.can_id, frame.data
         if frame.extended or frame.fd or frame.rtr:
             return [self._raw(frame, t, explain(frame) if frame.rtr and not frame.extended else "")]

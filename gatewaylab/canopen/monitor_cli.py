@@ -34,9 +34,10 @@ from ..bus.candump import (
 )
 from ..bus.errorframe import CAN_ERR_MASK, ErrorFrame, describe
 from ..bus.frame import CanFrame
+from ..bus.signals import SignalDecoder, load_database
 from ..bus.transport.trace import TraceError, read_trace
 from ..common.endpoint import EndpointError, bus_endpoint
-from ..common.errors import GatewaylabError
+from ..common.errors import ConfigError, GatewaylabError
 from ..od import ObjectDictionary
 from ..od.eds import import_eds
 from .monitor import BusMonitor, ControllerWatch, MonitorEvent
@@ -324,13 +325,14 @@ def cmd_monitor(args: argparse.Namespace) -> int:
                               "for Unix time)")
         if args.count is not None:
             frames = _first(frames, args.count)
+        signals = load_database(args.db) if args.db else None
         if args.raw:
-            _print_raw(frames, filters, stamps, args.bus, args.errors)
+            _print_raw(frames, filters, stamps, args.bus, args.errors, signals)
             return 0
         if args.viewer:
             _viewer(frames, filters, title)
             return 0
-        monitor = BusMonitor(_dictionaries(args), bitrate, data_bitrate, known=_known_nodes(args))
+        monitor = BusMonitor(_dictionaries(args), bitrate, data_bitrate, known=_known_nodes(args), signals=signals)
         watchers = _watchers(args)
         if args.json or args.plain:
             if not args.replay:
@@ -351,7 +353,7 @@ def cmd_monitor(args: argparse.Namespace) -> int:
     except BrokenPipeError:
         _quiet_stdout()
         return 0
-    except CandumpSyntaxError as exc:
+    except (CandumpSyntaxError, ConfigError) as exc:
         print(f"gatewaylab: {exc}", file=sys.stderr)
         return 2
     except (EndpointError, GatewaylabError, can.CanError, ValueError) as exc:
@@ -437,8 +439,10 @@ def _print_events(monitor: BusMonitor, frames: Iterator[Item], filters: FilterSe
 
 
 def _print_raw(frames: Iterator[Item], filters: FilterSet, stamps: Timestamps, channel: str,
-               explain_errors: bool) -> None:
-    """candump: one line per frame (``-e``: error frames, decoded on the lines below)."""
+               explain_errors: bool, signals: SignalDecoder | None = None) -> None:
+    """candump: one line per frame (``-e``: error frames, decoded on the lines below); with ``--db``
+    the frames the database defines get `` :: Message(Signal: value unit, ...)``, as
+    ``candump | cantools decode --single-line`` prints them."""
     out = sys.stdout
     indent = False
     for item in frames:
@@ -457,6 +461,11 @@ def _print_raw(frames: Iterator[Item], filters: FilterSet, stamps: Timestamps, c
                 continue
             indent = indent or obj.extended     # candump indents 11-bit ids once it saw a 29-bit one
             body = long_frame(obj, indent_sff=indent)
+            message = signals.decode(obj) if signals is not None else None
+            if message is not None:
+                body += f" :: {message.name}(" + ", ".join(
+                    f"{n}: {repr(v) if isinstance(v, str) else v}" + (f" {u}" if u else "")
+                    for n, v, u in message.signals) + ")"
         out.write(line(body, channel, stamps.text(t)) + "\n")
     out.flush()
 
@@ -519,6 +528,8 @@ def _add_common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds")
     p.add_argument("--eds", type=_eds_arg, action="append", metavar="NODE=FILE",
                    help="the dictionary of a node, for PDO values and object names (repeatable)")
+    p.add_argument("--db", metavar="FILE", help="a signal database (DBC, KCD, ARXML, SYM; read by cantools): "
+                   "the frames it defines are decoded into signals")
 
 
 def add_subcommand(subparsers: Any) -> None:

@@ -19,9 +19,11 @@ from typing import Any
 
 from ..bus.errorframe import ErrorFrame
 from ..bus.frame import CanFrame
+from ..bus.signals import SignalDecoder, load_database
 from ..bus.timing import frame_duration
 from ..bus.transport.trace import TraceError
 from ..bus.transport.trace import read_trace as trace_items
+from ..common.errors import ConfigError
 from ..od import ObjectDictionary
 from ..od.eds import import_eds
 from .cia402 import OpMode, Sw
@@ -29,6 +31,8 @@ from .drive import build_object_dictionary
 from .monitor import BusMonitor
 
 #: statusword bits drawn as step lines (CiA 402 table of 0x6041)
+#: --db: at most this many signals get a panel (the first by name)
+MAX_SIGNAL_PANELS = 12
 _BITS = (Sw.READY_TO_SWITCH_ON, Sw.SWITCHED_ON, Sw.OPERATION_ENABLED, Sw.FAULT, Sw.SWITCH_ON_DISABLED,
          Sw.WARNING, Sw.TARGET_REACHED)
 
@@ -49,6 +53,8 @@ class TracePicture:
 
     load: list[tuple[float, float]]
     nodes: dict[int, Series]
+    #: --db: "Message.Signal [unit]" -> (t, value) of every numeric signal the database decodes
+    signals: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
 
 
 def _nodes_in(items: list[tuple[CanFrame | ErrorFrame, float]]) -> set[int]:
@@ -65,7 +71,8 @@ def _nodes_in(items: list[tuple[CanFrame | ErrorFrame, float]]) -> set[int]:
 
 
 def read_trace(path: Path, dictionaries: dict[int, ObjectDictionary] | None = None, bitrate: int = 1_000_000,
-               data_bitrate: int | None = None, bin_s: float = 0.01, drives: bool = True) -> TracePicture:
+               data_bitrate: int | None = None, bin_s: float = 0.01, drives: bool = True,
+               signals: SignalDecoder | None = None) -> TracePicture:
     """Decode ``path`` (any trace the rig writes) into bus load per ``bin_s`` and per-node series.
 
     Every node the trace shows that has no dictionary of its own is read with the project's CiA 402
@@ -80,6 +87,7 @@ def read_trace(path: Path, dictionaries: dict[int, ObjectDictionary] | None = No
     monitor = BusMonitor(dicts, bitrate, data_bitrate)
     busy: dict[int, float] = {}
     nodes: dict[int, Series] = {}
+    series_of: dict[str, list[tuple[float, float]]] = {}
     t0: float | None = None
     for obj, stamp in items:
         if isinstance(obj, ErrorFrame):
@@ -88,6 +96,13 @@ def read_trace(path: Path, dictionaries: dict[int, ObjectDictionary] | None = No
         t = stamp - t0
         slot = int(t / bin_s)
         busy[slot] = busy.get(slot, 0.0) + frame_duration(obj, bitrate, data_bitrate)
+        message = signals.decode(obj) if signals is not None else None
+        if message is not None:
+            units = {n: u for n, _, u in message.signals}
+            for name, value in message.numbers().items():
+                key = f"{message.name}.{name}" + (f" [{units[name]}]" if units.get(name) else "")
+                series_of.setdefault(key, []).append((t, value))
+            continue
         monitor.feed(obj, t)
         for node_id, view in monitor.nodes.items():
             series = nodes.setdefault(node_id, Series())
@@ -98,7 +113,8 @@ def read_trace(path: Path, dictionaries: dict[int, ObjectDictionary] | None = No
                     points.append((t, value))
     last = max(busy) if busy else 0
     load = [(slot * bin_s, 100.0 * busy.get(slot, 0.0) / bin_s) for slot in range(last + 1)]
-    return TracePicture(load, {n: s for n, s in nodes.items() if s.position or s.velocity or s.statusword})
+    return TracePicture(load, {n: s for n, s in nodes.items() if s.position or s.velocity or s.statusword},
+                        series_of)
 
 
 def _steps(points: list[tuple[float, int]], end: float) -> tuple[list[float], list[float]]:
@@ -147,6 +163,11 @@ def panels(picture: TracePicture, only: int | None = None) -> list[Panel]:
         title = "mode: " + ", ".join(sorted({_mode_name(v) for _, v in s.mode})) if s.mode else ""
         out.append(Panel("statusword", tuple(bits), title,
                          tuple((k * 1.3 + 0.5, str(b.name).lower().replace("_", " ")) for k, b in enumerate(_BITS))))
+    if only is None:
+        for key, points in sorted(picture.signals.items())[:MAX_SIGNAL_PANELS]:
+            xs, ys = [t for t, _ in points] + ([end] if points else []), [v for _, v in points] + (
+                [points[-1][1]] if points else [])
+            out.append(Panel(key.replace(" [", "\n["), ((key, tuple(xs), tuple(ys)),)))
     return out
 
 
@@ -203,13 +224,15 @@ def cmd_plot(args: argparse.Namespace) -> int:
         print(f"gatewaylab: --eds: {exc}", file=sys.stderr)
         return 2
     try:
-        picture = read_trace(trace, dictionaries, args.bitrate, args.data_bitrate)
-    except TraceError as exc:
+        signals = load_database(args.db) if args.db else None
+        picture = read_trace(trace, dictionaries, args.bitrate, args.data_bitrate, signals=signals)
+    except (TraceError, ConfigError) as exc:
         print(f"gatewaylab: {exc}", file=sys.stderr)
         return 2
     drawn = draw(picture, out, f"{trace.name}", args.node)
     print(f"{out}: bus load over {len(picture.load)} x 10 ms"
-          + (f", node(s) {', '.join(map(str, drawn))}" if drawn else ", no drive values decoded"))
+          + (f", node(s) {', '.join(map(str, drawn))}" if drawn else ", no drive values decoded")
+          + (f", {min(len(picture.signals), MAX_SIGNAL_PANELS)} signal(s)" if picture.signals else ""))
     return 0
 
 
@@ -233,6 +256,8 @@ def add_subcommand(subparsers: Any) -> None:
     p.add_argument("--node", type=int, default=None, help="draw this node only (every node is read with the "
                    "drive dictionary unless --eds gives its own)")
     p.add_argument("--eds", type=_eds, action="append", metavar="NODE=FILE", help="a node's dictionary")
+    p.add_argument("--db", metavar="FILE", help="a signal database (DBC, KCD, ARXML, SYM; cantools): one panel per "
+                   f"numeric signal (at most {MAX_SIGNAL_PANELS})")
     p.add_argument("-o", "--output", default=None, help="picture file, .png (default: TRACE with .png) or .svg")
     p.add_argument("--bitrate", type=int, default=1_000_000, help="bus bit rate for the load (default 1000000)")
     p.add_argument("--data-bitrate", type=int, default=None, help="CAN FD data bit rate")

@@ -111,13 +111,15 @@ def _write_ready_file(path: str, info: dict[str, Any]) -> None:
         raise UsageError(f"--ready-file {path}: {exc.strerror or exc}") from None
 
 
-def _start_web(rig: Rig, port: int) -> RigWeb:
-    """The --web page: monitors on every bus, the drives' dictionaries for PDO values."""
+def _start_web(rig: Rig, port: int, db: str | None = None) -> RigWeb:
+    """The --web page: monitors on every bus, the drives' dictionaries for PDO values, --db's signals."""
+    from ..bus.signals import load_database
     from ..canopen.drive import Drive
     from .web import RigWeb
 
+    signals = load_database(db) if db else None
     try:
-        web = RigWeb(dict(rig.buses), [p for p in rig.participants if isinstance(p, Drive)], port)
+        web = RigWeb(dict(rig.buses), [p for p in rig.participants if isinstance(p, Drive)], port, signals=signals)
     except OSError as exc:
         raise UsageError(f"--web {port}: {exc.strerror or exc}") from None
     web.start()
@@ -153,7 +155,7 @@ def cmd_run(args: argparse.Namespace) -> int:
             for bus in rig.buses.values():
                 bus.attach("acker")   # hears every frame, acknowledges it, sends nothing
         if args.web is not None:
-            web = _start_web(rig, args.web)    # before start(): the page sees the boot-up messages
+            web = _start_web(rig, args.web, args.db)    # before start(): the page sees the boot-ups
         rig.start()
         info = rig.ready_info()
         if web is not None:
@@ -235,6 +237,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help="serve a live page of the rig (node table, decoded log, drive plot) on "
                           "http://127.0.0.1:PORT/ (no PORT: any free port; listed in the ready file as "
                           "web.monitor)")
+    run.add_argument("--db", metavar="FILE", help="with --web: a signal database (DBC, KCD, ARXML, SYM; cantools) "
+                     "whose frames the page decodes into signals")
     run.add_argument("--acker", action="store_true",
                      help="attach to every bus a passive node that only acknowledges frames, so a lone "
                           "client's frames are not ACK errors (see docs/bus.md)")

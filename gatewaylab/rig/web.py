@@ -22,7 +22,7 @@ from ..bus import CanFrame, VirtualBus
 from ..bus.bus import BusEvent, Controller, ErrorFrameEvent, StateChangeEvent
 from ..bus.errorframe import bus_error, state_change
 from ..canopen.drive import Drive
-from ..canopen.monitor import BusMonitor, ControllerWatch, MonitorEvent
+from ..canopen.monitor import BusMonitor, ControllerWatch, MonitorEvent, SignalSource
 from ..od.eds import import_eds
 
 #: log lines kept for a page that connects later
@@ -34,7 +34,8 @@ WATCH_PERIOD = 0.1
 class RigWeb:
     """Monitors on every bus of a rig plus the HTTP server of the page."""
 
-    def __init__(self, buses: dict[str, VirtualBus], drives: list[Drive], port: int = 0) -> None:
+    def __init__(self, buses: dict[str, VirtualBus], drives: list[Drive], port: int = 0,
+                 signals: SignalSource | None = None) -> None:
         self._lock = threading.Condition()
         self._events: deque[tuple[int, dict[str, Any]]] = deque(maxlen=_KEEP)
         self._seq = 0
@@ -47,7 +48,7 @@ class RigWeb:
         for name, bus in buses.items():
             dictionaries = {d.node.node_id: import_eds(d.node.to_eds(), d.node.node_id)
                             for d in drives if d.bus is bus and d.node.node_id is not None}
-            monitor = self.monitors[name] = BusMonitor(dictionaries, bus.bitrate, bus.data_bitrate)
+            monitor = self.monitors[name] = BusMonitor(dictionaries, bus.bitrate, bus.data_bitrate, signals=signals)
             bus.add_monitor(self._hook(name, monitor))
             self._listeners[name] = bus.attach("gatewaylab-web", listen_only=True,
                                                on_event=self._event_hook(name, monitor))
