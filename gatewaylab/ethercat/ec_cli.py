@@ -96,6 +96,10 @@ EXAMPLES: dict[str, str] = {
     "foe-read": "gatewaylab ec foe-read -i gl-ecat-m -p 0 config.bin -o config.bin",
     "foe-write": "gatewaylab ec foe-write -i gl-ecat-m -p 0 ecan_lite_v140.bin -n ecan_lite_app.bin\n"
                  "  gatewaylab ec foe-write --rig esd.toml -p 1 --boot firmware.bin -n firmwareUpdate",
+    "reg-read": "gatewaylab ec reg-read --rig rig.toml -p 0 0x0130 2        # AL status\n"
+                "  gatewaylab ec reg-read -i gl-ecat-m -p 0 --type uint16 0x0010",
+    "reg-write": "gatewaylab ec reg-write --rig rig.toml -p 0 --type uint16 0x0012 0x1234   # station alias\n"
+                 "  gatewaylab ec reg-write -i gl-ecat-m -p 0 0x0120 0200",
     "master": "gatewaylab ec master -i gl-ecat-m --serve /tmp/ec.sock &   # a persistent master\n"
               "  gatewaylab ec states --master /tmp/ec.sock OP               # slaves stay in OP between calls\n"
               "  gatewaylab ec master --master /tmp/ec.sock                  # its state\n"
@@ -539,6 +543,52 @@ def _read_input(path: str) -> bytes:
         raise EcUsage(f"cannot read {path}: {exc.strerror or exc}") from None
 
 
+def cmd_reg_read(backend: MasterBackend, args: argparse.Namespace, out: IO[str]) -> None:
+    """IgH ``reg_read ADDRESS [SIZE]``: the bytes in hex, 16 a line; with ``--type`` the value."""
+    pos = _one(backend, args)
+    address = parse_number(args.address, "address", 0xFFFF)
+    ctype = TYPES[args.type] if args.type else None
+    size = parse_number(args.size, "size", 0x10000) if args.size is not None else (
+        _type_size(ctype) if ctype is not None else 1)
+    if address + size > 0x10000:
+        raise EcUsage(f"registers 0x{address:04X}+{size} go past the ESC's 64 KiB (0x0000..0xFFFF)")
+    data = backend.reg_read(pos, address, size)
+    if ctype is not None:
+        print(format_value(ctype, data), file=out)
+        return
+    for k in range(0, len(data), 16):
+        print(" ".join(f"0x{b:02x}" for b in data[k:k + 16]), file=out)
+
+
+def cmd_reg_write(backend: MasterBackend, args: argparse.Namespace, out: IO[str]) -> None:
+    """IgH ``reg_write ADDRESS DATA``: DATA by ``--type``, else hex bytes (``0x0a 0x00`` or ``0a00``)."""
+    pos = _one(backend, args)
+    address = parse_number(args.address, "address", 0xFFFF)
+    data = _register_bytes(args)
+    if address + len(data) > 0x10000:
+        raise EcUsage(f"registers 0x{address:04X}+{len(data)} go past the ESC's 64 KiB (0x0000..0xFFFF)")
+    backend.reg_write(pos, address, data)
+
+
+def _register_bytes(args: argparse.Namespace) -> bytes:
+    if args.type:
+        return parse_value(TYPES[args.type], args.data)
+    text = args.data.replace("0x", "").replace(" ", "").replace(",", "")
+    try:
+        data = bytes.fromhex(text)
+    except ValueError:
+        raise EcUsage(f"register data {args.data!r}: hex bytes (0a00 or '0x0a 0x00'), or give --type") from None
+    if not data:
+        raise EcUsage("register data is empty")
+    return data
+
+
+def _type_size(ctype: CoeType) -> int:
+    if not ctype.size:
+        raise EcUsage(f"reg-read --type {ctype.name} (variable length) needs SIZE")
+    return ctype.size
+
+
 def cmd_master(backend: MasterBackend, args: argparse.Namespace, out: IO[str]) -> None:
     """``master``: the master's state (IgH ``ethercat master``); with ``--serve SOCKET`` it stays up
     as a persistent master the other verbs attach to with ``--master SOCKET``."""
@@ -577,6 +627,8 @@ VERBS: dict[str, tuple[Callable[[MasterBackend, argparse.Namespace, IO[str]], No
     "foe-read": (cmd_foe_read, "read a file by FoE: foe-read NAME [-o FILE]"),
     "foe-write": (cmd_foe_write, "write a file by FoE: foe-write FILE [-n NAME]"),
     "master": (cmd_master, "the master's state; --serve SOCKET keeps a persistent master up for --master"),
+    "reg-read": (cmd_reg_read, "read ESC registers: reg-read [--type TYPE] ADDRESS [SIZE]"),
+    "reg-write": (cmd_reg_write, "write ESC registers: reg-write [--type TYPE] ADDRESS DATA"),
 }
 
 
@@ -739,6 +791,14 @@ def add_subcommand(subparsers: Any, open_rig: RigOpener | None = None) -> None:
         p.set_defaults(func=cmd_ec, open_rig=open_rig)
         if verb == "slaves":
             p.add_argument("-v", "--verbose", action="store_true", help="identity and status of each slave")
+        elif verb in ("reg-read", "reg-write"):
+            p.add_argument("-t", "--type", choices=list(TYPES), metavar="TYPE",
+                           help=f"data type: {', '.join(TYPES)} (default: raw bytes in hex)")
+            p.add_argument("address", help="register address (0x0130 or 304)")
+            if verb == "reg-read":
+                p.add_argument("size", nargs="?", help="bytes to read (default: the type's size, else 1)")
+            else:
+                p.add_argument("data", help="value of --type, or hex bytes")
         elif verb == "master":
             p.add_argument("--serve", metavar="SOCKET", help="stay up as a persistent master on this Unix socket")
             p.add_argument("--cycle-ms", type=float, default=2.0, metavar="MS",

@@ -50,6 +50,12 @@ def test_slaves_stay_in_op_between_calls_of_a_persistent_master(tmp_path: Path) 
         assert [ln.split()[:3] for ln in again.stdout.splitlines()] == [["0", "OP", "+"], ["1", "OP", "+"]]
         value = ec("upload", "--master", sock, "-p", "1", "0x1018", "1")
         assert value.returncode == 0 and value.stdout.strip(), value.stderr
+        # ESC registers (IgH reg_read / reg_write): a write that persists between calls
+        assert ec("reg-read", "--master", sock, "-p", "0", "0x0130", "2").stdout == "0x08 0x00\n"   # AL status OP
+        assert ec("reg-write", "--master", sock, "-p", "1", "--type", "uint16", "0x0012", "0x1234").returncode == 0
+        assert ec("reg-read", "--master", sock, "-p", "1", "--type", "uint16", "0x0012").stdout == "0x1234 4660\n"
+        far = ec("reg-read", "--master", sock, "-p", "0", "0xFFFF", "2")
+        assert far.returncode == 2 and "go past the ESC's 64 KiB" in far.stderr
         info = ec("master", "--master", sock)
         assert "Slaves: 2" in info.stdout and "Process data: mapped" in info.stdout, info.stdout
         exchanges = int(info.stdout.split("Process data: mapped, cycle 2 ms, ")[1].split()[0])
