@@ -96,6 +96,7 @@ EXAMPLES: dict[str, str] = {
     "foe-read": "gatewaylab ec foe-read -i gl-ecat-m -p 0 config.bin -o config.bin",
     "foe-write": "gatewaylab ec foe-write -i gl-ecat-m -p 0 ecan_lite_v140.bin -n ecan_lite_app.bin\n"
                  "  gatewaylab ec foe-write --rig esd.toml -p 1 --boot firmware.bin -n firmwareUpdate",
+    "cstruct": "gatewaylab ec cstruct --rig rig.toml -p 0 > slave0_pdos.h",
     "reg-read": "gatewaylab ec reg-read --rig rig.toml -p 0 0x0130 2        # AL status\n"
                 "  gatewaylab ec reg-read -i gl-ecat-m -p 0 --type uint16 0x0010",
     "reg-write": "gatewaylab ec reg-write --rig rig.toml -p 0 --type uint16 0x0012 0x1234   # station alias\n"
@@ -417,27 +418,86 @@ def cmd_sdos(backend: MasterBackend, args: argparse.Namespace, out: IO[str]) -> 
                       f'{e.bit_length} bit, "{e.name}"', file=out)
 
 
+@dataclass(frozen=True)
+class _SyncLayout:
+    """One SyncManager of a slave with its assigned PDOs: [(index, name, [(index, sub, bits, name)])]."""
+
+    index: int
+    start: int
+    length: int
+    control: int
+    enable: int
+    sm_type: int
+    pdos: tuple[tuple[int, str, tuple[tuple[int, int, int, str], ...]], ...]
+
+
+def _layout(backend: MasterBackend, pos: int) -> list[_SyncLayout]:
+    """SyncManagers (SII), their assigned PDOs (0x1C1x by SDO for CoE slaves) and each PDO's mapped
+    entries (0x16xx/0x1Axx), names from the SII PDO categories: what ``pdos`` and ``cstruct`` show."""
+    info = backend.sii_info(pos)
+    named = sii_pdos(backend.sii_read(pos), info.strings)
+    names = {(i, s): n for p in named.values() for i, s, _b, n in p.entries}
+    out = []
+    for sm_index, (start, length, ctrl, enable, sm_type) in enumerate(info.sync_managers):
+        pdos: list[tuple[int, str, tuple[tuple[int, int, int, str], ...]]] = []
+        if sm_type in (SmType.OUTPUTS, SmType.INPUTS):
+            for pdo_index, entries in _assigned(backend, pos, sm_index, info.coe_details != 0, named):
+                pdos.append((pdo_index, named[pdo_index].name if pdo_index in named else "",
+                             tuple((i, s, b, names.get((i, s), "")) for i, s, b in entries)))
+        out.append(_SyncLayout(sm_index, start, length, ctrl, enable, sm_type, tuple(pdos)))
+    return out
+
+
 def cmd_pdos(backend: MasterBackend, args: argparse.Namespace, out: IO[str]) -> None:
     """IgH ``ethercat pdos``: SyncManagers (SII), their assigned PDOs (0x1C1x by SDO for CoE slaves)
     and each PDO's mapped entries (0x16xx/0x1Axx), names from the SII PDO categories."""
     positions = _selected(backend, args)
     for pos in positions:
         _header(pos, len(positions) > 1, out)
-        info = backend.sii_info(pos)
-        named = sii_pdos(backend.sii_read(pos), info.strings)
-        names = {(i, s): n for p in named.values() for i, s, _b, n in p.entries}
-        for sm_index, (start, length, ctrl, enable, sm_type) in enumerate(info.sync_managers):
-            print(f"SM{sm_index}: PhysAddr 0x{start:04x}, DefaultSize {length:4d}, ControlRegister 0x{ctrl:02x}, "
-                  f"Enable {enable}", file=out)
-            if sm_type not in (SmType.OUTPUTS, SmType.INPUTS):
-                continue
-            direction = "R" if sm_type == SmType.OUTPUTS else "T"
-            for pdo_index, entries in _assigned(backend, pos, sm_index, info.coe_details != 0, named):
-                name = named[pdo_index].name if pdo_index in named else ""
+        for sm in _layout(backend, pos):
+            print(f"SM{sm.index}: PhysAddr 0x{sm.start:04x}, DefaultSize {sm.length:4d}, ControlRegister "
+                  f"0x{sm.control:02x}, Enable {sm.enable}", file=out)
+            direction = "R" if sm.sm_type == SmType.OUTPUTS else "T"
+            for pdo_index, name, entries in sm.pdos:
                 print(f'  {direction}xPDO 0x{pdo_index:04x} "{name}"', file=out)
-                for e_index, e_sub, bits in entries:
-                    print(f"    PDO entry 0x{e_index:04x}:{e_sub:02x}, {bits:2d} bit, "
-                          f'"{names.get((e_index, e_sub), "")}"', file=out)
+                for e_index, e_sub, bits, e_name in entries:
+                    print(f'    PDO entry 0x{e_index:04x}:{e_sub:02x}, {bits:2d} bit, "{e_name}"', file=out)
+
+
+def cmd_cstruct(backend: MasterBackend, args: argparse.Namespace, out: IO[str]) -> None:
+    """IgH ``ethercat cstruct``: the slave's PDO configuration as the C structures an IgH application
+    hands to ``ecrt_slave_config_pdos()`` (ec_pdo_entry_info_t, ec_pdo_info_t, ec_sync_info_t)."""
+    ident = {s.position: s for s in backend.slaves()}
+    for pos in _selected(backend, args):
+        s = ident[pos]
+        layout = _layout(backend, pos)
+        print(f'/* Master 0, Slave {pos}, "{s.name}"\n * Vendor ID:       0x{s.vendor_id:08x}\n'
+              f" * Product code:    0x{s.product_code:08x}\n * Revision number: 0x{s.revision:08x}\n */\n",
+              file=out)
+        entries = [e for sm in layout for _i, _n, es in sm.pdos for e in es]
+        if entries:
+            print(f"ec_pdo_entry_info_t slave_{pos}_pdo_entries[] = {{", file=out)
+            for index, sub, bits, name in entries:
+                print(f"    {{0x{index:04x}, {sub}, {bits}}}, /* {name} */", file=out)
+            print("};\n", file=out)
+        pdos = [p for sm in layout for p in sm.pdos]
+        if pdos:
+            print(f"ec_pdo_info_t slave_{pos}_pdos[] = {{", file=out)
+            at = 0
+            for index, name, es in pdos:
+                where = f"slave_{pos}_pdo_entries + {at}" if es else "NULL"
+                print(f"    {{0x{index:04x}, {len(es)}, {where}}}, /* {name} */", file=out)
+                at += len(es)
+            print("};\n", file=out)
+        print(f"ec_sync_info_t slave_{pos}_syncs[] = {{", file=out)
+        at = 0
+        for sm in layout:
+            direction = "EC_DIR_OUTPUT" if sm.control & 0x0C == 0x04 else "EC_DIR_INPUT"
+            where = f"slave_{pos}_pdos + {at}" if sm.pdos else "NULL"
+            watchdog = "EC_WD_ENABLE" if sm.control & 0x40 else "EC_WD_DISABLE"
+            print(f"    {{{sm.index}, {direction}, {len(sm.pdos)}, {where}, {watchdog}}},", file=out)
+            at += len(sm.pdos)
+        print("    {0xff}\n};\n", file=out)
 
 
 def _assigned(backend: MasterBackend, pos: int, sm_index: int, coe: bool,
@@ -627,6 +687,7 @@ VERBS: dict[str, tuple[Callable[[MasterBackend, argparse.Namespace, IO[str]], No
     "foe-read": (cmd_foe_read, "read a file by FoE: foe-read NAME [-o FILE]"),
     "foe-write": (cmd_foe_write, "write a file by FoE: foe-write FILE [-n NAME]"),
     "master": (cmd_master, "the master's state; --serve SOCKET keeps a persistent master up for --master"),
+    "cstruct": (cmd_cstruct, "the PDO configuration as C structures for an IgH application"),
     "reg-read": (cmd_reg_read, "read ESC registers: reg-read [--type TYPE] ADDRESS [SIZE]"),
     "reg-write": (cmd_reg_write, "write ESC registers: reg-write [--type TYPE] ADDRESS DATA"),
 }

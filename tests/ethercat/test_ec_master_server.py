@@ -76,3 +76,41 @@ def test_no_master_at_the_socket_is_one_line(tmp_path: Path) -> None:
     out = ec("slaves", "--master", str(tmp_path / "none.sock"))
     assert out.returncode == 1 and "no master serving there (start one: gatewaylab ec master --serve" in out.stderr
     assert "Traceback" not in out.stderr
+
+
+ECRT_STUB = """#include <stddef.h>
+#include <stdint.h>
+/* the declarations of IgH's ecrt.h that cstruct's output uses (IgH EtherCAT master 1.5 API) */
+typedef enum { EC_DIR_INVALID, EC_DIR_OUTPUT, EC_DIR_INPUT, EC_DIR_COUNT } ec_direction_t;
+typedef enum { EC_WD_DEFAULT, EC_WD_ENABLE, EC_WD_DISABLE } ec_watchdog_mode_t;
+typedef struct { uint16_t index; uint8_t subindex; uint8_t bit_length; } ec_pdo_entry_info_t;
+typedef struct { uint16_t index; unsigned int n_entries; ec_pdo_entry_info_t const *entries; } ec_pdo_info_t;
+typedef struct { uint8_t index; ec_direction_t dir; unsigned int n_pdos; ec_pdo_info_t const *pdos;
+                 ec_watchdog_mode_t watchdog_mode; } ec_sync_info_t;
+"""
+
+
+def test_cstruct_is_c_an_igh_application_compiles(tmp_path: Path) -> None:
+    """IgH ``ethercat cstruct``: the slave's SyncManagers, PDOs and entries as ec_sync_info_t /
+    ec_pdo_info_t / ec_pdo_entry_info_t; the output compiles against ecrt.h's declarations and
+    holds the io slave's layout (SM2 outputs 0x1600 with 3 entries, SM3 inputs 0x1A00 with 4)."""
+    import shutil
+    rig = tmp_path / "rig.toml"
+    rig.write_text(RIG)
+    out = ec("cstruct", "--rig", str(rig), "-p", "1")
+    assert out.returncode == 0, out.stderr
+    text = out.stdout
+    assert '/* Master 0, Slave 1, "io-b"' in text
+    assert "    {0x1600, 3, slave_1_pdo_entries + 0}, /* Outputs */" in text
+    assert "    {0x1a00, 4, slave_1_pdo_entries + 3}, /* Inputs */" in text
+    assert "    {2, EC_DIR_OUTPUT, 1, slave_1_pdos + 0, EC_WD_ENABLE}," in text
+    assert "    {3, EC_DIR_INPUT, 1, slave_1_pdos + 1, EC_WD_DISABLE}," in text
+    compiler = shutil.which("cc") or shutil.which("gcc")
+    if compiler is None:
+        return                     # the content checks above still hold
+    source = tmp_path / "pdos.c"
+    source.write_text(ECRT_STUB + text + "int main(void) { return slave_1_syncs[4].index == 0xff ? 0 : 1; }\n")
+    built = subprocess.run([compiler, "-Wall", "-Werror", "-o", str(tmp_path / "pdos"), str(source)],
+                           capture_output=True, text=True, timeout=WAIT)
+    assert built.returncode == 0, built.stderr
+    assert subprocess.run([str(tmp_path / "pdos")], timeout=WAIT).returncode == 0
