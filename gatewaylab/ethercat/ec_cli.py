@@ -97,6 +97,7 @@ EXAMPLES: dict[str, str] = {
     "foe-write": "gatewaylab ec foe-write -i gl-ecat-m -p 0 ecan_lite_v140.bin -n ecan_lite_app.bin\n"
                  "  gatewaylab ec foe-write --rig esd.toml -p 1 --boot firmware.bin -n firmwareUpdate",
     "cstruct": "gatewaylab ec cstruct --rig rig.toml -p 0 > slave0_pdos.h",
+    "xml": "gatewaylab ec xml -i gl-ecat-m -p 0 > slave0.xml",
     "reg-read": "gatewaylab ec reg-read --rig rig.toml -p 0 0x0130 2        # AL status\n"
                 "  gatewaylab ec reg-read -i gl-ecat-m -p 0 --type uint16 0x0010",
     "reg-write": "gatewaylab ec reg-write --rig rig.toml -p 0 --type uint16 0x0012 0x1234   # station alias\n"
@@ -603,6 +604,43 @@ def _read_input(path: str) -> bytes:
         raise EcUsage(f"cannot read {path}: {exc.strerror or exc}") from None
 
 
+#: ESI data type names by bit length (ETG.2000 base types) for ``xml``'s PDO entries.
+_ESI_TYPES = {1: "BOOL", 8: "UINT8", 16: "UINT16", 32: "UINT32", 64: "UINT64"}
+
+
+def cmd_xml(backend: MasterBackend, args: argparse.Namespace, out: IO[str]) -> None:
+    """IgH ``ethercat xml``: an ESI (EtherCATInfo, ETG.2000) of each slave from what the line says:
+    identity and name, SyncManagers, assigned PDOs and entries (data types by bit length)."""
+    from xml.sax.saxutils import escape
+
+    ident = {s.position: s for s in backend.slaves()}
+    for pos in _selected(backend, args):
+        s = ident[pos]
+        lines = ['<?xml version="1.0" ?>', "<EtherCATInfo>", f"  <!-- Slave {pos} -->", "  <Vendor>",
+                 f"    <Id>{s.vendor_id}</Id>", "  </Vendor>", "  <Descriptions>", "    <Devices>", "      <Device>",
+                 f'        <Type ProductCode="#x{s.product_code:08x}" RevisionNo="#x{s.revision:08x}">'
+                 f"{escape(s.name)}</Type>", f"        <Name>{escape(s.name)}</Name>"]
+        layout = _layout(backend, pos)
+        for sm in layout:
+            lines.append(f'        <Sm Enable="{sm.enable}" StartAddress="#x{sm.start:04x}" ControlByte='
+                         f'"#x{sm.control:02x}" DefaultSize="{sm.length}" />')
+        for sm in layout:
+            kind = "RxPdo" if sm.sm_type == SmType.OUTPUTS else "TxPdo"
+            for index, name, entries in sm.pdos:
+                lines += [f'        <{kind} Sm="{sm.index}" Fixed="1" Mandatory="1">',
+                          f"          <Index>#x{index:04x}</Index>", f"          <Name>{escape(name)}</Name>"]
+                for e_index, e_sub, bits, e_name in entries:
+                    lines += ["          <Entry>", f"            <Index>#x{e_index:04x}</Index>",
+                              f"            <SubIndex>{e_sub}</SubIndex>", f"            <BitLen>{bits}</BitLen>",
+                              f"            <Name>{escape(e_name)}</Name>"]
+                    if e_index:
+                        lines.append(f"            <DataType>{_ESI_TYPES.get(bits, f'BIT{bits}')}</DataType>")
+                    lines.append("          </Entry>")
+                lines.append(f"        </{kind}>")
+        lines += ["      </Device>", "    </Devices>", "  </Descriptions>", "</EtherCATInfo>"]
+        print("\n".join(lines), file=out)
+
+
 def cmd_reg_read(backend: MasterBackend, args: argparse.Namespace, out: IO[str]) -> None:
     """IgH ``reg_read ADDRESS [SIZE]``: the bytes in hex, 16 a line; with ``--type`` the value."""
     pos = _one(backend, args)
@@ -688,6 +726,7 @@ VERBS: dict[str, tuple[Callable[[MasterBackend, argparse.Namespace, IO[str]], No
     "foe-write": (cmd_foe_write, "write a file by FoE: foe-write FILE [-n NAME]"),
     "master": (cmd_master, "the master's state; --serve SOCKET keeps a persistent master up for --master"),
     "cstruct": (cmd_cstruct, "the PDO configuration as C structures for an IgH application"),
+    "xml": (cmd_xml, "an ESI (EtherCATInfo XML) of the slave from its SII and PDO assignment"),
     "reg-read": (cmd_reg_read, "read ESC registers: reg-read [--type TYPE] ADDRESS [SIZE]"),
     "reg-write": (cmd_reg_write, "write ESC registers: reg-write [--type TYPE] ADDRESS DATA"),
 }

@@ -114,3 +114,23 @@ def test_cstruct_is_c_an_igh_application_compiles(tmp_path: Path) -> None:
                            capture_output=True, text=True, timeout=WAIT)
     assert built.returncode == 0, built.stderr
     assert subprocess.run([str(tmp_path / "pdos")], timeout=WAIT).returncode == 0
+
+
+def test_xml_is_an_esi_of_what_the_line_says(tmp_path: Path) -> None:
+    """IgH ``ethercat xml``: an EtherCATInfo document (ETG.2000) per slave: vendor, type with product code
+    and revision, SyncManagers, RxPdo/TxPdo with their entries; well-formed XML."""
+    import xml.etree.ElementTree as ET
+    rig = tmp_path / "rig.toml"
+    rig.write_text(RIG)
+    out = ec("xml", "--rig", str(rig), "-p", "0")
+    assert out.returncode == 0, out.stderr
+    root = ET.fromstring(out.stdout)
+    device = root.find("Descriptions/Devices/Device")
+    assert root.tag == "EtherCATInfo" and device is not None
+    assert int(root.findtext("Vendor/Id") or "0") == 0x47574C42
+    assert device.find("Type").attrib == {"ProductCode": "#x00010001", "RevisionNo": "#x00000001"}  # type: ignore[union-attr]
+    assert [sm.attrib["StartAddress"] for sm in device.findall("Sm")] == ["#x1000", "#x1080", "#x1100", "#x1400"]
+    rx, tx = device.find("RxPdo"), device.find("TxPdo")
+    assert rx is not None and tx is not None and rx.attrib["Sm"] == "2" and tx.attrib["Sm"] == "3"
+    assert [(e.findtext("Index"), e.findtext("BitLen"), e.findtext("DataType")) for e in tx.findall("Entry")] == [
+        ("#x6000", "8", "UINT8"), ("#x6010", "16", "UINT16"), ("#x6010", "16", "UINT16"), ("#x6020", "32", "UINT32")]
