@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from ..common.endpoint import EndpointKind, parse_endpoint
-from ..common.errors import GatewaylabError
+from ..common.errors import ConfigError, GatewaylabError
 from .faults import DRIVE_FAULTS
 
 _DESCRIPTION = """\
@@ -117,6 +117,9 @@ def send_request(ready_file: str, req: dict[str, Any], timeout: float = 10.0) ->
     try:
         info = json.loads(Path(ready_file).read_text())
         endpoint = parse_endpoint(str(info["control"]), bare_path=EndpointKind.UNIX)
+    except FileNotFoundError:
+        raise ConfigError(f"{ready_file}: no such ready file (is the rig running? `gatewaylab run --ready-file "
+                          f"{ready_file}` writes it)") from None
     except OSError as exc:
         raise FaultCliError(f"cannot read ready file {ready_file}: {exc.strerror or exc}") from None
     except (ValueError, KeyError, TypeError):

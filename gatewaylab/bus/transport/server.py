@@ -20,6 +20,7 @@ from ..bus import (
     BusEvent,
     Controller,
     ErrorFrameEvent,
+    ErrorKind,
     ErrorState,
     StateChangeEvent,
     TxAbortedEvent,
@@ -37,6 +38,8 @@ MAX_BACKLOG = 8 * 1024 * 1024
 #: this long (bus time: nobody acknowledges), the rest are given up with a warning.
 ORPHAN_PATIENCE = 2.0
 
+#: The bus's error kinds as the STATUS record's tail carries them (docs/bus-wire.md).
+_ERROR_CODES = {kind: wire.ErrorCode[kind.name] for kind in ErrorKind}
 _STATE_CODES = {
     ErrorState.ERROR_ACTIVE: wire.ControllerStateCode.ERROR_ACTIVE,
     ErrorState.ERROR_PASSIVE: wire.ControllerStateCode.ERROR_PASSIVE,
@@ -102,10 +105,11 @@ class _Client:
             ctrl = self.controller
             assert ctrl is not None
             self.write(wire.encode_status(wire.StatusKind.ERROR_FRAME, _STATE_CODES[ctrl.state],
-                                          ctrl.tec, ctrl.rec, ev.timestamp))
+                                          ctrl.tec, ctrl.rec, ev.timestamp, _ERROR_CODES[ev.kind],
+                                          ev.transmitter))
         elif isinstance(ev, StateChangeEvent):
             self.write(wire.encode_status(wire.StatusKind.STATE, _STATE_CODES[ev.new], ev.tec, ev.rec,
-                                          ev.timestamp))
+                                          ev.timestamp, old=_STATE_CODES[ev.old]))
 
     def write(self, data: bytes) -> None:
         if not (self.closed or self.broken):
