@@ -20,6 +20,7 @@ from __future__ import annotations
 import json
 import struct
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -33,9 +34,16 @@ SM = struct.Struct("<HHBBBB")
 
 
 def learn_line(iface: str) -> tuple[list[int], list[tuple[int, int, int, int]], dict[str, Any]]:
-    """SOEM up to OP; each slave's station address and (SM0 start, size, SM1 start, size)."""
+    """SOEM up to OP; each slave's station address and (SM0 start, size, SM1 start, size). A scan
+    that found no slave (a reply later than SOEM's 2 ms on a loaded machine) is repeated, as a user
+    would start the application again."""
     master = _open(iface)
     n = master.config_init()
+    for _ in range(10):
+        if n > 0:
+            break
+        time.sleep(0.2)
+        n = master.config_init()
     stations, mailboxes = [], []
     for s in master.slaves:
         sm0 = SM.unpack(s._fprd(0x0800, 8, SLOW_US))

@@ -97,7 +97,8 @@ def test_live_page_shows_buses_and_nodes_and_follows_the_bus(rig: RigProcess, pa
             data = bytes((0xCA, 0xFE, 0x21, seq))
             sent = time.time()
             bus.send(can.Message(arbitration_id=0x123, data=data, is_extended_id=False))
-            page.wait_for_function(f"document.getElementById('log').textContent.includes('{data.hex(' ')}')",
+            shown = data.hex(" ").upper()   # the log shows data as candump does: upper-case hex
+            page.wait_for_function(f"document.getElementById('log').textContent.toUpperCase().includes('{shown}')",
                                    timeout=WAIT_MS, polling=5)
             if seq == 0:
                 lat.first = time.time() - sent
