@@ -21,6 +21,7 @@ from typing import Any
 from ..bus import CanFrame, VirtualBus
 from ..canopen.drive import Drive
 from ..canopen.monitor import BusMonitor, MonitorEvent
+from ..common.server_thread import ServerThread
 from ..od.eds import import_eds
 
 #: log lines kept for a page that connects later
@@ -42,7 +43,7 @@ class RigWeb:
             bus.add_monitor(self._hook(name, monitor))
         self._server = ThreadingHTTPServer(("127.0.0.1", port), self._handler())
         self._server.daemon_threads = True
-        self._thread: threading.Thread | None = None
+        self._thread: ServerThread | None = None
         self.url = f"http://127.0.0.1:{self._server.server_address[1]}/"
         self.closing = False
 
@@ -141,7 +142,7 @@ class RigWeb:
 
     def start(self) -> str:
         """Serve in a daemon thread; returns the page's URL."""
-        self._thread = threading.Thread(target=self._server.serve_forever, name="gatewaylab-web", daemon=True)
+        self._thread = ServerThread(self._server, "gatewaylab-web")
         self._thread.start()
         return self.url
 
@@ -151,8 +152,8 @@ class RigWeb:
             self.closing = True
             self._lock.notify_all()
         if self._thread is not None:
-            self._server.shutdown()
-            self._thread.join(5)
+            self._thread.stop()
+            self._thread = None
         self._server.server_close()
 
 
