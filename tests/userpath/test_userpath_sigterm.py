@@ -1,7 +1,9 @@
 """SIGTERM as a user sends it (issue 21, defect 5): `gatewaylab run` must end within 1 s in every state.
 
-docs/rig.md 'Running a rig': "SIGINT/SIGTERM shut it down cleanly and remove the endpoints and
-temporary folder ... the process exits within a second". Each test starts the rig exactly as a user
+docs/rig.md 'Running a rig': "SIGINT/SIGTERM shut it down cleanly and remove the endpoints, the
+temporary folder and the ready file, and the process exits within one second in every state". The bound
+is asserted as promised, without a margin: the stop path waits on no timeout, and these tests measure
+20-70 ms on a loaded 2-CPU machine (the old code: 0.7 s idle, 3 s under load). Each test starts the rig exactly as a user
 does (``gatewaylab run RIG.toml --ready-file``, through :class:`RigProcess`) with CAN buses, drives, a
 maxon IDX (pty + TCP), an esd CAN-EtherCAT (with its web server) and an ECAN-Lite on an EtherCAT
 segment on a veth pair, puts it in one state (idle, flooded by python-can clients, mid-bring-up, with
@@ -30,11 +32,17 @@ STOP_BOUND_S = 1.0
 
 
 # ------------------------------------------------------------------------------------- drivers
+#: frames each flooding client has sent when the driver says ``flooding`` (the rig's queues are full)
+FLOOD_STARTED = 500
+
+
 def flood(endpoint: str, clients: int) -> None:
-    """``clients`` python-can clients on ``endpoint``, each sending back to back until killed."""
+    """``clients`` python-can clients on ``endpoint``, each sending back to back until killed; prints
+    ``flooding`` once each has sent FLOOD_STARTED frames."""
     import can
 
     buses = [can.Bus(interface="gatewaylab", channel=endpoint) for _ in range(clients)]
+    started = threading.Semaphore(0)
 
     def send(k: int, bus: can.BusABC) -> None:
         i = 0
@@ -43,23 +51,28 @@ def flood(endpoint: str, clients: int) -> None:
             try:
                 bus.send(can.Message(arbitration_id=0x100 + k, data=i.to_bytes(8, "little"), is_extended_id=False),
                          timeout=1.0)
-            except can.CanError:
-                time.sleep(0.001)
+            except can.CanError:      # the transmit queue stayed full for a second: keep pushing
+                i -= 1
+            if i == FLOOD_STARTED:
+                started.release()
 
     for k, bus in enumerate(buses):
         threading.Thread(target=send, args=(k, bus), daemon=True).start()
+    for _ in buses:
+        started.acquire()
     print("flooding", flush=True)
     threading.Event().wait()
 
 
 def soem(iface: str) -> None:
-    """pysoem: bring the line up (prints ``init``, then ``op N`` once exchanging), then 1 kHz until killed."""
+    """pysoem: bring the line up (prints ``scanning`` as it starts, ``exchanging N`` after 200 process data
+cycles), then 1 kHz until killed."""
     import pysoem
 
     master = pysoem.Master()
     master.sdo_read_timeout = master.sdo_write_timeout = 3_000_000
     master.open(iface)
-    print("init", flush=True)
+    print("scanning", flush=True)
     count = 0
     for _ in range(5):     # a veth link just brought up may lose the first frames
         count = master.config_init()
@@ -259,7 +272,6 @@ def test_sigterm_idle(child_tmp: Path, sigterm_line: SigtermLine) -> None:
     """docs/rig.md 'Running a rig': an idle rig (no master, no client) exits within a second of SIGTERM
     with exit 0; ready file, state folder and sockets are gone."""
     with _start(child_tmp, sigterm_line) as rig:
-        time.sleep(1.0)
         seconds = _sigterm_seconds(rig.proc)
     _check_stop(rig, seconds, child_tmp, "idle")
 
@@ -292,8 +304,7 @@ def test_sigterm_while_soem_brings_the_line_up(child_tmp: Path, sigterm_line: Si
     with _start(child_tmp, sigterm_line) as rig:
         master = _driver("--soem", sigterm_line.master_iface, namespace=sigterm_line.namespace)
         try:
-            _wait_line(master, "init", timeout=60)
-            time.sleep(0.3)
+            _wait_line(master, "scanning", timeout=60)      # config_init: hundreds of frames follow
             seconds = _sigterm_seconds(rig.proc)
         finally:
             _end(master)
@@ -320,9 +331,9 @@ def test_sigterm_under_load(child_tmp: Path, sigterm_line: SigtermLine) -> None:
             clients = [socket.create_connection(_host_port(usb["tcp"]), timeout=5)]
             for url, request in ((rig.info["web"]["esd1"], b"GET / HTTP/1.1\r\nHost: x\r\n\r\n"),
                                  (rig.info["web"]["monitor"], b"GET /events HTTP/1.1\r\nHost: x\r\n\r\n")):
-                clients.append(socket.create_connection(_host_port(url), timeout=5))
+                clients.append(socket.create_connection(_host_port(url), timeout=30))
                 clients[-1].sendall(request)
-            time.sleep(2.0)
+                assert clients[-1].recv(12).startswith(b"HTTP/1."), url     # served, connection kept open
             seconds = _sigterm_seconds(rig.proc)
             pty.close()
             for client in clients:
