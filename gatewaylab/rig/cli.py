@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import gc
 import json
 import logging
@@ -165,8 +166,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         #: Unix time of the rig's clock time 0: trace files and client timestamps count from it.
         info.setdefault("wall_epoch", rig.clock.wall_epoch)
         if args.ready_file:
+            ready_written = True       # first: a signal during the write still removes what it left
             _write_ready_file(args.ready_file, info)
-            ready_written = True
         print(f"gatewaylab rig {rig.config.source} running (pid {os.getpid()})")
         for name, bus in info["buses"].items():
             print(f"  bus {name}: {bus.get('endpoint', '(no endpoint)')}"
@@ -187,10 +188,9 @@ def cmd_run(args: argparse.Namespace) -> int:
             if rig is not None:
                 rig.close()
             if ready_written:
-                try:
-                    os.unlink(args.ready_file)
-                except FileNotFoundError:
-                    pass
+                for path in (args.ready_file, args.ready_file + ".tmp"):
+                    with contextlib.suppress(FileNotFoundError):
+                        os.unlink(path)
         finally:
             # Exit within milliseconds: the collector's passes over every object the rig ever imported
             # took 120-200 ms of the second SIGTERM promises (issue 21); nothing left needs them.
