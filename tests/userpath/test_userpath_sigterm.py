@@ -25,7 +25,6 @@ import sys
 import threading
 import time
 from collections.abc import Iterator
-from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
 
@@ -180,20 +179,17 @@ interface = "{interface}"
 """
 
 
-@dataclass(frozen=True)
-class SigtermLine:
-    namespace: str
-    emulator_iface: str
-    master_iface: str
+#: (namespace, the emulator's end, the master's end inside the namespace): tests/wire_kit.py
+Line = tuple[str, str, str]
 
 
 @pytest.fixture(scope="module")
-def sigterm_line() -> Iterator[SigtermLine]:
+def sigterm_line() -> Iterator[Line]:
     reason = net_capable("pysoem")
     if reason is not None:
         pytest.skip(reason)
-    with veth_namespace("gl-st-", "glst") as (ns, emu, mst):
-        yield SigtermLine(ns, emu, mst)
+    with veth_namespace("gl-st-", "glst") as line:
+        yield line
 
 
 def _driver(*args: str, namespace: str | None = None) -> subprocess.Popen[str]:
@@ -247,9 +243,9 @@ def _left_behind(tmp_path: Path) -> list[str]:
     return sorted(str(p) for p in (*tmp_path.glob("ready-*.json"), *(tmp_path / "tmp").iterdir()))
 
 
-def _rig_args(tmp_path: Path, line: SigtermLine) -> list[str]:
+def _rig_args(tmp_path: Path, line: Line) -> list[str]:
     rig_file = tmp_path / "rig.toml"
-    rig_file.write_text(rig_text(line.emulator_iface))
+    rig_file.write_text(rig_text(line[1]))
     return [str(rig_file), "--web", "--trace", f"can0={tmp_path / 'can0.log'}",
             "--trace", f"can1={tmp_path / 'can1.blf'}"]
 
@@ -262,7 +258,7 @@ def child_tmp(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
     return tmp_path
 
 
-def _start(tmp_path: Path, line: SigtermLine) -> RigProcess:
+def _start(tmp_path: Path, line: Line) -> RigProcess:
     rig_file, *extra = _rig_args(tmp_path, line)
     return RigProcess(rig_file, *extra, workdir=tmp_path, timeout=90)
 
@@ -275,7 +271,7 @@ def _check_stop(rig: RigProcess, seconds: float, tmp_path: Path, state: str) -> 
     assert seconds < STOP_BOUND_S, f"{state}: {seconds:.2f} s"
 
 
-def test_sigterm_idle(child_tmp: Path, sigterm_line: SigtermLine) -> None:
+def test_sigterm_idle(child_tmp: Path, sigterm_line: Line) -> None:
     """docs/rig.md 'Running a rig': an idle rig (no master, no client) exits within a second of SIGTERM
     with exit 0; ready file, state folder and sockets are gone."""
     with _start(child_tmp, sigterm_line) as rig:
@@ -283,7 +279,7 @@ def test_sigterm_idle(child_tmp: Path, sigterm_line: SigtermLine) -> None:
     _check_stop(rig, seconds, child_tmp, "idle")
 
 
-def test_sigterm_while_the_rig_starts(child_tmp: Path, sigterm_line: SigtermLine) -> None:
+def test_sigterm_while_the_rig_starts(child_tmp: Path, sigterm_line: Line) -> None:
     """docs/rig.md 'Running a rig': SIGTERM while `gatewaylab run` builds and starts its devices (its state
     folder exists, the ready file does not yet) ends it within a second and leaves nothing behind."""
     ready = child_tmp / "ready-bringup.json"
@@ -291,7 +287,10 @@ def test_sigterm_while_the_rig_starts(child_tmp: Path, sigterm_line: SigtermLine
                              "--ready-file", str(ready)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     try:
         deadline = time.monotonic() + 60
-        while not any((child_tmp / "tmp").iterdir()) and proc.poll() is None and time.monotonic() < deadline:
+        # the state folder, not any entry: Python's own probe of TMPDIR (a file it makes and removes
+        # at once) comes first and is not the rig's to clean up
+        while not any((child_tmp / "tmp").glob("gatewaylab-*")) and proc.poll() is None \
+                and time.monotonic() < deadline:
             time.sleep(0.001)
         assert not ready.exists(), "the rig started before the signal: nothing mid-bring-up was tested"
         seconds = _sigterm_seconds(proc)
@@ -305,11 +304,11 @@ def test_sigterm_while_the_rig_starts(child_tmp: Path, sigterm_line: SigtermLine
     assert seconds < STOP_BOUND_S
 
 
-def test_sigterm_while_soem_brings_the_line_up(child_tmp: Path, sigterm_line: SigtermLine) -> None:
+def test_sigterm_while_soem_brings_the_line_up(child_tmp: Path, sigterm_line: Line) -> None:
     """docs/rig.md 'Running a rig': SIGTERM while SOEM scans the line and configures its slaves (mailbox
     traffic on the wire thread) ends the rig within a second."""
     with _start(child_tmp, sigterm_line) as rig:
-        master = _driver("--soem", sigterm_line.master_iface, "0.001", namespace=sigterm_line.namespace)
+        master = _driver("--soem", sigterm_line[2], "0.001", namespace=sigterm_line[0])
         try:
             _wait_line(master, "scanning", timeout=60)      # config_init: hundreds of frames follow
             seconds = _sigterm_seconds(rig.proc)
@@ -318,11 +317,11 @@ def test_sigterm_while_soem_brings_the_line_up(child_tmp: Path, sigterm_line: Si
     _check_stop(rig, seconds, child_tmp, "while SOEM brings the line up")
 
 
-def test_sigterm_while_soem_exchanges_at_1khz(child_tmp: Path, sigterm_line: SigtermLine) -> None:
+def test_sigterm_while_soem_exchanges_at_1khz(child_tmp: Path, sigterm_line: Line) -> None:
     """docs/rig.md 'Running a rig': SOEM in OP exchanging process data at 1 kHz (a frame on the wire thread
     every millisecond, also while the rig stops): exit within a second, exit 0."""
     with _start(child_tmp, sigterm_line) as rig:
-        master = _driver("--soem", sigterm_line.master_iface, "0.001", namespace=sigterm_line.namespace)
+        master = _driver("--soem", sigterm_line[2], "0.001", namespace=sigterm_line[0])
         try:
             _wait_line(master, "exchanging", timeout=90)
             seconds = _sigterm_seconds(rig.proc)
@@ -331,7 +330,7 @@ def test_sigterm_while_soem_exchanges_at_1khz(child_tmp: Path, sigterm_line: Sig
     _check_stop(rig, seconds, child_tmp, "while SOEM exchanges at 1 kHz")
 
 
-def test_sigterm_under_load(child_tmp: Path, sigterm_line: SigtermLine) -> None:
+def test_sigterm_under_load(child_tmp: Path, sigterm_line: Line) -> None:
     """docs/rig.md 'Running a rig': SOEM exchanging process data back to back, three python-can clients flooding
     each bus, a client on the IDX's pty and one on its TCP port, one on the esd web page and one on the
     rig's live page (an endless event stream): the rig exits within a second of SIGTERM, exit 0."""
@@ -340,7 +339,7 @@ def test_sigterm_under_load(child_tmp: Path, sigterm_line: SigtermLine) -> None:
     drivers: list[subprocess.Popen[str]] = []
     with _start(child_tmp, sigterm_line) as rig:
         try:
-            master = _driver("--soem", sigterm_line.master_iface, "0", namespace=sigterm_line.namespace)
+            master = _driver("--soem", sigterm_line[2], "0", namespace=sigterm_line[0])
             drivers.append(master)
             _wait_line(master, "exchanging", timeout=90)
             for bus in ("can0", "can1"):
