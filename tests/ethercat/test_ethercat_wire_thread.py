@@ -17,8 +17,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-
-from conftest import VethNs
+from typing import Any
 
 from gatewaylab.common.clock import RealTimeClock
 from gatewaylab.ethercat.io_device import create_io_slave
@@ -50,7 +49,7 @@ def _thread_demand_seconds(pid: int) -> dict[int, float]:
     return out
 
 
-def test_idle_wire_thread_does_not_burn_a_cpu(tmp_path: Path, veth_ns: VethNs) -> None:
+def test_idle_wire_thread_does_not_burn_a_cpu(tmp_path: Path, veth_ns: Any) -> None:
     """docs/ethercat.md: an idle segment (no master on the line) leaves the CPU to the buses and drives:
     over 2 s no thread of the rig wants more than 30 % of a CPU (time run + time waiting to run)."""
     rig_file = tmp_path / "rig.toml"
@@ -78,7 +77,7 @@ sock.send(b"\\xff" * 6 + b"\\x02\\0\\0\\0\\0\\x01" + struct.pack("!H", 0x88A4)
 """
 
 
-def test_stop_ends_the_thread_while_the_caller_holds_the_clock_lock(veth_ns: VethNs) -> None:
+def test_stop_ends_the_thread_while_the_caller_holds_the_clock_lock(veth_ns: Any) -> None:
     """docs/architecture.md 'Threads': the rig stops its devices holding ``clock.lock``; a frame that arrived
     just before waits for that lock in the wire thread. stop() must still end the thread (the old one
     waited 2 s for it and returned with the thread alive, blocked on the lock: 2.3 s SIGTERMs)."""
