@@ -8,7 +8,8 @@
    loopback, where a lone node's frame is acknowledged; docs/bus.md "A lone node").
 4. Runs the selected test files through the shim ``gatewaylab_conformance.py`` (every
    ``interface="virtual"`` bus becomes a connection to a rig bus), skipping only what
-   ``inapplicable.toml`` lists, each with its reason.
+   ``inapplicable.toml`` lists, each with its reason; and ``gatewaylab_polling_test.py``, the
+   polling loops python-can programs write (``recv(0)`` in a cyclic task, ``recv(timeout)``).
 5. Stops the rig and removes its files on every exit (also on Ctrl-C and SIGTERM).
 
 Arguments go to pytest; any that names a test file (``python_can_test/notifier_test.py``, a node id)
@@ -42,6 +43,9 @@ SUITES = {
     "canopen": ("canopen", "test", "canopen_test", [
         "test_emcy.py", "test_local.py", "test_network.py", "test_nmt.py", "test_node.py", "test_sync.py"]),
 }
+
+#: the check of our own: python-can polling loops (recv(0) in a cyclic task, recv(timeout)) on the interface
+POLLING = HERE / "gatewaylab_polling_test.py"
 
 RIG = "clock = \"realtime\"\n" + "".join(
     f"[[bus]]\nname = \"vbus{i}\"\nbitrate = 1000000\ndata_bitrate = 8000000\n" for i in range(8))
@@ -89,6 +93,7 @@ def main(argv: list[str]) -> int:
         _extract_tests(_sdist(dist, version), folder, suites_dir / name)
         targets += [f"{name}/{f}" for f in files]
         print(f"conformance: {dist} {version}: {', '.join(files)}", flush=True)
+    targets.append(str(POLLING))
     state = Path(tempfile.mkdtemp(prefix="gatewaylab-conformance-"))
     rig: RigProcess | None = None
     try:

@@ -20,6 +20,10 @@ import pytest
 
 _PRIVATE_TMP = pytest.StashKey[Path]()
 
+#: gatewaylab's pytest plugin (the pytest11 entry point of an installed gatewaylab; named here too so the
+#: suite has it in a checkout whose install predates the entry point)
+pytest_plugins = ["gatewaylab.rig.pytest_plugin"]
+
 
 def pytest_configure(config: pytest.Config) -> None:
     private = Path(tempfile.mkdtemp(prefix="glt-"))

@@ -18,6 +18,8 @@ HTML comments right before a fence steer it:
   e.g. it needs root or a veth pair;
 * ``<!-- file: NAME -->``: the block's text is also written to NAME in the work folder, for the
   blocks after it (e.g. the rig file a later ``gatewaylab run`` uses);
+* ``<!-- output -->``: a shell block with prompts whose output lines are compared too: each command's
+  stdout must be exactly the lines printed under it (the README's examples stay true);
 * ``<!-- background -->``: a shell block that keeps running (``gatewaylab run ... --ready-file F``):
   started, awaited until F exists, stopped with SIGTERM after the doc's last block.
 
@@ -101,6 +103,20 @@ def shell_commands(text: str) -> list[str]:
     return [line for line in joined if line.strip() and not line.lstrip().startswith("#")]
 
 
+_SENTINEL = "@@gatewaylab-docs-next-command@@"
+
+
+def expected_outputs(text: str) -> list[list[str]]:
+    """The output lines printed under each ``$ `` command of a block."""
+    out: list[list[str]] = []
+    for line in text.splitlines():
+        if line.startswith("$ "):
+            out.append([])
+        elif out:
+            out[-1].append(line)
+    return out
+
+
 @dataclass
 class DocSession:
     """The work folder and background processes of one document's blocks."""
@@ -151,10 +167,15 @@ class DocSession:
             assert len(commands) == 1, f"{block.id}: a background block holds one command"
             self._background(block, commands[0])
             return
+        if "output" in block.markers:
+            commands = [f"echo {_SENTINEL}\n{c}" for c in commands]
         script = "set -euo pipefail\n" + "\n".join(commands) + "\n"
         r = subprocess.run(["bash", "-c", script], cwd=self.workdir, env=self.env(), capture_output=True,
                            text=True, timeout=BLOCK_TIMEOUT)
         assert r.returncode == 0, f"{block.id} failed (exit {r.returncode}):\n{r.stdout}\n{r.stderr}"
+        if "output" in block.markers:
+            got = [part.strip("\n").splitlines() for part in r.stdout.split(_SENTINEL + "\n")[1:]]
+            assert got == expected_outputs(block.text), f"{block.id}: the output differs from the document"
 
     def _background(self, block: Block, command: str) -> None:
         words = shlex.split(command)
@@ -233,3 +254,4 @@ def test_the_extractor_sees_markers_and_prompts(tmp_path: Path) -> None:
     assert [(b.lang, b.markers) for b in blocks] == [("sh", {"skip": "needs root"}), ("python", {})]
     assert shell_commands(blocks[0].text) == ["echo hi"]
     assert shell_commands("# comment\nmake demo  # x\n") == ["make demo  # x"]
+    assert expected_outputs("$ a\n1\n2\n$ b\n$ c  # x\n3\n") == [["1", "2"], [], ["3"]]

@@ -117,6 +117,8 @@ class ControllerStats:
     rx_bytes: int = 0
     error_frames: int = 0
     tx_retransmissions: int = 0
+    #: times the controller went bus-off (a short bus-off with auto-recovery leaves only this trace)
+    bus_offs: int = 0
 
 
 @dataclass(slots=True)
@@ -312,6 +314,7 @@ class Controller:
         self.state = new
         clock = self.bus.clock
         if new is ErrorState.BUS_OFF:
+            self._stats.bus_offs += 1
             for frame in self.tx_queue:
                 self._emit(TxAbortedEvent(frame, clock.now(), "bus-off"))
             self.tx_queue.clear()

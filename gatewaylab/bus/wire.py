@@ -21,6 +21,7 @@ HELLO = struct.Struct("<BB")           # version, options
 WELCOME = struct.Struct("<BBII")       # version, flags, bitrate, data_bitrate
 FRAME = struct.Struct("<IBBd")         # can_id, flags, dlc, timestamp
 STATUS = struct.Struct("<BBHHd")       # kind, state, tec, rec, timestamp
+STATUS_DETAIL = struct.Struct("<BB")   # optional tail of STATUS: error kind + transmitter, or the old state
 TXDONE = struct.Struct("<BH")          # outcome, count
 TIMEBASE = struct.Struct("<d")         # Unix time of bus time 0
 FILTER = struct.Struct("<IIB")         # can_id, can_mask, match (one entry of a FILTER record)
@@ -59,6 +60,17 @@ class StatusKind(IntEnum):
 
     ERROR_FRAME = 1
     STATE = 2
+
+
+class ErrorCode(IntEnum):
+    """The error kind in the optional tail of an ERROR_FRAME STATUS (the bus's ErrorKind, docs/bus-wire.md)."""
+
+    UNKNOWN = 0
+    ACK = 1
+    CRC = 2
+    BIT = 3
+    FORM = 4
+    STUFF = 5
 
 
 class TxOutcome(IntEnum):
@@ -126,6 +138,11 @@ class Status:
     tec: int
     rec: int
     timestamp: float
+    #: ERROR_FRAME: why the error frame was sent and whether this client's controller transmitted
+    error: ErrorCode = ErrorCode.UNKNOWN
+    transmitter: bool = False
+    #: STATE: the state before the change (None from a sender without the tail)
+    old: ControllerStateCode | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -202,9 +219,14 @@ def encode_frame(frame: CanFrame, timestamp: float = 0.0, echo: bool = False) ->
         frame.can_id, flags, frame.dlc, timestamp) + data
 
 
-def encode_status(kind: StatusKind, state: ControllerStateCode, tec: int, rec: int, t: float) -> bytes:
-    """A STATUS record for an error frame or state change; the counters saturate to fit their u16 fields."""
-    return _record(RecordType.STATUS, STATUS.pack(kind, state, min(tec, 0xFFFF), min(rec, 0xFFFF), t))
+def encode_status(kind: StatusKind, state: ControllerStateCode, tec: int, rec: int, t: float,
+                  error: ErrorCode = ErrorCode.UNKNOWN, transmitter: bool = False,
+                  old: ControllerStateCode | None = None) -> bytes:
+    """A STATUS record for an error frame or state change; the counters saturate to fit their u16 fields.
+    The tail says the error kind (and whether this client transmitted) or the state before a change."""
+    detail = (STATUS_DETAIL.pack(error, 1 if transmitter else 0) if kind is StatusKind.ERROR_FRAME
+              else STATUS_DETAIL.pack(old if old is not None else 0xFF, 0))
+    return _record(RecordType.STATUS, STATUS.pack(kind, state, min(tec, 0xFFFF), min(rec, 0xFFFF), t) + detail)
 
 
 def encode_bye(reason: str) -> bytes:
@@ -255,10 +277,16 @@ def decode_body(rtype: int, body: bytes) -> Record:
             version, flags, br, dbr = WELCOME.unpack_from(body)
             return Welcome(version, bool(flags & 1), br, dbr, body[WELCOME.size:].decode())
         if rtype == RecordType.STATUS:
-            if len(body) != STATUS.size:
+            if len(body) not in (STATUS.size, STATUS.size + STATUS_DETAIL.size):
                 raise ProtocolError("STATUS record has the wrong size")
-            kind, state, tec, rec, ts = STATUS.unpack(body)
-            return Status(StatusKind(kind), ControllerStateCode(state), tec, rec, ts)
+            kind, state, tec, rec, ts = STATUS.unpack_from(body)
+            status = Status(StatusKind(kind), ControllerStateCode(state), tec, rec, ts)
+            if len(body) == STATUS.size:
+                return status
+            a, b = STATUS_DETAIL.unpack_from(body, STATUS.size)
+            if status.kind is StatusKind.ERROR_FRAME:
+                return Status(status.kind, status.state, tec, rec, ts, ErrorCode(a), bool(b & 1))
+            return Status(status.kind, status.state, tec, rec, ts, old=None if a == 0xFF else ControllerStateCode(a))
         if rtype == RecordType.BYE:
             return Bye(body.decode(errors="replace"))
         if rtype == RecordType.TXDONE:

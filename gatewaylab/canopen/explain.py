@@ -8,6 +8,7 @@ Every code is decoded with the protocol modules' own enums (:class:`~.nmt.NmtCom
 
 from __future__ import annotations
 
+import datetime
 import struct
 
 from ..bus.frame import CanFrame
@@ -19,9 +20,17 @@ from .nmt import NmtCommand, NmtState
 
 _U16 = struct.Struct("<H")
 _U32 = struct.Struct("<I")
+_TIME = struct.Struct("<IH")
+_EPOCH_1984 = datetime.datetime(1984, 1, 1, tzinfo=datetime.UTC)
 #: Predefined connection set: PDO COB-ID bases (CiA 301 table 72).
 _PDO_BASES = ((0x180, "TPDO1"), (0x200, "RPDO1"), (0x280, "TPDO2"), (0x300, "RPDO2"),
               (0x380, "TPDO3"), (0x400, "RPDO3"), (0x480, "TPDO4"), (0x500, "RPDO4"))
+
+
+def time_of_day(data: bytes) -> datetime.datetime:
+    """The TIME_OF_DAY of a 6-byte TIME frame: ms after midnight (28 bits), days since 1984-01-01."""
+    ms, days = _TIME.unpack(data)
+    return _EPOCH_1984 + datetime.timedelta(days=days, milliseconds=ms & 0x0FFFFFFF)
 
 
 def _words(name: str) -> str:
@@ -96,30 +105,30 @@ def explain(frame: CanFrame) -> str:
     if cid == 0x000 and len(d) == 2:
         target = "all nodes" if d[1] == 0 else f"node {d[1]}"
         return f"NMT {_nmt_command(d[0])} to {target}"
-    if cid == 0x080:
+    if cid == 0x080 and len(d) <= 1:
         return "SYNC" + (f" (counter {d[0]})" if d else "")
-    if 0x081 <= cid <= 0x0FF:
-        code = _U16.unpack_from(d, 0)[0] if len(d) >= 2 else 0
-        return f"EMCY from node {cid - 0x80}: error code 0x{code:04X} ({error_code_name(code)})" + (
-            f", error register 0x{d[2]:02X}" if len(d) >= 3 else "")
-    if cid == 0x100:
-        return "TIME stamp"
+    if 0x081 <= cid <= 0x0FF and len(d) == 8:
+        code = _U16.unpack_from(d, 0)[0]
+        return f"EMCY from node {cid - 0x80}: error code 0x{code:04X} ({error_code_name(code)}), " \
+               f"error register 0x{d[2]:02X}"
+    if cid == 0x100 and len(d) == 6:
+        return f"TIME stamp {time_of_day(d).isoformat(timespec='milliseconds')}"
     for base, name in _PDO_BASES:
         if base < cid <= base + 0x7F:
             direction = "from" if name.startswith("T") else "to"
             return f"{name} {direction} node {cid - base}: {d.hex(' ')}"
-    if 0x581 <= cid <= 0x5FF:
+    if 0x581 <= cid <= 0x5FF and len(d) == 8:
         what, detail = _sdo(frame, request=False)
         return f"{what} from node {cid - 0x580}{detail}"
-    if 0x601 <= cid <= 0x67F:
+    if 0x601 <= cid <= 0x67F and len(d) == 8:
         what, detail = _sdo(frame, request=True)
         return f"{what} to node {cid - 0x600}{detail}"
     if 0x701 <= cid <= 0x77F and len(d) == 1:
         return f"{'boot-up' if d[0] == 0 else 'heartbeat'} of node {cid - 0x700}" + (
             "" if d[0] == 0 else f": {_nmt_state(d[0] & 0x7F)}")
-    if cid == 0x7E5 and d:
+    if cid == 0x7E5 and len(d) == 8:
         return f"LSS master: {_lss(d[0])}"
-    if cid == 0x7E4 and d:
+    if cid == 0x7E4 and len(d) == 8:
         cs = d[0]
         if cs == Cs.IDENTIFY_SLAVE:
             return "LSS slave: identify remote slave / Fastscan answer (a slave matches)"

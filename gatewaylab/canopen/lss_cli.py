@@ -30,7 +30,7 @@ from ..common.clock import RealTimeClock
 from ..common.endpoint import EndpointError, bus_endpoint
 from ..common.errors import GatewaylabError
 from .explain import explain
-from .lss import BIT_TIMING_TABLE, LSS_SLAVE_COB_ID, Cs, LssAddress, LssError, LssMaster, LssState
+from .lss import BIT_TIMING_TABLE, LSS_SLAVE_COB_ID, Cs, LssAddress, LssError, LssMaster, LssState, LssTimeout
 from .monitor import FastscanNarrator
 
 _PARTS = ("vendor", "product", "revision", "serial")
@@ -110,6 +110,14 @@ def _ranged(name: str, low: int, high: int) -> Callable[[str], int]:
     return parse
 
 
+def _node_id(text: str) -> int:
+    """A node-ID LSS may configure: 1..127, or 0xFF (unconfigured; CiA 305 clause 8.3.2.1)."""
+    value = _u32(text)
+    if not (1 <= value <= 127 or value == 0xFF):
+        raise argparse.ArgumentTypeError(f"node-ID must be 1..127 or 0xFF (unconfigured), got {text}")
+    return value
+
+
 def _service(args: argparse.Namespace, session: LssSession) -> tuple[str, Any]:
     """Run the service the command line names; returns (text, json value)."""
     m = session.master
@@ -125,7 +133,13 @@ def _service(args: argparse.Namespace, session: LssSession) -> tuple[str, Any]:
                 else f"no slave with {_address_text(address)} answered")
         return text, bool(found)
     if cmd == "set-node-id":
-        session.run(lambda cb: m.configure_node_id(args.node_id, cb))
+        try:
+            session.run(lambda cb: m.configure_node_id(args.node_id, cb))
+        except LssTimeout:
+            raise LssTimeout(f"no slave in LSS configuration state answered configure node-ID {args.node_id}: "
+                             "select one first (`gatewaylab lss TARGET switch-selective VENDOR PRODUCT REVISION "
+                             "SERIAL`, `fastscan`, or `switch-global configuration` with a single slave on the "
+                             "bus)") from None
         return f"node-ID 0x{args.node_id:02X} ({args.node_id}) configured", args.node_id
     if cmd == "set-bit-timing":
         session.run(lambda cb: m.configure_bit_timing(args.index, cb))
@@ -249,8 +263,7 @@ def add_subcommand(subparsers: Any) -> None:
     for part in _PARTS:
         p.add_argument(part, type=_u32, metavar=part.upper())
     p = sub.add_parser("set-node-id", help="configure node-ID of the slave in configuration state")
-    p.add_argument("node_id", type=_ranged("node-ID", 1, 0xFF), metavar="NODE_ID",
-                   help="1..127, or 0xFF = unconfigured")
+    p.add_argument("node_id", type=_node_id, metavar="NODE_ID", help="1..127, or 0xFF = unconfigured")
     p = sub.add_parser("set-bit-timing", help="configure bit timing (CiA 305 table index)")
     p.add_argument("index", type=_ranged("table index", 0, 9), metavar="INDEX",
                    help="0=1M 1=800k 2=500k 3=250k 4=125k 6=50k 7=20k 8=10k")

@@ -13,32 +13,49 @@ mapping parameter (0x1400-0x1BFF) of a known node updates its copy of the dictio
 
 from __future__ import annotations
 
-import datetime
 import struct
 from collections import deque
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
+from ..bus.candump import long_frame
+from ..bus.errorframe import (
+    CAN_ERR_BUSOFF,
+    CAN_ERR_CRTL,
+    CAN_ERR_CRTL_RX_PASSIVE,
+    CAN_ERR_CRTL_TX_PASSIVE,
+    CAN_ERR_RESTARTED,
+    ErrorFrame,
+    summary,
+)
 from ..bus.frame import CanFrame
+from ..bus.signals import DecodedMessage
 from ..bus.timing import frame_duration
 from ..od import ObjectDictionary
 from ..od.aborts import SdoAbort, abort_text
 from ..od.types import Entry, decode
 from .cia402 import OpMode, state_from_statusword
 from .emcy import error_code_name
-from .explain import explain
+from .explain import explain, time_of_day
 from .lss import FASTSCAN_CONFIRM, Cs
 from .nmt import NmtState
 
 _U16 = struct.Struct("<H")
 _U32 = struct.Struct("<I")
-_TIME = struct.Struct("<IH")
-_EPOCH_1984 = datetime.datetime(1984, 1, 1, tzinfo=datetime.UTC)
 _LSS_PARTS = ("vendor", "product", "revision", "serial")
 #: Objects whose value the node table shows (CiA 402), by (index, subindex) -> NodeView field.
-_VIEW_FIELDS = {(0x6041, 0): "statusword", (0x6061, 0): "mode", (0x6064, 0): "position",
+#: NMT states a heartbeat carries (CiA 301 7.2.8.3.2.1): boot-up, stopped, operational, pre-operational.
+_HEARTBEAT_STATES = frozenset((0x00, 0x04, 0x05, 0x7F))
+#: 0x6060 (modes of operation) fills the mode until the display (0x6061) is seen.
+_VIEW_FIELDS = {(0x6041, 0): "statusword", (0x6060, 0): "mode", (0x6061, 0): "mode", (0x6064, 0): "position",
                 (0x606C, 0): "velocity"}
+
+
+class SignalSource(Protocol):
+    """A signal database (bus/signals.py SignalDecoder): the frames it defines, decoded."""
+
+    def decode(self, frame: CanFrame) -> DecodedMessage | None: ...
 
 
 @dataclass(frozen=True, slots=True)
@@ -46,7 +63,9 @@ class MonitorEvent:
     """One line of the decoded log; ``fields`` carries the same facts for ``--json``."""
 
     t: float
-    kind: str          # sdo, sdo-abort, pdo, nmt, sync, time, heartbeat, boot-up, emcy, lss, frame
+    #: sdo, sdo-abort, pdo, nmt, sync, time, heartbeat, boot-up, emcy, lss, frame (raw), bus (error
+    #: frames, controller states), node (a node left), ethercat, can (rig controllers), signal (--db)
+    kind: str
     text: str
     node: int | None = None
     fields: Mapping[str, Any] = field(default_factory=dict)
@@ -69,6 +88,9 @@ class NodeView:
     velocity: int | None = None
     emcy: str | None = None
     emcy_t: float | None = None
+    #: time between its last two heartbeats, and whether it went silent since (BusMonitor.tick)
+    period: float | None = None
+    silent: bool = False
 
     @property
     def cia402_state(self) -> str:
@@ -164,13 +186,22 @@ class FastscanNarrator:
             self._say(sub, bit, 1)
 
 
-def _value_text(value: Any) -> str:
+def hex_at_width(value: int, size: int | None) -> str:
+    """``value`` in hex at its own width: ``size`` bytes (the dictionary's type), or the smallest
+    of 1, 2, 4, 8 bytes that holds it; a negative number in two's complement of that width
+    (an INTEGER32 -60000 is 0xFFFF15A0, not a 64-bit pattern)."""
+    if size is None or size <= 0:
+        size = next((n for n in (1, 2, 4, 8) if -(1 << (8 * n - 1)) <= value < (1 << (8 * n))), 8)
+    return f"0x{value & ((1 << (8 * size)) - 1):0{2 * size}X}"
+
+
+def _value_text(value: Any, size: int | None = None) -> str:
     if isinstance(value, str):
         return repr(value)
     if isinstance(value, bool):
         return str(value)
     if isinstance(value, int):
-        return f"{value} (0x{value & 0xFFFFFFFFFFFFFFFF:X})" if value > 9 or value < 0 else str(value)
+        return f"{value} ({hex_at_width(value, size)})" if value > 9 or value < 0 else str(value)
     if isinstance(value, (bytes, bytearray)):
         head = bytes(value[:16]).hex(" ")
         return head if len(value) <= 16 else f"{head} ... ({len(value)} bytes)"
@@ -190,13 +221,21 @@ class BusMonitor:
     """Feed every frame of a bus (``feed``); read the log events it returns and ``nodes``."""
 
     def __init__(self, dictionaries: Mapping[int, ObjectDictionary] | None = None, bitrate: int = 1_000_000,
-                 data_bitrate: int | None = None, window: float = 1.0) -> None:
+                 data_bitrate: int | None = None, window: float = 1.0, known: Iterable[int] = (),
+                 silence: float = 0.5, signals: SignalSource | None = None) -> None:
         #: node-id -> its dictionary (a copy the monitor updates from observed SDO writes)
         self.dictionaries: dict[int, ObjectDictionary] = dict(dictionaries or {})
         self.nodes: dict[int, NodeView] = {}
         self.bitrate = bitrate
         self.data_bitrate = data_bitrate
+        #: a signal database (``--db``, bus/signals.py): the frames it defines are decoded by it first
+        self.signals = signals
         self.frames = 0
+        self.error_frames = 0
+        #: the monitor's own controller as its last state-change error frame said
+        self.bus_state = "error-active"
+        #: the shortest silence after which a node with a heartbeat counts as gone (tick)
+        self.silence = silence
         self.window = window
         self._recent: deque[tuple[float, float]] = deque()   # (t, bus time the frame took)
         self._busy = 0.0
@@ -207,6 +246,8 @@ class BusMonitor:
         self._fastscan = FastscanNarrator(self._fastscan_step)
         for node_id in self.dictionaries:
             self._map_pdos(node_id)
+        for node_id in (*self.dictionaries, *known):   # listed before they speak
+            self.node(node_id)
 
     # -- statistics ------------------------------------------------------------------------------
     def load_percent(self) -> float:
@@ -235,36 +276,81 @@ class BusMonitor:
 
     # -- decoding --------------------------------------------------------------------------------
     def feed(self, frame: CanFrame, t: float) -> list[MonitorEvent]:
-        """Decode one frame seen on the bus at bus time ``t``; returns the log events it completes."""
+        """Decode one frame seen on the bus at bus time ``t``; returns the log events it completes.
+
+        An identifier gets its CANopen meaning only when the frame fits it: the right length, and
+        for a node's own objects (PDO, EMCY) a node the monitor knows (a dictionary, the rig's list,
+        a heartbeat or an SDO seen). Anything else is shown raw, as candump prints it."""
         self._count(frame, t)
-        if frame.extended or frame.fd:
-            return [MonitorEvent(t, "frame", f"{frame.can_id:X}: {explain(frame)}")]
+        if self.signals is not None:
+            message = self.signals.decode(frame)
+            if message is not None:
+                return [MonitorEvent(t, "signal", message.text(), None,
+                                     {"id": frame.can_id, "message": message.name,
+                                      "signals": {n: v for n, v, _ in message.signals}})]
         cid, d = frame.can_id, frame.data
-        if frame.rtr:
-            return [MonitorEvent(t, "frame", explain(frame))]
-        if 0x581 <= cid <= 0x5FF:
+        if frame.extended or frame.fd or frame.rtr:
+            return [self._raw(frame, t, explain(frame) if frame.rtr and not frame.extended else "")]
+        if 0x581 <= cid <= 0x5FF and len(d) == 8:
             return self._sdo(cid - 0x580, d, t, request=False)
-        if 0x601 <= cid <= 0x67F:
+        if 0x601 <= cid <= 0x67F and len(d) == 8:
             return self._sdo(cid - 0x600, d, t, request=True)
         pdo = self._pdos.get(cid)
         if pdo is not None:
             return [self._pdo(pdo, d, t)]
         if cid == 0x000 and len(d) == 2:
             return self._nmt(d, frame, t)
-        if cid == 0x080:
+        if cid == 0x080 and len(d) <= 1:
             return [MonitorEvent(t, "sync", explain(frame), None, {"counter": d[0]} if d else {})]
-        if 0x081 <= cid <= 0x0FF and len(d) >= 2:
+        if 0x081 <= cid <= 0x0FF and len(d) == 8 and cid - 0x80 in self.nodes:
             return [self._emcy(cid - 0x80, d, t)]
         if cid == 0x100 and len(d) == 6:
-            ms, days = _TIME.unpack(d)
-            when = _EPOCH_1984 + datetime.timedelta(days=days, milliseconds=ms & 0x0FFFFFFF)
+            when = time_of_day(d)
             return [MonitorEvent(t, "time", f"TIME {when.isoformat(timespec='milliseconds')}", None,
                                  {"time": when.isoformat()})]
-        if 0x701 <= cid <= 0x77F and len(d) == 1:
+        if 0x701 <= cid <= 0x77F and len(d) == 1 and (d[0] & 0x7F) in _HEARTBEAT_STATES:
             return [self._heartbeat(cid - 0x700, d[0], frame, t)]
-        if cid in (0x7E4, 0x7E5) and d:
+        if cid in (0x7E4, 0x7E5) and len(d) == 8:
             return self._lss(cid, d, frame, t)
-        return [MonitorEvent(t, "frame", explain(frame))]
+        if 0x181 <= cid <= 0x57F and (cid & 0x7F) in self.nodes and (cid & 0x7F):
+            return [self._raw(frame, t, explain(frame).split(":")[0], cid & 0x7F)]
+        return [self._raw(frame, t)]
+
+    def _raw(self, frame: CanFrame, t: float, note: str = "", node: int | None = None) -> MonitorEvent:
+        """A frame without a CANopen meaning here: its candump line (and what it may be)."""
+        text = long_frame(frame) + (f"   ({note})" if note else "")
+        return MonitorEvent(t, "frame", text, node, {"id": frame.can_id, "extended": frame.extended,
+                                                      "data": frame.data.hex()})
+
+    def feed_error(self, error: ErrorFrame, t: float) -> list[MonitorEvent]:
+        """An error frame or a controller state change the monitor's controller saw (SocketCAN
+        layout, bus/errorframe.py): one ``bus`` event, and the bus state of the header."""
+        self.error_frames += 1
+        text = summary(error)
+        cls = error.can_id
+        if cls & (CAN_ERR_BUSOFF | CAN_ERR_CRTL | CAN_ERR_RESTARTED):
+            self.bus_state = ("bus-off" if cls & CAN_ERR_BUSOFF else
+                              "error-passive" if error.data[1] & (CAN_ERR_CRTL_RX_PASSIVE | CAN_ERR_CRTL_TX_PASSIVE)
+                              else "error-active")
+        return [MonitorEvent(t, "bus", text, None, {"class": cls, "data": error.data.hex(),
+                                                   "tec": error.tec, "rec": error.rec})]
+
+    def tick(self, now: float) -> list[MonitorEvent]:
+        """Nodes whose heartbeat stopped: silent for more than three of their periods (at least
+        ``silence`` seconds), once per silence; their NMT column says "silent"."""
+        events = []
+        for view in self.nodes.values():
+            if view.heartbeat_t is None or view.period is None or view.silent:
+                continue
+            limit = max(3 * view.period, self.silence)
+            if now - view.heartbeat_t > limit:
+                view.silent = True
+                view.nmt = "silent"
+                gap = now - view.heartbeat_t
+                events.append(MonitorEvent(now, "node", f"node {view.node_id} left the bus: no heartbeat for "
+                                           f"{gap:.2f} s (period {view.period * 1000:.0f} ms)",
+                                           view.node_id, {"event": "left", "silent_s": round(gap, 3)}))
+        return events
 
     def feed_many(self, frames: Iterable[tuple[CanFrame, float]]) -> list[MonitorEvent]:
         """Decode a recorded trace; returns every event in order."""
@@ -282,15 +368,19 @@ class BusMonitor:
 
     def _heartbeat(self, node_id: int, state: int, frame: CanFrame, t: float) -> MonitorEvent:
         view = self.node(node_id)
+        back = view.silent
+        if view.heartbeat_t is not None and state != 0:
+            view.period = t - view.heartbeat_t
         view.heartbeat_t = t
+        view.silent = False
+        if back:
+            view.period = None
+        again = f"node {node_id} is back: " if back else ""
         if state == 0:
             view.nmt = NmtState.PRE_OPERATIONAL.label   # boot-up: the node is in pre-operational
-            return MonitorEvent(t, "boot-up", explain(frame), node_id)
-        try:
-            view.nmt = NmtState(state & 0x7F).label
-        except ValueError:
-            view.nmt = f"0x{state:02X}"
-        return MonitorEvent(t, "heartbeat", explain(frame), node_id, {"state": view.nmt})
+            return MonitorEvent(t, "boot-up", again + explain(frame), node_id)
+        view.nmt = NmtState(state & 0x7F).label
+        return MonitorEvent(t, "heartbeat", again + explain(frame), node_id, {"state": view.nmt, "back": back})
 
     def _emcy(self, node_id: int, d: bytes, t: float) -> MonitorEvent:
         code = _U16.unpack_from(d)[0]
@@ -357,7 +447,7 @@ class BusMonitor:
                 except (SdoAbort, ValueError):   # outside the entry's limits: show it raw
                     value = raw
             label = m.entry.name if m.entry is not None else f"0x{m.index:04X}:{m.subindex:02X}"
-            parts.append(f"{label}={_value_text(value)}")
+            parts.append(f"{label}={_value_text(value, (m.bits + 7) // 8)}")
             values[f"0x{m.index:04X}:{m.subindex:02X}"] = value if not isinstance(value, bytes) else value.hex()
             if name.startswith("T"):
                 self._view_update(view, m.index, m.subindex, value)
@@ -399,7 +489,8 @@ class BusMonitor:
         how = tr.mode if tr.mode == "expedited" else f"{tr.mode}, {tr.segments} segment{'s' * (tr.segments != 1)}"
         ms = (t - tr.t0) * 1000
         verb = "read" if tr.upload else "write"
-        text = f"node {node_id} {verb} {where} = {_value_text(value)} ({how}, {ms:.1f} ms)"
+        size = entry.size if entry is not None and entry.size else len(data) or None
+        text = f"node {node_id} {verb} {where} = {_value_text(value, size)} ({how}, {ms:.1f} ms)"
         if isinstance(value, int) and not tr.upload:
             self._learn(node_id, tr.index, tr.subindex, value)
         self._view_update(self.node(node_id), tr.index, tr.subindex, value)
@@ -541,3 +632,50 @@ class BusMonitor:
                     tr.phase = "last"
                     return []
         return self._other(node_id, 0x580 + node_id, d, t)
+
+
+class ControllerWatch:
+    """What changed among the CAN controllers of a bus between two looks (sans-I/O): the rig's
+    ``can-states`` answer for ``gatewaylab monitor``, the bus's controllers for the --web page.
+    ``states`` maps a controller's name to ``state`` (error-active, error-passive, bus-off), ``tec``,
+    ``rec``, ``connected`` and ``bus_offs`` (how often it went bus-off: a short bus-off with
+    auto-recovery between two looks still shows). One ``can`` event per change."""
+
+    def __init__(self) -> None:
+        self.states: dict[str, Mapping[str, Any]] = {}
+        self._first = True
+
+    def update(self, states: Mapping[str, Mapping[str, Any]], now: float) -> list[MonitorEvent]:
+        events: list[MonitorEvent] = []
+
+        def say(name: str, text: str, st: Mapping[str, Any]) -> None:
+            events.append(MonitorEvent(now, "can", f"CAN {name}: {text}", None, {"controller": name, **st}))
+
+        for name, st in states.items():
+            old = self.states.get(name)
+            counters = f"TEC {st.get('tec')}, REC {st.get('rec')}"
+            if old is None:
+                if not self._first:
+                    say(name, "joined the bus", st)
+                if st.get("state", "error-active") != "error-active":
+                    say(name, f"{st.get('state')} ({counters})", st)
+                if not st.get("connected", True):
+                    say(name, "unplugged, off the bus", st)
+                continue
+            if old.get("connected") != st.get("connected"):
+                say(name, "plugged in again" if st.get("connected") else "unplugged, left the bus", st)
+            went = (st.get("bus_offs") or 0) - (old.get("bus_offs") or 0)
+            times = f"{went} time{'s' * (went > 1)}"
+            if old.get("state") != st.get("state"):
+                how = " (recovered)" if old.get("state") == "bus-off" else ""
+                if went > 0 and st.get("state") != "bus-off":
+                    how = f" (went bus-off {times} in between)"
+                say(name, f"{old.get('state')} -> {st.get('state')}{how} ({counters})", st)
+            elif went > 0:
+                say(name, f"went bus-off and recovered ({times}; now {st.get('state')}, {counters})", st)
+        if not self._first:
+            for name in self.states.keys() - states.keys():
+                say(name, "left the bus (detached)", self.states[name])
+        self.states = dict(states)
+        self._first = False
+        return events

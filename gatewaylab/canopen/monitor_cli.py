@@ -10,6 +10,7 @@ scrolling log with rich, one line per event with ``--plain``, one JSON object pe
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import sys
 import time
@@ -20,26 +21,45 @@ from typing import Any
 
 import can
 
+from ..bus.candump import (
+    TIMESTAMP_MODES,
+    CandumpSyntaxError,
+    FilterSet,
+    IdTable,
+    Timestamps,
+    line,
+    long_error_frame,
+    long_frame,
+    parse_filters,
+)
+from ..bus.errorframe import CAN_ERR_MASK, ErrorFrame, describe
 from ..bus.frame import CanFrame
+from ..bus.signals import SignalDecoder, load_database
+from ..bus.transport.trace import TraceError, read_trace
 from ..common.endpoint import EndpointError, bus_endpoint
-from ..common.errors import GatewaylabError
+from ..common.errors import ConfigError, GatewaylabError
 from ..od import ObjectDictionary
 from ..od.eds import import_eds
-from .monitor import BusMonitor, MonitorEvent
+from .monitor import BusMonitor, ControllerWatch, MonitorEvent
 
 _DESCRIPTION = """\
 Watch a bus of a running rig, decoded: a node table (NMT state, heartbeat age, CiA 402 state,
 mode, position/velocity from TPDOs, last EMCY) and a log with SDO transfers reassembled into one
 line each, PDOs with mapped values, NMT, SYNC, TIME, heartbeats, EMCY and LSS (Fastscan as a
-bisection). TARGET is the bus endpoint `gatewaylab run` printed or its ready file (the ready file
-also gives the dictionaries of the rig's drives). The monitor is listen-only: it never sends or
-acknowledges a frame.
+bisection); error frames, controller state changes (bus-off, recovery, unplugged) and nodes that
+went silent. Identifiers that are not CANopen in context are shown raw. TARGET is the bus endpoint
+`gatewaylab run` printed or its ready file (the ready file also gives the rig's nodes, their
+dictionaries and the control endpoint). The monitor is listen-only: it never sends or acknowledges
+a frame. --raw (or `gatewaylab dump`) prints frames as candump does, --viewer a table per id as
+can.viewer; see docs/monitor.md.
 
 examples:
   gatewaylab monitor ready.json                       # live view (q or Ctrl-C to leave)
   gatewaylab monitor ready.json --plain               # one line per event, for pipes
   gatewaylab monitor unix:/tmp/gl/can0.sock --json --eds 2=drive.eds
-  gatewaylab monitor --replay trace.asc --plain       # decode a recorded trace
+  gatewaylab monitor --replay trace.pcapng --plain    # decode a recorded trace
+  gatewaylab monitor ready.json --raw -t d -e -f 700:780   # candump: heartbeats, error frames
+  gatewaylab monitor ready.json --viewer              # can.viewer: count, period, data per id
 """
 
 
@@ -75,15 +95,14 @@ def _dictionaries(args: argparse.Namespace) -> dict[int, ObjectDictionary]:
     return out
 
 
-class EthercatWatcher:
-    """The EtherCAT side of a rig as the monitor shows it: the AL state of each EtherCAT device, asked
-    twice a second from the rig's control endpoint (ready file "control", request "ethercat-states",
-    docs/faults.md); each change is one log event ("EtherCAT ecan1: PREOP -> OP")."""
+class _ControlPoller:
+    """Asks the rig's control endpoint (ready file "control") one status request every ``period``."""
+
+    request: str = ""
 
     def __init__(self, endpoint: str, period: float = 0.5) -> None:
         self.endpoint = endpoint
         self.period = period
-        self.states: dict[str, str] = {}
         self._next = 0.0
         self.failed: str | None = None
 
@@ -99,13 +118,13 @@ class EthercatWatcher:
         else:
             sock = socket.create_connection((ep.host, ep.port), timeout=2.0)
         with sock, sock.makefile("rwb") as f:
-            f.write(b'{"fault": "ethercat-states"}\n')
+            f.write(json.dumps({"fault": self.request}).encode() + b"\n")
             f.flush()
             answer: dict[str, Any] = json.loads(f.readline() or b"{}")
         return answer
 
     def poll(self, now: float) -> list[MonitorEvent]:
-        """Events for the devices whose AL state changed since the last poll (none before it is due)."""
+        """Events for what changed since the last poll (none before it is due)."""
         if self.failed is not None or now < self._next:
             return []
         self._next = now + self.period
@@ -114,6 +133,27 @@ class EthercatWatcher:
         except (OSError, ValueError, EndpointError) as exc:
             self.failed = str(exc)
             return []
+        if answer.get("error"):             # a rig without this request
+            self.failed = str(answer["error"])
+            return []
+        return self.changes(answer, now)
+
+    def changes(self, answer: dict[str, Any], now: float) -> list[MonitorEvent]:
+        raise NotImplementedError
+
+
+class EthercatWatcher(_ControlPoller):
+    """The EtherCAT side of a rig as the monitor shows it: the AL state of each EtherCAT device, asked
+    twice a second from the rig's control endpoint (request "ethercat-states", docs/faults.md); each
+    change is one log event ("EtherCAT ecan1: PREOP -> OP")."""
+
+    request = "ethercat-states"
+
+    def __init__(self, endpoint: str, period: float = 0.5) -> None:
+        super().__init__(endpoint, period)
+        self.states: dict[str, str] = {}
+
+    def changes(self, answer: dict[str, Any], now: float) -> list[MonitorEvent]:
         events = []
         for name, st in (answer.get("devices") or {}).items():
             text = st.get("state", "?") + (f", AL status code 0x{st['code']:04X}" if st.get("error") else "")
@@ -125,20 +165,44 @@ class EthercatWatcher:
         return events
 
 
-def _frames_live(bus: can.BusABC, until: float | None) -> Iterator[tuple[CanFrame, float] | None]:
-    """Frames as they come (None every 0.2 s without one, so the view can redraw)."""
+class CanWatcher(_ControlPoller):
+    """The CAN controllers of the rig's devices on one bus (request "can-states", docs/faults.md): a
+    listen-only monitor cannot see another node's error counters, bus-off or unplugged cable, the
+    rig can. Each change is one ``can`` event (:class:`~.monitor.ControllerWatch`): "CAN axis2:
+    went bus-off and recovered", "CAN axis3: unplugged, left the bus"."""
+
+    request = "can-states"
+
+    def __init__(self, endpoint: str, bus: str, period: float = 0.5) -> None:
+        super().__init__(endpoint, period)
+        self.bus = bus
+        self.watch = ControllerWatch()
+
+    def changes(self, answer: dict[str, Any], now: float) -> list[MonitorEvent]:
+        return self.watch.update((answer.get("buses") or {}).get(self.bus) or {}, now)
+
+
+def _error_of(msg: can.Message) -> ErrorFrame:
+    return ErrorFrame(msg.arbitration_id & CAN_ERR_MASK, bytes(msg.data or b"").ljust(8, b"\0")[:8])
+
+
+Item = tuple[CanFrame | ErrorFrame, float] | None
+
+
+def _frames_live(bus: can.BusABC, until: float | None) -> Iterator[Item]:
+    """Frames and error frames as they come (None every 0.2 s without one, so the view can redraw)."""
     while until is None or time.monotonic() < until:
         msg = bus.recv(0.2)
-        if msg is None or msg.is_error_frame:
+        if msg is None:
             yield None
-            continue
-        yield CanFrame.from_message(msg), msg.timestamp
-
-
-def _frames_replay(path: Path) -> Iterator[tuple[CanFrame, float] | None]:
-    for msg in can.LogReader(str(path)):
-        if not msg.is_error_frame:
+        elif msg.is_error_frame:
+            yield _error_of(msg), msg.timestamp
+        else:
             yield CanFrame.from_message(msg), msg.timestamp
+
+
+def _frames_replay(path: Path) -> Iterator[Item]:
+    yield from read_trace(path)
 
 
 def _age(t: float | None, now: float) -> str:
@@ -176,7 +240,8 @@ class _Screen:
         from rich.table import Table
         m = self.monitor
         table = Table(expand=True, title=f"{self.title}   load {m.load_percent():.1f} %   "
-                                         f"{m.frames_per_second():.0f} frames/s   {m.frames} frames")
+                                         f"{m.frames_per_second():.0f} frames/s   {m.frames} frames   "
+                                         f"{m.error_frames} error frames   controller {m.bus_state}")
         for col in ("node", "NMT", "heartbeat", "CiA 402", "statusword", "mode", "position", "velocity",
                     "last EMCY"):
             table.add_column(col)
@@ -190,8 +255,8 @@ class _Screen:
                          refresh=True)
 
 
-def _watcher(args: argparse.Namespace) -> EthercatWatcher | None:
-    """An EtherCAT watcher when TARGET is the ready file of a rig with a control endpoint."""
+def _control(args: argparse.Namespace) -> str | None:
+    """The rig's control endpoint when TARGET is its ready file."""
     target = Path(args.target)
     if args.replay or not target.is_file():
         return None
@@ -199,88 +264,293 @@ def _watcher(args: argparse.Namespace) -> EthercatWatcher | None:
         control = json.loads(target.read_text()).get("control")
     except (OSError, ValueError):
         return None
-    return EthercatWatcher(control) if isinstance(control, str) else None
+    return control if isinstance(control, str) else None
+
+
+def _watchers(args: argparse.Namespace) -> list[_ControlPoller]:
+    """The EtherCAT and CAN controller watchers when TARGET is the ready file of a rig."""
+    control = _control(args)
+    return [] if control is None else [EthercatWatcher(control), CanWatcher(control, args.bus)]
+
+
+def _known_nodes(args: argparse.Namespace) -> list[int]:
+    """The node-IDs of the rig's CANopen devices on the bus (ready file), listed before they speak."""
+    target = Path(args.target)
+    if args.replay or not target.is_file():
+        return []
+    try:
+        info = json.loads(target.read_text())
+    except (OSError, ValueError):
+        return []
+    nodes = ((info.get("canopen", {}) or {}).get(args.bus, {}) or {}).values()
+    return [n["node_id"] for n in nodes if isinstance(n, dict) and isinstance(n.get("node_id"), int)]
+
+
+def _filters(args: argparse.Namespace) -> FilterSet:
+    fs = parse_filters(args.filter or [])
+    if args.errors and not fs.err_mask:
+        fs = FilterSet(fs.filters, fs.join, CAN_ERR_MASK)    # -e: every error class
+    return fs
 
 
 def cmd_monitor(args: argparse.Namespace) -> int:
-    """``gatewaylab monitor TARGET``: decode frames until Ctrl-C, ``--duration`` or the trace's end."""
+    """``gatewaylab monitor TARGET`` / ``gatewaylab dump TARGET``: until Ctrl-C, ``--duration``,
+    ``-n`` frames or the trace's end."""
     bus: can.BusABC | None = None
     try:
-        dictionaries = _dictionaries(args)
+        filters = _filters(args)
+        stamps = Timestamps(args.timestamp)
         if args.replay:
             path = Path(args.target)
             if not path.is_file():
-                raise GatewaylabError(f"{path}: no such trace file")
-            frames = _frames_replay(path)
-            monitor = BusMonitor(dictionaries, args.bitrate, args.data_bitrate)
+                raise TraceError(f"{path}: no such trace file")
+            frames: Iterator[Item] = _frames_replay(path)
+            bitrate, data_bitrate = args.bitrate, args.data_bitrate
             title = str(path)
+            frames, base = _replay_base(frames, args.absolute)
         else:
             endpoint = bus_endpoint(args.target, args.bus)
             try:
                 bus = can.Bus(interface="gatewaylab", channel=endpoint, listen_only=True, name="gatewaylab-monitor")
             except (can.CanError, OSError) as exc:
-                print(f"error: cannot open bus {endpoint}: {exc}", file=sys.stderr)
+                print(f"gatewaylab: cannot open bus {endpoint}: {exc}", file=sys.stderr)
                 return 1
             until = time.monotonic() + args.duration if args.duration is not None else None
             frames = _frames_live(bus, until)
-            monitor = BusMonitor(dictionaries, getattr(bus, "bitrate", args.bitrate),
-                                 getattr(bus, "data_bitrate", None))
+            bitrate, data_bitrate = getattr(bus, "bitrate", args.bitrate), getattr(bus, "data_bitrate", None)
             title = f"{args.bus} ({endpoint})"
-            if args.json or args.plain:
-                print(f"monitoring {title}, listen-only", file=sys.stderr, flush=True)
-        watcher = _watcher(args)
+            epoch = getattr(bus, "wall_epoch", None)
+            base = (0.0, "Unix time") if args.absolute or not epoch else (
+                float(epoch), f"seconds since the rig started (its time 0 is Unix time {epoch:.6f}; --absolute "
+                              "for Unix time)")
+        if args.count is not None:
+            frames = _first(frames, args.count)
+        signals = load_database(args.db) if args.db else None
+        if args.raw:
+            _print_raw(frames, filters, stamps, args.bus, args.errors, signals)
+            return 0
+        if args.viewer:
+            _viewer(frames, filters, title)
+            return 0
+        monitor = BusMonitor(_dictionaries(args), bitrate, data_bitrate, known=_known_nodes(args), signals=signals)
+        watchers = _watchers(args)
         if args.json or args.plain:
-            _print_events(monitor, frames, args.json, watcher)
+            if not args.replay:
+                print(f"monitoring {title}, listen-only; times: {base[1]}", file=sys.stderr, flush=True)
+            else:
+                print(f"replaying {title}; times: {base[1]}", file=sys.stderr, flush=True)
+            _print_events(monitor, frames, filters, args.json, watchers, stamps if args.timestamp else None,
+                          base[0])
         else:
             with _Screen(monitor, title) as screen:
                 for item in frames:
-                    for event in watcher.poll(time.time()) if watcher is not None else []:
+                    for event in _decode(monitor, item, filters, watchers, live=not args.replay):
                         screen.add(event)
-                    if item is not None:
-                        for event in monitor.feed(*item):
-                            screen.add(event)
                     screen.draw(time.time() if not args.replay else (item[1] if item else 0.0))
                 screen.draw(time.time(), force=True)
     except KeyboardInterrupt:
         return 0
+    except BrokenPipeError:
+        _quiet_stdout()
+        return 0
+    except (CandumpSyntaxError, ConfigError) as exc:
+        print(f"gatewaylab: {exc}", file=sys.stderr)
+        return 2
     except (EndpointError, GatewaylabError, can.CanError, ValueError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2 if isinstance(exc, EndpointError) else 1
+        print(f"gatewaylab: {exc}", file=sys.stderr)
+        return 2 if isinstance(exc, (EndpointError, TraceError)) else 1
     finally:
         if bus is not None:
             bus.shutdown()
     return 0
 
 
-def _print_events(monitor: BusMonitor, frames: Iterator[tuple[CanFrame, float] | None], as_json: bool,
-                  watcher: EthercatWatcher | None = None) -> None:
+def _quiet_stdout() -> None:
+    """stdout went away (``| head``): no second error when Python flushes it at exit."""
+    import os
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):
+        pass
+
+
+def _first(frames: Iterator[Item], count: int) -> Iterator[Item]:
+    """candump -n: stop after ``count`` frames (error frames included)."""
+    seen = 0
+    for item in frames:
+        yield item
+        if item is not None:
+            seen += 1
+            if seen >= count:
+                return
+
+
+def _decode(monitor: BusMonitor, item: Item, filters: FilterSet, watchers: list[_ControlPoller],
+            live: bool) -> list[MonitorEvent]:
+    """The events one item of the bus brings: the watchers' news, the frame's decoding (shown when it
+    passes the filters; decoded anyway, so transfers stay whole), error frames, silent nodes."""
+    events: list[MonitorEvent] = []
+    for w in watchers:
+        events += w.poll(time.time())
+    if item is not None:
+        obj, t = item
+        if isinstance(obj, ErrorFrame):
+            events += monitor.feed_error(obj, t)
+        else:
+            decoded = monitor.feed(obj, t)
+            if filters.accepts(obj):
+                events += decoded
+        events += monitor.tick(t)
+    elif live:
+        events += monitor.tick(time.time())
+    return events
+
+
+def _replay_base(frames: Iterator[Item], absolute: bool) -> tuple[Iterator[Item], tuple[float, str]]:
+    """The time base of a replay: a trace in Unix time (.log, .pcap, ...) counts from its first frame
+    (the rig's start is not in the file); one already relative to the rig's start (.asc) stays."""
+    first = next(frames, None)
+    rest: Iterator[Item] = itertools.chain([first], frames) if first is not None else iter(())
+    if absolute or first is None or first[1] < 1e8:
+        return rest, (0.0, "as the trace has them" + ("" if absolute else " (seconds since the rig started)"))
+    return rest, (first[1], f"seconds since the trace's first frame (Unix time {first[1]:.6f}; --absolute for "
+                            "Unix time)")
+
+
+def _print_events(monitor: BusMonitor, frames: Iterator[Item], filters: FilterSet, as_json: bool,
+                  watchers: list[_ControlPoller], stamps: Timestamps | None, base: float = 0.0) -> None:
+    """One line (or JSON object) per event; times count from ``base`` (see the stderr header)."""
     out = sys.stdout
     for item in frames:
-        events = watcher.poll(time.time()) if watcher is not None else []
-        if item is not None:
-            events += monitor.feed(*item)
-        elif not events:
+        events = _decode(monitor, item, filters, watchers, live=True)
+        if not events:
             out.flush()
             continue
         for event in events:
-            line: Any = json.dumps(event.to_json()) if as_json else f"{event.t:.6f}  {event.text}"
-            out.write(line + "\n")
+            if as_json:
+                text = json.dumps({**event.to_json(), "t": round(event.t - base, 6)})
+            elif stamps is not None:
+                text = f"{stamps.text(event.t)} {event.text}"
+            else:
+                text = f"{event.t - base:.6f}  {event.text}"
+            out.write(text + "\n")
     out.flush()
 
 
-def add_subcommand(subparsers: Any) -> None:
-    """Add ``monitor`` to the gatewaylab CLI."""
-    p = subparsers.add_parser("monitor", help="live decoded view of a rig's bus (listen-only)",
-                              description=_DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
+def _print_raw(frames: Iterator[Item], filters: FilterSet, stamps: Timestamps, channel: str,
+               explain_errors: bool, signals: SignalDecoder | None = None) -> None:
+    """candump: one line per frame (``-e``: error frames, decoded on the lines below); with ``--db``
+    the frames the database defines get `` :: Message(Signal: value unit, ...)``, as
+    ``candump | cantools decode --single-line`` prints them."""
+    out = sys.stdout
+    indent = False
+    for item in frames:
+        if item is None:
+            out.flush()
+            continue
+        obj, t = item
+        if isinstance(obj, ErrorFrame):
+            if not filters.accepts_error(obj):
+                continue
+            body = long_error_frame(obj)
+            if explain_errors:
+                body += "\n\t" + describe(obj)
+        else:
+            if not filters.accepts(obj):
+                continue
+            indent = indent or obj.extended     # candump indents 11-bit ids once it saw a 29-bit one
+            body = long_frame(obj, indent_sff=indent)
+            message = signals.decode(obj) if signals is not None else None
+            if message is not None:
+                body += f" :: {message.name}(" + ", ".join(
+                    f"{n}: {repr(v) if isinstance(v, str) else v}" + (f" {u}" if u else "")
+                    for n, v, u in message.signals) + ")"
+        out.write(line(body, channel, stamps.text(t)) + "\n")
+    out.flush()
+
+
+def _viewer(frames: Iterator[Item], filters: FilterSet, title: str) -> None:
+    """can.viewer: a table of identifiers, redrawn on a terminal, printed once at the end otherwise."""
+    table = IdTable()
+    errors = 0
+    last = 0.0
+    live = None
+    if sys.stdout.isatty():
+        from rich.live import Live
+        live = Live(auto_refresh=False)
+        live.__enter__()
+    try:
+        for item in frames:
+            if item is not None:
+                obj, t = item
+                last = max(last, t)
+                if isinstance(obj, ErrorFrame):
+                    errors += 1
+                elif filters.accepts(obj):
+                    table.feed(obj, t)
+            if live is not None:
+                from rich.text import Text
+                live.update(Text("\n".join([f"{title}   {errors} error frames", *table.lines(time.time())])),
+                            refresh=True)
+    finally:
+        if live is not None:
+            live.__exit__(None, None, None)
+        else:          # also when the rig went away: the table so far
+            now = time.time() if last > 1e9 else last
+            print("\n".join([f"{title}   {errors} error frames", *table.lines(now)]), flush=True)
+
+
+_COMMON_EPILOG = """filters (-f, can-utils' candump syntax, comma separated or repeated):
+  123:7FF      id & mask == 123 & mask (11-bit 0x123, also as 29-bit id and remote frame)
+  123:C00007FF only the 11-bit data frame 0x123;  12345678:DFFFFFFF only the 29-bit id 12345678
+  400~7F0      everything but 0x400..0x40F;  #FFFFFFFF error frames of every class;  j  all must match
+"""
+
+
+def _add_common(p: argparse.ArgumentParser) -> None:
     p.add_argument("target", metavar="TARGET", help="bus endpoint, ready file, or with --replay a trace file")
     p.add_argument("--bus", default="can0", help="bus name in the ready file (default can0)")
-    p.add_argument("--eds", type=_eds_arg, action="append", metavar="NODE=FILE",
-                   help="the dictionary of a node, for PDO values and object names (repeatable)")
-    mode = p.add_mutually_exclusive_group()
-    mode.add_argument("--plain", action="store_true", help="one line per event (for pipes)")
-    mode.add_argument("--json", action="store_true", help="one JSON object per event (for scripts)")
-    p.add_argument("--replay", action="store_true", help="TARGET is a trace file (.asc, .log, .blf, .csv, ...)")
+    p.add_argument("-f", "--filter", action="append", metavar="ID:MASK",
+                   help="candump filter: ID:MASK, ID~MASK (inverted), #ERRMASK, j (join); repeatable")
+    p.add_argument("-e", "--errors", action="store_true",
+                   help="error frames too, decoded as candump -e does (error frames are shown in the decoded "
+                        "view always)")
+    p.add_argument("-t", "--timestamp", choices=TIMESTAMP_MODES, default=None,
+                   help="candump timestamps: a absolute, A absolute with date, d delta, z from the first frame")
+    p.add_argument("-n", "--count", type=int, default=None, metavar="N", help="stop after N frames")
+    p.add_argument("--absolute", action="store_true",
+                   help="decoded view: Unix times instead of seconds since the rig started (stderr says which)")
+    p.add_argument("--replay", action="store_true",
+                   help="TARGET is a trace file the rig wrote (.asc .blf .csv .log .trc .txt .pcap .pcapng)")
     p.add_argument("--bitrate", type=int, default=1_000_000, help="bit rate for the load figure of a replay")
     p.add_argument("--data-bitrate", type=int, default=None, help="CAN FD data bit rate of a replay")
     p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds")
+    p.add_argument("--eds", type=_eds_arg, action="append", metavar="NODE=FILE",
+                   help="the dictionary of a node, for PDO values and object names (repeatable)")
+    p.add_argument("--db", metavar="FILE", help="a signal database (DBC, KCD, ARXML, SYM; read by cantools): "
+                   "the frames it defines are decoded into signals")
+
+
+def add_subcommand(subparsers: Any) -> None:
+    """Add ``monitor`` and ``dump`` (the raw monitor, like candump) to the gatewaylab CLI."""
+    p = subparsers.add_parser("monitor", help="live decoded view of a rig's bus (listen-only)",
+                              description=_DESCRIPTION, epilog=_COMMON_EPILOG,
+                              formatter_class=argparse.RawDescriptionHelpFormatter)
+    _add_common(p)
+    mode = p.add_mutually_exclusive_group()
+    mode.add_argument("--plain", action="store_true", help="one line per event (for pipes)")
+    mode.add_argument("--json", action="store_true", help="one JSON object per event (for scripts)")
+    mode.add_argument("--raw", action="store_true", help="one line per frame as candump prints it")
+    mode.add_argument("--viewer", action="store_true", help="a table per identifier (count, period, data), "
+                      "as python-can's can.viewer")
     p.set_defaults(func=cmd_monitor)
+    d = subparsers.add_parser("dump", help="candump of a rig's bus (= monitor --raw)",
+                              description="One line per frame as can-utils' candump prints it (listen-only). "
+                                          "The same as `gatewaylab monitor --raw`.\n\nexamples:\n"
+                                          "  gatewaylab dump ready.json -t z -e\n"
+                                          "  gatewaylab dump unix:/tmp/gl/can0.sock -f 700:780\n"
+                                          "  gatewaylab dump --replay run.pcapng -t a",
+                              epilog=_COMMON_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    _add_common(d)
+    d.set_defaults(func=cmd_monitor, raw=True, viewer=False, plain=False, json=False)

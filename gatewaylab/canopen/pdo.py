@@ -127,6 +127,9 @@ class Rpdo(_Pdo):
         super().__init__(manager, number, 0x1400 + number, 0x1600 + number)
         self._pending: bytes | None = None
         self.received = 0
+        #: the order in which apply() writes the entries (see configure)
+        self._order: tuple[int, ...] = ()
+        self._mapped_order: list[_Mapped] = []
 
     def on_frame(self, frame: CanFrame, t: float) -> None:
         if frame.rtr or not self.valid or not self.mapped:
@@ -150,20 +153,35 @@ class Rpdo(_Pdo):
         else:
             self.apply(data)
 
+    def configure(self) -> None:
+        super().configure()
+        # Plain values (set-points) are written before the objects the device hooks (controlword,
+        # mode), each group in mapping order: a controlword in the same PDO as its target (RPDO1 of
+        # CiA 402: controlword + target position) acts on that target, as on a device that copies
+        # the whole PDO into its dictionary before its application reads it. The hooks exist by
+        # now (a device registers them before its node starts and configures its PDOs).
+        hooked = self.node.od.intercepted
+        entries = self._entries
+        self._order = tuple(sorted(range(len(entries)), key=lambda i: entries[i].index in hooked))
+        self._mapped_order = sorted(self.mapped, key=lambda m: m.entry is not None and m.entry.index in hooked)
+
     def apply(self, data: bytes) -> None:
+        """Write the mapped objects: set-points first, then the hooked objects (see configure)."""
         node = self.node
         store = node.od.store
         whole = self._whole
         if whole is not None:   # unlimited fixed-size objects: decoding cannot fail
-            for target, value in zip(self._entries, whole.unpack_from(data)):
+            values = whole.unpack_from(data)
+            entries = self._entries
+            for i in self._order:
                 try:
-                    store(target, value)
+                    store(entries[i], values[i])
                 except SdoAbort:
                     node.count("rpdo_value_errors")
                 except Exception:   # device hook misbehaved: count it, the bus carries on
                     node.count("hook_errors")
             return
-        for m in self.mapped:
+        for m in self._mapped_order:
             entry = m.entry
             if entry is None:
                 continue        # dummy mapping

@@ -47,6 +47,8 @@ KEYS: dict[str, Key] = {
     "serial": Key(int, required=True, min=0, max=0xFFFFFFFF, hex=True, help="the LSS serial number, 0x1018:04"),
     "name": Key(str),
     "plant": Key(dict, keys=PLANT_KEYS),
+    "control_period": Key(float, 0.001, min=0.0001, max=0.1,
+                          help="seconds per run of the drive's control loop (position/velocity loops, plant)"),
 }
 
 
@@ -62,6 +64,7 @@ def create_drive(rig: RigContext, cfg: dict[str, Any]) -> Drive:
     store_path = rig.state_dir / f"{name}.params.json"
     drive = Drive(rig.clock, rig.buses[cfg["bus"]], cfg["node_id"], cfg["serial"], name=name, store_path=store_path,
                   params=axis_params(cfg["plant"]))
+    drive.period = cfg["control_period"]
     # the ready file lists each drive with its EDS, so `gatewaylab monitor` decodes its PDOs
     eds = rig.state_dir / f"{name}.eds"
     eds.write_text(drive.node.to_eds())

@@ -8,9 +8,10 @@ and schedules callbacks with ``call_at``/``call_later``. Two implementations exi
   instant run in the order they were scheduled. Tests use it: faster than real time, reproducible.
 * :class:`RealTimeClock` -- the same event queue read against a monotonic wall clock. Something
   outside the protocol code (the rig runtime's I/O loop) calls :meth:`RealTimeClock.run_due` and
-  waits until :meth:`Clock.next_deadline`; other threads hand work in with
-  :meth:`Clock.call_soon_threadsafe`. Each ``run_due`` pass runs a bounded number of events, so
-  that loop serves its I/O between passes whatever the protocols schedule.
+  waits until the next event (:meth:`Clock.begin_wait`); other threads hand work in with
+  :meth:`Clock.call_soon_threadsafe` or schedule under :attr:`Clock.lock`, and either wakes the
+  loop when the work is due before it would wake by itself. Each ``run_due`` pass runs a bounded
+  number of events, so that loop serves its I/O between passes whatever the protocols schedule.
 
 A blocking caller outside the protocol cores (an in-process EtherCAT master polling a mailbox)
 lets time pass with :meth:`Clock.wait`, never by moving a simulated clock or spinning itself.
@@ -19,6 +20,7 @@ lets time pass with :meth:`Clock.wait`, never by moving a simulated clock or spi
 from __future__ import annotations
 
 import heapq
+import math
 import time
 from collections import deque
 from collections.abc import Callable
@@ -59,8 +61,12 @@ class Clock:
         self._heap: list[tuple[float, int, TimerHandle]] = []
         self._seq = 0
         self._injected: deque[tuple[Callback, tuple[Any, ...]]] = deque()
-        #: Called (from any thread) after work was injected; the runtime sets it to wake its loop.
+        #: Called (from any thread) after work was injected, or an event was scheduled before the
+        #: time the waiting loop wakes up by itself (:meth:`begin_wait`); the runtime sets it to wake its loop.
         self.wakeup: Callable[[], None] | None = None
+        #: While the loop that runs this clock waits (between :meth:`begin_wait` and :meth:`end_wait`):
+        #: the time it wakes up by itself; an event scheduled before it wakes the loop. -inf otherwise.
+        self._wake_before = -math.inf
         #: Serialises access to the protocol state when several threads touch it. The in-process
         #: python-can adapter installs a real lock here; single-threaded use needs none.
         self.lock: AbstractContextManager[Any] = nullcontext()
@@ -83,6 +89,8 @@ class Clock:
         self._seq = seq = self._seq + 1
         handle = TimerHandle(when, seq, callback, args)
         heapq.heappush(self._heap, (when, seq, handle))
+        if when < self._wake_before:
+            self._wake_loop()
         return handle
 
     def reschedule(self, handle: TimerHandle, when: float) -> None:
@@ -94,6 +102,8 @@ class Clock:
         handle.seq = seq
         handle.cancelled = False
         heapq.heappush(self._heap, (when, seq, handle))
+        if when < self._wake_before:
+            self._wake_loop()
 
     def call_later(self, delay: float, callback: Callback, *args: Any) -> TimerHandle:
         if delay < 0:
@@ -125,6 +135,29 @@ class Clock:
         if self._injected:
             return self.now()
         return heap[0][0] if heap else None
+
+    def begin_wait(self) -> float | None:
+        """For the loop that runs this clock, before it blocks (in ``select``): the time of the
+        earliest pending event (None: none). Until :meth:`end_wait`, scheduling an event before
+        that time -- from another thread holding :attr:`lock` (a wire thread, a web server, an
+        in-process master) -- calls :attr:`wakeup` once, so the loop never sleeps past an event
+        it did not know of when it went to sleep (issue 21: a Tx batch the EtherCAT wire thread
+        handed to the bus waited for the loop's next timeout, up to 250 ms)."""
+        with self.lock:
+            deadline = self.next_deadline()
+            self._wake_before = math.inf if deadline is None else deadline
+        return deadline
+
+    def end_wait(self) -> None:
+        """The loop is awake again (see :meth:`begin_wait`): events it schedules itself wake nobody."""
+        self._wake_before = -math.inf
+
+    def _wake_loop(self) -> None:
+        """An event falls due before the waiting loop wakes up: wake it (once per wait)."""
+        self._wake_before = -math.inf
+        wake = self.wakeup
+        if wake is not None:
+            wake()
 
     def wait(self, delay: float) -> None:
         """Let ``delay`` seconds pass for a caller that blocks on the clock (an in-process master

@@ -149,6 +149,9 @@ def bus_endpoint(target: str, bus: str = "can0") -> str:
     either what ``gatewaylab run`` printed or the file it wrote."""
     path = Path(target)
     if not path.is_file():
+        if not path.exists() and (path.suffix.lower() == ".json" or ":" not in target):
+            raise EndpointError(f"{target}: no such ready file or socket (is the rig running? "
+                                f"`gatewaylab run --ready-file {target}` writes it)")
         return target
     try:
         info = json.loads(path.read_text())

@@ -156,6 +156,8 @@ class MasterBackend(Protocol):
     def foe_write(self, position: int, name: str, data: bytes, password: int = 0, *,
                   progress: ProgressFn | None = None) -> None: ...
     def sii_read(self, position: int) -> bytes: ...
+    def reg_read(self, position: int, address: int, length: int) -> bytes: ...
+    def reg_write(self, position: int, address: int, data: bytes) -> None: ...
     def sii_info(self, position: int) -> SiiInfo: ...
     def config_map(self) -> int: ...
     def configure_dc(self, position: int, cycle_ns: int, shift_ns: int = 0) -> None: ...
@@ -416,6 +418,25 @@ class _MasterRegisters:
         return True
 
 
+def register_read(regs: _Registers, position: int, address: int, length: int) -> bytes:
+    """``length`` bytes of a slave's registers, or MasterTimeout naming them (both backends)."""
+    if not 0 <= address <= 0xFFFF or not 1 <= length <= 0x10000 - address:
+        raise MasterError(f"registers 0x{address:04X}+{length} are outside the ESC's 64 KiB")
+    data = regs.read(position, address, length)
+    if data is None:
+        raise MasterTimeout(f"slave {position}: no answer reading {length} byte(s) at 0x{address:04X}")
+    return bytes(data)
+
+
+def register_write(regs: _Registers, position: int, address: int, data: bytes) -> None:
+    """Write a slave's registers, or MasterTimeout (the write was not acknowledged)."""
+    if not 0 <= address <= 0xFFFF or not 1 <= len(data) <= 0x10000 - address:
+        raise MasterError(f"registers 0x{address:04X}+{len(data)} are outside the ESC's 64 KiB")
+    if not regs.write(position, address, data):
+        raise MasterTimeout(f"slave {position}: writing {len(data)} byte(s) at 0x{address:04X} was not "
+                            "acknowledged (working counter 0 or no answer)")
+
+
 def _locked_link(segment: Segment, lock: Any) -> Callable[[bytes], bytes | None]:
     """A master link through ``segment`` under the clock's lock (a rig's loop may run the devices)."""
 
@@ -557,6 +578,16 @@ class InProcessBackend:
     def sii_read(self, position: int) -> bytes:
         """The SII EEPROM image up to its END category."""
         return bytes(self._call(self.master.read_sii, self.master.slave(position).station))
+
+    def reg_read(self, position: int, address: int, length: int) -> bytes:
+        """ESC registers by configured-address read (FPRD), IgH's ``reg_read``; MasterTimeout unanswered."""
+        self.master.slave(position)
+        return register_read(_MasterRegisters(self.master), position, address, length)
+
+    def reg_write(self, position: int, address: int, data: bytes) -> None:
+        """ESC registers by configured-address write (FPWR), IgH's ``reg_write``."""
+        self.master.slave(position)
+        register_write(_MasterRegisters(self.master), position, address, data)
 
     def sii_info(self, position: int) -> SiiInfo:
         """The parsed SII the scan read (identity, mailboxes, SyncManagers)."""

@@ -10,6 +10,7 @@ on stderr.
 from __future__ import annotations
 
 import argparse
+import base64
 import struct
 import sys
 import types
@@ -64,8 +65,10 @@ STATES = {"INIT": AlState.INIT, "PREOP": AlState.PREOP, "BOOT": AlState.BOOT, "S
 
 DESCRIPTION = """\
 The everyday verbs of IgH's `ethercat` tool, on a real line through SOEM (-i IFNAME, needs root)
-or in process on a rig file (--rig RIG.toml: simulated clock, the segment brought to PREOP).
-Every verb takes -i/--rig and -p POSITION after the verb, in IgH's argument order.
+or in process on a rig file (--rig RIG.toml: simulated clock, the segment brought to PREOP), or
+through a persistent master (`gatewaylab ec master -i IFNAME --serve SOCKET`, then --master SOCKET),
+which keeps the line open and the process data cycling, so slaves stay in OP between calls.
+Every verb takes -i/--rig/--master and -p POSITION after the verb, in IgH's argument order.
 
 examples:
   gatewaylab ec slaves -i gl-ecat-m
@@ -93,6 +96,16 @@ EXAMPLES: dict[str, str] = {
     "foe-read": "gatewaylab ec foe-read -i gl-ecat-m -p 0 config.bin -o config.bin",
     "foe-write": "gatewaylab ec foe-write -i gl-ecat-m -p 0 ecan_lite_v140.bin -n ecan_lite_app.bin\n"
                  "  gatewaylab ec foe-write --rig esd.toml -p 1 --boot firmware.bin -n firmwareUpdate",
+    "cstruct": "gatewaylab ec cstruct --rig rig.toml -p 0 > slave0_pdos.h",
+    "xml": "gatewaylab ec xml -i gl-ecat-m -p 0 > slave0.xml",
+    "reg-read": "gatewaylab ec reg-read --rig rig.toml -p 0 0x0130 2        # AL status\n"
+                "  gatewaylab ec reg-read -i gl-ecat-m -p 0 --type uint16 0x0010",
+    "reg-write": "gatewaylab ec reg-write --rig rig.toml -p 0 --type uint16 0x0012 0x1234   # station alias\n"
+                 "  gatewaylab ec reg-write -i gl-ecat-m -p 0 0x0120 0200",
+    "master": "gatewaylab ec master -i gl-ecat-m --serve /tmp/ec.sock &   # a persistent master\n"
+              "  gatewaylab ec states --master /tmp/ec.sock OP               # slaves stay in OP between calls\n"
+              "  gatewaylab ec master --master /tmp/ec.sock                  # its state\n"
+              "  gatewaylab ec master --master /tmp/ec.sock --stop",
 }
 
 
@@ -230,7 +243,8 @@ RigOpener = Callable[[str], OpenRig]
 def open_backend(args: argparse.Namespace) -> Iterator[MasterBackend]:
     """``-i IFNAME`` -> PysoemBackend; ``--rig RIG.toml`` -> the rig in process on a simulated clock."""
     if bool(args.interface) == bool(args.rig):
-        raise EcUsage("give the line: -i IFNAME (real interface, root) or --rig RIG.toml (in process)")
+        raise EcUsage("give the line: -i IFNAME (real interface, root), --rig RIG.toml (in process) or "
+                      "--master SOCKET (a persistent master)")
     if args.interface:
         from .wire_backend import PysoemBackend
 
@@ -405,27 +419,86 @@ def cmd_sdos(backend: MasterBackend, args: argparse.Namespace, out: IO[str]) -> 
                       f'{e.bit_length} bit, "{e.name}"', file=out)
 
 
+@dataclass(frozen=True)
+class _SyncLayout:
+    """One SyncManager of a slave with its assigned PDOs: [(index, name, [(index, sub, bits, name)])]."""
+
+    index: int
+    start: int
+    length: int
+    control: int
+    enable: int
+    sm_type: int
+    pdos: tuple[tuple[int, str, tuple[tuple[int, int, int, str], ...]], ...]
+
+
+def _layout(backend: MasterBackend, pos: int) -> list[_SyncLayout]:
+    """SyncManagers (SII), their assigned PDOs (0x1C1x by SDO for CoE slaves) and each PDO's mapped
+    entries (0x16xx/0x1Axx), names from the SII PDO categories: what ``pdos`` and ``cstruct`` show."""
+    info = backend.sii_info(pos)
+    named = sii_pdos(backend.sii_read(pos), info.strings)
+    names = {(i, s): n for p in named.values() for i, s, _b, n in p.entries}
+    out = []
+    for sm_index, (start, length, ctrl, enable, sm_type) in enumerate(info.sync_managers):
+        pdos: list[tuple[int, str, tuple[tuple[int, int, int, str], ...]]] = []
+        if sm_type in (SmType.OUTPUTS, SmType.INPUTS):
+            for pdo_index, entries in _assigned(backend, pos, sm_index, info.coe_details != 0, named):
+                pdos.append((pdo_index, named[pdo_index].name if pdo_index in named else "",
+                             tuple((i, s, b, names.get((i, s), "")) for i, s, b in entries)))
+        out.append(_SyncLayout(sm_index, start, length, ctrl, enable, sm_type, tuple(pdos)))
+    return out
+
+
 def cmd_pdos(backend: MasterBackend, args: argparse.Namespace, out: IO[str]) -> None:
     """IgH ``ethercat pdos``: SyncManagers (SII), their assigned PDOs (0x1C1x by SDO for CoE slaves)
     and each PDO's mapped entries (0x16xx/0x1Axx), names from the SII PDO categories."""
     positions = _selected(backend, args)
     for pos in positions:
         _header(pos, len(positions) > 1, out)
-        info = backend.sii_info(pos)
-        named = sii_pdos(backend.sii_read(pos), info.strings)
-        names = {(i, s): n for p in named.values() for i, s, _b, n in p.entries}
-        for sm_index, (start, length, ctrl, enable, sm_type) in enumerate(info.sync_managers):
-            print(f"SM{sm_index}: PhysAddr 0x{start:04x}, DefaultSize {length:4d}, ControlRegister 0x{ctrl:02x}, "
-                  f"Enable {enable}", file=out)
-            if sm_type not in (SmType.OUTPUTS, SmType.INPUTS):
-                continue
-            direction = "R" if sm_type == SmType.OUTPUTS else "T"
-            for pdo_index, entries in _assigned(backend, pos, sm_index, info.coe_details != 0, named):
-                name = named[pdo_index].name if pdo_index in named else ""
+        for sm in _layout(backend, pos):
+            print(f"SM{sm.index}: PhysAddr 0x{sm.start:04x}, DefaultSize {sm.length:4d}, ControlRegister "
+                  f"0x{sm.control:02x}, Enable {sm.enable}", file=out)
+            direction = "R" if sm.sm_type == SmType.OUTPUTS else "T"
+            for pdo_index, name, entries in sm.pdos:
                 print(f'  {direction}xPDO 0x{pdo_index:04x} "{name}"', file=out)
-                for e_index, e_sub, bits in entries:
-                    print(f"    PDO entry 0x{e_index:04x}:{e_sub:02x}, {bits:2d} bit, "
-                          f'"{names.get((e_index, e_sub), "")}"', file=out)
+                for e_index, e_sub, bits, e_name in entries:
+                    print(f'    PDO entry 0x{e_index:04x}:{e_sub:02x}, {bits:2d} bit, "{e_name}"', file=out)
+
+
+def cmd_cstruct(backend: MasterBackend, args: argparse.Namespace, out: IO[str]) -> None:
+    """IgH ``ethercat cstruct``: the slave's PDO configuration as the C structures an IgH application
+    hands to ``ecrt_slave_config_pdos()`` (ec_pdo_entry_info_t, ec_pdo_info_t, ec_sync_info_t)."""
+    ident = {s.position: s for s in backend.slaves()}
+    for pos in _selected(backend, args):
+        s = ident[pos]
+        layout = _layout(backend, pos)
+        print(f'/* Master 0, Slave {pos}, "{s.name}"\n * Vendor ID:       0x{s.vendor_id:08x}\n'
+              f" * Product code:    0x{s.product_code:08x}\n * Revision number: 0x{s.revision:08x}\n */\n",
+              file=out)
+        entries = [e for sm in layout for _i, _n, es in sm.pdos for e in es]
+        if entries:
+            print(f"ec_pdo_entry_info_t slave_{pos}_pdo_entries[] = {{", file=out)
+            for index, sub, bits, name in entries:
+                print(f"    {{0x{index:04x}, {sub}, {bits}}}, /* {name} */", file=out)
+            print("};\n", file=out)
+        pdos = [p for sm in layout for p in sm.pdos]
+        if pdos:
+            print(f"ec_pdo_info_t slave_{pos}_pdos[] = {{", file=out)
+            at = 0
+            for index, name, es in pdos:
+                where = f"slave_{pos}_pdo_entries + {at}" if es else "NULL"
+                print(f"    {{0x{index:04x}, {len(es)}, {where}}}, /* {name} */", file=out)
+                at += len(es)
+            print("};\n", file=out)
+        print(f"ec_sync_info_t slave_{pos}_syncs[] = {{", file=out)
+        at = 0
+        for sm in layout:
+            direction = "EC_DIR_OUTPUT" if sm.control & 0x0C == 0x04 else "EC_DIR_INPUT"
+            where = f"slave_{pos}_pdos + {at}" if sm.pdos else "NULL"
+            watchdog = "EC_WD_ENABLE" if sm.control & 0x40 else "EC_WD_DISABLE"
+            print(f"    {{{sm.index}, {direction}, {len(sm.pdos)}, {where}, {watchdog}}},", file=out)
+            at += len(sm.pdos)
+        print("    {0xff}\n};\n", file=out)
 
 
 def _assigned(backend: MasterBackend, pos: int, sm_index: int, coe: bool,
@@ -531,6 +604,116 @@ def _read_input(path: str) -> bytes:
         raise EcUsage(f"cannot read {path}: {exc.strerror or exc}") from None
 
 
+#: ESI data type names by bit length (ETG.2000 base types) for ``xml``'s PDO entries.
+_ESI_TYPES = {1: "BOOL", 8: "UINT8", 16: "UINT16", 32: "UINT32", 64: "UINT64"}
+
+
+def cmd_xml(backend: MasterBackend, args: argparse.Namespace, out: IO[str]) -> None:
+    """IgH ``ethercat xml``: an ESI (EtherCATInfo, ETG.2000) of each slave from what the line says:
+    identity and name, SyncManagers, assigned PDOs and entries (data types by bit length)."""
+    from xml.sax.saxutils import escape
+
+    ident = {s.position: s for s in backend.slaves()}
+    for pos in _selected(backend, args):
+        s = ident[pos]
+        lines = ['<?xml version="1.0" ?>', "<EtherCATInfo>", f"  <!-- Slave {pos} -->", "  <Vendor>",
+                 f"    <Id>{s.vendor_id}</Id>", "  </Vendor>", "  <Descriptions>", "    <Devices>", "      <Device>",
+                 f'        <Type ProductCode="#x{s.product_code:08x}" RevisionNo="#x{s.revision:08x}">'
+                 f"{escape(s.name)}</Type>", f"        <Name>{escape(s.name)}</Name>"]
+        layout = _layout(backend, pos)
+        for sm in layout:
+            lines.append(f'        <Sm Enable="{sm.enable}" StartAddress="#x{sm.start:04x}" ControlByte='
+                         f'"#x{sm.control:02x}" DefaultSize="{sm.length}" />')
+        for sm in layout:
+            kind = "RxPdo" if sm.sm_type == SmType.OUTPUTS else "TxPdo"
+            for index, name, entries in sm.pdos:
+                lines += [f'        <{kind} Sm="{sm.index}" Fixed="1" Mandatory="1">',
+                          f"          <Index>#x{index:04x}</Index>", f"          <Name>{escape(name)}</Name>"]
+                for e_index, e_sub, bits, e_name in entries:
+                    lines += ["          <Entry>", f"            <Index>#x{e_index:04x}</Index>",
+                              f"            <SubIndex>{e_sub}</SubIndex>", f"            <BitLen>{bits}</BitLen>",
+                              f"            <Name>{escape(e_name)}</Name>"]
+                    if e_index:
+                        lines.append(f"            <DataType>{_ESI_TYPES.get(bits, f'BIT{bits}')}</DataType>")
+                    lines.append("          </Entry>")
+                lines.append(f"        </{kind}>")
+        lines += ["      </Device>", "    </Devices>", "  </Descriptions>", "</EtherCATInfo>"]
+        print("\n".join(lines), file=out)
+
+
+def cmd_reg_read(backend: MasterBackend, args: argparse.Namespace, out: IO[str]) -> None:
+    """IgH ``reg_read ADDRESS [SIZE]``: the bytes in hex, 16 a line; with ``--type`` the value."""
+    pos = _one(backend, args)
+    address = parse_number(args.address, "address", 0xFFFF)
+    ctype = TYPES[args.type] if args.type else None
+    size = parse_number(args.size, "size", 0x10000) if args.size is not None else (
+        _type_size(ctype) if ctype is not None else 1)
+    if address + size > 0x10000:
+        raise EcUsage(f"registers 0x{address:04X}+{size} go past the ESC's 64 KiB (0x0000..0xFFFF)")
+    data = backend.reg_read(pos, address, size)
+    if ctype is not None:
+        print(format_value(ctype, data), file=out)
+        return
+    for k in range(0, len(data), 16):
+        print(" ".join(f"0x{b:02x}" for b in data[k:k + 16]), file=out)
+
+
+def cmd_reg_write(backend: MasterBackend, args: argparse.Namespace, out: IO[str]) -> None:
+    """IgH ``reg_write ADDRESS DATA``: DATA by ``--type``, else hex bytes (``0x0a 0x00`` or ``0a00``)."""
+    pos = _one(backend, args)
+    address = parse_number(args.address, "address", 0xFFFF)
+    data = _register_bytes(args)
+    if address + len(data) > 0x10000:
+        raise EcUsage(f"registers 0x{address:04X}+{len(data)} go past the ESC's 64 KiB (0x0000..0xFFFF)")
+    backend.reg_write(pos, address, data)
+
+
+def _register_bytes(args: argparse.Namespace) -> bytes:
+    if args.type:
+        return parse_value(TYPES[args.type], args.data)
+    text = args.data.replace("0x", "").replace(" ", "").replace(",", "")
+    try:
+        data = bytes.fromhex(text)
+    except ValueError:
+        raise EcUsage(f"register data {args.data!r}: hex bytes (0a00 or '0x0a 0x00'), or give --type") from None
+    if not data:
+        raise EcUsage("register data is empty")
+    return data
+
+
+def _type_size(ctype: CoeType) -> int:
+    if not ctype.size:
+        raise EcUsage(f"reg-read --type {ctype.name} (variable length) needs SIZE")
+    return ctype.size
+
+
+def cmd_master(backend: MasterBackend, args: argparse.Namespace, out: IO[str]) -> None:
+    """``master``: the master's state (IgH ``ethercat master``); with ``--serve SOCKET`` it stays up
+    as a persistent master the other verbs attach to with ``--master SOCKET``."""
+    if getattr(args, "serve", None):
+        from .ec_server import EcMasterServer
+
+        line = f"-i {args.interface}" if args.interface else f"--rig {args.rig}"
+        server = EcMasterServer(backend, args.serve, run_verb, cycle=args.cycle_ms / 1000, line=line)
+
+        def ready() -> None:
+            print(f"master serving {line} on {args.serve} ({len(backend.slaves())} slaves, cycle "
+                  f"{args.cycle_ms:g} ms); verbs attach with --master {args.serve}; stop: Ctrl-C or "
+                  f"gatewaylab ec master --master {args.serve} --stop", file=out, flush=True)
+
+        try:
+            server.serve(ready)
+        except KeyboardInterrupt:
+            pass
+        return
+    if getattr(args, "stop", False):
+        raise EcUsage("--stop needs --master SOCKET")
+    slaves = backend.slaves()
+    print("Master0", file=out)
+    print(f"  Line: {f'-i {args.interface}' if args.interface else f'--rig {args.rig}'} (one-shot)", file=out)
+    print(f"  Slaves: {len(slaves)}", file=out)
+
+
 VERBS: dict[str, tuple[Callable[[MasterBackend, argparse.Namespace, IO[str]], None], str]] = {
     "slaves": (cmd_slaves, "list the slaves: position, alias:position, state, error flag, name"),
     "states": (cmd_states, "list the AL states, or request STATE (INIT, PREOP, BOOT, SAFEOP, OP)"),
@@ -541,6 +724,11 @@ VERBS: dict[str, tuple[Callable[[MasterBackend, argparse.Namespace, IO[str]], No
     "sii-read": (cmd_sii_read, "dump the SII EEPROM (binary to stdout, or --hex)"),
     "foe-read": (cmd_foe_read, "read a file by FoE: foe-read NAME [-o FILE]"),
     "foe-write": (cmd_foe_write, "write a file by FoE: foe-write FILE [-n NAME]"),
+    "master": (cmd_master, "the master's state; --serve SOCKET keeps a persistent master up for --master"),
+    "cstruct": (cmd_cstruct, "the PDO configuration as C structures for an IgH application"),
+    "xml": (cmd_xml, "an ESI (EtherCATInfo XML) of the slave from its SII and PDO assignment"),
+    "reg-read": (cmd_reg_read, "read ESC registers: reg-read [--type TYPE] ADDRESS [SIZE]"),
+    "reg-write": (cmd_reg_write, "write ESC registers: reg-write [--type TYPE] ADDRESS DATA"),
 }
 
 
@@ -573,28 +761,107 @@ def _precheck(args: argparse.Namespace) -> None:
         args.data = _read_input(args.file)
 
 
+def _failure(args: argparse.Namespace, exc: BaseException) -> tuple[int, str]:
+    """The exit code and the one stderr line of a verb's error."""
+    if isinstance(exc, EcUsage):
+        return 2, f"{PROG} {args.verb}: {exc}"
+    where = ""
+    if getattr(args, "index", None) is not None:
+        try:
+            where = f" for 0x{int(args.index, 0):04X}:{int(args.subindex, 0):02X}"
+        except ValueError:
+            pass
+    return 1, f"{PROG} {args.verb}: {describe(exc, where)}"
+
+
 def cmd_ec(args: argparse.Namespace) -> int:
     """Run one verb: its own errors to one stderr line and an exit code (never a traceback)."""
     fn, _help = VERBS[args.verb]
     try:
         _precheck(args)
+        if getattr(args, "master", None):
+            if args.verb == "master" and not args.serve:
+                return _master_info(args)
+            return _remote(args)
         with open_backend(args) as backend:
             fn(backend, args, sys.stdout)
         return 0
-    except EcUsage as exc:
-        print(f"{PROG} {args.verb}: {exc}", file=sys.stderr)
-        return 2
     except BrokenPipeError:
         return 0
     except (GatewaylabError, OSError, MasterTimeout) as exc:
-        where = ""
-        if getattr(args, "index", None) is not None:
-            try:
-                where = f" for 0x{int(args.index, 0):04X}:{int(args.subindex, 0):02X}"
-            except ValueError:
-                pass
-        print(f"{PROG} {args.verb}: {describe(exc, where)}", file=sys.stderr)
-        return 1
+        code, line = _failure(args, exc)
+        print(line, file=sys.stderr)
+        return code
+
+
+# ------------------------------------------------------------------------------- persistent master
+#: Arguments that name the line or the program, not the verb: not sent to a persistent master.
+_LOCAL_ARGS = ("func", "open_rig", "master", "interface", "rig", "command", "verbose_log")
+
+
+def _remote(args: argparse.Namespace) -> int:
+    """Run the verb on the persistent master at ``--master SOCKET`` (ec_server.py)."""
+    from .ec_server import request
+
+    if args.interface or args.rig:
+        raise EcUsage("give the line once: --master SOCKET attaches to a master that has it")
+    if args.verb == "master" and args.serve:
+        raise EcUsage("--serve starts a master on -i IFNAME or --rig RIG.toml, not on another master")
+    if (args.verb == "sii-read" and not args.hex) or (args.verb == "foe-read" and not args.output):
+        raise EcUsage(f"{args.verb} through --master writes no binary to stdout: give "
+                      f"{'--hex' if args.verb == 'sii-read' else '-o FILE'}")
+    payload: dict[str, Any] = {}
+    for key, value in vars(args).items():
+        if key in _LOCAL_ARGS or callable(value):
+            continue
+        if isinstance(value, bytes):
+            payload[key + "_b64"] = base64.b64encode(value).decode()
+        else:
+            payload[key] = value
+    if args.verb == "foe-read":
+        payload["output"] = str(Path(args.output).resolve())
+    answer = request(args.master, {"verb": args.verb, "args": payload})
+    sys.stdout.write(answer.get("stdout", ""))
+    sys.stderr.write(answer.get("stderr", ""))
+    return int(answer.get("code", 1))
+
+
+def run_verb(backend: MasterBackend, verb: str, payload: dict[str, Any]) -> tuple[int, str, str]:
+    """A persistent master runs a client's verb on its backend: (exit code, stdout, stderr)."""
+    from io import StringIO
+
+    fields = {k: v for k, v in payload.items() if not k.endswith("_b64")}
+    fields.update({k[:-4]: base64.b64decode(v) for k, v in payload.items() if k.endswith("_b64")})
+    args = argparse.Namespace(**fields, interface=None, rig=None, master=None)
+    args.verb = verb
+    out = StringIO()
+    if verb not in VERBS:
+        return 2, "", f"{PROG}: unknown verb {verb!r}\n"
+    try:
+        VERBS[verb][0](backend, args, out)
+        return 0, out.getvalue(), ""
+    except (GatewaylabError, OSError, MasterTimeout) as exc:
+        code, line = _failure(args, exc)
+        return code, out.getvalue(), line + "\n"
+    except (AttributeError, TypeError, ValueError) as exc:     # a client of another version
+        return 2, out.getvalue(), f"{PROG} {verb}: bad request: {exc}\n"
+
+
+def _master_info(args: argparse.Namespace) -> int:
+    from .ec_server import request
+
+    if args.stop:
+        request(args.master, {"stop": True})
+        print(f"master at {args.master} stopped")
+        return 0
+    info = request(args.master, {"info": True})
+    print("Master0")
+    print(f"  Line: {info['line']} (persistent, pid {info['pid']}, socket {info['socket']})")
+    print(f"  Slaves: {info['slaves']}")
+    print(f"  Process data: {'mapped' if info['mapped'] else 'not mapped'}, cycle {info['cycle_ms']:g} ms, "
+          f"{info['exchanges']} exchanges, last working counter {info['working_counter']}")
+    print(f"  Requests served: {info['requests']}")
+    return 0
 
 
 def _one_line_error(parser: argparse.ArgumentParser, message: str) -> NoReturn:
@@ -612,6 +879,8 @@ def add_subcommand(subparsers: Any, open_rig: RigOpener | None = None) -> None:
     line = common.add_argument_group("line (one of)")
     line.add_argument("-i", "--interface", metavar="IFNAME", help="network interface of the line (SOEM, root)")
     line.add_argument("--rig", metavar="RIG.toml", help="run the rig file in process on a simulated clock")
+    line.add_argument("--master", metavar="SOCKET", help="attach to a persistent master (gatewaylab ec master "
+                      "--serve SOCKET), which keeps the line open and the process data cycling")
     common.add_argument("-p", "--position", type=int, metavar="POSITION",
                         help="slave position (default: all slaves for listings, the only slave otherwise)")
     for verb, (_fn, help_text) in VERBS.items():
@@ -622,6 +891,19 @@ def add_subcommand(subparsers: Any, open_rig: RigOpener | None = None) -> None:
         p.set_defaults(func=cmd_ec, open_rig=open_rig)
         if verb == "slaves":
             p.add_argument("-v", "--verbose", action="store_true", help="identity and status of each slave")
+        elif verb in ("reg-read", "reg-write"):
+            p.add_argument("-t", "--type", choices=list(TYPES), metavar="TYPE",
+                           help=f"data type: {', '.join(TYPES)} (default: raw bytes in hex)")
+            p.add_argument("address", help="register address (0x0130 or 304)")
+            if verb == "reg-read":
+                p.add_argument("size", nargs="?", help="bytes to read (default: the type's size, else 1)")
+            else:
+                p.add_argument("data", help="value of --type, or hex bytes")
+        elif verb == "master":
+            p.add_argument("--serve", metavar="SOCKET", help="stay up as a persistent master on this Unix socket")
+            p.add_argument("--cycle-ms", type=float, default=2.0, metavar="MS",
+                           help="process data cycle of a persistent master once mapped (default 2 ms)")
+            p.add_argument("--stop", action="store_true", help="stop the persistent master at --master SOCKET")
         elif verb == "states":
             p.add_argument("state", nargs="?", type=str.upper, choices=list(STATES), metavar="STATE",
                            help="state to request: INIT, PREOP, BOOT, SAFEOP, OP (omit to list)")

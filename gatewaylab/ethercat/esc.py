@@ -115,6 +115,7 @@ class EscApplication(Protocol):
     def state_changed(self, old: AlState, new: AlState, code: int) -> None: ...
     def sm_written(self, sm: int, data: bytes) -> None: ...
     def sm_read(self, sm: int) -> None: ...
+    def sm_changed(self) -> None: ...
     def sync0(self, t: float) -> None: ...
 
 
@@ -175,7 +176,12 @@ class EscStats:
     """Counters a test or a user can read (frames seen by this ESC and what it refused)."""
 
     datagrams: int = 0
+    #: Datagrams whose processing raised (Segment isolates them: the frame's other datagrams still run).
+    datagram_errors: int = 0
     refused_accesses: int = 0
+    #: SyncManagers the master enabled that the ESC did not activate (buffer in the register area, or
+    #: overlapping a lower SyncManager), counted on every configuration write that leaves one so.
+    refused_sms: int = 0
     al_refusals: int = 0
     watchdog_expiries: int = 0
     sii_commands: int = 0
@@ -215,7 +221,7 @@ class Esc:
         self.eeprom = image
         self._fmmus: tuple[_Fmmu, ...] = ()
         self._sms: tuple[_Sm, ...] = ()
-        self._ram_sms: tuple[_Sm, ...] = ()
+        self._active_sms: frozenset[int] = frozenset()
         self._ro = bytearray(RAM_START)
         self._downstream = 0
         self._wd_last = 0.0
@@ -248,9 +254,13 @@ class Esc:
         U16.pack_into(m, REG_WD_TIME_SM, 1000)  # 100 ms
         # 8-byte reads; 'two address bytes' (bit 7) for EEPROMs above 16 kbit
         U16.pack_into(m, REG_SII_CONTROL, self._sii_config_bits())
-        for lo, hi in ((0x0000, 0x0010), (0x0110, 0x0112), (0x0130, 0x0138), (0x0140, 0x0142),
-                       (0x0150, 0x0154), (0x0210, 0x0214), (0x0440, 0x0444), (0x0918, 0x0920),
-                       (REG_DC_SYNC0_STATUS, REG_DC_SYNC0_STATUS + 2)):
+        # ECAT-side read-only registers (ET1100 data sheet section II, "ECAT r/-"): information,
+        # DL status, AL status and code, PDI control/configuration, AL event mask and request,
+        # EEPROM PDI access state, watchdog status, DC receive time of the processing unit, SYNC status.
+        for lo, hi in ((0x0000, 0x0010), (0x0110, 0x0112),
+                       (0x0130, 0x0138), (0x0140, 0x0142), (0x0150, 0x0154), (0x0204, 0x0208),
+                       (0x0210, 0x0214), (0x0220, 0x0228), (0x0501, 0x0502), (0x0440, 0x0444),
+                       (0x0918, 0x0920), (REG_DC_SYNC0_STATUS, REG_DC_SYNC0_STATUS + 2)):
             self._ro[lo:hi] = b"\x01" * (hi - lo)
         for i in range(self.n_sm):
             self._ro[REG_SM + 8 * i + 5] = 1
@@ -327,24 +337,34 @@ class Esc:
 
     # ------------------------------------------------------------------ PDI side (the slave application)
     def _store(self, address: int, data: bytes | bytearray) -> None:
-        """Write memory without ever growing it: bytes past the end of process RAM are dropped
-        (a SyncManager a master placed there has no memory behind it)."""
+        """Write process RAM without ever growing it or reaching the registers: bytes past the end
+        of process RAM are dropped (a SyncManager a master placed there has no memory behind it),
+        bytes below 0x1000 too (registers and process RAM are separate, ET1100 data sheet II)."""
+        if address < RAM_START:
+            data = data[RAM_START - address:]
+            address = RAM_START
         end = min(address + len(data), self._memlen)
         if address < end:
             self.mem[address:end] = data[:end - address]
 
     def pdi_write(self, address: int, data: bytes) -> None:
-        """The application writes DPRAM (inputs buffer); no ECAT-side effects."""
+        """The application writes process RAM (inputs buffer); no ECAT-side effects."""
         self._store(address, data)
 
     def pdi_read(self, address: int, length: int) -> bytes:
         return bytes(self.mem[address:address + length])
 
+    def sm_active(self, index: int) -> bool:
+        """The ESC runs this SyncManager: enabled by the master, not deactivated by the PDI, its
+        buffer in process RAM and clear of every lower SyncManager (see ``_rebuild_sms``)."""
+        return index in self._active_sms
+
     def mailbox_put(self, sm_index: int, message: bytes) -> bool:
-        """Put a message into the (empty) slave-to-master mailbox; False when it is still full."""
+        """Put a message into the (empty) slave-to-master mailbox; False when it is still full or the
+        ESC does not run that SyncManager (e.g. a master placed it over the registers)."""
         cfg = self.sm_config(sm_index)
         status_addr = REG_SM + 8 * sm_index + 5
-        if self.mem[status_addr] & SM_STATUS_FULL or not cfg.enabled:
+        if self.mem[status_addr] & SM_STATUS_FULL or sm_index not in self._active_sms:
             return False
         buf = message[:cfg.length].ljust(cfg.length, b"\x00")
         self._store(cfg.start, buf)
@@ -383,7 +403,7 @@ class Esc:
         self.mem[:] = bytes(len(self.mem))
         self._fmmus = ()
         self._sms = ()
-        self._ram_sms = ()
+        self._active_sms = frozenset()
         self.pdi_outputs.clear()
         self._mbx_last = b""
         self._reset_registers()
@@ -402,7 +422,7 @@ class Esc:
                 return bytes(mem[address:self._memlen]).ljust(length, b"\x00")
             return bytes(mem[address:end])
         hit: list[_Sm] | None = None
-        for sm in self._ram_sms:
+        for sm in self._sms:
             if sm.start < end and address < sm.end:
                 if sm.mailbox and not sm.ecat_writes and not mem[sm.status_addr] & SM_STATUS_FULL:
                     self.stats.refused_accesses += 1
@@ -432,7 +452,7 @@ class Esc:
             data = bytes(data[RAM_START - address:])
             address = RAM_START
         hit: list[_Sm] | None = None
-        for sm in self._ram_sms:
+        for sm in self._sms:
             if sm.start < end and address < sm.end:
                 if sm.mailbox and sm.ecat_writes and mem[sm.status_addr] & SM_STATUS_FULL:
                     self.stats.refused_accesses += 1
@@ -636,22 +656,42 @@ class Esc:
                 out.append(_Fmmu(lstart, length, b0 & 7, b1 & 7, phys, pbit & 7, ftype))
         self._fmmus = tuple(out)
 
-    def _rebuild_sms(self, old: bytes, address: int) -> None:
-        out = []
+    def _rebuild_sms(self, old: bytes, address: int, *, master: bool = True) -> None:
+        """Recompute the SyncManagers the ESC runs after a write of their registers.
+
+        An enabled SyncManager is activated only when its buffer starts in process RAM and does not
+        overlap a lower activated SyncManager: registers and process RAM are separate (ET1100 data
+        sheet II: 0x0000-0x0FFF registers, process RAM from 0x1000), so a buffer over the registers
+        would let mailbox data overwrite AL status and friends (issue 21, defect 2). The master sees
+        the refusal through the firmware (``EscApplication.sm_changed``: AL status code 0x0016 for
+        the mailbox, 0x001D/0x001E for process data, as SOES does on its SM-change event); its
+        next normal configuration of the SyncManager activates it again. ``master``: the write came
+        from the master (the firmware is told); False for the PDI's own deactivation.
+        """
+        out: list[_Sm] = []
         mem = self.mem
+        refused = 0
         for i in range(self.n_sm):
             base = REG_SM + 8 * i
             cfg = self.sm_config(i)
             o = base + 6 - address
             old_act = old[o] if 0 <= o < len(old) else mem[base + 6]
-            if not cfg.enabled:
+            runs = cfg.enabled and not mem[base + 7] & SM_PDI_DISABLE
+            if runs and (cfg.start < RAM_START or any(s.start < cfg.start + cfg.length and cfg.start < s.end
+                                                      for s in out)):
+                runs = False
+                refused += 1
+            if not cfg.enabled or (not runs and not mem[base + 7] & SM_PDI_DISABLE):
                 mem[base + 5] &= ~(SM_STATUS_FULL | SM_STATUS_WRITE_EVENT) & 0xFF
-            elif cfg.mailbox and not cfg.ecat_writes and (cfg.activate ^ old_act) & SM_ACT_REPEAT:
+            elif runs and cfg.mailbox and not cfg.ecat_writes and (cfg.activate ^ old_act) & SM_ACT_REPEAT:
                 self._mailbox_repeat(i, cfg)
-            if cfg.enabled and not mem[base + 7] & SM_PDI_DISABLE:
+            if runs:
                 out.append(_Sm(cfg))
+        self.stats.refused_sms += refused
         self._sms = tuple(out)
-        self._ram_sms = tuple(s for s in out if s.end > RAM_START)
+        self._active_sms = frozenset(s.index for s in out)
+        if master:
+            self.app.sm_changed()
 
     def _mailbox_repeat(self, index: int, cfg: SmConfig) -> None:
         """Repeat request toggled: put the last message back and acknowledge (ETG.1000.4 mailbox)."""
@@ -715,7 +755,7 @@ class Esc:
                 mem[at] |= SM_PDI_DISABLE
                 changed = True
         if changed:
-            self._rebuild_sms(bytes(mem[REG_SM:REG_SM + 8 * self.n_sm]), REG_SM)
+            self._rebuild_sms(bytes(mem[REG_SM:REG_SM + 8 * self.n_sm]), REG_SM, master=False)
 
     def _refuse(self, current: AlState, code: int) -> None:
         self.stats.al_refusals += 1

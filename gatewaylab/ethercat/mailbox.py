@@ -19,6 +19,9 @@ from .errors import FrameFormatError, MailboxErrorCode
 MBX_HEADER = struct.Struct("<HHBB")
 MBX_HEADER_LEN = 6
 MBX_ERROR = struct.Struct("<HH")
+#: Messages a slave keeps for the master at most (a firmware has a fixed number of mailbox buffers);
+#: more are dropped and counted, so a master that never reads SM1 cannot grow the queue without end.
+MAX_QUEUED = 256
 
 
 class MailboxType(enum.IntEnum):
@@ -76,6 +79,8 @@ class MailboxStats:
     sent: int = 0
     repeated: int = 0
     errors: int = 0
+    #: messages dropped because MAX_QUEUED were waiting already
+    dropped: int = 0
 
 
 class MailboxEndpoint:
@@ -126,6 +131,9 @@ class MailboxEndpoint:
         self._send_counter = self._send_counter % 7 + 1
         raw = encode_mailbox(MailboxMessage(msg.type, msg.data, self._send_counter, msg.address,
                                             msg.channel, msg.priority))
+        if len(self.queue) >= MAX_QUEUED:
+            self.stats.dropped += 1
+            return
         self.queue.append(raw)
         self.pump()
 

@@ -3,20 +3,33 @@
 ``process`` works in place on a received Ethernet frame and says whether to send it back.
 Malformed frames are counted and dropped (a real ESC forwards them with a broken FCS, which the
 master's NIC discards), and slave 0's invalid-frame counter (0x0300) goes up.
+
+Contract: ``process`` never raises for anything a frame holds. Each datagram runs on each ESC on
+its own: should one raise (a defect of the emulator or of a device's application, never expected),
+that datagram is left as it is for that slave (no working counter increment), the error is counted
+(``stats.datagram_errors``, the ESC's ``stats.datagram_errors``) and logged on one line (the first
+few, then every 1000th), and the frame's other datagrams and slaves are served as usual; a real
+ESC processes every datagram whatever its firmware does.
 """
 
 from __future__ import annotations
 
+import logging
 import struct
-from dataclasses import dataclass
+from collections import deque
+from dataclasses import dataclass, field
 
 from .datagram import ETH_HEADER_LEN, ETHERTYPE_ETHERCAT, LEN_MASK, MORE
-from .esc import REG_RX_ERROR
+from .esc import REG_RX_ERROR, Esc
 from .slave import Slave
 
 _U16 = struct.Struct("<H")
 _BE16 = struct.Struct("!H")
 _DG_HDR = struct.Struct("<B5xH")  # cmd, (idx + address skipped), len/flags
+_log = logging.getLogger(__name__)
+#: Datagram errors logged one line each before only every ``LOG_EVERY``-th is.
+LOG_FIRST = 10
+LOG_EVERY = 1000
 
 
 @dataclass(slots=True)
@@ -24,6 +37,10 @@ class SegmentStats:
     frames: int = 0
     bad_frames: int = 0
     datagrams: int = 0
+    #: (datagram, slave) executions that raised; each isolated (see the module docstring)
+    datagram_errors: int = 0
+    #: the last few of them: "slave N cmd C: ExceptionType: text"
+    errors: deque[str] = field(default_factory=lambda: deque(maxlen=20))
 
 
 class Segment:
@@ -78,10 +95,22 @@ class Segment:
         for esc in self._escs:
             pd = esc.process_datagram
             for pos, cmd, dlen in parsed:
-                pd(frame, pos, cmd, dlen)
+                try:
+                    pd(frame, pos, cmd, dlen)
+                except Exception as exc:  # isolation boundary: one datagram never costs the frame
+                    self._datagram_error(esc, cmd, exc)
         if len(frame) > ETH_HEADER_LEN:
             frame[6] |= 0x02  # the ESC marks the source MAC as locally administered on the way back
         return True
+
+    def _datagram_error(self, esc: Esc, cmd: int, exc: Exception) -> None:
+        esc.stats.datagram_errors += 1
+        n = self.stats.datagram_errors = self.stats.datagram_errors + 1
+        position = next((i for i, s in enumerate(self.slaves) if s.esc is esc), -1)
+        text = f"slave {position} cmd {cmd}: {type(exc).__name__}: {' '.join(str(exc).split())}"
+        self.stats.errors.append(text)
+        if n <= LOG_FIRST or n % LOG_EVERY == 0:
+            _log.error("ethercat segment: datagram raised (isolated, %d so far): %s", n, text)
 
     @staticmethod
     def _parse(frame: bytearray) -> list[tuple[int, int, int]] | None:

@@ -221,6 +221,33 @@ class Slave:
         elif sm == self.sm_outputs:
             self.outputs_written(sm, data)
 
+    def sm_changed(self) -> None:
+        """ESC callback: the master wrote SyncManager registers (the SM-change event, ET1100 AL event
+        0x0220 bit 4). As SOES's ``ESC_sm_act_event`` does, a running mailbox whose SyncManagers no
+        longer match the SII (moved, resized, disabled, or not activated by the ESC because the master
+        put them over the registers) stops: INIT + error, AL status code 0x0016 invalid mailbox
+        configuration; in SAFEOP/OP a process data SyncManager that no longer fits drops the slave to
+        PREOP + error with 0x001D / 0x001E. A master's normal re-initialisation (INIT with
+        acknowledge, SyncManagers programmed again) clears both."""
+        state = self.esc.al_state
+        if state in (AlState.INIT, AlState.BOOT):
+            return
+        d = self.desc
+        if self.has_mailbox and not (self._sm_ok(0, *d.mailbox_out, 0x06) and self._sm_ok(1, *d.mailbox_in, 0x02)
+                                     and self.esc.sm_active(0) and self.esc.sm_active(1)):
+            self.esc.force_state(AlState.INIT, AlStatusCode.INVALID_MAILBOX_CONFIG)
+            return
+        if state not in (AlState.SAFEOP, AlState.OP):
+            return
+        if not self._pd_sm_runs(self.sm_outputs, d.outputs_start, self.output_bytes, d.outputs_control):
+            self.esc.force_state(AlState.PREOP, AlStatusCode.INVALID_OUTPUT_CONFIG)
+        elif not self._pd_sm_runs(self.sm_inputs, d.inputs_start, self.input_bytes, d.inputs_control):
+            self.esc.force_state(AlState.PREOP, AlStatusCode.INVALID_INPUT_CONFIG)
+
+    def _pd_sm_runs(self, index: int, start: int, length: int, control: int) -> bool:
+        """A process data SyncManager as PREOP->SAFEOP accepted it, and running in the ESC."""
+        return self._pd_sm_ok(index, start, length, control & 0x0F) and (length == 0 or self.esc.sm_active(index))
+
     def sm_read(self, sm: int) -> None:
         """ESC callback: the master read a SyncManager buffer (mailbox or inputs)."""
         if sm == 1 and self.has_mailbox:

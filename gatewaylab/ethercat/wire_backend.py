@@ -32,6 +32,8 @@ from .backend import (
     _MailboxPort,
     _state_of,
     await_state,
+    register_read,
+    register_write,
     sii_complete,
 )
 from .errors import AlStatusCode, AlStatusError, MailboxError, MasterError, SdoAbort
@@ -307,6 +309,16 @@ class PysoemBackend:
         """Write a file by FoE through the mailbox registers; FoeError carries the slave's code."""
         self._slave(position)
         self._mbx.foe_write(position, name, data, password, progress)
+
+    def reg_read(self, position: int, address: int, length: int) -> bytes:
+        """ESC registers by FPRD, IgH's ``reg_read``; MasterTimeout when the slave does not answer."""
+        self._slave(position)
+        return register_read(_PysoemRegisters(self), position, address, length)
+
+    def reg_write(self, position: int, address: int, data: bytes) -> None:
+        """ESC registers by FPWR, IgH's ``reg_write``."""
+        self._slave(position)
+        register_write(_PysoemRegisters(self), position, address, data)
 
     def sii_read(self, position: int) -> bytes:
         """The SII EEPROM image up to its END category, read through the ESC's EEPROM interface

@@ -29,6 +29,7 @@ EXTRA_SUBCOMMANDS = (
     "gatewaylab.devices.maxon_idx.host.cli",
     "gatewaylab.canopen.lss_cli",
     "gatewaylab.canopen.monitor_cli",
+    "gatewaylab.bus.transport.send_cli",
     "gatewaylab.canopen.lesson_cli",
     "gatewaylab.canopen.plot_cli",
     "gatewaylab.ethercat.net_cli",
@@ -67,6 +68,17 @@ def _parse_trace(value: str) -> tuple[str, str]:
     return bus, path
 
 
+def _tcp_port(value: str) -> int:
+    """A TCP port for --web: 0 (any free one) .. 65535; anything else is a usage error (exit 2)."""
+    try:
+        port = int(value, 0)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--web wants a TCP port 0..65535, got {value!r}") from None
+    if not 0 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"--web wants a TCP port 0..65535 (0: any free port), got {port}")
+    return port
+
+
 def _check_rig_file(path: str | None) -> None:
     """A missing or unreadable rig file is the user's to fix: say which and why (exit 2)."""
     if path is None:
@@ -101,13 +113,15 @@ def _write_ready_file(path: str, info: dict[str, Any]) -> None:
         raise UsageError(f"--ready-file {path}: {exc.strerror or exc}") from None
 
 
-def _start_web(rig: Rig, port: int) -> RigWeb:
-    """The --web page: monitors on every bus, the drives' dictionaries for PDO values."""
+def _start_web(rig: Rig, port: int, db: str | None = None) -> RigWeb:
+    """The --web page: monitors on every bus, the drives' dictionaries for PDO values, --db's signals."""
+    from ..bus.signals import load_database
     from ..canopen.drive import Drive
     from .web import RigWeb
 
+    signals = load_database(db) if db else None
     try:
-        web = RigWeb(dict(rig.buses), [p for p in rig.participants if isinstance(p, Drive)], port)
+        web = RigWeb(dict(rig.buses), [p for p in rig.participants if isinstance(p, Drive)], port, signals=signals)
     except OSError as exc:
         raise UsageError(f"--web {port}: {exc.strerror or exc}") from None
     web.start()
@@ -124,6 +138,9 @@ def _stop_at_once(signum: int, frame: FrameType | None) -> None:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
+    from .config import load_rig
     from .runtime import Rig
 
     _check_rig_file(args.rig)
@@ -140,7 +157,10 @@ def cmd_run(args: argparse.Namespace) -> int:
     ready_written = False
     web: RigWeb | None = None
     try:
-        rig = Rig.from_file(args.rig)
+        config = load_rig(args.rig)
+        if args.socketcand:
+            config = replace(config, buses=tuple(replace(b, socketcand=True) for b in config.buses))
+        rig = Rig(config)
         if not rig.realtime:
             print("note: the rig file asks for a simulated clock; `gatewaylab run` always runs in real time",
                   file=sys.stderr)
@@ -148,7 +168,7 @@ def cmd_run(args: argparse.Namespace) -> int:
             rig = None
             from ..common.clock import RealTimeClock
 
-            rig = Rig.from_file(args.rig, clock=RealTimeClock())
+            rig = Rig(config, clock=RealTimeClock())
         for bus_name, path in args.trace or []:
             try:
                 rig.add_trace(bus_name, path)
@@ -158,7 +178,7 @@ def cmd_run(args: argparse.Namespace) -> int:
             for bus in rig.buses.values():
                 bus.attach("acker")   # hears every frame, acknowledges it, sends nothing
         if args.web is not None:
-            web = _start_web(rig, args.web)    # before start(): the page sees the boot-up messages
+            web = _start_web(rig, args.web, args.db)    # before start(): the page sees the boot-ups
         rig.start()
         info = rig.ready_info()
         if web is not None:
@@ -172,6 +192,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         for name, bus in info["buses"].items():
             print(f"  bus {name}: {bus.get('endpoint', '(no endpoint)')}"
                   f"  ->  can.Bus(interface='gatewaylab', channel={bus.get('endpoint', '')!r})")
+            if "socketcand" in bus:
+                print(f"  bus {name}: socketcand 127.0.0.1:{bus['socketcand']}  ->  can.Bus(interface='socketcand', "
+                      f"host='127.0.0.1', port={bus['socketcand']}, channel={name!r})")
         for key, value in info.items():
             if key not in ("pid", "buses"):
                 print(f"  {key}: {json.dumps(value)}")
@@ -239,10 +262,15 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--trace", metavar="BUS=FILE", action="append", type=_parse_trace,
                      help="record BUS to FILE, streamed (flushed every 100 ms), in the format of its suffix: "
                           f"{', '.join(TRACE_FORMATS)}; may be repeated")
-    run.add_argument("--web", type=int, nargs="?", const=0, default=None, metavar="PORT",
+    run.add_argument("--web", type=_tcp_port, nargs="?", const=0, default=None, metavar="PORT",
                      help="serve a live page of the rig (node table, decoded log, drive plot) on "
                           "http://127.0.0.1:PORT/ (no PORT: any free port; listed in the ready file as "
                           "web.monitor)")
+    run.add_argument("--socketcand", action="store_true",
+                     help="serve every bus also over the socketcand protocol on 127.0.0.1 (a free port each, "
+                          "listed in the ready file as buses.NAME.socketcand; or socketcand = true per [[bus]])")
+    run.add_argument("--db", metavar="FILE", help="with --web: a signal database (DBC, KCD, ARXML, SYM; cantools) "
+                     "whose frames the page decodes into signals")
     run.add_argument("--acker", action="store_true",
                      help="attach to every bus a passive node that only acknowledges frames, so a lone "
                           "client's frames are not ACK errors (see docs/bus.md)")

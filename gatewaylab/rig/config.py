@@ -26,6 +26,9 @@ class BusConfig:
     #: port ``tcp_port``, 0 = any free port) or "none".
     endpoint: str = "unix"
     tcp_port: int = 0
+    #: Also serve the bus over the socketcand protocol on 127.0.0.1:``socketcand_port`` (0: any free port).
+    socketcand: bool = False
+    socketcand_port: int = 0
 
 
 @dataclass(frozen=True)
@@ -48,6 +51,8 @@ BUS_KEYS: dict[str, Key] = {
     "timing": Key(bool, True),
     "endpoint": Key(str, "unix", choices=("unix", "tcp", "none")),
     "tcp_port": Key(int, 0, min=0, max=65535, help="0 = any free port"),
+    "socketcand": Key(bool, False),
+    "socketcand_port": Key(int, 0, min=0, max=65535, help="0 = any free port"),
 }
 #: Top-level keys every rig file may have; kinds with a section of their own ([[drive]],
 #: [ethercat]) add theirs (gatewaylab.rig.kinds).
@@ -60,7 +65,7 @@ def _bus(raw: Any, where: str) -> BusConfig:
     if data_bitrate is not None and data_bitrate < bitrate:
         raise section_error(where, f"data_bitrate {data_bitrate} must be between bitrate ({bitrate}) and 12 Mbit/s")
     return BusConfig(values["name"], bitrate, data_bitrate, values["timing"], values["endpoint"],
-                     values["tcp_port"])
+                     values["tcp_port"], values["socketcand"], values["socketcand_port"])
 
 
 def _where(source: str, section: str, index: int, raw: Any) -> str:

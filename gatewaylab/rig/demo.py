@@ -9,12 +9,14 @@ from __future__ import annotations
 import json
 import os
 import selectors
+import signal
 import subprocess
 import sys
 import tempfile
 import threading
 import time
 from pathlib import Path
+from types import FrameType
 from typing import Any
 
 import can
@@ -254,7 +256,57 @@ def demo_ethercat_drive() -> None:
               f"(operation enabled), position actual {x} following a ramp to 40,000 (one cycle behind)")
 
 
+class _Stopped(BaseException):
+    """SIGTERM (or SIGHUP) while the demo runs: unwind, so the rig child is stopped and the folders go."""
+
+
+def _stop(signum: int, frame: FrameType | None) -> None:
+    raise _Stopped(signum)
+
+
+def _quiet_stdout() -> None:
+    """stdout was closed (``make demo | head``): send the rest to /dev/null, no second error at exit."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError):
+        pass
+
+
+def _stop_rig(proc: subprocess.Popen[bytes]) -> None:
+    """SIGTERM, so the rig removes its sockets and folder itself; SIGKILL only if it does not stop."""
+    if proc.poll() is None:
+        proc.terminate()
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+    if proc.stdout is not None:
+        proc.stdout.close()
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Run the demo; on SIGTERM/SIGINT/SIGHUP or a closed stdout (SIGPIPE) stop the rig child with SIGTERM
+    and remove the temporary folder before leaving (exit 128 + signal, 0 for a closed pipe)."""
+    handlers = {signum: signal.signal(signum, _stop) for signum in (signal.SIGTERM, signal.SIGHUP)}
+    handlers[signal.SIGINT] = signal.getsignal(signal.SIGINT)
+    try:
+        return _main(argv)
+    except _Stopped as stopped:
+        return 128 + int(stopped.args[0])
+    except KeyboardInterrupt:
+        return 128 + signal.SIGINT
+    except BrokenPipeError:
+        _quiet_stdout()
+        return 0
+    finally:
+        for signum, handler in handlers.items():
+            signal.signal(signum, handler)
+
+
+def _main(argv: list[str] | None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     config = load_rig(argv[0] if argv else None)
     nodes = sorted(int(d["node_id"]) for d in [*config.drives, *config.devices] if d.get("node_id") is not None)
@@ -301,9 +353,10 @@ def main(argv: list[str] | None = None) -> int:
             if len(lines) > 5:
                 print(f"    ... {len(lines) - 5} more lines")
         finally:
-            if proc.poll() is None:
-                proc.kill()
-                proc.wait()
+            # a second signal must not cut the clean-up short: the rig gets SIGTERM and ten seconds
+            for signum in (signal.SIGTERM, signal.SIGHUP, signal.SIGINT):
+                signal.signal(signum, signal.SIG_IGN)
+            _stop_rig(proc)
     return 0
 
 

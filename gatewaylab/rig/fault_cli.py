@@ -15,12 +15,13 @@ from pathlib import Path
 from typing import Any
 
 from ..common.endpoint import EndpointKind, parse_endpoint
-from ..common.errors import GatewaylabError
+from ..common.errors import ConfigError, GatewaylabError
 from .faults import DRIVE_FAULTS
 
 _DESCRIPTION = """\
 Inject a fault into a running rig through its control endpoint (listed in the ready file of
-`gatewaylab run --ready-file`). Targets are device names (as in the rig file) or, with --bus,
+`gatewaylab run --ready-file`). Targets are device names (as in the rig file, or the default
+names the ready file lists: drive2, drive2@can1 when drive 2 is on two buses) or, with --bus,
 CANopen node-IDs. Numbers may be decimal or 0x-hex.
 """
 
@@ -116,6 +117,9 @@ def send_request(ready_file: str, req: dict[str, Any], timeout: float = 10.0) ->
     try:
         info = json.loads(Path(ready_file).read_text())
         endpoint = parse_endpoint(str(info["control"]), bare_path=EndpointKind.UNIX)
+    except FileNotFoundError:
+        raise ConfigError(f"{ready_file}: no such ready file (is the rig running? `gatewaylab run --ready-file "
+                          f"{ready_file}` writes it)") from None
     except OSError as exc:
         raise FaultCliError(f"cannot read ready file {ready_file}: {exc.strerror or exc}") from None
     except (ValueError, KeyError, TypeError):

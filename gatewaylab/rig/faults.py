@@ -342,6 +342,21 @@ class Faults:
             return {"fault": "ethercat-states", "devices": states}
         return self._locked(act)
 
+    def can_states(self) -> dict[str, Any]:
+        """Every CAN controller of the rig's devices by bus: fault-confinement state, error counters and
+        whether it is plugged in (what `gatewaylab monitor` and the --web page show of other nodes)."""
+        def act() -> dict[str, Any]:
+            buses: dict[str, Any] = {}
+            for p in self._rig.participants:
+                for ch, ctrl in can_channels(p).items():
+                    name = p.name if ch == "can" else f"{p.name}.{ch}"
+                    stats = ctrl.stats
+                    buses.setdefault(ctrl.bus.name, {})[name] = {
+                        "state": ctrl.state.value, "tec": ctrl.tec, "rec": ctrl.rec, "connected": ctrl.connected,
+                        "bus_offs": stats.bus_offs, "error_frames": stats.error_frames}
+            return {"fault": "can-states", "buses": buses}
+        return self._locked(act)
+
     # -- the request table (control endpoint, CLI) -------------------------------------------------
     def request(self, req: Mapping[str, Any]) -> dict[str, Any]:
         """Run one control request ``{"fault": NAME, ...arguments}`` (docs/faults.md)."""
@@ -422,4 +437,5 @@ REQUESTS: dict[str, tuple[str, dict[str, tuple[str, bool]]]] = {
     "usb-unplug": ("usb_unplug", {"device": ("string", _R)}),
     "usb-replug": ("usb_replug", {"device": ("string", _R)}),
     "ethercat-states": ("ethercat_states", {}),
+    "can-states": ("can_states", {}),
 }

@@ -7,6 +7,7 @@ in gatewaylab names it. A kind's module is imported only when a rig file uses it
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from importlib.metadata import EntryPoint, entry_points
@@ -20,6 +21,9 @@ if TYPE_CHECKING:
 
 #: The entry-point group a device package registers its :class:`DeviceKind` objects in.
 GROUP = "gatewaylab.devices"
+#: Sections of gatewaylab's own that are not devices (``[[bridge]]``, ``[[tunnel]]``): known without an
+#: entry point.
+BUILTIN = {"bridge": "gatewaylab.bus.transport.bridge:KIND", "tunnel": "gatewaylab.bus.transport.cannelloni:KIND"}
 
 
 def registered() -> dict[str, EntryPoint]:
@@ -31,6 +35,8 @@ def registered() -> dict[str, EntryPoint]:
             raise ConfigError(f"device kind {ep.name!r} is registered twice ({other.value} and {ep.value}); "
                               f"uninstall one of the packages")
         found[ep.name] = ep
+    for name, value in BUILTIN.items():
+        found.setdefault(name, EntryPoint(name, value, GROUP))
     return found
 
 
@@ -114,8 +120,7 @@ def plan(config: RigConfig) -> list[Section]:
             raise section_error(where, f"kind = {kind_name!r} is the [{kind.table}] section, not a [[device]]")
         arrays.append(("device", i, entry, kind))
 
-    sections: list[Section] = []
-    names: dict[str, str] = {}
+    checked: list[tuple[Mapping[str, Any], DeviceKind, str, dict[str, Any]]] = []
     node_ids: dict[tuple[str, int], str] = {}
     serials: dict[tuple[str, int], str] = {}
     for table, index, raw, kind in [*arrays, *singles]:
@@ -123,7 +128,6 @@ def plan(config: RigConfig) -> list[Section]:
         if not isinstance(raw, Mapping):
             raise section_error(where, "must be a table")
         cfg = kind.validate(raw, where, buses)
-        section = Section(kind, where, cfg)
         here = _short(where, source)
         if kind.canopen and isinstance(cfg.get("bus"), str):
             bus = cfg["bus"]
@@ -138,15 +142,67 @@ def plan(config: RigConfig) -> list[Section]:
                     raise section_error(where, f"serial = 0x{serial:X} is already used on bus {bus!r} by "
                                                f"{serials[bus, serial]} (LSS serial numbers are unique per bus)")
                 serials[bus, serial] = here
+        checked.append((raw, kind, where, cfg))
+
+    explicit = [not kind.single and isinstance(raw.get("name"), str) for raw, kind, _, _ in checked]
+    resolved = default_names([(kind, cfg) if not kind.single and not own else None
+                              for (_, kind, _, cfg), own in zip(checked, explicit)],
+                             [raw["name"] if own else None for (raw, _, _, _), own in zip(checked, explicit)])
+    sections: list[Section] = []
+    names: dict[str, str] = {}
+    for (raw, kind, where, cfg), default in zip(checked, resolved):
+        if default is not None:
+            cfg["name"] = default       # the factory builds the participant under its rig-wide name
+        section = Section(kind, where, cfg)
         name = section.name
         if name is not None and not kind.single:
             if name in names:
                 given = "" if isinstance(raw.get("name"), str) else " (the default name)"
                 raise section_error(where, f"name = {name!r}{given} is already used by {names[name]} "
                                            f"(every device needs its own name)")
-            names[name] = here
+            names[name] = _short(where, source)
         sections.append(section)
     return sections
+
+
+def default_names(unnamed: Sequence[tuple[DeviceKind, Mapping[str, Any]] | None],
+                  given: Sequence[str | None]) -> list[str | None]:
+    """The names of the sections that give none, unique in the rig (docs/rig.md "Names").
+
+    ``unnamed[i]`` is the kind and validated keys of a section without ``name`` (None: it has one,
+    ``given[i]``, or is a single table). A kind's default (``drive2``, ``idx``) stays as it is
+    when no other section has or defaults to it; defaults that meet get their bus appended
+    (``drive2@can0``, ``drive2@can1``), and where that is not enough (no bus, or the same bus)
+    they are numbered in rig-file order (``ethercat_io1``, ``ethercat_io2``). An explicit name is
+    never changed; one that equals a resulting default is refused by the caller.
+    """
+    plain = [entry[0].name_of(entry[1]) if entry is not None else None for entry in unnamed]
+    taken = [name for name in given if name is not None]
+    out: list[str | None] = list(plain)
+    groups: dict[str, list[int]] = {}
+    for i, name in enumerate(plain):
+        if name is not None:
+            groups.setdefault(name, []).append(i)
+    for name, members in groups.items():
+        if len(members) == 1 and name not in taken:
+            continue
+        on_bus: list[str | None] = []
+        for i in members:
+            entry = unnamed[i]
+            assert entry is not None
+            kind, cfg = entry
+            key = kind.keys.get("bus")
+            bus = cfg.get("bus") if key is not None and key.bus else None
+            on_bus.append(f"{name}@{bus}" if isinstance(bus, str) else None)
+        if None not in on_bus and len(set(on_bus)) == len(on_bus):
+            for i, qualified in zip(members, on_bus):
+                out[i] = qualified
+            continue
+        sep = "-" if name[-1:].isdigit() else ""
+        numbers = (f"{name}{sep}{n}" for n in itertools.count(1))
+        for i in members:
+            out[i] = next(c for c in numbers if c not in taken and c not in groups)
+    return out
 
 
 def known_kinds() -> Sequence[str]:

@@ -13,12 +13,62 @@ import json
 import os
 import select
 import signal
+import socket
 import subprocess
 import sys
 import time
+from collections.abc import Mapping
 from pathlib import Path
 from types import TracebackType
 from typing import IO, Any
+
+
+def _value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int | float):
+        return repr(value)
+    if isinstance(value, str):
+        return json.dumps(value)        # a JSON string is a TOML basic string
+    if isinstance(value, Mapping):
+        return "{ " + ", ".join(f"{_key(k)} = {_value(v)}" for k, v in value.items()) + " }"
+    if isinstance(value, list | tuple):
+        return "[" + ", ".join(_value(v) for v in value) + "]"
+    raise TypeError(f"a rig file has no values of type {type(value).__name__} ({value!r})")
+
+
+def _key(key: str) -> str:
+    return key if key.replace("_", "").replace("-", "").isalnum() and key.isascii() else json.dumps(key)
+
+
+def rig_toml(data: Mapping[str, Any]) -> str:
+    """A rig given as a dict (the shape of a parsed rig file) as rig-file text."""
+    lines: list[str] = []
+    tables: list[str] = []
+    for key, value in data.items():
+        if isinstance(value, list) and value and all(isinstance(v, Mapping) for v in value):
+            for entry in value:
+                tables.append(f"\n[[{_key(key)}]]")
+                tables.extend(f"{_key(k)} = {_value(v)}" for k, v in entry.items())
+        elif isinstance(value, Mapping):
+            tables.append(f"\n[{_key(key)}]")
+            tables.extend(f"{_key(k)} = {_value(v)}" for k, v in value.items())
+        else:
+            lines.append(f"{_key(key)} = {_value(value)}")
+    return "\n".join(lines + tables) + "\n"
+
+
+def free_udp_ports(n: int, host: str = "127.0.0.1") -> list[int]:
+    """``n`` UDP ports free on ``host`` right now: the two ends of rigs joined by cannelloni tunnels
+    need each other's port before either starts."""
+    socks = [socket.socket(socket.AF_INET, socket.SOCK_DGRAM) for _ in range(n)]
+    try:
+        for sock in socks:
+            sock.bind((host, 0))
+        return [sock.getsockname()[1] for sock in socks]
+    finally:
+        for sock in socks:
+            sock.close()
 
 
 class RigStartTimeout(RuntimeError):
@@ -31,17 +81,19 @@ class RigProcess:
     ``rig_file`` None runs the default rig; ``extra`` are more ``gatewaylab run`` options
     (``--acker``, ``--trace can0=x.log``). The rig's log (stderr) goes to ``stderr`` or, by default,
     to ``rig-*.log`` in ``workdir`` (a file, not a pipe: a long run that logs a lot never blocks);
-    its tail is shown when the start fails.
+    its tail is shown when the start fails. ``prefix`` runs it through another command that then
+    executes it, e.g. ``("ip", "netns", "exec", "NS")`` for a rig in a network namespace.
     """
 
     def __init__(self, rig_file: str | Path | None, *extra: str, workdir: str | Path,
-                 timeout: float = 60.0, stderr: IO[Any] | int | None = None) -> None:
+                 timeout: float = 60.0, stderr: IO[Any] | int | None = None,
+                 prefix: tuple[str, ...] = ()) -> None:
         tag = f"{os.getpid()}-{id(self):x}"
         self.ready_file = Path(workdir) / f"ready-{tag}.json"
         self.log_file: Path | None = None
         if stderr is None:
             self.log_file = Path(workdir) / f"rig-{tag}.log"
-        args = [sys.executable, "-m", "gatewaylab", "run", *([str(rig_file)] if rig_file else []),
+        args = [*prefix, sys.executable, "-m", "gatewaylab", "run", *([str(rig_file)] if rig_file else []),
                 "--ready-file", str(self.ready_file), *extra]
         log = self.log_file.open("wb") if self.log_file is not None else None
         try:

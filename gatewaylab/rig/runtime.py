@@ -35,6 +35,7 @@ from typing import Any
 
 from ..bus.bus import VirtualBus
 from ..bus.transport.server import BusServer
+from ..bus.transport.socketcand import SocketcandServer
 from ..bus.transport.trace import Trace
 from ..common.clock import Clock, RealTimeClock, SimulatedClock
 from ..common.errors import ConfigError, GatewaylabError
@@ -136,6 +137,8 @@ class Rig:
         self.buses: dict[str, VirtualBus] = {}
         self.participants: list[Participant] = []
         self.servers: dict[str, BusServer] = {}
+        #: socketcand servers of the buses with ``socketcand = true`` (docs/endpoints.md)
+        self.socketcand: dict[str, SocketcandServer] = {}
         self.traces: list[Trace] = []
         #: fault injection (docs/faults.md); ``control`` serves it to other processes
         self.faults = Faults(self)
@@ -222,6 +225,7 @@ class Rig:
                                     f"{exc.strerror or exc}") from None
             self.servers[bc.name] = server
             self._resources.sockets.append(server.listener)
+        self._open_socketcand()
         tcp = any(bc.endpoint == "tcp" for bc in self.config.buses)
         try:
             self.control = ControlServer(self, self.faults.request, tcp_port=0 if tcp else None,
@@ -230,6 +234,19 @@ class Rig:
             raise RigStartError(f"{self.config.source}: cannot open the control endpoint: "
                                 f"{exc.strerror or exc}") from None
         self._resources.sockets.append(self.control.listener)
+
+    def _open_socketcand(self) -> None:
+        for i, bc in enumerate(self.config.buses):
+            if not bc.socketcand:
+                continue
+            try:
+                server = SocketcandServer(self.buses[bc.name], self, bc.socketcand_port)
+            except OSError as exc:
+                raise RigStartError(f"{self.config.source} [[bus]] #{i + 1} ({bc.name}): socketcand_port = "
+                                    f"{bc.socketcand_port} cannot be used on 127.0.0.1 "
+                                    f"({exc.strerror or exc})") from None
+            self.socketcand[bc.name] = server
+            self._resources.sockets.append(server.listener)
 
     @classmethod
     def from_file(cls, path: str | Path | None = None, **kwargs: Any) -> Rig:
@@ -347,6 +364,8 @@ class Rig:
                 entry["data_bitrate"] = bus.data_bitrate
             if name in self.servers:
                 entry["endpoint"] = self.servers[name].endpoint
+            if name in self.socketcand:
+                entry["socketcand"] = self.socketcand[name].port
             info["buses"][name] = entry
         if self.control is not None:
             info["control"] = self.control.endpoint
@@ -357,11 +376,15 @@ class Rig:
     def poll(self, timeout: float | None) -> None:
         """One loop iteration: wait for I/O or the next timer, then run what is due."""
         clock = self.clock
-        deadline = clock.next_deadline()
+        deadline = clock.begin_wait()  # an event another thread schedules before it wakes us
         if deadline is not None:
             wait = max(0.0, deadline - clock.now())
             timeout = wait if timeout is None else min(timeout, wait)
-        for key, events in self._selector.select(timeout):
+        try:
+            ready = self._selector.select(timeout)
+        finally:
+            clock.end_wait()
+        for key, events in ready:
             fd = key.fd
             with clock.lock:
                 try:
@@ -462,6 +485,11 @@ class Rig:
                         server.close()
                     except Exception:
                         log.exception("closing the endpoint of bus %s failed", server.bus.name)
+                for sc_server in self.socketcand.values():
+                    try:
+                        sc_server.close()
+                    except Exception:
+                        log.exception("closing the socketcand server of bus %s failed", sc_server.bus.name)
                 for trace in self.traces:
                     try:
                         trace.close()

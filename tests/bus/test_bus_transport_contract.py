@@ -146,3 +146,24 @@ def test_many_filters_fall_back_to_filtering_in_the_client(rig: Rig) -> None:
             sender.send(can.Message(arbitration_id=can_id, is_extended_id=False))
         got = drain(filtered, 2)
     assert [m.arbitration_id for m in got] == [0x201, 0x23B]
+
+
+@pytest.mark.parametrize("timeout", [0, 1e-6])
+def test_recv_zero_poll_loop_in_a_cyclic_task_drains_every_frame(rig: Rig, timeout: float) -> None:
+    """python-can BusABC.recv: "timeout -- seconds to wait for a message or None to wait indefinitely";
+    0 means "do not wait": return what has already arrived. Issue 21 defect 1: `recv(0)` gave up before
+    reading the socket, so the poll loop of a cyclic task (`while (msg := bus.recv(0)) is not None`) got
+    nothing, forever; python-can's `virtual` returns every frame. The same for a timeout that is over
+    before the socket is read (1 us)."""
+    count = 50
+    with can.Bus(interface="gatewaylab", channel=rig.endpoint) as a, \
+         can.Bus(interface="gatewaylab", channel=rig.endpoint) as b:
+        for i in range(count):
+            a.send(can.Message(arbitration_id=0x300, data=i.to_bytes(2, "little"), is_extended_id=False))
+        got: list[can.Message] = []
+        deadline = time.monotonic() + 20.0          # generous: no timing is asserted
+        while len(got) < count and time.monotonic() < deadline:
+            while (msg := b.recv(timeout)) is not None:   # the cyclic task's drain
+                got.append(msg)
+            time.sleep(0.002)                       # the task's period
+    assert [int.from_bytes(m.data, "little") for m in got] == list(range(count))

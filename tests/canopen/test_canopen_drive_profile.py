@@ -174,6 +174,22 @@ def test_pp_software_position_limit(s: Setup) -> None:
     assert abs(s.node.sdo[0x6064].raw - 20_000) <= 10
 
 
+def test_pp_new_set_point_in_rpdo1_takes_the_target_of_the_same_pdo(s: Setup) -> None:
+    """CiA 402 profile position: the new set-point bit (controlword bit 4) takes the target position 0x607A;
+    with the default RPDO1 (controlword + target position, docs/canopen-drive.md) a master sends both in one
+    PDO, and the drive must move to that PDO's target (issue 21: it took the previous target, 0, and reported
+    'target reached' at once -- the controlword was applied before the target of the same frame)."""
+    node = s.node
+    node.nmt.state = "OPERATIONAL"
+    node.state = "OPERATION ENABLED"
+    node.sdo[0x6060].raw = 1
+    rpdo1 = 0x200 + NODE
+    s.network.send_message(rpdo1, (0x1F).to_bytes(2, "little") + (4000).to_bytes(4, "little", signed=True))
+    s.advance_until(lambda: bool(s.sw() & 0x1000), 1.0)                       # set-point acknowledge
+    s.network.send_message(rpdo1, (0x0F).to_bytes(2, "little") + (4000).to_bytes(4, "little", signed=True))
+    s.advance_until(lambda: bool(s.sw() & 0x400) and abs(node.sdo[0x6064].raw - 4000) <= 10, 3.0, 0.05)
+
+
 def test_homing_current_position_with_base_node_402(s: Setup) -> None:
     """Homing mode 6, method 37 (current position): canopen's BaseNode402.homing() succeeds and
     the position actual value becomes the maxon home position 0x30B0."""

@@ -106,11 +106,12 @@ def test_unhappy_paths_say_one_line(rig: RigProcess, tmp_path: Path) -> None:
     """No slave selected -> configure node-ID gets no answer (exit 1, one line); an unknown address ->
     exit 1; a ready file without that bus, garbage numbers and out-of-range ids -> exit 2."""
     out = lss(rig, "set-node-id", "5")
-    assert out.returncode == 1 and out.stderr.strip().startswith("error: no answer") and "Traceback" not in out.stderr
+    assert out.returncode == 1 and out.stderr.strip().startswith("error: no slave in LSS configuration state answered")
+    assert "switch-selective" in out.stderr and "Traceback" not in out.stderr
     out = lss(rig, "switch-selective", "1", "2", "3", "4")
     assert out.returncode == 1 and "no slave with vendor 0x00000001" in out.stdout
     out = lss(rig, "--bus", "can9", "store")
     assert out.returncode == 2 and "no bus 'can9'" in out.stderr
-    for bad in (["set-node-id", "0x80x"], ["set-node-id", "0"], ["set-bit-timing", "12"]):
+    for bad in (["set-node-id", "0x80x"], ["set-node-id", "0"], ["set-node-id", "128"], ["set-bit-timing", "12"]):
         out = lss(rig, *bad)
         assert out.returncode == 2 and "Traceback" not in out.stderr, bad

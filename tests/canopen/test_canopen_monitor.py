@@ -52,7 +52,7 @@ def test_interleaved_uploads_of_two_nodes_are_one_line_each(decoded: tuple[BusMo
                             r"\(segmented, 5 segments, \d+\.\d ms\)", line) for line in sdo), sdo
     assert any(re.fullmatch(rf"node 3 read 0x1008:00 Manufacturer device name = '{re.escape(name)}' "
                             r"\(block, 5 segments, \d+\.\d ms\)", line) for line in sdo), sdo
-    assert any(line.startswith("node 3 read 0x1018:04 Identity object/Serial number = 4099 (0x1003) (expedited")
+    assert any(line.startswith("node 3 read 0x1018:04 Identity object/Serial number = 4099 (0x00001003) (expedited")
                for line in sdo)
     # the frames really did interleave: node 3's transfer ended inside node 2's
     t = {e.text.split(" = ")[0]: e for e in events if e.kind == "sdo"}
@@ -78,8 +78,8 @@ def test_pdos_decode_with_the_mapping_the_monitor_saw_written(decoded: tuple[Bus
     follows the writes and decodes the new layout, drive 2 keeps the default one."""
     _, events = decoded
     pdo = texts(events, "pdo")
-    assert "TPDO1 node 2: Statusword=1591 (0x637), Position actual value=0" in pdo
-    assert "TPDO1 node 3: Statusword=576 (0x240), Velocity actual value=0" in pdo
+    assert "TPDO1 node 2: Statusword=1591 (0x0637), Position actual value=0" in pdo
+    assert "TPDO1 node 3: Statusword=576 (0x0240), Velocity actual value=0" in pdo
     assert not any(line.startswith("TPDO1 node 3") and "Position" in line for line in pdo)
 
 
@@ -177,7 +177,8 @@ def test_live_monitor_from_another_process(tmp_path: Path) -> None:
         watchdog.start()
         try:
             assert mon.stderr is not None and mon.stdout is not None
-            assert "listen-only" in mon.stderr.readline()
+            header = mon.stderr.readline()      # and the time base (issue 25): since the rig's start
+            assert "listen-only" in header and "times: seconds since the rig started" in header
             network = canopen.Network()
             network.connect(interface="gatewaylab", channel=rig.endpoint("can0"))
             try:

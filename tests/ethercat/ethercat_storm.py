@@ -18,6 +18,7 @@ import struct
 ETH = b"\xff" * 6 + b"\x02\x00\x00\x00\x00\x01" + b"\x88\xa4"
 DG = struct.Struct("<BBIHH")
 FMMU = struct.Struct("<IHBBHBBB3x")
+SM = struct.Struct("<HHBBBB")
 #: Registers with behaviour (AL, SII, FMMU, SM, DC, watchdog) and the mailbox / process data areas.
 HOT = (0x0000, 0x0010, 0x0012, 0x0100, 0x0120, 0x0130, 0x0300, 0x0400, 0x0420, 0x0500, 0x0502, 0x0504,
        0x0508, 0x0600, 0x0610, 0x0620, 0x0800, 0x0808, 0x0810, 0x0818, 0x0900, 0x0910, 0x0920, 0x0981,
@@ -71,3 +72,146 @@ def storm_frame(rng: random.Random, *, keep_eeprom: bool = False) -> bytes:
 def storm(seed: int, count: int, *, keep_eeprom: bool = False) -> list[bytes]:
     rng = random.Random(seed)
     return [storm_frame(rng, keep_eeprom=keep_eeprom) for _ in range(count)]
+
+
+# ---------------------------------------------------------------------------------------------------
+# Mutated master frames (issue 21: "mutated frames (commands, addresses incl. register areas, lengths,
+# SM/FMMU programming over registers)"): what a master sends during bring-up and in OP, with one or
+# more fields changed, plus SyncManagers and FMMUs programmed over the register area and CoE requests
+# into the mailbox so a moved SM1 gets a reply to place.
+
+#: Register areas a mutation aims at: AL control/status, DL, SII, watchdog, FMMU, SM, DC, reserved.
+REGISTER_TARGETS = (0x0000, 0x0010, 0x0100, 0x0120, 0x0130, 0x0134, 0x0140, 0x0300, 0x0400, 0x0420,
+                    0x0500, 0x0502, 0x0508, 0x0600, 0x0630, 0x0800, 0x0808, 0x0810, 0x0828, 0x0900,
+                    0x0910, 0x0981, 0x0990, 0x09A0, 0x0E00, 0x0F00, 0x0FF8)
+
+
+def _dg(cmd: int, adp: int, ado: int, data: bytes, last: bool) -> bytes:
+    return DG.pack(cmd, 0, (adp & 0xFFFF) | (ado & 0xFFFF) << 16, len(data) | (0 if last else 0x8000), 0) \
+        + data + b"\0\0"
+
+
+def sdo_upload_request(counter: int, index: int, sub: int) -> bytes:
+    """A mailbox carrying a CoE SDO upload request (ETG.1000.6: CoE header service 2, SDO cmd 0x40)."""
+    coe = struct.pack("<HBHB4x", 0x2000, 0x40, index, sub)
+    return struct.pack("<HHBB", len(coe), 0, 0, 3 | (counter & 7) << 4) + coe
+
+
+class MasterTemplates:
+    """Datagrams a master sends to the slaves at ``stations`` with their mailboxes ``(out start, out size,
+    in start, in size)`` (zeros for a slave without mailbox)."""
+
+    def __init__(self, stations: list[int], mailboxes: list[tuple[int, int, int, int]]) -> None:
+        self.stations = stations
+        self.mailboxes = mailboxes
+
+    def pick(self, rng: random.Random) -> tuple[int, int, int, bytes]:
+        """(command, ADP, ADO, data) of one plausible master datagram."""
+        k = rng.randrange(len(self.stations))
+        st = self.stations[k]
+        mo, mos, mi, mis = self.mailboxes[k]
+        kind = rng.randrange(12)
+        if kind == 0:
+            return 7, 0, 0x0000, b"\0\0"  # BRD type: count slaves
+        if kind == 1:
+            return 2, -k & 0xFFFF, 0x0010, struct.pack("<H", st)  # APWR station address
+        if kind == 2:
+            return 4, st, 0x0130, bytes(6)  # FPRD AL status + code
+        if kind == 3:
+            return 5, st, 0x0120, struct.pack("<H", rng.choice((1, 2, 4, 8, 0x11, 0x12)))  # FPWR AL control
+        if kind == 4:
+            return 5, st, 0x0502, struct.pack("<HI", 0x0100, rng.randrange(0x40))  # SII read command
+        if kind == 5:
+            return 4, st, 0x0508, bytes(8)  # SII data
+        if kind == 6 and mos:
+            sms = SM.pack(mo, mos, 0x26, 0, 1, 0) + SM.pack(mi, mis, 0x22, 0, 1, 0)
+            return 5, st, 0x0800, sms  # mailbox SyncManagers
+        if kind == 7 and mos:
+            req = sdo_upload_request(rng.randrange(1, 8), rng.choice((0x1000, 0x1008, 0x1018, 0x1C12, 0x1C13)),
+                                     rng.randrange(3))
+            return 5, st, mo, req.ljust(mos, b"\0")  # CoE request into SM0
+        if kind == 8 and mis:
+            return 4, st, mi, bytes(mis)  # read SM1
+        if kind == 9:
+            return 4, st, 0x080D, b"\0"  # SM1 status
+        if kind == 10:
+            return 12, 0, 0, bytes(rng.choice((8, 64, 256)))  # LRW process data
+        return 5, st, 0x0400, struct.pack("<H", 2498)  # watchdog divider
+
+    def over_registers(self, rng: random.Random) -> tuple[int, int, int, bytes]:
+        """A SyncManager or an FMMU programmed over the register area (or overlapping another SM)."""
+        st = rng.choice(self.stations)
+        cmd = rng.choice((5, 8))  # FPWR, or BWR for every slave
+        if rng.random() < 0.6:
+            n = rng.choice((0, 1, 1, 1, 2, 3, 4, rng.randrange(16)))
+            start = rng.choice((0x0130, 0x0120, 0x0000, 0x0800, 0x0500, 0x0FF0, 0x0134, rng.randrange(0x1000),
+                                0x1000, 0x1080))  # the last two: overlapping the mailboxes
+            data = SM.pack(start, rng.choice((2, 6, 16, 128, 256)), rng.choice((0x26, 0x22, 0x24, 0x20, 0x64)),
+                           0, 1, 0)
+            return cmd, st, 0x0800 + 8 * n, data
+        n = rng.randrange(16)
+        phys = rng.choice((0x0120, 0x0130, 0x0800, 0x0808, 0x0502, 0x0010, rng.randrange(0x1000)))
+        data = FMMU.pack(rng.choice((0, 0x10, 0x100)), rng.choice((1, 2, 8, 16)), 0, 7, phys, 0,
+                         rng.randrange(1, 4), 1)
+        return cmd, st, 0x0600 + 16 * n, data
+
+
+def _mutate(rng: random.Random, cmd: int, adp: int, ado: int, data: bytes) -> tuple[int, int, int, bytes]:
+    for _ in range(rng.randint(1, 3)):
+        what = rng.randrange(6)
+        if what == 0:
+            cmd = rng.randrange(1, 15) if rng.random() < 0.95 else rng.randrange(256)
+        elif what == 1:
+            ado = rng.choice(REGISTER_TARGETS) if rng.random() < 0.8 else rng.randrange(0x10000)
+        elif what == 2:
+            adp = rng.choice((0, 0xFFFF, adp + 1, adp - 1, rng.randrange(0x10000))) & 0xFFFF
+        elif what == 3 and data:
+            b = bytearray(data)
+            for _ in range(rng.randint(1, 4)):
+                b[rng.randrange(len(b))] = rng.randrange(256)
+            data = bytes(b)
+        elif what == 4:
+            data = data[:rng.randrange(len(data) + 1)] if rng.random() < 0.5 else data + rng.randbytes(
+                rng.randrange(1, 64))
+        else:
+            ado = (ado + rng.choice((-8, -2, -1, 1, 2, 8))) & 0xFFFF
+    return cmd, adp, ado, data
+
+
+def _no_sii_write(cmd: int, ado: int, data: bytes) -> bytes:
+    """Clear the SII write enable (0x0502 bit 0) a write would set: a real ESC reprograms its EEPROM too."""
+    if cmd in WRITES and ado <= 0x0502 < ado + len(data):
+        b = bytearray(data)
+        b[0x0502 - ado] &= 0xFE
+        return bytes(b)
+    return data
+
+
+def mutated_frame(rng: random.Random, templates: MasterTemplates) -> bytes:
+    """One frame of 1-4 datagrams: plausible master datagrams, mutated ones, SM/FMMU over registers,
+    and now and then a lying length (datagram or EtherCAT header) or a random frame."""
+    if rng.random() < 0.05:
+        return storm_frame(rng, keep_eeprom=True)
+    n = rng.randint(1, 4)
+    parts = []
+    for i in range(n):
+        r = rng.random()
+        if r < 0.2:
+            cmd, adp, ado, data = templates.over_registers(rng)
+        else:
+            cmd, adp, ado, data = templates.pick(rng)
+            if r < 0.75:
+                cmd, adp, ado, data = _mutate(rng, cmd, adp, ado, data)
+        data = _no_sii_write(cmd & 0xFF, ado, data[:1400 // n])
+        raw = bytearray(_dg(cmd & 0xFF, adp, ado, data, i == n - 1))
+        if rng.random() < 0.03:  # the datagram's announced length lies
+            struct.pack_into("<H", raw, 6, (rng.randrange(0x800)) | (0 if i == n - 1 else 0x8000))
+        parts.append(bytes(raw))
+    body = b"".join(parts)
+    length = len(body) if rng.random() < 0.97 else rng.randrange(0x800)
+    return (ETH + struct.pack("<H", (length & 0x7FF) | 1 << 12) + body)[:1514]
+
+
+def mutated_storm(seed: int, count: int, templates: MasterTemplates) -> list[bytes]:
+    rng = random.Random(seed)
+    return [mutated_frame(rng, templates) for _ in range(count)]

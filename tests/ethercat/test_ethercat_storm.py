@@ -67,8 +67,10 @@ def test_mailbox_sm_past_process_ram_never_grows_memory() -> None:
 
 def test_stale_syncmanager_released_on_init_request() -> None:
     """SOEM's config_init clears SM0-3 only (shared notes 'soem-interop': BWR 0x0800, 32 B), so an SM4
-    left enabled over the mailbox area (by a storm) would refuse every mailbox read forever. On an INIT
-    request the firmware deactivates the SMs it does not serve (0x0807 + 8n bit 0, PDI side)."""
+    left enabled over the mailbox area (by a storm) must not take the mailbox away: the ESC does not
+    activate a SyncManager overlapping a lower one (issue 21; ET1100 data sheet: SyncManager buffers
+    must not overlap), and on an INIT request the firmware deactivates the SMs it does not serve
+    (0x0807 + 8n bit 0, PDI side), so PREOP->SAFEOP's overlap check passes again."""
     _clock, seg = fresh(1)
     esc = seg.slaves[0].esc
 
@@ -76,13 +78,14 @@ def test_stale_syncmanager_released_on_init_request() -> None:
         assert seg.process(bytearray(encode_frame(Frame((Datagram.physical(Command.BWR, 0, 0, ado, data),)))))
 
     bwr(REG_SM + 8, struct.pack("<HHBBBB", 0x1080, 128, 0x02, 0, 1, 0))  # SM1: mailbox in
+    refused = esc.stats.refused_sms
     bwr(REG_SM + 32, struct.pack("<HHBBBB", 0x1000, 0x200, 0x02, 0, 1, 0))  # SM4 over both mailboxes
+    assert esc.sm_in_use(4) and not esc.sm_active(4) and esc.stats.refused_sms > refused
     assert esc.mailbox_put(1, b"reply")
-    assert esc.ecat_read(0x1080, 128) is None  # SM4 is empty: the read is refused
-    bwr(REG_AL_CONTROL, struct.pack("<H", AlState.INIT | 0x10))
-    assert not esc.sm_in_use(4) and esc.sm_in_use(1)
-    data = esc.ecat_read(0x1080, 128)
+    data = esc.ecat_read(0x1080, 128)  # SM1 serves the read, SM4 does not refuse it
     assert data is not None and data.startswith(b"reply")
+    bwr(REG_AL_CONTROL, struct.pack("<H", AlState.INIT | 0x10))
+    assert not esc.sm_in_use(4) and esc.sm_in_use(1) and esc.sm_active(1)
 
 
 def _check_frame(seg: Segment, raw: bytes) -> None:

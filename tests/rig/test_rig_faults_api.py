@@ -212,7 +212,7 @@ def test_fault_cli_help_usage_and_refusal(tmp_path: Path) -> None:
     usage = _cli("x.json", "drop", "can0", "zz")
     assert usage.returncode == 2 and "not a number" in usage.stderr
     missing = _cli(str(tmp_path / "none.json"), "usb-unplug", "idx1")
-    assert missing.returncode == 1 and len(missing.stderr.strip().splitlines()) == 1
+    assert missing.returncode == 2 and len(missing.stderr.strip().splitlines()) == 1   # not found: docs/cli.md
     rig = _realtime_rig(tmp_path)
     try:
         rig.run_in_thread()

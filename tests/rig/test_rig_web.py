@@ -102,7 +102,7 @@ def test_page_in_a_real_browser(rig: RigProcess, tmp_path: Path) -> None:
             send(rig, 0x000, bytes((0x01, 2)))                       # start: the page's table changes
             page.wait_for_function(f"{nmt}.textContent === 'Operational'", timeout=20_000)
             send(rig, 0x123, b"\xde\xad\xbe\xef")
-            page.wait_for_function("document.getElementById('log').textContent.includes('de ad be ef')",
+            page.wait_for_function("document.getElementById('log').textContent.includes('DE AD BE EF')",
                                    timeout=20_000)
             shot = tmp_path / "page.png"
             page.screenshot(path=str(shot))

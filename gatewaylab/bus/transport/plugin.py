@@ -14,7 +14,8 @@ What a SocketCAN user expects holds here too (docs/bus-wire.md):
 * ``shutdown()`` waits (at most ``shutdown_timeout``) until the rig has put every accepted frame
   on the bus; frames still queued after that stay queued in the rig, as in a SocketCAN device;
 * a ``recv()`` in another thread (a ``can.Notifier``) interrupted by ``shutdown()`` returns
-  None; any call after ``shutdown()`` raises ``can.CanOperationError``;
+  None; any call after ``shutdown()`` raises ``can.CanOperationError``; ``recv(0)`` returns what
+  the socket already holds (the poll loop of a cyclic task);
 * ``Message.timestamp`` is Unix time (the rig's bus time + the rig clock's ``wall_epoch``),
   ``Message.channel`` the channel given to ``can.Bus``, own echoes have ``is_rx=False``;
 * acceptance filters are applied by the rig (filtered frames do not cross the socket);
@@ -39,10 +40,24 @@ from can.bus import BusState, CanProtocol
 
 from ...common.endpoint import EndpointError, EndpointKind, parse_endpoint
 from ...common.errors import GatewaylabError
-from .. import wire
+from .. import errorframe, wire
 from ..frame import FD_DLC_TO_LEN, CanFrame
 
 log = logging.getLogger("can.gatewaylab")
+
+_STATE_NAMES = {wire.ControllerStateCode.ERROR_ACTIVE: "error-active",
+                wire.ControllerStateCode.ERROR_PASSIVE: "error-passive",
+                wire.ControllerStateCode.BUS_OFF: "bus-off"}
+
+
+def _error_frame(record: wire.Status) -> errorframe.ErrorFrame | None:
+    """The SocketCAN error frame of a STATUS record: a bus error, or a state change that a Linux
+    CAN driver reports (None for a state record without the old state, from an older rig)."""
+    if record.kind is wire.StatusKind.ERROR_FRAME:
+        return errorframe.bus_error(record.error.name.lower(), record.transmitter, record.tec, record.rec)
+    if record.old is None or record.old == record.state:
+        return None
+    return errorframe.state_change(_STATE_NAMES[record.old], _STATE_NAMES[record.state], record.tec, record.rec)
 
 #: Frames handed to the rig and not yet on the bus. A SocketCAN device queues 10 by default
 #: (txqueuelen); a socket round trip costs more than a driver's, so more are allowed in flight.
@@ -155,6 +170,12 @@ class GatewaylabBus(can.BusABC):
         super().__init__(channel=channel, can_filters=can_filters, **kwargs)
         self._can_protocol = CanProtocol.CAN_FD if (welcome.fd and fd) else CanProtocol.CAN_20
 
+    @property
+    def wall_epoch(self) -> float:
+        """Unix time of the rig's bus time 0 (its TIMEBASE record): ``Message.timestamp - wall_epoch`` is the
+        time since the rig started, the time base of its traces and of ``gatewaylab monitor``."""
+        return self._epoch
+
     def _endpoint(self, channel: Any) -> str:
         """The endpoint to connect to for ``channel`` (which Message.channel reports as given)."""
         if not isinstance(channel, str) or not channel:
@@ -208,9 +229,12 @@ class GatewaylabBus(can.BusABC):
                             record.count, record.outcome.name.lower(), self.controller_state.name)
         elif isinstance(record, wire.Status):
             self.controller_state = record.state
-            if record.kind is wire.StatusKind.ERROR_FRAME:
+            err = _error_frame(record)
+            if err is not None:
+                # laid out as SocketCAN's error frames (linux/can/error.h): class bits in the id
                 self._rx.append(can.Message(timestamp=self._epoch + record.timestamp, is_error_frame=True,
-                                            channel=self._channel))
+                                            arbitration_id=err.can_id, is_extended_id=True, dlc=8,
+                                            data=err.data, channel=self._channel, check=False))
         elif isinstance(record, wire.Filters):
             self._filters_pending = max(0, self._filters_pending - 1)
         elif isinstance(record, wire.Welcome):
@@ -266,9 +290,13 @@ class GatewaylabBus(can.BusABC):
         One thread at a time reads the socket and takes every record for everybody (frames for
         recv, TXDONE for send); the others wait on ``_cond`` and look again after each read.
         Stops early when the connection is lost, and, if ``interruptible``, when shutdown()
-        began. Returns ``ready()``."""
+        began. Returns ``ready()``.
+
+        A timeout that is over before this thread read (``recv(0)``, the poll of a cyclic task)
+        still takes what the socket already holds: one read that does not wait."""
         deadline = None if timeout is None else time.monotonic() + timeout
         cond = self._cond
+        polled = False
         with cond:
             while True:
                 if ready():
@@ -277,10 +305,13 @@ class GatewaylabBus(can.BusABC):
                     return False
                 remaining = None if deadline is None else deadline - time.monotonic()
                 if remaining is not None and remaining <= 0:
-                    return False
+                    if polled or self._reading:   # read once, or another thread is reading
+                        return False
+                    remaining = 0.0
                 if self._reading:
                     cond.wait(remaining)
                     continue
+                polled = True
                 self._reading = True
                 cond.release()
                 try:

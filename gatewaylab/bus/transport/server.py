@@ -20,6 +20,7 @@ from ..bus import (
     BusEvent,
     Controller,
     ErrorFrameEvent,
+    ErrorKind,
     ErrorState,
     StateChangeEvent,
     TxAbortedEvent,
@@ -27,6 +28,7 @@ from ..bus import (
     VirtualBus,
 )
 from ..frame import CanFrame
+from .outbox import Outbox, accept_client
 
 log = logging.getLogger(__name__)
 
@@ -36,6 +38,8 @@ MAX_BACKLOG = 8 * 1024 * 1024
 #: this long (bus time: nobody acknowledges), the rest are given up with a warning.
 ORPHAN_PATIENCE = 2.0
 
+#: The bus's error kinds as the STATUS record's tail carries them (docs/bus-wire.md).
+_ERROR_CODES = {kind: wire.ErrorCode[kind.name] for kind in ErrorKind}
 _STATE_CODES = {
     ErrorState.ERROR_ACTIVE: wire.ControllerStateCode.ERROR_ACTIVE,
     ErrorState.ERROR_PASSIVE: wire.ControllerStateCode.ERROR_PASSIVE,
@@ -59,8 +63,7 @@ class _Client:
         self.peer = peer
         self.decoder = wire.RecordDecoder()
         self.controller: Controller | None = None
-        self.out = bytearray()
-        self.writing = False
+        self.outbox = Outbox(sock, server.reactor, MAX_BACKLOG, self._broken, self._overflow)
         self.closed = False
         #: writing to the client failed; its data is still read until the end
         self.broken = False
@@ -102,55 +105,25 @@ class _Client:
             ctrl = self.controller
             assert ctrl is not None
             self.write(wire.encode_status(wire.StatusKind.ERROR_FRAME, _STATE_CODES[ctrl.state],
-                                          ctrl.tec, ctrl.rec, ev.timestamp))
+                                          ctrl.tec, ctrl.rec, ev.timestamp, _ERROR_CODES[ev.kind],
+                                          ev.transmitter))
         elif isinstance(ev, StateChangeEvent):
             self.write(wire.encode_status(wire.StatusKind.STATE, _STATE_CODES[ev.new], ev.tec, ev.rec,
-                                          ev.timestamp))
+                                          ev.timestamp, old=_STATE_CODES[ev.old]))
 
     def write(self, data: bytes) -> None:
-        if self.closed or self.broken:
-            return
-        if self.out:
-            self.out += data
-        else:
-            try:
-                sent = self.sock.send(data)
-            except BlockingIOError:
-                sent = 0
-            except OSError as exc:
-                self._broken(exc)
-                return
-            if sent < len(data):
-                self.out += data[sent:]
-        if self.out and not self.writing:
-            if len(self.out) > MAX_BACKLOG:
-                self.server.drop(self, f"client does not read: {len(self.out)} bytes backlog")
-                return
-            self.writing = True
-            self.server.reactor.add_writer(self.sock.fileno(), self.flush)
+        if not (self.closed or self.broken):
+            self.outbox.write(data)
 
-    def flush(self) -> None:
-        try:
-            sent = self.sock.send(self.out)
-        except BlockingIOError:
-            return
-        except OSError as exc:
-            self._broken(exc)
-            return
-        del self.out[:sent]
-        if not self.out and self.writing:
-            self.writing = False
-            self.server.reactor.remove_writer(self.sock.fileno())
+    def _overflow(self, size: int) -> None:
+        self.server.drop(self, f"client does not read: {size} bytes backlog")
 
     def _broken(self, exc: OSError) -> None:
         """The client stopped reading (closed, or shut its side down): what it sent before is still
         read and put on the bus; it is disconnected at the end of its data."""
         log.info("bus %s: %s stopped reading: %s", self.server.bus.name, self.peer, exc)
         self.broken = True
-        self.out.clear()
-        if self.writing:
-            self.writing = False
-            self.server.reactor.remove_writer(self.sock.fileno())
+        self.outbox.close()
 
     # client -> bus
     def readable(self) -> None:
@@ -243,17 +216,7 @@ class BusServer:
         reactor.add_reader(self.listener.fileno(), self._accept)
 
     def _accept(self) -> None:
-        try:
-            sock, addr = self.listener.accept()
-        except BlockingIOError:
-            return
-        sock.setblocking(False)
-        if sock.family == socket.AF_INET:
-            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        peer = f"{addr[0]}:{addr[1]}" if isinstance(addr, tuple) else f"unix-client{len(self.clients)}"
-        client = _Client(self, sock, peer)
-        self.clients.append(client)
-        self.reactor.add_reader(sock.fileno(), client.readable)
+        accept_client(self.listener, self.clients, lambda sock, peer: _Client(self, sock, peer), self.reactor)
 
     def drop(self, client: _Client, reason: str, notify: bool = True, level: int = logging.WARNING) -> None:
         """Disconnect one client with a logged reason; the bus and the other clients carry on.
@@ -272,10 +235,8 @@ class BusServer:
                 pass
         self.dropped.append(reason)
         client.closed = True
-        fd = client.sock.fileno()
-        self.reactor.remove_reader(fd)
-        if client.writing:
-            self.reactor.remove_writer(fd)
+        self.reactor.remove_reader(client.sock.fileno())
+        client.outbox.close()
         client.sock.close()
         self.clients.remove(client)
         ctrl = client.controller

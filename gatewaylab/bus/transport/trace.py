@@ -9,6 +9,10 @@ much. Timestamps are Unix time: ``clock.wall_epoch + t`` for a frame that comple
 
 from __future__ import annotations
 
+import fcntl
+import io
+import os
+import re
 import struct
 from pathlib import Path
 from typing import BinaryIO, Protocol
@@ -16,8 +20,9 @@ from typing import BinaryIO, Protocol
 import can
 
 from ...common.clock import TimerHandle
-from ...common.errors import ConfigError
+from ...common.errors import ConfigError, FrameError
 from ..bus import VirtualBus
+from ..errorframe import ErrorFrame
 from ..frame import CanFrame
 
 #: The longest a written frame stays in a buffer (seconds of bus time).
@@ -51,6 +56,25 @@ def check_trace_path(path: str | Path) -> str:
         raise ConfigError(f"trace file {path}: format {suffix or '(no suffix)'!r} is not supported "
                           f"(supported: {', '.join(TRACE_FORMATS)})")
     return suffix
+
+
+def lock_trace_file(path: Path) -> int:
+    """Create ``path`` if needed and take an exclusive lock on it (``flock``), before anything truncates
+    it: a second rig given the same trace file is refused with a clear error instead of both writing
+    into it (a sparse file of NULs). Returns the descriptor that holds the lock until closed."""
+    try:
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_CLOEXEC, 0o644)
+    except OSError as exc:
+        raise ConfigError(f"trace file {path}: {exc.strerror or exc}") from None
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        os.close(fd)
+        raise ConfigError(f"trace file {path} is being written by another rig (it holds the file's lock); "
+                          "give each rig its own --trace file") from None
+    except OSError:
+        pass          # a file system without locks: record anyway
+    return fd
 
 
 def socketcan_record(frame: CanFrame) -> bytes:
@@ -179,6 +203,7 @@ class Trace:
         suffix = check_trace_path(path)
         self.bus = bus
         self.path = Path(path)
+        self._lock_fd = lock_trace_file(self.path)
         #: Unix time of bus time 0 (the clock's ``wall_epoch``): every timestamp is ``epoch + t``.
         self.epoch = bus.clock.wall_epoch if epoch is None else epoch
         self.frames = 0
@@ -186,12 +211,16 @@ class Trace:
         #: The pending flush: scheduled by the first frame after a flush, so an idle bus has no timer.
         self._flush_timer: TimerHandle | None = None
         self._sink: _Sink
-        if suffix == ".pcap":
-            self._sink = PcapSink(self.path, self.epoch)
-        elif suffix == ".pcapng":
-            self._sink = PcapngSink(self.path, self.epoch, bus.name)
-        else:
-            self._sink = PythonCanSink(self.path, self.epoch, bus.name)
+        try:
+            if suffix == ".pcap":
+                self._sink = PcapSink(self.path, self.epoch)
+            elif suffix == ".pcapng":
+                self._sink = PcapngSink(self.path, self.epoch, bus.name)
+            else:
+                self._sink = PythonCanSink(self.path, self.epoch, bus.name)
+        except BaseException:
+            os.close(self._lock_fd)
+            raise
         bus.add_monitor(self._on_frame)
 
     def _on_frame(self, frame: CanFrame, t: float) -> None:
@@ -212,4 +241,262 @@ class Trace:
             self._flush_timer.cancel()
             self._flush_timer = None
         self.bus.remove_monitor(self._on_frame)
-        self._sink.close()
+        try:
+            self._sink.close()
+        finally:
+            if self._lock_fd >= 0:
+                os.close(self._lock_fd)
+                self._lock_fd = -1
+
+
+# -- reading traces back (gatewaylab monitor --replay, gatewaylab plot) ------------------------------
+class TraceError(ConfigError):
+    """A trace file that cannot be read: names the file and the line (text) or byte offset (binary)."""
+
+
+TraceItem = tuple[CanFrame | ErrorFrame, float]
+_PCAPNG_SHB = 0x0A0D0D0A
+_PCAP_MAGICS = {0xA1B2C3D4: ("<", 1e-6), 0xD4C3B2A1: (">", 1e-6), 0xA1B23C4D: ("<", 1e-9), 0x4D3CB2A1: (">", 1e-9)}
+_LINKTYPE_LINUX_SLL = 113
+_SOCKETCAN_ERR_FLAG = 0x20000000
+
+
+def _socketcan_item(record: bytes, t: float, where: str) -> TraceItem:
+    """One SocketCAN ``can_frame`` / ``canfd_frame`` record (can_id in network order, as Wireshark
+    writes LINKTYPE_CAN_SOCKETCAN) as a frame or an error frame."""
+    if len(record) < _SOCKETCAN_HEADER.size:
+        raise TraceError(f"{where}: a SocketCAN record of {len(record)} bytes (at least 8)")
+    can_id, length, flags, _, _ = _SOCKETCAN_HEADER.unpack_from(record)
+    data = bytes(record[8:8 + length])
+    if len(data) < length:
+        raise TraceError(f"{where}: the record says {length} data bytes but carries {len(data)}")
+    if can_id & _SOCKETCAN_ERR_FLAG:
+        return ErrorFrame(can_id & 0x1FFFFFFF, data.ljust(8, b"\0")[:8]), t
+    extended = bool(can_id & _CAN_EFF_FLAG)
+    ident = can_id & (0x1FFFFFFF if extended else 0x7FF)
+    fd = bool(flags & _CANFD_FDF) or len(record) >= 72
+    try:
+        if can_id & _CAN_RTR_FLAG and not fd:
+            return CanFrame(ident, b"", extended, rtr=True, dlc=min(length, 8)), t
+        return CanFrame(ident, data, extended, fd=fd, brs=bool(flags & _CANFD_BRS) and fd,
+                        esi=bool(flags & _CANFD_ESI) and fd), t
+    except FrameError as exc:
+        raise TraceError(f"{where}: {exc}") from None
+
+
+def parse_pcap(data: bytes, name: str = "trace") -> list[TraceItem]:
+    """The CAN frames of a classic pcap file (LINKTYPE_CAN_SOCKETCAN); pure, errors name the offset."""
+    if len(data) < _PCAP_GLOBAL.size:
+        raise TraceError(f"{name}: offset 0: {len(data)} bytes, too short for a pcap header (24)")
+    magic = struct.unpack_from("<I", data)[0]
+    if magic not in _PCAP_MAGICS:
+        raise TraceError(f"{name}: offset 0: not a pcap file (magic 0x{magic:08X})")
+    order, unit = _PCAP_MAGICS[magic]
+    linktype = struct.unpack_from(order + "I", data, 20)[0] & 0x0FFFFFFF
+    if linktype != LINKTYPE_CAN_SOCKETCAN:
+        raise TraceError(f"{name}: offset 20: link type {linktype}, not SocketCAN CAN ({LINKTYPE_CAN_SOCKETCAN})")
+    record = struct.Struct(order + "IIII")
+    out: list[TraceItem] = []
+    pos = _PCAP_GLOBAL.size
+    while pos < len(data):
+        if len(data) - pos < record.size:
+            raise TraceError(f"{name}: offset {pos}: truncated record header ({len(data) - pos} bytes)")
+        sec, frac, incl, _orig = record.unpack_from(data, pos)
+        if incl > 72 or pos + record.size + incl > len(data):
+            raise TraceError(f"{name}: offset {pos}: record of {incl} bytes does not fit "
+                             f"({'longer than a CAN FD frame' if incl > 72 else 'file ends'})")
+        body = data[pos + record.size:pos + record.size + incl]
+        out.append(_socketcan_item(body, sec + frac * unit, f"{name}: offset {pos}"))
+        pos += record.size + incl
+    return out
+
+
+def parse_pcapng(data: bytes, name: str = "trace") -> list[TraceItem]:
+    """The CAN frames of a pcapng file (SocketCAN interfaces; enhanced and simple packet blocks)."""
+    out: list[TraceItem] = []
+    pos = 0
+    order = "<"
+    interfaces: list[tuple[int, float]] = []   # (link type, seconds per timestamp unit)
+    while pos < len(data):
+        if len(data) - pos < 12:
+            raise TraceError(f"{name}: offset {pos}: truncated block ({len(data) - pos} bytes)")
+        btype = struct.unpack_from(order + "I", data, pos)[0]
+        if btype == _PCAPNG_SHB:
+            bom = struct.unpack_from("<I", data, pos + 8)[0]
+            if bom == 0x1A2B3C4D:
+                order = "<"
+            elif bom == 0x4D3C2B1A:
+                order = ">"
+            else:
+                raise TraceError(f"{name}: offset {pos + 8}: bad byte-order magic 0x{bom:08X}")
+            interfaces = []
+        elif pos == 0:
+            raise TraceError(f"{name}: offset 0: not a pcapng file (first block 0x{btype:08X}, "
+                             "expected a section header 0x0A0D0D0A)")
+        length = struct.unpack_from(order + "I", data, pos + 4)[0]
+        if length < 12 or length % 4 or pos + length > len(data):
+            raise TraceError(f"{name}: offset {pos}: block length {length} does not fit the file")
+        body = data[pos + 8:pos + length - 4]
+        if btype == 0x00000001:                          # interface description
+            linktype = struct.unpack_from(order + "H", body)[0]
+            unit = 1e-6
+            opt = 8
+            while opt + 4 <= len(body):
+                code, olen = struct.unpack_from(order + "HH", body, opt)
+                if code == 0:
+                    break
+                if code == 9 and olen >= 1:
+                    r = body[opt + 4]
+                    unit = 2.0 ** -(r & 0x7F) if r & 0x80 else 10.0 ** -r
+                opt += 4 + olen + (-olen % 4)
+            interfaces.append((linktype, unit))
+        elif btype in (0x00000006, 0x00000003):          # enhanced / simple packet
+            if btype == 0x00000006:
+                if len(body) < 20:
+                    raise TraceError(f"{name}: offset {pos}: packet block too short")
+                iface, hi, lo, incl, _orig = struct.unpack_from(order + "IIIII", body)
+                packet, stamp_at = body[20:20 + incl], (hi << 32) | lo
+            else:
+                iface, stamp_at = 0, 0
+                incl = struct.unpack_from(order + "I", body)[0]
+                packet = body[4:4 + incl]
+            if iface >= len(interfaces):
+                raise TraceError(f"{name}: offset {pos}: packet of interface {iface}, which was not described")
+            linktype, unit = interfaces[iface]
+            if linktype == LINKTYPE_CAN_SOCKETCAN:
+                out.append(_socketcan_item(packet, stamp_at * unit, f"{name}: offset {pos}"))
+        pos += length
+    return out
+
+
+class _CountedLines(io.StringIO):
+    """A text file for python-can's readers that knows which line they are on (for error messages)."""
+
+    lineno = 0
+
+    def readline(self, size: int | None = -1, /) -> str:  # type: ignore[override]
+        line = super().readline(-1 if size is None else size)
+        if line:
+            self.lineno += 1
+        return line
+
+
+_PRINTER_LINE = re.compile(
+    r"Timestamp:\s*(?P<t>[-\d.]+)\s+ID:\s*(?P<id>[0-9a-fA-F]+)\s+(?P<x>[SX])\s+(?:Rx|Tx)\s+(?P<flags>.*?)"
+    r"DL:\s*(?P<dl>\d+)\s*(?P<data>(?:[0-9a-fA-F]{2}\s)*(?:[0-9a-fA-F]{2})?)\s*(?:Channel:.*)?$")
+
+
+def _printer_lines(text: str, name: str) -> list[TraceItem]:
+    """python-can's Printer (``.txt``): ``str(Message)`` per line."""
+    out: list[TraceItem] = []
+    for n, raw in enumerate(text.splitlines(), 1):
+        if not raw.strip():
+            continue
+        m = _PRINTER_LINE.match(raw.strip())
+        if m is None:
+            raise TraceError(f"{name}: line {n}: not a python-can Printer line: {raw.strip()[:60]!r}")
+        flags = m["flags"].split()
+        try:
+            if "E" in flags:
+                out.append((ErrorFrame(int(m["id"], 16), bytes.fromhex(m["data"]).ljust(8, b"\0")[:8]), float(m["t"])))
+            elif "R" in flags:
+                out.append((CanFrame(int(m["id"], 16), b"", m["x"] == "X", rtr=True, dlc=int(m["dl"])), float(m["t"])))
+            else:
+                fd = "F" in flags
+                out.append((CanFrame(int(m["id"], 16), bytes.fromhex(m["data"]), m["x"] == "X", fd=fd,
+                                     brs=fd and "BS" in flags, esi=fd and "EI" in flags), float(m["t"])))
+        except (FrameError, ValueError) as exc:
+            raise TraceError(f"{name}: line {n}: {exc}") from None
+    return out
+
+
+_TEXT_READERS = {".asc": "ASCReader", ".log": "CanutilsLogReader", ".csv": "CSVReader", ".trc": "TRCReader"}
+
+
+def read_trace(path: str | Path) -> list[TraceItem]:
+    """Every frame and error frame of a trace the rig writes (``--trace``: .asc .blf .csv .log .trc
+    .txt .pcap .pcapng), with its Unix timestamp. Anything unreadable raises one :class:`TraceError`
+    naming the file and the line (text formats) or the byte offset (binary ones)."""
+    path = Path(path)
+    name = str(path)
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise TraceError(f"{name}: {exc.strerror or exc}") from None
+    suffix = path.suffix.lower()
+    magic = struct.unpack_from("<I", data)[0] if len(data) >= 4 else None
+    if suffix == ".pcapng" or magic == _PCAPNG_SHB:
+        return parse_pcapng(data, name)
+    if suffix == ".pcap" or magic in _PCAP_MAGICS:
+        return parse_pcap(data, name)
+    if suffix == ".blf":
+        return _python_can_binary(path, name)
+    if suffix not in (*_TEXT_READERS, ".txt"):
+        raise TraceError(f"{name}: format {suffix or '(no suffix)'!r} is not one the rig writes "
+                         f"({', '.join(TRACE_FORMATS)})")
+    nul = data.find(b"\0")
+    if nul >= 0:
+        line = data.count(b"\n", 0, nul) + 1
+        raise TraceError(f"{name}: line {line} (offset {nul}): a NUL byte; not a {suffix} text trace "
+                         "(a file cut short or overwritten?)")
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data.count(b"\n", 0, exc.start) + 1
+        raise TraceError(f"{name}: line {line} (offset {exc.start}): not UTF-8 text") from None
+    if suffix == ".txt":
+        return _printer_lines(text, name)
+    lines = _CountedLines(text)
+    reader = getattr(can, _TEXT_READERS[suffix])(lines)
+    out: list[TraceItem] = []
+    try:
+        for msg in reader:
+            out.append(_message_item(msg, f"{name}: line {lines.lineno}"))
+    except TraceError:
+        raise
+    except Exception as exc:    # python-can's readers raise anything on bad input
+        raise TraceError(f"{name}: line {lines.lineno}: not a {suffix} line ({_first_line(exc)})") from None
+    if not out and any(ln.strip() and not ln.lstrip().startswith(("#", ";", "//")) for ln in text.splitlines()):
+        first = next(n for n, ln in enumerate(text.splitlines(), 1) if ln.strip())
+        if suffix not in (".asc", ".trc") or not _has_header_only(text, suffix):
+            raise TraceError(f"{name}: line {first}: no CAN frame in this {suffix} file "
+                             f"({text.splitlines()[first - 1].strip()[:60]!r})")
+    return out
+
+
+def _has_header_only(text: str, suffix: str) -> bool:
+    """An .asc / .trc file that holds only its header (a rig that recorded no frame)."""
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
+    if suffix == ".trc":
+        return all(ln.startswith(";") for ln in lines)
+    return all(ln.split()[0] in ("date", "base", "internal", "Begin", "End", "no", "//")
+               or "Start of measurement" in ln for ln in lines)
+
+
+def _first_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    return (text[:120] + "...") if len(text) > 120 else text or type(exc).__name__
+
+
+def _message_item(msg: can.Message, where: str) -> TraceItem:
+    if msg.is_error_frame:
+        return ErrorFrame(msg.arbitration_id & 0x1FFFFFFF, bytes(msg.data or b"").ljust(8, b"\0")[:8]), msg.timestamp
+    try:
+        if not msg.is_fd and len(msg.data or b"") > 8:
+            msg.is_fd = True          # a format without an FD flag (.csv) holding a CAN FD frame
+        return CanFrame.from_message(msg), msg.timestamp
+    except FrameError as exc:
+        raise TraceError(f"{where}: {exc}") from None
+
+
+def _python_can_binary(path: Path, name: str) -> list[TraceItem]:
+    out: list[TraceItem] = []
+    try:
+        reader = can.BLFReader(str(path))
+        for msg in reader:
+            out.append(_message_item(msg, f"{name}: frame {len(out) + 1}"))
+    except TraceError:
+        raise
+    except Exception as exc:    # python-can's reader raises anything on bad input
+        raise TraceError(f"{name}: after frame {len(out)}: not a readable BLF file ({_first_line(exc)})") from None
+    return out

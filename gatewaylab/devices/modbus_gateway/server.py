@@ -7,8 +7,18 @@ thread with ``clock.call_soon_threadsafe`` (docs/architecture.md "Threads": the 
 the protocol state) and awaits an asyncio future that the gateway's ``done`` callback resolves
 through ``loop.call_soon_threadsafe``. Nothing sleeps; a request waits at most the SDO timeout.
 
-Unit ids the gateway does not serve fall through to pymodbus's catch-all device 0, whose action
-answers 0x0A (gateway path unavailable). Coils and discrete inputs do not exist: 0x01.
+Unit ids the gateway does not serve fall through to pymodbus's catch-all device 0. Its one
+register block spans the whole address space, so pymodbus's address check never answers for it
+and its action answers 0x0A (gateway path unavailable) whatever the function, address and count:
+the unit is checked first, as a gateway does before it forwards anything. Coils and discrete
+inputs do not exist: 0x01.
+
+What clients send that is no valid request (junk, a bad MBAP header, an undecodable PDU) pymodbus
+logs, with tracebacks and per-byte hex dumps of the last frames. :func:`quiet_pymodbus` configures
+its logger (``pymodbus.logging``): each of its records becomes one line of ours, and
+:class:`LogLimiter` keeps a flood of them to :data:`LOG_BURST` lines per :data:`LOG_WINDOW`
+seconds plus one line counting the rest. ``gatewaylab run -v`` (pymodbus's logger at DEBUG)
+leaves pymodbus's own output as it is.
 """
 
 from __future__ import annotations
@@ -19,6 +29,7 @@ import functools
 import logging
 import socket
 import threading
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -40,6 +51,107 @@ _READ_FUNCTIONS = {3: RegisterKind.HOLDING, 4: RegisterKind.INPUT, 22: RegisterK
 _ECHO_FUNCTIONS = frozenset((6, 16))
 #: How long :meth:`ModbusTcpFace.start` waits for the server thread to listen (or fail).
 START_TIMEOUT = 10.0
+#: At most this many lines about bad requests per :data:`LOG_WINDOW` seconds (then one line counting the rest).
+LOG_BURST = 10
+LOG_WINDOW = 10.0
+#: pymodbus's logger (``pymodbus.logging.Log`` writes to it; ``Log.setLevel`` sets its level).
+PYMODBUS_LOGGER = "pymodbus.logging"
+
+
+class LogLimiter:
+    """At most ``burst`` lines per ``window`` seconds (sans-I/O: the caller gives the time).
+
+    :meth:`admit` says whether a line may be written now; a line kept back is counted, and the
+    first line of the next window is preceded by one :meth:`admit` result saying how many were."""
+
+    def __init__(self, burst: int = LOG_BURST, window: float = LOG_WINDOW) -> None:
+        self.burst = burst
+        self.window = window
+        self._start = -float("inf")
+        self._lines = 0
+        #: lines kept back in the current window; ``dropped`` in all
+        self.held = 0
+        self.dropped = 0
+
+    def admit(self, now: float) -> tuple[bool, int]:
+        """(write this line?, lines kept back in the window that just ended: say so first when > 0)."""
+        held = 0
+        if now - self._start >= self.window:
+            held, self.held = self.held, 0
+            self._start, self._lines = now, 0
+        if self._lines < self.burst:
+            self._lines += 1
+            return True, held
+        self.held += 1
+        self.dropped += 1
+        return False, held
+
+
+def one_line(text: str) -> str:
+    """pymodbus's message without what follows its first line (its frame dump) or a traceback."""
+    first = text.split("\n", 1)[0]
+    return first.split("; Traceback", 1)[0].strip().rstrip(";")
+
+
+class BadRequestLog(logging.Handler):
+    """pymodbus's records as one line each on the gateway's logger, rate-limited (a client cannot
+    flood the rig's log); ``count`` counts them all, written or not."""
+
+    def __init__(self, target: logging.Logger, limiter: LogLimiter | None = None) -> None:
+        super().__init__(logging.WARNING)
+        self.target = target
+        self.limiter = limiter or LogLimiter()
+        self.count = 0
+        self._guard = threading.Lock()
+        self._last = ""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            text = one_line(record.getMessage())
+        except Exception:           # a record pymodbus could not format: still one line
+            text = str(record.msg).split("\n", 1)[0]
+        if text == "Repeating....":  # pymodbus folds a message that repeats the one before it
+            text = f"{self._last} (again)"
+        self._last = text
+        self.report(text, record.levelno)
+
+    def report_held(self) -> None:
+        """Say how many lines the limit kept back so far (a server stops). Not ``flush``: logging's
+        shutdown flushes handlers when the rig's stderr handler may be gone."""
+        with self._guard:
+            held, self.limiter.held = self.limiter.held, 0
+        if held:
+            self._held(held)
+
+    def _held(self, held: int) -> None:
+        self.target.warning("Modbus TCP: %d more bad requests not logged (at most %d lines per %g s)",
+                            held, self.limiter.burst, self.limiter.window)
+
+    def report(self, text: str, level: int = logging.WARNING) -> None:
+        """One bad request (or connection error) of a client: one line, if the limit allows."""
+        with self._guard:
+            self.count += 1
+            write, held = self.limiter.admit(time.monotonic())
+        if held:
+            self._held(held)
+        if write:
+            self.target.log(max(level, logging.WARNING), "Modbus TCP: bad request: %s", text)
+
+
+def quiet_pymodbus() -> BadRequestLog | None:
+    """Route pymodbus's log through one :class:`BadRequestLog` (once per process; pymodbus's logger
+    is global). None when pymodbus's logger is at DEBUG (``gatewaylab run -v``): left as it is."""
+    logger = logging.getLogger(PYMODBUS_LOGGER)
+    for handler in logger.handlers:
+        if isinstance(handler, BadRequestLog):
+            return handler
+    if logger.isEnabledFor(logging.DEBUG):
+        return None
+    handler = BadRequestLog(log)
+    logger.setLevel(logging.WARNING)     # what pymodbus.logging.Log.setLevel does: it builds no debug text
+    logger.addHandler(handler)
+    logger.propagate = False
+    return handler
 
 
 def _block(registers: list[tuple[int, int]], readonly: bool) -> list[SimData]:
@@ -62,11 +174,13 @@ class ModbusTcpFace:
         self._stop: asyncio.Event | None = None
         self._started = threading.Event()
         self._error: BaseException | None = None
+        self._digest: BadRequestLog | None = None
 
     # -- life cycle (rig thread) -------------------------------------------------------------------------
     def start(self) -> None:
         """Listen, or raise the OSError of a port that cannot be used (after cleaning up)."""
         self._probe()
+        self._digest = quiet_pymodbus()
         self.thread = threading.Thread(target=self._run, name=f"modbus-{self.gateway.name}", daemon=True)
         self.thread.start()
         if not self._started.wait(START_TIMEOUT):
@@ -100,6 +214,8 @@ class ModbusTcpFace:
         if self.thread is not None and self.thread is not threading.current_thread():
             self.thread.join(START_TIMEOUT)
         self.thread = None
+        if self._digest is not None:
+            self._digest.report_held()
 
     # -- server thread -------------------------------------------------------------------------------------
     def _run(self) -> None:
@@ -120,11 +236,18 @@ class ModbusTcpFace:
             return SimDevice(unit, simdata=(list(bits), list(bits), _block(holding, False), _block(inputs, True)),
                              action=functools.partial(self._action, unit))
 
-        return [device(0)] + [device(unit) for unit in sorted(self.gateway.nodes)]
+        # the catch-all for unserved unit ids: one block over every address of every table, so no
+        # address or count is refused before its action answers 0x0A
+        anywhere = SimDevice(0, simdata=[SimData(0, count=0x10000, datatype=DataType.REGISTERS)],
+                             action=functools.partial(self._action, 0))
+        return [anywhere] + [device(unit) for unit in sorted(self.gateway.nodes)]
 
     async def _serve(self) -> None:
         self.loop = asyncio.get_running_loop()
         self._stop = asyncio.Event()
+        if self._digest is not None:
+            # an exception escaping pymodbus's protocol callbacks: one line, not asyncio's traceback
+            self.loop.set_exception_handler(functools.partial(_loop_error, self._digest))
         server = ModbusTcpServer(self._devices(), address=(self.host, self.port))
         await server.serve_forever(background=True)     # RuntimeError when it cannot listen
         try:
@@ -135,11 +258,12 @@ class ModbusTcpFace:
 
     async def _action(self, unit: int, function_code: int, start_address: int, address: int, count: int,
                       registers: list[int], set_values: list[int] | list[bool] | None) -> ExcCodes | None:
-        """pymodbus's hook on every access of a mapped register: the gateway does the work on the rig thread."""
-        if function_code in _BIT_FUNCTIONS:
-            return ExcCodes.ILLEGAL_FUNCTION
+        """pymodbus's hook on every access of a mapped register: the gateway does the work on the rig thread.
+        The unit comes first: a unit the gateway does not serve is 0x0A whatever the request."""
         if unit == 0 or unit not in self.gateway.nodes:
             return ExcCodes(int(ModbusException.GATEWAY_PATH_UNAVAILABLE))
+        if function_code in _BIT_FUNCTIONS:
+            return ExcCodes.ILLEGAL_FUNCTION
         loop = asyncio.get_running_loop()
         future: asyncio.Future[Any] = loop.create_future()
 
@@ -173,3 +297,9 @@ class ModbusTcpFace:
 def _resolve(future: asyncio.Future[Any], result: Any) -> None:
     if not future.done():
         future.set_result(result)
+
+
+def _loop_error(digest: BadRequestLog, loop: asyncio.AbstractEventLoop, context: dict[str, Any]) -> None:
+    exc = context.get("exception")
+    digest.report(f"{context.get('message', 'error')}: {exc!r}" if exc is not None
+                  else str(context.get("message", context)), logging.ERROR)

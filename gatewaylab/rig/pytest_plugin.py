@@ -1,0 +1,174 @@
+"""gatewaylab's pytest plugin (the ``pytest11`` entry point): rigs as fixtures for a user's own tests of
+their master software (docs/testing-your-master.md).
+
+* ``gatewaylab_rig``: a factory fixture. ``gatewaylab_rig(RIG)`` (a rig file, a dict in the rig-file
+  shape, or None for the default rig) starts ``gatewaylab run`` as a child process (``clock =
+  "realtime"``, the default: what a master in another process talks to), or an in-process rig
+  (``in_process=True``, run by a thread) or a simulated one (``clock="simulated"``: the test drives
+  ``handle.clock``). Every rig has its own state folder (its Unix sockets) and the test its own
+  work folder; TCP ports left at 0 are chosen by the OS, so parallel pytest-xdist workers never
+  collide. Everything is stopped and removed when the test ends.
+* markers ``gatewaylab_root`` (the test needs root) and ``gatewaylab_veth`` (it needs veth pairs and
+  raw sockets: root or CAP_NET_ADMIN + CAP_NET_RAW and iproute2): such tests are skipped, with the
+  reason, where the process lacks it.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Iterator, Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import pytest
+
+if TYPE_CHECKING:
+    import can
+
+    from ..common.clock import Clock
+    from .process import RigProcess
+    from .runtime import Rig
+
+from .process import free_udp_ports, rig_toml
+
+__all__ = ["RigHandle", "free_udp_ports", "rig_toml"]
+
+MARKERS = {
+    "gatewaylab_root": "the test needs root (skipped otherwise)",
+    "gatewaylab_veth": "the test needs veth pairs and raw sockets: root or CAP_NET_ADMIN + CAP_NET_RAW and "
+                       "iproute2 (skipped otherwise)",
+}
+
+
+class RigHandle:
+    """One rig started by ``gatewaylab_rig``: its ready-file contents, endpoints and python-can buses."""
+
+    def __init__(self, workdir: Path, info: dict[str, Any], *, rig: Rig | None = None,
+                 process: RigProcess | None = None) -> None:
+        self.workdir = workdir
+        #: the ready file's contents (``gatewaylab run --ready-file``): pid, buses, control, canopen ...
+        self.info = info
+        #: the in-process rig (in_process or simulated), else None
+        self.rig = rig
+        #: the ``gatewaylab run`` child, else None
+        self.process = process
+        self._buses: list[can.BusABC] = []
+        self._thread: Any = None
+
+    @property
+    def clock(self) -> Clock:
+        """The in-process rig's clock (a simulated one is driven with advance()/run_until())."""
+        if self.rig is None:
+            raise AttributeError("a rig in a child process has no clock here; use in_process=True")
+        return self.rig.clock
+
+    def endpoint(self, bus: str = "can0") -> str:
+        """The bus's endpoint (``unix:PATH`` / ``tcp:HOST:PORT``) for ``can.Bus(interface="gatewaylab")``."""
+        return str(self.info["buses"][bus]["endpoint"])
+
+    def socketcand(self, bus: str = "can0") -> int:
+        """The bus's socketcand port on 127.0.0.1 (the rig needs ``socketcand = true`` or ``--socketcand``)."""
+        return int(self.info["buses"][bus]["socketcand"])
+
+    def eds(self, drive: str, bus: str = "can0") -> str:
+        """The EDS file of a ``[[drive]]`` (for ``canopen.Network.add_node``)."""
+        return str(self.info["canopen"][bus][drive]["eds"])
+
+    def can_bus(self, bus: str = "can0", **kwargs: Any) -> can.BusABC:
+        """A python-can bus on a rig bus, shut down when the test ends: through the endpoint for a rig in
+        a child process, in process otherwise."""
+        if self.rig is not None:
+            from ..bus import python_can_bus
+
+            made: can.BusABC = python_can_bus(self.rig.bus(bus), **kwargs)
+        else:
+            import can
+
+            made = can.Bus(interface="gatewaylab", channel=self.endpoint(bus), **kwargs)
+        self._buses.append(made)
+        return made
+
+    def stop(self) -> None:
+        """Shut down its python-can buses, then the rig (idempotent)."""
+        for made in self._buses:
+            made.shutdown()
+        self._buses.clear()
+        if self.process is not None:
+            self.process.stop()
+        if self.rig is not None:
+            self.rig.request_stop()
+            if self._thread is not None:
+                self._thread.join(10)
+            self.rig.close()
+
+
+def _start(workdir: Path, rig: str | Path | Mapping[str, Any] | None, clock: str, in_process: bool,
+           args: tuple[str, ...], timeout: float) -> RigHandle:
+    if clock not in ("realtime", "simulated"):
+        raise ValueError(f"clock must be 'realtime' or 'simulated', not {clock!r}")
+    path: Path | None
+    if isinstance(rig, Mapping):
+        path = workdir / "rig.toml"
+        path.write_text(rig_toml({**rig, "clock": "realtime"} if not in_process and clock == "realtime" else rig))
+    else:
+        path = None if rig is None else Path(rig)
+    if clock == "realtime" and not in_process:
+        from .process import RigProcess
+
+        process = RigProcess(path, *args, workdir=workdir, timeout=timeout)
+        return RigHandle(workdir, process.info, process=process)
+    if args:
+        raise ValueError("args are `gatewaylab run` options: only for a rig in a child process")
+    from ..common.clock import RealTimeClock, SimulatedClock
+    from .config import load_rig
+    from .runtime import Rig
+
+    instance = Rig(load_rig(path), clock=SimulatedClock() if clock == "simulated" else RealTimeClock())
+    handle = RigHandle(workdir, {}, rig=instance)
+    try:
+        instance.start()
+        if clock == "realtime":
+            handle._thread = instance.run_in_thread()
+        handle.info = instance.ready_info()
+    except BaseException:
+        handle.stop()
+        raise
+    return handle
+
+
+@pytest.fixture
+def gatewaylab_rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Callable[..., RigHandle]]:
+    """``gatewaylab_rig(rig=None, *, clock="realtime", in_process=False, args=(), timeout=60.0)`` ->
+    :class:`RigHandle`; every rig it started is stopped when the test ends."""
+    handles: list[RigHandle] = []
+
+    def start(rig: str | Path | Mapping[str, Any] | None = None, *, clock: str = "realtime",
+              in_process: bool = False, args: tuple[str, ...] | list[str] = (), timeout: float = 60.0) -> RigHandle:
+        workdir = tmp_path_factory.mktemp("gatewaylab-rig")
+        handle = _start(workdir, rig, clock, in_process, tuple(args), timeout)
+        handles.append(handle)
+        return handle
+
+    yield start
+    for handle in reversed(handles):
+        handle.stop()
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    for name, text in MARKERS.items():
+        config.addinivalue_line("markers", f"{name}: {text}")
+
+
+def _veth_unavailable() -> str | None:
+    from ..ethercat.wire_netns import net_unavailable
+
+    return net_unavailable()
+
+
+def pytest_runtest_setup(item: pytest.Item) -> None:
+    if item.get_closest_marker("gatewaylab_root") is not None and os.geteuid() != 0:
+        pytest.skip("needs root (marked gatewaylab_root)")
+    if item.get_closest_marker("gatewaylab_veth") is not None:
+        reason = _veth_unavailable()
+        if reason is not None:
+            pytest.skip(f"needs veth pairs (marked gatewaylab_veth): {reason}")
