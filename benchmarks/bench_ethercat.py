@@ -3,22 +3,27 @@ echo on the same veth measured in the same run. Printed, never asserted.
 
 Targets (issue 5): >= 10,000 cycles/s back to back, p99 < 250 us and 0 lost frames paced at 1 kHz.
 Needs root (network namespace + veth); prints why and returns otherwise. GL_BENCH_SECONDS shortens
-the paced runs (default 60 s each). The master runs in a subprocess inside the namespace on CPU 0,
-the emulator's busy-polling wire thread on CPU 1.
+the paced runs (default 60 s each), GL_BENCH_CYCLES the back-to-back ones (default 20,000). The master
+runs in a subprocess inside the namespace on CPU 0, the emulator's wire thread on CPU 1, in each of
+its modes (issue 21: the old busy poll, the blocking wait with a short spin after each frame, the
+blocking wait alone), with the CPU the idle thread wants and the ratios against the busy poll, all
+measured in the same run.
 """
 
 from __future__ import annotations
 
 import json
+import os
 import socket
 import statistics
 import struct
 import sys
 import threading
 import time
+from pathlib import Path
 from typing import Any
 
-from benchmarks.wire import bench_seconds, go_init, paced, pct, pin, request_op, run_master, veth_namespace
+from benchmarks.wire import bench_seconds, go_init, paced, pct, pin, request_op, retry, run_master, veth_namespace
 
 ETHERTYPE = 0x88A4
 PACKET_OUTGOING = 4
@@ -45,9 +50,12 @@ def master_pysoem(iface: str, n: int, seconds: float) -> dict[str, Any]:
     pin(0)
     master = pysoem.Master()
     master.open(iface)
-    if master.config_init() != 3:
+    for _ in range(3):      # a loaded machine answers a scan's frame later than SOEM waits: scan again
+        if master.config_init() == 3:
+            break
+    else:
         raise SystemExit("expected 3 slaves")
-    master.config_map()
+    retry(master.config_map, errors=("ConfigMapError", "WkcError", "MailboxError", "PacketError"))
     master.state_check(pysoem.SAFEOP_STATE, 50000)
     request_op(master, 2000, 200)
     expected = master.expected_wkc
@@ -136,6 +144,44 @@ def _line(label: str, r: dict[str, Any]) -> str:
             f"max {p['max_us']:7.1f} us  lost {p['lost']}")
 
 
+def thread_demand(native_id: int) -> float:
+    """Seconds the thread ``native_id`` of this process ran plus waited runnable for a CPU so far
+    (/proc schedstat: a thread that never blocks counts its full wall time even on a loaded machine);
+    NaN where the kernel does not say."""
+    try:
+        on_cpu, waiting = Path(f"/proc/self/task/{native_id}/schedstat").read_text().split()[:2]
+    except OSError:
+        return float("nan")
+    return (int(on_cpu) + int(waiting)) / 1e9
+
+
+def idle_share(segment: Any, iface: str, clock: Any, options: dict[str, Any], seconds: float = 2.0) -> float:
+    """The share of one CPU the wire thread wants while no frame arrives, as in a rig (which runs the
+    clock itself: no ``drive_clock``)."""
+    from gatewaylab.ethercat.wire import WireTransport
+
+    wire = WireTransport(segment, iface, clock, cpu=1, **options)
+    wire.start()
+    try:
+        thread = wire._thread
+        assert thread is not None and thread.native_id is not None
+        time.sleep(0.2)
+        d0, t0 = thread_demand(thread.native_id), time.monotonic()
+        time.sleep(seconds)
+        return (thread_demand(thread.native_id) - d0) / (time.monotonic() - t0)
+    finally:
+        wire.stop()
+
+
+#: the wire thread's modes compared in one run: the old busy poll, blocking with the short spin after
+#: each frame (the default), blocking at once
+MODES: tuple[tuple[str, dict[str, Any]], ...] = (
+    ("busy poll", {"busy_poll": True}),
+    ("block + 200 us spin (default)", {}),
+    ("block + 50 us spin", {"spin_s": 0.00005}),
+    ("block, no spin", {"spin_s": 0.0}))
+
+
 def main() -> None:
     seconds = bench_seconds(60)
     if seconds is None:
@@ -145,30 +191,52 @@ def main() -> None:
     from gatewaylab.ethercat.segment import Segment
     from gatewaylab.ethercat.wire import WireTransport
 
-    n = 20_000
+    n = int(os.environ.get("GL_BENCH_CYCLES", "20000"))
+    results: dict[str, dict[str, Any]] = {}
     with veth_namespace("gl-bench-", "glb") as (ns, emu, mst):
         echo = Echo(emu)
         try:
             floor = _run_master(ns, mst, "raw", n, seconds)
         finally:
             echo.stop()
-        clock = RealTimeClock()
-        segment = Segment([create_io_slave(clock, f"GL-IO #{i}", revision=i + 1) for i in range(3)])
-        wire = WireTransport(segment, emu, clock, drive_clock=True, cpu=1)
-        wire.start()
-        try:
-            raw = _run_master(ns, mst, "raw", n, seconds)
-            soem = _run_master(ns, mst, "pysoem", n, seconds)
-        finally:
-            wire.stop()
+        for label, options in MODES:
+            clock = RealTimeClock()
+            segment = Segment([create_io_slave(clock, f"GL-IO #{i}", revision=i + 1) for i in range(3)])
+            idle = idle_share(segment, emu, clock, options)
+            wire = WireTransport(segment, emu, clock, drive_clock=True, cpu=1, **options)
+            wire.start()
+            try:
+                results[label] = {"idle": idle, "raw": _run_master(ns, mst, "raw", n, seconds),
+                                  "soem": _run_master(ns, mst, "pysoem", n, seconds)}
+            except RuntimeError as exc:     # SOEM gave up bringing the line up (a loaded machine)
+                lines = str(exc).strip().splitlines()
+                print(f"wire thread: {label}: the master failed: {lines[-1] if lines else exc}")
+            finally:
+                wire.stop()
     print(f"EtherCAT over veth, {n} back-to-back cycles, then {seconds:.0f} s paced at 1 kHz")
     print(_line("minimal echo (raw master)", floor))
-    print(_line("3 emulated slaves (raw master)", raw))
-    print(_line("3 emulated slaves (pysoem/SOEM)", soem))
+    for label, r in results.items():
+        print(f"wire thread: {label} -- idle, it wants {r['idle']:.0%} of a CPU")
+        print(_line("  3 emulated slaves (raw master)", r["raw"]))
+        print(_line("  3 emulated slaves (pysoem/SOEM)", r["soem"]))
+    if MODES[0][0] not in results:
+        return
+    raw = results[MODES[0][0]]["raw"]
     ratio = raw["b2b"]["cycles_per_s"] / floor["b2b"]["cycles_per_s"]
     p99_ratio = raw["paced"]["p99_us"] / floor["paced"]["p99_us"]
-    print(f"emulator/echo back-to-back throughput ratio: {ratio:.2f}; paced p99 ratio: {p99_ratio:.2f}")
-    print("targets: >= 10,000 cycles/s back to back; p99 < 250 us and 0 lost at 1 kHz (SOEM line)")
+    print(f"busy poll/echo back-to-back throughput ratio: {ratio:.2f}; paced p99 ratio: {p99_ratio:.2f}")
+    busy = results[MODES[0][0]]["soem"]
+    for label, _ in MODES[1:]:
+        if label not in results:
+            continue
+        r = results[label]["soem"]
+        throughput = r["b2b"]["cycles_per_s"] / busy["b2b"]["cycles_per_s"]
+        paced_p99 = r["paced"]["p99_us"] / busy["paced"]["p99_us"]
+        b2b_p99 = r["b2b"]["p99_us"] / busy["b2b"]["p99_us"]
+        print(f"{label} / busy poll (SOEM): back-to-back throughput {throughput:.2f}, p99 {b2b_p99:.2f}; "
+              f"paced p99 {paced_p99:.2f}")
+    print("targets: >= 10,000 cycles/s back to back; p99 < 250 us and 0 lost at 1 kHz (SOEM line); "
+          "an idle wire thread wants ~0 % of a CPU")
 
 
 if __name__ == "__main__":

@@ -8,7 +8,8 @@ Rig file::
     [ethercat]
     interface = "gl-ecat"  # one end of `gatewaylab net up gl-ecat`; the master uses gl-ecat-m
     pcap = "ecat.pcap"     # optional capture
-    cpu = 1                # optional: pin the busy-polling wire thread
+    cpu = 1                # optional: pin the wire thread
+    busy_poll = false      # optional: true polls the socket without ever blocking (burns a CPU)
 
 Every device participant with ``is_ethercat = True`` and a ``slave`` attribute (an
 :class:`~gatewaylab.ethercat.slave.Slave`) joins the segment, in rig-file order (position 0 first).
@@ -44,8 +45,8 @@ IO_KEYS: dict[str, Key] = {
 SEGMENT_KEYS: dict[str, Key] = {
     "interface": Key(str, required=True, help='one end of `gatewaylab net up NAME`, e.g. interface = "gl-ecat"'),
     "pcap": Key(str),
-    "cpu": Key(int, min=0, help="pin the busy-polling wire thread to this CPU"),
-    "busy_poll": Key(bool, True),
+    "cpu": Key(int, min=0, help="pin the wire thread to this CPU"),
+    "busy_poll": Key(bool, False, help="poll the socket without ever blocking (one CPU at 100 per cent)"),
 }
 
 

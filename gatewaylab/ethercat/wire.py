@@ -1,14 +1,21 @@
 """Raw-socket transport: a segment answering EtherCAT frames on a named network interface.
 
-An AF_PACKET socket bound to EtherType 0x88A4 is busy-polled in its own thread (blocking recv
-adds 50-300 us and occasional ms stalls on a VM, see shared notes 'soem-interop'); frames the
+An AF_PACKET socket bound to EtherType 0x88A4 is served by its own thread. The thread keeps polling
+the socket for :data:`SPIN_AFTER_FRAME_S` after each frame (a master's mailbox exchange or
+back-to-back cycles answer within microseconds), and otherwise blocks in ``select`` on the socket
+and a wake-up socket, so an idle line costs no CPU (issue 21: the old busy poll burned a whole core
+of a 2-CPU machine; the numbers are in docs/decisions.md and ``benchmarks/bench_ethercat.py``).
+``busy_poll=True`` keeps the old behaviour (never block; for a pinned, dedicated CPU). Frames the
 socket itself sent (PACKET_OUTGOING) are ignored. Protocol state is touched only under
-``clock.lock``; with ``drive_clock`` the thread also runs due clock events (standalone use
-without a rig runtime, so SM watchdogs and SYNC0 keep working).
+``clock.lock``; with ``drive_clock`` the thread also runs due clock events (standalone use without
+a rig runtime, so SM watchdogs and SYNC0 keep working).
 
 The frame loop outlives any exception raised while a frame is processed (or a clock event runs):
 the frame is dropped, one log line is written and ``frame_errors`` counts it, and the next frame is
 served, as a real ESC keeps forwarding whatever one frame held.
+
+:meth:`WireTransport.stop` wakes the thread wherever it waits (``select``, or ``clock.lock``, which
+the rig holds while it stops its participants) and returns within milliseconds.
 """
 
 from __future__ import annotations
@@ -20,6 +27,7 @@ import socket
 import threading
 import time
 from contextlib import nullcontext
+from typing import Any, cast
 
 from ..common.clock import Clock, RealTimeClock
 from ..common.errors import ConfigError
@@ -30,21 +38,34 @@ from .wire_pcap import PcapWriter
 PACKET_OUTGOING = 4
 _log = logging.getLogger(__name__)
 MAX_ERRORS_KEPT = 100
+#: Seconds the thread keeps polling after a frame before it blocks on the socket (docs/decisions.md).
+SPIN_AFTER_FRAME_S = 0.0002
+#: With ``drive_clock``: the longest blocking wait, so an event another thread scheduled under the
+#: lock (without waking anyone) still runs within this time.
+DRIVE_MAX_WAIT_S = 0.001
+#: How often a thread waiting for ``clock.lock`` looks whether it was asked to stop.
+LOCK_POLL_S = 0.002
+#: How long :meth:`WireTransport.stop` waits for the thread (it ends within ``LOCK_POLL_S``).
+STOP_JOIN_S = 1.0
 
 
 class WireTransport:
     """Serve ``segment`` on ``interface`` until ``stop()``."""
 
-    def __init__(self, segment: Segment, interface: str, clock: Clock, *, busy_poll: bool = True,
-                 drive_clock: bool = False, pcap: PcapWriter | None = None, cpu: int | None = None) -> None:
+    def __init__(self, segment: Segment, interface: str, clock: Clock, *, busy_poll: bool = False,
+                 drive_clock: bool = False, pcap: PcapWriter | None = None, cpu: int | None = None,
+                 spin_s: float = SPIN_AFTER_FRAME_S) -> None:
         self.segment = segment
         self.interface = interface
         self.clock = clock
         self.busy_poll = busy_poll
+        self.spin_s = spin_s
         self.drive_clock = drive_clock
         self.pcap = pcap
         self.cpu = cpu
         self._sock: socket.socket | None = None
+        self._wake_r: socket.socket | None = None
+        self._wake_w: socket.socket | None = None
         self._thread: threading.Thread | None = None
         self._running = False
         self.frames_in = 0
@@ -68,19 +89,34 @@ class WireTransport:
         sock.setblocking(False)
         if isinstance(self.clock.lock, nullcontext):
             self.clock.lock = threading.RLock()  # this thread and the clock's owner share the state
+        self._wake_r, self._wake_w = socket.socketpair()
+        self._wake_r.setblocking(False)
+        self._wake_w.setblocking(False)
         self._sock = sock
         self._running = True
         self._thread = threading.Thread(target=self._run, name=f"ethercat-wire-{self.interface}", daemon=True)
         self._thread.start()
 
     def stop(self) -> None:
+        """End the thread (woken wherever it waits) and close the socket; idempotent. The caller may
+        hold ``clock.lock`` (the rig stops its participants holding it)."""
         self._running = False
-        if self._thread is not None:
-            self._thread.join(timeout=2.0)
-            self._thread = None
-        if self._sock is not None:
-            self._sock.close()
-            self._sock = None
+        if self._wake_w is not None:
+            try:
+                self._wake_w.send(b"\0")
+            except OSError:     # full: a wake-up is pending anyway
+                pass
+        thread, self._thread = self._thread, None
+        if thread is not None and thread is not threading.current_thread():
+            thread.join(STOP_JOIN_S)
+            if thread.is_alive():
+                _log.warning("ethercat-wire %s: the wire thread did not end within %.1f s", self.interface,
+                             STOP_JOIN_S)
+        for name in ("_sock", "_wake_r", "_wake_w"):
+            sock = getattr(self, name)
+            if sock is not None:
+                sock.close()
+                setattr(self, name, None)
 
     def _fault(self, what: str, exc: BaseException) -> None:
         self.frame_errors += 1
@@ -88,36 +124,71 @@ class WireTransport:
         _log.error("ethercat-wire %s: %s raised %s: %s (dropped; %d so far)", self.interface, what,
                    type(exc).__name__, text, self.frame_errors)
 
+    def _acquire(self, lock: Any) -> bool:
+        """Take ``clock.lock``; False once :meth:`stop` was called meanwhile (whoever stops this thread
+        may hold the lock while it waits for the thread to end)."""
+        if lock.acquire(False):
+            return True
+        while self._running:
+            if lock.acquire(True, LOCK_POLL_S):
+                return True
+        return False
+
+    def _wait(self, sock: socket.socket, wake: socket.socket, timeout: float | None) -> None:
+        """Block until a frame (or a wake-up from :meth:`stop`) arrives or ``timeout`` passed."""
+        ready, _, _ = select.select([sock, wake], [], [], timeout)
+        if wake in ready:
+            try:
+                while wake.recv(64):
+                    pass
+            except OSError:
+                pass
+
     def _run(self) -> None:
         if self.cpu is not None and hasattr(os, "sched_setaffinity"):
             try:
                 os.sched_setaffinity(0, {self.cpu})
             except OSError:
                 pass
-        sock = self._sock
-        assert sock is not None
+        sock, wake = self._sock, self._wake_r
+        assert sock is not None and wake is not None
         buf = bytearray(2048)
         clock = self.clock
+        lock = cast(Any, clock.lock)     # an RLock: start() installed one if there was none
         segment = self.segment
         pcap = self.pcap
         drive = self.drive_clock and isinstance(clock, RealTimeClock)
         busy = self.busy_poll
+        spin = self.spin_s
+        spin_until = 0.0
         next_clock = 0.0
         while self._running:
             try:
                 n, addr = sock.recvfrom_into(buf)
             except BlockingIOError:
+                now = time.monotonic()
+                timeout: float | None = None
                 if drive:
-                    now = time.monotonic()
+                    assert isinstance(clock, RealTimeClock)
                     if now >= next_clock:
-                        assert isinstance(clock, RealTimeClock)
+                        if not self._acquire(lock):
+                            return
                         try:
                             clock.run_due()
+                            due = clock.next_deadline()
                         except Exception as exc:
                             self._fault("a clock event", exc)
+                            due = None
+                        finally:
+                            lock.release()
                         next_clock = now + 0.0002
-                if not busy:
-                    select.select([sock], [], [], 0.001)
+                        timeout = DRIVE_MAX_WAIT_S if due is None else min(
+                            DRIVE_MAX_WAIT_S, max(0.0, due - clock.now()))
+                    else:
+                        timeout = next_clock - now
+                if busy or now < spin_until:
+                    continue
+                self._wait(sock, wake, timeout)
                 continue
             except OSError as exc:
                 if not self._running:
@@ -127,7 +198,7 @@ class WireTransport:
                     self._fault("receive", exc)
                 if len(self.errors) < MAX_ERRORS_KEPT:
                     self.errors.append(str(exc))
-                select.select([], [], [], 0.01)
+                self._wait(sock, wake, 0.01)
                 continue
             if addr[2] == PACKET_OUTGOING:
                 continue
@@ -136,8 +207,12 @@ class WireTransport:
             try:
                 if pcap is not None:
                     pcap.write(time.time(), frame)
-                with clock.lock:
+                if not self._acquire(lock):
+                    return
+                try:
                     ok = segment.process(frame)
+                finally:
+                    lock.release()
                 if not ok:
                     continue
                 try:
@@ -151,3 +226,5 @@ class WireTransport:
                     pcap.write(time.time(), frame)
             except Exception as exc:
                 self._fault(f"frame {self.frames_in}", exc)
+            finally:
+                spin_until = time.monotonic() + spin

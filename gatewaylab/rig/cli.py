@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
+import gc
 import json
 import logging
 import os
@@ -126,6 +128,15 @@ def _start_web(rig: Rig, port: int, db: str | None = None) -> RigWeb:
     return web
 
 
+class _Stopped(BaseException):
+    """SIGTERM/SIGINT while `gatewaylab run` builds, starts or closes its rig: unwind at once (what was
+    made is released on the way out). Not an Exception, so no participant's ``except`` swallows it."""
+
+
+def _stop_at_once(signum: int, frame: FrameType | None) -> None:
+    raise _Stopped(signum)
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
@@ -138,20 +149,26 @@ def cmd_run(args: argparse.Namespace) -> int:
         _check_writable("--trace", path)
     if args.ready_file:
         _check_writable("--ready-file", args.ready_file)
-    config = load_rig(args.rig)
-    if args.socketcand:
-        config = replace(config, buses=tuple(replace(b, socketcand=True) for b in config.buses))
-    rig = Rig(config)
-    if not rig.realtime:
-        print("note: the rig file asks for a simulated clock; `gatewaylab run` always runs in real time",
-              file=sys.stderr)
-        rig.close()
-        from ..common.clock import RealTimeClock
-
-        rig = Rig(config, clock=RealTimeClock())
+    # Until the loop runs (and again while it shuts down), SIGTERM/SIGINT unwind at once: a rig stopped
+    # while it starts leaves no temporary folder, socket or thread behind either (issue 21).
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, _stop_at_once)
+    rig: Rig | None = None
     ready_written = False
     web: RigWeb | None = None
     try:
+        config = load_rig(args.rig)
+        if args.socketcand:
+            config = replace(config, buses=tuple(replace(b, socketcand=True) for b in config.buses))
+        rig = Rig(config)
+        if not rig.realtime:
+            print("note: the rig file asks for a simulated clock; `gatewaylab run` always runs in real time",
+                  file=sys.stderr)
+            rig.close()
+            rig = None
+            from ..common.clock import RealTimeClock
+
+            rig = Rig(config, clock=RealTimeClock())
         for bus_name, path in args.trace or []:
             try:
                 rig.add_trace(bus_name, path)
@@ -168,15 +185,9 @@ def cmd_run(args: argparse.Namespace) -> int:
             info.setdefault("web", {})["monitor"] = web.url
         #: Unix time of the rig's clock time 0: trace files and client timestamps count from it.
         info.setdefault("wall_epoch", rig.clock.wall_epoch)
-
-        def stop(signum: int, frame: FrameType | None) -> None:
-            rig.request_stop()
-
-        signal.signal(signal.SIGINT, stop)
-        signal.signal(signal.SIGTERM, stop)
         if args.ready_file:
+            ready_written = True       # first: a signal during the write still removes what it left
             _write_ready_file(args.ready_file, info)
-            ready_written = True
         print(f"gatewaylab rig {rig.config.source} running (pid {os.getpid()})")
         for name, bus in info["buses"].items():
             print(f"  bus {name}: {bus.get('endpoint', '(no endpoint)')}"
@@ -188,16 +199,25 @@ def cmd_run(args: argparse.Namespace) -> int:
             if key not in ("pid", "buses"):
                 print(f"  {key}: {json.dumps(value)}")
         sys.stdout.flush()
-        rig.run()
+        rig.run()      # its own handlers: the loop returns at its next pass (docs/rig.md)
+    except _Stopped:
+        pass
     finally:
-        if web is not None:
-            web.stop()
-        rig.close()
-        if ready_written:
-            try:
-                os.unlink(args.ready_file)
-            except FileNotFoundError:
-                pass
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(signum, _stop_at_once)   # a second signal while closing: do not wait
+        try:
+            if web is not None:
+                web.stop()
+            if rig is not None:
+                rig.close()
+            if ready_written:
+                for path in (args.ready_file, args.ready_file + ".tmp"):
+                    with contextlib.suppress(FileNotFoundError):
+                        os.unlink(path)
+        finally:
+            # Exit within milliseconds: the collector's passes over every object the rig ever imported
+            # took 120-200 ms of the second SIGTERM promises (issue 21); nothing left needs them.
+            gc.freeze()
     print("gatewaylab rig stopped")
     return 0
 
@@ -302,6 +322,8 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     except KeyboardInterrupt:
         return 130
+    except _Stopped:                       # a second signal cut `gatewaylab run`'s clean-up short
+        return 1
 
 
 if __name__ == "__main__":

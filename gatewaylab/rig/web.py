@@ -23,6 +23,7 @@ from ..bus.bus import BusEvent, Controller, ErrorFrameEvent, StateChangeEvent
 from ..bus.errorframe import bus_error, state_change
 from ..canopen.drive import Drive
 from ..canopen.monitor import BusMonitor, ControllerWatch, MonitorEvent, SignalSource
+from ..common.server_thread import ServerThread
 from ..od.eds import import_eds
 
 #: log lines kept for a page that connects later
@@ -57,7 +58,7 @@ class RigWeb:
         self._timer = clock.call_every(WATCH_PERIOD, self._watch) if clock is not None else None
         self._server = ThreadingHTTPServer(("127.0.0.1", port), self._handler())
         self._server.daemon_threads = True
-        self._thread: threading.Thread | None = None
+        self._thread: ServerThread | None = None
         self.url = f"http://127.0.0.1:{self._server.server_address[1]}/"
         self.closing = False
 
@@ -186,7 +187,7 @@ class RigWeb:
 
     def start(self) -> str:
         """Serve in a daemon thread; returns the page's URL."""
-        self._thread = threading.Thread(target=self._server.serve_forever, name="gatewaylab-web", daemon=True)
+        self._thread = ServerThread(self._server, "gatewaylab-web")
         self._thread.start()
         return self.url
 
@@ -202,8 +203,8 @@ class RigWeb:
                 for name, ctrl in self._listeners.items():
                     self.buses[name].detach(ctrl)
         if self._thread is not None:
-            self._server.shutdown()
-            self._thread.join(5)
+            self._thread.stop()
+            self._thread = None
         self._server.server_close()
 
 

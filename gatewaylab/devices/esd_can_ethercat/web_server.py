@@ -18,6 +18,7 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import Any, cast
 
 from ...common.errors import ConfigError
+from ...common.server_thread import ServerThread
 from .web_pages import EsdWebApp, EsdWebBackend, Request, Response
 
 __all__ = ["DEFAULT_MAX_BODY", "EsdWebError", "EsdWebServer"]
@@ -215,7 +216,7 @@ class EsdWebServer:
         self.max_body = max_body
         self.timeout = timeout
         self._httpd: _HttpServer | None = None
-        self._thread: threading.Thread | None = None
+        self._thread: ServerThread | None = None
 
     @property
     def url(self) -> str | None:
@@ -238,8 +239,7 @@ class EsdWebServer:
             # socketserver closes its socket itself when bind/listen fail
             reason = exc.strerror or str(exc)
             raise EsdWebError(f"esd web server cannot listen on {self.host}:{self.port}: {reason}") from None
-        thread = threading.Thread(target=httpd.serve_forever, kwargs={"poll_interval": 0.2},
-                                  name=f"esd-web-{httpd.server_address[1]}", daemon=True)
+        thread = ServerThread(httpd, f"esd-web-{httpd.server_address[1]}")
         self._httpd, self._thread = httpd, thread
         thread.start()
         url = self.url
@@ -258,8 +258,7 @@ class EsdWebServer:
             return
         with self.app.lock:
             self.app.closed = True
-        httpd.shutdown()
         if thread is not None:
-            thread.join()
+            thread.stop()
         httpd.close_connections()
         httpd.server_close()
