@@ -132,6 +132,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     from .config import load_rig
     from .runtime import Rig
 
+    if args.db and args.web is None:
+        raise UsageError(f"--db {args.db} decodes signals on the --web page: give --web too "
+                         f"(or decode them live with `gatewaylab monitor READY.json --db {args.db}`)")
     _check_rig_file(args.rig)
     for _bus_name, path in args.trace or []:
         check_trace_path(path)
@@ -249,7 +252,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--socketcand", action="store_true",
                      help="serve every bus also over the socketcand protocol on 127.0.0.1 (a free port each, "
                           "listed in the ready file as buses.NAME.socketcand; or socketcand = true per [[bus]])")
-    run.add_argument("--db", metavar="FILE", help="with --web: a signal database (DBC, KCD, ARXML, SYM; cantools) "
+    run.add_argument("--db", metavar="FILE", help="needs --web: a signal database (DBC, KCD, ARXML, SYM; cantools) "
                      "whose frames the page decodes into signals")
     run.add_argument("--acker", action="store_true",
                      help="attach to every bus a passive node that only acknowledges frames, so a lone "
