@@ -102,7 +102,8 @@ EXAMPLES: dict[str, str] = {
                 "  gatewaylab ec reg-read -i gl-ecat-m -p 0 --type uint16 0x0010",
     "reg-write": "gatewaylab ec reg-write --rig rig.toml -p 0 --type uint16 0x0012 0x1234   # station alias\n"
                  "  gatewaylab ec reg-write -i gl-ecat-m -p 0 0x0120 0200",
-    "domains": "gatewaylab ec domains --rig rig.toml -v\n  gatewaylab ec domains --master /tmp/ec.sock   # the live domain",
+    "domains": "gatewaylab ec domains --rig rig.toml -v\n"
+               "  gatewaylab ec domains --master /tmp/ec.sock   # the live domain",
     "data": "gatewaylab ec data -i gl-ecat-m > image.bin\n  gatewaylab ec data --master /tmp/ec.sock --hex",
     "config": "gatewaylab ec config --rig rig.toml\n  gatewaylab ec config -i gl-ecat-m -v -p 0",
     "master": "gatewaylab ec master -i gl-ecat-m --serve /tmp/ec.sock &   # a persistent master\n"

@@ -1,12 +1,13 @@
 """``gatewaylab ec domains``, ``data`` and ``config`` (IgH ``ethercat domains/data/config``, issue 25), in
 process (``--rig``), through SOEM on a veth pair (``-i``, its own module: its own namespace) and through a
-persistent master (``--master SOCKET``). Expected values come from what the slaves say by SDO (the PDO
-assignment 0x1C12/0x1C13 and mapping 0x16xx/0x1Axx, ETG.1000.6 5.6.7), not from the verbs' own code: the
+persistent master (``--master SOCKET``). Expected values come from the slaves' own PDO description (io_device:
+what their SII and 0x1C12/0x1C13 + 0x16xx/0x1Axx say, ETG.1000.6), not from the verbs' code: the
 domain's size is the sum of the mapped bytes, and the expected working counter follows IgH's rule for one
 LRW datagram (ETG.1000.4 LRW: +2 for a slave's written outputs, +1 for its read inputs)."""
 
 from __future__ import annotations
 
+import itertools
 import os
 import re
 import subprocess
@@ -22,7 +23,7 @@ from test_ec_master_server import WAIT
 from test_ec_master_server import ec as ec_process
 
 from gatewaylab.common.clock import RealTimeClock
-from gatewaylab.ethercat.io_device import VENDOR_ID, create_io_slave
+from gatewaylab.ethercat.io_device import VENDOR_ID, create_io_slave, io_description
 from gatewaylab.ethercat.segment import Segment
 from gatewaylab.ethercat.wire import WireTransport
 
@@ -52,32 +53,23 @@ def line(request: pytest.FixtureRequest, tmp_path: Path, capsysbinary: pytest.Ca
     return PysoemEc(request.getfixturevalue("veth_ns"), request.getfixturevalue("domains_wire_segment"))
 
 
-def _u(ec: Any, pos: int, index: int, sub: int, ctype: str) -> int:
+def _u(ec: Ec, pos: int, index: int, sub: int, ctype: str) -> int:
     """One unsigned value by SDO upload (``0x.. decimal``)."""
-    r = ec("upload", "-p", str(pos), "--type", ctype, f"0x{index:04X}", str(sub))
-    out = r.text if hasattr(r, "text") else r.stdout
-    return int(out.split()[0], 16)
+    return int(_ok(ec("upload", "-p", str(pos), "--type", ctype, f"0x{index:04X}", str(sub))).text.split()[0], 16)
 
 
-def mapped_bytes(ec: Any, pos: int, assign: int) -> tuple[int, list[tuple[int, int, int, int]]]:
-    """(bytes, [(pdo, index, sub, bits)]) of one direction, by SDO: the assignment object ``assign``
-    (0x1C12 outputs, 0x1C13 inputs) and each assigned PDO's mapping entries (index << 16 | sub << 8 | bits)."""
-    entries = []
-    for i in range(1, _u(ec, pos, assign, 0, "uint8") + 1):
-        pdo = _u(ec, pos, assign, i, "uint16")
-        for j in range(1, _u(ec, pos, pdo, 0, "uint8") + 1):
-            word = _u(ec, pos, pdo, j, "uint32")
-            entries.append((pdo, word >> 16, word >> 8 & 0xFF, word & 0xFF))
-    return (sum(e[3] for e in entries) + 7) // 8, entries
+def mapping(output: bool) -> list[tuple[int, int, int, int]]:
+    """[(pdo, index, sub, bits)] of an ethercat_io box's RxPDOs (``output``) or TxPDOs, from its device
+    description (io_device.io_description: what its SII and 0x1C12/0x1C13 say)."""
+    desc = io_description()
+    return [(p.index, e.index, e.subindex, e.bit_length) for p in (desc.rx_pdos if output else desc.tx_pdos)
+            for e in p.entries]
 
 
-def expected_domain(ec: Any, count: int) -> tuple[int, int, dict[tuple[int, bool], int]]:
-    """(size, expected working counter, {(slave, output): bytes}) of the line by SDO; one LRW datagram:
-    each slave with outputs counts 2, with inputs 1 (IgH ec_domain: 2 * outputs + inputs)."""
-    sizes = {}
-    for pos in range(count):
-        sizes[(pos, True)] = mapped_bytes(ec, pos, 0x1C12)[0]
-        sizes[(pos, False)] = mapped_bytes(ec, pos, 0x1C13)[0]
+def expected_domain(count: int) -> tuple[int, int, dict[tuple[int, bool], int]]:
+    """(size, expected working counter, {(slave, output): bytes}) of ``count`` ethercat_io boxes; one LRW
+    datagram: each slave with outputs counts 2, with inputs 1 (IgH ec_domain: 2 * outputs + inputs)."""
+    sizes = {(pos, out): (sum(e[3] for e in mapping(out)) + 7) // 8 for pos in range(count) for out in (True, False)}
     wkc = sum((2 if output else 1) for (_pos, output), n in sizes.items() if n)
     return sum(sizes.values()), wkc, sizes
 
@@ -101,8 +93,7 @@ def test_domains_one_shot_maps_and_matches_the_mapping(line: Ec) -> None:
     every slave) and working counter current/expected after the one exchange a one-shot command makes;
     -v: one FMMU per slave and direction, on SM2 (outputs) / SM3 (inputs) as the SII says, laid out
     without gaps or overlaps over the domain."""
-    size, wkc, sizes = expected_domain(line, 2)
-    assert size == 28 and wkc == 6          # two ethercat_io boxes: 5 + 9 bytes each (io_device.py)
+    size, wkc, sizes = expected_domain(2)
     plain = _ok(line("domains")).text
     head, fmmus, _ = parse_domains(plain)
     assert head == (0, size, wkc, wkc)
@@ -114,7 +105,7 @@ def test_domains_one_shot_maps_and_matches_the_mapping(line: Ec) -> None:
     assert all(sm == sm_of[out] for _p, sm, out, _a, _n in fmmus)
     covered = sorted((a, a + n) for _p, _sm, _o, a, n in fmmus)
     assert covered[0][0] == head[0] and covered[-1][1] == head[0] + head[1]
-    assert all(end == nxt for (_s, end), (nxt, _e) in zip(covered, covered[1:], strict=False))
+    assert all(end == nxt for (_s, end), (nxt, _e) in itertools.pairwise(covered))
     assert [len(d) for d in data] == [f[4] for f in fmmus]
     binary = _ok(line("data")).out
     assert len(binary) == size
@@ -124,16 +115,15 @@ def test_domains_one_shot_maps_and_matches_the_mapping(line: Ec) -> None:
 
 def test_config_lists_the_slave_configurations(line: Ec) -> None:
     """IgH ``ethercat config``: ``alias:position  vendor/product  slave  state`` per configuration; -v the
-    SyncManagers with direction and watchdog and the PDOs with their entries, as the slave's mapping
-    objects say (ETG.1000.6 0x1C12/0x1C13, 0x16xx/0x1Axx)."""
+    SyncManagers with direction and watchdog and the PDOs with their entries, as the box's PDO
+    description says (ETG.1000.6 0x1C12/0x1C13, 0x16xx/0x1Axx)."""
     rows = [ln.split() for ln in _ok(line("config")).text.splitlines()]
     product = f"0x{VENDOR_ID:08x}/0x{_u(line, 0, 0x1018, 2, 'uint32'):08x}"
     assert rows == [["0:0", product, "0", "PREOP"], ["0:1", product, "1", "PREOP"]]
     text = _ok(line("config", "-v", "-p", "1")).text
     assert text.startswith(f"Alias: 0\nPosition: 1\nVendor Id: 0x{VENDOR_ID:08x}\n")
     assert "Attached slave: 1 (PREOP)\n" in text
-    _n, outs = mapped_bytes(line, 1, 0x1C12)
-    _n, ins = mapped_bytes(line, 1, 0x1C13)
+    outs, ins = mapping(True), mapping(False)
     want = ["SM2, Dir: Output, Watchdog: Enable"]
     for entries in (outs, ins):
         for pdo in dict.fromkeys(e[0] for e in entries):
@@ -161,7 +151,7 @@ def test_domains_and_data_of_a_persistent_master(tmp_path: Path) -> None:
     try:
         assert server.stdout is not None
         assert server.stdout.readline().startswith("master serving")
-        size, wkc, sizes = expected_domain(lambda *a: ec_process(a[0], "--master", sock, *a[1:]), 2)
+        size, wkc, sizes = expected_domain(2)
         first = ec_process("domains", "--master", sock, "-v")      # maps the segment
         assert first.returncode == 0, first.stderr
         assert parse_domains(first.stdout)[0][:2] == (0, size)
