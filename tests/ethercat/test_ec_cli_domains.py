@@ -13,44 +13,21 @@ import re
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
 
-import pytest
-from test_ec_cli import RIG, Ec, InProcessEc, PysoemEc, _fails, _ok
+import test_ec_cli
+from test_ec_cli import RIG, Ec, _fails, _ok
 from test_ec_master_server import WAIT
 from test_ec_master_server import ec as ec_process
 
-from gatewaylab.common.clock import RealTimeClock
-from gatewaylab.ethercat.io_device import VENDOR_ID, create_io_slave, io_description
-from gatewaylab.ethercat.segment import Segment
-from gatewaylab.ethercat.wire import WireTransport
+from gatewaylab.ethercat.io_device import VENDOR_ID, io_description
+
+#: test_ec_cli's fixtures: RIG's line in process and over SOEM (``pysoem``: in this module's own namespace).
+line = test_ec_cli.ec
+wire_segment = test_ec_cli.wire_segment
 
 DOMAIN = re.compile(r"Domain0: LogBaseAddr 0x([0-9a-f]{8}), Size +(\d+), WorkingCounter (\d+)/(\d+)$")
 FMMU = re.compile(r"  SlaveConfig 0:(\d+), SM(\d+) \( ?(Output|Input)\), LogAddr 0x([0-9a-f]{8}), Size (\d+)$")
-
-
-@pytest.fixture(scope="module")
-def domains_wire_segment(veth_ns: Any) -> Iterator[Segment]:
-    """RIG's two ethercat_io slaves on the emulator end of this module's veth pair."""
-    clock = RealTimeClock()
-    segment = Segment([create_io_slave(clock, "io-a"), create_io_slave(clock, "io-b", serial=7, revision=2)])
-    wire = WireTransport(segment, veth_ns.emulator_iface, clock, drive_clock=True)
-    wire.start()
-    try:
-        yield segment
-    finally:
-        wire.stop()
-
-
-@pytest.fixture(params=["inprocess", pytest.param("pysoem", marks=[pytest.mark.net, pytest.mark.slow])])
-def line(request: pytest.FixtureRequest, tmp_path: Path, capsysbinary: pytest.CaptureFixture[bytes]) -> Ec:
-    if request.param == "inprocess":
-        rig = tmp_path / "rig.toml"
-        rig.write_text(RIG)
-        return InProcessEc(rig, capsysbinary)
-    return PysoemEc(request.getfixturevalue("veth_ns"), request.getfixturevalue("domains_wire_segment"))
 
 
 def _u(ec: Ec, pos: int, index: int, sub: int, ctype: str) -> int:
