@@ -8,16 +8,13 @@ LRW datagram (ETG.1000.4 LRW: +2 for a slave's written outputs, +1 for its read 
 from __future__ import annotations
 
 import itertools
-import os
 import re
-import subprocess
-import sys
 import time
 from pathlib import Path
 
 import test_ec_cli
 from test_ec_cli import RIG, Ec, _fails, _ok
-from test_ec_master_server import WAIT
+from test_ec_master_server import WAIT, serving
 from test_ec_master_server import ec as ec_process
 
 from gatewaylab.ethercat.io_device import VENDOR_ID, io_description
@@ -122,10 +119,7 @@ def test_domains_and_data_of_a_persistent_master(tmp_path: Path) -> None:
     rig = tmp_path / "rig.toml"
     rig.write_text(RIG)
     sock = str(tmp_path / "ec.sock")
-    server = subprocess.Popen([sys.executable, "-m", "gatewaylab", "ec", "master", "--rig", str(rig), "--serve", sock],
-                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                              env={**os.environ, "PYTHONUNBUFFERED": "1"})
-    try:
+    with serving(rig, sock) as server:
         assert server.stdout is not None
         assert server.stdout.readline().startswith("master serving")
         size, wkc, sizes = expected_domain(2)
@@ -158,7 +152,3 @@ def test_domains_and_data_of_a_persistent_master(tmp_path: Path) -> None:
         assert [ln.split()[3] for ln in config.stdout.splitlines()] == ["OP", "OP"]
         assert ec_process("master", "--master", sock, "--stop").returncode == 0
         assert server.wait(WAIT) == 0
-    finally:
-        if server.poll() is None:
-            server.kill()
-            server.wait()
