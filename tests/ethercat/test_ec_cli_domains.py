@@ -12,8 +12,10 @@ import re
 import time
 from pathlib import Path
 
+import pytest
 import test_ec_cli
-from test_ec_cli import RIG, Ec, _fails, _ok
+from test_ec_cli import RIG, Ec, InProcessEc, _fails, _ok
+from test_ec_cli_esd import ESD_RIG
 from test_ec_master_server import WAIT, serving
 from test_ec_master_server import ec as ec_process
 
@@ -152,3 +154,30 @@ def test_domains_and_data_of_a_persistent_master(tmp_path: Path) -> None:
         assert [ln.split()[3] for ln in config.stdout.splitlines()] == ["OP", "OP"]
         assert ec_process("master", "--master", sock, "--stop").returncode == 0
         assert server.wait(WAIT) == 0
+
+
+def sdo_mapped_bytes(ec: Ec, pos: int, assign: int) -> int:
+    """Bytes one slave maps in a direction, by SDO: the assignment ``assign`` (0x1C12 outputs, 0x1C13
+    inputs) and each assigned PDO's entries (index << 16 | subindex << 8 | bit length, ETG.1000.6)."""
+    bits = 0
+    for i in range(1, _u(ec, pos, assign, 0, "uint8") + 1):
+        pdo = _u(ec, pos, assign, i, "uint16")
+        bits += sum(_u(ec, pos, pdo, j, "uint32") & 0xFF for j in range(1, _u(ec, pos, pdo, 0, "uint8") + 1))
+    return (bits + 7) // 8
+
+
+def test_domains_of_a_mixed_line_match_the_sdo_mapping(tmp_path: Path,
+                                                       capsysbinary: pytest.CaptureFixture[bytes]) -> None:
+    """An ethercat_io box and the esd gateway (MDP 5000 queues, a 380-byte image): the domain's FMMUs
+    and size agree with what each slave's 0x1C12/0x1C13 mapping says by SDO, and the expected working
+    counter with IgH's rule (2 per slave with outputs, 1 per slave with inputs)."""
+    rig = tmp_path / "esd.toml"
+    rig.write_text(ESD_RIG)
+    ec = InProcessEc(rig, capsysbinary)
+    sizes = {(pos, out): sdo_mapped_bytes(ec, pos, 0x1C12 if out else 0x1C13)
+             for pos in (0, 1) for out in (True, False)}
+    wkc = sum((2 if out else 1) for (_p, out), n in sizes.items() if n)
+    (base, size, cur, exp), fmmus, _data = parse_domains(_ok(ec("domains", "-v")).text)
+    assert (base, size, cur, exp) == (0, sum(sizes.values()), wkc, wkc)
+    assert {(pos, out): n for pos, _sm, out, _a, n in fmmus} == {k: n for k, n in sizes.items() if n}
+    assert len(_ok(ec("data")).out) == size
