@@ -18,7 +18,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO, Any, NoReturn, Protocol
+from typing import IO, Any, NoReturn, Protocol, runtime_checkable
 
 from ..common.clock import Clock
 from ..common.errors import ConfigError, GatewaylabError
@@ -33,7 +33,7 @@ from .backend import (
     al_status_name,
 )
 from .errors import AlStatusError, FoeError, FoeErrorCode
-from .esc import AlState
+from .esc import FMMU_REG, REG_FMMU, AlState
 from .sii import CATEGORY_HEADER, PDO_ENTRY, PDO_HEADER, Category, SmType
 
 PROG = "gatewaylab ec"
@@ -102,6 +102,10 @@ EXAMPLES: dict[str, str] = {
                 "  gatewaylab ec reg-read -i gl-ecat-m -p 0 --type uint16 0x0010",
     "reg-write": "gatewaylab ec reg-write --rig rig.toml -p 0 --type uint16 0x0012 0x1234   # station alias\n"
                  "  gatewaylab ec reg-write -i gl-ecat-m -p 0 0x0120 0200",
+    "domains": "gatewaylab ec domains --rig rig.toml -v\n"
+               "  gatewaylab ec domains --master /tmp/ec.sock   # the live domain",
+    "data": "gatewaylab ec data -i gl-ecat-m > image.bin\n  gatewaylab ec data --master /tmp/ec.sock --hex",
+    "config": "gatewaylab ec config --rig rig.toml\n  gatewaylab ec config -i gl-ecat-m -v -p 0",
     "master": "gatewaylab ec master -i gl-ecat-m --serve /tmp/ec.sock &   # a persistent master\n"
               "  gatewaylab ec states --master /tmp/ec.sock OP               # slaves stay in OP between calls\n"
               "  gatewaylab ec master --master /tmp/ec.sock                  # its state\n"
@@ -301,6 +305,11 @@ def _selected(backend: MasterBackend, args: argparse.Namespace) -> list[int]:
     return [int(args.position)]
 
 
+def _state_name(status: int) -> str:
+    """The state of an AL status byte by name (``0x3`` for a value that is no state)."""
+    return AlState(status & 0x0F).name if status & 0x0F in set(STATES.values()) else f"0x{status & 0x0F:X}"
+
+
 def _header(position: int, several: bool, out: IO[str]) -> None:
     if several:
         print(f"=== Master 0, Slave {position} ===", file=out)
@@ -314,8 +323,7 @@ def cmd_slaves(backend: MasterBackend, args: argparse.Namespace, out: IO[str]) -
     rows = []
     for pos in positions:
         status, code = backend.al_status(pos)
-        state = AlState(status & 0x0F).name if status & 0x0F in set(STATES.values()) else f"0x{status & 0x0F:X}"
-        rows.append((pos, state, "E" if status & 0x10 else "+", code))
+        rows.append((pos, _state_name(status), "E" if status & 0x10 else "+", code))
     if args.verbose:
         for pos, state, flag, code in rows:
             s = ident[pos]
@@ -346,7 +354,7 @@ def cmd_states(backend: MasterBackend, args: argparse.Namespace, out: IO[str]) -
                 backend.request_state(step, pos)
     for pos in positions:
         status, code = backend.al_status(pos)
-        state = AlState(status & 0x0F).name if status & 0x0F in set(STATES.values()) else f"0x{status & 0x0F:X}"
+        state = _state_name(status)
         print(f"{pos}  {state:<6}  {'E' if status & 0x10 else '+'}  {al_status_name(code)}", file=out)
 
 
@@ -431,6 +439,16 @@ class _SyncLayout:
     sm_type: int
     pdos: tuple[tuple[int, str, tuple[tuple[int, int, int, str], ...]], ...]
 
+    @property
+    def output(self) -> bool:
+        """Master writes, slave reads: SM control register direction bits 2-3 = 01 (ETG.1000.4 SM)."""
+        return self.control & 0x0C == 0x04
+
+    @property
+    def watchdog(self) -> bool:
+        """The SM's watchdog trigger (control register bit 6)."""
+        return bool(self.control & 0x40)
+
 
 def _layout(backend: MasterBackend, pos: int) -> list[_SyncLayout]:
     """SyncManagers (SII), their assigned PDOs (0x1C1x by SDO for CoE slaves) and each PDO's mapped
@@ -493,9 +511,9 @@ def cmd_cstruct(backend: MasterBackend, args: argparse.Namespace, out: IO[str]) 
         print(f"ec_sync_info_t slave_{pos}_syncs[] = {{", file=out)
         at = 0
         for sm in layout:
-            direction = "EC_DIR_OUTPUT" if sm.control & 0x0C == 0x04 else "EC_DIR_INPUT"
+            direction = "EC_DIR_OUTPUT" if sm.output else "EC_DIR_INPUT"
             where = f"slave_{pos}_pdos + {at}" if sm.pdos else "NULL"
-            watchdog = "EC_WD_ENABLE" if sm.control & 0x40 else "EC_WD_DISABLE"
+            watchdog = "EC_WD_ENABLE" if sm.watchdog else "EC_WD_DISABLE"
             print(f"    {{{sm.index}, {direction}, {len(sm.pdos)}, {where}, {watchdog}}},", file=out)
             at += len(sm.pdos)
         print("    {0xff}\n};\n", file=out)
@@ -522,12 +540,17 @@ def _assigned(backend: MasterBackend, pos: int, sm_index: int, coe: bool,
 def cmd_sii_read(backend: MasterBackend, args: argparse.Namespace, out: IO[str]) -> None:
     """IgH ``ethercat sii_read``: the SII bytes to stdout (binary), ``--hex`` as an offset/hex listing."""
     img = backend.sii_read(_one(backend, args))
-    if args.hex:
-        for off in range(0, len(img), 16):
-            print(f"{off:04x}: {img[off:off + 16].hex(' ')}", file=out)
+    _bytes_out(img, args.hex, out)
+
+
+def _bytes_out(data: bytes, hex_listing: bool, out: IO[str]) -> None:
+    """Binary to stdout, or (``--hex``) an offset/hex listing, 16 bytes a line."""
+    if hex_listing:
+        for off in range(0, len(data), 16):
+            print(f"{off:04x}: {data[off:off + 16].hex(' ')}", file=out)
         return
     out.flush()
-    _binary_out().write(img)
+    _binary_out().write(data)
 
 
 def _binary_out() -> IO[bytes]:
@@ -687,6 +710,147 @@ def _type_size(ctype: CoeType) -> int:
     return ctype.size
 
 
+# ------------------------------------------------------------------------------- domain, config
+#: FMMUs an ESC may have (ETG.1000.4 registers 0x0600-0x06FF, 16 bytes each).
+MAX_FMMUS = 16
+#: FMMU type register: 1 = read (the slave's inputs), 2 = write (its outputs).
+FMMU_READ, FMMU_WRITE = 1, 2
+
+
+@runtime_checkable
+class LiveMaster(Protocol):
+    """The backend of a persistent master (ec_server): mapped or not, and its exchange counters."""
+
+    @property
+    def mapped(self) -> bool: ...
+
+    def counters(self) -> tuple[int, int | None, int | None]: ...
+
+
+@dataclass(frozen=True, slots=True)
+class DomainFmmu:
+    """One process-data FMMU as the slave's registers hold it (IgH ``domains -v`` lines)."""
+
+    position: int
+    sm: int
+    output: bool
+    logical: int
+    size: int
+
+
+@dataclass(frozen=True, slots=True)
+class Domain:
+    """The one process-data domain of the master: the mapped image (IgH ``ethercat domains``)."""
+
+    base: int
+    size: int
+    fmmus: tuple[DomainFmmu, ...]
+    working_counter: int | None
+    expected: int | None
+    exchanges: int
+    wkc_errors: int
+    data: bytes
+
+
+def slave_fmmus(backend: MasterBackend, pos: int) -> list[DomainFmmu]:
+    """The active read/write FMMUs of one slave (registers 0x0600..), each with the SyncManager whose
+    physical start it maps (SyncManagers from the SII): what the master programmed, on either backend."""
+    raw = backend.reg_read(pos, REG_FMMU, 16 * MAX_FMMUS)
+    starts = {sm[0]: i for i, sm in enumerate(backend.sii_info(pos).sync_managers)}
+    out = []
+    for k in range(MAX_FMMUS):
+        logical, length, _b0, _b1, phys, _pbit, ftype, active = FMMU_REG.unpack_from(raw, 16 * k)
+        if active & 1 and length and ftype in (FMMU_READ, FMMU_WRITE) and phys in starts:
+            out.append(DomainFmmu(pos, starts[phys], ftype == FMMU_WRITE, logical, length))
+    return out
+
+
+def read_domain(backend: MasterBackend) -> Domain:
+    """The domain: mapped first if the master has not (one exchange then, as a one-shot command has no
+    cycle), its FMMUs from the slaves' registers and the image put together from outputs and inputs."""
+    live = backend if isinstance(backend, LiveMaster) else None
+    wkc: int | None = None
+    expected: int | None = None
+    exchanges = 0
+    if live is None or not live.mapped:
+        backend.config_map()
+        wkc, expected = backend.exchange()
+        exchanges = 1
+    if live is not None:
+        exchanges, wkc, expected = live.counters()
+    fmmus = sorted((f for pos in range(len(backend.slaves())) for f in slave_fmmus(backend, pos)),
+                   key=lambda f: (f.logical, f.position))
+    base = min((f.logical for f in fmmus), default=0)
+    size = max((f.logical + f.size for f in fmmus), default=base) - base
+    image = bytearray(size)
+    for f in fmmus:
+        part = bytes(backend.outputs(f.position)) if f.output else backend.inputs(f.position)
+        at = f.logical - base
+        image[at:at + f.size] = part[:f.size].ljust(f.size, b"\0")
+    return Domain(base, size, tuple(fmmus), wkc, expected, exchanges, backend.wkc_errors, bytes(image))
+
+
+def _check_domain(args: argparse.Namespace) -> None:
+    if args.domain not in (None, 0):
+        raise EcUsage(f"no domain {args.domain} (the master has one domain: 0, the mapped image)")
+
+
+def cmd_domains(backend: MasterBackend, args: argparse.Namespace, out: IO[str]) -> None:
+    """IgH ``ethercat domains``: logical base address, size, working counter (last / expected), the
+    exchanges so far; ``-v``: each FMMU (slave, SM, direction, logical address, size) with its data."""
+    _check_domain(args)
+    d = read_domain(backend)
+    wkc = "-" if d.working_counter is None else str(d.working_counter)
+    expected = "-" if d.expected is None else str(d.expected)
+    print(f"Domain0: LogBaseAddr 0x{d.base:08x}, Size {d.size:3d}, WorkingCounter {wkc}/{expected}", file=out)
+    print(f"  Exchanges {d.exchanges}, WorkingCounter mismatches {d.wkc_errors}", file=out)
+    if not args.verbose:
+        return
+    for f in d.fmmus:
+        print(f"  SlaveConfig 0:{f.position}, SM{f.sm} ({'Output' if f.output else 'Input':>6}), "
+              f"LogAddr 0x{f.logical:08x}, Size {f.size}", file=out)
+        data = d.data[f.logical - d.base:f.logical - d.base + f.size]
+        for k in range(0, len(data), 16):
+            print(f"    {data[k:k + 16].hex(' ')}", file=out)
+
+
+def cmd_data(backend: MasterBackend, args: argparse.Namespace, out: IO[str]) -> None:
+    """IgH ``ethercat data``: the domain's process data, binary on stdout (``--hex``: a listing)."""
+    _check_domain(args)
+    _bytes_out(read_domain(backend).data, args.hex, out)
+
+
+def cmd_config(backend: MasterBackend, args: argparse.Namespace, out: IO[str]) -> None:
+    """IgH ``ethercat config``: one slave configuration per slave (alias:position, vendor/product,
+    the attached slave and its state); ``-v``: the SyncManagers with the PDOs and entries assigned."""
+    ident = {s.position: s for s in backend.slaves()}
+    rows = []
+    for pos in _selected(backend, args):
+        status, _code = backend.al_status(pos)
+        rows.append((pos, _state_name(status) + ("+ERROR" if status & 0x10 else "")))
+    if not args.verbose:
+        wpos = max(len(str(p)) for p, _ in rows)
+        for pos, state in rows:
+            s = ident[pos]
+            print(f"0:{pos:<{wpos}}  0x{s.vendor_id:08x}/0x{s.product_code:08x}  {pos:>{wpos}}  {state}", file=out)
+        return
+    for pos, state in rows:
+        s = ident[pos]
+        print(f"Alias: 0\nPosition: {pos}\nVendor Id: 0x{s.vendor_id:08x}\nProduct code: 0x{s.product_code:08x}\n"
+              f"Attached slave: {pos} ({state})\nWatchdog divider: (Default)\nWatchdog intervals: (Default)",
+              file=out)
+        for sm in _layout(backend, pos):
+            if not sm.pdos:
+                continue
+            print(f"SM{sm.index}, Dir: {'Output' if sm.output else 'Input'}, "
+                  f"Watchdog: {'Enable' if sm.watchdog else 'Disable'}", file=out)
+            for pdo_index, _name, entries in sm.pdos:
+                print(f"  PDO 0x{pdo_index:04x}", file=out)
+                for e_index, e_sub, bits, _e_name in entries:
+                    print(f"    PDO entry 0x{e_index:04x}:{e_sub:02x}, {bits:2d} bit", file=out)
+        print("SDO configuration:\n  None.\nIDN configuration:\n  None.\nFeature flags:\n  None.\n", file=out)
+
+
 def cmd_master(backend: MasterBackend, args: argparse.Namespace, out: IO[str]) -> None:
     """``master``: the master's state (IgH ``ethercat master``); with ``--serve SOCKET`` it stays up
     as a persistent master the other verbs attach to with ``--master SOCKET``."""
@@ -729,6 +893,9 @@ VERBS: dict[str, tuple[Callable[[MasterBackend, argparse.Namespace, IO[str]], No
     "xml": (cmd_xml, "an ESI (EtherCATInfo XML) of the slave from its SII and PDO assignment"),
     "reg-read": (cmd_reg_read, "read ESC registers: reg-read [--type TYPE] ADDRESS [SIZE]"),
     "reg-write": (cmd_reg_write, "write ESC registers: reg-write [--type TYPE] ADDRESS DATA"),
+    "domains": (cmd_domains, "the process-data domain: base address, size, working counter; -v: FMMUs and data"),
+    "data": (cmd_data, "the domain's process data (binary to stdout, or --hex)"),
+    "config": (cmd_config, "the slave configurations: identity, attached slave, state; -v: SMs, PDOs, entries"),
 }
 
 
@@ -807,9 +974,9 @@ def _remote(args: argparse.Namespace) -> int:
         raise EcUsage("give the line once: --master SOCKET attaches to a master that has it")
     if args.verb == "master" and args.serve:
         raise EcUsage("--serve starts a master on -i IFNAME or --rig RIG.toml, not on another master")
-    if (args.verb == "sii-read" and not args.hex) or (args.verb == "foe-read" and not args.output):
+    if (args.verb in ("sii-read", "data") and not args.hex) or (args.verb == "foe-read" and not args.output):
         raise EcUsage(f"{args.verb} through --master writes no binary to stdout: give "
-                      f"{'--hex' if args.verb == 'sii-read' else '-o FILE'}")
+                      f"{'-o FILE' if args.verb == 'foe-read' else '--hex'}")
     payload: dict[str, Any] = {}
     for key, value in vars(args).items():
         if key in _LOCAL_ARGS or callable(value):
@@ -889,8 +1056,16 @@ def add_subcommand(subparsers: Any, open_rig: RigOpener | None = None) -> None:
                              formatter_class=argparse.RawDescriptionHelpFormatter)
         p.error = types.MethodType(_one_line_error, p)
         p.set_defaults(func=cmd_ec, open_rig=open_rig)
-        if verb == "slaves":
-            p.add_argument("-v", "--verbose", action="store_true", help="identity and status of each slave")
+        if verb in ("slaves", "config"):
+            p.add_argument("-v", "--verbose", action="store_true",
+                           help="identity and status of each slave" if verb == "slaves"
+                           else "the SyncManagers, PDOs and entries of each configuration")
+        elif verb in ("domains", "data"):
+            p.add_argument("-d", "--domain", type=int, metavar="INDEX", help="domain index (there is one: 0)")
+            if verb == "domains":
+                p.add_argument("-v", "--verbose", action="store_true", help="the FMMUs and their process data")
+            else:
+                p.add_argument("--hex", action="store_true", help="an offset/hex listing instead of binary")
         elif verb in ("reg-read", "reg-write"):
             p.add_argument("-t", "--type", choices=list(TYPES), metavar="TYPE",
                            help=f"data type: {', '.join(TYPES)} (default: raw bytes in hex)")

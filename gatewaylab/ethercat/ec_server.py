@@ -32,7 +32,8 @@ MAX_REQUEST = 16 * 1024 * 1024     # a foe-write carries its file (base64)
 
 
 class _Mapped:
-    """The backend as verbs see it: notes when a verb maps the process data (config_map)."""
+    """The backend as verbs see it: notes when a verb maps the process data (config_map), counts the
+    exchanges verbs make, and tells ``domains`` the live domain's state (ec_cli.LiveMaster)."""
 
     def __init__(self, backend: MasterBackend, server: EcMasterServer) -> None:
         self._backend = backend
@@ -42,6 +43,17 @@ class _Mapped:
         size = self._backend.config_map()
         self._server.mapped = True
         return size
+
+    @property
+    def mapped(self) -> bool:
+        return self._server.mapped
+
+    def exchange(self) -> tuple[int, int]:
+        return self._server.count(self._backend.exchange())
+
+    def counters(self) -> tuple[int, int | None, int | None]:
+        """(exchanges, working counter of the last one, the one expected then) of the cycling master."""
+        return self._server.exchanges, self._server.last_wkc, self._server.last_expected
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self._backend, name)
@@ -60,6 +72,7 @@ class EcMasterServer:
         self.mapped = False
         self.exchanges = 0
         self.last_wkc: int | None = None
+        self.last_expected: int | None = None
         self.requests = 0
         self._lock = threading.Lock()
         self._stop = threading.Event()
@@ -86,6 +99,12 @@ class EcMasterServer:
                 "exchanges": self.exchanges, "working_counter": self.last_wkc, "requests": self.requests,
                 "pid": os.getpid(), "socket": str(self.path)}
 
+    def count(self, result: tuple[int, int]) -> tuple[int, int]:
+        """Note one exchange's (working counter, expected)."""
+        self.exchanges += 1
+        self.last_wkc, self.last_expected = result
+        return result
+
     def _cycling(self) -> None:
         """Process data every cycle once mapped: the SM watchdog of slaves in SAFEOP/OP stays fed."""
         next_t = time.monotonic()
@@ -93,9 +112,7 @@ class EcMasterServer:
             if self.mapped:
                 with self._lock:
                     try:
-                        _, wkc = self.backend.exchange()
-                        self.exchanges += 1
-                        self.last_wkc = wkc
+                        self.count(self.backend.exchange())
                     except (GatewaylabError, OSError):
                         pass      # a lost frame or an unplugged line: the next cycle tries again
             next_t += self.cycle

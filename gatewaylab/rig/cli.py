@@ -143,6 +143,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     from .config import load_rig
     from .runtime import Rig
 
+    if args.db and args.web is None:
+        raise UsageError(f"--db {args.db} decodes signals on the --web page: give --web too "
+                         f"(or decode them live with `gatewaylab monitor READY.json --db {args.db}`)")
     _check_rig_file(args.rig)
     for _bus_name, path in args.trace or []:
         check_trace_path(path)
@@ -246,7 +249,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "CAN / CAN FD buses with simulated CANopen drives.",
         epilog="Run 'gatewaylab COMMAND --help' for the options of each command.")
     parser.add_argument("--version", action="version", version=f"gatewaylab {__version__}")
-    parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages to stderr")
+    parser.add_argument("-v", "--verbose", dest="verbose_log", action="store_true", help="log debug messages to stderr")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
     run = sub.add_parser(
@@ -269,7 +272,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--socketcand", action="store_true",
                      help="serve every bus also over the socketcand protocol on 127.0.0.1 (a free port each, "
                           "listed in the ready file as buses.NAME.socketcand; or socketcand = true per [[bus]])")
-    run.add_argument("--db", metavar="FILE", help="with --web: a signal database (DBC, KCD, ARXML, SYM; cantools) "
+    run.add_argument("--db", metavar="FILE", help="needs --web: a signal database (DBC, KCD, ARXML, SYM; cantools) "
                      "whose frames the page decodes into signals")
     run.add_argument("--acker", action="store_true",
                      help="attach to every bus a passive node that only acknowledges frames, so a lone "
@@ -302,7 +305,7 @@ def _one_line(exc: BaseException) -> str:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.WARNING,
+    logging.basicConfig(level=logging.DEBUG if args.verbose_log else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
     if not getattr(args, "func", None):
         parser.print_help()

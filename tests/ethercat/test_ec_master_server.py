@@ -8,6 +8,8 @@ import os
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 RIG = """clock = "simulated"
@@ -28,16 +30,28 @@ def ec(*args: str) -> subprocess.CompletedProcess[str]:
                           timeout=WAIT)
 
 
+@contextmanager
+def serving(rig: Path, sock: str) -> Iterator[subprocess.Popen[str]]:
+    """``gatewaylab ec master --rig RIG --serve SOCK`` as a child (killed if a test leaves it running)."""
+    server = subprocess.Popen([sys.executable, "-m", "gatewaylab", "ec", "master", "--rig", str(rig), "--serve", sock],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                              env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    try:
+        assert server.stdout is not None
+        yield server
+    finally:
+        if server.poll() is None:
+            server.kill()
+            server.wait()
+
+
 def test_slaves_stay_in_op_between_calls_of_a_persistent_master(tmp_path: Path) -> None:
     """ETG.1000.6 SM watchdog: a master that keeps exchanging process data keeps its slaves in OP; the
     verbs of separate calls see the state the previous call left (a one-shot --rig starts in PREOP)."""
     rig = tmp_path / "rig.toml"
     rig.write_text(RIG)
     sock = str(tmp_path / "ec.sock")
-    server = subprocess.Popen([sys.executable, "-m", "gatewaylab", "ec", "master", "--rig", str(rig), "--serve", sock],
-                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                              env={**os.environ, "PYTHONUNBUFFERED": "1"})
-    try:
+    with serving(rig, sock) as server:
         assert server.stdout is not None
         banner = server.stdout.readline()
         assert banner.startswith(f"master serving --rig {rig} on {sock} (2 slaves"), banner
@@ -66,10 +80,6 @@ def test_slaves_stay_in_op_between_calls_of_a_persistent_master(tmp_path: Path) 
         stopped = ec("master", "--master", sock, "--stop")
         assert stopped.returncode == 0
         assert server.wait(WAIT) == 0 and not Path(sock).exists()
-    finally:
-        if server.poll() is None:
-            server.kill()
-            server.wait()
 
 
 def test_no_master_at_the_socket_is_one_line(tmp_path: Path) -> None:
