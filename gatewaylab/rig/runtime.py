@@ -97,11 +97,12 @@ def _make_state_dir(resources: _Resources) -> Path:
     ``mkdtemp``'s mkdir and its return would leave an empty folder nobody knows about."""
     base = Path(tempfile.gettempdir())
     while True:
-        path = base / f"gatewaylab-{os.urandom(6).hex()}"
+        # 8 characters, as mkdtemp's: the control socket's path below it must fit AF_UNIX's 107 bytes
+        path = base / f"gatewaylab-{os.urandom(4).hex()}"
         resources.state_dir = path
         try:
             path.mkdir(mode=0o700)
-        except FileExistsError:      # taken (48 random bits: practically never); not ours to remove
+        except FileExistsError:      # taken (32 random bits: rarely): not ours to remove, try another
             resources.state_dir = None
             continue
         return path

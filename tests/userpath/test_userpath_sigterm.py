@@ -19,9 +19,11 @@ data every PERIOD seconds, 0 = back to back).
 from __future__ import annotations
 
 import os
+import shutil
 import socket
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from collections.abc import Iterator
@@ -39,7 +41,8 @@ FLOOD_STARTED = 500
 
 def flood(endpoint: str, clients: int) -> None:
     """``clients`` python-can clients on ``endpoint``, each sending back to back until killed; prints
-    ``flooding`` once each has sent FLOOD_STARTED frames."""
+    ``flooding`` once each has sent FLOOD_STARTED frames or found its transmit queue full (the clients'
+    identifiers differ, so at full bus load the lowest wins every arbitration and starves the others)."""
     import can
 
     buses = [can.Bus(interface="gatewaylab", channel=endpoint) for _ in range(clients)]
@@ -47,14 +50,18 @@ def flood(endpoint: str, clients: int) -> None:
 
     def send(k: int, bus: can.BusABC) -> None:
         i = 0
+        released = False
         while True:
             i += 1
             try:
                 bus.send(can.Message(arbitration_id=0x100 + k, data=i.to_bytes(8, "little"), is_extended_id=False),
                          timeout=1.0)
+                full = False
             except can.CanError:      # the transmit queue stayed full for a second: keep pushing
                 i -= 1
-            if i == FLOOD_STARTED:
+                full = True           # a lower-priority client loses every arbitration to a flood: its queue is full
+            if not released and (i >= FLOOD_STARTED or full):
+                released = True
                 started.release()
 
     for k, bus in enumerate(buses):
@@ -251,11 +258,15 @@ def _rig_args(tmp_path: Path, line: Line) -> list[str]:
 
 
 @pytest.fixture
-def child_tmp(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
-    """The rig child's TMPDIR (where its ``gatewaylab-*`` state folder goes), to see it removed."""
-    (tmp_path / "tmp").mkdir()
-    monkeypatch.setenv("TMPDIR", str(tmp_path / "tmp"))
-    return tmp_path
+def child_tmp(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[Path]:
+    """The rig child's TMPDIR (where its ``gatewaylab-*`` state folder goes), to see it removed; seen
+    as ``tmp_path / "tmp"``. A short folder of its own: the control socket's path below it must fit
+    AF_UNIX's 107 bytes, which pytest-xdist's ``popen-gwN/test_name0`` prefix would overrun."""
+    short = Path(tempfile.mkdtemp(prefix="s"))
+    (tmp_path / "tmp").symlink_to(short)
+    monkeypatch.setenv("TMPDIR", str(short))
+    yield tmp_path
+    shutil.rmtree(short, ignore_errors=True)
 
 
 def _start(tmp_path: Path, line: Line) -> RigProcess:
