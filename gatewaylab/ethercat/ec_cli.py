@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import base64
+import socket
 import struct
 import sys
 import types
@@ -917,6 +918,12 @@ def describe(exc: BaseException, where: str = "") -> str:
 
 def _precheck(args: argparse.Namespace) -> None:
     """Command-line errors that need no slave are reported before the line is opened."""
+    ifname = getattr(args, "interface", None)
+    if ifname and not getattr(args, "master", None):
+        try:
+            socket.if_nametoindex(ifname)
+        except OSError:   # not found is a usage error (docs/cli.md), not a matter of permissions
+            raise EcUsage(f"no such network interface {ifname!r} (`ip link` lists them)") from None
     if getattr(args, "index", None) is not None:
         parse_number(args.index, "index", 0xFFFF)
         parse_number(args.subindex, "subindex", 0xFF)

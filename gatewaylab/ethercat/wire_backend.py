@@ -7,6 +7,7 @@ architecture's naming rule wants for I/O adapters (``wire*`` files).
 
 from __future__ import annotations
 
+import os
 import threading
 from collections.abc import Callable
 from typing import Any
@@ -104,7 +105,8 @@ class PysoemBackend:
         try:
             master.open(ifname)
         except Exception as exc:  # pysoem raises ConnectionError with SOEM's text
-            raise MasterError(f"cannot open {ifname}: {exc} (needs root or CAP_NET_RAW)") from None
+            hint = " (needs root or CAP_NET_RAW)" if os.geteuid() != 0 else ""
+            raise MasterError(f"cannot open {ifname}: {exc}{hint}") from None
         self._master = master
         try:
             master.manual_state_change = 1      # config_init/config_map only configure; we request states

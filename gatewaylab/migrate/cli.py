@@ -15,7 +15,7 @@ from typing import Any
 from ..common.errors import ConfigError
 from ..ethercat.wire_backend import PysoemBackend
 from .config import DEVICES, device_slave, ecanlite_slave, esi_text, find_esd, read_live, report
-from .eni import SlaveConfig, format_writes, parse_eni, parse_writes, write_eni
+from .eni import EniError, SlaveConfig, format_writes, parse_eni, parse_writes, write_eni
 from .translate import DEFAULT_FALLBACK_RATE, translate
 
 #: ``open_compare(rig_path, bus, wire)`` -> the runner of ``migrate compare`` (the rig layer's)
@@ -59,12 +59,18 @@ def cmd_config(args: argparse.Namespace) -> int:
         esd = _read_wire(args.ifname, args.position)
         source = f"{args.ifname} position {args.position}"
     else:
-        text = Path(args.input).read_text(encoding="utf-8")
+        try:
+            text = Path(args.input).read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as exc:
+            raise ConfigError(f"{args.input}: cannot read it: {getattr(exc, 'strerror', None) or exc}") from None
         source = Path(args.input).name
-        if text.lstrip().startswith("<"):
-            esd = find_esd(parse_eni(text))
-        else:
-            esd = SlaveConfig("esd CAN-EtherCAT", 0x17, 2, init_cmds=tuple(parse_writes(text)))
+        try:
+            if text.lstrip().startswith("<"):
+                esd = find_esd(parse_eni(text))
+            else:
+                esd = SlaveConfig("esd CAN-EtherCAT", 0x17, 2, init_cmds=tuple(parse_writes(text)))
+        except EniError as exc:   # the reader's errors name the line; the user needs the file too
+            raise EniError(f"{args.input}: {exc}") from None
     tr = translate(esd.init_cmds, args.channel, args.complete_access, args.bitrate)
     out = Path(args.output)
     if out.suffix == ".txt":

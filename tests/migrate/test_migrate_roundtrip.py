@@ -118,7 +118,7 @@ def test_cli_config_and_esi(tmp_path: Path, capsys: pytest.CaptureFixture[str]) 
     esi = (tmp_path / "ecan.xml").read_text()
     assert f'ProductCode="#x{eni.product_code:08X}" RevisionNo="#x{eni.revision:08X}"' in esi
     assert main(["migrate", "esi", "--device", "esd_can_ethercat", "-o", str(tmp_path / "esd_esi.xml")]) == 0
-    assert main(["migrate", "config", str(tmp_path / "missing.xml"), "-o", str(tmp_path / "x.xml")]) == 1
+    assert main(["migrate", "config", str(tmp_path / "missing.xml"), "-o", str(tmp_path / "x.xml")]) == 2  # not found
     assert main(["migrate", "config", "-o", str(tmp_path / "x.xml")]) == 2       # neither INPUT nor -i
     assert main(["migrate"]) == 2
     (tmp_path / "bad.txt").write_text("0xF800:02 u8 300\n")

@@ -31,6 +31,10 @@ def gl(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
     (("dump", "x.json", "-f", "12G:7FF"), 2, "filter '12G:7FF'"),
     (("lss", "x.json", "set-node-id", "200"), 2, "node-ID must be 1..127 or 0xFF"),
     (("lss", "x.json", "set-node-id", "0"), 2, "node-ID must be 1..127 or 0xFF"),
+    # an interface that does not exist is not found, not a matter of permissions (issue 25)
+    (("ec", "slaves", "-i", "nosuchif0"), 2, "no such network interface 'nosuchif0'"),
+    # migrate config names the file it could not use (issue 25)
+    (("migrate", "config", "nosuch.xml", "-o", "out.xml"), 2, "nosuch.xml: cannot read it"),
 ])
 def test_usage_and_not_found_exit_2_with_one_clear_line(tmp_path: Path, args: tuple[str, ...], code: int,
                                                          says: str) -> None:
@@ -49,3 +53,16 @@ def test_lss_set_node_id_without_a_selected_slave_says_what_to_do(tmp_path: Path
     err = out.stderr.strip()
     assert "no slave in LSS configuration state answered" in err and "switch-selective" in err and "fastscan" in err
     assert "\n" not in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize("name, text, says", [
+    ("bad.xml", "<EtherCATConfig><bad", "bad.xml: not XML"),
+    ("writes.txt", "garbage = [\n", "writes.txt: line 1: expected 'INDEX:SUB TYPE VALUE [ca]'"),
+])
+def test_migrate_config_errors_name_the_file(tmp_path: Path, name: str, text: str, says: str) -> None:
+    """docs/cli.md: a file the command cannot use is one line naming the file (and the line in it), exit 2."""
+    (tmp_path / name).write_text(text)
+    out = gl("migrate", "config", name, "-o", "out.xml", cwd=tmp_path)
+    assert out.returncode == 2, out.stderr
+    assert says in out.stderr and "Traceback" not in out.stderr
+    assert len(out.stderr.strip().splitlines()) == 1
