@@ -32,8 +32,13 @@ from .outbox import Outbox, accept_client
 
 log = logging.getLogger(__name__)
 
-#: A client that lets this much unsent data pile up is too slow and is disconnected.
+#: Unsent bytes a client may let pile up before the frames it receives are dropped (and counted) until
+#: it reads again, as a full SocketCAN receive queue drops frames for a socket that does not read; the
+#: client stays connected and its own sends keep being acknowledged (BusServer.max_backlog).
 MAX_BACKLOG = 8 * 1024 * 1024
+#: Room above that for the records a client cannot go without (TXDONE, STATUS, WELCOME); a client whose
+#: backlog passes it even so is disconnected.
+CONTROL_BACKLOG = 1024 * 1024
 #: A departed client's queued frames stay on the bus until sent; if none of them completes for
 #: this long (bus time: nobody acknowledges), the rest are given up with a warning.
 ORPHAN_PATIENCE = 2.0
@@ -63,7 +68,11 @@ class _Client:
         self.peer = peer
         self.decoder = wire.RecordDecoder()
         self.controller: Controller | None = None
-        self.outbox = Outbox(sock, server.reactor, MAX_BACKLOG, self._broken, self._overflow)
+        self.outbox = Outbox(sock, server.reactor, server.max_backlog + CONTROL_BACKLOG, self._broken,
+                             self._overflow)
+        #: received frames dropped because the client did not read (all of them; the current run)
+        self.rx_dropped = 0
+        self._dropping = 0
         self.closed = False
         #: writing to the client failed; its data is still read until the end
         self.broken = False
@@ -76,13 +85,31 @@ class _Client:
 
     # bus -> client
     def on_frame(self, frame: CanFrame, t: float) -> None:
-        self.write(wire.encode_frame(frame, t))
+        self.write_frame(wire.encode_frame(frame, t))
 
     def on_frame_filtered(self, frame: CanFrame, t: float) -> None:
         for f in self.filters:
             if f.accepts(frame):
-                self.write(wire.encode_frame(frame, t))
+                self.write_frame(wire.encode_frame(frame, t))
                 return
+
+    def write_frame(self, data: bytes) -> None:
+        """A frame for the client: dropped and counted while its backlog is over ``max_backlog`` (see
+        MAX_BACKLOG), one log line when the dropping starts and one when the client reads again."""
+        server = self.server
+        if len(self.outbox.out) <= server.max_backlog:
+            if self._dropping:
+                log.info("bus %s: %s reads again (%d received frames dropped)", server.bus.name, self.peer,
+                         self._dropping)
+                self._dropping = 0
+            self.write(data)
+            return
+        if not self._dropping:
+            log.warning("bus %s: %s does not read: the frames it receives are dropped until it reads again",
+                        server.bus.name, self.peer)
+        self._dropping += 1
+        self.rx_dropped += 1
+        server.rx_dropped += 1
 
     def accepts(self, frame: CanFrame) -> bool:
         return not self.filters or any(f.accepts(frame) for f in self.filters)
@@ -96,7 +123,7 @@ class _Client:
         if isinstance(ev, TxDoneEvent):
             self.completed += 1
             if self.receive_own and self.accepts(ev.frame):
-                self.write(wire.encode_frame(ev.frame, ev.timestamp, echo=True))
+                self.write_frame(wire.encode_frame(ev.frame, ev.timestamp, echo=True))
             self.write(wire.encode_txdone(wire.TxOutcome.TRANSMITTED))
         elif isinstance(ev, TxAbortedEvent):
             self.completed += 1
@@ -199,6 +226,9 @@ class BusServer:
         self.refused = 0
         #: frames of departed clients given up because nobody acknowledged them
         self.expired = 0
+        #: see MAX_BACKLOG (set before clients connect); frames dropped for clients that did not read
+        self.max_backlog = MAX_BACKLOG
+        self.rx_dropped = 0
         self.unix_path = unix_path
         if unix_path is not None:
             self.listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
