@@ -98,7 +98,9 @@ class PysoemBackend:
         self._dc = False
         self._closed = False
         self._slaves: list[Any] = []
-        self._mbx = _MailboxPort(self.clock, _PysoemRegisters(self), timeout, lambda _pos: 0)
+        #: the mailbox counter of this backend's own requests per slave (FoE); see _mbx_counter
+        self._mbx_counts: dict[int, int] = {}
+        self._mbx = _MailboxPort(self.clock, _PysoemRegisters(self), timeout, self._mbx_counter)
         master = pysoem.Master()
         master.sdo_read_timeout = round(timeout * 1e6)
         master.sdo_write_timeout = round(timeout * 1e6)
@@ -149,11 +151,21 @@ class PysoemBackend:
         self._slave(position)
         return [position]
 
+    def _mbx_counter(self, position: int) -> int:
+        """ETG.1000.4 mailbox counter of the next own request: 0 ('not used', never taken for a repeat)
+        first and after SOEM's own mailbox calls (whose counters SOEM keeps), then 1..7 in turn, so a
+        request written again after a lost answer (:meth:`_MailboxPort.send`) is dropped by the slave as
+        a repeat instead of being served twice (an FoE DATA packet twice: PACKET_NUMBER_WRONG)."""
+        last = self._mbx_counts.get(position)
+        self._mbx_counts[position] = nxt = 0 if last is None else last % 7 + 1
+        return nxt
+
     def _mailbox_call(self, what: str, fn: Callable[..., Any], *args: Any) -> Any:
         """A pysoem mailbox call with its errors turned into the contract's. A call SOEM saw no
         answer to (or got an unexpected reply for) is made once more, after the mailboxes were read
         out: SOEM gives the slave a fixed 20 ms to take a mailbox write, which a stall of a loaded
         machine can exceed."""
+        self._mbx_counts.clear()   # SOEM's counter was last: own requests start again at 0
         p = self._pysoem
         try:
             try:
