@@ -7,30 +7,22 @@ Playwright drives Debian's /usr/bin/chromium (never `playwright install`; see
 
 from __future__ import annotations
 
-import os
 from collections.abc import Iterator
 from typing import Any
 
 import pytest
+from browser_kit import chromium, require_browser
 from esd_web_kit import FIGURE_39, FIGURE_41_LINES, FIRMWARE_MAGIC, FakeBackend, OwnedLock, png_pixels, serving
 
-CHROMIUM = "/usr/bin/chromium"
 VIEWPORT = {"width": 1024, "height": 768}
 
-sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (make install)")
-if not os.access(CHROMIUM, os.X_OK):
-    pytest.skip(f"no browser: {CHROMIUM} is missing (the Makefile's apt step installs Debian's chromium)",
-                allow_module_level=True)
+sync_api = require_browser()
 
 
 @pytest.fixture(scope="module")
 def browser() -> Iterator[Any]:
-    with sync_api.sync_playwright() as playwright:
-        chromium = playwright.chromium.launch(executable_path=CHROMIUM, headless=True, args=["--no-sandbox"])
-        try:
-            yield chromium
-        finally:
-            chromium.close()
+    with chromium() as b:
+        yield b
 
 
 @pytest.fixture

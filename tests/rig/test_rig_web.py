@@ -6,7 +6,6 @@ sent)."""
 from __future__ import annotations
 
 import json
-import shutil
 import time
 import urllib.request
 from collections.abc import Iterator
@@ -14,6 +13,7 @@ from pathlib import Path
 
 import can
 import pytest
+from browser_kit import chromium
 
 from gatewaylab.rig.process import RigProcess
 
@@ -27,7 +27,6 @@ bus = "can0"
 node_id = 2
 serial = 0x1002
 """
-CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 
 
 @pytest.fixture
@@ -85,27 +84,20 @@ def test_state_and_events_over_plain_http(rig: RigProcess) -> None:
 def test_page_in_a_real_browser(rig: RigProcess, tmp_path: Path) -> None:
     """Chromium (Playwright, Debian's browser) shows node 2 changing to Operational when a client sends NMT
     start, and the frame another client sent in the decoded log; a screenshot is written."""
-    playwright = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (make install)")
-    if not Path(CHROMIUM).exists():
-        pytest.skip("no chromium browser installed (the Makefile installs Debian's chromium)")
     url = rig.info["web"]["monitor"]
-    with playwright.sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=["--no-sandbox"])
-        try:
-            page = browser.new_page()
-            page.goto(url)
-            page.wait_for_selector("#buses h2", timeout=20_000)        # the first state event arrived
-            nmt = "document.querySelector('#node-can0-2 .nmt')"
-            # a lone drive's boot-up waits for an acknowledging node: the client's connection is one
-            send(rig, 0x000, bytes((0x80, 2)))                       # enter pre-operational
-            page.wait_for_function(f"{nmt} && {nmt}.textContent === 'Pre-operational'", timeout=20_000)
-            send(rig, 0x000, bytes((0x01, 2)))                       # start: the page's table changes
-            page.wait_for_function(f"{nmt}.textContent === 'Operational'", timeout=20_000)
-            send(rig, 0x123, b"\xde\xad\xbe\xef")
-            page.wait_for_function("document.getElementById('log').textContent.includes('DE AD BE EF')",
-                                   timeout=20_000)
-            shot = tmp_path / "page.png"
-            page.screenshot(path=str(shot))
-            assert shot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-        finally:
-            browser.close()
+    with chromium() as browser:
+        page = browser.new_page()
+        page.goto(url)
+        page.wait_for_selector("#buses h2", timeout=20_000)        # the first state event arrived
+        nmt = "document.querySelector('#node-can0-2 .nmt')"
+        # a lone drive's boot-up waits for an acknowledging node: the client's connection is one
+        send(rig, 0x000, bytes((0x80, 2)))                       # enter pre-operational
+        page.wait_for_function(f"{nmt} && {nmt}.textContent === 'Pre-operational'", timeout=20_000)
+        send(rig, 0x000, bytes((0x01, 2)))                       # start: the page's table changes
+        page.wait_for_function(f"{nmt}.textContent === 'Operational'", timeout=20_000)
+        send(rig, 0x123, b"\xde\xad\xbe\xef")
+        page.wait_for_function("document.getElementById('log').textContent.includes('DE AD BE EF')",
+                               timeout=20_000)
+        shot = tmp_path / "page.png"
+        page.screenshot(path=str(shot))
+        assert shot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

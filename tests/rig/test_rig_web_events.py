@@ -5,7 +5,6 @@ speak; the log filter hides heartbeats."""
 from __future__ import annotations
 
 import json
-import shutil
 import subprocess
 import sys
 import time
@@ -17,6 +16,7 @@ from typing import Any
 
 import can
 import pytest
+from browser_kit import chromium
 
 from gatewaylab.rig.process import RigProcess
 
@@ -36,7 +36,6 @@ node_id = 3
 serial = 0x1003
 name = "axis3"
 """
-CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 
 
 @pytest.fixture(scope="module")
@@ -72,17 +71,10 @@ def fault(rig: RigProcess, *args: str) -> None:
 @contextmanager
 def browser_page(rig: RigProcess) -> Iterator[Any]:
     """The rig's page in headless Chromium (Playwright, Debian's browser); skipped without them."""
-    playwright = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (make install)")
-    if not Path(CHROMIUM).exists():
-        pytest.skip("no chromium browser installed (the Makefile installs Debian's chromium)")
-    with playwright.sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=["--no-sandbox"])
-        try:
-            page = browser.new_page()
-            page.goto(rig.info["web"]["monitor"])
-            yield page
-        finally:
-            browser.close()
+    with chromium() as browser:
+        page = browser.new_page()
+        page.goto(rig.info["web"]["monitor"])
+        yield page
 
 
 def log_has(text: str) -> Callable[[dict[str, Any]], bool]:

@@ -11,22 +11,18 @@ browser on a shared machine.
 
 from __future__ import annotations
 
-import os
 import time
 from collections.abc import Callable, Iterator
 from typing import Any
 
 import can
 import pytest
+from browser_kit import chromium, require_browser
 from userpath_kit import Latencies, bound, measured
 
 from gatewaylab.rig.process import RigProcess
 
-CHROMIUM = "/usr/bin/chromium"
-sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (make install)")
-if not os.access(CHROMIUM, os.X_OK):
-    pytest.skip(f"no browser: {CHROMIUM} is missing (the Makefile's apt step installs Debian's chromium)",
-                allow_module_level=True)
+require_browser()
 
 RIG = """
 clock = "realtime"
@@ -57,12 +53,8 @@ def rig(start_rig: Callable[..., RigProcess]) -> RigProcess:
 
 @pytest.fixture(scope="module")
 def browser() -> Iterator[Any]:
-    with sync_api.sync_playwright() as playwright:
-        chromium = playwright.chromium.launch(executable_path=CHROMIUM, headless=True, args=["--no-sandbox"])
-        try:
-            yield chromium
-        finally:
-            chromium.close()
+    with chromium() as b:
+        yield b
 
 
 @pytest.fixture
