@@ -2,6 +2,6 @@
 
 import sys
 
-from .rig.cli import main
+from gatewaylab.rig.cli import main
 
 sys.exit(main())

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
-from .bus import (
+from gatewaylab.bus.bus import (
     BusEvent,
     Controller,
     ErrorFrameEvent,
@@ -17,11 +17,11 @@ from .bus import (
     TxDoneEvent,
     VirtualBus,
 )
-from .frame import CanFrame, len_to_dlc
-from .timing import frame_duration
+from gatewaylab.bus.frame import CanFrame, len_to_dlc
+from gatewaylab.bus.timing import frame_duration
 
 if TYPE_CHECKING:
-    from .transport.inprocess import InProcessBus
+    from gatewaylab.bus.transport.inprocess import InProcessBus
 
 __all__ = [
     "BusEvent", "CanFrame", "Controller", "ErrorFrameEvent", "ErrorKind", "ErrorState", "Outcome",
@@ -32,6 +32,6 @@ __all__ = [
 
 def python_can_bus(vbus: VirtualBus, **kwargs: Any) -> InProcessBus:
     """A python-can ``BusABC`` on ``vbus``; see :mod:`gatewaylab.bus.transport.inprocess`."""
-    from .transport.inprocess import InProcessBus
+    from gatewaylab.bus.transport.inprocess import InProcessBus
 
     return InProcessBus(vbus, **kwargs)

@@ -13,7 +13,7 @@ from collections import deque
 from dataclasses import dataclass
 from enum import Enum
 
-from .frame import CanFrame
+from gatewaylab.bus.frame import CanFrame
 
 #: linux/can/error.h: the controller went bus-off / was restarted
 CAN_ERR_BUSOFF = 0x040

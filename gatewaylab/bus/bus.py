@@ -12,10 +12,8 @@ from dataclasses import dataclass, field
 from enum import Enum
 from types import MappingProxyType
 
-from ..common.clock import Clock, TimerHandle
-from ..common.errors import ConfigError, FrameError, LocalError
-from .frame import CanFrame
-from .timing import (
+from gatewaylab.bus.frame import CanFrame
+from gatewaylab.bus.timing import (
     BUS_OFF_RECOVERY_BITS,
     ERROR_FRAME_BITS,
     arbitration_key,
@@ -23,6 +21,8 @@ from .timing import (
     error_duration,
     frame_duration,
 )
+from gatewaylab.common.clock import Clock, TimerHandle
+from gatewaylab.common.errors import ConfigError, FrameError, LocalError
 
 
 class ErrorState(Enum):

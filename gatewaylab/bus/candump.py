@@ -13,9 +13,9 @@ import datetime
 import re
 from dataclasses import dataclass
 
-from ..common.errors import FrameError, LocalError
-from .errorframe import CAN_ERR_FLAG, CAN_ERR_MASK, ErrorFrame
-from .frame import FD_DLC_TO_LEN, CanFrame
+from gatewaylab.bus.errorframe import CAN_ERR_FLAG, CAN_ERR_MASK, ErrorFrame
+from gatewaylab.bus.frame import FD_DLC_TO_LEN, CanFrame
+from gatewaylab.common.errors import FrameError, LocalError
 
 #: SocketCAN can_id flags (linux/can.h): extended frame, remote frame, inverted filter.
 CAN_EFF_FLAG = 0x80000000

@@ -18,8 +18,8 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass, field
 
-from ..common.errors import FrameError
-from .frame import FD_LEN_TO_DLC, CanFrame
+from gatewaylab.bus.frame import FD_LEN_TO_DLC, CanFrame
+from gatewaylab.common.errors import FrameError
 
 HEADER = struct.Struct(">BBBH")
 FRAME_HEAD = struct.Struct(">IB")

@@ -6,7 +6,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, fields
 from typing import TYPE_CHECKING, Any
 
-from ..common.errors import FrameError
+from gatewaylab.common.errors import FrameError
 
 if TYPE_CHECKING:
     import can

@@ -23,9 +23,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
-from ..common.clock import Clock
-from ..common.errors import ConfigError
-from .bus import VirtualBus
+from gatewaylab.bus.bus import VirtualBus
+from gatewaylab.common.clock import Clock
+from gatewaylab.common.errors import ConfigError
 
 
 class Participant(Protocol):

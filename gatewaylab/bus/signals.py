@@ -12,8 +12,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from ..common.errors import ConfigError
-from .frame import CanFrame
+from gatewaylab.bus.frame import CanFrame
+from gatewaylab.common.errors import ConfigError
 
 #: The database formats cantools reads, by suffix.
 DB_SUFFIXES = (".dbc", ".kcd", ".arxml", ".sym", ".xml")

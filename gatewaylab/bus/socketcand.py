@@ -28,7 +28,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from enum import Enum
 
-from .frame import FD_LEN_TO_DLC, MAX_EXT_ID, MAX_STD_ID, CanFrame
+from gatewaylab.bus.frame import FD_LEN_TO_DLC, MAX_EXT_ID, MAX_STD_ID, CanFrame
 
 #: upstream's command buffer (socketcand.h MAXLEN = 2 * ISOTPLEN + 100): an element that does not
 #: end within it ends the connection

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 from functools import lru_cache
 
-from .frame import CanFrame
+from gatewaylab.bus.frame import CanFrame
 
 #: Bits of the error frame sent after an error is detected: 6-bit error flag, up to 6 more from
 #: other nodes' flags (counted as 6), 8-bit delimiter and 3 intermission bits.

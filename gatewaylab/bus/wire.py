@@ -10,8 +10,8 @@ import struct
 from dataclasses import dataclass
 from enum import IntEnum
 
-from ..common.errors import FrameError, LocalError, ProtocolError
-from .frame import CanFrame
+from gatewaylab.bus.frame import CanFrame
+from gatewaylab.common.errors import FrameError, LocalError, ProtocolError
 
 VERSION = 1
 MAX_RECORD = 1 + 14 + 64 + 256  # the longest legal record body (a HELLO with a long name)

@@ -6,7 +6,7 @@ so a device (the drive) only describes its own objects and the identity values.
 
 from __future__ import annotations
 
-from ..od import Access, DataType, ObjectCode, ObjectDictionary
+from gatewaylab.od import Access, DataType, ObjectCode, ObjectDictionary
 
 N_PDO = 4
 MAX_MAPPED = 8

@@ -17,28 +17,19 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from ..bus.bus import VirtualBus
-from ..common.clock import Clock, PeriodicTimer
-from ..common.errors import ConfigError
-from ..od import Access, DataType, ObjectDictionary
-from .cia402 import (
-    CONTROLWORD_NEXT,
-    STATE_BITS,
-    SUPPORTED_MODES,
-    Command,
-    Cw,
-    OpMode,
-    PdsState,
-    Sw,
-)
-from .communication import add_communication_objects, add_mapping
-from .emcy import ERR_PROFILE
-from .errors import VALUE_RANGE_EXCEEDED, SdoAbort
-from .homing import SUPPORTED_METHODS, HomingRun, HomingStatus
-from .lss import BIT_TIMING_TABLE, UNCONFIGURED, LssAddress, LssConfigStore, LssSlave
-from .nmt import NmtState
-from .node import Node
-from .plant import AxisParams, ControlMode, Plant, Trapezoid
+from gatewaylab.bus.bus import VirtualBus
+from gatewaylab.canopen.cia402 import CONTROLWORD_NEXT, STATE_BITS, SUPPORTED_MODES, Command, Cw, OpMode, PdsState, Sw
+from gatewaylab.canopen.communication import add_communication_objects, add_mapping
+from gatewaylab.canopen.emcy import ERR_PROFILE
+from gatewaylab.canopen.errors import VALUE_RANGE_EXCEEDED, SdoAbort
+from gatewaylab.canopen.homing import SUPPORTED_METHODS, HomingRun, HomingStatus
+from gatewaylab.canopen.lss import BIT_TIMING_TABLE, UNCONFIGURED, LssAddress, LssConfigStore, LssSlave
+from gatewaylab.canopen.nmt import NmtState
+from gatewaylab.canopen.node import Node
+from gatewaylab.canopen.plant import AxisParams, ControlMode, Plant, Trapezoid
+from gatewaylab.common.clock import Clock, PeriodicTimer
+from gatewaylab.common.errors import ConfigError
+from gatewaylab.od import Access, DataType, ObjectDictionary
 
 MAXON_VENDOR_ID = 0x000000FB
 #: Product code of the emulated drive (the IDX guide gives none; see the decisions file).

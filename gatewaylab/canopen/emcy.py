@@ -12,14 +12,14 @@ import struct
 from collections import deque
 from typing import TYPE_CHECKING, Any
 
-from ..bus.frame import CanFrame
-from ..common.clock import TimerHandle
-from ..od import Entry
-from .errors import VALUE_RANGE_EXCEEDED, SdoAbort
-from .nmt import NmtState
+from gatewaylab.bus.frame import CanFrame
+from gatewaylab.canopen.errors import VALUE_RANGE_EXCEEDED, SdoAbort
+from gatewaylab.canopen.nmt import NmtState
+from gatewaylab.common.clock import TimerHandle
+from gatewaylab.od import Entry
 
 if TYPE_CHECKING:
-    from .node import Node
+    from gatewaylab.canopen.node import Node
 
 EMCY_FRAME = struct.Struct("<HB5s")
 

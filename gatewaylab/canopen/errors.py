@@ -6,7 +6,7 @@ use; they are not a second table (each is the enum member itself).
 
 from __future__ import annotations
 
-from ..od.aborts import SdoAbort, SdoAbortCode, abort_text
+from gatewaylab.od.aborts import SdoAbort, SdoAbortCode, abort_text
 
 NO_ABORT = SdoAbortCode.NO_ABORT
 TOGGLE_BIT_NOT_ALTERNATED = SdoAbortCode.TOGGLE_BIT_NOT_ALTERNATED

@@ -11,12 +11,12 @@ from __future__ import annotations
 import datetime
 import struct
 
-from ..bus.frame import CanFrame
-from ..od.aborts import abort_text
-from ..od.sdo import ClientCommand, ServerCommand
-from .emcy import error_code_name
-from .lss import Cs
-from .nmt import NmtCommand, NmtState
+from gatewaylab.bus.frame import CanFrame
+from gatewaylab.canopen.emcy import error_code_name
+from gatewaylab.canopen.lss import Cs
+from gatewaylab.canopen.nmt import NmtCommand, NmtState
+from gatewaylab.od.aborts import abort_text
+from gatewaylab.od.sdo import ClientCommand, ServerCommand
 
 _U16 = struct.Struct("<H")
 _U32 = struct.Struct("<I")

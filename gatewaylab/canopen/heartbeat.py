@@ -15,15 +15,15 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
-from ..bus.frame import CanFrame
-from ..common.clock import PeriodicTimer, TimerHandle
-from ..od import Entry
-from .emcy import EMCY_LIFE_GUARD_HEARTBEAT, ERR_COMMUNICATION
-from .errors import GENERAL_PARAMETER_INCOMPATIBILITY, SdoAbort
-from .nmt import HEARTBEAT_BASE, encode_guard_response, encode_heartbeat
+from gatewaylab.bus.frame import CanFrame
+from gatewaylab.canopen.emcy import EMCY_LIFE_GUARD_HEARTBEAT, ERR_COMMUNICATION
+from gatewaylab.canopen.errors import GENERAL_PARAMETER_INCOMPATIBILITY, SdoAbort
+from gatewaylab.canopen.nmt import HEARTBEAT_BASE, encode_guard_response, encode_heartbeat
+from gatewaylab.common.clock import PeriodicTimer, TimerHandle
+from gatewaylab.od import Entry
 
 if TYPE_CHECKING:
-    from .node import Node
+    from gatewaylab.canopen.node import Node
 
 AddHandler = Callable[[int, Callable[[CanFrame, float], None]], None]
 

@@ -18,7 +18,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from enum import Enum
 
-from .plant import Trapezoid
+from gatewaylab.canopen.plant import Trapezoid
 
 NEGATIVE_LIMIT = 1 << 0   # 0x60FD bits
 POSITIVE_LIMIT = 1 << 1

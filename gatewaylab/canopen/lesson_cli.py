@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from .lessons import LESSONS, run_lesson
+from gatewaylab.canopen.lessons import LESSONS, run_lesson
 
 _DESCRIPTION = """\
 Run a short CANopen scenario on a simulated bus and tell, step by step, what is sent, by whom, why,

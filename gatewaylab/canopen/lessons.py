@@ -18,14 +18,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..bus import CanFrame, VirtualBus
-from ..common.clock import SimulatedClock
-from .drive import Drive
-from .explain import explain
-from .lss import LssMaster, LssState
-from .monitor import FastscanNarrator
-from .nmt import NmtCommand, encode_nmt
-from .sdo_client import SdoClient
+from gatewaylab.bus import CanFrame, VirtualBus
+from gatewaylab.canopen.drive import Drive
+from gatewaylab.canopen.explain import explain
+from gatewaylab.canopen.lss import LssMaster, LssState
+from gatewaylab.canopen.monitor import FastscanNarrator
+from gatewaylab.canopen.nmt import NmtCommand, encode_nmt
+from gatewaylab.canopen.sdo_client import SdoClient
+from gatewaylab.common.clock import SimulatedClock
 
 Say = Callable[[str], None]
 #: The master's own COB-IDs (CiA 301 predefined connection set, CiA 305): what it sends.

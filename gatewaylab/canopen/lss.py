@@ -25,14 +25,14 @@ from enum import Enum, IntEnum
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ..bus.frame import CanFrame
-from ..common.clock import Clock, TimerHandle
-from ..common.errors import LocalError, RemoteError, TimeoutError_
-from ..common.store import JsonFileStore, ParameterStore
-from .nmt import NmtState
+from gatewaylab.bus.frame import CanFrame
+from gatewaylab.canopen.nmt import NmtState
+from gatewaylab.common.clock import Clock, TimerHandle
+from gatewaylab.common.errors import LocalError, RemoteError, TimeoutError_
+from gatewaylab.common.store import JsonFileStore, ParameterStore
 
 if TYPE_CHECKING:
-    from .node import Node
+    from gatewaylab.canopen.node import Node
 
 #: COB-ID of LSS master requests (IDX guide 3.5).
 LSS_MASTER_COB_ID = 0x7E5

@@ -25,13 +25,22 @@ from typing import Any
 
 import can
 
-from ..bus.frame import CanFrame
-from ..common.clock import RealTimeClock
-from ..common.endpoint import EndpointError, bus_endpoint
-from ..common.errors import GatewaylabError
-from .explain import explain
-from .lss import BIT_TIMING_TABLE, LSS_SLAVE_COB_ID, Cs, LssAddress, LssError, LssMaster, LssState, LssTimeout
-from .monitor import FastscanNarrator
+from gatewaylab.bus.frame import CanFrame
+from gatewaylab.canopen.explain import explain
+from gatewaylab.canopen.lss import (
+    BIT_TIMING_TABLE,
+    LSS_SLAVE_COB_ID,
+    Cs,
+    LssAddress,
+    LssError,
+    LssMaster,
+    LssState,
+    LssTimeout,
+)
+from gatewaylab.canopen.monitor import FastscanNarrator
+from gatewaylab.common.clock import RealTimeClock
+from gatewaylab.common.endpoint import EndpointError, bus_endpoint
+from gatewaylab.common.errors import GatewaylabError
 
 _PARTS = ("vendor", "product", "revision", "serial")
 _INQUIRE = {"vendor": Cs.INQUIRE_VENDOR, "product": Cs.INQUIRE_PRODUCT, "revision": Cs.INQUIRE_REVISION,

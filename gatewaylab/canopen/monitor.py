@@ -19,8 +19,8 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
-from ..bus.candump import long_frame
-from ..bus.errorframe import (
+from gatewaylab.bus.candump import long_frame
+from gatewaylab.bus.errorframe import (
     CAN_ERR_BUSOFF,
     CAN_ERR_CRTL,
     CAN_ERR_CRTL_RX_PASSIVE,
@@ -29,17 +29,17 @@ from ..bus.errorframe import (
     ErrorFrame,
     summary,
 )
-from ..bus.frame import CanFrame
-from ..bus.signals import DecodedMessage
-from ..bus.timing import frame_duration
-from ..od import ObjectDictionary
-from ..od.aborts import SdoAbort, abort_text
-from ..od.types import Entry, decode
-from .cia402 import OpMode, state_from_statusword
-from .emcy import error_code_name
-from .explain import explain, time_of_day
-from .lss import FASTSCAN_CONFIRM, Cs
-from .nmt import NmtState
+from gatewaylab.bus.frame import CanFrame
+from gatewaylab.bus.signals import DecodedMessage
+from gatewaylab.bus.timing import frame_duration
+from gatewaylab.canopen.cia402 import OpMode, state_from_statusword
+from gatewaylab.canopen.emcy import error_code_name
+from gatewaylab.canopen.explain import explain, time_of_day
+from gatewaylab.canopen.lss import FASTSCAN_CONFIRM, Cs
+from gatewaylab.canopen.nmt import NmtState
+from gatewaylab.od import ObjectDictionary
+from gatewaylab.od.aborts import SdoAbort, abort_text
+from gatewaylab.od.types import Entry, decode
 
 _U16 = struct.Struct("<H")
 _U32 = struct.Struct("<I")

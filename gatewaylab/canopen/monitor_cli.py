@@ -21,7 +21,7 @@ from typing import Any
 
 import can
 
-from ..bus.candump import (
+from gatewaylab.bus.candump import (
     TIMESTAMP_MODES,
     CandumpSyntaxError,
     FilterSet,
@@ -32,15 +32,15 @@ from ..bus.candump import (
     long_frame,
     parse_filters,
 )
-from ..bus.errorframe import CAN_ERR_MASK, ErrorFrame, describe
-from ..bus.frame import CanFrame
-from ..bus.signals import SignalDecoder, load_database
-from ..bus.transport.trace import TraceError, read_trace
-from ..common.endpoint import EndpointError, bus_endpoint
-from ..common.errors import ConfigError, GatewaylabError
-from ..od import ObjectDictionary
-from ..od.eds import import_eds
-from .monitor import BusMonitor, ControllerWatch, MonitorEvent
+from gatewaylab.bus.errorframe import CAN_ERR_MASK, ErrorFrame, describe
+from gatewaylab.bus.frame import CanFrame
+from gatewaylab.bus.signals import SignalDecoder, load_database
+from gatewaylab.bus.transport.trace import TraceError, read_trace
+from gatewaylab.canopen.monitor import BusMonitor, ControllerWatch, MonitorEvent
+from gatewaylab.common.endpoint import EndpointError, bus_endpoint
+from gatewaylab.common.errors import ConfigError, GatewaylabError
+from gatewaylab.od import ObjectDictionary
+from gatewaylab.od.eds import import_eds
 
 _DESCRIPTION = """\
 Watch a bus of a running rig, decoded: a node table (NMT state, heartbeat age, CiA 402 state,
@@ -109,7 +109,7 @@ class _ControlPoller:
     def _ask(self) -> dict[str, Any]:
         import socket
 
-        from ..common.endpoint import EndpointKind, parse_endpoint
+        from gatewaylab.common.endpoint import EndpointKind, parse_endpoint
         ep = parse_endpoint(self.endpoint, bare_path=EndpointKind.UNIX)
         if ep.kind is EndpointKind.UNIX:
             sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)

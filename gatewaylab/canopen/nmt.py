@@ -12,9 +12,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from enum import Enum, IntEnum
 
-from ..bus.frame import CanFrame
-from ..common.clock import Clock, TimerHandle
-from ..common.errors import LocalError
+from gatewaylab.bus.frame import CanFrame
+from gatewaylab.common.clock import Clock, TimerHandle
+from gatewaylab.common.errors import LocalError
 
 NMT_COB_ID = 0x000
 HEARTBEAT_BASE = 0x700

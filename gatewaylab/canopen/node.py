@@ -13,20 +13,30 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from ..bus.bus import Controller, VirtualBus
-from ..bus.frame import CanFrame
-from ..common.clock import Clock
-from ..common.errors import ConfigError, LocalError
-from ..common.store import JsonFileStore, ParameterStore
-from ..od import Access, Entry, ObjectDictionary, ReadHook, SdoAbort, SdoAbortCode, Validator, WriteHook, coerce
-from .communication import add_communication_objects
-from .emcy import Emcy
-from .heartbeat import Heartbeat
-from .nmt import NMT_COB_ID, NMT_TRANSITIONS, NmtCommand, NmtState, decode_nmt, encode_heartbeat
-from .pdo import PdoManager
-from .sdo_server import SdoServer
-from .storage import Storage
-from .sync import Sync
+from gatewaylab.bus.bus import Controller, VirtualBus
+from gatewaylab.bus.frame import CanFrame
+from gatewaylab.canopen.communication import add_communication_objects
+from gatewaylab.canopen.emcy import Emcy
+from gatewaylab.canopen.heartbeat import Heartbeat
+from gatewaylab.canopen.nmt import NMT_COB_ID, NMT_TRANSITIONS, NmtCommand, NmtState, decode_nmt, encode_heartbeat
+from gatewaylab.canopen.pdo import PdoManager
+from gatewaylab.canopen.sdo_server import SdoServer
+from gatewaylab.canopen.storage import Storage
+from gatewaylab.canopen.sync import Sync
+from gatewaylab.common.clock import Clock
+from gatewaylab.common.errors import ConfigError, LocalError
+from gatewaylab.common.store import JsonFileStore, ParameterStore
+from gatewaylab.od import (
+    Access,
+    Entry,
+    ObjectDictionary,
+    ReadHook,
+    SdoAbort,
+    SdoAbortCode,
+    Validator,
+    WriteHook,
+    coerce,
+)
 
 FrameHandler = Callable[[CanFrame, float], None]
 NmtHook = Callable[[NmtState, NmtState], None]

@@ -14,12 +14,10 @@ import struct
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
-from ..bus.frame import CanFrame
-from ..common.clock import TimerHandle
-from ..od import DataType, Entry, decode, encode, type_size
-from .communication import MAX_MAPPED, N_PDO
-from .emcy import EMCY_PDO_LENGTH, EMCY_PDO_LENGTH_EXCEEDED, ERR_COMMUNICATION
-from .errors import (
+from gatewaylab.bus.frame import CanFrame
+from gatewaylab.canopen.communication import MAX_MAPPED, N_PDO
+from gatewaylab.canopen.emcy import EMCY_PDO_LENGTH, EMCY_PDO_LENGTH_EXCEEDED, ERR_COMMUNICATION
+from gatewaylab.canopen.errors import (
     GENERAL_PARAMETER_INCOMPATIBILITY,
     OBJECT_NOT_MAPPABLE,
     PDO_LENGTH_EXCEEDED,
@@ -28,10 +26,12 @@ from .errors import (
     VALUE_RANGE_EXCEEDED,
     SdoAbort,
 )
-from .nmt import NmtState
+from gatewaylab.canopen.nmt import NmtState
+from gatewaylab.common.clock import TimerHandle
+from gatewaylab.od import DataType, Entry, decode, encode, type_size
 
 if TYPE_CHECKING:
-    from .node import Node
+    from gatewaylab.canopen.node import Node
 
 AddHandler = Callable[[int, Callable[[CanFrame, float], None]], None]
 Key = tuple[int, int]

@@ -17,18 +17,18 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..bus.errorframe import ErrorFrame
-from ..bus.frame import CanFrame
-from ..bus.signals import SignalDecoder, load_database
-from ..bus.timing import frame_duration
-from ..bus.transport.trace import TraceError
-from ..bus.transport.trace import read_trace as trace_items
-from ..common.errors import ConfigError
-from ..od import ObjectDictionary
-from ..od.eds import import_eds
-from .cia402 import OpMode, Sw
-from .drive import build_object_dictionary
-from .monitor import BusMonitor
+from gatewaylab.bus.errorframe import ErrorFrame
+from gatewaylab.bus.frame import CanFrame
+from gatewaylab.bus.signals import SignalDecoder, load_database
+from gatewaylab.bus.timing import frame_duration
+from gatewaylab.bus.transport.trace import TraceError
+from gatewaylab.bus.transport.trace import read_trace as trace_items
+from gatewaylab.canopen.cia402 import OpMode, Sw
+from gatewaylab.canopen.drive import build_object_dictionary
+from gatewaylab.canopen.monitor import BusMonitor
+from gatewaylab.common.errors import ConfigError
+from gatewaylab.od import ObjectDictionary
+from gatewaylab.od.eds import import_eds
 
 #: statusword bits drawn as step lines (CiA 402 table of 0x6041)
 #: --db: at most this many signals get a panel (the first by name)

@@ -17,9 +17,9 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from ..bus.participant import DeviceKind, Key, RigContext
-from .drive import Drive
-from .plant import AxisParams
+from gatewaylab.bus.participant import DeviceKind, Key, RigContext
+from gatewaylab.canopen.drive import Drive
+from gatewaylab.canopen.plant import AxisParams
 
 _P = AxisParams()
 #: The motion plant's parameters (``plant = {...}``), shared by every kind that carries a drive

@@ -16,13 +16,13 @@ from dataclasses import dataclass, field
 from enum import Enum
 from typing import Any
 
-from ..bus.frame import CanFrame
-from ..common.clock import Clock, TimerHandle
-from ..common.errors import LocalError
-from ..od import SdoAbort, SdoAbortCode
-from ..od import sdo as codec
-from ..od.sdo import SDO_HEADER, SDO_HEADER_U32, ServerCommand
-from .crc import crc16_ccitt
+from gatewaylab.bus.frame import CanFrame
+from gatewaylab.canopen.crc import crc16_ccitt
+from gatewaylab.common.clock import Clock, TimerHandle
+from gatewaylab.common.errors import LocalError
+from gatewaylab.od import SdoAbort, SdoAbortCode
+from gatewaylab.od import sdo as codec
+from gatewaylab.od.sdo import SDO_HEADER, SDO_HEADER_U32, ServerCommand
 
 UploadCallback = Callable[[bytes | SdoAbort], None]
 DownloadCallback = Callable[[SdoAbort | None], None]

@@ -13,16 +13,23 @@ from collections.abc import Callable
 from enum import Enum
 from typing import TYPE_CHECKING
 
-from ..bus.frame import CanFrame
-from ..common.clock import TimerHandle
-from ..od import SdoAbort, SdoAbortCode, decode
-from ..od import sdo as codec
-from ..od.sdo import SDO_HEADER, SDO_HEADER_U32, BlockUploadSub, ClientCommand, SegmentedDownload, SegmentedUpload
-from .crc import crc16_ccitt
+from gatewaylab.bus.frame import CanFrame
+from gatewaylab.canopen.crc import crc16_ccitt
+from gatewaylab.common.clock import TimerHandle
+from gatewaylab.od import SdoAbort, SdoAbortCode, decode
+from gatewaylab.od import sdo as codec
+from gatewaylab.od.sdo import (
+    SDO_HEADER,
+    SDO_HEADER_U32,
+    BlockUploadSub,
+    ClientCommand,
+    SegmentedDownload,
+    SegmentedUpload,
+)
 
 if TYPE_CHECKING:
-    from ..od import Entry
-    from .node import Node
+    from gatewaylab.canopen.node import Node
+    from gatewaylab.od import Entry
 
 #: Initiate upload response command byte for an expedited answer of n bytes, and its padding.
 _EXPEDITED_CS = (b"", b"\x4F", b"\x4B", b"\x47", b"\x43")

@@ -13,13 +13,13 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
-from ..common.errors import ConfigError
-from ..common.store import MemoryStore, ParameterStore
-from ..od import Entry, SdoAbort, SdoAbortCode, decode, encode
-from .communication import LOAD_SIGNATURE, SAVE_SIGNATURE
+from gatewaylab.canopen.communication import LOAD_SIGNATURE, SAVE_SIGNATURE
+from gatewaylab.common.errors import ConfigError
+from gatewaylab.common.store import MemoryStore, ParameterStore
+from gatewaylab.od import Entry, SdoAbort, SdoAbortCode, decode, encode
 
 if TYPE_CHECKING:
-    from .node import Node
+    from gatewaylab.canopen.node import Node
 
 #: 0x1010/0x1011 sub-index -> index ranges it covers.
 AREAS: dict[int, tuple[range, ...]] = {

@@ -12,15 +12,15 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
-from ..bus.frame import CanFrame
-from ..common.clock import PeriodicTimer
-from ..od import Entry
-from .emcy import EMCY_UNEXPECTED_SYNC_LENGTH, ERR_COMMUNICATION
-from .errors import DATA_CANNOT_BE_STORED_DEVICE_STATE, VALUE_RANGE_EXCEEDED, SdoAbort
-from .nmt import NmtState
+from gatewaylab.bus.frame import CanFrame
+from gatewaylab.canopen.emcy import EMCY_UNEXPECTED_SYNC_LENGTH, ERR_COMMUNICATION
+from gatewaylab.canopen.errors import DATA_CANNOT_BE_STORED_DEVICE_STATE, VALUE_RANGE_EXCEEDED, SdoAbort
+from gatewaylab.canopen.nmt import NmtState
+from gatewaylab.common.clock import PeriodicTimer
+from gatewaylab.od import Entry
 
 if TYPE_CHECKING:
-    from .node import Node
+    from gatewaylab.canopen.node import Node
 
 AddHandler = Callable[[int, Callable[[CanFrame, float], None]], None]
 _OPERATIONAL = NmtState.OPERATIONAL

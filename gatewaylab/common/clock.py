@@ -27,7 +27,7 @@ from collections.abc import Callable
 from contextlib import AbstractContextManager, nullcontext
 from typing import Any
 
-from .errors import LocalError
+from gatewaylab.common.errors import LocalError
 
 Callback = Callable[..., Any]
 

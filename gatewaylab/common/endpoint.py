@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from enum import Enum
 from pathlib import Path
 
-from .errors import ConfigError
+from gatewaylab.common.errors import ConfigError
 
 
 class EndpointKind(Enum):

@@ -3,11 +3,11 @@
 See docs/ethercat.md. The commonly used names are re-exported here.
 """
 
-from .description import DeviceDescription, ObjectDef, Pdo, PdoEntry
-from .esc import AlState, Esc
-from .master import Master
-from .segment import Segment
-from .slave import Slave, SlaveApplication
+from gatewaylab.ethercat.description import DeviceDescription, ObjectDef, Pdo, PdoEntry
+from gatewaylab.ethercat.esc import AlState, Esc
+from gatewaylab.ethercat.master import Master
+from gatewaylab.ethercat.segment import Segment
+from gatewaylab.ethercat.slave import Slave, SlaveApplication
 
 __all__ = ["AlState", "DeviceDescription", "Esc", "Master", "ObjectDef", "Pdo", "PdoEntry", "Segment", "Slave",
            "SlaveApplication"]

@@ -33,9 +33,9 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
-from ..common.clock import Clock
-from ..common.errors import ProtocolError, TimeoutError_
-from .errors import (
+from gatewaylab.common.clock import Clock
+from gatewaylab.common.errors import ProtocolError, TimeoutError_
+from gatewaylab.ethercat.errors import (
     AlStatusCode,
     AlStatusError,
     FoeError,
@@ -45,7 +45,7 @@ from .errors import (
     SdoAbort,
     WorkingCounterError,
 )
-from .esc import (
+from gatewaylab.ethercat.esc import (
     REG_DC_ACTIVATION,
     REG_DC_START_TIME,
     REG_DC_SYNC0_CYCLE,
@@ -53,13 +53,13 @@ from .esc import (
     REG_SM,
     AlState,
 )
-from .foe import FOE_HEADER, FoeOpcode, foe_packet
-from .mailbox import MailboxMessage, MailboxType, decode_mailbox, encode_mailbox
-from .master import Master
-from .sii import CATEGORY_HEADER, Category, SiiInfo
+from gatewaylab.ethercat.foe import FOE_HEADER, FoeOpcode, foe_packet
+from gatewaylab.ethercat.mailbox import MailboxMessage, MailboxType, decode_mailbox, encode_mailbox
+from gatewaylab.ethercat.master import Master
+from gatewaylab.ethercat.sii import CATEGORY_HEADER, Category, SiiInfo
 
 if TYPE_CHECKING:
-    from .segment import Segment
+    from gatewaylab.ethercat.segment import Segment
 
 __all__ = ["EntryInfo", "InProcessBackend", "MasterBackend", "MasterTimeout", "ObjectInfo", "ProgressFn",
            "RigLike", "SlaveIdentity", "al_status_name", "sii_complete"]
@@ -472,8 +472,8 @@ class InProcessBackend:
         """A master on the rig's EtherCAT segment (its ``[ethercat]`` section, or its EtherCAT devices
         in file order when it has none), frames under the rig clock's lock. Start the rig first so
         its devices run."""
-        from .rig import ethercat_devices
-        from .segment import Segment as _Segment
+        from gatewaylab.ethercat.rig import ethercat_devices
+        from gatewaylab.ethercat.segment import Segment as _Segment
 
         segment: Segment | None = None
         for p in rig.participants:
@@ -647,6 +647,6 @@ def __getattr__(name: str) -> Any:
     ``wire_backend`` (the I/O adapter), imported on first use so that neither module needs the
     other at import time."""
     if name == "PysoemBackend":
-        from .wire_backend import PysoemBackend
+        from gatewaylab.ethercat.wire_backend import PysoemBackend
         return PysoemBackend
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

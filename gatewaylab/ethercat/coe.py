@@ -15,10 +15,10 @@ import enum
 import struct
 from collections.abc import Callable
 
-from ..od import Entry, ObjectCode, ObjectDictionary, SdoAbort, SdoAbortCode, type_size
-from ..od import sdo as codec
-from ..od.sdo import ClientCommand, SegmentedDownload, SegmentedUpload
-from .errors import FrameFormatError
+from gatewaylab.ethercat.errors import FrameFormatError
+from gatewaylab.od import Entry, ObjectCode, ObjectDictionary, SdoAbort, SdoAbortCode, type_size
+from gatewaylab.od import sdo as codec
+from gatewaylab.od.sdo import ClientCommand, SegmentedDownload, SegmentedUpload
 
 COE_HEADER = struct.Struct("<H")
 SDO = codec.SDO_HEADER_U32  # command, index, subindex, data/size

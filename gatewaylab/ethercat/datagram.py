@@ -12,7 +12,7 @@ import enum
 import struct
 from dataclasses import dataclass
 
-from .errors import FrameFormatError
+from gatewaylab.ethercat.errors import FrameFormatError
 
 ETHERTYPE_ETHERCAT = 0x88A4
 ETH_HEADER = struct.Struct("!6s6sH")

@@ -12,8 +12,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from ..od import Access, DataType, Entry, ObjectCode, ObjectDictionary, SdoAbort, SdoAbortCode
-from .errors import EtherCATConfigError
+from gatewaylab.ethercat.errors import EtherCATConfigError
+from gatewaylab.od import Access, DataType, Entry, ObjectCode, ObjectDictionary, SdoAbort, SdoAbortCode
 
 
 @dataclass(frozen=True, slots=True)

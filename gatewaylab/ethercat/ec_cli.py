@@ -21,10 +21,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any, NoReturn, Protocol, runtime_checkable
 
-from ..common.clock import Clock
-from ..common.errors import ConfigError, GatewaylabError
-from ..od.aborts import SdoAbort, abort_text
-from .backend import (
+from gatewaylab.common.clock import Clock
+from gatewaylab.common.errors import ConfigError, GatewaylabError
+from gatewaylab.ethercat.backend import (
     FOE_CODE_SUFFIX,
     EntryInfo,
     MasterBackend,
@@ -33,9 +32,10 @@ from .backend import (
     RigLike,
     al_status_name,
 )
-from .errors import AlStatusError, FoeError, FoeErrorCode
-from .esc import FMMU_REG, REG_FMMU, AlState
-from .sii import CATEGORY_HEADER, PDO_ENTRY, PDO_HEADER, Category, SmType
+from gatewaylab.ethercat.errors import AlStatusError, FoeError, FoeErrorCode
+from gatewaylab.ethercat.esc import FMMU_REG, REG_FMMU, AlState
+from gatewaylab.ethercat.sii import CATEGORY_HEADER, PDO_ENTRY, PDO_HEADER, Category, SmType
+from gatewaylab.od.aborts import SdoAbort, abort_text
 
 PROG = "gatewaylab ec"
 
@@ -251,7 +251,7 @@ def open_backend(args: argparse.Namespace) -> Iterator[MasterBackend]:
         raise EcUsage("give the line: -i IFNAME (real interface, root), --rig RIG.toml (in process) or "
                       "--master SOCKET (a persistent master)")
     if args.interface:
-        from .wire_backend import PysoemBackend
+        from gatewaylab.ethercat.wire_backend import PysoemBackend
 
         backend: MasterBackend = PysoemBackend(args.interface)
         try:
@@ -269,7 +269,7 @@ def open_backend(args: argparse.Namespace) -> Iterator[MasterBackend]:
     except ConfigError as exc:
         raise EcUsage(" ".join(str(exc).split())) from None
     try:
-        from .backend import InProcessBackend
+        from gatewaylab.ethercat.backend import InProcessBackend
 
         backend = InProcessBackend.from_rig(rig)
         try:
@@ -856,7 +856,7 @@ def cmd_master(backend: MasterBackend, args: argparse.Namespace, out: IO[str]) -
     """``master``: the master's state (IgH ``ethercat master``); with ``--serve SOCKET`` it stays up
     as a persistent master the other verbs attach to with ``--master SOCKET``."""
     if getattr(args, "serve", None):
-        from .ec_server import EcMasterServer
+        from gatewaylab.ethercat.ec_server import EcMasterServer
 
         line = f"-i {args.interface}" if args.interface else f"--rig {args.rig}"
         server = EcMasterServer(backend, args.serve, run_verb, cycle=args.cycle_ms / 1000, line=line)
@@ -975,7 +975,7 @@ _LOCAL_ARGS = ("func", "open_rig", "master", "interface", "rig", "command", "ver
 
 def _remote(args: argparse.Namespace) -> int:
     """Run the verb on the persistent master at ``--master SOCKET`` (ec_server.py)."""
-    from .ec_server import request
+    from gatewaylab.ethercat.ec_server import request
 
     if args.interface or args.rig:
         raise EcUsage("give the line once: --master SOCKET attaches to a master that has it")
@@ -1022,7 +1022,7 @@ def run_verb(backend: MasterBackend, verb: str, payload: dict[str, Any]) -> tupl
 
 
 def _master_info(args: argparse.Namespace) -> int:
-    from .ec_server import request
+    from gatewaylab.ethercat.ec_server import request
 
     if args.stop:
         request(args.master, {"stop": True})

@@ -23,8 +23,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from ..common.errors import GatewaylabError
-from .backend import MasterBackend
+from gatewaylab.common.errors import GatewaylabError
+from gatewaylab.ethercat.backend import MasterBackend
 
 #: Runs one verb on the backend: (verb, JSON arguments) -> (exit code, stdout, stderr).
 VerbRunner = Callable[[MasterBackend, str, dict[str, Any]], tuple[int, str, str]]

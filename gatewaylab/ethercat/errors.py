@@ -8,9 +8,9 @@ from __future__ import annotations
 
 import enum
 
-from ..common.errors import ConfigError, LocalError, ProtocolError, RemoteError
-from ..od.aborts import SdoAbort as SdoAbort
-from ..od.aborts import SdoAbortCode as SdoAbortCode
+from gatewaylab.common.errors import ConfigError, LocalError, ProtocolError, RemoteError
+from gatewaylab.od.aborts import SdoAbort as SdoAbort
+from gatewaylab.od.aborts import SdoAbortCode as SdoAbortCode
 
 
 class AlStatusCode(enum.IntEnum):

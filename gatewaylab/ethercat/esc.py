@@ -13,8 +13,8 @@ import struct
 from dataclasses import dataclass
 from typing import Protocol
 
-from ..common.clock import Clock, TimerHandle
-from .errors import AlStatusCode
+from gatewaylab.common.clock import Clock, TimerHandle
+from gatewaylab.ethercat.errors import AlStatusCode
 
 U8 = struct.Struct("<B")
 U16 = struct.Struct("<H")

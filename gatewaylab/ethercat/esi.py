@@ -10,10 +10,10 @@ from __future__ import annotations
 import struct
 import xml.etree.ElementTree as ET
 
-from ..od import ESI_TYPE_NAMES, ObjectDictionary
-from ..od.esi import esi_dictionary
-from .description import DeviceDescription, Pdo, build_od
-from .sii import build_sii
+from gatewaylab.ethercat.description import DeviceDescription, Pdo, build_od
+from gatewaylab.ethercat.sii import build_sii
+from gatewaylab.od import ESI_TYPE_NAMES, ObjectDictionary
+from gatewaylab.od.esi import esi_dictionary
 
 
 def _hex(value: int, digits: int = 8) -> str:

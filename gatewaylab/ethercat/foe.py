@@ -13,7 +13,7 @@ import struct
 from dataclasses import dataclass, field
 from typing import Protocol
 
-from .errors import FoeBusy, FoeError, FoeErrorCode, FrameFormatError
+from gatewaylab.ethercat.errors import FoeBusy, FoeError, FoeErrorCode, FrameFormatError
 
 FOE_HEADER = struct.Struct("<BBI")
 FOE_BUSY = struct.Struct("<BBHH")

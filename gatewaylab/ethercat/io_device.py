@@ -12,12 +12,12 @@ from __future__ import annotations
 
 from typing import Any
 
-from ..common.clock import Clock
-from ..od import Access, DataType, Entry, ObjectDictionary
-from .description import DeviceDescription, ObjectDef, Pdo, PdoEntry
-from .esc import AlState
-from .foe import FoeHandler
-from .slave import Slave, SlaveApplication
+from gatewaylab.common.clock import Clock
+from gatewaylab.ethercat.description import DeviceDescription, ObjectDef, Pdo, PdoEntry
+from gatewaylab.ethercat.esc import AlState
+from gatewaylab.ethercat.foe import FoeHandler
+from gatewaylab.ethercat.slave import Slave, SlaveApplication
+from gatewaylab.od import Access, DataType, Entry, ObjectDictionary
 
 VENDOR_ID = 0x47574C42  # 'GWLB', not an ETG-assigned id (see docs/decisions.md)
 PRODUCT_CODE = 0x00010001

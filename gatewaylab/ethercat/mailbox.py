@@ -14,7 +14,7 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from .errors import FrameFormatError, MailboxErrorCode
+from gatewaylab.ethercat.errors import FrameFormatError, MailboxErrorCode
 
 MBX_HEADER = struct.Struct("<HHBB")
 MBX_HEADER_LEN = 6

@@ -12,13 +12,19 @@ import struct
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from ..common.clock import Clock, PeriodicTimer
-from ..common.errors import TimeoutError_
-from ..od import sdo as sdo_codec
-from .coe import SDO, CoeService, InfoOpcode, coe_header
-from .datagram import MAX_DATAGRAM_DATA, Command, Datagram, Frame, decode_frame, encode_frame
-from .errors import AlStatusError, FoeError, FrameFormatError, MasterError, SdoAbort, WorkingCounterError
-from .esc import (
+from gatewaylab.common.clock import Clock, PeriodicTimer
+from gatewaylab.common.errors import TimeoutError_
+from gatewaylab.ethercat.coe import SDO, CoeService, InfoOpcode, coe_header
+from gatewaylab.ethercat.datagram import MAX_DATAGRAM_DATA, Command, Datagram, Frame, decode_frame, encode_frame
+from gatewaylab.ethercat.errors import (
+    AlStatusError,
+    FoeError,
+    FrameFormatError,
+    MasterError,
+    SdoAbort,
+    WorkingCounterError,
+)
+from gatewaylab.ethercat.esc import (
     REG_AL_CONTROL,
     REG_AL_STATUS,
     REG_DC_ACTIVATION,
@@ -32,10 +38,11 @@ from .esc import (
     REG_STATION_ADDRESS,
     AlState,
 )
-from .foe import FOE_HEADER, FoeOpcode, foe_packet
-from .mailbox import MailboxMessage, MailboxType, decode_mailbox, encode_mailbox
-from .segment import Segment
-from .sii import SiiInfo, parse_sii
+from gatewaylab.ethercat.foe import FOE_HEADER, FoeOpcode, foe_packet
+from gatewaylab.ethercat.mailbox import MailboxMessage, MailboxType, decode_mailbox, encode_mailbox
+from gatewaylab.ethercat.segment import Segment
+from gatewaylab.ethercat.sii import SiiInfo, parse_sii
+from gatewaylab.od import sdo as sdo_codec
 
 U16 = struct.Struct("<H")
 U32 = struct.Struct("<I")

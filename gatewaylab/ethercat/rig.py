@@ -21,12 +21,12 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any, Protocol, cast
 
-from ..bus.participant import DeviceKind, Key, Participant, RigContext
-from .io_device import create_io_slave
-from .segment import Segment
-from .slave import Slave
-from .wire import WireTransport
-from .wire_pcap import PcapWriter
+from gatewaylab.bus.participant import DeviceKind, Key, Participant, RigContext
+from gatewaylab.ethercat.io_device import create_io_slave
+from gatewaylab.ethercat.segment import Segment
+from gatewaylab.ethercat.slave import Slave
+from gatewaylab.ethercat.wire import WireTransport
+from gatewaylab.ethercat.wire_pcap import PcapWriter
 
 
 class EtherCATDevice(Protocol):

@@ -19,9 +19,9 @@ import struct
 from collections import deque
 from dataclasses import dataclass, field
 
-from .datagram import ETH_HEADER_LEN, ETHERTYPE_ETHERCAT, LEN_MASK, MORE
-from .esc import REG_RX_ERROR, Esc
-from .slave import Slave
+from gatewaylab.ethercat.datagram import ETH_HEADER_LEN, ETHERTYPE_ETHERCAT, LEN_MASK, MORE
+from gatewaylab.ethercat.esc import REG_RX_ERROR, Esc
+from gatewaylab.ethercat.slave import Slave
 
 _U16 = struct.Struct("<H")
 _BE16 = struct.Struct("!H")

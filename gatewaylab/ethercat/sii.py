@@ -11,9 +11,9 @@ import enum
 import struct
 from dataclasses import dataclass
 
-from .description import DeviceDescription, Pdo
-from .errors import FrameFormatError
-from .esc import sii_checksum
+from gatewaylab.ethercat.description import DeviceDescription, Pdo
+from gatewaylab.ethercat.errors import FrameFormatError
+from gatewaylab.ethercat.esc import sii_checksum
 
 U16 = struct.Struct("<H")
 U32 = struct.Struct("<I")

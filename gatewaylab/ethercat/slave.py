@@ -18,15 +18,15 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from ..common.clock import Clock
-from ..od import DataType, Entry, ObjectDictionary, SdoAbort, decode, encode
-from .coe import CoeServer, emergency_message
-from .description import DeviceDescription, Pdo, build_od
-from .errors import AlStatusCode, EtherCATConfigError, MailboxErrorCode
-from .esc import REG_AL_STATUS, REG_SM, SM_STATUS_FULL, AlState, Esc
-from .foe import FoeFiles, FoeHandler, FoeServer
-from .mailbox import MailboxEndpoint, MailboxMessage, MailboxType, error_reply
-from .sii import build_sii
+from gatewaylab.common.clock import Clock
+from gatewaylab.ethercat.coe import CoeServer, emergency_message
+from gatewaylab.ethercat.description import DeviceDescription, Pdo, build_od
+from gatewaylab.ethercat.errors import AlStatusCode, EtherCATConfigError, MailboxErrorCode
+from gatewaylab.ethercat.esc import REG_AL_STATUS, REG_SM, SM_STATUS_FULL, AlState, Esc
+from gatewaylab.ethercat.foe import FoeFiles, FoeHandler, FoeServer
+from gatewaylab.ethercat.mailbox import MailboxEndpoint, MailboxMessage, MailboxType, error_reply
+from gatewaylab.ethercat.sii import build_sii
+from gatewaylab.od import DataType, Entry, ObjectDictionary, SdoAbort, decode, encode
 
 __all__ = ["MappedEntry", "Slave", "SlaveApplication", "build_od"]
 

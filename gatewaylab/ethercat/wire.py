@@ -29,11 +29,11 @@ import time
 from contextlib import nullcontext
 from typing import Any, cast
 
-from ..common.clock import Clock, RealTimeClock
-from ..common.errors import ConfigError
-from .datagram import ETHERTYPE_ETHERCAT
-from .segment import Segment
-from .wire_pcap import PcapWriter
+from gatewaylab.common.clock import Clock, RealTimeClock
+from gatewaylab.common.errors import ConfigError
+from gatewaylab.ethercat.datagram import ETHERTYPE_ETHERCAT
+from gatewaylab.ethercat.segment import Segment
+from gatewaylab.ethercat.wire_pcap import PcapWriter
 
 PACKET_OUTGOING = 4
 _log = logging.getLogger(__name__)

@@ -12,9 +12,9 @@ import threading
 from collections.abc import Callable
 from typing import Any
 
-from ..common.clock import Clock, RealTimeClock
-from ..common.errors import ProtocolError
-from .backend import (
+from gatewaylab.common.clock import Clock, RealTimeClock
+from gatewaylab.common.errors import ProtocolError
+from gatewaylab.ethercat.backend import (
     _STATES,
     AL_ERROR,
     INFO_ATTEMPTS,
@@ -37,9 +37,16 @@ from .backend import (
     register_write,
     sii_complete,
 )
-from .errors import AlStatusCode, AlStatusError, MailboxError, MasterError, SdoAbort
-from .esc import REG_AL_CONTROL, REG_AL_STATUS, REG_SII_CONFIG, REG_SII_CONTROL, REG_SII_DATA, AlState
-from .sii import SiiInfo, parse_sii
+from gatewaylab.ethercat.errors import AlStatusCode, AlStatusError, MailboxError, MasterError, SdoAbort
+from gatewaylab.ethercat.esc import (
+    REG_AL_CONTROL,
+    REG_AL_STATUS,
+    REG_SII_CONFIG,
+    REG_SII_CONTROL,
+    REG_SII_DATA,
+    AlState,
+)
+from gatewaylab.ethercat.sii import SiiInfo, parse_sii
 
 __all__ = ["PysoemBackend"]
 

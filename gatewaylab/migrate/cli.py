@@ -12,11 +12,11 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from ..common.errors import ConfigError
-from ..ethercat.wire_backend import PysoemBackend
-from .config import DEVICES, device_slave, ecanlite_slave, esi_text, find_esd, read_live, report
-from .eni import EniError, SlaveConfig, format_writes, parse_eni, parse_writes, write_eni
-from .translate import DEFAULT_FALLBACK_RATE, translate
+from gatewaylab.common.errors import ConfigError
+from gatewaylab.ethercat.wire_backend import PysoemBackend
+from gatewaylab.migrate.config import DEVICES, device_slave, ecanlite_slave, esi_text, find_esd, read_live, report
+from gatewaylab.migrate.eni import EniError, SlaveConfig, format_writes, parse_eni, parse_writes, write_eni
+from gatewaylab.migrate.translate import DEFAULT_FALLBACK_RATE, translate
 
 #: ``open_compare(rig_path, bus, wire)`` -> the runner of ``migrate compare`` (the rig layer's)
 CompareOpener = Callable[[str, str, bool], Any]
@@ -113,9 +113,9 @@ failed during a run.
 
 
 def cmd_compare(args: argparse.Namespace, open_compare: CompareOpener | None) -> int:
-    from .compare import compare
-    from .compare_report import latency_summary, read_recording, write_recording, write_report
-    from .compare_run import GATEWAYS, Runner, load_app, takes_seconds
+    from gatewaylab.migrate.compare import compare
+    from gatewaylab.migrate.compare_report import latency_summary, read_recording, write_recording, write_report
+    from gatewaylab.migrate.compare_run import GATEWAYS, Runner, load_app, takes_seconds
 
     if open_compare is None:
         raise ConfigError("migrate compare needs the rig layer (run it as `gatewaylab migrate compare`)")

@@ -19,7 +19,7 @@ from typing import Any
 
 import can
 
-from .compare import (
+from gatewaylab.migrate.compare import (
     MAX_LISTED,
     AppEvent,
     AppEventKind,

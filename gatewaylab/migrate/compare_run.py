@@ -19,11 +19,11 @@ from typing import Any, Protocol
 
 import can
 
-from ..bus.frame import CanFrame
-from ..common.errors import ConfigError, LocalError
-from ..devices.canhost.host import EthercatHost, GatewayBus
-from ..ethercat.backend import MasterBackend
-from .compare import AppEvent, AppEventKind, Frame, Recording
+from gatewaylab.bus.frame import CanFrame
+from gatewaylab.common.errors import ConfigError, LocalError
+from gatewaylab.devices.canhost.host import EthercatHost, GatewayBus
+from gatewaylab.ethercat.backend import MasterBackend
+from gatewaylab.migrate.compare import AppEvent, AppEventKind, Frame, Recording
 
 #: The two gateways in compare order: (rig device kind, trace prefix, display name).
 ESD = ("esd_can_ethercat", "esd", "esd CAN-EtherCAT")

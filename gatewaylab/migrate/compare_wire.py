@@ -25,12 +25,22 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from ..bus.frame import CanFrame
-from ..devices.canhost.host import EthercatHost
-from ..ethercat.backend import PysoemBackend
-from ..ethercat.wire_netns import net_unavailable, veth_namespace
-from .compare import AppEvent, AppEventKind, Frame, Recording
-from .compare_run import PDO_N, SETTLE_S, CanRecorder, Recorder, RecordingBus, Runner, load_app, position_of, to_frame
+from gatewaylab.bus.frame import CanFrame
+from gatewaylab.devices.canhost.host import EthercatHost
+from gatewaylab.ethercat.backend import PysoemBackend
+from gatewaylab.ethercat.wire_netns import net_unavailable, veth_namespace
+from gatewaylab.migrate.compare import AppEvent, AppEventKind, Frame, Recording
+from gatewaylab.migrate.compare_run import (
+    PDO_N,
+    SETTLE_S,
+    CanRecorder,
+    Recorder,
+    RecordingBus,
+    Runner,
+    load_app,
+    position_of,
+    to_frame,
+)
 
 #: SOEM waits this long for the process data frame (a loaded machine; never asserted)
 PD_TIMEOUT_US = 50_000

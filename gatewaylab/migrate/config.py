@@ -5,14 +5,14 @@ from __future__ import annotations
 
 from typing import Protocol
 
-from ..common.clock import SimulatedClock
-from ..devices.ecanlite.device import EcanLiteDevice
-from ..devices.esd_can_ethercat import objects as esd_obj
-from ..devices.esd_can_ethercat.device import create_esd_gateway
-from ..ethercat.esi import export_esi
-from ..ethercat.slave import Slave
-from .eni import EniError, InitCmd, SlaveConfig, SyncManager, format_writes
-from .translate import Translation
+from gatewaylab.common.clock import SimulatedClock
+from gatewaylab.devices.ecanlite.device import EcanLiteDevice
+from gatewaylab.devices.esd_can_ethercat import objects as esd_obj
+from gatewaylab.devices.esd_can_ethercat.device import create_esd_gateway
+from gatewaylab.ethercat.esi import export_esi
+from gatewaylab.ethercat.slave import Slave
+from gatewaylab.migrate.eni import EniError, InitCmd, SlaveConfig, SyncManager, format_writes
+from gatewaylab.migrate.translate import Translation
 
 DEVICES = ("ecanlite", "esd_can_ethercat")
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 
-from ..common.errors import ConfigError
+from gatewaylab.common.errors import ConfigError
 
 
 class EniError(ConfigError):

@@ -42,35 +42,29 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
-from ..bus.frame import CanFrame
-from ..common.errors import ConfigError, LocalError, ProtocolError
-from ..devices.ecanlite.host.adapter import AdapterConfig, EcanAdapter, SlaveConfig, StartupSdo, find_ecanlite
-from ..devices.ecanlite.host.port import McanPort, PortConfig, drain_all_sdos
-from ..devices.ecanlite.stream import CanPacket, TxResultCode
-from ..devices.esd_can_ethercat.bitrate import NTCAN_NO_BAUDRATE
-from ..devices.esd_can_ethercat.codec import CanStatus
-from ..devices.esd_can_ethercat.host.config import (
-    BitRate,
-    EsdConfig,
-    FilterArea,
-    QueueLayout,
-    for_bitrate,
-)
-from ..devices.esd_can_ethercat.host.gateway import SDO_ATTEMPTS, SDO_RETRY_WAIT
-from ..devices.esd_can_ethercat.host.handshake import (
+from gatewaylab.bus.frame import CanFrame
+from gatewaylab.common.errors import ConfigError, LocalError, ProtocolError
+from gatewaylab.devices.ecanlite.host.adapter import AdapterConfig, EcanAdapter, SlaveConfig, StartupSdo, find_ecanlite
+from gatewaylab.devices.ecanlite.host.port import McanPort, PortConfig, drain_all_sdos
+from gatewaylab.devices.ecanlite.stream import CanPacket, TxResultCode
+from gatewaylab.devices.esd_can_ethercat.bitrate import NTCAN_NO_BAUDRATE
+from gatewaylab.devices.esd_can_ethercat.codec import CanStatus
+from gatewaylab.devices.esd_can_ethercat.host.config import BitRate, EsdConfig, FilterArea, QueueLayout, for_bitrate
+from gatewaylab.devices.esd_can_ethercat.host.gateway import SDO_ATTEMPTS, SDO_RETRY_WAIT
+from gatewaylab.devices.esd_can_ethercat.host.handshake import (
     DEFAULT_RX_LIMIT,
     DEFAULT_TX_LIMIT,
     TN_MODULO,
     RxFrame,
     RxOverflowError,
 )
-from ..devices.esd_can_ethercat.host.loop import DEFAULT_TIMEOUT, HostLoop
-from ..devices.esd_can_ethercat.objects import STATISTICS
-from ..ethercat.backend import MasterBackend, MasterTimeout
-from ..ethercat.esc import AlState
-from .eni import InitCmd
-from .translate import DEFAULT_FALLBACK_RATE, Translation, translate
-from .txbook import TxBook
+from gatewaylab.devices.esd_can_ethercat.host.loop import DEFAULT_TIMEOUT, HostLoop
+from gatewaylab.devices.esd_can_ethercat.objects import STATISTICS
+from gatewaylab.ethercat.backend import MasterBackend, MasterTimeout
+from gatewaylab.ethercat.esc import AlState
+from gatewaylab.migrate.eni import InitCmd
+from gatewaylab.migrate.translate import DEFAULT_FALLBACK_RATE, Translation, translate
+from gatewaylab.migrate.txbook import TxBook
 
 __all__ = ["NO_SOURCE", "EsdQueueOnEcanLite", "esd_writes"]
 
@@ -518,7 +512,7 @@ class EsdQueueOnEcanLite(HostLoop):
 
 
 if TYPE_CHECKING:
-    from ..devices.esd_can_ethercat.host import EsdHost, EsdQueueApi
+    from gatewaylab.devices.esd_can_ethercat.host import EsdHost, EsdQueueApi
 
     def _both_satisfy_the_contract(ecan: EsdQueueOnEcanLite, esd: EsdHost) -> tuple[EsdQueueApi, EsdQueueApi]:
         """mypy --strict checks both classes against the Protocol here (the tests check it at run time)."""

@@ -12,11 +12,11 @@ import math
 import struct
 from dataclasses import dataclass, field
 
-from ..devices.ecanlite import bittiming, image
-from ..devices.ecanlite.stream import HEADER_SIZE, MAX_FRAME_COUNT
-from ..devices.esd_can_ethercat import bitrate as esd_rate
-from ..devices.esd_can_ethercat import objects as esd_obj
-from .eni import InitCmd
+from gatewaylab.devices.ecanlite import bittiming, image
+from gatewaylab.devices.ecanlite.stream import HEADER_SIZE, MAX_FRAME_COUNT
+from gatewaylab.devices.esd_can_ethercat import bitrate as esd_rate
+from gatewaylab.devices.esd_can_ethercat import objects as esd_obj
+from gatewaylab.migrate.eni import InitCmd
 
 #: Packet sizes in the ECAN-Lite frame stream (chapter 8 / 10, profile 0, no ALIGN4): a classic
 #: 8-byte frame with a standard identifier 4 + 8, with an extended one 6 + 8; TX_RESULT 6.

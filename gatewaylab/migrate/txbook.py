@@ -16,10 +16,10 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Iterable
 
-from ..bus.frame import CanFrame
-from ..common.errors import LocalError
-from ..devices.ecanlite.stream import TxResultCode
-from ..devices.esd_can_ethercat.host.handshake import TransactionNumbers
+from gatewaylab.bus.frame import CanFrame
+from gatewaylab.common.errors import LocalError
+from gatewaylab.devices.ecanlite.stream import TxResultCode
+from gatewaylab.devices.esd_can_ethercat.host.handshake import TransactionNumbers
 
 __all__ = ["TxBook"]
 

@@ -5,9 +5,9 @@ and an EtherCAT slave's CoE server both keep their objects in an :class:`ObjectD
 protocol brings its state-dependent :class:`AccessPolicy`.
 """
 
-from .aborts import SdoAbort, SdoAbortCode, abort_text
-from .dictionary import AccessPolicy, Key, Listener, ObjectDictionary, ReadHook, Validator, WriteHook
-from .types import (
+from gatewaylab.od.aborts import SdoAbort, SdoAbortCode, abort_text
+from gatewaylab.od.dictionary import AccessPolicy, Key, Listener, ObjectDictionary, ReadHook, Validator, WriteHook
+from gatewaylab.od.types import (
     BYTES_TYPES,
     ESI_TYPE_NAMES,
     FLOAT_TYPES,

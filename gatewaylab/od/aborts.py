@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from enum import IntEnum
 
-from ..common.errors import RemoteError
+from gatewaylab.common.errors import RemoteError
 
 __all__ = ["SdoAbort", "SdoAbortCode", "abort_text"]
 

@@ -15,9 +15,9 @@ from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import replace
 from typing import Any, Protocol
 
-from ..common.errors import ConfigError
-from .aborts import SdoAbort, SdoAbortCode
-from .types import Access, DataType, Entry, ObjectCode, OdObject, coerce, decode, encode
+from gatewaylab.common.errors import ConfigError
+from gatewaylab.od.aborts import SdoAbort, SdoAbortCode
+from gatewaylab.od.types import Access, DataType, Entry, ObjectCode, OdObject, coerce, decode, encode
 
 Key = tuple[int, int]
 #: ``listener((index, subindex), value)`` after a value changed.
@@ -399,13 +399,13 @@ class ObjectDictionary:
     # -- EDS / ESI -------------------------------------------------------------------------------
     def to_eds(self, *, dcf: bool = False, node_id: int | None = None) -> str:
         """CiA 306 EDS text (or DCF with ``ParameterValue`` lines when ``dcf``)."""
-        from .eds import export_eds
+        from gatewaylab.od.eds import export_eds
 
         return export_eds(self, dcf=dcf, node_id=node_id)
 
     @classmethod
     def from_eds(cls, text: str, node_id: int | None = None) -> ObjectDictionary:
         """Build a dictionary from EDS or DCF text (DCF ``ParameterValue`` become the values)."""
-        from .eds import import_eds
+        from gatewaylab.od.eds import import_eds
 
         return import_eds(text, node_id)

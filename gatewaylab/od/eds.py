@@ -13,9 +13,9 @@ import configparser
 import re
 from typing import Any
 
-from ..common.errors import ConfigError
-from .dictionary import ObjectDictionary
-from .types import (
+from gatewaylab.common.errors import ConfigError
+from gatewaylab.od.dictionary import ObjectDictionary
+from gatewaylab.od.types import (
     BYTES_TYPES,
     FLOAT_TYPES,
     STRING_TYPES,

@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import xml.etree.ElementTree as ET
 
-from .dictionary import ObjectDictionary
-from .types import ESI_TYPE_NAMES, DataType, Entry, ObjectCode, OdObject
+from gatewaylab.od.dictionary import ObjectDictionary
+from gatewaylab.od.types import ESI_TYPE_NAMES, DataType, Entry, ObjectCode, OdObject
 
 __all__ = ["esi_dictionary"]
 

@@ -15,7 +15,7 @@ import struct
 from dataclasses import dataclass, field
 from enum import IntEnum
 
-from .aborts import SdoAbort, SdoAbortCode
+from gatewaylab.od.aborts import SdoAbort, SdoAbortCode
 
 #: command byte, index, subindex (CiA 301 figure 20 ff.)
 SDO_HEADER = struct.Struct("<BHB")

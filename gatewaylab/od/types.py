@@ -14,8 +14,8 @@ from dataclasses import dataclass, field
 from enum import Enum, IntEnum
 from typing import Any
 
-from ..common.errors import ConfigError
-from .aborts import SdoAbort, SdoAbortCode
+from gatewaylab.common.errors import ConfigError
+from gatewaylab.od.aborts import SdoAbort, SdoAbortCode
 
 
 class DataType(IntEnum):

@@ -10,19 +10,19 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from .config import load_rig, parse_rig
-    from .runtime import Rig
+    from gatewaylab.rig.config import load_rig, parse_rig
+    from gatewaylab.rig.runtime import Rig
 
 __all__ = ["Rig", "load_rig", "parse_rig"]
 
 
 def __getattr__(name: str) -> Any:
     if name == "Rig":
-        from .runtime import Rig
+        from gatewaylab.rig.runtime import Rig
 
         return Rig
     if name in ("load_rig", "parse_rig"):
-        from . import config
+        from gatewaylab.rig import config
 
         return getattr(config, name)
     raise AttributeError(f"module 'gatewaylab.rig' has no attribute {name!r}")

@@ -9,10 +9,10 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from ..common.clock import SimulatedClock
-from ..devices.canhost import plugin
-from ..ethercat.backend import InProcessBackend, MasterBackend
-from .runtime import Rig
+from gatewaylab.common.clock import SimulatedClock
+from gatewaylab.devices.canhost import plugin
+from gatewaylab.ethercat.backend import InProcessBackend, MasterBackend
+from gatewaylab.rig.runtime import Rig
 
 
 def open_rig(path: str) -> tuple[MasterBackend, Callable[[], None] | None, float]:

@@ -16,13 +16,13 @@ from pathlib import Path
 from types import FrameType
 from typing import TYPE_CHECKING, Any
 
-from .. import __version__
-from ..bus.transport.trace import TRACE_FORMATS, check_trace_path
-from ..common.errors import ConfigError, GatewaylabError
+from gatewaylab import __version__
+from gatewaylab.bus.transport.trace import TRACE_FORMATS, check_trace_path
+from gatewaylab.common.errors import ConfigError, GatewaylabError
 
 if TYPE_CHECKING:
-    from .runtime import Rig
-    from .web import RigWeb
+    from gatewaylab.rig.runtime import Rig
+    from gatewaylab.rig.web import RigWeb
 
 #: Sub-commands contributed by other parts of the package: module with ``add_subcommand(subparsers)``.
 EXTRA_SUBCOMMANDS = (
@@ -115,9 +115,9 @@ def _write_ready_file(path: str, info: dict[str, Any]) -> None:
 
 def _start_web(rig: Rig, port: int, db: str | None = None) -> RigWeb:
     """The --web page: monitors on every bus, the drives' dictionaries for PDO values, --db's signals."""
-    from ..bus.signals import load_database
-    from ..canopen.drive import Drive
-    from .web import RigWeb
+    from gatewaylab.bus.signals import load_database
+    from gatewaylab.canopen.drive import Drive
+    from gatewaylab.rig.web import RigWeb
 
     signals = load_database(db) if db else None
     try:
@@ -140,8 +140,8 @@ def _stop_at_once(signum: int, frame: FrameType | None) -> None:
 def cmd_run(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
-    from .config import load_rig
-    from .runtime import Rig
+    from gatewaylab.rig.config import load_rig
+    from gatewaylab.rig.runtime import Rig
 
     if args.db and args.web is None:
         raise UsageError(f"--db {args.db} decodes signals on the --web page: give --web too "
@@ -169,7 +169,7 @@ def cmd_run(args: argparse.Namespace) -> int:
                   file=sys.stderr)
             rig.close()
             rig = None
-            from ..common.clock import RealTimeClock
+            from gatewaylab.common.clock import RealTimeClock
 
             rig = Rig(config, clock=RealTimeClock())
         for bus_name, path in args.trace or []:
@@ -226,7 +226,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
-    from .demo import main as demo_main
+    from gatewaylab.rig.demo import main as demo_main
 
     return demo_main([] if args.rig is None else [args.rig])
 

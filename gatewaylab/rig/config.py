@@ -8,9 +8,9 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from ..common.errors import ConfigError
-from . import kinds
-from .plugin import Key, section_error, validate_table
+from gatewaylab.common.errors import ConfigError
+from gatewaylab.rig import kinds
+from gatewaylab.rig.plugin import Key, section_error, validate_table
 
 CLOCK_MODES = ("realtime", "simulated")
 

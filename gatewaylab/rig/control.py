@@ -18,8 +18,8 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any, Protocol
 
-from ..common.endpoint import format_tcp, format_unix
-from ..common.errors import GatewaylabError
+from gatewaylab.common.endpoint import format_tcp, format_unix
+from gatewaylab.common.errors import GatewaylabError
 
 log = logging.getLogger(__name__)
 

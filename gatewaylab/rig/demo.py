@@ -21,9 +21,9 @@ from typing import Any
 
 import can
 
-from ..bus.frame import CanFrame
-from ..canopen.explain import explain
-from .config import load_rig
+from gatewaylab.bus.frame import CanFrame
+from gatewaylab.canopen.explain import explain
+from gatewaylab.rig.config import load_rig
 
 
 class Narrator(can.Listener):
@@ -149,7 +149,7 @@ def demo_canopen(bus: can.BusABC, narrator: Narrator, nodes: list[int], unconfig
 
 def demo_idx(info: dict[str, Any], nodes: list[int]) -> None:
     """The maxon IDX's USB protocol from a host program, through its virtual serial port."""
-    from ..devices.maxon_idx.host.client import IdxClient
+    from gatewaylab.devices.maxon_idx.host.client import IdxClient
 
     for name, ports in info.get("usb", {}).items():
         step(f"maxon IDX {name!r} over its virtual USB port {ports['pty']} (pyserial, DLE/STX frames, CRC-CCITT)")
@@ -165,15 +165,15 @@ def demo_ethercat() -> None:
     `make test` drives the same devices with SOEM over veth pairs)."""
     from dataclasses import replace
 
-    from ..bus import VirtualBus, python_can_bus
-    from ..common.clock import SimulatedClock
-    from ..devices.ecanlite.device import EcanLiteDevice
-    from ..devices.ecanlite.stream import CanPacket, Direction, StreamLayout, decode_stream, encode_stream
-    from ..devices.esd_can_ethercat import create_esd_gateway
-    from ..devices.esd_can_ethercat.codec import IN_HEADER, OUT_HEADER, decode_rx11, encode_tx11
-    from ..ethercat.esc import AlState
-    from ..ethercat.master import Master
-    from ..ethercat.segment import Segment
+    from gatewaylab.bus import VirtualBus, python_can_bus
+    from gatewaylab.common.clock import SimulatedClock
+    from gatewaylab.devices.ecanlite.device import EcanLiteDevice
+    from gatewaylab.devices.ecanlite.stream import CanPacket, Direction, StreamLayout, decode_stream, encode_stream
+    from gatewaylab.devices.esd_can_ethercat import create_esd_gateway
+    from gatewaylab.devices.esd_can_ethercat.codec import IN_HEADER, OUT_HEADER, decode_rx11, encode_tx11
+    from gatewaylab.ethercat.esc import AlState
+    from gatewaylab.ethercat.master import Master
+    from gatewaylab.ethercat.segment import Segment
 
     step("ECAN-Lite (EtherCAT slave, 4 x CAN FD) in process: bring-up of manual 5.4.3, one CAN_FRAME each way")
     clock = SimulatedClock()
@@ -233,11 +233,11 @@ def demo_ethercat_drive() -> None:
     position through the default PDOs (ETG.6010), in process on a simulated clock."""
     import struct
 
-    from ..common.clock import SimulatedClock
-    from ..devices.ethercat_drive.device import EthercatDrive
-    from ..ethercat.esc import AlState
-    from ..ethercat.master import Master
-    from ..ethercat.segment import Segment
+    from gatewaylab.common.clock import SimulatedClock
+    from gatewaylab.devices.ethercat_drive.device import EthercatDrive
+    from gatewaylab.ethercat.esc import AlState
+    from gatewaylab.ethercat.master import Master
+    from gatewaylab.ethercat.segment import Segment
 
     step("EtherCAT CiA 402 drives in process: controlword 0x06/0x07/0x0F by RxPDO 0x1600, 1 s of CSP at 1 kHz")
     clock = SimulatedClock()

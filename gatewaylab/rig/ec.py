@@ -8,9 +8,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from ..common.clock import SimulatedClock
-from ..ethercat import ec_cli
-from .runtime import Rig
+from gatewaylab.common.clock import SimulatedClock
+from gatewaylab.ethercat import ec_cli
+from gatewaylab.rig.runtime import Rig
 
 
 def open_rig(path: str) -> Rig:

@@ -8,8 +8,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from ..devices.ecanlite import cli as ecan_cli
-from .ec import open_rig
+from gatewaylab.devices.ecanlite import cli as ecan_cli
+from gatewaylab.rig.ec import open_rig
 
 
 def add_subcommand(subparsers: Any) -> None:

@@ -14,9 +14,9 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from ..common.endpoint import EndpointKind, parse_endpoint
-from ..common.errors import ConfigError, GatewaylabError
-from .faults import DRIVE_FAULTS
+from gatewaylab.common.endpoint import EndpointKind, parse_endpoint
+from gatewaylab.common.errors import ConfigError, GatewaylabError
+from gatewaylab.rig.faults import DRIVE_FAULTS
 
 _DESCRIPTION = """\
 Inject a fault into a running rig through its control endpoint (listed in the ready file of

@@ -22,17 +22,17 @@ import math
 from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, Any
 
-from ..bus.bus import Controller, VirtualBus
-from ..canopen.drive import Drive
-from ..canopen.emcy import ERR_CURRENT, ERR_PROFILE
-from ..canopen.node import Node
-from ..common.clock import TimerHandle
-from ..common.errors import GatewaylabError
-from ..ethercat.esc import AlState
+from gatewaylab.bus.bus import Controller, VirtualBus
+from gatewaylab.canopen.drive import Drive
+from gatewaylab.canopen.emcy import ERR_CURRENT, ERR_PROFILE
+from gatewaylab.canopen.node import Node
+from gatewaylab.common.clock import TimerHandle
+from gatewaylab.common.errors import GatewaylabError
+from gatewaylab.ethercat.esc import AlState
 
 if TYPE_CHECKING:
-    from ..ethercat.segment import Segment
-    from .runtime import Rig
+    from gatewaylab.ethercat.segment import Segment
+    from gatewaylab.rig.runtime import Rig
 
 __all__ = ["DRIVE_FAULTS", "FaultRefused", "Faults"]
 
@@ -136,7 +136,7 @@ class Faults:
         return p, drive
 
     def _segment(self, device: str) -> tuple[Segment, int]:
-        from ..ethercat.segment import Segment
+        from gatewaylab.ethercat.segment import Segment
 
         p = self._device(device)
         slave = getattr(p, "slave", None)

@@ -13,11 +13,11 @@ from dataclasses import dataclass
 from importlib.metadata import EntryPoint, entry_points
 from typing import TYPE_CHECKING, Any
 
-from ..common.errors import ConfigError
-from .plugin import DeviceKind, section_error
+from gatewaylab.common.errors import ConfigError
+from gatewaylab.rig.plugin import DeviceKind, section_error
 
 if TYPE_CHECKING:
-    from .config import RigConfig
+    from gatewaylab.rig.config import RigConfig
 
 #: The entry-point group a device package registers its :class:`DeviceKind` objects in.
 GROUP = "gatewaylab.devices"

@@ -11,14 +11,14 @@ import dataclasses
 from pathlib import Path
 from typing import Any
 
-from ..common.clock import RealTimeClock, SimulatedClock
-from ..common.errors import ConfigError
-from ..ethercat.backend import InProcessBackend
-from ..migrate import cli as migrate_cli
-from ..migrate.compare_run import GATEWAYS, Line, LineOpener, Runner, simulated_runner
-from ..migrate.compare_wire import RealtimeOpener, WireLine, wire_runner, wire_unavailable
-from .config import RigConfig, load_rig
-from .runtime import Rig
+from gatewaylab.common.clock import RealTimeClock, SimulatedClock
+from gatewaylab.common.errors import ConfigError
+from gatewaylab.ethercat.backend import InProcessBackend
+from gatewaylab.migrate import cli as migrate_cli
+from gatewaylab.migrate.compare_run import GATEWAYS, Line, LineOpener, Runner, simulated_runner
+from gatewaylab.migrate.compare_wire import RealtimeOpener, WireLine, wire_runner, wire_unavailable
+from gatewaylab.rig.config import RigConfig, load_rig
+from gatewaylab.rig.runtime import Rig
 
 #: device kinds compare adds itself; a rig for compare must not hold them
 GATEWAY_KINDS = tuple(g[0] for g in GATEWAYS)

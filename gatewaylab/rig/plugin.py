@@ -5,13 +5,6 @@ the built-in devices use them without importing ``rig``; packages outside gatewa
 from here.
 """
 
-from ..bus.participant import (
-    DeviceKind,
-    Key,
-    Participant,
-    RigContext,
-    section_error,
-    validate_table,
-)
+from gatewaylab.bus.participant import DeviceKind, Key, Participant, RigContext, section_error, validate_table
 
 __all__ = ["DeviceKind", "Key", "Participant", "RigContext", "section_error", "validate_table"]

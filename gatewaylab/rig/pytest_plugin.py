@@ -25,11 +25,11 @@ import pytest
 if TYPE_CHECKING:
     import can
 
-    from ..common.clock import Clock
-    from .process import RigProcess
-    from .runtime import Rig
+    from gatewaylab.common.clock import Clock
+    from gatewaylab.rig.process import RigProcess
+    from gatewaylab.rig.runtime import Rig
 
-from .process import free_udp_ports, rig_toml
+from gatewaylab.rig.process import free_udp_ports, rig_toml
 
 __all__ = ["RigHandle", "free_udp_ports", "rig_toml"]
 
@@ -78,7 +78,7 @@ class RigHandle:
         """A python-can bus on a rig bus, shut down when the test ends: through the endpoint for a rig in
         a child process, in process otherwise."""
         if self.rig is not None:
-            from ..bus import python_can_bus
+            from gatewaylab.bus import python_can_bus
 
             made: can.BusABC = python_can_bus(self.rig.bus(bus), **kwargs)
         else:
@@ -113,15 +113,15 @@ def _start(workdir: Path, rig: str | Path | Mapping[str, Any] | None, clock: str
     else:
         path = None if rig is None else Path(rig)
     if clock == "realtime" and not in_process:
-        from .process import RigProcess
+        from gatewaylab.rig.process import RigProcess
 
         process = RigProcess(path, *args, workdir=workdir, timeout=timeout)
         return RigHandle(workdir, process.info, process=process)
     if args:
         raise ValueError("args are `gatewaylab run` options: only for a rig in a child process")
-    from ..common.clock import RealTimeClock, SimulatedClock
-    from .config import load_rig
-    from .runtime import Rig
+    from gatewaylab.common.clock import RealTimeClock, SimulatedClock
+    from gatewaylab.rig.config import load_rig
+    from gatewaylab.rig.runtime import Rig
 
     instance = Rig(load_rig(path), clock=SimulatedClock() if clock == "simulated" else RealTimeClock())
     handle = RigHandle(workdir, {}, rig=instance)
@@ -160,7 +160,7 @@ def pytest_configure(config: pytest.Config) -> None:
 
 
 def _veth_unavailable() -> str | None:
-    from ..ethercat.wire_netns import net_unavailable
+    from gatewaylab.ethercat.wire_netns import net_unavailable
 
     return net_unavailable()
 

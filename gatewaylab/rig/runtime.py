@@ -33,17 +33,17 @@ from pathlib import Path
 from types import FrameType
 from typing import Any
 
-from ..bus.bus import VirtualBus
-from ..bus.transport.server import BusServer
-from ..bus.transport.socketcand import SocketcandServer
-from ..bus.transport.trace import Trace
-from ..common.clock import Clock, RealTimeClock, SimulatedClock
-from ..common.errors import ConfigError, GatewaylabError
-from . import kinds
-from .config import RigConfig, load_rig
-from .control import ControlServer
-from .faults import Faults
-from .plugin import Participant
+from gatewaylab.bus.bus import VirtualBus
+from gatewaylab.bus.transport.server import BusServer
+from gatewaylab.bus.transport.socketcand import SocketcandServer
+from gatewaylab.bus.transport.trace import Trace
+from gatewaylab.common.clock import Clock, RealTimeClock, SimulatedClock
+from gatewaylab.common.errors import ConfigError, GatewaylabError
+from gatewaylab.rig import kinds
+from gatewaylab.rig.config import RigConfig, load_rig
+from gatewaylab.rig.control import ControlServer
+from gatewaylab.rig.faults import Faults
+from gatewaylab.rig.plugin import Participant
 
 __all__ = ["GRACE", "Participant", "Rig", "RigStartError", "merge_info"]
 

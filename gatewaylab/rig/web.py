@@ -18,13 +18,13 @@ from collections.abc import Iterator
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import Any
 
-from ..bus import CanFrame, VirtualBus
-from ..bus.bus import BusEvent, Controller, ErrorFrameEvent, StateChangeEvent
-from ..bus.errorframe import bus_error, state_change
-from ..canopen.drive import Drive
-from ..canopen.monitor import BusMonitor, ControllerWatch, MonitorEvent, SignalSource
-from ..common.server_thread import ServerThread
-from ..od.eds import import_eds
+from gatewaylab.bus import CanFrame, VirtualBus
+from gatewaylab.bus.bus import BusEvent, Controller, ErrorFrameEvent, StateChangeEvent
+from gatewaylab.bus.errorframe import bus_error, state_change
+from gatewaylab.canopen.drive import Drive
+from gatewaylab.canopen.monitor import BusMonitor, ControllerWatch, MonitorEvent, SignalSource
+from gatewaylab.common.server_thread import ServerThread
+from gatewaylab.od.eds import import_eds
 
 #: log lines kept for a page that connects later
 _KEEP = 500

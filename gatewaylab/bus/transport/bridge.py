@@ -26,10 +26,10 @@ from typing import Any
 
 import can
 
-from ...common.errors import ConfigError, FrameError, LocalError
-from ..bridge import Backoff, BridgeStats, EchoFilter, LinkState, Verdict, classify
-from ..frame import CanFrame
-from ..participant import DeviceKind, Key, RigContext
+from gatewaylab.bus.bridge import Backoff, BridgeStats, EchoFilter, LinkState, Verdict, classify
+from gatewaylab.bus.frame import CanFrame
+from gatewaylab.bus.participant import DeviceKind, Key, RigContext
+from gatewaylab.common.errors import ConfigError, FrameError, LocalError
 
 log = logging.getLogger(__name__)
 

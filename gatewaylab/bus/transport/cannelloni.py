@@ -16,11 +16,11 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from ...common.clock import TimerHandle
-from ...common.errors import ConfigError, LocalError
-from .. import cannelloni as cn
-from ..frame import CanFrame
-from ..participant import DeviceKind, Key, RigContext, section_error
+from gatewaylab.bus import cannelloni as cn
+from gatewaylab.bus.frame import CanFrame
+from gatewaylab.bus.participant import DeviceKind, Key, RigContext, section_error
+from gatewaylab.common.clock import TimerHandle
+from gatewaylab.common.errors import ConfigError, LocalError
 
 log = logging.getLogger(__name__)
 

@@ -20,10 +20,10 @@ from typing import Any
 import can
 from can.bus import BusState, CanProtocol
 
-from ...common.clock import Clock, SimulatedClock
-from ...common.errors import GatewaylabError
-from ..bus import Controller, ErrorState, VirtualBus
-from ..frame import CanFrame
+from gatewaylab.bus.bus import Controller, ErrorState, VirtualBus
+from gatewaylab.bus.frame import CanFrame
+from gatewaylab.common.clock import Clock, SimulatedClock
+from gatewaylab.common.errors import GatewaylabError
 
 
 def install_lock(clock: Clock) -> None:

@@ -38,10 +38,10 @@ from typing import Any
 import can
 from can.bus import BusState, CanProtocol
 
-from ...common.endpoint import EndpointError, EndpointKind, parse_endpoint
-from ...common.errors import GatewaylabError
-from .. import errorframe, wire
-from ..frame import FD_DLC_TO_LEN, CanFrame
+from gatewaylab.bus import errorframe, wire
+from gatewaylab.bus.frame import FD_DLC_TO_LEN, CanFrame
+from gatewaylab.common.endpoint import EndpointError, EndpointKind, parse_endpoint
+from gatewaylab.common.errors import GatewaylabError
 
 log = logging.getLogger("can.gatewaylab")
 

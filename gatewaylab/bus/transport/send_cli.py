@@ -16,8 +16,8 @@ from typing import Any
 
 import can
 
-from ...common.endpoint import EndpointError, bus_endpoint
-from ..candump import CandumpSyntaxError, parse_cansend
+from gatewaylab.bus.candump import CandumpSyntaxError, parse_cansend
+from gatewaylab.common.endpoint import EndpointError, bus_endpoint
 
 _DESCRIPTION = """\
 Send one frame to a bus of a running rig, written as for can-utils' cansend:

@@ -13,10 +13,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Protocol
 
-from ...common.clock import TimerHandle
-from ...common.errors import GatewaylabError, LocalError, ProtocolError
-from .. import wire
-from ..bus import (
+from gatewaylab.bus import wire
+from gatewaylab.bus.bus import (
     BusEvent,
     Controller,
     ErrorFrameEvent,
@@ -27,8 +25,10 @@ from ..bus import (
     TxDoneEvent,
     VirtualBus,
 )
-from ..frame import CanFrame
-from .outbox import Outbox, accept_client
+from gatewaylab.bus.frame import CanFrame
+from gatewaylab.bus.transport.outbox import Outbox, accept_client
+from gatewaylab.common.clock import TimerHandle
+from gatewaylab.common.errors import GatewaylabError, LocalError, ProtocolError
 
 log = logging.getLogger(__name__)
 

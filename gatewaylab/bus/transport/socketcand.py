@@ -11,13 +11,21 @@ from __future__ import annotations
 import logging
 import socket
 
-from ...common.clock import PeriodicTimer, TimerHandle
-from ...common.errors import LocalError
-from .. import socketcand as sc
-from ..bus import BusEvent, Controller, ErrorFrameEvent, ErrorKind, ErrorState, StateChangeEvent, VirtualBus
-from ..frame import CanFrame
-from .outbox import Outbox, accept_client
-from .server import Reactor
+from gatewaylab.bus import socketcand as sc
+from gatewaylab.bus.bus import (
+    BusEvent,
+    Controller,
+    ErrorFrameEvent,
+    ErrorKind,
+    ErrorState,
+    StateChangeEvent,
+    VirtualBus,
+)
+from gatewaylab.bus.frame import CanFrame
+from gatewaylab.bus.transport.outbox import Outbox, accept_client
+from gatewaylab.bus.transport.server import Reactor
+from gatewaylab.common.clock import PeriodicTimer, TimerHandle
+from gatewaylab.common.errors import LocalError
 
 log = logging.getLogger(__name__)
 

@@ -19,11 +19,11 @@ from typing import BinaryIO, Protocol
 
 import can
 
-from ...common.clock import TimerHandle
-from ...common.errors import ConfigError, FrameError
-from ..bus import VirtualBus
-from ..errorframe import ErrorFrame
-from ..frame import CanFrame
+from gatewaylab.bus.bus import VirtualBus
+from gatewaylab.bus.errorframe import ErrorFrame
+from gatewaylab.bus.frame import CanFrame
+from gatewaylab.common.clock import TimerHandle
+from gatewaylab.common.errors import ConfigError, FrameError
 
 #: The longest a written frame stays in a buffer (seconds of bus time).
 FLUSH_PERIOD = 0.1

@@ -31,14 +31,14 @@ from typing import Any, Protocol
 import can
 from can.bus import BusState, CanProtocol
 
-from ...bus.frame import CanFrame
-from ...common.clock import Clock, PeriodicTimer, SimulatedClock
-from ...common.errors import GatewaylabError, LocalError
-from ...ethercat.backend import MasterBackend
-from ...ethercat.esc import AlState
-from ..ecanlite.host.adapter import AdapterConfig, EcanAdapter, SlaveConfig
-from ..ecanlite.host.port import ChannelConfig, McanPort, PortConfig
-from ..esd_can_ethercat.host import BitRate, EsdHost, RxOverflowError, for_bitrate
+from gatewaylab.bus.frame import CanFrame
+from gatewaylab.common.clock import Clock, PeriodicTimer, SimulatedClock
+from gatewaylab.common.errors import GatewaylabError, LocalError
+from gatewaylab.devices.ecanlite.host.adapter import AdapterConfig, EcanAdapter, SlaveConfig
+from gatewaylab.devices.ecanlite.host.port import ChannelConfig, McanPort, PortConfig
+from gatewaylab.devices.esd_can_ethercat.host import BitRate, EsdHost, RxOverflowError, for_bitrate
+from gatewaylab.ethercat.backend import MasterBackend
+from gatewaylab.ethercat.esc import AlState
 
 log = logging.getLogger("can.gatewaylab.ethercat")
 

@@ -19,9 +19,9 @@ from typing import Any
 
 import can
 
-from ...common.errors import GatewaylabError
-from ...ethercat.backend import MasterBackend
-from .host import EthercatHost, GatewayBus
+from gatewaylab.common.errors import GatewaylabError
+from gatewaylab.devices.canhost.host import EthercatHost, GatewayBus
+from gatewaylab.ethercat.backend import MasterBackend
 
 RIG_PREFIX = "rig:"
 
@@ -41,7 +41,7 @@ def open_line(channel: Any, open_rig: RigOpener | None = None,
         if open_rig is None:
             raise can.CanInitializationError(f"{channel}: rig lines need gatewaylab.rig.canhost's interfaces")
         return open_rig(channel[len(RIG_PREFIX):])
-    from ...ethercat.wire_backend import PysoemBackend
+    from gatewaylab.ethercat.wire_backend import PysoemBackend
 
     return PysoemBackend(channel, pd_timeout_us=pd_timeout_us), None, 0.0
 

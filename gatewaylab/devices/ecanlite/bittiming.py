@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ...common.errors import ConfigError
+from gatewaylab.common.errors import ConfigError
 
 #: 0x8000:06..09 MCANk clock hz.
 MCAN_CLOCK_HZ = 80_000_000

@@ -23,7 +23,7 @@ import enum
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 
-from ...common.errors import LocalError
+from gatewaylab.common.errors import LocalError
 
 __all__ = ["DEFAULT_RESERVE_BYTES", "MAX_PACKETS", "Allocation", "BudgetPolicy", "allocate"]
 

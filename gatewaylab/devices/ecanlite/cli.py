@@ -9,8 +9,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from .host.cli import add_host_commands
-from .ota import APP_FILE_NAME, HEADER_SIZE, FirmwareVersion, OtaError, pack
+from gatewaylab.devices.ecanlite.host.cli import add_host_commands
+from gatewaylab.devices.ecanlite.ota import APP_FILE_NAME, HEADER_SIZE, FirmwareVersion, OtaError, pack
 
 _PACK_EPILOG = f"""\
 example:

@@ -22,15 +22,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from ...bus.bus import Controller
-from ...bus.frame import CanFrame
-from ...common.clock import Clock
-from ...ethercat.errors import AlStatusCode
-from ...ethercat.esc import REG_DC_ACTIVATION, REG_DC_SYNC0_CYCLE, SYNC0_MIN_CYCLE_NS, AlState
-from ...ethercat.slave import Slave, SlaveApplication
-from ...od import Entry, ObjectDictionary, SdoAbort, SdoAbortCode
-from . import budget as budget_mod
-from .image import (
+from gatewaylab.bus.bus import Controller
+from gatewaylab.bus.frame import CanFrame
+from gatewaylab.common.clock import Clock
+from gatewaylab.devices.ecanlite import budget as budget_mod
+from gatewaylab.devices.ecanlite.image import (
     CHUNKS,
     CYCLE_DIAG,
     DEVICE_NAME,
@@ -57,8 +53,8 @@ from .image import (
     TX_PROFILE,
     ecanlite_description,
 )
-from .mcan import McanModel
-from .stream import (
+from gatewaylab.devices.ecanlite.mcan import McanModel
+from gatewaylab.devices.ecanlite.stream import (
     HEADER_SIZE,
     OPTION_MASK,
     PROFILE_MASK,
@@ -83,7 +79,11 @@ from .stream import (
     packet_size,
     profile_word,
 )
-from .system import DiagFlag
+from gatewaylab.devices.ecanlite.system import DiagFlag
+from gatewaylab.ethercat.errors import AlStatusCode
+from gatewaylab.ethercat.esc import REG_DC_ACTIVATION, REG_DC_SYNC0_CYCLE, SYNC0_MIN_CYCLE_NS, AlState
+from gatewaylab.ethercat.slave import Slave, SlaveApplication
+from gatewaylab.od import Entry, ObjectDictionary, SdoAbort, SdoAbortCode
 
 __all__ = ["EcanLiteApplication", "EcanLiteDevice", "Status"]
 

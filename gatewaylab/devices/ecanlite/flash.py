@@ -27,7 +27,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
 
-from ...common.errors import LocalError
+from gatewaylab.common.errors import LocalError
 
 IMAGE_MAGIC = b"ECFG"
 IMAGE_FORMAT = 1

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from ...ethercat.description import DeviceDescription, ObjectDef, Pdo, PdoEntry
-from ...od import Access, DataType
+from gatewaylab.ethercat.description import DeviceDescription, ObjectDef, Pdo, PdoEntry
+from gatewaylab.od import Access, DataType
 
 #: 'GWLB', the gatewaylab vendor id of the emulated devices (not ETG-assigned, see docs/decisions.md).
 VENDOR_ID = 0x47574C42

@@ -20,7 +20,7 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import TYPE_CHECKING, Any
 
-from ...bus.bus import (
+from gatewaylab.bus.bus import (
     BusEvent,
     Controller,
     ErrorFrameEvent,
@@ -30,24 +30,24 @@ from ...bus.bus import (
     TxAbortedEvent,
     TxDoneEvent,
 )
-from ...bus.frame import CanFrame
-from ...bus.timing import arbitration_key
-from ...common.clock import Clock
-from ...common.errors import GatewaylabError
-from ...ethercat.description import ObjectDef
-from ...od import Access, DataType, Entry, ObjectDictionary, SdoAbort, SdoAbortCode
-from . import bittiming
-from .bittiming import BitTiming, BitTimingError, Tdc
-from .ota import FirmwareVersion
+from gatewaylab.bus.frame import CanFrame
+from gatewaylab.bus.timing import arbitration_key
+from gatewaylab.common.clock import Clock
+from gatewaylab.common.errors import GatewaylabError
+from gatewaylab.devices.ecanlite import bittiming
+from gatewaylab.devices.ecanlite.bittiming import BitTiming, BitTimingError, Tdc
+from gatewaylab.devices.ecanlite.ota import FirmwareVersion
+from gatewaylab.ethercat.description import ObjectDef
+from gatewaylab.od import Access, DataType, Entry, ObjectDictionary, SdoAbort, SdoAbortCode
 
 #: The firmware a device runs before any OTA update (0xF000:05 = 0x0103, :06 = 0x2100).
 FACTORY_VERSION = FirmwareVersion(1, 3, 0x2100)
 
 if TYPE_CHECKING:
-    from ...ethercat.foe import FoeHandler
-    from ...ethercat.slave import Slave
-    from .flash import FlashMedium
-    from .system import SystemModel
+    from gatewaylab.devices.ecanlite.flash import FlashMedium
+    from gatewaylab.devices.ecanlite.system import SystemModel
+    from gatewaylab.ethercat.foe import FoeHandler
+    from gatewaylab.ethercat.slave import Slave
 
 U8, U16, U32 = DataType.UNSIGNED8, DataType.UNSIGNED16, DataType.UNSIGNED32
 RO, RW, WO = Access.RO, Access.RW, Access.WO
@@ -1272,9 +1272,9 @@ class McanModel:
         """``flash_path``: the configuration flash file (the APP partition is ``PATH.app`` next to
         it), None for flash in memory, or a :class:`~.flash.FlashMedium` (e.g. the previous
         model's ``flash``, so a reset keeps an in-memory flash and firmware)."""
-        from .flash import FileFlash, MemoryFlash
-        from .ota import OtaError, unpack
-        from .system import SystemModel
+        from gatewaylab.devices.ecanlite.flash import FileFlash, MemoryFlash
+        from gatewaylab.devices.ecanlite.ota import OtaError, unpack
+        from gatewaylab.devices.ecanlite.system import SystemModel
 
         if len(controllers) > CHANNELS:
             raise ValueError(f"the ECAN-Lite has {CHANNELS} MCAN channels, got {len(controllers)} controllers")

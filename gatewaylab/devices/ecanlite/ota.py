@@ -29,8 +29,8 @@ import zlib
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
-from ...common.errors import LocalError
-from ...ethercat.errors import FoeError, FoeErrorCode
+from gatewaylab.common.errors import LocalError
+from gatewaylab.ethercat.errors import FoeError, FoeErrorCode
 
 APP_FILE_NAME = "ecan_lite_app"
 APP_PASSWORD = 0

@@ -18,9 +18,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from ...bus.bus import Controller
-from ...bus.participant import DeviceKind, Key, RigContext, section_error
-from .device import EcanLiteDevice
+from gatewaylab.bus.bus import Controller
+from gatewaylab.bus.participant import DeviceKind, Key, RigContext, section_error
+from gatewaylab.devices.ecanlite.device import EcanLiteDevice
 
 KEYS: dict[str, Key] = {
     "name": Key(str, "ecan"),

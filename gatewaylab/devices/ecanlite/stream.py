@@ -28,9 +28,9 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from ...bus.frame import FD_DLC_TO_LEN, FD_LEN_TO_DLC, MAX_EXT_ID, MAX_STD_ID, CanFrame
-from ...common.errors import LocalError, ProtocolError
-from .budget import BudgetPolicy
+from gatewaylab.bus.frame import FD_DLC_TO_LEN, FD_LEN_TO_DLC, MAX_EXT_ID, MAX_STD_ID, CanFrame
+from gatewaylab.common.errors import LocalError, ProtocolError
+from gatewaylab.devices.ecanlite.budget import BudgetPolicy
 
 __all__ = [
     "CRC_ALG_CCITT_FALSE", "DEFAULT_FEATURES", "HEADER_SIZE", "MAX_CHANNELS", "MAX_FRAME_COUNT",

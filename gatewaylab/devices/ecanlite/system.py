@@ -14,10 +14,8 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from ...ethercat.description import ObjectDef
-from ...od import Access, DataType, Entry, ObjectDictionary, SdoAbort, SdoAbortCode
-from . import flash as fl
-from .mcan import (
+from gatewaylab.devices.ecanlite import flash as fl
+from gatewaylab.devices.ecanlite.mcan import (
     CHANNELS,
     CONFIG_BASE,
     CONFIG_PERSISTED,
@@ -36,11 +34,13 @@ from .mcan import (
     Row,
     rows_object,
 )
-from .ota import OtaHandler, OtaStatus, Package
+from gatewaylab.devices.ecanlite.ota import OtaHandler, OtaStatus, Package
+from gatewaylab.ethercat.description import ObjectDef
+from gatewaylab.od import Access, DataType, Entry, ObjectDictionary, SdoAbort, SdoAbortCode
 
 if TYPE_CHECKING:
-    from ...ethercat.foe import FoeHandler
-    from .mcan import McanModel
+    from gatewaylab.devices.ecanlite.mcan import McanModel
+    from gatewaylab.ethercat.foe import FoeHandler
 
 U8, U16, U32 = DataType.UNSIGNED8, DataType.UNSIGNED16, DataType.UNSIGNED32
 RO, RW, WO = Access.RO, Access.RW, Access.WO
@@ -628,7 +628,7 @@ class SystemModel:
                 self.model.load_channel_settings(k, {}, (), ())
                 self.model.load_policy_values(k, {})
         if bits & 0x18:
-            from .ota import OtaError, unpack
+            from gatewaylab.devices.ecanlite.ota import OtaError, unpack
             try:
                 package = unpack(self.ota.last_image)
             except OtaError:

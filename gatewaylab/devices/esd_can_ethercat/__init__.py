@@ -7,6 +7,6 @@ Modular Device Profile 5000 with one CAN controller on a virtual bus.
 HTTP server of chapter 6.
 """
 
-from .device import EsdGateway, create_esd_gateway
+from gatewaylab.devices.esd_can_ethercat.device import EsdGateway, create_esd_gateway
 
 __all__ = ["EsdGateway", "create_esd_gateway"]

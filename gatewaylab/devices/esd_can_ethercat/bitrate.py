@@ -11,7 +11,7 @@ from __future__ import annotations
 import enum
 from dataclasses import dataclass
 
-from ...common.errors import LocalError
+from gatewaylab.common.errors import LocalError
 
 #: 7.3 / 5.1.5.9: the CAN controller's clock ("CPU Master Clock: 120 MHz").
 CONTROLLER_CLOCK = 120_000_000

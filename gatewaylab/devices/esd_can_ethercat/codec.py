@@ -18,8 +18,8 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass
 
-from ...bus.frame import CanFrame
-from ...common.errors import RemoteError
+from gatewaylab.bus.frame import CanFrame
+from gatewaylab.common.errors import RemoteError
 
 OUT_HEADER = struct.Struct("<HHH")     # Tx counter, Rx counter, number of Tx messages
 IN_HEADER = struct.Struct("<HHHH")     # Tx counter, Rx counter, number of Rx messages, Tx transaction no.

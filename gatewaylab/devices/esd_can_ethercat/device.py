@@ -23,7 +23,7 @@ from collections import deque
 from dataclasses import dataclass, fields
 from typing import Any
 
-from ...bus.bus import (
+from gatewaylab.bus.bus import (
     BusEvent,
     Controller,
     ErrorFrameEvent,
@@ -34,15 +34,11 @@ from ...bus.bus import (
     TxDoneEvent,
     VirtualBus,
 )
-from ...bus.frame import CanFrame
-from ...bus.timing import classic_bits
-from ...common.clock import Clock, TimerHandle
-from ...ethercat.errors import AlStatusCode, FoeError, FoeErrorCode
-from ...ethercat.esc import AlState
-from ...ethercat.slave import Slave, SlaveApplication
-from ...od import Entry, ObjectDictionary, SdoAbort, SdoAbortCode
-from . import bitrate as br
-from .codec import (
+from gatewaylab.bus.frame import CanFrame
+from gatewaylab.bus.timing import classic_bits
+from gatewaylab.common.clock import Clock, TimerHandle
+from gatewaylab.devices.esd_can_ethercat import bitrate as br
+from gatewaylab.devices.esd_can_ethercat.codec import (
     IN_HEADER,
     OUT_HEADER,
     RX_SIZE,
@@ -54,7 +50,7 @@ from .codec import (
     encode_rx29,
     input_size,
 )
-from .objects import (
+from gatewaylab.devices.esd_can_ethercat.objects import (
     API_BAUD,
     BAUD_INDEX,
     DEFAULT_LOCAL_QUEUE,
@@ -70,6 +66,10 @@ from .objects import (
     max_tx_queue,
     resize_queues,
 )
+from gatewaylab.ethercat.errors import AlStatusCode, FoeError, FoeErrorCode
+from gatewaylab.ethercat.esc import AlState
+from gatewaylab.ethercat.slave import Slave, SlaveApplication
+from gatewaylab.od import Entry, ObjectDictionary, SdoAbort, SdoAbortCode
 
 #: 5.3: the file name a firmware update is written to by FoE, and its password.
 FIRMWARE_FILE = "firmwareUpdate"

@@ -12,9 +12,9 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-from ...ethercat.description import DeviceDescription, Pdo, PdoEntry
-from ...od import Access, DataType, ObjectDictionary
-from .codec import RX_SIZE, TX_SIZE, input_size, output_size
+from gatewaylab.devices.esd_can_ethercat.codec import RX_SIZE, TX_SIZE, input_size, output_size
+from gatewaylab.ethercat.description import DeviceDescription, Pdo, PdoEntry
+from gatewaylab.od import Access, DataType, ObjectDictionary
 
 VENDOR_ID = 0x00000017          # 5.1.3.5: esd
 PRODUCT_CODE = 0x00000002       # 5.1.3.5: CAN-EtherCAT

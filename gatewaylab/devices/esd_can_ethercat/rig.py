@@ -18,9 +18,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from ...bus.participant import DeviceKind, Key, RigContext
-from .device import EsdGateway
-from .webmodel import EsdWebModel
+from gatewaylab.bus.participant import DeviceKind, Key, RigContext
+from gatewaylab.devices.esd_can_ethercat.device import EsdGateway
+from gatewaylab.devices.esd_can_ethercat.webmodel import EsdWebModel
 
 KEYS: dict[str, Key] = {
     "name": Key(str, "esd"),
@@ -50,7 +50,7 @@ class EsdParticipant:
         """Attach to the bus, then start the web server (a failed start leaves nothing running)."""
         self.gateway.start()
         if self.web_port is not None and self.web is None:
-            from .web import EsdWebServer
+            from gatewaylab.devices.esd_can_ethercat.web import EsdWebServer
 
             server = EsdWebServer(EsdWebModel(self.gateway), self.rig.clock.lock, port=self.web_port)
             try:

@@ -13,8 +13,13 @@ Pages and their manual sections: :mod:`.web_pages`; HTTP transport: :mod:`.web_s
 
 from __future__ import annotations
 
-from .web_pages import CanStatusView, DeviceInfoView, EsdWebBackend, format_can_status
-from .web_server import DEFAULT_MAX_BODY, EsdWebError, EsdWebServer
+from gatewaylab.devices.esd_can_ethercat.web_pages import (
+    CanStatusView,
+    DeviceInfoView,
+    EsdWebBackend,
+    format_can_status,
+)
+from gatewaylab.devices.esd_can_ethercat.web_server import DEFAULT_MAX_BODY, EsdWebError, EsdWebServer
 
 __all__ = [
     "DEFAULT_MAX_BODY",

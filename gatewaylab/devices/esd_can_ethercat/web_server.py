@@ -17,9 +17,9 @@ from collections.abc import Callable
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import Any, cast
 
-from ...common.errors import ConfigError
-from ...common.server_thread import ServerThread
-from .web_pages import EsdWebApp, EsdWebBackend, Request, Response
+from gatewaylab.common.errors import ConfigError
+from gatewaylab.common.server_thread import ServerThread
+from gatewaylab.devices.esd_can_ethercat.web_pages import EsdWebApp, EsdWebBackend, Request, Response
 
 __all__ = ["DEFAULT_MAX_BODY", "EsdWebError", "EsdWebServer"]
 

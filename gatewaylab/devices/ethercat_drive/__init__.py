@@ -4,7 +4,14 @@ The axes are the CANopen drive of :mod:`gatewaylab.canopen.drive` (state machine
 error codes, plant) on the slave's dictionary; see ``docs/devices/ethercat_drive.md``.
 """
 
-from .device import AXIS_OFFSET, PRODUCT_CODE, DriveApplication, EthercatDrive, create_drive_slave, drive_description
+from gatewaylab.devices.ethercat_drive.device import (
+           AXIS_OFFSET,
+           PRODUCT_CODE,
+           DriveApplication,
+           EthercatDrive,
+           create_drive_slave,
+           drive_description,
+)
 
 __all__ = ["AXIS_OFFSET", "PRODUCT_CODE", "DriveApplication", "EthercatDrive", "create_drive_slave",
            "drive_description"]

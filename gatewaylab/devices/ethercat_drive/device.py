@@ -35,21 +35,21 @@ from dataclasses import replace
 from functools import partial
 from typing import Any, cast
 
-from ...canopen.cia402 import PdsState
-from ...canopen.drive import DEVICE_TYPE, Drive, add_profile_objects
-from ...canopen.emcy import ERR_CURRENT, ERR_GENERIC
-from ...canopen.nmt import NmtState
-from ...canopen.node import Node
-from ...canopen.plant import AxisParams
-from ...common.clock import Clock, PeriodicTimer
-from ...common.errors import ConfigError
-from ...ethercat.description import DeviceDescription, Pdo, PdoEntry
-from ...ethercat.errors import AlStatusCode
-from ...ethercat.esc import REG_DC_ACTIVATION, REG_DC_SYNC0_CYCLE, AlState
-from ...ethercat.io_device import VENDOR_ID
-from ...ethercat.slave import Slave, SlaveApplication
-from ...od import Access, DataType, Entry, ObjectCode, ObjectDictionary, SdoAbort
-from ...od.dictionary import ReadHook, Validator, WriteHook
+from gatewaylab.canopen.cia402 import PdsState
+from gatewaylab.canopen.drive import DEVICE_TYPE, Drive, add_profile_objects
+from gatewaylab.canopen.emcy import ERR_CURRENT, ERR_GENERIC
+from gatewaylab.canopen.nmt import NmtState
+from gatewaylab.canopen.node import Node
+from gatewaylab.canopen.plant import AxisParams
+from gatewaylab.common.clock import Clock, PeriodicTimer
+from gatewaylab.common.errors import ConfigError
+from gatewaylab.ethercat.description import DeviceDescription, Pdo, PdoEntry
+from gatewaylab.ethercat.errors import AlStatusCode
+from gatewaylab.ethercat.esc import REG_DC_ACTIVATION, REG_DC_SYNC0_CYCLE, AlState
+from gatewaylab.ethercat.io_device import VENDOR_ID
+from gatewaylab.ethercat.slave import Slave, SlaveApplication
+from gatewaylab.od import Access, DataType, Entry, ObjectCode, ObjectDictionary, SdoAbort
+from gatewaylab.od.dictionary import ReadHook, Validator, WriteHook
 
 __all__ = ["AXIS_OFFSET", "PRODUCT_CODE", "DriveApplication", "EthercatDrive", "create_drive_slave",
            "drive_description"]

@@ -17,10 +17,10 @@ from __future__ import annotations
 
 from typing import Any
 
-from ...bus.participant import DeviceKind, Key, RigContext
-from ...canopen.rig import PLANT_KEYS, axis_params
-from ...ethercat.slave import Slave
-from .device import MAX_AXES, EthercatDrive
+from gatewaylab.bus.participant import DeviceKind, Key, RigContext
+from gatewaylab.canopen.rig import PLANT_KEYS, axis_params
+from gatewaylab.devices.ethercat_drive.device import MAX_AXES, EthercatDrive
+from gatewaylab.ethercat.slave import Slave
 
 KEYS: dict[str, Key] = {
     "name": Key(str, "ethercat_drive"),

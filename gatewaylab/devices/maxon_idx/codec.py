@@ -17,8 +17,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from enum import Enum
 
-from ...common.clock import Clock, TimerHandle
-from ...common.errors import LocalError
+from gatewaylab.common.clock import Clock, TimerHandle
+from gatewaylab.common.errors import LocalError
 
 DLE = 0x90
 STX = 0x02

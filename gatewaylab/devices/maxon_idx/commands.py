@@ -12,9 +12,9 @@ from dataclasses import dataclass
 from enum import IntEnum
 from typing import ClassVar, Self
 
-from ...common.errors import LocalError
-from .codec import Frame
-from .errors import IdxRemoteError, SdoAbortCode
+from gatewaylab.common.errors import LocalError
+from gatewaylab.devices.maxon_idx.codec import Frame
+from gatewaylab.devices.maxon_idx.errors import IdxRemoteError, SdoAbortCode
 
 RESPONSE_OPCODE = 0x00
 #: Largest data block of one segment (guide 2.1.1.2/2.1.1.3/2.1.2.3: "Length (max. 255 bytes)").

@@ -11,15 +11,15 @@ from __future__ import annotations
 from collections.abc import Callable
 from pathlib import Path
 
-from ...bus.bus import VirtualBus
-from ...canopen.drive import Drive
-from ...canopen.nmt import NmtCommand
-from ...canopen.node import Node
-from ...common.clock import Clock
-from .commands import MAX_SEGMENT
-from .errors import IdxRemoteError, SdoAbortCode
-from .gateway import CanGateway, SdoClientLike
-from .protocol import IdxSlave
+from gatewaylab.bus.bus import VirtualBus
+from gatewaylab.canopen.drive import Drive
+from gatewaylab.canopen.nmt import NmtCommand
+from gatewaylab.canopen.node import Node
+from gatewaylab.common.clock import Clock
+from gatewaylab.devices.maxon_idx.commands import MAX_SEGMENT
+from gatewaylab.devices.maxon_idx.errors import IdxRemoteError, SdoAbortCode
+from gatewaylab.devices.maxon_idx.gateway import CanGateway, SdoClientLike
+from gatewaylab.devices.maxon_idx.protocol import IdxSlave
 
 #: USB frame timeout object (guide 2.2.6, table 2-4), UNSIGNED16 in ms.
 USB_FRAME_TIMEOUT = 0x2006
@@ -46,7 +46,7 @@ class NodeObjects:
 
 
 def _default_sdo_client(clock: Clock, send: Callable[..., None], timeout: float) -> SdoClientLike:
-    from ...canopen.sdo_client import SdoClient
+    from gatewaylab.canopen.sdo_client import SdoClient
 
     client: SdoClientLike = SdoClient(clock, send, timeout=timeout)
     return client

@@ -9,7 +9,7 @@ boundary.
 
 from __future__ import annotations
 
-from ...od.aborts import SdoAbort, SdoAbortCode, abort_text
+from gatewaylab.od.aborts import SdoAbort, SdoAbortCode, abort_text
 
 __all__ = ["IdxRemoteError", "SdoAbortCode", "error_cause", "error_name", "idx_codes"]
 

@@ -15,10 +15,10 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Protocol
 
-from ...bus.frame import CanFrame
-from ...common.clock import Clock, TimerHandle
-from ...common.errors import GatewaylabError
-from .errors import IdxRemoteError, SdoAbortCode
+from gatewaylab.bus.frame import CanFrame
+from gatewaylab.common.clock import Clock, TimerHandle
+from gatewaylab.common.errors import GatewaylabError
+from gatewaylab.devices.maxon_idx.errors import IdxRemoteError, SdoAbortCode
 
 LSS_MASTER_COB_ID = 0x7E5
 LSS_SLAVE_COB_ID = 0x7E4

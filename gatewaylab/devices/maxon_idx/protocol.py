@@ -18,9 +18,9 @@ from dataclasses import dataclass, field
 from enum import Enum
 from typing import Protocol
 
-from ...common.clock import Clock
-from ...common.errors import ConfigError, GatewaylabError
-from .codec import (
+from gatewaylab.common.clock import Clock
+from gatewaylab.common.errors import ConfigError, GatewaylabError
+from gatewaylab.devices.maxon_idx.codec import (
     DEFAULT_FRAME_TIMEOUT,
     CrcFailed,
     DecoderEvent,
@@ -29,7 +29,7 @@ from .codec import (
     FrameReceived,
     encode_frame,
 )
-from .commands import (
+from gatewaylab.devices.maxon_idx.commands import (
     MAX_SEGMENT,
     InitiateSegmentedRead,
     InitiateSegmentedReadReply,
@@ -52,7 +52,7 @@ from .commands import (
     decode_request,
     error_reply,
 )
-from .errors import IdxRemoteError, SdoAbortCode
+from gatewaylab.devices.maxon_idx.errors import IdxRemoteError, SdoAbortCode
 
 #: Requests held while one executes (a host should wait for each answer, guide 2.2.8 D).
 MAX_QUEUED = 64

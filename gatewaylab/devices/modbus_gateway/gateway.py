@@ -13,12 +13,11 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 
-from ...bus.bus import Controller, VirtualBus
-from ...bus.frame import CanFrame
-from ...canopen.sdo_client import SdoClient
-from ...common.clock import Clock
-from ...od import SdoAbort
-from .mapping import (
+from gatewaylab.bus.bus import Controller, VirtualBus
+from gatewaylab.bus.frame import CanFrame
+from gatewaylab.canopen.sdo_client import SdoClient
+from gatewaylab.common.clock import Clock
+from gatewaylab.devices.modbus_gateway.mapping import (
     MappedObject,
     ModbusError,
     ModbusException,
@@ -27,6 +26,7 @@ from .mapping import (
     exception_for_abort,
     to_registers,
 )
+from gatewaylab.od import SdoAbort
 
 ReadDone = Callable[[list[int] | ModbusException], None]
 WriteDone = Callable[[ModbusException | None], None]

@@ -16,8 +16,8 @@ from dataclasses import dataclass
 from enum import Enum, IntEnum
 from typing import Any
 
-from ...common.errors import ConfigError, RemoteError
-from ...od import SdoAbortCode
+from gatewaylab.common.errors import ConfigError, RemoteError
+from gatewaylab.od import SdoAbortCode
 
 
 class ModbusException(IntEnum):

@@ -37,9 +37,9 @@ from pymodbus.constants import ExcCodes
 from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
-from ...common.clock import Clock
-from .gateway import ModbusGateway
-from .mapping import ModbusException, RegisterKind
+from gatewaylab.common.clock import Clock
+from gatewaylab.devices.modbus_gateway.gateway import ModbusGateway
+from gatewaylab.devices.modbus_gateway.mapping import ModbusException, RegisterKind
 
 log = logging.getLogger(__name__)
 

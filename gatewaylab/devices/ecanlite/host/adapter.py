@@ -16,11 +16,11 @@ import struct
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
-from ....common.errors import LocalError, ProtocolError
-from ....ethercat.backend import MasterBackend, SlaveIdentity
-from ....ethercat.esc import AlState
-from ..image import PRODUCT_CODE, RX_MAP, RX_PROFILE, TX_MAP, TX_PROFILE, VENDOR_ID
-from ..stream import Direction, StreamLayout
+from gatewaylab.common.errors import LocalError, ProtocolError
+from gatewaylab.devices.ecanlite.image import PRODUCT_CODE, RX_MAP, RX_PROFILE, TX_MAP, TX_PROFILE, VENDOR_ID
+from gatewaylab.devices.ecanlite.stream import Direction, StreamLayout
+from gatewaylab.ethercat.backend import MasterBackend, SlaveIdentity
+from gatewaylab.ethercat.esc import AlState
 
 __all__ = ["AdapterConfig", "CycleStatus", "EcanAdapter", "PeriodStats", "SlaveConfig", "StartupError",
            "StartupSdo", "find_ecanlite"]

@@ -15,12 +15,12 @@ import struct
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
-from ....bus.frame import CanFrame
-from ....canopen.sdo_client import SdoClient
-from ....common.errors import LocalError, TimeoutError_
-from ....od import SdoAbort
-from ..stream import CanPacket
-from .port import McanPort, RxFrame
+from gatewaylab.bus.frame import CanFrame
+from gatewaylab.canopen.sdo_client import SdoClient
+from gatewaylab.common.errors import LocalError, TimeoutError_
+from gatewaylab.devices.ecanlite.host.port import McanPort, RxFrame
+from gatewaylab.devices.ecanlite.stream import CanPacket
+from gatewaylab.od import SdoAbort
 
 __all__ = ["Axis", "AxisResult", "Cia402", "NmtCommand", "parse_axes"]
 

@@ -19,13 +19,13 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import IO, Any, Protocol
 
-from ....common.errors import ConfigError, GatewaylabError, LocalError
-from ....ethercat.backend import MasterBackend
-from ....od import SdoAbort
-from .adapter import AdapterConfig, EcanAdapter, SlaveConfig, find_ecanlite
-from .cia402 import Axis, Cia402, parse_axes
-from .demo import rig_axes, rig_channel_bitrates
-from .port import ChannelConfig, McanPort, PortConfig
+from gatewaylab.common.errors import ConfigError, GatewaylabError, LocalError
+from gatewaylab.devices.ecanlite.host.adapter import AdapterConfig, EcanAdapter, SlaveConfig, find_ecanlite
+from gatewaylab.devices.ecanlite.host.cia402 import Axis, Cia402, parse_axes
+from gatewaylab.devices.ecanlite.host.demo import rig_axes, rig_channel_bitrates
+from gatewaylab.devices.ecanlite.host.port import ChannelConfig, McanPort, PortConfig
+from gatewaylab.ethercat.backend import MasterBackend
+from gatewaylab.od import SdoAbort
 
 __all__ = ["add_host_commands"]
 
@@ -63,7 +63,7 @@ def _line(args: argparse.Namespace) -> Iterator[Line]:
     if bool(args.interface) == bool(args.rig):
         raise Usage("give the line: -i IFNAME (real interface, root) or --rig RIG.toml (in process)")
     if args.interface:
-        from ....ethercat.wire_backend import PysoemBackend
+        from gatewaylab.ethercat.wire_backend import PysoemBackend
 
         backend: MasterBackend = PysoemBackend(args.interface)
         try:
@@ -81,7 +81,7 @@ def _line(args: argparse.Namespace) -> Iterator[Line]:
     except ConfigError as exc:
         raise Usage(" ".join(str(exc).split())) from None
     try:
-        from ....ethercat.backend import InProcessBackend
+        from gatewaylab.ethercat.backend import InProcessBackend
 
         backend = InProcessBackend.from_rig(rig)
         try:

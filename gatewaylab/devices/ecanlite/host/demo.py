@@ -10,7 +10,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-from .cia402 import Axis
+from gatewaylab.devices.ecanlite.host.cia402 import Axis
 
 __all__ = ["rig_axes", "rig_channel_bitrates", "rig_toml"]
 

@@ -22,9 +22,10 @@ from collections import deque
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 
-from ....bus.frame import CanFrame
-from ....common.errors import LocalError
-from ..stream import (
+from gatewaylab.bus.frame import CanFrame
+from gatewaylab.common.errors import LocalError
+from gatewaylab.devices.ecanlite.host.adapter import CycleStatus, EcanAdapter, StartupSdo
+from gatewaylab.devices.ecanlite.stream import (
     TIMESTAMP_UNIT_S,
     CanPacket,
     Commit,
@@ -41,7 +42,6 @@ from ..stream import (
     encode_into,
     packet_size,
 )
-from .adapter import CycleStatus, EcanAdapter, StartupSdo
 
 __all__ = ["ChannelConfig", "McanPort", "MessageRam", "PortConfig", "RxFrame", "TxResult", "TxTicket"]
 

@@ -8,11 +8,20 @@ back), ``handshake`` (the sans-I/O counter handshake on the process image bytes)
 device's codec (``..codec``), shared by both sides.
 """
 
-from ..codec import CanStatus
-from .api import EsdQueueApi
-from .config import BitRate, EsdConfig, FilterArea, QueueLayout, api_numerical, api_register, api_table, for_bitrate
-from .gateway import EsdHost, ReadbackError
-from .handshake import Handshake, RxFrame, RxOverflowError, TxQueueFull
+from gatewaylab.devices.esd_can_ethercat.codec import CanStatus
+from gatewaylab.devices.esd_can_ethercat.host.api import EsdQueueApi
+from gatewaylab.devices.esd_can_ethercat.host.config import (
+           BitRate,
+           EsdConfig,
+           FilterArea,
+           QueueLayout,
+           api_numerical,
+           api_register,
+           api_table,
+           for_bitrate,
+)
+from gatewaylab.devices.esd_can_ethercat.host.gateway import EsdHost, ReadbackError
+from gatewaylab.devices.esd_can_ethercat.host.handshake import Handshake, RxFrame, RxOverflowError, TxQueueFull
 
 __all__ = ["BitRate", "CanStatus", "EsdConfig", "EsdHost", "EsdQueueApi", "FilterArea", "Handshake", "QueueLayout",
            "ReadbackError", "RxFrame", "RxOverflowError", "TxQueueFull", "api_numerical", "api_register",

@@ -19,11 +19,11 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping
 from typing import Any, Protocol, runtime_checkable
 
-from ....bus.frame import CanFrame
-from ....common.clock import Clock
-from ..codec import CanStatus
-from .config import BitRate, EsdConfig, FilterArea, QueueLayout
-from .handshake import RxFrame
+from gatewaylab.bus.frame import CanFrame
+from gatewaylab.common.clock import Clock
+from gatewaylab.devices.esd_can_ethercat.codec import CanStatus
+from gatewaylab.devices.esd_can_ethercat.host.config import BitRate, EsdConfig, FilterArea, QueueLayout
+from gatewaylab.devices.esd_can_ethercat.host.handshake import RxFrame
 
 __all__ = ["EsdQueueApi"]
 

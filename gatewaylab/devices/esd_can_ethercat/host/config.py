@@ -14,9 +14,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from ....bus.frame import MAX_EXT_ID, MAX_STD_ID
-from ....common.errors import ConfigError
-from ..bitrate import (
+from gatewaylab.bus.frame import MAX_EXT_ID, MAX_STD_ID
+from gatewaylab.common.errors import ConfigError
+from gatewaylab.devices.esd_can_ethercat.bitrate import (
     INDEX_USE_API,
     NTCAN_AUTOBAUD,
     NTCAN_LISTEN_ONLY_MODE,
@@ -26,7 +26,7 @@ from ..bitrate import (
     TABLE6,
     TABLE9,
 )
-from ..codec import input_size, output_size
+from gatewaylab.devices.esd_can_ethercat.codec import input_size, output_size
 
 __all__ = ["INDEX_USE_API", "NTCAN_AUTOBAUD", "NTCAN_LISTEN_ONLY_MODE", "NTCAN_NO_BAUDRATE",
            "NTCAN_USER_BAUDRATE", "NTCAN_USER_BAUDRATE_NUM", "BitRate", "EsdConfig", "FilterArea",

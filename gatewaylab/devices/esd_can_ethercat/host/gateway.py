@@ -20,16 +20,22 @@ from collections.abc import Iterable
 from dataclasses import replace
 from typing import Any
 
-from ....bus.frame import CanFrame
-from ....common.errors import ConfigError, LocalError, ProtocolError
-from ....ethercat.backend import MasterBackend, MasterTimeout
-from ....ethercat.errors import AlStatusError
-from ....ethercat.esc import AlState
-from ..codec import CanStatus
-from ..objects import PRODUCT_CODE, STATISTICS, VENDOR_ID
-from .config import BitRate, EsdConfig, FilterArea, QueueLayout
-from .handshake import DEFAULT_RX_LIMIT, DEFAULT_TX_LIMIT, Handshake, RxFrame, RxOverflowError
-from .loop import DEFAULT_TIMEOUT, HostLoop
+from gatewaylab.bus.frame import CanFrame
+from gatewaylab.common.errors import ConfigError, LocalError, ProtocolError
+from gatewaylab.devices.esd_can_ethercat.codec import CanStatus
+from gatewaylab.devices.esd_can_ethercat.host.config import BitRate, EsdConfig, FilterArea, QueueLayout
+from gatewaylab.devices.esd_can_ethercat.host.handshake import (
+    DEFAULT_RX_LIMIT,
+    DEFAULT_TX_LIMIT,
+    Handshake,
+    RxFrame,
+    RxOverflowError,
+)
+from gatewaylab.devices.esd_can_ethercat.host.loop import DEFAULT_TIMEOUT, HostLoop
+from gatewaylab.devices.esd_can_ethercat.objects import PRODUCT_CODE, STATISTICS, VENDOR_ID
+from gatewaylab.ethercat.backend import MasterBackend, MasterTimeout
+from gatewaylab.ethercat.errors import AlStatusError
+from gatewaylab.ethercat.esc import AlState
 
 #: DEFAULT_TIMEOUT (5 s: a full local Tx queue of 1000 frames at 125 kbit/s takes about a second to
 #: drain), WKC_RECOVER and STATE_CHECK_PERIOD live in loop.py with the waiting they govern.

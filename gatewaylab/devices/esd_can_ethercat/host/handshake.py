@@ -25,9 +25,9 @@ from collections import deque
 from collections.abc import Iterable
 from dataclasses import dataclass
 
-from ....bus.frame import CanFrame
-from ....common.errors import FrameError, LocalError, RemoteError
-from ..codec import (
+from gatewaylab.bus.frame import CanFrame
+from gatewaylab.common.errors import FrameError, LocalError, RemoteError
+from gatewaylab.devices.esd_can_ethercat.codec import (
     IN_HEADER,
     OUT_HEADER,
     RX_SIZE,
@@ -40,7 +40,7 @@ from ..codec import (
     encode_tx11,
     encode_tx29,
 )
-from .config import QueueLayout
+from gatewaylab.devices.esd_can_ethercat.host.config import QueueLayout
 
 #: Transaction numbers are u16 (5.1.5.3 bits 0-15); 0 is never handed out, so the input Tx
 #: Transaction Number 0 after PREOP -> SAFEOP ('nothing sent yet') completes nothing.

@@ -12,10 +12,10 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable
 
-from ....common.clock import Clock
-from ....common.errors import ConfigError
-from ....ethercat.backend import MasterBackend, MasterTimeout
-from ....ethercat.esc import AlState
+from gatewaylab.common.clock import Clock
+from gatewaylab.common.errors import ConfigError
+from gatewaylab.ethercat.backend import MasterBackend, MasterTimeout
+from gatewaylab.ethercat.esc import AlState
 
 __all__ = ["DEFAULT_TIMEOUT", "STATE_CHECK_PERIOD", "WKC_RECOVER", "HostLoop"]
 

@@ -13,11 +13,11 @@ import sys
 from collections.abc import Callable
 from typing import Any
 
-from ....common.endpoint import EndpointError
-from ....common.errors import ConfigError, LocalError
-from ..commands import NmtCommand
-from ..errors import SdoAbortCode
-from .client import IdxClient, IdxError, IdxTimeout
+from gatewaylab.common.endpoint import EndpointError
+from gatewaylab.common.errors import ConfigError, LocalError
+from gatewaylab.devices.maxon_idx.commands import NmtCommand
+from gatewaylab.devices.maxon_idx.errors import SdoAbortCode
+from gatewaylab.devices.maxon_idx.host.client import IdxClient, IdxError, IdxTimeout
 
 _NMT = {
     "start": NmtCommand.START_REMOTE_NODE,

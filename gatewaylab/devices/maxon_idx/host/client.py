@@ -13,10 +13,10 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-from ....common.clock import RealTimeClock
-from ....common.errors import GatewaylabError, LocalError, RemoteError
-from ..codec import DecoderEvent, FrameDecoder, FrameReceived, encode_frame
-from ..commands import (
+from gatewaylab.common.clock import RealTimeClock
+from gatewaylab.common.errors import GatewaylabError, LocalError, RemoteError
+from gatewaylab.devices.maxon_idx.codec import DecoderEvent, FrameDecoder, FrameReceived, encode_frame
+from gatewaylab.devices.maxon_idx.commands import (
     MAX_SEGMENT,
     InitiateSegmentedRead,
     InitiateSegmentedReadReply,
@@ -37,8 +37,8 @@ from ..commands import (
     WriteObject,
     decode_reply,
 )
-from ..errors import SdoAbortCode, error_cause, error_name
-from .link import Link, open_link
+from gatewaylab.devices.maxon_idx.errors import SdoAbortCode, error_cause, error_name
+from gatewaylab.devices.maxon_idx.host.link import Link, open_link
 
 _TYPES: dict[str, struct.Struct] = {
     "u8": struct.Struct("<B"), "u16": struct.Struct("<H"), "u32": struct.Struct("<I"),

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from typing import Any, Protocol
 
-from ....common.endpoint import EndpointKind, parse_endpoint
-from ....common.errors import ConfigError
+from gatewaylab.common.endpoint import EndpointKind, parse_endpoint
+from gatewaylab.common.errors import ConfigError
 
 #: USB identities seen in public udev rules (not a maxon document; untested without hardware):
 #: EPOS2 enumerates as an FTDI chip 0403:A8B0; EPOS4/IDX as 24E7:3B01 (maxon's vendor id 0x24E7).

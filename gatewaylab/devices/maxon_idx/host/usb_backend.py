@@ -40,9 +40,9 @@ import usb.backend
 import usb.core
 import usb.util
 
-from ....common.endpoint import EndpointKind, parse_endpoint
-from ....common.errors import ConfigError
-from .link import USB_IDS
+from gatewaylab.common.endpoint import EndpointKind, parse_endpoint
+from gatewaylab.common.errors import ConfigError
+from gatewaylab.devices.maxon_idx.host.link import USB_IDS
 
 #: The identity of a real EPOS4/IDX in public udev rules (maxon's vendor id 0x24E7).
 IDX_VENDOR_ID, IDX_PRODUCT_ID = USB_IDS[0]

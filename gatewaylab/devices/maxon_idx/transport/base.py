@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Protocol
 
-from ....common.clock import Clock
+from gatewaylab.common.clock import Clock
 
 #: Reply bytes kept for a host that does not read them before new ones are dropped.
 MAX_BACKLOG = 1 << 16

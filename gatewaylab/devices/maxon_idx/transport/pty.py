@@ -12,8 +12,8 @@ import os
 import termios
 import tty
 
-from ....common.clock import Clock
-from .base import Channel, ChannelFactory, Reactor, ReplyWriter
+from gatewaylab.common.clock import Clock
+from gatewaylab.devices.maxon_idx.transport.base import Channel, ChannelFactory, Reactor, ReplyWriter
 
 
 class PtyPort(ReplyWriter):

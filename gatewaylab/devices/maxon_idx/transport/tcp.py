@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import socket
 
-from ....common.clock import Clock
-from .base import Channel, ChannelFactory, Reactor, ReplyWriter
+from gatewaylab.common.clock import Clock
+from gatewaylab.devices.maxon_idx.transport.base import Channel, ChannelFactory, Reactor, ReplyWriter
 
 
 class _Connection(ReplyWriter):
