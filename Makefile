@@ -37,7 +37,7 @@ install: $(STAMP) $(APT_STAMP)
 apt: $(APT_STAMP)
 
 demo: install
-	$(BIN)/python -m gatewaylab.rig.demo
+	$(BIN)/python -m gatewaylab.cli.demo
 
 # Two workers, one per core (whole files per worker: module fixtures such as the veth namespace stay in one).
 test: install

@@ -19,9 +19,9 @@ import struct
 import time
 
 from gatewaylab.bus import CanFrame, VirtualBus
-from gatewaylab.canopen.drive import Drive
 from gatewaylab.canopen.nmt import NmtCommand
 from gatewaylab.common.clock import SimulatedClock
+from gatewaylab.devices.canopen_drive.device import Drive
 
 PERIOD = 0.001
 SIM_SECONDS = 2.0

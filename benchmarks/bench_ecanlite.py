@@ -195,8 +195,8 @@ def main() -> None:
     from gatewaylab.bus.frame import CanFrame
     from gatewaylab.common.clock import RealTimeClock
     from gatewaylab.devices.ecanlite.device import EcanLiteDevice
+    from gatewaylab.devices.ethercat_io.device import create_io_slave
     from gatewaylab.ethercat.esc import AlState
-    from gatewaylab.ethercat.io_device import create_io_slave
     from gatewaylab.ethercat.segment import Segment
     from gatewaylab.ethercat.wire import WireTransport
 

@@ -1,7 +1,7 @@
 """Simulated seconds per wall second: 10 CSP axes on 4 channels through one ECAN-Lite at 1 kHz.
 
 Issue 12 benchmark (target >= 2x real time), in process on the simulated clock: the host library
-(adapter + MCAN Port + CiA 402 layer, ``gatewaylab.devices.ecanlite.host``) on the in-process
+(adapter + MCAN Port + CiA 402 layer, ``gatewaylab.hosts.ecanlite``) on the in-process
 master, the ECAN-Lite device, four 1 Mbit/s buses with 3 + 3 + 2 + 2 IDX-like drives. Every 1 ms:
 one LRW, the TxPDO parsed, RPDO1 (controlword + target) per axis and a SYNC per bus written into
 the RxPDO (N = 3), each drive answering TPDO1 on SYNC. The startup (NMT, CSP mapping by SDO through
@@ -29,15 +29,15 @@ from pathlib import Path
 from typing import Any
 
 from gatewaylab.bus import CanFrame, VirtualBus
-from gatewaylab.canopen.drive import Drive
 from gatewaylab.canopen.nmt import NmtCommand
 from gatewaylab.common.clock import SimulatedClock
-from gatewaylab.devices.ecanlite.host.adapter import AdapterConfig, EcanAdapter
-from gatewaylab.devices.ecanlite.host.cia402 import Cia402
-from gatewaylab.devices.ecanlite.host.demo import rig_axes, rig_toml
-from gatewaylab.devices.ecanlite.host.port import ChannelConfig, McanPort, PortConfig
-from gatewaylab.ethercat.backend import InProcessBackend
+from gatewaylab.devices.canopen_drive.device import Drive
 from gatewaylab.ethercat.wire_netns import net_unavailable, veth_namespace
+from gatewaylab.hosts.ecanlite.adapter import AdapterConfig, EcanAdapter
+from gatewaylab.hosts.ecanlite.cia402 import Cia402
+from gatewaylab.hosts.ecanlite.demo import rig_axes, rig_toml
+from gatewaylab.hosts.ecanlite.port import ChannelConfig, McanPort, PortConfig
+from gatewaylab.hosts.ethercat.backend import InProcessBackend
 from gatewaylab.rig.runtime import Rig
 
 LAYOUT = ((1, 2, 3), (4, 5, 6), (7, 8), (9, 10))

@@ -187,7 +187,7 @@ def main() -> None:
     if seconds is None:
         return
     from gatewaylab.common.clock import RealTimeClock
-    from gatewaylab.ethercat.io_device import create_io_slave
+    from gatewaylab.devices.ethercat_io.device import create_io_slave
     from gatewaylab.ethercat.segment import Segment
     from gatewaylab.ethercat.wire import WireTransport
 

@@ -112,7 +112,7 @@ def master(iface: str, kind: str, count: int, seconds: float) -> dict[str, Any]:
 def _run_line(ns: str, emu: str, mst: str, kind: str, count: int, seconds: float) -> dict[str, Any]:
     from gatewaylab.common.clock import RealTimeClock
     from gatewaylab.devices.ethercat_drive import EthercatDrive
-    from gatewaylab.ethercat.io_device import create_io_slave
+    from gatewaylab.devices.ethercat_io.device import create_io_slave
     from gatewaylab.ethercat.segment import Segment
     from gatewaylab.ethercat.wire import WireTransport
 

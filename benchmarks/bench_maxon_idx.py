@@ -15,9 +15,9 @@ import statistics
 import time
 from collections.abc import Callable
 
-from gatewaylab.canopen.drive import Drive
 from gatewaylab.common.clock import RealTimeClock
-from gatewaylab.devices.maxon_idx.host.client import IdxClient
+from gatewaylab.devices.canopen_drive.device import Drive
+from gatewaylab.hosts.maxon_idx.client import IdxClient
 from gatewaylab.rig.config import parse_rig
 from gatewaylab.rig.runtime import Rig
 

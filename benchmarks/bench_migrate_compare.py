@@ -15,10 +15,10 @@ import tempfile
 import time
 from pathlib import Path
 
+from gatewaylab.cli.migrate_rig import compare_config, line_opener
 from gatewaylab.migrate.compare import compare
 from gatewaylab.migrate.compare_report import write_report
 from gatewaylab.migrate.compare_run import GATEWAYS, load_app, run_once
-from gatewaylab.rig.migrate import compare_config, line_opener
 
 ROOT = Path(__file__).resolve().parent.parent
 SECONDS = 1.0

@@ -14,7 +14,7 @@ import time
 import can
 import canopen
 
-from gatewaylab.rig.fault_cli import send_request
+from gatewaylab.cli.fault import send_request
 
 ready = sys.argv[1]
 with open(ready) as f:

@@ -2,6 +2,6 @@
 
 import sys
 
-from gatewaylab.rig.cli import main
+from gatewaylab.cli.main import main
 
 sys.exit(main())

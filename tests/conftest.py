@@ -16,9 +16,12 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
+import kit_paths
 import pytest
 
 _PRIVATE_TMP = pytest.StashKey[Path]()
+
+kit_paths.add_all()  # kits and drivers of every folder by basename (tests/kit_paths.py)
 
 #: gatewaylab's pytest plugin (the pytest11 entry point of an installed gatewaylab; named here too so the
 #: suite has it in a checkout whose install predates the entry point)

@@ -1,6 +1,8 @@
-"""DEVELOPERS.md 'Architecture': dependencies point down the list common -> od -> bus -> canopen ->
-ethercat -> devices -> migrate -> rig, never up (issue 9 'Done means': layering unchanged, no circular
-imports between the dictionary and its users). Checked on the import statements of every module."""
+"""DEVELOPERS.md 'Architecture' and docs/architecture.md: dependencies point down the list common -> od ->
+bus -> canopen -> ethercat (the protocol packages) -> plugin -> devices -> hosts -> migrate -> rig -> cli,
+never up (issue 9 'Done means': no circular imports between the dictionary and its users; issue 22: plugin
+below devices, hosts and cli above devices, protocol packages import no device). Checked on the import
+statements of every module."""
 
 from __future__ import annotations
 
@@ -10,7 +12,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent / "gatewaylab"
-LAYERS = ["common", "od", "bus", "canopen", "ethercat", "devices", "migrate", "rig"]
+LAYERS = ["common", "od", "bus", "canopen", "ethercat", "plugin", "devices", "hosts", "migrate", "rig", "cli"]
 
 
 def _layer(module: str) -> str | None:

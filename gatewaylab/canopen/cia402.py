@@ -1,7 +1,7 @@
 """CiA 402 power drive state machine (PDS FSA) as an Enum transition table.
 
 Pure logic: controlword in -> (new state, transition number); statusword bits out. The drive
-(:mod:`gatewaylab.canopen.drive`) decides what a transition does to the power stage and the motion.
+(:mod:`gatewaylab.devices.canopen_drive.device`) decides what a transition does to the power stage and the motion.
 Numbers and bit patterns follow CiA 402 V4.0 (IEC 61800-7-201), referenced by the IDX guide 3.1.
 """
 

@@ -21,8 +21,8 @@ import can
 
 from gatewaylab.bus.frame import CanFrame
 from gatewaylab.common.errors import ConfigError, LocalError
-from gatewaylab.devices.canhost.host import EthercatHost, GatewayBus
-from gatewaylab.ethercat.backend import MasterBackend
+from gatewaylab.hosts.canhost.host import EthercatHost, GatewayBus
+from gatewaylab.hosts.ethercat.backend import MasterBackend
 from gatewaylab.migrate.compare import AppEvent, AppEventKind, Frame, Recording
 
 #: The two gateways in compare order: (rig device kind, trace prefix, display name).

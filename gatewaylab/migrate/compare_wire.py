@@ -2,7 +2,7 @@
 
 ``python -m gatewaylab.migrate.compare_wire IFNAME KIND BITRATE APP.py OUT.json [--seconds S]
 [--cycle-us US]`` runs inside the network namespace holding the master's end of a veth pair (the
-rig layer starts it there, ``gatewaylab/rig/migrate.py``): an :class:`EthercatHost` on
+rig layer starts it there, ``gatewaylab/cli/migrate_rig.py``): an :class:`EthercatHost` on
 :class:`PysoemBackend` (real time), the gateway of KIND found on the line by its identity, the
 application's ``run(bus)`` with a :class:`~.compare_run.RecordingBus`. OUT.json gets the
 application's events in Unix time (``clock.wall_epoch + clock.now()``), the one time base it shares
@@ -26,9 +26,9 @@ from pathlib import Path
 from typing import Any
 
 from gatewaylab.bus.frame import CanFrame
-from gatewaylab.devices.canhost.host import EthercatHost
-from gatewaylab.ethercat.backend import PysoemBackend
 from gatewaylab.ethercat.wire_netns import net_unavailable, veth_namespace
+from gatewaylab.hosts.canhost.host import EthercatHost
+from gatewaylab.hosts.ethercat.backend import PysoemBackend
 from gatewaylab.migrate.compare import AppEvent, AppEventKind, Frame, Recording
 from gatewaylab.migrate.compare_run import (
     PDO_N,
@@ -63,7 +63,7 @@ class WireLine:
 
 
 #: ``open_rig(gateway_kind, interface)`` -> the rig with that gateway, running in real time with its
-#: EtherCAT segment on ``interface`` (the rig layer's, gatewaylab/rig/migrate.py)
+#: EtherCAT segment on ``interface`` (the rig layer's, gatewaylab/cli/migrate_rig.py)
 RealtimeOpener = Callable[[str, str], WireLine]
 
 

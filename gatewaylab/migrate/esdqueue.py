@@ -1,8 +1,8 @@
 """The esd queue API on an ECAN-Lite MCAN channel (issue 13 part 2).
 
-:class:`EsdQueueOnEcanLite` implements :class:`~gatewaylab.devices.esd_can_ethercat.host.EsdQueueApi`
+:class:`EsdQueueOnEcanLite` implements :class:`~gatewaylab.hosts.esd_can_ethercat.EsdQueueApi`
 (what code written against the esd host library's :class:`EsdHost` calls) over the ECAN-Lite host
-library's :class:`~gatewaylab.devices.ecanlite.host.port.McanPort` on one MCAN channel, so that
+library's :class:`~gatewaylab.hosts.ecanlite.port.McanPort` on one MCAN channel, so that
 
     host = EsdHost(backend, position)              # esd CAN-EtherCAT
     host = EsdQueueOnEcanLite(backend, position)   # ECAN-Lite, MCAN0 (``channel=K`` for another)
@@ -44,24 +44,24 @@ from typing import TYPE_CHECKING, Any
 
 from gatewaylab.bus.frame import CanFrame
 from gatewaylab.common.errors import ConfigError, LocalError, ProtocolError
-from gatewaylab.devices.ecanlite.host.adapter import AdapterConfig, EcanAdapter, SlaveConfig, StartupSdo, find_ecanlite
-from gatewaylab.devices.ecanlite.host.port import McanPort, PortConfig, drain_all_sdos
 from gatewaylab.devices.ecanlite.stream import CanPacket, TxResultCode
 from gatewaylab.devices.esd_can_ethercat.bitrate import NTCAN_NO_BAUDRATE
 from gatewaylab.devices.esd_can_ethercat.codec import CanStatus
-from gatewaylab.devices.esd_can_ethercat.host.config import BitRate, EsdConfig, FilterArea, QueueLayout, for_bitrate
-from gatewaylab.devices.esd_can_ethercat.host.gateway import SDO_ATTEMPTS, SDO_RETRY_WAIT
-from gatewaylab.devices.esd_can_ethercat.host.handshake import (
+from gatewaylab.devices.esd_can_ethercat.objects import STATISTICS
+from gatewaylab.ethercat.esc import AlState
+from gatewaylab.hosts.ecanlite.adapter import AdapterConfig, EcanAdapter, SlaveConfig, StartupSdo, find_ecanlite
+from gatewaylab.hosts.ecanlite.port import McanPort, PortConfig, drain_all_sdos
+from gatewaylab.hosts.esd_can_ethercat.config import BitRate, EsdConfig, FilterArea, QueueLayout, for_bitrate
+from gatewaylab.hosts.esd_can_ethercat.gateway import SDO_ATTEMPTS, SDO_RETRY_WAIT
+from gatewaylab.hosts.esd_can_ethercat.handshake import (
     DEFAULT_RX_LIMIT,
     DEFAULT_TX_LIMIT,
     TN_MODULO,
     RxFrame,
     RxOverflowError,
 )
-from gatewaylab.devices.esd_can_ethercat.host.loop import DEFAULT_TIMEOUT, HostLoop
-from gatewaylab.devices.esd_can_ethercat.objects import STATISTICS
-from gatewaylab.ethercat.backend import MasterBackend, MasterTimeout
-from gatewaylab.ethercat.esc import AlState
+from gatewaylab.hosts.esd_can_ethercat.loop import DEFAULT_TIMEOUT, HostLoop
+from gatewaylab.hosts.ethercat.backend import MasterBackend, MasterTimeout
 from gatewaylab.migrate.eni import InitCmd
 from gatewaylab.migrate.translate import DEFAULT_FALLBACK_RATE, Translation, translate
 from gatewaylab.migrate.txbook import TxBook
@@ -512,7 +512,7 @@ class EsdQueueOnEcanLite(HostLoop):
 
 
 if TYPE_CHECKING:
-    from gatewaylab.devices.esd_can_ethercat.host import EsdHost, EsdQueueApi
+    from gatewaylab.hosts.esd_can_ethercat import EsdHost, EsdQueueApi
 
     def _both_satisfy_the_contract(ecan: EsdQueueOnEcanLite, esd: EsdHost) -> tuple[EsdQueueApi, EsdQueueApi]:
         """mypy --strict checks both classes against the Protocol here (the tests check it at run time)."""

@@ -2,7 +2,7 @@
 
 :class:`TxBook` is the Tx bookkeeping of :class:`~gatewaylab.migrate.esdqueue.EsdQueueOnEcanLite`
 without any I/O: frames wait in order with their transaction numbers (1..FFFFh, then 1 again, as
-the esd host library's :class:`~gatewaylab.devices.esd_can_ethercat.host.Handshake` hands them
+the esd host library's :class:`~gatewaylab.hosts.esd_can_ethercat.Handshake` hands them
 out); :meth:`TxBook.take_batch` gives a whole batch of at most the Tx queue size (esd 0x8000:22)
 when the MCAN TX FIFO has room for all of it, or nothing; :meth:`TxBook.published` files each
 frame under its (RefPacketSeq, RefFrameIndex) (ECAN-Lite chapter 10); :meth:`TxBook.accept` marks
@@ -19,7 +19,7 @@ from collections.abc import Iterable
 from gatewaylab.bus.frame import CanFrame
 from gatewaylab.common.errors import LocalError
 from gatewaylab.devices.ecanlite.stream import TxResultCode
-from gatewaylab.devices.esd_can_ethercat.host.handshake import TransactionNumbers
+from gatewaylab.hosts.esd_can_ethercat.handshake import TransactionNumbers
 
 __all__ = ["TxBook"]
 

@@ -2,7 +2,7 @@
 
 ``from gatewaylab.rig import Rig, load_rig, parse_rig`` (imported on first use, so the command
 line starts without loading every device, and a device module that imports
-:mod:`gatewaylab.rig.plugin` does not pull the runtime in).
+:mod:`gatewaylab.plugin` does not pull the runtime in).
 """
 
 from __future__ import annotations

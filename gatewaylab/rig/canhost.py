@@ -1,6 +1,6 @@
 """The python-can interfaces ``ecanlite`` and ``esd_can_ethercat`` with ``channel="rig:PATH.toml"``.
 
-The interfaces live in ``gatewaylab.devices.canhost.plugin``; building a rig from a file belongs to
+The interfaces live in ``gatewaylab.hosts.canhost.interfaces``; building a rig from a file belongs to
 this layer, so these subclasses hand it down (the layering of docs/architecture.md: devices never
 import rig). The entry points (group ``can.interface``) name these classes.
 """
@@ -10,8 +10,8 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from gatewaylab.common.clock import SimulatedClock
-from gatewaylab.devices.canhost import plugin
-from gatewaylab.ethercat.backend import InProcessBackend, MasterBackend
+from gatewaylab.hosts.canhost import interfaces as plugin
+from gatewaylab.hosts.ethercat.backend import InProcessBackend, MasterBackend
 from gatewaylab.rig.runtime import Rig
 
 

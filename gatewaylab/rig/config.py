@@ -9,8 +9,8 @@ from pathlib import Path
 from typing import Any
 
 from gatewaylab.common.errors import ConfigError
+from gatewaylab.plugin import Key, section_error, validate_table
 from gatewaylab.rig import kinds
-from gatewaylab.rig.plugin import Key, section_error, validate_table
 
 CLOCK_MODES = ("realtime", "simulated")
 

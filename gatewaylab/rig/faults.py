@@ -10,7 +10,7 @@ How a device takes part (duck-typed, so a plugin needs nothing from here):
 * CAN channels: ``can_channels() -> Mapping[str, Controller]`` (an EtherCAT gateway lists its
   channels, e.g. ``{"can0": ..., "can1": ...}``); a drive or an IDX is found through its CANopen
   ``node`` (one channel, ``"can"``).
-* power cycle and drive faults: a :class:`~gatewaylab.canopen.drive.Drive`, or a participant with
+* power cycle and drive faults: a :class:`~gatewaylab.devices.canopen_drive.device.Drive`, or a participant with
   a ``drive`` or ``device.drive`` attribute.
 * EtherCAT: a participant with ``is_ethercat`` and a ``slave`` in the rig's ``[ethercat]`` segment.
 * USB: a participant with ``usb_unplug()`` / ``usb_replug()`` (the maxon IDX).
@@ -23,11 +23,11 @@ from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, Any
 
 from gatewaylab.bus.bus import Controller, VirtualBus
-from gatewaylab.canopen.drive import Drive
 from gatewaylab.canopen.emcy import ERR_CURRENT, ERR_PROFILE
 from gatewaylab.canopen.node import Node
 from gatewaylab.common.clock import TimerHandle
 from gatewaylab.common.errors import GatewaylabError
+from gatewaylab.devices.canopen_drive.device import Drive
 from gatewaylab.ethercat.esc import AlState
 
 if TYPE_CHECKING:

@@ -14,7 +14,7 @@ from importlib.metadata import EntryPoint, entry_points
 from typing import TYPE_CHECKING, Any
 
 from gatewaylab.common.errors import ConfigError
-from gatewaylab.rig.plugin import DeviceKind, section_error
+from gatewaylab.plugin import DeviceKind, section_error
 
 if TYPE_CHECKING:
     from gatewaylab.rig.config import RigConfig
@@ -23,7 +23,7 @@ if TYPE_CHECKING:
 GROUP = "gatewaylab.devices"
 #: Sections of gatewaylab's own that are not devices (``[[bridge]]``, ``[[tunnel]]``): known without an
 #: entry point.
-BUILTIN = {"bridge": "gatewaylab.bus.transport.bridge:KIND", "tunnel": "gatewaylab.bus.transport.cannelloni:KIND"}
+BUILTIN = {"bridge": "gatewaylab.rig.bridge:KIND", "tunnel": "gatewaylab.rig.tunnel:KIND"}
 
 
 def registered() -> dict[str, EntryPoint]:

@@ -39,11 +39,11 @@ from gatewaylab.bus.transport.socketcand import SocketcandServer
 from gatewaylab.bus.transport.trace import Trace
 from gatewaylab.common.clock import Clock, RealTimeClock, SimulatedClock
 from gatewaylab.common.errors import ConfigError, GatewaylabError
+from gatewaylab.plugin import Participant
 from gatewaylab.rig import kinds
 from gatewaylab.rig.config import RigConfig, load_rig
 from gatewaylab.rig.control import ControlServer
 from gatewaylab.rig.faults import Faults
-from gatewaylab.rig.plugin import Participant
 
 __all__ = ["GRACE", "Participant", "Rig", "RigStartError", "merge_info"]
 

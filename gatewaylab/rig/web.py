@@ -21,9 +21,9 @@ from typing import Any
 from gatewaylab.bus import CanFrame, VirtualBus
 from gatewaylab.bus.bus import BusEvent, Controller, ErrorFrameEvent, StateChangeEvent
 from gatewaylab.bus.errorframe import bus_error, state_change
-from gatewaylab.canopen.drive import Drive
 from gatewaylab.canopen.monitor import BusMonitor, ControllerWatch, MonitorEvent, SignalSource
 from gatewaylab.common.server_thread import ServerThread
+from gatewaylab.devices.canopen_drive.device import Drive
 from gatewaylab.od.eds import import_eds
 
 #: log lines kept for a page that connects later

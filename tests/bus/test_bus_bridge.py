@@ -25,8 +25,8 @@ from csp_loop_kit import csp_loop
 
 from gatewaylab.bus import CanFrame
 from gatewaylab.bus.bridge import Backoff, EchoFilter, LinkState, Verdict, classify
-from gatewaylab.bus.transport.bridge import PythonCanBridge
 from gatewaylab.common.errors import ConfigError
+from gatewaylab.rig.bridge import PythonCanBridge
 from gatewaylab.rig.config import parse_rig
 from gatewaylab.rig.runtime import Rig
 
@@ -173,7 +173,7 @@ def test_an_adapter_that_vanishes_and_comes_back(rigs: list, caplog: pytest.LogC
     try:
         far.send(can.Message(arbitration_id=0x101, data=b"\x01", is_extended_id=False))
         assert seen.event(0x101).wait(10)
-        with caplog.at_level(logging.DEBUG, logger="gatewaylab.bus.transport.bridge"):
+        with caplog.at_level(logging.DEBUG, logger="gatewaylab.rig.bridge"):
             adapter.plugged = False
             assert adapter.failed.wait(10)
             adapter.failed.clear()
@@ -206,7 +206,7 @@ def test_an_adapter_missing_at_start_is_one_line_and_the_rig_runs(rigs: list,
     (state down); the adapter plugged in later is opened by the next attempt."""
     adapter = bridge_kit.register("late-usb")
     adapter.plugged = False
-    with caplog.at_level(logging.WARNING, logger="gatewaylab.bus.transport.bridge"):
+    with caplog.at_level(logging.WARNING, logger="gatewaylab.rig.bridge"):
         rig, thread, seen = start_rig({"bus": "can0", "interface": bridge_kit.INTERFACE, "channel": "late-usb",
                                        "retry_initial": 0.02, "retry_max": 0.1})
         rigs.append((rig, thread))
@@ -236,7 +236,7 @@ def test_bus_off_of_the_real_side_restarts_the_link(rigs: list, caplog: pytest.L
     far = can.Bus(interface="virtual", channel="busoff-usb")
     try:
         adapter.opened.clear()
-        with caplog.at_level(logging.WARNING, logger="gatewaylab.bus.transport.bridge"):
+        with caplog.at_level(logging.WARNING, logger="gatewaylab.rig.bridge"):
             far.send(can.Message(arbitration_id=0x040, is_error_frame=True, data=bytes(8)))
             assert adapter.opened.wait(10)
             wait_state(bridge, LinkState.UP, thread)

@@ -22,11 +22,11 @@ import pytest
 from csp_loop_kit import csp_loop
 
 from gatewaylab.bus import CanFrame, python_can_bus
-from gatewaylab.bus.transport.cannelloni import CannelloniTunnel
 from gatewaylab.common.errors import ConfigError
 from gatewaylab.rig.config import parse_rig
 from gatewaylab.rig.process import RigProcess, free_udp_ports
 from gatewaylab.rig.runtime import Rig
+from gatewaylab.rig.tunnel import CannelloniTunnel
 
 DRIVE = {"bus": "can0", "node_id": 2, "serial": 0x1002, "name": "axis2"}
 

@@ -9,11 +9,11 @@ from typing import Any
 from canopen_testkit import sample_od
 
 from gatewaylab.bus import CanFrame, VirtualBus
-from gatewaylab.canopen.drive import Drive
 from gatewaylab.canopen.lss import LssMaster, LssState
 from gatewaylab.canopen.node import Node
 from gatewaylab.canopen.sdo_client import SdoClient
 from gatewaylab.common.clock import SimulatedClock
+from gatewaylab.devices.canopen_drive.device import Drive
 
 UNCONFIGURED_SERIAL = 0x00C0FFEE
 

@@ -15,7 +15,6 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from gatewaylab.bus import CanFrame, VirtualBus, python_can_bus
-from gatewaylab.canopen.drive import MAXON_VENDOR_ID, PRODUCT_CODE, REVISION, Drive
 from gatewaylab.canopen.lss import (
     LSS_MASTER_COB_ID,
     LSS_SLAVE_COB_ID,
@@ -28,6 +27,7 @@ from gatewaylab.canopen.lss import (
 )
 from gatewaylab.canopen.nmt import NmtCommand, NmtState
 from gatewaylab.common.clock import SimulatedClock
+from gatewaylab.devices.canopen_drive.device import MAXON_VENDOR_ID, PRODUCT_CODE, REVISION, Drive
 
 SERIALS = (0x1001, 0x1002, 0x1004)
 

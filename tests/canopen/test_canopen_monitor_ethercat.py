@@ -10,7 +10,7 @@ import sys
 import threading
 from pathlib import Path
 
-from gatewaylab.canopen.monitor_cli import EthercatWatcher
+from gatewaylab.cli.monitor import EthercatWatcher
 from gatewaylab.rig.process import RigProcess
 
 RIG = """

@@ -8,8 +8,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from gatewaylab.bus import CanFrame, VirtualBus
-from gatewaylab.canopen.drive import Drive
 from gatewaylab.common.clock import SimulatedClock
+from gatewaylab.devices.canopen_drive.device import Drive
 from gatewaylab.od import SdoAbortCode
 
 NODE = 4

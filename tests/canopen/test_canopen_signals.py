@@ -15,7 +15,7 @@ import can
 from gatewaylab.bus import CanFrame
 from gatewaylab.bus.signals import load_database
 from gatewaylab.canopen.monitor import BusMonitor
-from gatewaylab.canopen.plot_cli import panels, read_trace
+from gatewaylab.cli.plot import panels, read_trace
 from gatewaylab.rig.process import RigProcess
 
 DBC = """VERSION ""

@@ -17,8 +17,8 @@ from pathlib import Path
 from gatewaylab.common.clock import SimulatedClock
 from gatewaylab.ethercat.datagram import Command, Datagram
 from gatewaylab.ethercat.esc import REG_DC_ACTIVATION, REG_WD_DIVIDER, REG_WD_TIME_PDI, REG_WD_TIME_SM
-from gatewaylab.ethercat.master import Master
 from gatewaylab.ethercat.segment import Segment
+from gatewaylab.hosts.ethercat.master import Master
 from gatewaylab.rig.runtime import Rig
 
 KINDS = ("ecanlite", "esd_can_ethercat", "ethercat_drive", "ethercat_io")

@@ -19,8 +19,8 @@ from gatewaylab.ethercat.datagram import (
 from gatewaylab.ethercat.errors import FrameFormatError, MailboxErrorCode
 from gatewaylab.ethercat.esc import REG_SM, AlState
 from gatewaylab.ethercat.mailbox import MailboxMessage, MailboxType, decode_mailbox, encode_mailbox
-from gatewaylab.ethercat.master import Master
 from gatewaylab.ethercat.segment import Segment
+from gatewaylab.hosts.ethercat.master import Master
 
 
 def run(segment: Segment, *datagrams: Datagram) -> tuple[Datagram, ...]:

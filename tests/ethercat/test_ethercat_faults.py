@@ -15,7 +15,7 @@ import pytest
 from gatewaylab.ethercat.datagram import Command
 from gatewaylab.ethercat.errors import WorkingCounterError
 from gatewaylab.ethercat.esc import REG_AL_STATUS, AlState
-from gatewaylab.ethercat.master import Master
+from gatewaylab.hosts.ethercat.master import Master
 from gatewaylab.rig.faults import FaultRefused
 from gatewaylab.rig.runtime import Rig
 

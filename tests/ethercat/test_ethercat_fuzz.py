@@ -7,13 +7,13 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from gatewaylab.common.clock import SimulatedClock
+from gatewaylab.devices.ethercat_io.device import create_io_slave
 from gatewaylab.ethercat.datagram import Command, Datagram, Frame, decode_frame, encode_frame
 from gatewaylab.ethercat.errors import FrameFormatError
 from gatewaylab.ethercat.esc import AlState
-from gatewaylab.ethercat.io_device import create_io_slave
 from gatewaylab.ethercat.mailbox import MailboxMessage, MailboxType, encode_mailbox
-from gatewaylab.ethercat.master import Master
 from gatewaylab.ethercat.segment import Segment
+from gatewaylab.hosts.ethercat.master import Master
 
 ETH = b"\xff" * 6 + b"\x02\x00\x00\x00\x00\x01" + b"\x88\xa4"
 VALID_STATES = {int(s) for s in AlState}
@@ -97,9 +97,9 @@ def test_random_mailbox_messages_never_break_the_mailbox(mtype: int, data: bytes
 def test_coe_server_answers_only_spec_messages(body: bytes, service: int) -> None:
     """Any CoE request yields either a mailbox error (FrameFormatError, too short) or well-formed CoE
     replies: SDO responses, aborts with a QEC A.5 code, or SDO Information replies/errors."""
+    from gatewaylab.devices.ethercat_io.device import io_description
     from gatewaylab.ethercat.coe import CoeServer, coe_header
     from gatewaylab.ethercat.errors import SdoAbortCode
-    from gatewaylab.ethercat.io_device import io_description
     from gatewaylab.ethercat.slave import build_od
 
     server = CoeServer(build_od(io_description()), 128, lambda: 0x02)

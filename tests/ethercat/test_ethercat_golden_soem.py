@@ -15,8 +15,8 @@ from pathlib import Path
 import pytest
 
 from gatewaylab.common.clock import SimulatedClock
+from gatewaylab.devices.ethercat_io.device import create_io_slave
 from gatewaylab.ethercat.datagram import decode_frame
-from gatewaylab.ethercat.io_device import create_io_slave
 from gatewaylab.ethercat.segment import Segment
 from gatewaylab.ethercat.wire_pcap import read_pcap
 

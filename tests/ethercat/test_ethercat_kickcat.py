@@ -17,7 +17,7 @@ import pytest
 from wire_kit import net_capable, veth_namespace
 
 from gatewaylab.common.clock import RealTimeClock
-from gatewaylab.ethercat.io_device import PRODUCT_CODE, VENDOR_ID, create_io_slave
+from gatewaylab.devices.ethercat_io.device import PRODUCT_CODE, VENDOR_ID, create_io_slave
 from gatewaylab.ethercat.segment import Segment
 from gatewaylab.ethercat.wire import WireTransport
 

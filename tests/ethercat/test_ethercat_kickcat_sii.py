@@ -21,12 +21,12 @@ from gatewaylab.devices.ecanlite.device import EcanLiteDevice
 from gatewaylab.devices.ecanlite.image import ecanlite_description
 from gatewaylab.devices.esd_can_ethercat.device import EsdGateway
 from gatewaylab.devices.ethercat_drive import EthercatDrive
+from gatewaylab.devices.ethercat_io.device import create_io_slave
 from gatewaylab.ethercat.esi import export_esi
-from gatewaylab.ethercat.io_device import create_io_slave
-from gatewaylab.ethercat.master import Master
 from gatewaylab.ethercat.segment import Segment
 from gatewaylab.ethercat.sii import Category, parse_sii
 from gatewaylab.ethercat.slave import Slave
+from gatewaylab.hosts.ethercat.master import Master
 
 END = 0xFFFF
 #: A 16 kbit EEPROM (ETG.2010 word 0x3E = 15), the smallest an ESC loads: at most 512 KickCAT reads.

@@ -6,9 +6,9 @@ from __future__ import annotations
 
 from gatewaylab.common.clock import SimulatedClock
 from gatewaylab.ethercat.esc import AlState
-from gatewaylab.ethercat.master import Master
 from gatewaylab.ethercat.segment import Segment
 from gatewaylab.ethercat.slave import Slave, SlaveApplication
+from gatewaylab.hosts.ethercat.master import Master
 from gatewaylab.od import Entry, ObjectDictionary
 
 
@@ -47,7 +47,7 @@ def test_raw_inputs_are_decoded_for_coe_reads(master: Master, segment: Segment) 
 def test_application_binds_read_hooks_and_apply_commands() -> None:
     """Issue 9: a device answers status objects and 'apply' commands from its model through hooks
     set up in ``SlaveApplication.setup_od`` (CiA 301 / ETG.1000.6 SDO upload/download)."""
-    from gatewaylab.ethercat.io_device import io_description
+    from gatewaylab.devices.ethercat_io.device import io_description
 
     applied: list[int] = []
 

@@ -6,10 +6,10 @@ from __future__ import annotations
 from pathlib import Path
 
 from gatewaylab.common.clock import SimulatedClock
-from gatewaylab.ethercat.io_device import create_io_slave
-from gatewaylab.ethercat.master import Master
+from gatewaylab.devices.ethercat_io.device import create_io_slave
 from gatewaylab.ethercat.segment import Segment
 from gatewaylab.ethercat.wire_pcap import PcapWriter, read_pcap
+from gatewaylab.hosts.ethercat.master import Master
 
 
 def test_in_process_capture_has_unix_timestamps(tmp_path: Path) -> None:

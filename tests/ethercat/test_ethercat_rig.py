@@ -10,9 +10,9 @@ from typing import Any
 
 import pytest
 
-from gatewaylab.ethercat.io_device import PRODUCT_CODE, VENDOR_ID
-from gatewaylab.ethercat.master import Master
-from gatewaylab.rig.cli import main as cli_main
+from gatewaylab.cli.main import main as cli_main
+from gatewaylab.devices.ethercat_io.device import PRODUCT_CODE, VENDOR_ID
+from gatewaylab.hosts.ethercat.master import Master
 from gatewaylab.rig.runtime import Rig
 
 RIG = """
@@ -99,7 +99,7 @@ def test_gatewaylab_run_ready_file_and_soem(veth_ns: Any, tmp_path: Path) -> Non
     rig_file = tmp_path / "rig.toml"
     rig_file.write_text(RIG.format(clock="realtime", iface=veth_ns.emulator_iface))
     ready = tmp_path / "ready.json"
-    proc = subprocess.Popen([sys.executable, "-m", "gatewaylab.rig.cli", "run", str(rig_file), "--ready-file",
+    proc = subprocess.Popen([sys.executable, "-m", "gatewaylab.cli.main", "run", str(rig_file), "--ready-file",
                              str(ready)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         assert proc.stdout is not None

@@ -10,9 +10,9 @@ from pathlib import Path
 
 import pytest
 
+from gatewaylab.devices.ethercat_io.device import PRODUCT_CODE, VENDOR_ID, io_description
 from gatewaylab.ethercat.esc import sii_checksum
 from gatewaylab.ethercat.esi import export_esi
-from gatewaylab.ethercat.io_device import PRODUCT_CODE, VENDOR_ID, io_description
 from gatewaylab.ethercat.sii import Category, build_sii, parse_sii
 from gatewaylab.ethercat.wire_pcap import PcapWriter, read_pcap
 
@@ -78,10 +78,10 @@ def test_wireshark_dissects_captures_as_ethercat(tmp_path: Path) -> None:
     if tshark is None:
         pytest.skip("tshark (Wireshark) is not installed")
     from gatewaylab.common.clock import SimulatedClock
+    from gatewaylab.devices.ethercat_io.device import create_io_slave
     from gatewaylab.ethercat.esc import AlState
-    from gatewaylab.ethercat.io_device import create_io_slave
-    from gatewaylab.ethercat.master import Master
     from gatewaylab.ethercat.segment import Segment
+    from gatewaylab.hosts.ethercat.master import Master
 
     path = tmp_path / "inprocess.pcap"
     pcap = PcapWriter(str(path))

@@ -20,6 +20,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from gatewaylab.common.clock import SimulatedClock
+from gatewaylab.devices.ethercat_io.device import IoApplication, io_description
 from gatewaylab.ethercat.datagram import Command, Datagram, Frame, decode_frame, encode_frame
 from gatewaylab.ethercat.errors import AlStatusCode
 from gatewaylab.ethercat.esc import (
@@ -30,10 +31,9 @@ from gatewaylab.ethercat.esc import (
     SM_REG,
     AlState,
 )
-from gatewaylab.ethercat.io_device import IoApplication, io_description
-from gatewaylab.ethercat.master import Master, MasterError, TimeoutError_
 from gatewaylab.ethercat.segment import Segment
 from gatewaylab.ethercat.slave import Slave
+from gatewaylab.hosts.ethercat.master import Master, MasterError, TimeoutError_
 
 BROKEN = 1  # the esd gateway: the slave whose SM1 the test moves
 

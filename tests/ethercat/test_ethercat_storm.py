@@ -11,12 +11,12 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from gatewaylab.common.clock import SimulatedClock
+from gatewaylab.devices.ethercat_io.device import create_io_slave
 from gatewaylab.ethercat.datagram import Command, Datagram, Frame, decode_frame, encode_frame
 from gatewaylab.ethercat.errors import FrameFormatError
 from gatewaylab.ethercat.esc import REG_AL_CONTROL, REG_SM, AlState
-from gatewaylab.ethercat.io_device import create_io_slave
-from gatewaylab.ethercat.master import Master
 from gatewaylab.ethercat.segment import Segment
+from gatewaylab.hosts.ethercat.master import Master
 
 VALID_STATES = {int(s) for s in AlState}
 #: Most a datagram's working counter can grow per slave: read +1, write +2 (ETG.1000.4 'Working counter').

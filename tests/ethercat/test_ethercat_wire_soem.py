@@ -8,8 +8,8 @@ from typing import Any
 import pytest
 
 from gatewaylab.common.clock import RealTimeClock
+from gatewaylab.devices.ethercat_io.device import PRODUCT_CODE, VENDOR_ID, create_io_slave
 from gatewaylab.ethercat.errors import SdoAbortCode
-from gatewaylab.ethercat.io_device import PRODUCT_CODE, VENDOR_ID, create_io_slave
 from gatewaylab.ethercat.segment import Segment
 from gatewaylab.ethercat.wire import WireTransport
 from gatewaylab.ethercat.wire_pcap import PcapWriter, read_pcap

@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from gatewaylab.common.clock import RealTimeClock
-from gatewaylab.ethercat.io_device import create_io_slave
+from gatewaylab.devices.ethercat_io.device import create_io_slave
 from gatewaylab.ethercat.segment import Segment
 from gatewaylab.ethercat.wire import WireTransport
 from gatewaylab.rig.process import RigProcess

@@ -15,8 +15,8 @@ from typing import Any
 from gatewaylab.bus.frame import CanFrame
 from gatewaylab.common.clock import RealTimeClock
 from gatewaylab.common.errors import GatewaylabError
-from gatewaylab.devices.esd_can_ethercat.host import BitRate, EsdHost, EsdQueueApi, FilterArea
-from gatewaylab.ethercat.backend import PysoemBackend
+from gatewaylab.hosts.esd_can_ethercat import BitRate, EsdHost, EsdQueueApi, FilterArea
+from gatewaylab.hosts.ethercat.backend import PysoemBackend
 from gatewaylab.migrate.esdqueue import EsdQueueOnEcanLite
 
 #: Generous seconds for anything that must happen in real time on a loaded machine.

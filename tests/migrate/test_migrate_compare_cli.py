@@ -11,7 +11,7 @@ from pathlib import Path
 import can
 import pytest
 
-from gatewaylab.rig.cli import main
+from gatewaylab.cli.main import main
 
 ROOT = Path(__file__).resolve().parents[2]
 EXAMPLES = ROOT / "examples"

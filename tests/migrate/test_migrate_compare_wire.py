@@ -14,7 +14,7 @@ import pytest
 from test_migrate_compare_cli import RIG, SAME_APP
 from wire_kit import net_capable
 
-from gatewaylab.rig.cli import main
+from gatewaylab.cli.main import main
 
 
 @pytest.mark.net

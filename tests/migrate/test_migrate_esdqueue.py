@@ -28,7 +28,9 @@ from gatewaylab.common.errors import ConfigError, FrameError, LocalError
 from gatewaylab.devices.ecanlite.device import EcanLiteDevice
 from gatewaylab.devices.ecanlite.stream import TxResultCode
 from gatewaylab.devices.esd_can_ethercat.device import create_esd_gateway
-from gatewaylab.devices.esd_can_ethercat.host import (
+from gatewaylab.devices.esd_can_ethercat.objects import STATISTICS
+from gatewaylab.ethercat.segment import Segment
+from gatewaylab.hosts.esd_can_ethercat import (
     BitRate,
     CanStatus,
     EsdHost,
@@ -39,10 +41,8 @@ from gatewaylab.devices.esd_can_ethercat.host import (
     TxQueueFull,
     api_table,
 )
-from gatewaylab.devices.esd_can_ethercat.objects import STATISTICS
-from gatewaylab.ethercat.backend import InProcessBackend, MasterTimeout
-from gatewaylab.ethercat.master import Master
-from gatewaylab.ethercat.segment import Segment
+from gatewaylab.hosts.ethercat.backend import InProcessBackend, MasterTimeout
+from gatewaylab.hosts.ethercat.master import Master
 from gatewaylab.migrate.esdqueue import NO_SOURCE, EsdQueueOnEcanLite
 from gatewaylab.rig.runtime import Rig
 

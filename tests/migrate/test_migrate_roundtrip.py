@@ -10,17 +10,17 @@ import pytest
 
 from gatewaylab.bus.bus import VirtualBus
 from gatewaylab.bus.frame import CanFrame
+from gatewaylab.cli.main import main
 from gatewaylab.common.clock import SimulatedClock
 from gatewaylab.devices.ecanlite.device import EcanLiteDevice
 from gatewaylab.devices.esd_can_ethercat import create_esd_gateway
-from gatewaylab.ethercat.backend import InProcessBackend
 from gatewaylab.ethercat.esc import AlState
-from gatewaylab.ethercat.master import Master
 from gatewaylab.ethercat.segment import Segment
+from gatewaylab.hosts.ethercat.backend import InProcessBackend
+from gatewaylab.hosts.ethercat.master import Master
 from gatewaylab.migrate.config import ecanlite_slave, find_esd, read_live
 from gatewaylab.migrate.eni import InitCmd, SlaveConfig, parse_eni, write_eni
 from gatewaylab.migrate.translate import translate
-from gatewaylab.rig.cli import main
 
 
 def u(index: int, sub: int, value: int, size: int) -> InitCmd:

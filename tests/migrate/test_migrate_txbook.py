@@ -10,7 +10,7 @@ import pytest
 from gatewaylab.bus.frame import CanFrame
 from gatewaylab.common.errors import FrameError, LocalError
 from gatewaylab.devices.ecanlite.stream import TxResultCode
-from gatewaylab.devices.esd_can_ethercat.host import TxQueueFull
+from gatewaylab.hosts.esd_can_ethercat import TxQueueFull
 from gatewaylab.migrate.txbook import TxBook
 
 

@@ -58,7 +58,7 @@ def test_migrate_config_from_running_esd(veth: Veth, tmp_path: Path) -> None:
     wire.start()
     try:
         out, report = tmp_path / "ecan.xml", tmp_path / "r.md"
-        proc = subprocess.run(["ip", "netns", "exec", veth.namespace, sys.executable, "-m", "gatewaylab.rig.cli",
+        proc = subprocess.run(["ip", "netns", "exec", veth.namespace, sys.executable, "-m", "gatewaylab.cli.main",
                                "migrate", "config", "-i", veth.master, "-p", "0", "-o", str(out),
                                "--report", str(report)], capture_output=True, text=True, timeout=120, check=False)
     finally:

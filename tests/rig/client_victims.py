@@ -29,7 +29,7 @@ def segmented_sdo(endpoint: str, ready: Any) -> None:
 
 def idx_request(tcp_url: str, ready: Any) -> None:
     """IDX requests over TCP: segmented gateway reads of node 3's 0x1008, forever."""
-    from gatewaylab.devices.maxon_idx.host.client import IdxClient
+    from gatewaylab.hosts.maxon_idx.client import IdxClient
 
     client = IdxClient(tcp_url, timeout=2.0)
     ready.set()

@@ -8,9 +8,9 @@ import pytest
 
 from gatewaylab.bus import CanFrame
 from gatewaylab.canopen.explain import explain
+from gatewaylab.cli.main import build_parser, main
 from gatewaylab.common.clock import SimulatedClock
 from gatewaylab.common.errors import ConfigError
-from gatewaylab.rig.cli import build_parser, main
 from gatewaylab.rig.config import load_rig, parse_rig
 from gatewaylab.rig.runtime import Rig
 
@@ -130,7 +130,7 @@ def test_a_failing_callback_is_logged_and_the_realtime_rig_keeps_running(caplog)
 
 def test_make_demo_runs_on_the_default_rig_and_explains_real_traffic() -> None:
     """`make demo` (issue 2 §4): real traffic on the default rig, explained, exits by itself."""
-    out = subprocess.run([sys.executable, "-m", "gatewaylab.rig.demo"], capture_output=True, text=True,
+    out = subprocess.run([sys.executable, "-m", "gatewaylab.cli.demo"], capture_output=True, text=True,
                          timeout=120, check=True).stdout
     assert "NMT reset communication to all nodes" in out
     assert "boot-up of node 2" in out and "boot-up of node 4" in out          # 4: assigned by LSS Fastscan

@@ -17,7 +17,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 import client_victims
 
-from gatewaylab.devices.maxon_idx.host.client import IdxClient, IdxError
+from gatewaylab.hosts.maxon_idx.client import IdxClient, IdxError
 from gatewaylab.rig.process import RigProcess
 
 pytestmark = pytest.mark.slow
@@ -40,7 +40,7 @@ def test_killing_a_client_every_100_ms_never_stalls_the_sdo_loop_of_another() ->
             idx_url = f"socket://127.0.0.1:{tcp[1]}"
             ctx = mp.get_context("forkserver")
             ctx.set_forkserver_preload(["canopen", "can", "client_victims", "gatewaylab.bus.wire",
-                                        "gatewaylab.devices.maxon_idx.host.client"])
+                                        "gatewaylab.hosts.maxon_idx.client"])
             kinds = [(client_victims.segmented_sdo, endpoint), (client_victims.idx_request, idx_url),
                      (client_victims.half_record, endpoint)]
 

@@ -20,9 +20,9 @@ import can
 import pytest
 
 from gatewaylab.canopen.cia402 import PdsState
-from gatewaylab.canopen.drive import Drive
-from gatewaylab.canopen.monitor_cli import _dictionaries
+from gatewaylab.cli.monitor import _dictionaries
 from gatewaylab.common.errors import ConfigError
+from gatewaylab.devices.canopen_drive.device import Drive
 from gatewaylab.rig.config import parse_rig
 from gatewaylab.rig.process import RigProcess
 from gatewaylab.rig.runtime import Rig

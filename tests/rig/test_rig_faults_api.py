@@ -19,9 +19,9 @@ from hypothesis import strategies as st
 from gatewaylab.bus import CanFrame
 from gatewaylab.bus.bus import ErrorState
 from gatewaylab.canopen.cia402 import PdsState
-from gatewaylab.canopen.drive import Drive
 from gatewaylab.canopen.nmt import NmtState
 from gatewaylab.common.clock import RealTimeClock
+from gatewaylab.devices.canopen_drive.device import Drive
 from gatewaylab.rig.config import parse_rig
 from gatewaylab.rig.control import MAX_LINE, answer_line
 from gatewaylab.rig.faults import REQUESTS, FaultRefused

@@ -25,8 +25,8 @@ import pytest
 import serial
 from canopen.nmt import NmtError
 
-from gatewaylab.devices.maxon_idx.host.client import IdxClient
-from gatewaylab.rig.fault_cli import send_request
+from gatewaylab.cli.fault import send_request
+from gatewaylab.hosts.maxon_idx.client import IdxClient
 from gatewaylab.rig.process import RigProcess
 
 WAIT = 20.0

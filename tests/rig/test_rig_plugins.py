@@ -17,9 +17,9 @@ import pytest
 
 from gatewaylab.bus import CanFrame
 from gatewaylab.common.errors import ConfigError
+from gatewaylab.plugin import DeviceKind
 from gatewaylab.rig import kinds
 from gatewaylab.rig.config import load_rig, parse_rig
-from gatewaylab.rig.plugin import DeviceKind
 from gatewaylab.rig.runtime import Rig
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "gatewaylab-example-device"
@@ -46,8 +46,9 @@ def example_device() -> None:
 def test_builtin_devices_are_registered_through_the_entry_point_group() -> None:
     """Issue 9: 'a gatewaylab.devices entry-point group (built-in devices registered through it too)'."""
     found = kinds.registered()
-    for name, module in [("drive", "gatewaylab.canopen.rig"), ("maxon_idx", "gatewaylab.devices.maxon_idx.rig"),
-                         ("ethercat_io", "gatewaylab.ethercat.rig"), ("ethercat", "gatewaylab.ethercat.rig")]:
+    for name, module in [("drive", "gatewaylab.devices.canopen_drive.rig"),
+                         ("maxon_idx", "gatewaylab.devices.maxon_idx.rig"),
+                         ("ethercat_io", "gatewaylab.devices.ethercat_io.rig"), ("ethercat", "gatewaylab.rig.segment")]:
         assert found[name].group == kinds.GROUP and found[name].module == module
         kind = kinds.load(name)
         assert isinstance(kind, DeviceKind) and kind.kind == name and kind.keys

@@ -25,8 +25,11 @@ from typing import Any
 
 import pysoem
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # tests/: the esd wire tests' driver
-from esd_can_ethercat.esd_soem_driver import IN_HDR, OUT_HDR, _init, _open, _retry, _to_op
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # tests/: kit_paths finds the esd wire driver
+import kit_paths
+
+kit_paths.add_all()
+from esd_soem_driver import IN_HDR, OUT_HDR, _init, _open, _retry, _to_op  # noqa: E402
 
 CYCLE = 0.001
 RX_TIMEOUT_US = 20_000          # 20 ms for process data (a loaded 2-CPU machine)

@@ -27,9 +27,10 @@ import time
 from pathlib import Path
 from typing import Any
 
-TESTS = Path(__file__).resolve().parent.parent
-for _folder in ("ecanlite", "esd_can_ethercat", "ethercat_drive", "ethercat"):
-    sys.path.insert(0, str(TESTS / _folder))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import kit_paths
+
+kit_paths.add_all()
 
 import ecanlite_kickcat_driver as kc  # noqa: E402
 import ecanlite_soem_driver as es  # noqa: E402

@@ -24,11 +24,14 @@ import time
 from pathlib import Path
 from typing import Any
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "ethercat"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import kit_paths
 
-from ethercat_soem_driver import SLOW_US, _open, _to_op
-from ethercat_storm import MasterTemplates, mutated_storm
-from ethercat_storm_driver import WD_TIME_1S, reset_watchdogs, send_storm, soem_after_storm
+kit_paths.add_all()
+
+from ethercat_soem_driver import SLOW_US, _open, _to_op  # noqa: E402
+from ethercat_storm import MasterTemplates, mutated_storm  # noqa: E402
+from ethercat_storm_driver import WD_TIME_1S, reset_watchdogs, send_storm, soem_after_storm  # noqa: E402
 
 SM = struct.Struct("<HHBBBB")
 

@@ -33,7 +33,7 @@ name = "io"
 interface = "{interface}"
 """
 #: CSP: 20 increments per 1 ms cycle; the axis follows within 20 cycles' worth (the drive's following error
-#: window 0x6065 defaults to 2000, gatewaylab/canopen/drive.py; a jittery master's targets come unevenly)
+#: window 0x6065 defaults to 2000, gatewaylab/devices/canopen_drive/device.py; a jittery master's targets come unevenly)
 FOLLOWING_LIMIT = 400
 
 

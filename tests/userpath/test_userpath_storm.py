@@ -19,14 +19,12 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from ethercat_rig_kit import KINDS, rig_text
 from wire_kit import net_capable, veth_namespace
 
 from gatewaylab.rig.process import RigProcess
 
 pytestmark = [pytest.mark.net]
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "ethercat"))
-
-from ethercat_rig_kit import KINDS, rig_text  # noqa: E402
 
 DRIVER = Path(__file__).with_name("storm_kit.py")
 MAX_FRAMES = 6000

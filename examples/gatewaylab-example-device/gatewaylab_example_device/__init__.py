@@ -11,7 +11,7 @@ It answers every frame with CAN-ID ``request_id`` by sending the same bytes, rev
     reply_id = 0x322
     delay_ms = 1.0
 
-Everything a device needs from gatewaylab comes from :mod:`gatewaylab.rig.plugin` (the rig
+Everything a device needs from gatewaylab comes from :mod:`gatewaylab.plugin` (the rig
 interface), :mod:`gatewaylab.bus` (frames and controllers) and the rig's clock.
 """
 
@@ -20,7 +20,7 @@ from __future__ import annotations
 from typing import Any
 
 from gatewaylab.bus import CanFrame, Controller
-from gatewaylab.rig.plugin import DeviceKind, Key, RigContext
+from gatewaylab.plugin import DeviceKind, Key, RigContext
 
 #: The section's keys: the rig checks types, ranges and bus names before ``create`` runs.
 KEYS: dict[str, Key] = {

@@ -19,8 +19,8 @@ from pathlib import Path
 from typing import Any
 
 from gatewaylab.bus.bus import Controller
-from gatewaylab.bus.participant import DeviceKind, Key, RigContext, section_error
 from gatewaylab.devices.ecanlite.device import EcanLiteDevice
+from gatewaylab.plugin.participant import DeviceKind, Key, RigContext, section_error
 
 KEYS: dict[str, Key] = {
     "name": Key(str, "ecan"),

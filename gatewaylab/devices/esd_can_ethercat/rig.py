@@ -18,9 +18,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from gatewaylab.bus.participant import DeviceKind, Key, RigContext
 from gatewaylab.devices.esd_can_ethercat.device import EsdGateway
 from gatewaylab.devices.esd_can_ethercat.webmodel import EsdWebModel
+from gatewaylab.plugin.participant import DeviceKind, Key, RigContext
 
 KEYS: dict[str, Key] = {
     "name": Key(str, "esd"),

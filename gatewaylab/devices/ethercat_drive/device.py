@@ -4,8 +4,8 @@ Each axis is the CANopen drive of ``canopen/drive.py`` -- the same CiA 402 state
 0x603F error codes and motion plant -- hosted by an EtherCAT slave instead of a CAN node:
 
 * **One dictionary.** The slave's dictionary gets the drive's own rows from
-  :func:`~gatewaylab.canopen.drive.add_profile_objects` (``DeviceDescription.extend_od``), and
-  axis 0's :class:`~gatewaylab.canopen.drive.Drive` runs on that very dictionary: a CoE upload of
+  :func:`~gatewaylab.devices.canopen_drive.device.add_profile_objects` (``DeviceDescription.extend_od``), and
+  axis 0's :class:`~gatewaylab.devices.canopen_drive.device.Drive` runs on that very dictionary: a CoE upload of
   0x6064 reads the value the control loop published. Axes 1..3 (ETG.6010 multi-axis) have their
   rows at +0x800 per axis, generated from the same rows; each of them runs on its own
   dictionary, which a :class:`_AxisMirror` keeps equal to the slave's rows both ways.
@@ -36,17 +36,17 @@ from functools import partial
 from typing import Any, cast
 
 from gatewaylab.canopen.cia402 import PdsState
-from gatewaylab.canopen.drive import DEVICE_TYPE, Drive, add_profile_objects
 from gatewaylab.canopen.emcy import ERR_CURRENT, ERR_GENERIC
 from gatewaylab.canopen.nmt import NmtState
 from gatewaylab.canopen.node import Node
-from gatewaylab.canopen.plant import AxisParams
 from gatewaylab.common.clock import Clock, PeriodicTimer
 from gatewaylab.common.errors import ConfigError
+from gatewaylab.devices.canopen_drive.device import DEVICE_TYPE, Drive, add_profile_objects
+from gatewaylab.devices.canopen_drive.plant import AxisParams
+from gatewaylab.devices.ethercat_io.device import VENDOR_ID
 from gatewaylab.ethercat.description import DeviceDescription, Pdo, PdoEntry
 from gatewaylab.ethercat.errors import AlStatusCode
 from gatewaylab.ethercat.esc import REG_DC_ACTIVATION, REG_DC_SYNC0_CYCLE, AlState
-from gatewaylab.ethercat.io_device import VENDOR_ID
 from gatewaylab.ethercat.slave import Slave, SlaveApplication
 from gatewaylab.od import Access, DataType, Entry, ObjectCode, ObjectDictionary, SdoAbort
 from gatewaylab.od.dictionary import ReadHook, Validator, WriteHook

@@ -17,10 +17,10 @@ from __future__ import annotations
 
 from typing import Any
 
-from gatewaylab.bus.participant import DeviceKind, Key, RigContext
-from gatewaylab.canopen.rig import PLANT_KEYS, axis_params
+from gatewaylab.devices.canopen_drive.rig import PLANT_KEYS, axis_params
 from gatewaylab.devices.ethercat_drive.device import MAX_AXES, EthercatDrive
 from gatewaylab.ethercat.slave import Slave
+from gatewaylab.plugin.participant import DeviceKind, Key, RigContext
 
 KEYS: dict[str, Key] = {
     "name": Key(str, "ethercat_drive"),

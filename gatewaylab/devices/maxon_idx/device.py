@@ -1,6 +1,6 @@
 """The emulated maxon IDX: a CiA 402 drive on the CAN bus that also serves the USB command protocol.
 
-The drive (:class:`gatewaylab.canopen.drive.Drive`) owns the object dictionary; the USB side
+The drive (:class:`gatewaylab.devices.canopen_drive.device.Drive`) owns the object dictionary; the USB side
 reads and writes it locally for node id 0 or the drive's own node id (guide chapter 5) and
 forwards everything else to the bus through :class:`~.gateway.CanGateway`. Each connected host
 (pseudo-terminal, TCP connection) gets its own :class:`~.protocol.IdxSlave`.
@@ -12,10 +12,10 @@ from collections.abc import Callable
 from pathlib import Path
 
 from gatewaylab.bus.bus import VirtualBus
-from gatewaylab.canopen.drive import Drive
 from gatewaylab.canopen.nmt import NmtCommand
 from gatewaylab.canopen.node import Node
 from gatewaylab.common.clock import Clock
+from gatewaylab.devices.canopen_drive.device import Drive
 from gatewaylab.devices.maxon_idx.commands import MAX_SEGMENT
 from gatewaylab.devices.maxon_idx.errors import IdxRemoteError, SdoAbortCode
 from gatewaylab.devices.maxon_idx.gateway import CanGateway, SdoClientLike

@@ -15,12 +15,12 @@ from __future__ import annotations
 
 from typing import Any
 
-from gatewaylab.bus.participant import DeviceKind, Key, RigContext
 from gatewaylab.common.endpoint import format_tcp
 from gatewaylab.devices.maxon_idx.commands import MAX_SEGMENT
 from gatewaylab.devices.maxon_idx.device import IdxDevice
 from gatewaylab.devices.maxon_idx.transport.pty import PtyPort
 from gatewaylab.devices.maxon_idx.transport.tcp import TcpServer
+from gatewaylab.plugin.participant import DeviceKind, Key, RigContext
 
 USB_KEYS: dict[str, Key] = {
     "pty": Key(bool, True),

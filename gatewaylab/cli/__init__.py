@@ -1,0 +1,1 @@
+"""Every `gatewaylab` subcommand: argument parsing and printing around the library (docs/cli.md)."""

@@ -1,0 +1,333 @@
+"""The ``gatewaylab`` command line."""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import gc
+import json
+import logging
+import os
+import signal
+import sys
+from collections.abc import Callable
+from importlib import import_module
+from pathlib import Path
+from types import FrameType
+from typing import TYPE_CHECKING, Any
+
+from gatewaylab import __version__
+from gatewaylab.bus.transport.trace import TRACE_FORMATS, check_trace_path
+from gatewaylab.common.errors import ConfigError, GatewaylabError
+
+if TYPE_CHECKING:
+    from gatewaylab.rig.runtime import Rig
+    from gatewaylab.rig.web import RigWeb
+
+#: Sub-commands contributed by other parts of the package: module with ``add_subcommand(subparsers)``.
+EXTRA_SUBCOMMANDS = (
+    "gatewaylab.cli.idx",
+    "gatewaylab.cli.lss",
+    "gatewaylab.cli.monitor",
+    "gatewaylab.cli.send",
+    "gatewaylab.cli.lesson",
+    "gatewaylab.cli.plot",
+    "gatewaylab.cli.net",
+    "gatewaylab.cli.ec_rig",
+    "gatewaylab.cli.fault",
+    "gatewaylab.cli.ecan_rig",
+    "gatewaylab.cli.migrate_rig",
+)
+
+RIG_HELP = """\
+A rig file (TOML) declares the clock mode, the buses and the simulated participants, e.g.:
+
+  clock = "realtime"
+  [[bus]]
+  name = "can0"
+  bitrate = 1000000
+  data_bitrate = 5000000      # optional: CAN FD
+  endpoint = "unix"           # unix (default) | tcp | none
+  [[drive]]
+  bus = "can0"
+  node_id = 2                 # omit: unconfigured until an LSS master assigns one
+  serial = 0x1002
+
+See docs/rig.md for every section.
+"""
+
+
+class UsageError(GatewaylabError):
+    """The command line asks for something impossible (exit code 2, like argparse's own errors)."""
+
+
+def _parse_trace(value: str) -> tuple[str, str]:
+    bus, sep, path = value.partition("=")
+    if not sep or not bus or not path:
+        raise argparse.ArgumentTypeError(f"--trace wants BUS=FILE, got {value!r}")
+    return bus, path
+
+
+def _tcp_port(value: str) -> int:
+    """A TCP port for --web: 0 (any free one) .. 65535; anything else is a usage error (exit 2)."""
+    try:
+        port = int(value, 0)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--web wants a TCP port 0..65535, got {value!r}") from None
+    if not 0 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"--web wants a TCP port 0..65535 (0: any free port), got {port}")
+    return port
+
+
+def _check_rig_file(path: str | None) -> None:
+    """A missing or unreadable rig file is the user's to fix: say which and why (exit 2)."""
+    if path is None:
+        return
+    try:
+        with open(path, "rb") as f:
+            f.read().decode()
+    except IsADirectoryError:
+        raise UsageError(f"rig file {path} is a directory, not a TOML file") from None
+    except OSError as exc:
+        raise UsageError(f"cannot read rig file {path}: {exc.strerror or exc}") from None
+    except UnicodeDecodeError as exc:
+        raise UsageError(f"rig file {path} is not UTF-8 text (TOML): byte {exc.start} "
+                         f"is 0x{exc.object[exc.start]:02X}") from None
+
+
+def _check_writable(option: str, path: str) -> None:
+    """The folder of an output file must exist before the rig starts (exit 2 otherwise)."""
+    folder = Path(path).resolve().parent
+    if not folder.is_dir():
+        raise UsageError(f"{option} {path}: folder {folder} does not exist")
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise UsageError(f"{option} {path}: folder {folder} is not writable")
+
+
+def _write_ready_file(path: str, info: dict[str, Any]) -> None:
+    tmp = Path(path + ".tmp")
+    try:
+        tmp.write_text(json.dumps(info, indent=2))
+        tmp.replace(path)
+    except OSError as exc:
+        raise UsageError(f"--ready-file {path}: {exc.strerror or exc}") from None
+
+
+def _start_web(rig: Rig, port: int, db: str | None = None) -> RigWeb:
+    """The --web page: monitors on every bus, the drives' dictionaries for PDO values, --db's signals."""
+    from gatewaylab.bus.signals import load_database
+    from gatewaylab.devices.canopen_drive.device import Drive
+    from gatewaylab.rig.web import RigWeb
+
+    signals = load_database(db) if db else None
+    try:
+        web = RigWeb(dict(rig.buses), [p for p in rig.participants if isinstance(p, Drive)], port, signals=signals)
+    except OSError as exc:
+        raise UsageError(f"--web {port}: {exc.strerror or exc}") from None
+    web.start()
+    return web
+
+
+class _Stopped(BaseException):
+    """SIGTERM/SIGINT while `gatewaylab run` builds, starts or closes its rig: unwind at once (what was
+    made is released on the way out). Not an Exception, so no participant's ``except`` swallows it."""
+
+
+def _stop_at_once(signum: int, frame: FrameType | None) -> None:
+    raise _Stopped(signum)
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
+    from gatewaylab.rig.config import load_rig
+    from gatewaylab.rig.runtime import Rig
+
+    if args.db and args.web is None:
+        raise UsageError(f"--db {args.db} decodes signals on the --web page: give --web too "
+                         f"(or decode them live with `gatewaylab monitor READY.json --db {args.db}`)")
+    _check_rig_file(args.rig)
+    for _bus_name, path in args.trace or []:
+        check_trace_path(path)
+        _check_writable("--trace", path)
+    if args.ready_file:
+        _check_writable("--ready-file", args.ready_file)
+    # Until the loop runs (and again while it shuts down), SIGTERM/SIGINT unwind at once: a rig stopped
+    # while it starts leaves no temporary folder, socket or thread behind either (issue 21).
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, _stop_at_once)
+    rig: Rig | None = None
+    ready_written = False
+    web: RigWeb | None = None
+    try:
+        config = load_rig(args.rig)
+        if args.socketcand:
+            config = replace(config, buses=tuple(replace(b, socketcand=True) for b in config.buses))
+        rig = Rig(config)
+        if not rig.realtime:
+            print("note: the rig file asks for a simulated clock; `gatewaylab run` always runs in real time",
+                  file=sys.stderr)
+            rig.close()
+            rig = None
+            from gatewaylab.common.clock import RealTimeClock
+
+            rig = Rig(config, clock=RealTimeClock())
+        for bus_name, path in args.trace or []:
+            try:
+                rig.add_trace(bus_name, path)
+            except OSError as exc:
+                raise UsageError(f"--trace {bus_name}={path}: {exc.strerror or exc}") from None
+        if args.acker:
+            for bus in rig.buses.values():
+                bus.attach("acker")   # hears every frame, acknowledges it, sends nothing
+        if args.web is not None:
+            web = _start_web(rig, args.web, args.db)    # before start(): the page sees the boot-ups
+        rig.start()
+        info = rig.ready_info()
+        if web is not None:
+            info.setdefault("web", {})["monitor"] = web.url
+        #: Unix time of the rig's clock time 0: trace files and client timestamps count from it.
+        info.setdefault("wall_epoch", rig.clock.wall_epoch)
+        if args.ready_file:
+            ready_written = True       # first: a signal during the write still removes what it left
+            _write_ready_file(args.ready_file, info)
+        print(f"gatewaylab rig {rig.config.source} running (pid {os.getpid()})")
+        for name, bus in info["buses"].items():
+            print(f"  bus {name}: {bus.get('endpoint', '(no endpoint)')}"
+                  f"  ->  can.Bus(interface='gatewaylab', channel={bus.get('endpoint', '')!r})")
+            if "socketcand" in bus:
+                print(f"  bus {name}: socketcand 127.0.0.1:{bus['socketcand']}  ->  can.Bus(interface='socketcand', "
+                      f"host='127.0.0.1', port={bus['socketcand']}, channel={name!r})")
+        for key, value in info.items():
+            if key not in ("pid", "buses"):
+                print(f"  {key}: {json.dumps(value)}")
+        sys.stdout.flush()
+        rig.run()      # its own handlers: the loop returns at its next pass (docs/rig.md)
+    except _Stopped:
+        pass
+    finally:
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(signum, _stop_at_once)   # a second signal while closing: do not wait
+        try:
+            if web is not None:
+                web.stop()
+            if rig is not None:
+                rig.close()
+            if ready_written:
+                for path in (args.ready_file, args.ready_file + ".tmp"):
+                    with contextlib.suppress(FileNotFoundError):
+                        os.unlink(path)
+        finally:
+            # Exit within milliseconds: the collector's passes over every object the rig ever imported
+            # took 120-200 ms of the second SIGTERM promises (issue 21); nothing left needs them.
+            gc.freeze()
+    print("gatewaylab rig stopped")
+    return 0
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from gatewaylab.cli.demo import main as demo_main
+
+    return demo_main([] if args.rig is None else [args.rig])
+
+
+def cmd_rig_show(args: argparse.Namespace) -> int:
+    from importlib import resources
+
+    if args.rig is None:
+        print(resources.files("gatewaylab.rig").joinpath("default.toml").read_text(), end="")
+    else:
+        _check_rig_file(args.rig)
+        print(Path(args.rig).read_text(), end="")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="gatewaylab",
+        description="Emulated industrial CAN gateways (ECAN-Lite, esd CAN-EtherCAT, maxon IDX) on virtual "
+                    "CAN / CAN FD buses with simulated CANopen drives.",
+        epilog="Run 'gatewaylab COMMAND --help' for the options of each command.")
+    parser.add_argument("--version", action="version", version=f"gatewaylab {__version__}")
+    parser.add_argument("-v", "--verbose", dest="verbose_log", action="store_true", help="log debug messages to stderr")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+
+    run = sub.add_parser(
+        "run", help="start a rig in real time and serve its buses to other processes",
+        description="Start a rig in real time. Prints the endpoint of every bus (for "
+                    "can.Bus(interface='gatewaylab', channel=ENDPOINT)) and runs until SIGINT/SIGTERM, "
+                    "then shuts down cleanly and removes its endpoints.",
+        epilog=RIG_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
+    run.add_argument("rig", nargs="?", help="rig file (TOML); default: the rig shipped in the package")
+    run.add_argument("--ready-file", metavar="PATH",
+                     help="write JSON {pid, buses: {NAME: {endpoint}}, ...} here once everything is up; "
+                          "removed again at shutdown")
+    run.add_argument("--trace", metavar="BUS=FILE", action="append", type=_parse_trace,
+                     help="record BUS to FILE, streamed (flushed every 100 ms), in the format of its suffix: "
+                          f"{', '.join(TRACE_FORMATS)}; may be repeated")
+    run.add_argument("--web", type=_tcp_port, nargs="?", const=0, default=None, metavar="PORT",
+                     help="serve a live page of the rig (node table, decoded log, drive plot) on "
+                          "http://127.0.0.1:PORT/ (no PORT: any free port; listed in the ready file as "
+                          "web.monitor)")
+    run.add_argument("--socketcand", action="store_true",
+                     help="serve every bus also over the socketcand protocol on 127.0.0.1 (a free port each, "
+                          "listed in the ready file as buses.NAME.socketcand; or socketcand = true per [[bus]])")
+    run.add_argument("--db", metavar="FILE", help="needs --web: a signal database (DBC, KCD, ARXML, SYM; cantools) "
+                     "whose frames the page decodes into signals")
+    run.add_argument("--acker", action="store_true",
+                     help="attach to every bus a passive node that only acknowledges frames, so a lone "
+                          "client's frames are not ACK errors (see docs/bus.md)")
+    run.set_defaults(func=cmd_run)
+
+    demo = sub.add_parser("demo", help="run the scripted demo (what `make demo` does)",
+                          description="Start the default rig, drive real traffic on it and explain each step.")
+    demo.add_argument("rig", nargs="?", help="rig file; default: the rig shipped in the package")
+    demo.set_defaults(func=cmd_demo)
+
+    show = sub.add_parser("rig", help="print a rig file (the default one without an argument)",
+                          description="Print the default rig file, a starting point for your own.")
+    show.add_argument("rig", nargs="?", help="rig file to print")
+    show.set_defaults(func=cmd_rig_show)
+
+    for module_name in EXTRA_SUBCOMMANDS:
+        try:
+            add: Callable[[Any], None] = import_module(module_name).add_subcommand
+        except (ImportError, AttributeError):
+            continue
+        add(sub)
+    return parser
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split())
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.DEBUG if args.verbose_log else logging.WARNING,
+                        format="%(levelname)s %(name)s: %(message)s")
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        result: int = args.func(args)
+        return result
+    except (UsageError, ConfigError) as exc:
+        print(f"gatewaylab: {_one_line(exc)}", file=sys.stderr)
+        return 2
+    except GatewaylabError as exc:
+        print(f"gatewaylab: {_one_line(exc)}", file=sys.stderr)
+        return 1
+    except OSError as exc:                 # e.g. a rig's TCP port already in use
+        where = f" ({exc.filename})" if exc.filename else ""
+        print(f"gatewaylab: {exc.strerror or exc}{where}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        return 130
+    except _Stopped:                       # a second signal cut `gatewaylab run`'s clean-up short
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,6 +1,0 @@
-"""python-can over the EtherCAT gateways (issue 12): :class:`EthercatHost` hands out a ``can.BusABC``
-per gateway CAN channel; ``plugin`` registers the ``esd_can_ethercat`` python-can interface."""
-
-from gatewaylab.devices.canhost.host import EsdChannel, EthercatHost, GatewayBus
-
-__all__ = ["EsdChannel", "EthercatHost", "GatewayBus"]

@@ -1,0 +1,1 @@
+"""The CANopen CiA 402 servo drive (maxon IDX-like): device, motion plant, homing, rig kind."""

@@ -1,0 +1,1 @@
+"""The generic EtherCAT loop-back I/O slave (`ethercat_io`)."""

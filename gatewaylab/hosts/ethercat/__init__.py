@@ -1,0 +1,1 @@
+"""EtherCAT masters: the in-process master, the MasterBackend contract and the pysoem backend."""

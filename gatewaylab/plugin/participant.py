@@ -1,0 +1,219 @@
+"""What a device plugin implements and what it may use of the rig (docs/devices/writing-a-device.md).
+
+A device package (inside gatewaylab or outside it) adds a rig-file ``kind`` by exposing a
+:class:`DeviceKind` through the ``gatewaylab.devices`` entry-point group::
+
+    [project.entry-points."gatewaylab.devices"]
+    echo = "gatewaylab_example_device:KIND"
+
+The rig validates every section against the kind's :class:`Key` table (one shared validator:
+unknown keys, types, ranges, bus names; each failure a one-line :class:`ConfigError` naming the
+file, the section and the key), then calls ``kind.create(rig, cfg)`` with a :class:`RigContext`
+and the validated section (every key present, defaults filled in).
+
+It lives in ``bus/`` (it depends only on ``common`` and the bus) so that ``canopen/``, ``ethercat/``
+and ``devices/`` import it without an upward dependency; ``gatewaylab.plugin`` re-exports it as
+the public name for device packages outside gatewaylab.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Protocol
+
+from gatewaylab.bus.bus import VirtualBus
+from gatewaylab.common.clock import Clock
+from gatewaylab.common.errors import ConfigError
+
+
+class Participant(Protocol):
+    """Anything a rig-file section creates: drives, gateways, EtherCAT segments, plugin devices."""
+
+    name: str
+
+    def start(self) -> None: ...          # called once every participant exists
+    def stop(self) -> None: ...           # release endpoints, files, threads
+    def ready_info(self) -> dict[str, Any]: ...  # merged into the --ready-file JSON
+
+
+class RigContext(Protocol):
+    """What a factory and its participant may use of the rig they are built into."""
+
+    @property
+    def clock(self) -> Clock: ...         # the one clock; schedule with call_later/call_every
+    @property
+    def buses(self) -> Mapping[str, VirtualBus]: ...
+    @property
+    def realtime(self) -> bool: ...       # False: a simulated clock, nothing runs by itself
+    @property
+    def state_dir(self) -> Path: ...      # the run's own folder: sockets, stored parameters
+    @property
+    def participants(self) -> Sequence[Participant]: ...  # built so far, in rig-file order
+
+    def bus(self, name: str) -> VirtualBus: ...
+    def add_reader(self, fd: int, callback: Callable[[], None]) -> None: ...
+    def remove_reader(self, fd: int) -> None: ...
+    def add_writer(self, fd: int, callback: Callable[[], None]) -> None: ...
+    def remove_writer(self, fd: int) -> None: ...
+    def wake(self) -> None: ...
+
+
+Factory = Callable[[RigContext, dict[str, Any]], Participant]
+
+
+@dataclass(frozen=True)
+class Key:
+    """One key of a rig-file section: its type, whether it is required, its default and range.
+
+    ``type`` is ``int`` (not bool), ``float`` (an int is accepted), ``str`` (non-empty), ``bool``
+    or ``dict`` (an inline table checked against ``keys``). ``bus=True``: the value names a
+    declared ``[[bus]]``. ``false_is_none=True``: ``false`` switches the option off (None).
+    """
+
+    type: type
+    default: Any = None
+    required: bool = False
+    min: float | None = None
+    max: float | None = None
+    choices: tuple[Any, ...] | None = None
+    bus: bool = False
+    hex: bool = False
+    false_is_none: bool = False
+    keys: Mapping[str, Key] | None = None
+    #: Appended to a range or type error in parentheses: what the value means.
+    help: str = ""
+
+
+@dataclass(frozen=True)
+class DeviceKind:
+    """A rig-file ``kind``: its factory and its keys (besides ``kind``)."""
+
+    kind: str
+    create: Factory
+    keys: Mapping[str, Key]
+    #: One line for listings and errors ("kind 'x' is not installed (known: ...)").
+    summary: str = ""
+    #: The kind also has a top-level section of its own: "drive" -> ``[[drive]]``, "ethercat" ->
+    #: ``[ethercat]`` (a single table when ``single``; built after every other section).
+    table: str | None = None
+    single: bool = False
+    #: Its ``node_id`` and ``serial`` on ``bus`` are a CANopen node-ID and an LSS serial number,
+    #: which must be unique on that bus.
+    canopen: bool = False
+    #: The participant's name when the section gives none (default: the ``name`` key's default).
+    default_name: Callable[[Mapping[str, Any]], str] | None = None
+
+    def name_of(self, cfg: Mapping[str, Any]) -> str | None:
+        name = cfg.get("name")
+        if isinstance(name, str):
+            return name
+        return self.default_name(cfg) if self.default_name is not None else None
+
+    def validate(self, cfg: Mapping[str, Any], where: str, buses: Sequence[str] | None = None) -> dict[str, Any]:
+        """The section checked against :attr:`keys` (``kind`` itself is allowed and dropped)."""
+        return validate_table({k: v for k, v in cfg.items() if k != "kind"}, self.keys, where, buses)
+
+
+def _num(value: float) -> str:
+    return str(int(value)) if float(value).is_integer() else str(value)
+
+
+def _bound(value: float, hexa: bool) -> str:
+    return f"0x{int(value):X}" if hexa and value else _num(value)
+
+
+def _describe(key: Key) -> str:
+    """'must be 1..127', 'must be a number >= 0', 'must be one of ...', 'must be a string'."""
+    if key.choices is not None:
+        return "must be one of " + ", ".join(repr(c) for c in key.choices)
+    lo, hi = key.min, key.max
+    word = {int: "", float: "a number ", str: "a non-empty string", bool: "true or false",
+            dict: "a table"}.get(key.type, key.type.__name__)
+    if key.type in (int, float):
+        if lo is not None and hi is not None:
+            text = f"must be {word}{_bound(lo, key.hex)}..{_bound(hi, key.hex)}"
+        elif lo is not None:
+            text = f"must be {word or 'an integer '}>= {_bound(lo, key.hex)}"
+        elif hi is not None:
+            text = f"must be {word or 'an integer '}<= {_bound(hi, key.hex)}"
+        else:
+            text = "must be " + ("an integer" if key.type is int else "a number")
+    else:
+        text = f"must be {word}"
+    return text + (f" ({key.help})" if key.help else "")
+
+
+def section_error(where: str, message: str) -> ConfigError:
+    """The one format of a rig-file error: ``FILE [[section]] #n (name): message``, one line."""
+    return ConfigError(f"{where}: {message}")
+
+
+def _check(value: Any, key: Key, path: str, where: str, buses: Sequence[str] | None) -> Any:
+    if key.false_is_none and value is False:
+        return None
+    kind = key.type
+    bad = False
+    if kind is int:
+        bad = isinstance(value, bool) or not isinstance(value, int)
+    elif kind is float:
+        bad = isinstance(value, bool) or not isinstance(value, int | float)
+        if not bad:
+            value = float(value)
+    elif kind is str:
+        bad = not isinstance(value, str) or not value
+    elif kind is bool:
+        bad = not isinstance(value, bool)
+    elif kind is dict:
+        if not isinstance(value, Mapping):
+            bad = True
+        elif key.keys is not None:
+            return validate_table(value, key.keys, where, buses, prefix=f"{path}.")
+        else:
+            return dict(value)
+    elif not isinstance(value, kind):
+        bad = True
+    if not bad and key.choices is not None and value not in key.choices:
+        bad = True
+    if not bad and kind in (int, float):
+        bad = (key.min is not None and value < key.min) or (key.max is not None and value > key.max)
+    if bad:
+        hexa = key.hex and isinstance(value, int) and not isinstance(value, bool) and value >= 0
+        shown = f"0x{value:X}" if hexa else repr(value)
+        raise section_error(where, f"{path} {_describe(key)}, got {shown}")
+    if key.bus and buses is not None and value not in buses:
+        raise section_error(where, f"{path} = {value!r} names an unknown bus (declared: "
+                                   f"{', '.join(buses) or 'none'})")
+    return value
+
+
+def validate_table(raw: Mapping[str, Any], keys: Mapping[str, Key], where: str,
+                   buses: Sequence[str] | None = None, prefix: str = "") -> dict[str, Any]:
+    """Check a section (or an inline table) against ``keys``; returns it with defaults filled in.
+
+    ``where`` names the file and the section; every error is one :class:`ConfigError` line
+    ``where: key problem``. ``buses``: the declared bus names (None: not checked).
+    """
+    if not isinstance(raw, Mapping):
+        raise section_error(where, f"{prefix.rstrip('.') or 'section'} must be a table")
+    unknown = sorted(set(raw) - set(keys))
+    if unknown:
+        table = f"{prefix.rstrip('.')} " if prefix else ""
+        raise section_error(where, f"unknown {table}keys {unknown} (allowed: {', '.join(sorted(keys))})")
+    out: dict[str, Any] = {}
+    for name, key in keys.items():
+        path = prefix + name
+        if raw.get(name) is not None:  # TOML has no null: None is an already-validated absent key
+            out[name] = _check(raw[name], key, path, where, buses)
+        elif key.required:
+            raise section_error(where, f"{path} is required" + (f" ({key.help})" if key.help else ""))
+        elif key.type is dict and key.keys is not None:
+            default = key.default if isinstance(key.default, Mapping) else {}
+            out[name] = validate_table(default, key.keys, where, buses, prefix=f"{path}.")
+        else:
+            out[name] = value = key.default
+            if key.bus and buses is not None and value is not None and value not in buses:
+                raise section_error(where, f"{path} = {value!r} (the default) names an unknown bus (declared: "
+                                           f"{', '.join(buses) or 'none'})")
+    return out
