@@ -51,16 +51,16 @@ class Segment:
         self.stats = SegmentStats()
         #: positions of the slaves unplugged from the line (fault injection)
         self.unplugged: set[int] = set()
-        self._escs = [s.esc for s in self.slaves]
+        self._reached: list[Slave] = list(self.slaves)
         self._link()
 
     def _link(self) -> None:
         """The slaves a frame reaches: the line up to the first unplugged one, whose upstream
         neighbour closes its port and returns the frame (ESC automatic port loop-back)."""
         reach = min(self.unplugged, default=len(self.slaves))
-        self._escs = [s.esc for s in self.slaves[:reach]]
-        for i, esc in enumerate(self._escs):
-            esc.set_downstream(reach - 1 - i)
+        self._reached = self.slaves[:reach]
+        for i, slave in enumerate(self._reached):
+            slave.esc.set_downstream(reach - 1 - i)
 
     def unplug(self, position: int) -> None:
         """Pull a slave out of the line: it and every slave behind it stop answering (the working
@@ -81,24 +81,24 @@ class Segment:
     def process(self, frame: bytearray) -> bool:
         """Execute every datagram on every slave in place; False for a dropped (bad) frame, or
         when the first slave is unplugged (no link: the frame never comes back)."""
-        if not self._escs and self.unplugged:
+        if not self._reached and self.unplugged:
             return False
         parsed = self._parse(frame)
         if parsed is None:
             self.stats.bad_frames += 1
-            if self._escs:
-                mem = self._escs[0].mem
+            if self._reached:
+                mem = self._reached[0].esc.mem
                 mem[REG_RX_ERROR] = min(0xFF, mem[REG_RX_ERROR] + 1)
             return False
         self.stats.frames += 1
         self.stats.datagrams += len(parsed)
-        for esc in self._escs:
-            pd = esc.process_datagram
+        for slave in self._reached:
+            pd = slave.process_datagram
             for pos, cmd, dlen in parsed:
                 try:
                     pd(frame, pos, cmd, dlen)
                 except Exception as exc:  # isolation boundary: one datagram never costs the frame
-                    self._datagram_error(esc, cmd, exc)
+                    self._datagram_error(slave.esc, cmd, exc)
         if len(frame) > ETH_HEADER_LEN:
             frame[6] |= 0x02  # the ESC marks the source MAC as locally administered on the way back
         return True
