@@ -20,20 +20,22 @@ core):
    returned as PDI events, frozen records in the order they happened: a SyncManager buffer written
    (:class:`SmWritten`) or read (:class:`SmRead`), AL control written (:class:`AlControlRequested`),
    SyncManager registers written (:class:`SmChanged`).
-2. A datagram is one access or two: a read-write command is a read followed by a write of the data as
-   it arrived (APRW, FPRW, BRW); an LRW is a write followed by a read (the frame's data as it arrived
-   at this slave is written first). When an access raised events, :meth:`Esc.process_datagram`
-   returns them with the datagram paused after that access; the caller delivers them and calls
-   :meth:`Esc.resume_datagram`, which runs the rest of the datagram and returns the events of its
-   next access, or None once the datagram is complete. No events, no pause: process_datagram
-   returns None for a complete datagram.
+2. An access is one read or one write of ESC memory. A physical or broadcast datagram is one access,
+   or two for a read-write command (APRW, FPRW, BRW: a read, then a write of the data as it arrived);
+   a logical datagram is one access per FMMU its range hits, every writing FMMU first (LWR, LRW: the
+   frame's data as it arrived at this slave), then every reading one (LRD, LRW). When an access
+   raised events, :meth:`Esc.process_datagram` returns them with the datagram paused after that
+   access; the caller delivers them and calls :meth:`Esc.resume_datagram`, which runs the rest of
+   the datagram and returns the events of its next access that raised any, or None once the
+   datagram is complete. No events, no pause: process_datagram returns None for a complete datagram.
 3. The working counter is written when the datagram completes; a datagram whose delivery raised
    (a defect of a device) keeps this slave's share uncounted.
 4. So the firmware sees an access's events before the next access of the same datagram and before
    the next datagram of the frame reaches this ESC: an application that answers outputs with inputs
-   on the SM2 write event is read back by the same LRW (``ethercat_io``'s loop-back), and an AL
-   status read after an AL control write in the same frame sees the answer. The AL request itself
-   runs on the PDI side (:meth:`Esc.al_control`, from the delivery), as SOES's ESC_ALevent does.
+   on the SM2 write event is read back by the same LRW (``ethercat_io``'s loop-back), a 1-buffer
+   SyncManager that two FMMUs write in one LRW (SOEM maps some layouts twice) takes both writes, and
+   an AL status read after an AL control write in the same frame sees the answer. The AL request
+   itself runs on the PDI side (:meth:`Esc.al_control`, from the delivery), as SOES's ESC_ALevent does.
 5. Timers are not accesses: a SYNC0 pulse and an SM watchdog expiry reach the firmware from the clock
    (:class:`EscApplication`).
 
@@ -50,7 +52,7 @@ from gatewaylab.common.clock import Clock
 from gatewaylab.ethercat.esc_al import AlFirmware, AlStateMachine
 from gatewaylab.ethercat.esc_dc import DistributedClocks
 from gatewaylab.ethercat.esc_events import AlControlRequested, EscEvent, SmChanged, SmRead, SmWritten
-from gatewaylab.ethercat.esc_memory import EscMemory
+from gatewaylab.ethercat.esc_memory import EscMemory, Fmmu
 from gatewaylab.ethercat.esc_registers import (
     AL_ACK,
     AL_ERROR,
@@ -137,9 +139,9 @@ __all__ = [
 
 # Commands by number (datagram.Command), inlined on the hot path.
 _APRD, _APWR, _APRW, _FPRD, _FPWR, _FPRW, _BRD, _BWR, _BRW, _LRD, _LWR, _LRW, _ARMW, _FRMW = range(1, 15)
-# What resume_datagram does next: nothing pending, write the working counter, the read half of an
-# LRW, the write half of a read-write command (the data as it arrived).
-_IDLE, _FINISH, _READ_HALF, _WRITE_BACK = range(4)
+# What resume_datagram does next: nothing pending, write the working counter, the write half of a
+# read-write command (the data as it arrived), the writing FMMUs of a logical datagram, its reading ones.
+_IDLE, _FINISH, _WRITE_BACK, _WRITES, _READS = range(5)
 _NO_BUF = bytearray()
 
 
@@ -177,7 +179,8 @@ class Esc:
         self.offline = False
         self._step = _IDLE
         self._buf = _NO_BUF
-        self._off = self._dlen = self._addr = self._inc = 0
+        self._off = self._dlen = self._addr = self._inc = self._cmd = self._fi = 0
+        self._fmmus: tuple[Fmmu, ...] = ()
         self._incoming = b""
         self._reset_registers()
 
@@ -378,15 +381,18 @@ class Esc:
         inc = 0
         step = _FINISH
         if cmd >= _LRD and cmd <= _LRW:
-            laddr = U32.unpack_from(buf, pos + 2)[0]
-            if cmd == _LRD:
-                inc = 1 if memory.logical_read(buf, off, laddr, dlen) else 0
-            else:
-                if memory.logical_write(buf, off, laddr, dlen):
-                    inc = 2 if cmd == _LRW else 1
-                if cmd == _LRW:
-                    self._addr = laddr
-                    step = _READ_HALF
+            if not memory.fmmus:
+                return None
+            self._buf = buf
+            self._off = off
+            self._dlen = dlen
+            self._addr = U32.unpack_from(buf, pos + 2)[0]
+            self._cmd = cmd
+            self._fmmus = memory.fmmus
+            self._fi = 0
+            self._inc = 0
+            self._step = _READS if cmd == _LRD else _WRITES
+            return self._logical()
         else:
             broadcast = _BRD <= cmd <= _BRW
             if cmd <= _APRW or cmd == _ARMW or broadcast:
@@ -421,23 +427,63 @@ class Esc:
         """Continue a paused datagram: the events of its next access that raised any, or None once it
         is complete (working counter written)."""
         step = self._step
-        if step in (_READ_HALF, _WRITE_BACK):
-            if step == _READ_HALF:
-                if self.memory.logical_read(self._buf, self._off, self._addr, self._dlen):
-                    self._inc += 1
-            elif self.memory.ecat_write(self._addr, self._incoming):
+        if step >= _WRITES:
+            return self._logical()
+        if step == _WRITE_BACK:
+            if self.memory.ecat_write(self._addr, self._incoming):
                 self._inc += 2
             self._step = _FINISH
             if self.memory.events:
                 return self.take_events()
         if self._step == _FINISH:
-            inc = self._inc
-            if inc:
-                buf = self._buf
-                wkc_at = self._off + self._dlen
-                U16.pack_into(buf, wkc_at, (U16.unpack_from(buf, wkc_at)[0] + inc) & 0xFFFF)
-            self._buf = _NO_BUF
+            self._finish()
         self._step = _IDLE
+        return None
+
+    def _finish(self) -> None:
+        """The datagram is complete: add this slave's share to the working counter."""
+        inc = self._inc
+        if inc:
+            buf = self._buf
+            wkc_at = self._off + self._dlen
+            U16.pack_into(buf, wkc_at, (U16.unpack_from(buf, wkc_at)[0] + inc) & 0xFFFF)
+        self._buf = _NO_BUF
+        self._fmmus = ()
+        self._step = _IDLE
+
+    def _logical(self) -> list[EscEvent] | None:
+        """Run (or go on running) a logical datagram: one access per FMMU the range hits, every
+        writing FMMU first (the frame's data as it arrived at this slave), then every reading one;
+        pause after an access that raised events. WKC: read 1, write 1 (LWR) or 2 (LRW), once each."""
+        memory = self.memory
+        fmmus = self._fmmus
+        buf, off, laddr = self._buf, self._off, self._addr
+        lend = laddr + self._dlen
+        n = len(fmmus)
+        i = self._fi
+        if self._step == _WRITES:
+            while i < n:
+                f = fmmus[i]
+                i += 1
+                if f.write and f.lstart < lend and laddr < f.lend and memory.fmmu_write(f, buf, off, laddr, lend):
+                    self._inc |= 2 if self._cmd == _LRW else 1
+                    if memory.events:
+                        self._fi = i
+                        return self.take_events()
+            if self._cmd == _LWR:
+                self._finish()
+                return None
+            self._step = _READS
+            i = 0
+        while i < n:
+            f = fmmus[i]
+            i += 1
+            if f.read and f.lstart < lend and laddr < f.lend and memory.fmmu_read(f, buf, off, laddr, lend):
+                self._inc |= 1
+                if memory.events:
+                    self._fi = i
+                    return self.take_events()
+        self._finish()
         return None
 
     def _physical(self, buf: bytearray, off: int, ado: int, dlen: int, cmd: int) -> tuple[int, int]:

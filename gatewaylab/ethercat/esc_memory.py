@@ -65,8 +65,8 @@ class _Sm:
         self.status_addr = REG_SM + 8 * cfg.index + 5
 
 
-class _Fmmu:
-    """An active FMMU, decoded once per configuration write for the frame path."""
+class Fmmu:
+    """An active FMMU, decoded once per configuration write for the frame path (0x0600 + 16n)."""
 
     __slots__ = ("lbit0", "lbit1", "lend", "lstart", "pbit", "phys", "read", "simple", "write")
 
@@ -86,8 +86,8 @@ class _Fmmu:
 class EscMemory:
     """Registers + process RAM of one ESC, with its SyncManagers and FMMUs."""
 
-    __slots__ = ("_fmmus", "_memlen", "_sms", "active_sms", "clock", "dc", "events", "firmware_sms",
-                 "mbx_last", "mem", "n_fmmu", "n_sm", "pdi_outputs", "ro", "sii", "stats", "wd_last")
+    __slots__ = ("_memlen", "_sms", "active_sms", "clock", "dc", "events", "firmware_sms",
+                 "fmmus", "mbx_last", "mem", "n_fmmu", "n_sm", "pdi_outputs", "ro", "sii", "stats", "wd_last")
 
     def __init__(self, clock: Clock, mem: bytearray, stats: EscStats, sii: SiiInterface, dc: DistributedClocks,
                  *, fmmus: int, sms: int, firmware_sms: int) -> None:
@@ -104,7 +104,8 @@ class EscMemory:
         self.firmware_sms = min(firmware_sms, sms)
         #: 1: the master may not write this register byte (ECAT r/-).
         self.ro = bytearray(RAM_START)
-        self._fmmus: tuple[_Fmmu, ...] = ()
+        #: The active FMMUs, in register order (a logical datagram runs them one access each).
+        self.fmmus: tuple[Fmmu, ...] = ()
         self._sms: tuple[_Sm, ...] = ()
         #: SyncManagers the ESC runs (see :meth:`sm_active`).
         self.active_sms: frozenset[int] = frozenset()
@@ -121,7 +122,7 @@ class EscMemory:
     def reset(self, dc: bool) -> None:
         """Power-on values of the information and DL registers; SyncManagers and FMMUs off."""
         m = self.mem
-        self._fmmus = ()
+        self.fmmus = ()
         self._sms = ()
         self.active_sms = frozenset()
         self.pdi_outputs.clear()
@@ -274,25 +275,8 @@ class EscMemory:
             self.dc.write(address, end, old)
 
     # ------------------------------------------------------------------ logical accesses (FMMUs)
-    def logical_write(self, buf: bytearray, off: int, laddr: int, dlen: int) -> bool:
-        """The write half of a logical datagram: every writing FMMU the range hits; True if any wrote."""
-        wr = False
-        lend = laddr + dlen
-        for f in self._fmmus:
-            if f.write and f.lstart < lend and laddr < f.lend and self._fmmu_write(f, buf, off, laddr, lend):
-                wr = True
-        return wr
-
-    def logical_read(self, buf: bytearray, off: int, laddr: int, dlen: int) -> bool:
-        """The read half of a logical datagram: every reading FMMU the range hits; True if any read."""
-        rd = False
-        lend = laddr + dlen
-        for f in self._fmmus:
-            if f.read and f.lstart < lend and laddr < f.lend and self._fmmu_read(f, buf, off, laddr, lend):
-                rd = True
-        return rd
-
-    def _fmmu_write(self, f: _Fmmu, buf: bytearray, off: int, laddr: int, lend: int) -> bool:
+    def fmmu_write(self, f: Fmmu, buf: bytearray, off: int, laddr: int, lend: int) -> bool:
+        """The write access of FMMU ``f`` for the frame's logical range [laddr, lend) at ``off``."""
         if f.simple:
             o0 = max(laddr, f.lstart)
             o1 = min(lend, f.lend)
@@ -312,7 +296,8 @@ class EscMemory:
             cur[i] = (cur[i] & ~(1 << (pbit & 7))) | (v << (pbit & 7))
         return self.ecat_write(p0, cur)
 
-    def _fmmu_read(self, f: _Fmmu, buf: bytearray, off: int, laddr: int, lend: int) -> bool:
+    def fmmu_read(self, f: Fmmu, buf: bytearray, off: int, laddr: int, lend: int) -> bool:
+        """The read access of FMMU ``f`` into the frame's logical range [laddr, lend) at ``off``."""
         if f.simple:
             o0 = max(laddr, f.lstart)
             o1 = min(lend, f.lend)
@@ -337,7 +322,7 @@ class EscMemory:
         return True
 
     @staticmethod
-    def _fmmu_bits(f: _Fmmu, laddr: int, lend: int) -> list[tuple[int, int]]:
+    def _fmmu_bits(f: Fmmu, laddr: int, lend: int) -> list[tuple[int, int]]:
         """(logical bit, physical bit) pairs of a bit-wise FMMU inside the datagram's range."""
         first = f.lstart * 8 + f.lbit0
         last = (f.lend - 1) * 8 + f.lbit1
@@ -352,8 +337,8 @@ class EscMemory:
         for i in range(self.n_fmmu):
             lstart, length, b0, b1, phys, pbit, ftype, act = FMMU_REG.unpack_from(self.mem, REG_FMMU + 16 * i)
             if act & 1 and length and ftype & 3:
-                out.append(_Fmmu(lstart, length, b0 & 7, b1 & 7, phys, pbit & 7, ftype))
-        self._fmmus = tuple(out)
+                out.append(Fmmu(lstart, length, b0 & 7, b1 & 7, phys, pbit & 7, ftype))
+        self.fmmus = tuple(out)
 
     def rebuild_sms(self, old: bytes, address: int, *, master: bool = True) -> None:
         """Recompute the SyncManagers the ESC runs after a write of their registers.
