@@ -20,6 +20,7 @@ from collections import deque
 from dataclasses import dataclass, field
 
 from gatewaylab.ethercat.datagram import ETH_HEADER_LEN, ETHERTYPE_ETHERCAT, LEN_MASK, MORE
+from gatewaylab.ethercat.errors import SlavePositionError
 from gatewaylab.ethercat.esc import REG_RX_ERROR, Esc
 from gatewaylab.ethercat.slave import Slave
 
@@ -34,6 +35,8 @@ LOG_EVERY = 1000
 
 @dataclass(slots=True)
 class SegmentStats:
+    """Counters of one line: frames served and dropped, datagram executions that raised."""
+
     frames: int = 0
     bad_frames: int = 0
     datagrams: int = 0
@@ -66,7 +69,7 @@ class Segment:
         """Pull a slave out of the line: it and every slave behind it stop answering (the working
         counter of every datagram for them drops)."""
         if not 0 <= position < len(self.slaves):
-            raise IndexError(f"no slave at position {position}")
+            raise SlavePositionError(f"no slave at position {position}")
         self.unplugged.add(position)
         self._link()
 

@@ -76,6 +76,7 @@ class WireTransport:
         self.errors: list[str] = []
 
     def start(self) -> None:
+        """Open the raw socket on the interface and start the wire thread serving the segment."""
         try:
             sock = socket.socket(socket.AF_PACKET, socket.SOCK_RAW, socket.htons(ETHERTYPE_ETHERCAT))
         except PermissionError as exc:
