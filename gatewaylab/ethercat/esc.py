@@ -388,11 +388,10 @@ class Esc:
             self._dlen = dlen
             self._addr = U32.unpack_from(buf, pos + 2)[0]
             self._cmd = cmd
-            self._fmmus = memory.fmmus
-            self._fi = 0
+            self._fi = -1
             self._inc = 0
             self._step = _READS if cmd == _LRD else _WRITES
-            return self._logical()
+            return self.resume_datagram()
         else:
             broadcast = _BRD <= cmd <= _BRW
             if cmd <= _APRW or cmd == _ARMW or broadcast:
@@ -419,25 +418,72 @@ class Esc:
         self._dlen = dlen
         self._inc = inc
         self._step = step
-        if memory.events:
-            return self.take_events()
+        events = memory.events
+        if events:
+            memory.events = []
+            return events
         return self.resume_datagram()
 
     def resume_datagram(self) -> list[EscEvent] | None:
         """Continue a paused datagram: the events of its next access that raised any, or None once it
-        is complete (working counter written)."""
+        is complete (working counter written).
+
+        A logical datagram runs here from its start: one access per FMMU its range hits, every
+        writing FMMU first (the frame's data as it arrived at this slave), then every reading one.
+        WKC: read 1, write 1 (LWR) or 2 (LRW), each counted once."""
         step = self._step
+        memory = self.memory
         if step >= _WRITES:
-            return self._logical()
-        if step == _WRITE_BACK:
-            if self.memory.ecat_write(self._addr, self._incoming):
-                self._inc += 2
+            fmmus = memory.fmmus if self._fi < 0 else self._fmmus
+            buf, off, laddr = self._buf, self._off, self._addr
+            lend = laddr + self._dlen
+            n = len(fmmus)
+            i = self._fi
+            if i < 0:  # the first call, from process_datagram
+                self._fmmus = fmmus
+                i = 0
+            if step == _WRITES:
+                lrw = self._cmd == _LRW
+                while i < n:
+                    f = fmmus[i]
+                    i += 1
+                    if f.write and f.lstart < lend and laddr < f.lend and memory.fmmu_write(f, buf, off, laddr, lend):
+                        self._inc |= 2 if lrw else 1
+                        events = memory.events
+                        if events:
+                            memory.events = []
+                            self._fi = i
+                            if i == n and not lrw:
+                                self._step = _FINISH
+                            return events
+                if not lrw:
+                    self._finish()
+                    return None
+                self._step = _READS
+                i = 0
+            while i < n:
+                f = fmmus[i]
+                i += 1
+                if f.read and f.lstart < lend and laddr < f.lend and memory.fmmu_read(f, buf, off, laddr, lend):
+                    self._inc |= 1
+                    events = memory.events
+                    if events:
+                        memory.events = []
+                        self._fi = i
+                        if i == n:
+                            self._step = _FINISH
+                        return events
+        elif step == _WRITE_BACK:
             self._step = _FINISH
-            if self.memory.events:
-                return self.take_events()
-        if self._step == _FINISH:
-            self._finish()
-        self._step = _IDLE
+            if memory.ecat_write(self._addr, self._incoming):
+                self._inc += 2
+            events = memory.events
+            if events:
+                memory.events = []
+                return events
+        elif step != _FINISH:
+            return None
+        self._finish()
         return None
 
     def _finish(self) -> None:
@@ -450,41 +496,6 @@ class Esc:
         self._buf = _NO_BUF
         self._fmmus = ()
         self._step = _IDLE
-
-    def _logical(self) -> list[EscEvent] | None:
-        """Run (or go on running) a logical datagram: one access per FMMU the range hits, every
-        writing FMMU first (the frame's data as it arrived at this slave), then every reading one;
-        pause after an access that raised events. WKC: read 1, write 1 (LWR) or 2 (LRW), once each."""
-        memory = self.memory
-        fmmus = self._fmmus
-        buf, off, laddr = self._buf, self._off, self._addr
-        lend = laddr + self._dlen
-        n = len(fmmus)
-        i = self._fi
-        if self._step == _WRITES:
-            while i < n:
-                f = fmmus[i]
-                i += 1
-                if f.write and f.lstart < lend and laddr < f.lend and memory.fmmu_write(f, buf, off, laddr, lend):
-                    self._inc |= 2 if self._cmd == _LRW else 1
-                    if memory.events:
-                        self._fi = i
-                        return self.take_events()
-            if self._cmd == _LWR:
-                self._finish()
-                return None
-            self._step = _READS
-            i = 0
-        while i < n:
-            f = fmmus[i]
-            i += 1
-            if f.read and f.lstart < lend and laddr < f.lend and memory.fmmu_read(f, buf, off, laddr, lend):
-                self._inc |= 1
-                if memory.events:
-                    self._fi = i
-                    return self.take_events()
-        self._finish()
-        return None
 
     def _physical(self, buf: bytearray, off: int, ado: int, dlen: int, cmd: int) -> tuple[int, int]:
         """The first access of an addressed physical or broadcast datagram: (WKC so far, next step)."""

@@ -5,7 +5,8 @@ SM change, SyncManager n); the firmware reads them after the access. The emulate
 same with values: :meth:`gatewaylab.ethercat.esc.Esc.process_datagram` returns these records and
 the :class:`~gatewaylab.ethercat.slave.Slave` hands them to the application once the access is
 over (the contract is in :mod:`gatewaylab.ethercat.esc`). Records without a payload are shared
-instances (:data:`SM_CHANGED`, :func:`sm_read`): the frame path allocates only what carries data.
+instances (:data:`SM_CHANGED`; the ESC keeps one :class:`SmWritten` / :class:`SmRead` per running
+SyncManager): the frame path allocates nothing for them.
 """
 
 from __future__ import annotations
@@ -16,11 +17,11 @@ from typing import TypeAlias
 
 @dataclass(frozen=True, slots=True)
 class SmWritten:
-    """The master completed a buffer of a SyncManager it writes (mailbox out, outputs): ``data``
-    is the buffer as the ESC hands it to the PDI (0x0220 bit 8 + n)."""
+    """The master completed a buffer of a SyncManager it writes (mailbox out, outputs; 0x0220 bit
+    8 + n): the firmware reads it from ``Esc.pdi_outputs[sm]``, as it reads the SyncManager's buffer
+    on the interrupt (3-buffer mode: the newest complete buffer)."""
 
     sm: int
-    data: bytes
 
 
 @dataclass(frozen=True, slots=True)
@@ -49,9 +50,3 @@ EscEvent: TypeAlias = SmWritten | SmRead | AlControlRequested | SmChanged
 
 #: The one SM-change event (no payload).
 SM_CHANGED = SmChanged()
-_SM_READ = tuple(SmRead(i) for i in range(16))
-
-
-def sm_read(sm: int) -> SmRead:
-    """The read event of SyncManager ``sm`` (shared instances for the 16 an ET1100 has)."""
-    return _SM_READ[sm] if sm < 16 else SmRead(sm)

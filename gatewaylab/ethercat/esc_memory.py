@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from gatewaylab.common.clock import Clock
 from gatewaylab.ethercat.esc_dc import DistributedClocks
-from gatewaylab.ethercat.esc_events import SM_CHANGED, AlControlRequested, EscEvent, SmWritten, sm_read
+from gatewaylab.ethercat.esc_events import SM_CHANGED, AlControlRequested, EscEvent, SmRead, SmWritten
 from gatewaylab.ethercat.esc_registers import (
     FMMU_REG,
     RAM_START,
@@ -53,10 +53,13 @@ READ_ONLY = ((0x0000, 0x0010), (0x0110, 0x0112), (0x0130, 0x0138), (0x0140, 0x01
 class _Sm:
     """A SyncManager the ESC runs, decoded once per configuration write for the frame path."""
 
-    __slots__ = ("ecat_writes", "end", "index", "mailbox", "start", "status_addr", "watchdog")
+    __slots__ = ("ecat_writes", "end", "index", "mailbox", "read_event", "start", "status_addr", "watchdog",
+                 "write_event")
 
     def __init__(self, cfg: SmConfig) -> None:
         self.index = cfg.index
+        self.read_event = SmRead(cfg.index)
+        self.write_event = SmWritten(cfg.index)
         self.start = cfg.start
         self.end = cfg.start + cfg.length
         self.mailbox = cfg.mailbox
@@ -212,7 +215,7 @@ class EscMemory:
                 if not sm.ecat_writes and end >= sm.end:
                     if sm.mailbox:  # 1-buffer mode: the buffer is free again
                         mem[sm.status_addr] &= ~SM_STATUS_FULL & 0xFF
-                    self.events.append(sm_read(sm.index))
+                    self.events.append(sm.read_event)
         return data
 
     def ecat_write(self, address: int, data: bytes | bytearray | memoryview) -> bool:
@@ -245,12 +248,11 @@ class EscMemory:
                     # The buffer is complete: 1-buffer mode marks it full until the PDI reads it,
                     # 3-buffer mode hands the PDI the newest complete buffer.
                     mem[sm.status_addr] |= SM_STATUS_FULL if sm.mailbox else SM_STATUS_WRITE_EVENT
-                    data_out = bytes(mem[sm.start:sm.end])
-                    self.pdi_outputs[sm.index] = data_out
+                    self.pdi_outputs[sm.index] = bytes(mem[sm.start:sm.end])
                     if sm.watchdog:
                         self.wd_last = self.clock.now()
                         mem[REG_WD_STATUS_SM] = 1
-                    self.events.append(SmWritten(sm.index, data_out))
+                    self.events.append(sm.write_event)
         return True
 
     def _register_write(self, address: int, end: int, data: bytes | bytearray | memoryview) -> None:

@@ -96,10 +96,12 @@ class Segment:
         self.stats.frames += 1
         self.stats.datagrams += len(parsed)
         for slave in self._reached:
-            pd = slave.process_datagram
+            pd = slave.esc.process_datagram
             for pos, cmd, dlen in parsed:
                 try:
-                    pd(frame, pos, cmd, dlen)
+                    events = pd(frame, pos, cmd, dlen)
+                    if events is not None:  # Slave.process_datagram, inlined: most datagrams raise none
+                        slave.serve_events(events)
                 except Exception as exc:  # isolation boundary: one datagram never costs the frame
                     self._datagram_error(slave.esc, cmd, exc)
         if len(frame) > ETH_HEADER_LEN:

@@ -139,24 +139,27 @@ class Slave:
     def process_datagram(self, buf: bytearray, pos: int, cmd: int, dlen: int) -> None:
         """Run one datagram of a frame through the ESC, delivering the PDI events of each access
         before the next access runs (the contract in :mod:`gatewaylab.ethercat.esc`)."""
-        esc = self.esc
-        events = esc.process_datagram(buf, pos, cmd, dlen)
-        while events is not None:
-            self.deliver(events)
-            events = esc.resume_datagram()
+        events = self.esc.process_datagram(buf, pos, cmd, dlen)
+        if events is not None:
+            self.serve_events(events)
 
-    def deliver(self, events: list[EscEvent]) -> None:
-        """Hand PDI events to the firmware, in order: mailbox and process data SyncManagers, the AL
-        state machine, the SM-change check (SOES's ESC_ALevent / ESC_sm_act_event)."""
-        for ev in events:
-            if isinstance(ev, SmWritten):
-                self.sm_written(ev.sm, ev.data)
-            elif isinstance(ev, SmRead):
-                self.sm_read(ev.sm)
-            elif isinstance(ev, AlControlRequested):
-                self.esc.al_control(ev.control)
-            else:
-                self.sm_changed()
+    def serve_events(self, events: list[EscEvent]) -> None:
+        """Deliver the PDI events of a paused datagram to the firmware, in order, and resume it, until
+        it is complete: mailbox and process data SyncManagers, the AL state machine, the SM-change
+        check (SOES's ESC_ALevent / ESC_sm_act_event)."""
+        esc = self.esc
+        pending: list[EscEvent] | None = events
+        while pending is not None:
+            for ev in pending:
+                if isinstance(ev, SmWritten):
+                    self.sm_written(ev.sm, esc.memory.pdi_outputs[ev.sm])
+                elif isinstance(ev, SmRead):
+                    self.sm_read(ev.sm)
+                elif isinstance(ev, AlControlRequested):
+                    esc.al_control(ev.control)
+                else:
+                    self.sm_changed()
+            pending = esc.resume_datagram()
 
     # ------------------------------------------------------------------ the firmware (EscApplication)
     def check_transition(self, old: AlState, new: AlState) -> int:

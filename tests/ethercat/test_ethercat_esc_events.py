@@ -78,15 +78,15 @@ def test_lrw_pauses_after_the_outputs_write_so_the_same_lrw_reads_the_echo() -> 
     events = esc.process_datagram(frame, POS, Command.LRW, len(image))
     assert events is not None and len(events) == 1
     written = events[0]
-    assert isinstance(written, SmWritten) and written.sm == 2
-    assert written.data[:5] == bytes(image[s.output_offset:s.output_offset + 5])
+    assert written == SmWritten(2)
+    assert esc.pdi_outputs[2][:5] == bytes(image[s.output_offset:s.output_offset + 5])
     assert app.calls == calls and decode_frame(frame).datagrams[0].wkc == 0
-    slave.deliver(events)
+    slave.sm_written(2, esc.pdi_outputs[2])  # what Slave.serve_events does with SmWritten(2)
     assert app.calls == calls + 1
 
     events = esc.resume_datagram()
     assert events == [SmRead(3)]
-    slave.deliver(events)
+    slave.sm_read(3)
     assert esc.resume_datagram() is None
     d = decode_frame(frame).datagrams[0]
     assert d.wkc == 3
@@ -106,8 +106,8 @@ def test_al_control_is_served_after_the_access_before_the_next_datagram() -> Non
     events = esc.process_datagram(raw, POS, Command.FPWR, 2)
     assert events == [AlControlRequested(int(AlState.SAFEOP))]
     assert esc.al_status == AlState.OP  # nothing served yet
-    slave.deliver(events)
-    assert esc.resume_datagram() is None and esc.al_status == AlState.SAFEOP
+    slave.serve_events(events)
+    assert esc.al_status == AlState.SAFEOP and decode_frame(raw).datagrams[0].wkc == 1
 
     frame = _frame(Datagram.physical(Command.FPWR, 2, station, REG_AL_CONTROL, struct.pack("<H", AlState.PREOP)),
                    Datagram.physical(Command.FPRD, 3, station, REG_AL_STATUS, bytes(2)))
