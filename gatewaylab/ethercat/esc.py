@@ -483,7 +483,13 @@ class Esc:
                 return events
         elif step != _FINISH:
             return None
-        self._finish()
+        inc = self._inc  # _finish(), inlined: the last call of every datagram that raised events
+        if inc:
+            buf = self._buf
+            wkc_at = self._off + self._dlen
+            U16.pack_into(buf, wkc_at, (U16.unpack_from(buf, wkc_at)[0] + inc) & 0xFFFF)
+        self._buf = _NO_BUF
+        self._step = _IDLE
         return None
 
     def _finish(self) -> None:
