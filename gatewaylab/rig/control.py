@@ -28,9 +28,13 @@ MAX_LINE = 64 * 1024
 
 
 class Reactor(Protocol):
-    def add_reader(self, fd: int, callback: Callable[[], None]) -> None: ...
+    """The rig's select loop as the server sees it: the server never blocks and owns no thread."""
 
-    def remove_reader(self, fd: int) -> None: ...
+    def add_reader(self, fd: int, callback: Callable[[], None]) -> None:
+        """Call ``callback`` on the rig thread whenever ``fd`` is readable."""
+
+    def remove_reader(self, fd: int) -> None:
+        """Stop watching ``fd`` (before it is closed)."""
 
 
 Handler = Callable[[Mapping[str, Any]], dict[str, Any]]
@@ -164,6 +168,7 @@ class ControlServer:
         self.reactor.add_reader(conn.fd, conn.on_readable)
 
     def close(self) -> None:
+        """Drop every client, stop listening and remove the socket file (the rig stops)."""
         for conn in list(self.connections):
             conn.close()
         self.reactor.remove_reader(self.listener.fileno())
