@@ -90,7 +90,7 @@ class EsdChannel:
         self.esd.attach()
 
     def before_exchange(self) -> None:
-        """The handshake's Tx batch and Rx acknowledge into the outputs."""
+        """A new Tx batch and the Rx acknowledgement into the outputs."""
         self.esd.before_exchange()
 
     def after_exchange(self, wkc: int, expected: int) -> None:
@@ -104,7 +104,7 @@ class EsdChannel:
         self._was_bus_off = off
 
     def submit(self, frame: CanFrame) -> Callable[[], bool]:
-        """Queue ``frame``; done when the gateway acknowledged its transaction number."""
+        """Queue ``frame``; done when the input Tx Transaction Number reached its number."""
         tn = self.esd.queue([frame])[0]
         return lambda: self.esd.completed(tn)
 
@@ -126,16 +126,16 @@ class EsdChannel:
         return out
 
     def idle(self) -> bool:
-        """No Tx batch awaits the gateway's acknowledge."""
+        """No frame written into a batch or accepted by the gateway is still waiting to complete."""
         hs = self.esd.handshake
         return hs is None or hs.in_flight == 0
 
     def bus_off(self) -> bool:
-        """As the status PDO 0x1A85 said in the last good cycle."""
+        """Bus-off as the status PDO 0x1A85 reported it in the last good cycle."""
         return self._was_bus_off
 
     def stop(self) -> None:
-        """The gateway to PREOP, its queues flushed."""
+        """Back to PREOP: the gateway takes no more batches (queued frames stay unsent)."""
         self.esd.stop()
 
 
@@ -208,7 +208,7 @@ class EcanChannel:
         return port is None or port.pending(self.slave_k) == 0
 
     def bus_off(self) -> bool:
-        """As the chapter-7 status word said in the last cycle."""
+        """Bus-off as the chapter-7 status word reported it in the last cycle."""
         return self._was_bus_off
 
     def stop(self) -> None:
