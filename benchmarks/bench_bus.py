@@ -13,6 +13,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import can
@@ -25,7 +26,7 @@ from gatewaylab.common.clock import SimulatedClock
 N_INPROC = 100_000
 
 
-def _best(fn, repeat: int = 3) -> float:
+def _best(fn: Callable[[], float], repeat: int = 3) -> float:
     return max(fn() for _ in range(repeat))
 
 

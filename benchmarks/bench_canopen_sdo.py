@@ -45,7 +45,7 @@ class _FilteredBus(InProcessBus):
 
 
 def _local_od() -> canopen.ObjectDictionary:
-    od = canopen.ObjectDictionary()
+    od = canopen.ObjectDictionary()  # type: ignore[no-untyped-call]
     var = canopen.objectdictionary.ODVariable("Value", 0x2000, 0)
     var.data_type = canopen.objectdictionary.UNSIGNED32
     var.access_type = "rw"

@@ -147,7 +147,7 @@ def master_ecan(iface: str, seconds: float, rate: float = RATE, drives: int = 0)
     rx = StreamLayout(multiplier=N, direction=Direction.RX)
     tx = StreamLayout(multiplier=N, direction=Direction.TX)
     expected = master.expected_wkc
-    state = {"seq": 0, "sent": 0, "received": 0, "parse_errors": 0, "previous": None, "cycle": 0}
+    state: dict[str, Any] = {"seq": 0, "sent": 0, "received": 0, "parse_errors": 0, "previous": None, "cycle": 0}
 
     def take_inputs() -> None:
         image = bytes(s0.input)
