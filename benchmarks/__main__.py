@@ -27,7 +27,8 @@ TARGET_MODULES = ("bench_ecanlite_stream", "bench_bus", "bench_canopen_sdo", "be
 
 def select(wanted: Sequence[str], names: Sequence[str]) -> list[str]:
     """The modules of ``names`` that ``wanted`` asks for: by exact name (``bench_`` optional), else by
-    substring (``bench_ethercat`` is bench_ethercat alone, ``ethercat`` every EtherCAT bench)."""
+    substring (``bench_ethercat`` and ``ethercat`` are bench_ethercat alone, ``drive`` every module with
+    'drive' in its name)."""
     if not wanted:
         return list(names)
     chosen: set[str] = set()
