@@ -101,6 +101,7 @@ def master(iface: str, drives: int, ios: int, seconds: float) -> dict[str, Any]:
         error = _bring_up(m, drives + ios)
         if not error:
             break
+        time.sleep(0.5)     # a scan that found no slave: the emulator side was stalled for a moment
     if error:
         return {"error": error}
     expected = m.expected_wkc
