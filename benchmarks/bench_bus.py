@@ -18,12 +18,17 @@ from pathlib import Path
 
 import can
 
-from benchmarks.sides import print_sides, quick, run_sides
-from benchmarks.targets import record, record_compiled
+from benchmarks.sides import both, compare, quick
+from benchmarks.targets import record
 from gatewaylab.bus import CanFrame, VirtualBus, python_can_bus
 from gatewaylab.common.clock import SimulatedClock
 
 N_INPROC = 100_000
+#: the side-by-side table: label, measure()'s key, format
+SIDE_ROWS = (("python-can 'virtual' (baseline), frames/s", "virtual", ",.0f"),
+             ("gatewaylab core API, frames/s", "core", ",.0f"),
+             ("gatewaylab via python-can adapter, frames/s", "adapter", ",.0f"),
+             ("ratio core / virtual", "ratio", ".2f"))
 
 
 def _best(fn: Callable[[], float], repeat: int = 3) -> float:
@@ -192,15 +197,8 @@ def measure() -> dict[str, float]:
 
 def targets() -> None:
     """The in-process rates in a pure and a default child side by side; records the bus core target."""
-    pure, default = sides = run_sides("bench_bus")
-    print_sides("bus in process, one sender, one receiver, 8-byte frames (best of 3)", sides, [
-        ("python-can 'virtual' (baseline), frames/s", "virtual", ",.0f"),
-        ("gatewaylab core API, frames/s", "core", ",.0f"),
-        ("gatewaylab via python-can adapter, frames/s", "adapter", ",.0f"),
-        ("ratio core / virtual", "ratio", ".2f")])
-    record_compiled(default.compiled)
-    record("bus", f"{default.result['ratio']:.2f}x ({default.label}); pure {pure.result['ratio']:.2f}x",
-           default.result["ratio"] >= 8)
+    sides = compare("bench_bus", "bus in process, one sender, one receiver, 8-byte frames (best of 3)", SIDE_ROWS)
+    record("bus", both(sides, "ratio", ".2f", "x"), sides[1].result["ratio"] >= 8)
 
 
 def main() -> None:

@@ -20,8 +20,8 @@ import time
 import can
 import canopen
 
-from benchmarks.sides import print_sides, quick, run_sides
-from benchmarks.targets import record, record_compiled
+from benchmarks.sides import both, compare, quick
+from benchmarks.targets import record
 from gatewaylab.bus import VirtualBus
 from gatewaylab.bus.transport.inprocess import InProcessBus
 from gatewaylab.canopen.node import Node
@@ -128,15 +128,12 @@ def measure() -> dict[str, float]:
 
 def targets() -> None:
     """Both servers in a pure and a default child side by side; records the SDO server target."""
-    pure, default = sides = run_sides("bench_canopen_sdo")
-    print_sides("expedited SDO uploads/s, same bus, same client", sides, [
+    sides = compare("bench_canopen_sdo", "expedited SDO uploads/s, same bus, same client", [
         ("canopen LocalNode (baseline), median", "local", ",.0f"),
         ("gatewaylab Node, median", "ours", ",.0f"),
         ("ratio Node / LocalNode (median)", "ratio", ".2f"),
         ("ratio Node / LocalNode (best round)", "best_ratio", ".2f")])
-    record_compiled(default.compiled)
-    record("sdo", f"{default.result['ratio']:.2f}x ({default.label}); pure {pure.result['ratio']:.2f}x",
-           default.result["ratio"] >= 2)
+    record("sdo", both(sides, "ratio", ".2f", "x"), sides[1].result["ratio"] >= 2)
 
 
 def main() -> None:

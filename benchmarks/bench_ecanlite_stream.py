@@ -25,8 +25,8 @@ import struct
 import time
 from collections.abc import Callable
 
-from benchmarks.sides import print_sides, quick, run_sides
-from benchmarks.targets import record, record_compiled
+from benchmarks.sides import both, compare, quick
+from benchmarks.targets import record
 from gatewaylab.devices.ecanlite.stream import (
     CanPacket,
     StreamLayout,
@@ -43,6 +43,11 @@ _HDR = struct.Struct("<BBHHHHHBBBB4H")
 _STD = struct.Struct("<HH")
 _EXT = struct.Struct("<HI")
 _FD_LENS = (12, 16, 20, 24, 32, 48, 64)
+#: the side-by-side table: label, measure()'s key, format
+SIDE_ROWS = (("codec pack+parse, us/image", "codec_us", ".1f"),
+             ("plain struct loop (baseline), us/image", "baseline_us", ".1f"),
+             ("ratio codec / baseline", "ratio", ".2f"),
+             ("pure-Python floor (2 CRC + objects), us", "floor_us", ".0f"))
 
 
 def mixed_packets(layout: StreamLayout) -> list[CanPacket]:
@@ -232,15 +237,10 @@ def measure() -> dict[str, float]:
 
 def targets() -> None:
     """Pure and compiled children side by side; records the two codec targets."""
-    pure, default = sides = run_sides("bench_ecanlite_stream")
-    print_sides("ECAN-Lite stream, mixed N=24 image (best of the rounds)", sides, [
-        ("codec pack+parse, us/image", "codec_us", ".1f"),
-        ("plain struct loop (baseline), us/image", "baseline_us", ".1f"),
-        ("ratio codec / baseline", "ratio", ".2f"),
-        ("pure-Python floor (2 CRC + objects), us", "floor_us", ".0f")])
-    record_compiled(default.compiled)
+    sides = pure, default = compare("bench_ecanlite_stream", "ECAN-Lite stream, mixed N=24 image (best round)",
+                                    SIDE_ROWS)
     d, p = default.result, pure.result
-    record("codec", f"{d['codec_us']:.1f} us ({default.label}); pure {p['codec_us']:.1f} us", d["codec_us"] <= 50)
+    record("codec", both(sides, "codec_us", ".1f", " us"), d["codec_us"] <= 50)
     record("codec_pure", f"{p['ratio']:.2f}x ({p['codec_us']:.1f} us vs struct loop {p['baseline_us']:.1f} us)",
            p["ratio"] <= 1.5)
 
