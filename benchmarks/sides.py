@@ -29,9 +29,11 @@ PURE_ENV = "GATEWAYLAB_PURE"
 
 
 def compiled_modules() -> list[str]:
-    """The ``gatewaylab`` modules of this process loaded from extension modules (mypyc's ``.so``)."""
+    """The ``gatewaylab`` modules of this process loaded from extension modules (mypyc's ``.so``; its
+    shared ``*__mypyc`` helper libraries left out)."""
     suffixes = tuple(importlib.machinery.EXTENSION_SUFFIXES)
-    return sorted(name for name, module in list(sys.modules.items()) if name.split(".")[0] == "gatewaylab"
+    return sorted(name for name, module in list(sys.modules.items())
+                  if name.split(".")[0] == "gatewaylab" and not name.endswith("__mypyc")
                   and str(getattr(module, "__file__", "") or "").endswith(suffixes))
 
 
@@ -83,7 +85,7 @@ def run_sides(module: str) -> tuple[Side, Side]:
 def print_sides(title: str, sides: tuple[Side, Side], rows: Sequence[tuple[str, str, str]]) -> None:
     """One line per (label, result key, format spec): the pure child's value, then the default child's."""
     pure, default = sides
-    head = f"{pure.label} (forced)", f"{default.label} (default)"
+    head = f"PURE=1: {pure.label}", f"default: {default.label}"
     print(f"{title}: side by side in this run")
     print(f"  {'':<44} {head[0]:>16} {head[1]:>18}")
     for label, key, spec in rows:
