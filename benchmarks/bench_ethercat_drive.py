@@ -205,7 +205,7 @@ def _search_and_record(ns: str, emu: str, mst: str, seconds: float) -> None:
     rows = search(ns, emu, mst, seconds, max_drives)
     best = max((d for d, r in rows if _ok(r)), default=0)
     failed = [(d, r) for d, r in rows if not _ok(r)]
-    text = f"{best} drives + {IO_WITH} io" + (f" (p99 {dict(rows)[best]['p99_us']:.0f} us)" if best else "")
+    text = f"{best} drives + {IO_WITH} io (p99 {dict(rows)[best]['p99_us']:.0f} us)" if best else "none"
     if failed:
         text += f"; {failed[0][0]} drives + {IO_WITH} io: {' '.join(_cell(failed[0][1]).split())}"
     elif rows and rows[-1][0] < SEARCH[-1]:
