@@ -31,7 +31,6 @@ from gatewaylab.bus.bus import (
     TxDoneEvent,
 )
 from gatewaylab.bus.frame import CanFrame
-from gatewaylab.bus.timing import arbitration_key
 from gatewaylab.common.clock import Clock
 from gatewaylab.common.errors import GatewaylabError
 from gatewaylab.devices.ecanlite import bittiming
@@ -647,14 +646,10 @@ class McanChannel:
             return
         on_wire = c.bus.on_wire
         busy = on_wire.frame if on_wire is not None and on_wire.sender is c else None
-        queue = c.tx_queue
         for entry in list(self._tx):
             if entry.frame is busy:
                 continue
-            for j, queued in enumerate(queue):
-                if queued is entry.frame:
-                    del queue[j]
-                    break
+            c.withdraw(entry.frame)
             self._tx.remove(entry)
             self._results.append((entry.ref, TxResult.BUS_BUSY))
         while self._ring:
@@ -897,30 +892,14 @@ class McanChannel:
             self.clock.call_soon(self._loopback, entry)
             return TxResult.OK
         try:
-            c.send(frame)
+            if rt.tx_queue_mode:
+                c.send_by_priority(frame)
+            else:
+                c.send(frame)
         except GatewaylabError:
             self._tx.pop()
             return TxResult.INVALID_CHANNEL
-        if rt.tx_queue_mode:
-            self._sort_queue(c, frame)
         return TxResult.OK
-
-    @staticmethod
-    def _sort_queue(c: Controller, frame: CanFrame) -> None:
-        """TX queue mode (0x800x:69 = 1): the frame with the highest arbitration priority leaves
-        first; the frame on the wire keeps its place."""
-        queue = c.tx_queue
-        if not queue or queue[-1] is not frame:
-            return
-        on_wire = c.bus.on_wire
-        start = 1 if on_wire is not None and on_wire.sender is c else 0
-        key = arbitration_key(frame)
-        pos = len(queue) - 1
-        while pos > start and arbitration_key(queue[pos - 1]) > key:
-            pos -= 1
-        if pos != len(queue) - 1:
-            queue.pop()
-            queue.insert(pos, frame)
 
     def _tx_full(self) -> None:
         c = self.counters
@@ -934,18 +913,12 @@ class McanChannel:
 
     def _drop_oldest_tx(self, c: Controller) -> bool:
         """TX overflow policy 'drop oldest': the oldest frame not yet on the wire is given up."""
-        queue = c.tx_queue
-        on_wire = c.bus.on_wire
-        start = 1 if on_wire is not None and on_wire.sender is c else 0
-        for i in range(start, len(self._tx)):
-            entry = self._tx[i]
-            for j, queued in enumerate(queue):
-                if queued is entry.frame:
-                    del queue[j]
-                    del self._tx[i]
-                    self.counters.tx_stale_dropped += 1
-                    self._results.append((entry.ref, TxResult.TX_FIFO_FULL))
-                    return True
+        for i, entry in enumerate(self._tx):
+            if c.withdraw(entry.frame):
+                del self._tx[i]
+                self.counters.tx_stale_dropped += 1
+                self._results.append((entry.ref, TxResult.TX_FIFO_FULL))
+                return True
         if self._ring:
             entry = self._ring.popleft()
             self.counters.tx_stale_dropped += 1
