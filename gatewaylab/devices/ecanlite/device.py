@@ -60,11 +60,11 @@ from gatewaylab.devices.ecanlite.stream import (
     PROFILE_MASK,
     TIMESTAMP_UNIT_S,
     VER_IHL,
-    ApplyStatus,
     CanPacket,
     Commit,
     Direction,
     PdoError,
+    ProfileStatus,
     StreamError,
     StreamLayout,
     Tsf,
@@ -85,11 +85,9 @@ from gatewaylab.ethercat.esc import REG_DC_ACTIVATION, REG_DC_SYNC0_CYCLE, SYNC0
 from gatewaylab.ethercat.slave import Slave, SlaveApplication
 from gatewaylab.od import Entry, ObjectDictionary, SdoAbort, SdoAbortCode
 
-__all__ = ["EcanLiteApplication", "EcanLiteDevice", "Status"]
+__all__ = ["EcanLiteApplication", "EcanLiteDevice"]
 
 
-#: 0x8010/0x8011:02 values (13.2) are the stream module's ApplyStatus.
-Status = ApplyStatus
 OPT_TX_RESULT, OPT_ALIGN4, OPT_NO_CRC16, OPT_APP_BYPASS = 0x01, 0x02, 0x04, 0x08
 #: Header flags (chapter 6).
 FLAG_TRUNCATED, FLAG_CHANNEL_ERROR, FLAG_TX_RESULT, FLAG_STATUS_CHANGED, FLAG_SEQ_WRAP, FLAG_OVERFLOW_VALID = (
@@ -216,10 +214,10 @@ class EcanLiteApplication(SlaveApplication):
                 self._reset_session(d)
             if int(value) & 0x02:
                 d.last_error = d.errors = d.overflows = 0
-                if d.status in (Status.ENCAPSULATION_ERROR, Status.OVERFLOW):
-                    d.status = Status.OK
+                if d.status in (ProfileStatus.ENCAPSULATION_ERROR, ProfileStatus.OVERFLOW):
+                    d.status = ProfileStatus.OK
         elif SI_MULTIPLIER <= sub <= SI_OPTIONS:
-            d.status = Status.PENDING_APPLY
+            d.status = ProfileStatus.PENDING_APPLY
 
     def _requested(self, d: _Direction) -> tuple[int, int, int, int, int]:
         assert self.slave is not None
@@ -234,18 +232,18 @@ class EcanLiteApplication(SlaveApplication):
         n, mask, profile, budget, options = self._requested(d)
         merit = int(check_layout(n, mask, profile, budget, options, max_multiplier=CHUNKS))
         if self.slave.state == AlState.OP:
-            d.status = Status.INVALID_STATE
+            d.status = ProfileStatus.INVALID_STATE
         elif merit:
-            d.status = ApplyStatus(merit)
+            d.status = ProfileStatus(merit)
         elif not self._assignment_matches(d, n):
-            d.status = Status.MAPPING_RELOAD_REQUIRED
+            d.status = ProfileStatus.MAPPING_RELOAD_REQUIRED
         else:
             new = StreamLayout(multiplier=n, channel_mask=mask, profile=profile, budget_policy=budget, options=options,
                                direction=Direction.TX if d is self.tx else Direction.RX)
             if new != d.active:
                 d.active = new
                 self._reset_session(d)
-            d.status = Status.OK
+            d.status = ProfileStatus.OK
             self._publish_active(self.slave.od, d)
 
     def _assignment_matches(self, d: _Direction, n: int) -> bool:
@@ -259,8 +257,8 @@ class EcanLiteApplication(SlaveApplication):
     def _reset_session(self, d: _Direction) -> None:
         d.seq = 0
         d.last_error = 0
-        if d.status in (Status.ENCAPSULATION_ERROR, Status.OVERFLOW):
-            d.status = Status.OK
+        if d.status in (ProfileStatus.ENCAPSULATION_ERROR, ProfileStatus.OVERFLOW):
+            d.status = ProfileStatus.OK
         if d is self.rx:
             self._last_rx = b""
             self._scheduled.clear()
@@ -414,7 +412,7 @@ class EcanLiteApplication(SlaveApplication):
     def _error(self, d: _Direction, code: int) -> None:
         d.last_error = int(code)
         d.errors += 1
-        d.status = Status.ENCAPSULATION_ERROR
+        d.status = ProfileStatus.ENCAPSULATION_ERROR
 
     def _sync0_active(self) -> bool:
         return self._sync0_cycle() > 0
@@ -477,7 +475,7 @@ class EcanLiteApplication(SlaveApplication):
                 self._results.popleft()
             if staged.left:
                 self.tx.overflows += 1
-                self.tx.status = Status.OVERFLOW
+                self.tx.status = ProfileStatus.OVERFLOW
             self.tx.seq = staged.seq
         self.model.on_cycle(t0)
         self._cost(2, t0)  # MCAN PDO service: consume + channel tick

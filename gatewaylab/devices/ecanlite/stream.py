@@ -33,14 +33,48 @@ from gatewaylab.common.errors import LocalError, ProtocolError
 from gatewaylab.devices.ecanlite.budget import BudgetPolicy
 
 __all__ = [
-    "CRC_ALG_CCITT_FALSE", "DEFAULT_FEATURES", "HEADER_SIZE", "MAX_CHANNELS", "MAX_FRAME_COUNT",
-    "OPTION_MASK", "PROFILE_MASK", "TIMESTAMP_UNIT_S", "VER_IHL",
-    "ApplyStatus", "CanPacket", "Commit", "DecodedStream", "Direction", "Feature", "HeaderFlags",
-    "Option", "Packet", "PacketKind", "ParseDiag", "PdoError", "StreamEncodeError", "StreamError",
-    "StreamHeader", "StreamLayout", "Tsf", "TxResultCode", "TxResultPacket",
-    "check_layout", "check_options", "commit_state", "crc16", "decode_stream", "dlc_to_len",
-    "encode_into", "encode_stream", "fold_layout_id", "next_seq", "packet_size", "profile_word",
-    "saturate_u8", "timestamp_ticks",
+    "CRC_ALG_CCITT_FALSE",
+    "DEFAULT_FEATURES",
+    "HEADER_SIZE",
+    "MAX_CHANNELS",
+    "MAX_FRAME_COUNT",
+    "OPTION_MASK",
+    "PROFILE_MASK",
+    "TIMESTAMP_UNIT_S",
+    "VER_IHL",
+    "CanPacket",
+    "Commit",
+    "DecodedStream",
+    "Direction",
+    "Feature",
+    "HeaderFlags",
+    "Option",
+    "Packet",
+    "PacketKind",
+    "ParseDiag",
+    "PdoError",
+    "ProfileStatus",
+    "StreamEncodeError",
+    "StreamError",
+    "StreamHeader",
+    "StreamLayout",
+    "Tsf",
+    "TxResultCode",
+    "TxResultPacket",
+    "check_layout",
+    "check_options",
+    "commit_state",
+    "crc16",
+    "decode_stream",
+    "dlc_to_len",
+    "encode_into",
+    "encode_stream",
+    "fold_layout_id",
+    "next_seq",
+    "packet_size",
+    "profile_word",
+    "saturate_u8",
+    "timestamp_ticks",
 ]
 
 #: ver_ihl: version 1 in the high nibble, 6 four-byte words in the low nibble (chapter 6).
@@ -81,8 +115,9 @@ class PdoError(enum.IntEnum):
     BAD_SCHEDULE = 16
 
 
-class ApplyStatus(enum.IntEnum):
-    """0x8010/0x8011:02 Status (13.2 "Status common values"); 6 is not defined."""
+class ProfileStatus(enum.IntEnum):
+    """0x8010/0x8011:02 Status of a profile apply (13.2 "Status common values"); 6 is not defined.
+    Not the MCAN channel's 0x800x:02 'Apply status' (13.4): that is ``mcan.ApplyStatus``."""
 
     OK = 0
     INVALID_STATE = 1
@@ -266,23 +301,23 @@ def timestamp_ticks(t: float, tsf: Tsf | int, reference: float = 0.0) -> int:
     return round((t - reference) / TIMESTAMP_UNIT_S) & (0xFFFF if tsf == Tsf.DELTA16 else 0xFFFFFFFF)
 
 
-def check_options(options: int) -> ApplyStatus:
+def check_options(options: int) -> ProfileStatus:
     """Apply status for an option byte (9.1): reserved bits 5-7 (or > 8 bits) -> 10 unsupported."""
-    return ApplyStatus.OK if 0 <= options <= 0xFF and not options & ~OPTION_MASK else ApplyStatus.UNSUPPORTED_OPTION
+    return ProfileStatus.OK if 0 <= options <= 0xFF and not options & ~OPTION_MASK else ProfileStatus.UNSUPPORTED_OPTION
 
 
 def check_layout(multiplier: int, channel_mask: int, profile: int, budget_policy: int, options: int,
-                 *, max_multiplier: int = 24, channels: int = MAX_CHANNELS) -> ApplyStatus:
+                 *, max_multiplier: int = 24, channels: int = MAX_CHANNELS) -> ProfileStatus:
     """The apply status a requested profile gets on its own merits (13.2 status table, 13.8 limits).
 
     State (1) and mapping (5) checks need the EtherCAT state and 0x1C12/0x1C13: the device adds them.
     """
     if not 1 <= multiplier <= max_multiplier:
-        return ApplyStatus.INVALID_MULTIPLIER
+        return ProfileStatus.INVALID_MULTIPLIER
     if not 0 <= channel_mask <= 0xFF or channel_mask >> channels:
-        return ApplyStatus.INVALID_CHANNEL_MASK
+        return ProfileStatus.INVALID_CHANNEL_MASK
     if not 0 <= profile <= 0x3F or not (PROFILE_MASK >> profile) & 1 or budget_policy not in (0, 1, 2):
-        return ApplyStatus.INVALID_PROFILE
+        return ProfileStatus.INVALID_PROFILE
     return check_options(options)
 
 
@@ -320,7 +355,7 @@ class StreamLayout:
     def __post_init__(self) -> None:
         status = check_layout(self.multiplier, self.channel_mask, self.profile, int(self.budget_policy),
                               self.options)
-        if status is not ApplyStatus.OK:
+        if status is not ProfileStatus.OK:
             raise LocalError(f"not an ECAN-Lite layout ({status.name}): {self!r}")
         object.__setattr__(self, "budget_policy", BudgetPolicy(self.budget_policy))
         feat = self.features

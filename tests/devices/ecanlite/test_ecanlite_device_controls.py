@@ -9,11 +9,11 @@ import can
 from ecanlite_device_kit import Rig, bring_up
 
 from gatewaylab.bus import python_can_bus
-from gatewaylab.devices.ecanlite.device import Status
 from gatewaylab.devices.ecanlite.stream import (
     CanPacket,
     Direction,
     PdoError,
+    ProfileStatus,
     StreamLayout,
     crc16,
     decode_stream,
@@ -84,7 +84,7 @@ def _expect_error(rig: Rig, image: bytes, code: int) -> None:
         assert _received(client) == []
         m = rig.master
         assert (m.sdo_upload16(0, 0x8011, 14), m.sdo_upload32(0, 0x8011, 15)) == (code, 1)
-        assert m.sdo_upload8(0, 0x8011, 2) == Status.ENCAPSULATION_ERROR
+        assert m.sdo_upload8(0, 0x8011, 2) == ProfileStatus.ENCAPSULATION_ERROR
         _publish(rig, image)                                   # the same image again: no-op (13.8)
         assert m.sdo_upload32(0, 0x8011, 15) == 1
     finally:

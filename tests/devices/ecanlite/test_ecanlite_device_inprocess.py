@@ -10,13 +10,13 @@ import pytest
 from ecanlite_device_kit import CYCLE, Rig, bring_up, make_rig
 
 from gatewaylab.bus import python_can_bus
-from gatewaylab.devices.ecanlite.device import Status
 from gatewaylab.devices.ecanlite.image import SM_SIZE
 from gatewaylab.devices.ecanlite.stream import (
     CanPacket,
     Direction,
     HeaderFlags,
     PdoError,
+    ProfileStatus,
     StreamLayout,
     TxResultCode,
     TxResultPacket,
@@ -270,7 +270,7 @@ def test_each_last_pdo_error_counts_and_sends_nothing(rig: Rig, code: PdoError) 
         m = rig.master
         assert m.sdo_upload16(0, 0x8011, 14) == code
         assert m.sdo_upload32(0, 0x8011, 15) == 1
-        assert m.sdo_upload8(0, 0x8011, 2) == Status.ENCAPSULATION_ERROR
+        assert m.sdo_upload8(0, 0x8011, 2) == ProfileStatus.ENCAPSULATION_ERROR
         m.sdo_download8(0, 0x8011, 8, 0x02)  # clear errors
         assert m.sdo_upload16(0, 0x8011, 14) == 0 and m.sdo_upload32(0, 0x8011, 15) == 0
         publish(rig, encode_stream(rx_layout(3), 6, [CanPacket(0, 0x321, data=b"ok")]), cycles=3)
@@ -347,21 +347,21 @@ def test_state_rules_of_14_2(rig: Rig) -> None:
     m = rig.master
     bring_up(rig, n=3)
     m.sdo_download8(0, 0x8011, 3, 8)
-    assert m.sdo_upload8(0, 0x8011, 2) == Status.PENDING_APPLY
+    assert m.sdo_upload8(0, 0x8011, 2) == ProfileStatus.PENDING_APPLY
     m.sdo_download8(0, 0x8011, 1, 1)
-    assert m.sdo_upload8(0, 0x8011, 2) == Status.INVALID_STATE
+    assert m.sdo_upload8(0, 0x8011, 2) == ProfileStatus.INVALID_STATE
     assert m.sdo_upload16(0, 0x8011, 9) == 384
     m.set_state(AlState.PREOP)
     m.sdo_download8(0, 0x8011, 1, 1)  # 8 requested, 3 assigned
-    assert m.sdo_upload8(0, 0x8011, 2) == Status.MAPPING_RELOAD_REQUIRED and m.sdo_upload16(0, 0x8011, 9) == 384
+    assert m.sdo_upload8(0, 0x8011, 2) == ProfileStatus.MAPPING_RELOAD_REQUIRED and m.sdo_upload16(0, 0x8011, 9) == 384
     m.sdo_download8(0, 0x8011, 3, 3)
     m.sdo_download8(0, 0x8011, 7, 0x20)
     m.sdo_download8(0, 0x8011, 1, 1)
-    assert m.sdo_upload8(0, 0x8011, 2) == Status.UNSUPPORTED_OPTION
+    assert m.sdo_upload8(0, 0x8011, 2) == ProfileStatus.UNSUPPORTED_OPTION
     m.sdo_download8(0, 0x8011, 7, 0)
     m.sdo_download8(0, 0x8011, 3, 25)
     m.sdo_download8(0, 0x8011, 1, 1)
-    assert m.sdo_upload8(0, 0x8011, 2) == Status.INVALID_MULTIPLIER
+    assert m.sdo_upload8(0, 0x8011, 2) == ProfileStatus.INVALID_MULTIPLIER
     # assignment of 4 chunks, profile still 3: SAFEOP is fine, OP is refused (16.1)
     for assign, base in ((0x1C12, 0x1600), (0x1C13, 0x1A00)):
         m.sdo_download8(0, assign, 0, 0)

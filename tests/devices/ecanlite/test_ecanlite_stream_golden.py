@@ -20,7 +20,6 @@ from gatewaylab.devices.ecanlite.stream import (
     DEFAULT_FEATURES,
     OPTION_MASK,
     PROFILE_MASK,
-    ApplyStatus,
     CanPacket,
     Direction,
     Feature,
@@ -28,6 +27,7 @@ from gatewaylab.devices.ecanlite.stream import (
     Option,
     PacketKind,
     PdoError,
+    ProfileStatus,
     StreamHeader,
     StreamLayout,
     Tsf,
@@ -329,20 +329,20 @@ def test_last_pdo_error_table() -> None:
 def test_apply_status_table_and_checks() -> None:
     """13.2 Status values; 5.2 N 1..24; 9 profiles 0/1/4/5 (mask 0x33, 13.8); 12 policy 3
     reserved; 9.1 reserved option bits 5..7 -> 10 unsupported option flag."""
-    assert [s.value for s in ApplyStatus] == [0, 1, 2, 3, 4, 5, 7, 8, 9, 10]
-    assert check_layout(8, 0x0F, 0, 0, 0) is ApplyStatus.OK
-    assert check_layout(0, 0x0F, 0, 0, 0) is ApplyStatus.INVALID_MULTIPLIER
-    assert check_layout(25, 0x0F, 0, 0, 0) is ApplyStatus.INVALID_MULTIPLIER
-    assert check_layout(8, 0x10, 0, 0, 0) is ApplyStatus.INVALID_CHANNEL_MASK
-    assert [check_layout(8, 0x0F, p, 0, 0) is ApplyStatus.OK for p in range(8)] == [
+    assert [s.value for s in ProfileStatus] == [0, 1, 2, 3, 4, 5, 7, 8, 9, 10]
+    assert check_layout(8, 0x0F, 0, 0, 0) is ProfileStatus.OK
+    assert check_layout(0, 0x0F, 0, 0, 0) is ProfileStatus.INVALID_MULTIPLIER
+    assert check_layout(25, 0x0F, 0, 0, 0) is ProfileStatus.INVALID_MULTIPLIER
+    assert check_layout(8, 0x10, 0, 0, 0) is ProfileStatus.INVALID_CHANNEL_MASK
+    assert [check_layout(8, 0x0F, p, 0, 0) is ProfileStatus.OK for p in range(8)] == [
         bool(PROFILE_MASK >> p & 1) for p in range(8)]
-    assert check_layout(8, 0x0F, 2, 0, 0) is ApplyStatus.INVALID_PROFILE
-    assert check_layout(8, 0x0F, 0, 3, 0) is ApplyStatus.INVALID_PROFILE
+    assert check_layout(8, 0x0F, 2, 0, 0) is ProfileStatus.INVALID_PROFILE
+    assert check_layout(8, 0x0F, 0, 3, 0) is ProfileStatus.INVALID_PROFILE
     for value in (0x00, 0x01, 0x02, 0x03, 0x04, 0x08, 0x10, 0x1F):   # 9.1 "Commonly written values"
-        assert check_options(value) is ApplyStatus.OK
+        assert check_options(value) is ProfileStatus.OK
     for bit in (0x20, 0x40, 0x80):
-        assert check_options(bit) is ApplyStatus.UNSUPPORTED_OPTION
-        assert check_layout(8, 0x0F, 0, 0, bit | 1) is ApplyStatus.UNSUPPORTED_OPTION
+        assert check_options(bit) is ProfileStatus.UNSUPPORTED_OPTION
+        assert check_layout(8, 0x0F, 0, 0, bit | 1) is ProfileStatus.UNSUPPORTED_OPTION
 
 
 def test_option_and_feature_masks() -> None:
