@@ -148,7 +148,7 @@ def master_ecan(iface: str, seconds: float) -> dict[str, Any]:
 
     def cycle() -> bool:
         seq = state["seq"] = (state["seq"] + 1) & 0xFFFF
-        s0.output = encode_stream(rx, seq, [CanPacket(ch, 0x100 + ch, data=struct.pack("<HHI", ch, seq, 0))
+        s0.output = encode_stream(rx, seq, [CanPacket.of(ch, 0x100 + ch, data=struct.pack("<HHI", ch, seq, 0))
                                             for ch in range(4)])
         master.send_processdata()
         if master.receive_processdata(RX_TIMEOUT_US) != expected:

@@ -23,17 +23,17 @@ import statistics
 import struct
 import time
 from collections.abc import Callable
-from typing import Any
 
+from gatewaylab.bus.frame import CanFrame
 from gatewaylab.devices.ecanlite.stream import (
     CanPacket,
     StreamLayout,
-    _CanPacketDraft,
     crc16,
     decode_stream,
     encode_into,
     packet_size,
 )
+from gatewaylab.devices.ecanlite.stream.packets import decoded_packet
 
 #: Calls of each measured function per round, and rounds.
 PER_ROUND = 100
@@ -53,12 +53,12 @@ def mixed_packets(layout: StreamLayout) -> list[CanPacket]:
         ch = i % 4
         if i % 2:
             n = _FD_LENS[i // 2 % len(_FD_LENS)]
-            p = CanPacket(ch, 0x100 + i, extended=bool(i % 3 == 0), fd=True, brs=bool(i % 4 == 1),
+            p = CanPacket.of(ch, 0x100 + i, extended=bool(i % 3 == 0), fd=True, brs=bool(i % 4 == 1),
                           data=bytes((i + k) & 0xFF for k in range(n)))
             if i % 3 == 0:
-                p = CanPacket(ch, 0x18FF0000 + i, extended=True, fd=True, data=p.data)
+                p = CanPacket.of(ch, 0x18FF0000 + i, extended=True, fd=True, data=p.data)
         else:
-            p = CanPacket(ch, 0x200 + i, data=bytes((i * 7 + k) & 0xFF for k in range(8)))
+            p = CanPacket.of(ch, 0x200 + i, data=bytes((i * 7 + k) & 0xFF for k in range(8)))
         size = packet_size(p, layout)
         if used + size > layout.frame_area_bytes or len(out) == 255:
             return out
@@ -128,33 +128,19 @@ def bare_parse(buf: bytearray) -> list[tuple[int, int, bytes]]:
 
 
 def build_packets_only(packets: list[CanPacket]) -> list[CanPacket]:
-    """What the decoder spends on objects alone: for each packet a new instance, its 19 slots
-    stored from values already at hand, turned frozen (stream.decode_stream does exactly this)."""
+    """What the decoder spends on objects alone: for each packet a new CanFrame (which checks its
+    fields) and a new frozen CanPacket holding it, from values already at hand (as
+    stream.decode_stream builds them)."""
     out = []
-    new = object.__new__
+    frame_of = CanFrame
     for p in packets:
-        q: Any = new(_CanPacketDraft)
-        q.channel = p.channel
-        q.can_id = p.can_id
-        q.extended = p.extended
-        q.fd = p.fd
-        q.brs = p.brs
-        q.rtr = p.rtr
-        q.esi = p.esi
-        q.data = p.data
-        q.tsf = p.tsf
-        q.timestamp = p.timestamp
-        q.scheduled = p.scheduled
-        q.offset_ns = p.offset_ns
-        q.tag = p.tag
-        q.id_aux = p.id_aux
-        q.d64 = p.d64
-        q.dlc = p.dlc
-        q.ctrl = p.ctrl
-        q.raw_size = p.raw_size
-        q._wire = p._wire
-        q.__class__ = CanPacket
-        out.append(q)
+        f = p.frame
+        if f.extended or f.fd or f.rtr:
+            frame = frame_of(f.can_id, f.data, f.extended, f.rtr, f.fd, f.brs, f.esi, f.dlc if f.rtr else -1)
+        else:
+            frame = frame_of(f.can_id, f.data)
+        out.append(decoded_packet(p.channel, frame, p.tsf, p.timestamp, p.scheduled, p.offset_ns, p.tag, p.id_aux,
+                                  p.d64, p.ctrl, p.wire))
     return out
 
 
@@ -229,7 +215,7 @@ def main() -> None:
     print(f"target <= 50 us/image pack+parse (mixed image): {'met' if t_codec <= 50e-6 else 'NOT met'}; the CRC-16 "
           f"of pack and parse plus building the packets alone take {floor * 1e6:.0f} us, before a byte is read")
     # For scale: the same area filled with 64-byte CAN FD frames only (fewer, larger packets).
-    fd64 = [CanPacket(k % 4, 0x300 + k, fd=True, brs=True, data=bytes([k]) * 64)
+    fd64 = [CanPacket.of(k % 4, 0x300 + k, fd=True, brs=True, data=bytes([k]) * 64)
             for k in range(layout.frame_area_bytes // 68)]
     _run(layout, fd64)
 
