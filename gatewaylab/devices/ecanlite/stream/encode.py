@@ -58,34 +58,36 @@ def judge(packets: Sequence[Packet], layout: StreamLayout) -> int:
     """Refuse what ``layout`` cannot carry before anything is written: the first control word it
     refuses in stream order, then a TSF_FULL64 packet of the wrong direction (reservation in the
     RxPDO, timestamp in the TxPDO, 8.4). Returns TX_RESULT_PRESENT when a TX_RESULT is there
-    (chapter 6), else 0."""
+    (chapter 6), else 0. Each distinct control word of the image is tested once."""
+    try:
+        ctrls = {p.ctrl for p in packets}
+    except AttributeError:
+        bad = next(p for p in packets if type(p) is not CanPacket and type(p) is not TxResultPacket)
+        raise LocalError(f"not a packet: {bad!r}") from None
     chmask = layout.channel_mask & 0x0F
     tsf_mask = layout.tsf_mask
     d64_ok = layout.d64_allowed
-    schedule = layout.schedule_allowed
+    # the common case in one test per control word: KIND 0, channel in the mask, TSF allowed, no
+    # D64 or allowed (a CanPacket's frame already obeys the CAN rules of 8.2)
+    special = {ctrl for ctrl in ctrls
+               if ctrl & 0x6000 or not chmask >> (ctrl & 7) & 1 or not tsf_mask >> (ctrl >> 11 & 3) & 1
+               or (ctrl & 0x8000 and not d64_ok)}
     flags = 0
-    wrong_schedule = False
-    for p in packets:
-        try:
-            ctrl = p.ctrl
-        except AttributeError:
-            raise LocalError(f"not a packet: {p!r}") from None
-        # the common case in one test: KIND 0, channel in the mask, TSF allowed, no D64 or allowed
-        # (a CanPacket's frame already obeys the CAN rules of 8.2)
-        if (ctrl & 0x6000 or not chmask >> (ctrl & 7) & 1 or not tsf_mask >> (ctrl >> 11 & 3) & 1
-                or (ctrl & 0x8000 and not d64_ok) or type(p) is not CanPacket):
-            if type(p) is not CanPacket and type(p) is not TxResultPacket:
-                raise LocalError(f"not a packet: {p!r}")
-            code, why = ctrl_error(ctrl, layout)
-            if code:
-                raise refuse(code, why)
-            if ctrl & 0x6000:
-                flags = HeaderFlags.TX_RESULT_PRESENT
-                continue
-        if ctrl & _TSF_FULL64 == _TSF_FULL64 and p.scheduled != schedule:  # type: ignore[union-attr]
-            wrong_schedule = True
-    if wrong_schedule:
-        raise _schedule_refusal()
+    if special:
+        for p in packets:
+            if p.ctrl in special:
+                if type(p) is not CanPacket and type(p) is not TxResultPacket:
+                    raise LocalError(f"not a packet: {p!r}")
+                code, why = ctrl_error(p.ctrl, layout)
+                if code:
+                    raise refuse(code, why)
+                if p.ctrl & 0x6000:
+                    flags = HeaderFlags.TX_RESULT_PRESENT
+    if any(ctrl & 0x7800 == _TSF_FULL64 for ctrl in ctrls):
+        schedule = layout.schedule_allowed
+        for p in packets:
+            if p.ctrl & 0x7800 == _TSF_FULL64 and p.scheduled != schedule:  # type: ignore[union-attr]
+                raise _schedule_refusal()
     return int(flags)
 
 
