@@ -299,8 +299,8 @@ class Controller:
         """Take a queued frame (this very object) back before it is sent, as a TX buffer
         cancellation request does (M_CAN TXBCR); False when it is on the wire now (it completes)
         or not queued here."""
-        step = self.bus._on_wire
-        busy = step[1] if step is not None and step[0] is self else None
+        on_wire = self.bus.on_wire
+        busy = on_wire.frame if on_wire is not None and on_wire.sender is self else None
         queue = self.tx_queue
         for i, queued in enumerate(queue):
             if queued is frame:
@@ -316,8 +316,8 @@ class Controller:
         queued frames with a lower or equal arbitration key, never before the one on the wire."""
         self.send(frame)
         queue = self.tx_queue
-        step = self.bus._on_wire
-        start = 1 if step is not None and step[0] is self else 0
+        on_wire = self.bus.on_wire
+        start = 1 if on_wire is not None and on_wire.sender is self else 0
         key = arbitration_key(frame)
         pos = len(queue) - 1
         while pos > start and arbitration_key(queue[pos - 1]) > key:
