@@ -78,7 +78,7 @@ soak: install
 	$(BIN)/python -m benchmarks.soak --minutes $(SOAK_MINUTES)
 
 lint: install
-	$(BIN)/ruff check gatewaylab tests benchmarks examples conformance
+	$(BIN)/ruff check gatewaylab tests benchmarks examples conformance setup.py
 	$(BIN)/mypy
 
 clean:
