@@ -14,6 +14,10 @@ import warnings
 from importlib import import_module
 from importlib.machinery import EXTENSION_SUFFIXES, ExtensionFileLoader
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    import argparse
 
 #: Modules compiled by ``pip install .`` / ``make install`` when a C compiler is usable.
 COMPILED_MODULES: tuple[str, ...] = (
@@ -82,3 +86,24 @@ def warn_if_stale() -> None:
     if stale:
         warnings.warn(f"compiled modules older than their source, running the OLD code: {', '.join(stale)}; "
                       f"rebuild with `make install` (or set {PURE_ENV}=1)", RuntimeWarning, stacklevel=2)
+
+
+def version_action(version: str) -> type[argparse.Action]:
+    """An argparse action for ``--version``: prints ``<version> (<summary()>)`` on one line and exits.
+
+    The summary is found only when asked (it imports the listed modules); argparse's own version
+    action would find it at every start and wrap it at the terminal width.
+    """
+    import argparse
+
+    class VersionAction(argparse.Action):
+        def __init__(self, option_strings: list[str], dest: str = argparse.SUPPRESS, **kwargs: Any) -> None:
+            super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS,
+                             help="show the version and which modules run compiled, then exit")
+
+        def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
+                     option_string: str | None = None) -> None:
+            print(f"{version} ({summary()})")
+            parser.exit()
+
+    return VersionAction
