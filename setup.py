@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import os
 import runpy
+import shutil
 import sys
 import tempfile
 from pathlib import Path
@@ -54,6 +55,10 @@ def extensions() -> list[Any]:
     commands = set(sys.argv[1:])
     if commands & METADATA_COMMANDS and not commands & BUILD_COMMANDS:
         return []
+    # bdist_wheel packs all of build/lib*: an extension left there by an earlier build (a module since
+    # taken off the list) would ship and shadow its .py. The C objects in build/temp* stay (incremental).
+    for stale in ROOT.glob("build/lib*"):
+        shutil.rmtree(stale)
     mode = os.environ.get("GATEWAYLAB_COMPILE", "auto")
     if mode == "0":
         log("pure Python (GATEWAYLAB_COMPILE=0)")
