@@ -25,6 +25,7 @@ COMPILED_MODULES: tuple[str, ...] = runpy.run_path(str(ROOT / "gatewaylab" / "bu
 
 
 def log(message: str) -> None:
+    """One line on stderr (``pip install -v`` shows it)."""
     print(f"gatewaylab build: {message}", file=sys.stderr, flush=True)
 
 
@@ -52,6 +53,7 @@ BUILD_COMMANDS = {"build", "build_ext", "bdist_wheel", "editable_wheel", "instal
 
 
 def extensions() -> list[Any]:
+    """The mypyc extensions of COMPILED_MODULES, or [] for a pure-Python build (and why, in one line)."""
     commands = set(sys.argv[1:])
     if commands & METADATA_COMMANDS and not commands & BUILD_COMMANDS:
         return []

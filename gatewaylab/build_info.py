@@ -97,6 +97,8 @@ def version_action(version: str) -> type[argparse.Action]:
     import argparse
 
     class VersionAction(argparse.Action):
+        """``--version``: no value; prints and exits like argparse's own version action."""
+
         def __init__(self, option_strings: list[str], dest: str = argparse.SUPPRESS, **kwargs: Any) -> None:
             super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS,
                              help="show the version and which modules run compiled, then exit")
