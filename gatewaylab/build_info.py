@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     import argparse
 
-#: Modules compiled by ``pip install .`` / ``make install`` when a C compiler is usable.
+#: Modules (files, not packages) compiled by ``pip install .`` / ``make install`` when a C compiler is usable.
 COMPILED_MODULES: tuple[str, ...] = (
     "gatewaylab.bus.frame",
     "gatewaylab.bus.bus",
