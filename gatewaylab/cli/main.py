@@ -16,7 +16,7 @@ from pathlib import Path
 from types import FrameType
 from typing import TYPE_CHECKING, Any
 
-from gatewaylab import __version__
+from gatewaylab import __version__, build_info
 from gatewaylab.bus.transport.trace import TRACE_FORMATS, check_trace_path
 from gatewaylab.common.errors import ConfigError, GatewaylabError
 
@@ -248,7 +248,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Emulated industrial CAN gateways (ECAN-Lite, esd CAN-EtherCAT, maxon IDX) on virtual "
                     "CAN / CAN FD buses with simulated CANopen drives.",
         epilog="Run 'gatewaylab COMMAND --help' for the options of each command.")
-    parser.add_argument("--version", action="version", version=f"gatewaylab {__version__}")
+    parser.add_argument("--version", action=build_info.version_action(f"gatewaylab {__version__}"))
     parser.add_argument("-v", "--verbose", dest="verbose_log", action="store_true", help="log debug messages to stderr")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
