@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import struct
 import time
-from dataclasses import dataclass
 from typing import Any
 
+from gatewaylab.canopen.lss import LssAddress
 from gatewaylab.common.clock import RealTimeClock
 from gatewaylab.common.errors import GatewaylabError, LocalError, RemoteError
 from gatewaylab.devices.maxon_idx.codec import DecoderEvent, FrameDecoder, FrameReceived, encode_frame
@@ -78,7 +78,8 @@ class IdxError(RemoteError):
 
 
 class IdxValueError(LocalError, ValueError):
-    """A typed read asked for a type narrower than the object's value."""
+    """A value that does not fit where the caller put it: a typed read narrower than the object's
+    value, or more than 4 bytes for WriteObject (a ValueError too, for callers that catch that)."""
 
 
 class IdxTimeout(IdxError):
@@ -88,20 +89,6 @@ class IdxTimeout(IdxError):
     def __init__(self, request: str = "", timeout: float | None = None, detail: str = "") -> None:
         within = f" within {timeout:g} s" if timeout is not None else ""
         super().__init__(SdoAbortCode.SDO_PROTOCOL_TIMED_OUT, request, detail or f"no reply frame from the IDX{within}")
-
-
-@dataclass(frozen=True, slots=True)
-class LssAddress:
-    """A CiA 305 LSS address (vendor, product, revision, serial) that names one drive, e.g. as fastscan found it."""
-
-    vendor_id: int
-    product_code: int
-    revision: int
-    serial: int
-
-    def as_tuple(self) -> tuple[int, int, int, int]:
-        """The four fields in LSS order, the order switch_state_selective sends them in (0x40..0x43)."""
-        return (self.vendor_id, self.product_code, self.revision, self.serial)
 
 
 class IdxClient:
@@ -189,7 +176,7 @@ class IdxClient:
     def write_object(self, node_id: int, index: int, subindex: int, data: bytes) -> None:
         """WriteObject (2.1.2.1) of up to 4 bytes."""
         if len(data) > 4:
-            raise ValueError("WriteObject carries at most 4 bytes; use write_segmented")
+            raise IdxValueError("WriteObject carries at most 4 bytes; use write_segmented")
         self._ok(WriteObject(node_id, index, subindex, data.ljust(4, b"\x00")),
                  f"write node {node_id} 0x{index:04X}:{subindex:02X}")
 
@@ -291,7 +278,7 @@ class IdxClient:
 
     def switch_state_selective(self, address: LssAddress, timeout_ms: int = 50) -> bool:
         """3.5.2.2: the slave with this LSS address enters configuration state (answers 0x44)."""
-        for cs, value in zip(LSS_SWITCH_SELECTIVE, address.as_tuple()):
+        for cs, value in zip(LSS_SWITCH_SELECTIVE, (address.part(sub) for sub in range(4))):
             if cs != LSS_SWITCH_SELECTIVE[-1]:
                 self.send_lss(bytes([cs]) + value.to_bytes(4, "little"))
         cs, value = LSS_SWITCH_SELECTIVE[-1], address.serial
