@@ -196,6 +196,7 @@ class Drive:
         return dict(self.ready_extra)
 
     def stop(self) -> None:
+        """Power off: stop the control tick, the LSS timers and the node."""
         if self._timer is not None:
             self._timer.cancel()
             self._timer = None
