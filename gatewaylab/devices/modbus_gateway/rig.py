@@ -21,7 +21,7 @@ from typing import Any
 
 from gatewaylab.common.endpoint import format_tcp
 from gatewaylab.common.errors import ConfigError
-from gatewaylab.devices.modbus_gateway.gateway import ModbusGateway
+from gatewaylab.devices.modbus_gateway.device import ModbusGateway
 from gatewaylab.devices.modbus_gateway.mapping import RegisterMap, default_cia402_map, parse_map
 from gatewaylab.devices.modbus_gateway.server import ModbusTcpFace
 from gatewaylab.plugin.participant import DeviceKind, Key, RigContext

@@ -39,7 +39,7 @@ from pymodbus.simulator import DataType, SimData, SimDevice
 
 from gatewaylab.common.clock import Clock
 from gatewaylab.common.errors import LocalError
-from gatewaylab.devices.modbus_gateway.gateway import ModbusGateway
+from gatewaylab.devices.modbus_gateway.device import ModbusGateway
 from gatewaylab.devices.modbus_gateway.mapping import ModbusException, RegisterKind
 
 log = logging.getLogger(__name__)
