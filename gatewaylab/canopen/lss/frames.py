@@ -69,7 +69,6 @@ class LssState(Enum):
     CONFIGURATION = 1
 
 
-
 FASTSCAN_CONFIRM = 0x80  # BitChecked value that restarts a Fastscan (CiA 305 clause 8.3.5)
 
 
@@ -126,7 +125,6 @@ def encode_result(cs: int, error: int, specific: int = 0) -> bytes:
 def encode_fastscan(id_number: int, bit_checked: int, lss_sub: int, lss_next: int) -> bytes:
     """One Fastscan request: id bits, bit checked, LSS sub, LSS next (CiA 305)."""
     return FASTSCAN_FRAME.pack(Cs.FASTSCAN, id_number & 0xFFFFFFFF, bit_checked, lss_sub, lss_next)
-
 
 
 def bit_timing_index(bitrate: int) -> int:

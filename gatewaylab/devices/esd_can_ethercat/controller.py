@@ -38,7 +38,6 @@ WARNING_LIMIT = 96
 CYCLIC_WINDOW, CAN_WINDOW = 10_000, 1_000   # 5.1.4.2: "within its last 10000 / 1000 calls"
 
 
-
 class UpdateRefused(LocalError, ValueError):
     """A firmware update cannot start (one runs already, or the file is empty); a ValueError too, for
     the web page's backend protocol (6.1.2), which refuses an upload with one."""
@@ -119,7 +118,6 @@ class _Window:
     def summary(self) -> tuple[int, int, int]:
         v = self.values
         return (min(v), max(v), sum(v) // len(v)) if v else (0, 0, 0)
-
 
 
 class EsdController(SlaveApplication):
