@@ -2,13 +2,14 @@
 
 ``Drive(clock, bus, node_id, serial, name="", store_path=None)`` builds the object dictionary
 (:mod:`.objects`: identity, CiA 402 objects, maxon objects 0x2006 / 0x30B0, a typical servo's
-default PDO mapping), a :class:`~gatewaylab.canopen.node.Node` on ``bus``, an LSS slave, the CiA 402 power
-state machine and a motion plant stepped every control period (1 ms) on the injected clock.
+default PDO mapping), a :class:`~gatewaylab.canopen.node.Node` on ``bus``, an LSS slave, the CiA
+402 power state machine and a motion plant stepped every control period (1 ms) on the injected
+clock.
 
 Controlword writes are applied at once (SDO or RPDO reception), the motion runs in the control
 tick: this module is the control loop and the power state machine; the modes of operation that
-compute each period's demand are :mod:`.modes`. Everything is documented in ``docs/canopen-drive.md``; choices the manuals leave open are
-listed in ``docs/decisions.md``.
+compute each period's demand are :mod:`.modes`. Everything is documented in
+``docs/canopen-drive.md``; choices the manuals leave open are listed in ``docs/decisions.md``.
 """
 
 from __future__ import annotations
