@@ -12,7 +12,7 @@ import struct
 import time
 from typing import Any
 
-from gatewaylab.canopen.lss import LssAddress
+from gatewaylab.canopen.lss import Cs, LssAddress
 from gatewaylab.common.clock import RealTimeClock
 from gatewaylab.common.errors import GatewaylabError, LocalError, RemoteError
 from gatewaylab.devices.maxon_idx.codec import DecoderEvent, FrameDecoder, FrameReceived, encode_frame
@@ -45,18 +45,20 @@ _TYPES: dict[str, struct.Struct] = {
     "i8": struct.Struct("<b"), "i16": struct.Struct("<h"), "i32": struct.Struct("<i"),
 }
 
-# CiA 305 LSS command specifiers (IDX guide 3.5.2 and CiA 305 fastscan).
-LSS_SWITCH_GLOBAL = 0x04
-LSS_CONFIGURE_NODE_ID = 0x11
-LSS_STORE = 0x17
-LSS_SWITCH_SELECTIVE = (0x40, 0x41, 0x42, 0x43)
-LSS_SWITCH_SELECTIVE_RESPONSE = 0x44
-LSS_IDENTIFY_REMOTE = 0x46
-LSS_IDENTIFY_NON_CONFIGURED = 0x4C
-LSS_IDENTIFY_RESPONSE = 0x4F
-LSS_NON_CONFIGURED_RESPONSE = 0x50
-LSS_FASTSCAN = 0x51
-LSS_INQUIRE = {"vendor": 0x5A, "product": 0x5B, "revision": 0x5C, "serial": 0x5D, "node_id": 0x5E}
+# CiA 305 LSS command specifiers (IDX guide 3.5.2 and CiA 305 fastscan), named as the client uses them.
+LSS_SWITCH_GLOBAL = Cs.SWITCH_STATE_GLOBAL
+LSS_CONFIGURE_NODE_ID = Cs.CONFIGURE_NODE_ID
+LSS_STORE = Cs.STORE_CONFIGURATION
+LSS_SWITCH_SELECTIVE = (Cs.SWITCH_SELECTIVE_VENDOR, Cs.SWITCH_SELECTIVE_PRODUCT, Cs.SWITCH_SELECTIVE_REVISION,
+                        Cs.SWITCH_SELECTIVE_SERIAL)
+LSS_SWITCH_SELECTIVE_RESPONSE = Cs.SWITCH_SELECTIVE_RESPONSE
+LSS_IDENTIFY_REMOTE = Cs.IDENTIFY_VENDOR
+LSS_IDENTIFY_NON_CONFIGURED = Cs.IDENTIFY_NON_CONFIGURED
+LSS_IDENTIFY_RESPONSE = Cs.IDENTIFY_SLAVE
+LSS_NON_CONFIGURED_RESPONSE = Cs.IDENTIFY_NON_CONFIGURED_SLAVE
+LSS_FASTSCAN = Cs.FASTSCAN
+LSS_INQUIRE = {"vendor": Cs.INQUIRE_VENDOR, "product": Cs.INQUIRE_PRODUCT, "revision": Cs.INQUIRE_REVISION,
+               "serial": Cs.INQUIRE_SERIAL, "node_id": Cs.INQUIRE_NODE_ID}
 
 
 class IdxError(RemoteError):
