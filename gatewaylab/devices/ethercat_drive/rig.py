@@ -49,10 +49,12 @@ class DriveParticipant:
         self.device.stop()
 
     def ready_info(self) -> dict[str, Any]:
+        """An EtherCAT drive publishes no endpoints of its own (its segment does)."""
         return {}
 
 
 def create_drive_device(rig: RigContext, cfg: dict[str, Any]) -> DriveParticipant:
+    """The rig kind's factory: one EtherCAT drive from its checked section."""
     return DriveParticipant(rig, cfg)
 
 

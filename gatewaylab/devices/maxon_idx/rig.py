@@ -58,6 +58,7 @@ class IdxParticipant:
         self.unplugged = False
 
     def start(self) -> None:
+        """Start the device and open its USB side (virtual serial port and/or TCP port)."""
         self.device.start()
         self._open_usb()
 
@@ -89,6 +90,7 @@ class IdxParticipant:
             self._open_usb()
 
     def stop(self) -> None:
+        """Close the USB side, then stop the device."""
         if self.pty is not None:
             self.pty.close()
             self.pty = None
@@ -98,6 +100,7 @@ class IdxParticipant:
         self.device.stop()
 
     def ready_info(self) -> dict[str, Any]:
+        """Where hosts reach this IDX (pty path, TCP address) for the ready file."""
         entry: dict[str, Any] = {}
         if self.pty is not None:
             entry["pty"] = self.pty.path
@@ -107,6 +110,7 @@ class IdxParticipant:
 
 
 def create_device(rig: RigContext, cfg: dict[str, Any]) -> IdxParticipant:
+    """The rig kind's factory: one IDX from its checked section."""
     return IdxParticipant(rig, cfg)
 
 
