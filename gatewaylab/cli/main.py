@@ -33,10 +33,10 @@ EXTRA_SUBCOMMANDS = (
     "gatewaylab.cli.lesson",
     "gatewaylab.cli.plot",
     "gatewaylab.cli.net",
-    "gatewaylab.cli.ec_rig",
+    "gatewaylab.cli.ec",
     "gatewaylab.cli.fault",
-    "gatewaylab.cli.ecan_rig",
-    "gatewaylab.cli.migrate_rig",
+    "gatewaylab.cli.ecan",
+    "gatewaylab.cli.migrate",
 )
 
 RIG_HELP = """\
