@@ -33,11 +33,12 @@ from gatewaylab.cli.ec_args import (
 from gatewaylab.cli.ec_foe import cmd_foe_read, cmd_foe_write
 from gatewaylab.cli.ec_pdo import LiveMaster, cmd_config, cmd_cstruct, cmd_data, cmd_domains, cmd_pdos, cmd_xml
 from gatewaylab.cli.ec_sdo import cmd_download, cmd_sdos, cmd_upload
-from gatewaylab.cli.ec_slaves import cmd_reg_read, cmd_reg_write, cmd_sii_read, cmd_slaves, cmd_states, state_path
+from gatewaylab.cli.ec_slaves import cmd_reg_read, cmd_reg_write, cmd_sii_read, cmd_slaves, cmd_states
 from gatewaylab.common.clock import SimulatedClock
 from gatewaylab.common.errors import ConfigError, GatewaylabError
 from gatewaylab.ethercat.errors import AlStatusError, FoeError, FoeErrorCode
 from gatewaylab.hosts.ethercat.backend import FOE_CODE_SUFFIX, MasterBackend, MasterTimeout, al_status_name
+from gatewaylab.hosts.ethercat.states import state_path
 from gatewaylab.od.aborts import SdoAbort, abort_text
 
 if TYPE_CHECKING:

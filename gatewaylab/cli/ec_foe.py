@@ -10,10 +10,10 @@ from pathlib import Path
 from typing import IO
 
 from gatewaylab.cli.ec_args import EcRefused, binary_out, one_slave, read_input
-from gatewaylab.cli.ec_slaves import state_path
 from gatewaylab.common.clock import Clock
 from gatewaylab.ethercat.esc import AlState
 from gatewaylab.hosts.ethercat.backend import MasterBackend, ProgressFn
+from gatewaylab.hosts.ethercat.states import state_path
 
 
 @contextmanager

@@ -20,6 +20,7 @@ from gatewaylab.cli.ec_args import (
 )
 from gatewaylab.ethercat.esc import AlState
 from gatewaylab.hosts.ethercat.backend import MasterBackend, al_status_name
+from gatewaylab.hosts.ethercat.states import state_path
 
 
 def cmd_slaves(backend: MasterBackend, args: argparse.Namespace, out: IO[str]) -> None:
@@ -62,19 +63,6 @@ def cmd_states(backend: MasterBackend, args: argparse.Namespace, out: IO[str]) -
         status, code = backend.al_status(pos)
         state = state_name(status)
         print(f"{pos}  {state:<6}  {'E' if status & 0x10 else '+'}  {al_status_name(code)}", file=out)
-
-
-def state_path(current: AlState, target: AlState) -> list[AlState]:
-    """The legal ESM steps from ``current`` to ``target`` (ETG.1000.6 table 'state transitions'):
-    upwards one state at a time, downwards directly, BOOT only from and to INIT; as IgH's master walks."""
-    order = [AlState.INIT, AlState.PREOP, AlState.SAFEOP, AlState.OP]
-    if target == current:
-        return [target]
-    if target == AlState.BOOT or current == AlState.BOOT:
-        return ([AlState.INIT] if current != AlState.INIT else []) + ([target] if target != AlState.INIT else [])
-    if order.index(target) < order.index(current):
-        return [target]
-    return order[order.index(current) + 1:order.index(target) + 1]
 
 
 def cmd_sii_read(backend: MasterBackend, args: argparse.Namespace, out: IO[str]) -> None:
