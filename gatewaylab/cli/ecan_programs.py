@@ -13,7 +13,7 @@ import argparse
 import json
 import struct
 import sys
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 from typing import IO, TYPE_CHECKING, Any
@@ -23,7 +23,7 @@ from gatewaylab.common.errors import GatewaylabError, LocalError
 from gatewaylab.hosts.ecanlite.adapter import AdapterConfig, EcanAdapter, SlaveConfig, find_ecanlite
 from gatewaylab.hosts.ecanlite.cia402 import Axis, Cia402, parse_axes
 from gatewaylab.hosts.ecanlite.demo import rig_axes, rig_channel_bitrates
-from gatewaylab.hosts.ecanlite.port import ChannelConfig, McanPort, PortConfig
+from gatewaylab.hosts.ecanlite.port import ChannelConfig, McanPort, PortConfig, RxFrame
 from gatewaylab.hosts.ethercat.backend import MasterBackend
 from gatewaylab.od import SdoAbort
 
@@ -148,16 +148,21 @@ def cmd_simple_loop(args: argparse.Namespace, out: IO[str]) -> int:
         ok = dict.fromkeys(channels, 0)
         failed = dict.fromkeys(channels, 0)
         received = dict.fromkeys(channels, 0)
+
+        def tally(frames: Iterable[RxFrame]) -> None:
+            """Count what came back: received frames and TX results (ok or failed) per channel."""
+            for r in frames:
+                received[r.channel] = received.get(r.channel, 0) + 1
+            for res in port.take_tx_results():
+                if res.request > 0 and res.code <= 1:
+                    ok[res.channel] = ok.get(res.channel, 0) + 1
+                else:
+                    failed[res.channel] = failed.get(res.channel, 0) + 1
+
         with _progress(args, args.cycles, "simple-loop") as progress:
             for i in range(args.cycles):
                 port.cycle_begin()
-                for r in port.receive():
-                    received[r.channel] = received.get(r.channel, 0) + 1
-                for res in port.take_tx_results():
-                    if res.request > 0 and res.code <= 1:
-                        ok[res.channel] += 1
-                    else:
-                        failed[res.channel] = failed.get(res.channel, 0) + 1
+                tally(port.receive())
                 for ch in channels:
                     port.send_can(0, ch, args.id + ch, struct.pack("<Q", i))
                     sent[ch] += 1
@@ -166,13 +171,7 @@ def cmd_simple_loop(args: argparse.Namespace, out: IO[str]) -> int:
                 if progress:
                     progress(i + 1)
         for _ in range(5):      # the last TX results and frames
-            for r in port.exchange():
-                received[r.channel] = received.get(r.channel, 0) + 1
-            for res in port.take_tx_results():
-                if res.request > 0 and res.code <= 1:
-                    ok[res.channel] += 1
-                else:
-                    failed[res.channel] = failed.get(res.channel, 0) + 1
+            tally(port.exchange())
         adapter.stop()
         report: dict[str, Any] = {"command": "simple-loop", "slave": positions[0],
                   "master_period": adapter.master_period.summary(adapter.period), "errors": _errors(adapter, port),

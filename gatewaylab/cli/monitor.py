@@ -107,20 +107,11 @@ class _ControlPoller:
         self.failed: str | None = None
 
     def _ask(self) -> dict[str, Any]:
-        import socket
-
+        from gatewaylab.cli.ask import ask, endpoint_address
         from gatewaylab.common.endpoint import EndpointKind, parse_endpoint
+
         ep = parse_endpoint(self.endpoint, bare_path=EndpointKind.UNIX)
-        if ep.kind is EndpointKind.UNIX:
-            sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-            sock.settimeout(2.0)
-            sock.connect(ep.path)
-        else:
-            sock = socket.create_connection((ep.host, ep.port), timeout=2.0)
-        with sock, sock.makefile("rwb") as f:
-            f.write(json.dumps({"fault": self.request}).encode() + b"\n")
-            f.flush()
-            answer: dict[str, Any] = json.loads(f.readline() or b"{}")
+        answer: dict[str, Any] = json.loads(ask(endpoint_address(ep), {"fault": self.request}, 2.0) or b"{}")
         return answer
 
     def poll(self, now: float) -> list[MonitorEvent]:
