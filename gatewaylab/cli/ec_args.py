@@ -152,6 +152,7 @@ def state_name(status: int) -> str:
 
 
 def slave_header(position: int, several: bool, out: IO[str]) -> None:
+    """IgH's ``=== Master 0, Slave N ===`` line, printed only when a listing covers several slaves."""
     if several:
         print(f"=== Master 0, Slave {position} ===", file=out)
 
@@ -167,10 +168,12 @@ def bytes_out(data: bytes, hex_listing: bool, out: IO[str]) -> None:
 
 
 def binary_out() -> IO[bytes]:
+    """Where binary output (SII, FoE files, process data) goes: stdout's byte stream."""
     return sys.stdout.buffer
 
 
 def read_input(path: str) -> bytes:
+    """The bytes of a file to send (``-`` = stdin), or EcUsage naming a file that cannot be read."""
     if path == "-":
         return sys.stdin.buffer.read()
     try:

@@ -216,9 +216,13 @@ class LiveMaster(Protocol):
     """The backend of a persistent master (ec_server): mapped or not, and its exchange counters."""
 
     @property
-    def mapped(self) -> bool: ...
+    def mapped(self) -> bool:
+        """Whether the process data is mapped and cycling."""
+        ...
 
-    def counters(self) -> tuple[int, int | None, int | None]: ...
+    def counters(self) -> tuple[int, int | None, int | None]:
+        """(exchanges, working counter of the last one, the one expected then) of the cycling master."""
+        ...
 
 
 @dataclass(frozen=True, slots=True)

@@ -136,6 +136,7 @@ def send_request(ready_file: str, req: dict[str, Any], timeout: float = 10.0) ->
 
 
 def cmd_fault(args: argparse.Namespace) -> int:
+    """``gatewaylab fault``: send the request, print the rig's answer (``--json``: as JSON); exit 0 when done."""
     answer = send_request(args.ready_file, build_request(args))
     if not answer.get("ok"):
         raise FaultCliError(f"fault refused: {answer.get('error', answer)}")

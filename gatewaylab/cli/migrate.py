@@ -49,6 +49,7 @@ def _read_wire(ifname: str, position: int) -> SlaveConfig:
 
 
 def cmd_config(args: argparse.Namespace) -> int:
+    """``migrate config``: an esd ENI, startup list or live esd -> the ECAN-Lite ENI and the report."""
     if (args.input is None) == (args.ifname is None):
         raise ConfigError("give either INPUT or -i IFNAME (with -p POS)")
     if args.ifname is not None:
@@ -84,6 +85,7 @@ def cmd_config(args: argparse.Namespace) -> int:
 
 
 def cmd_esi(args: argparse.Namespace) -> int:
+    """``migrate esi``: write the ESI file of a device kind."""
     Path(args.output).write_text(esi_text(args.device), encoding="utf-8")
     print(f"{args.output}: ESI of {args.device}")
     return 0

@@ -130,6 +130,7 @@ class _ControlPoller:
         return self.changes(answer, now)
 
     def changes(self, answer: dict[str, Any], now: float) -> list[MonitorEvent]:
+        """What changed since the last answer, as monitor events (each watcher reads its part of the answer)."""
         raise NotImplementedError
 
 
@@ -145,6 +146,7 @@ class EthercatWatcher(_ControlPoller):
         self.states: dict[str, str] = {}
 
     def changes(self, answer: dict[str, Any], now: float) -> list[MonitorEvent]:
+        """What changed in the rig's device states since the last answer, as monitor events."""
         events = []
         for name, st in (answer.get("devices") or {}).items():
             text = st.get("state", "?") + (f", AL status code 0x{st['code']:04X}" if st.get("error") else "")
@@ -170,6 +172,7 @@ class CanWatcher(_ControlPoller):
         self.watch = ControllerWatch()
 
     def changes(self, answer: dict[str, Any], now: float) -> list[MonitorEvent]:
+        """What changed on the watched bus since the last answer, as monitor events."""
         return self.watch.update((answer.get("buses") or {}).get(self.bus) or {}, now)
 
 
