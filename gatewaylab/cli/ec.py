@@ -136,7 +136,7 @@ def open_line(interface: str | None, rig_path: str | None,
     except ConfigError as exc:
         raise usage(" ".join(str(exc).split())) from None
     try:
-        from gatewaylab.hosts.ethercat.backend import InProcessBackend
+        from gatewaylab.hosts.ethercat.inprocess import InProcessBackend
 
         backend = InProcessBackend.from_rig(rig)
         try:

@@ -12,7 +12,7 @@ from typing import Any
 
 from gatewaylab.common.clock import RealTimeClock, SimulatedClock
 from gatewaylab.common.errors import ConfigError
-from gatewaylab.hosts.ethercat.backend import InProcessBackend
+from gatewaylab.hosts.ethercat.inprocess import InProcessBackend
 from gatewaylab.migrate.compare_run import GATEWAYS, Line, LineOpener, Runner, simulated_runner
 from gatewaylab.migrate.compare_wire import RealtimeOpener, WireLine, wire_runner, wire_unavailable
 from gatewaylab.rig.config import RigConfig, load_rig
