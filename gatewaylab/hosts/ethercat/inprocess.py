@@ -18,6 +18,7 @@ from gatewaylab.ethercat.esc import (
     AlState,
 )
 from gatewaylab.ethercat.sii import SiiInfo
+from gatewaylab.hosts.ethercat import backend as contract  # the helpers both backends share
 from gatewaylab.hosts.ethercat.backend import (
     AL_ERROR,
     DC_START_DELAY,
@@ -28,11 +29,6 @@ from gatewaylab.hosts.ethercat.backend import (
     ObjectInfo,
     ProgressFn,
     SlaveIdentity,
-    _MailboxPort,
-    _state_of,
-    await_state,
-    register_read,
-    register_write,
 )
 from gatewaylab.hosts.ethercat.master import Master
 
@@ -98,7 +94,7 @@ class InProcessBackend:
         self.last_wkc = 0
         self._sii: dict[int, SiiInfo] = {}
         self._mapped = False
-        self._mbx = _MailboxPort(self.clock, _MasterRegisters(master), master.timeout, self._next_counter)
+        self._mbx = contract._MailboxPort(self.clock, _MasterRegisters(master), master.timeout, self._next_counter)
         if not master.slaves:
             self._call(master.scan)
         if preop:
@@ -163,7 +159,7 @@ class InProcessBackend:
     def state(self, position: int) -> tuple[AlState, int]:
         """(AL state, AL status code) of one slave."""
         status, code = self.al_status(position)
-        return _state_of(status), code
+        return contract._state_of(status), code
 
     def request_state(self, state: AlState, position: int | None = None, timeout: float = 5.0) -> AlState:
         """Request ``state`` (all slaves, or one) and wait until reached; an error flag acknowledges
@@ -175,7 +171,7 @@ class InProcessBackend:
                 self._call(m.request_state, pos, state, ack=bool(status & AL_ERROR))
             except AlStatusError:
                 pass  # checked below: the slave may still be on its way
-            await_state(self, pos, state, timeout, exchanging=self._mapped)
+            contract.await_state(self, pos, state, timeout, exchanging=self._mapped)
             m.slave(pos).boot = state == AlState.BOOT
         return state
 
@@ -221,12 +217,12 @@ class InProcessBackend:
     def reg_read(self, position: int, address: int, length: int) -> bytes:
         """ESC registers by configured-address read (FPRD), IgH's ``reg_read``; MasterTimeout unanswered."""
         self.master.slave(position)
-        return register_read(_MasterRegisters(self.master), position, address, length)
+        return contract.register_read(_MasterRegisters(self.master), position, address, length)
 
     def reg_write(self, position: int, address: int, data: bytes) -> None:
         """ESC registers by configured-address write (FPWR), IgH's ``reg_write``."""
         self.master.slave(position)
-        register_write(_MasterRegisters(self.master), position, address, data)
+        contract.register_write(_MasterRegisters(self.master), position, address, data)
 
     def sii_info(self, position: int) -> SiiInfo:
         """The parsed SII the scan read (identity, mailboxes, SyncManagers)."""
