@@ -57,7 +57,7 @@ def sii_pdos(img: bytes, strings: tuple[str, ...]) -> dict[int, SiiPdo]:
     return out
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class SyncLayout:
     """One SyncManager of a slave with its assigned PDOs: [(index, name, [(index, sub, bits, name)])]."""
 
