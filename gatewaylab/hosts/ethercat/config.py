@@ -23,6 +23,7 @@ from gatewaylab.ethercat.esc import (
     AlState,
 )
 from gatewaylab.ethercat.sii import SiiInfo, parse_sii
+from gatewaylab.hosts.ethercat.backend import sii_complete
 from gatewaylab.hosts.ethercat.base import U16, U32, Port
 
 if TYPE_CHECKING:
@@ -86,17 +87,6 @@ class SlaveInfo:
         return self.sii.serial
 
 
-def _sii_complete(img: bytearray) -> bool:
-    """Whether the SII image read so far reaches its END category (0xFFFF)."""
-    pos = 0x80
-    while pos + 4 <= len(img):
-        kind, words = struct.unpack_from("<HH", img, pos)
-        if kind == 0xFFFF:
-            return True
-        pos += 4 + 2 * words
-    return False
-
-
 def _pd_sms(s: SlaveInfo) -> tuple[tuple[int, int], tuple[int, int]]:
     """(start, SM index) of the outputs and inputs SyncManagers from the SII (types 3 and 4)."""
     outs = [(sm[0], i) for i, sm in enumerate(s.sii.sync_managers) if sm[4] == 3]
@@ -136,7 +126,7 @@ class Configuration:
         out = bytearray()
         while len(out) < max_bytes:
             out += self.sii_read8(station, len(out) // 2)
-            if len(out) >= 0x84 and _sii_complete(out):
+            if len(out) >= 0x84 and sii_complete(out):
                 break
         return bytes(out)
 
