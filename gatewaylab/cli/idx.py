@@ -40,7 +40,7 @@ Exit codes: 0 ok, 1 the IDX or the port failed, 2 the command line is wrong.
 """
 
 
-class IdxValueError(ConfigError, ValueError):
+class IdxValueError(LocalError, ValueError):
     """A ``write`` VALUE that is no number or does not fit its type (exit 2, as other usage errors)."""
 
 
