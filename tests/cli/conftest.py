@@ -1,4 +1,5 @@
-"""The veth-namespace fixture of the wire runs of ``gatewaylab ec`` (defined in ``ethercat_fixtures``)."""
+"""Fixtures of the CLI tests: the EtherCAT tests' veth namespace (``ethercat_fixtures``) for the `ec` verbs
+over SOEM."""
 
 from ethercat_fixtures import veth_ns
 
