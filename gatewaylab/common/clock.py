@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import heapq
 import math
+import threading
 import time
 from collections import deque
 from collections.abc import Callable
@@ -67,12 +68,29 @@ class Clock:
         #: While the loop that runs this clock waits (between :meth:`begin_wait` and :meth:`end_wait`):
         #: the time it wakes up by itself; an event scheduled before it wakes the loop. -inf otherwise.
         self._wake_before = -math.inf
-        #: Serialises access to the protocol state when several threads touch it. The in-process
-        #: python-can adapter installs a real lock here; single-threaded use needs none.
+        #: Serialises access to the protocol state when several threads touch it: a real lock once
+        #: :meth:`ensure_lock` was called; single-threaded use needs none (a no-op context).
         self.lock: AbstractContextManager[Any] = nullcontext()
         #: Unix time (seconds since the epoch) of clock time 0: an event at clock time ``t``
         #: happened at ``wall_epoch + t``. The one time base of traces, client timestamps and the demo.
         self.wall_epoch: float = time.time()
+
+    def ensure_lock(self) -> AbstractContextManager[Any]:
+        """Make this clock safe to share between threads, and return its :attr:`lock`.
+
+        The contract: the thread that runs the clock (the rig's loop, a simulation's owner) holds
+        :attr:`lock` while it runs events, and every other thread (a wire thread, a python-can
+        adapter's caller, a web server, a host library's cycle thread) takes it before it touches
+        any state of the protocol cores that share the clock, or schedules on the clock. The lock
+        is re-entrant, so a callback may call code that takes it again. The first call installs
+        it; later calls (from every component that shares the clock) return the same lock, so
+        all of them serialise on one. Protocol code never takes it itself: only the code that
+        brings threads in does.
+        """
+        lock = self.lock
+        if isinstance(lock, nullcontext):
+            lock = self.lock = threading.RLock()
+        return lock
 
     # -- time ---------------------------------------------------------------------------------
     def now(self) -> float:

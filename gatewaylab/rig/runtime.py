@@ -184,8 +184,7 @@ class Rig:
         """Wake the loop when other threads inject work; log failing callbacks. Neither hook holds
         a strong reference to the rig (a clock may outlive it)."""
         clock = self.clock
-        if isinstance(clock.lock, contextlib.nullcontext):
-            clock.lock = threading.RLock()
+        clock.ensure_lock()   # the loop, wire threads and servers share the protocol state
         wake_w = self._wake_w
 
         def wake() -> None:
