@@ -93,10 +93,12 @@ class VirtualBus:
 
     @property
     def is_fd(self) -> bool:
+        """True for a CAN FD bus (it has a data bit rate)."""
         return self._data_bitrate is not None
 
     @property
     def bitrate(self) -> int:
+        """The nominal (arbitration) bit rate in bit/s."""
         return self._bitrate
 
     @bitrate.setter
@@ -109,10 +111,12 @@ class VirtualBus:
 
     @property
     def data_bitrate(self) -> int | None:
+        """The CAN FD data-phase bit rate in bit/s; None on a classic bus."""
         return self._data_bitrate
 
     @data_bitrate.setter
     def data_bitrate(self, value: int | None) -> None:
+        """The CAN FD data-phase bit rate in bit/s; None on a classic bus."""
         self._data_bitrate = value
         for c in self.controllers:
             c._check_timing()
@@ -131,6 +135,7 @@ class VirtualBus:
         return ctrl
 
     def detach(self, ctrl: Controller) -> None:
+        """Remove a controller: its queue is dropped, it takes part in no frame any more."""
         if ctrl in self.controllers:
             self.controllers.remove(ctrl)
             ctrl.connected = False
@@ -142,6 +147,7 @@ class VirtualBus:
         self._monitors.append(callback)
 
     def remove_monitor(self, callback: FrameCallback) -> None:
+        """Stop calling a callback given to :meth:`add_monitor` (unknown ones are ignored)."""
         if callback in self._monitors:
             self._monitors.remove(callback)
 
@@ -228,6 +234,7 @@ class VirtualBus:
         return 100.0 * self.stats.busy_time / elapsed if elapsed > 0 else 0.0
 
     def reset_stats(self) -> None:
+        """Start the bus's and every controller's counters from zero, now."""
         self.stats = BusStats(since=self.clock.now())
         self._settle_rx()
         for c in self.controllers:

@@ -58,6 +58,7 @@ class ErrorFrameEvent:
 
 @dataclass(frozen=True, slots=True)
 class StateChangeEvent:
+    """The controller changed fault-confinement state (with the counters that made it)."""
     old: ErrorState
     new: ErrorState
     tec: int
@@ -178,10 +179,12 @@ class Controller:
 
     @property
     def connected(self) -> bool:
+        """False while unplugged (fault injection): it neither sends nor receives."""
         return self._connected
 
     @connected.setter
     def connected(self, value: bool) -> None:
+        """False while unplugged (fault injection): it neither sends nor receives."""
         self.bus._invalidate()
         self._connected = value
 
@@ -197,6 +200,7 @@ class Controller:
 
     @property
     def bitrate(self) -> int:
+        """The controller's own nominal bit rate (a mismatch with the bus makes it see only errors)."""
         return self._bitrate
 
     @bitrate.setter
@@ -207,10 +211,12 @@ class Controller:
 
     @property
     def data_bitrate(self) -> int | None:
+        """The controller's own CAN FD data bit rate (None: the bus's)."""
         return self._data_bitrate
 
     @data_bitrate.setter
     def data_bitrate(self, value: int | None) -> None:
+        """The controller's own CAN FD data bit rate (None: the bus's)."""
         self._data_bitrate = value
         self._check_timing()
 
@@ -226,6 +232,7 @@ class Controller:
 
     @property
     def bus_off(self) -> bool:
+        """True while the controller is bus-off (it neither sends nor acknowledges)."""
         return self.state is ErrorState.BUS_OFF
 
     def send(self, frame: CanFrame) -> None:
@@ -248,6 +255,7 @@ class Controller:
             self._mismatch_timer = self.bus.clock.call_soon(self._mismatch_attempt)
 
     def flush_tx(self) -> None:
+        """Drop every queued frame (a frame on the wire completes for nobody)."""
         self.tx_queue.clear()
 
     # -- fault confinement ------------------------------------------------------------------

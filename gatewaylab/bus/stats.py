@@ -16,6 +16,7 @@ if TYPE_CHECKING:
 
 @dataclass(slots=True)
 class ControllerStats:
+    """Frame and error counters of one controller (``controller.stats``)."""
     tx_frames: int = 0
     rx_frames: int = 0
     tx_bytes: int = 0
@@ -28,6 +29,7 @@ class ControllerStats:
 
 @dataclass(slots=True)
 class BusStats:
+    """Frame, error and busy-time counters of the whole bus since ``since`` (``bus.stats``)."""
     frames: int = 0
     bytes: int = 0
     error_frames: int = 0

@@ -46,6 +46,7 @@ class TimerHandle:
         self.cancelled = False
 
     def cancel(self) -> None:
+        """Keep the callback from running (it stays queued, skipped when due)."""
         self.cancelled = True
 
     def __repr__(self) -> str:
@@ -99,6 +100,7 @@ class Clock:
 
     @property
     def is_simulated(self) -> bool:
+        """True for a clock whose time moves only when its owner moves it."""
         return False
 
     # -- scheduling ---------------------------------------------------------------------------
@@ -124,11 +126,13 @@ class Clock:
             self._wake_loop()
 
     def call_later(self, delay: float, callback: Callback, *args: Any) -> TimerHandle:
+        """Run ``callback(*args)`` ``delay`` seconds from now."""
         if delay < 0:
             raise LocalError(f"negative delay {delay}")
         return self.call_at(self.now() + delay, callback, *args)
 
     def call_soon(self, callback: Callback, *args: Any) -> TimerHandle:
+        """Run ``callback(*args)`` now, after the events already due."""
         return self.call_at(self.now(), callback, *args)
 
     def call_every(self, period: float, callback: Callback, *args: Any,
@@ -184,6 +188,7 @@ class Clock:
         raise NotImplementedError
 
     def pending(self) -> int:
+        """How many events wait (cancelled ones not counted): for tests and diagnostics."""
         return sum(1 for _, _, h in self._heap if not h.cancelled) + len(self._injected)
 
     def _drain_injected(self) -> None:
@@ -219,12 +224,14 @@ class PeriodicTimer:
         self.callback(*self.args)
 
     def cancel(self) -> None:
+        """Stop the timer (idempotent)."""
         if self._handle is not None:
             self._handle.cancel()
             self._handle = None
 
     @property
     def active(self) -> bool:
+        """True until the timer is cancelled."""
         return self._handle is not None
 
 
@@ -237,10 +244,12 @@ class SimulatedClock(Clock):
         self.wall_epoch -= start
 
     def now(self) -> float:
+        """The simulated time: moves only in advance/run_until/step."""
         return self._now
 
     @property
     def is_simulated(self) -> bool:
+        """Always True: nothing runs unless the owner moves the clock."""
         return True
 
     def step(self) -> bool:
@@ -328,6 +337,7 @@ class RealTimeClock(Clock):
         self.pass_limit = 1000
 
     def now(self) -> float:
+        """Monotonic seconds since the clock was made."""
         return time.monotonic() - self._t0
 
     def wait(self, delay: float) -> None:

@@ -11,7 +11,7 @@ unknown keys, types, ranges, bus names; each failure a one-line :class:`ConfigEr
 file, the section and the key), then calls ``kind.create(rig, cfg)`` with a :class:`RigContext`
 and the validated section (every key present, defaults filled in).
 
-It lives in ``bus/`` (it depends only on ``common`` and the bus) so that ``canopen/``, ``ethercat/``
+It lives in ``plugin/``, above the protocol packages (it names their types) and below ``devices/``,
 and ``devices/`` import it without an upward dependency; ``gatewaylab.plugin`` re-exports it as
 the public name for device packages outside gatewaylab.
 """
@@ -33,37 +33,62 @@ class Participant(Protocol):
 
     name: str
 
-    def start(self) -> None: ...          # called once every participant exists
-    def stop(self) -> None: ...           # release endpoints, files, threads
-    def ready_info(self) -> dict[str, Any]: ...  # merged into the --ready-file JSON
+    def start(self) -> None:
+        """Called once every participant exists: open endpoints, attach, start timers."""
+
+    def stop(self) -> None:
+        """Release what start() took (endpoints, files, threads); returns within milliseconds."""
+
+    def ready_info(self) -> dict[str, Any]:
+        """What the participant adds to the --ready-file JSON (deep-merged with the others)."""
 
 
 class RigContext(Protocol):
     """What a factory and its participant may use of the rig they are built into."""
 
     @property
-    def clock(self) -> Clock: ...         # the one clock; schedule with call_later/call_every
-    @property
-    def buses(self) -> Mapping[str, VirtualBus]: ...
-    @property
-    def realtime(self) -> bool: ...       # False: a simulated clock, nothing runs by itself
-    @property
-    def state_dir(self) -> Path: ...      # the run's own folder: sockets, stored parameters
-    @property
-    def participants(self) -> Sequence[Participant]: ...  # built so far, in rig-file order
+    def clock(self) -> Clock:
+        """The one clock: schedule with call_later/call_every, never sleep."""
 
-    def bus(self, name: str) -> VirtualBus: ...
-    def add_reader(self, fd: int, callback: Callable[[], None]) -> None: ...
-    def remove_reader(self, fd: int) -> None: ...
-    def add_writer(self, fd: int, callback: Callable[[], None]) -> None: ...
-    def remove_writer(self, fd: int) -> None: ...
-    def wake(self) -> None: ...
+    @property
+    def buses(self) -> Mapping[str, VirtualBus]:
+        """The rig's buses by name."""
+
+    @property
+    def realtime(self) -> bool:
+        """False: a simulated clock, nothing runs by itself (open no servers that wait on it)."""
+
+    @property
+    def state_dir(self) -> Path:
+        """The run's own folder: sockets, stored parameters."""
+
+    @property
+    def participants(self) -> Sequence[Participant]:
+        """The participants built so far, in rig-file order."""
+
+    def bus(self, name: str) -> VirtualBus:
+        """The bus of that name (a ConfigError naming the declared ones otherwise)."""
+
+    def add_reader(self, fd: int, callback: Callable[[], None]) -> None:
+        """Call ``callback`` on the rig's loop, holding clock.lock, when ``fd`` is readable."""
+
+    def remove_reader(self, fd: int) -> None:
+        """Stop watching ``fd`` for readability."""
+
+    def add_writer(self, fd: int, callback: Callable[[], None]) -> None:
+        """Call ``callback`` on the rig's loop, holding clock.lock, when ``fd`` is writable."""
+
+    def remove_writer(self, fd: int) -> None:
+        """Stop watching ``fd`` for writability."""
+
+    def wake(self) -> None:
+        """Interrupt the loop's wait (safe from any thread), e.g. after changing what it waits for."""
 
 
 Factory = Callable[[RigContext, dict[str, Any]], Participant]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Key:
     """One key of a rig-file section: its type, whether it is required, its default and range.
 
@@ -86,7 +111,7 @@ class Key:
     help: str = ""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class DeviceKind:
     """A rig-file ``kind``: its factory and its keys (besides ``kind``)."""
 
@@ -106,6 +131,7 @@ class DeviceKind:
     default_name: Callable[[Mapping[str, Any]], str] | None = None
 
     def name_of(self, cfg: Mapping[str, Any]) -> str | None:
+        """The participant's name: the section's ``name``, or the kind's default for it."""
         name = cfg.get("name")
         if isinstance(name, str):
             return name

@@ -80,10 +80,12 @@ class PythonCanBridge:
 
     @property
     def state(self) -> LinkState:
+        """The link's state (LinkState), shown in ready info and logs."""
         return self._state
 
     @state.setter
     def state(self, value: LinkState) -> None:
+        """The link's state (LinkState), shown in ready info and logs."""
         with self._changed:
             self._state = value
             self._changed.notify_all()
@@ -95,6 +97,7 @@ class PythonCanBridge:
 
     @property
     def where(self) -> str:
+        """The python-can interface and channel, as log lines name them."""
         return f"{self.interface} channel {self.channel!r}" if self.channel is not None else self.interface
 
     # -- life cycle ---------------------------------------------------------------------------
@@ -107,6 +110,7 @@ class PythonCanBridge:
             self._threads.append(thread)
 
     def stop(self) -> None:
+        """Stop the bridge thread, close the python-can bus and detach from the virtual bus."""
         self._stop.set()
         try:
             self._queue.put_nowait(None)
@@ -119,6 +123,7 @@ class PythonCanBridge:
         self.vbus.detach(self.controller)
 
     def ready_info(self) -> dict[str, Any]:
+        """The bridge's bus, interface, channel and state for the --ready-file."""
         return {"bridges": {self.name: {"bus": self.vbus.name, "interface": self.interface,
                                         "channel": self.channel, "state": self.state.value}}}
 
@@ -286,6 +291,7 @@ KEYS: dict[str, Key] = {
 
 
 def create(rig: RigContext, cfg: dict[str, Any]) -> PythonCanBridge:
+    """The ``[[bridge]]`` factory: a bridge between a rig bus and a python-can interface."""
     channel = cfg["channel"]
     if channel is not None and (isinstance(channel, bool) or not isinstance(channel, str | int)):
         raise ConfigError(f"channel must be a string or an integer, got {channel!r}")

@@ -15,8 +15,9 @@ from gatewaylab.rig import kinds
 CLOCK_MODES = ("realtime", "simulated")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class BusConfig:
+    """One ``[[bus]]`` section: name, bit rates, timing and endpoints."""
     name: str
     bitrate: int = 1_000_000
     data_bitrate: int | None = None
@@ -31,8 +32,9 @@ class BusConfig:
     socketcand_port: int = 0
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class RigConfig:
+    """A parsed rig file: the clock, the buses and the raw device sections (checked by kinds.plan)."""
     clock: str = "realtime"
     buses: tuple[BusConfig, ...] = ()
     drives: tuple[dict[str, Any], ...] = ()

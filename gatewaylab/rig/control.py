@@ -28,9 +28,13 @@ MAX_LINE = 64 * 1024
 
 
 class Reactor(Protocol):
-    def add_reader(self, fd: int, callback: Callable[[], None]) -> None: ...
+    """The part of the rig's reactor the control server uses."""
 
-    def remove_reader(self, fd: int) -> None: ...
+    def add_reader(self, fd: int, callback: Callable[[], None]) -> None:
+        """Call ``callback`` when ``fd`` is readable."""
+
+    def remove_reader(self, fd: int) -> None:
+        """Stop watching ``fd``."""
 
 
 Handler = Callable[[Mapping[str, Any]], dict[str, Any]]
@@ -164,6 +168,7 @@ class ControlServer:
         self.reactor.add_reader(conn.fd, conn.on_readable)
 
     def close(self) -> None:
+        """Close every connection and the listener, remove the socket file."""
         for conn in list(self.connections):
             conn.close()
         self.reactor.remove_reader(self.listener.fileno())

@@ -250,6 +250,7 @@ class Rig:
 
     @classmethod
     def from_file(cls, path: str | Path | None = None, **kwargs: Any) -> Rig:
+        """A rig from a rig file (default: the one load_rig finds)."""
         return cls(load_rig(path), **kwargs)
 
     # -- construction -----------------------------------------------------------------------
@@ -270,6 +271,7 @@ class Rig:
             self.participants.append(participant)
 
     def bus(self, name: str) -> VirtualBus:
+        """The bus of that name; a ConfigError naming the declared ones otherwise."""
         try:
             return self.buses[name]
         except KeyError:
@@ -283,18 +285,22 @@ class Rig:
 
     # -- reactor interface (used by transports) ----------------------------------------------
     def add_reader(self, fd: int, callback: Callable[[], None]) -> None:
+        """Call ``callback`` on the rig's loop when ``fd`` is readable (holding clock.lock)."""
         self._readers[fd] = callback
         self._update(fd)
 
     def remove_reader(self, fd: int) -> None:
+        """Stop watching ``fd`` for readability."""
         self._readers.pop(fd, None)
         self._update(fd)
 
     def add_writer(self, fd: int, callback: Callable[[], None]) -> None:
+        """Call ``callback`` on the rig's loop when ``fd`` is writable (holding clock.lock)."""
         self._writers[fd] = callback
         self._update(fd)
 
     def remove_writer(self, fd: int) -> None:
+        """Stop watching ``fd`` for writability."""
         self._writers.pop(fd, None)
         self._update(fd)
 
@@ -337,6 +343,7 @@ class Rig:
     # -- life cycle ---------------------------------------------------------------------------
     @property
     def closed(self) -> bool:
+        """True once close() ran: the rig cannot start again."""
         return self._closed
 
     def start(self) -> None:
@@ -357,6 +364,7 @@ class Rig:
                                         f"{exc.strerror or exc}{hint}") from None
 
     def ready_info(self) -> dict[str, Any]:
+        """What the --ready-file holds: pid, buses and endpoints, then every participant's info."""
         info: dict[str, Any] = {"pid": os.getpid(), "buses": {}}
         for name, bus in self.buses.items():
             entry: dict[str, Any] = {"bitrate": bus.bitrate}

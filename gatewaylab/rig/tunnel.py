@@ -27,6 +27,7 @@ log = logging.getLogger(__name__)
 
 @dataclass(slots=True)
 class TunnelStats:
+    """What the tunnel sent, received and lost (ready info, tests)."""
     sent_frames: int = 0
     sent_packets: int = 0
     send_errors: int = 0          # datagrams the socket refused (peer gone: ICMP unreachable, buffer full)
@@ -73,6 +74,7 @@ class CannelloniTunnel:
 
     # -- life cycle ---------------------------------------------------------------------------
     def start(self) -> None:
+        """Bind the UDP socket and watch it on the rig's loop."""
         sock = socket.socket(self._family, socket.SOCK_DGRAM)
         try:
             sock.bind(self.local)
@@ -85,6 +87,7 @@ class CannelloniTunnel:
         self.rig.add_reader(sock.fileno(), self._readable)
 
     def stop(self) -> None:
+        """Cancel the pending send, close the socket and detach from the bus."""
         if self._due is not None:
             self._due.cancel()
             self._due = None
@@ -95,6 +98,7 @@ class CannelloniTunnel:
         self.vbus.detach(self.controller)
 
     def ready_info(self) -> dict[str, Any]:
+        """The tunnel's bus and local and remote addresses, for the --ready-file."""
         return {"tunnels": {self.name: {"kind": "cannelloni", "bus": self.vbus.name,
                                         "local": f"{self.local[0]}:{self.local[1]}",
                                         "remote": f"{self.remote[0]}:{self.remote[1]}"}}}
@@ -206,6 +210,7 @@ KEYS: dict[str, Key] = {
 
 
 def create(rig: RigContext, cfg: dict[str, Any]) -> CannelloniTunnel:
+    """The ``[[tunnel]]`` factory: a cannelloni UDP tunnel of a rig bus."""
     name = KIND.name_of(cfg)
     assert name is not None
     where = f"[[tunnel]] {name}"
@@ -215,15 +220,16 @@ def create(rig: RigContext, cfg: dict[str, Any]) -> CannelloniTunnel:
                             mtu=cfg["mtu"], sort=cfg["sort"], check_peer=cfg["check_peer"])
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class TunnelKind(DeviceKind):
     """``[[tunnel]]``: its ``kind`` names the tunnel format; cannelloni is the one there is."""
 
     def validate(self, cfg: Mapping[str, Any], where: str, buses: Any = None) -> dict[str, Any]:
+        """Check a ``[[tunnel]]`` section (kind must be cannelloni), defaults filled in."""
         kind = cfg.get("kind", "cannelloni")
         if kind != "cannelloni":
             raise section_error(where, f"kind = {kind!r}: the tunnel kinds are 'cannelloni'")
-        return super().validate(cfg, where, buses)
+        return DeviceKind.validate(self, cfg, where, buses)   # (a slotted dataclass: no zero-argument super())
 
 
 KIND = TunnelKind("tunnel", create, KEYS, summary="a rig bus tunnelled over UDP in the cannelloni format",

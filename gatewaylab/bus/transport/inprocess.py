@@ -52,6 +52,7 @@ class InProcessBus(can.BusABC):
         self._put(frame.to_message(t, self._channel_name))
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        """Queue a message on the virtual bus; on a simulated clock, run until the bus is quiet."""
         frame = CanFrame.from_message(msg)
         vbus = self.vbus
         clock = vbus.clock
@@ -95,15 +96,18 @@ class InProcessBus(can.BusABC):
 
     @property
     def state(self) -> BusState:
+        """python-can's view of the controller: ERROR when bus-off, PASSIVE when listen-only."""
         if self.controller.listen_only:
             return BusState.PASSIVE
         return BusState.ERROR if self.controller.state is ErrorState.BUS_OFF else BusState.ACTIVE
 
     @state.setter
     def state(self, new_state: BusState) -> None:
+        """python-can's view of the controller: ERROR when bus-off, PASSIVE when listen-only."""
         self.controller.listen_only = new_state is BusState.PASSIVE
 
     def shutdown(self) -> None:
+        """Detach the controller from the virtual bus (idempotent)."""
         if not self._is_shutdown:
             with self.vbus.clock.lock:
                 self.vbus.detach(self.controller)

@@ -272,6 +272,7 @@ class SocketcandServer:
             self.bus.detach(client.controller)
 
     def close(self) -> None:
+        """Drop every client and stop listening."""
         for client in list(self.clients):
             self.drop(client, "rig shutting down", level=logging.INFO)
         self.reactor.remove_reader(self.listener.fileno())
