@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
-from gatewaylab.bus.bus import VirtualBus
+from gatewaylab.bus.bus import Controller, VirtualBus
 from gatewaylab.common.clock import Clock
 from gatewaylab.common.errors import ConfigError
 
@@ -41,6 +41,46 @@ class Participant(Protocol):
 
     def ready_info(self) -> dict[str, Any]:
         """What the participant adds to the --ready-file JSON (deep-merged with the others)."""
+
+
+class ParticipantBase:
+    """A base a participant may derive from (it is a :class:`Participant`): the controllers it attaches
+    through :meth:`attach` are detached by :meth:`detach_all`, which :meth:`stop` calls, so attach and
+    detach are symmetric: a stopped participant (the rig closing, a power cycle) leaves nothing on a bus,
+    and one that attaches in :meth:`start` can start again. Its section is checked once by the rig
+    (:class:`CheckedSection`); a subclass that checks what it is given pays nothing for it."""
+
+    def __init__(self, rig: RigContext, name: str) -> None:
+        self.rig = rig
+        self.name = name
+        #: what :meth:`attach` attached and :meth:`detach_all` has not detached yet, in attachment order
+        self.controllers: list[Controller] = []
+
+    def attach(self, bus: str | VirtualBus, label: str, **options: Any) -> Controller:
+        """A controller on ``bus`` (a rig bus name, or the bus) named ``label``, detached again by
+        :meth:`detach_all`; ``options`` are :meth:`VirtualBus.attach`'s."""
+        vbus = self.rig.bus(bus) if isinstance(bus, str) else bus
+        ctrl = vbus.attach(label, **options)
+        self.controllers.append(ctrl)
+        return ctrl
+
+    def detach_all(self) -> None:
+        """Detach every controller :meth:`attach` attached, the last one first (idempotent)."""
+        controllers = self.controllers
+        while controllers:
+            ctrl = controllers.pop()
+            ctrl.bus.detach(ctrl)
+
+    def start(self) -> None:
+        """Nothing to open by default."""
+
+    def stop(self) -> None:
+        """Detach what :meth:`attach` attached; a subclass releases its own resources, then calls this."""
+        self.detach_all()
+
+    def ready_info(self) -> dict[str, Any]:
+        """Nothing for the --ready-file by default."""
+        return {}
 
 
 class RigContext(Protocol):
@@ -138,8 +178,25 @@ class DeviceKind:
         return self.default_name(cfg) if self.default_name is not None else None
 
     def validate(self, cfg: Mapping[str, Any], where: str, buses: Sequence[str] | None = None) -> dict[str, Any]:
-        """The section checked against :attr:`keys` (``kind`` itself is allowed and dropped)."""
-        return validate_table({k: v for k, v in cfg.items() if k != "kind"}, self.keys, where, buses)
+        """The section checked against :attr:`keys` (``kind`` itself is allowed and dropped), as a
+        :class:`CheckedSection`; a section this kind checked already is returned as it is (validate once:
+        the rig checks every section before it builds anything, and a participant that checks what it is
+        given, to be usable without a rig, does not check it again)."""
+        if isinstance(cfg, CheckedSection) and cfg.kind == self.kind:
+            return cfg
+        return CheckedSection(self.kind, validate_table({k: v for k, v in cfg.items() if k != "kind"},
+                                                        self.keys, where, buses))
+
+
+class CheckedSection(dict[str, Any]):
+    """A rig-file section checked against the keys of the kind named :attr:`kind` (every key present,
+    defaults filled in): :meth:`DeviceKind.validate` of that kind passes it through unchecked."""
+
+    __slots__ = ("kind",)
+
+    def __init__(self, kind: str, items: Mapping[str, Any]) -> None:
+        super().__init__(items)
+        self.kind = kind
 
 
 def _num(value: float) -> str:

@@ -29,7 +29,7 @@ import can
 from gatewaylab.bus.bridge import Backoff, BridgeStats, EchoFilter, LinkState, Verdict, classify
 from gatewaylab.bus.frame import CanFrame
 from gatewaylab.common.errors import ConfigError, FrameError, LocalError
-from gatewaylab.plugin.participant import DeviceKind, Key, RigContext
+from gatewaylab.plugin.participant import DeviceKind, Key, ParticipantBase, RigContext
 
 log = logging.getLogger(__name__)
 
@@ -43,14 +43,13 @@ MAX_QUEUE = 10_000
 LOOPING_INTERFACES = frozenset({"udp_multicast"})
 
 
-class PythonCanBridge:
+class PythonCanBridge(ParticipantBase):
     """One ``[[bridge]]``: the participant that joins ``bus`` to ``can.Bus(interface, channel, **kwargs)``."""
 
     def __init__(self, rig: RigContext, name: str, bus: str, interface: str, channel: str | int | None,
                  kwargs: Mapping[str, Any], *, retry_initial: float = 0.1, retry_max: float = 5.0,
                  echo_filter: bool | None = None) -> None:
-        self.name = name
-        self.rig = rig
+        super().__init__(rig, name)
         self.clock = rig.clock
         self.vbus = rig.bus(bus)
         self.interface = interface
@@ -76,7 +75,7 @@ class PythonCanBridge:
         #: seconds the reader waits before the next attempt to open the real side
         self._pause = 0.0
         self._threads: list[threading.Thread] = []
-        self.controller = self.vbus.attach(f"bridge {name}", on_frame=self._on_frame)
+        self.controller = self.attach(self.vbus, f"bridge {name}", on_frame=self._on_frame)
 
     @property
     def state(self) -> LinkState:
@@ -120,7 +119,7 @@ class PythonCanBridge:
             thread.join(2.0)
         self._close()
         self.state = LinkState.CLOSED
-        self.vbus.detach(self.controller)
+        self.detach_all()
 
     def ready_info(self) -> dict[str, Any]:
         """The bridge's bus, interface, channel and state for the --ready-file."""

@@ -40,6 +40,7 @@ from gatewaylab.bus.transport.trace import Trace
 from gatewaylab.common.clock import Clock, RealTimeClock, SimulatedClock
 from gatewaylab.common.errors import ConfigError, GatewaylabError
 from gatewaylab.plugin import Participant
+from gatewaylab.plugin.participant import CheckedSection
 from gatewaylab.rig import kinds
 from gatewaylab.rig.config import RigConfig, load_rig
 from gatewaylab.rig.control import ControlServer
@@ -258,7 +259,7 @@ class Rig:
         """One participant per checked section, in build order (``kinds.plan``)."""
         for section in self._sections:
             try:
-                participant = section.kind.create(self, dict(section.cfg))
+                participant = section.kind.create(self, CheckedSection(section.kind.kind, section.cfg))
             except ConfigError as exc:
                 message = str(exc)
                 if not message.startswith(self.config.source):

@@ -20,7 +20,7 @@ from gatewaylab.bus import cannelloni as cn
 from gatewaylab.bus.frame import CanFrame
 from gatewaylab.common.clock import TimerHandle
 from gatewaylab.common.errors import ConfigError, LocalError
-from gatewaylab.plugin.participant import DeviceKind, Key, RigContext, section_error
+from gatewaylab.plugin.participant import DeviceKind, Key, ParticipantBase, RigContext, section_error
 
 log = logging.getLogger(__name__)
 
@@ -48,14 +48,13 @@ def _address(text: str, what: str, *, any_port: bool) -> tuple[str, int]:
     return host, int(port)
 
 
-class CannelloniTunnel:
+class CannelloniTunnel(ParticipantBase):
     """One ``[[tunnel]]``: the participant that joins ``bus`` to a cannelloni peer at ``remote``."""
 
     def __init__(self, rig: RigContext, name: str, bus: str, local: tuple[str, int], remote: tuple[str, int],
                  *, timeout: float = 0.001, timeouts: Mapping[tuple[int, bool], float] | None = None,
                  mtu: int = 1500, sort: bool = False, check_peer: bool = True) -> None:
-        self.name = name
-        self.rig = rig
+        super().__init__(rig, name)
         self.clock = rig.clock
         self.vbus = rig.bus(bus)
         self.local = local
@@ -70,7 +69,7 @@ class CannelloniTunnel:
         self._due_at = 0.0
         self.sock: socket.socket | None = None
         self._family = family
-        self.controller = self.vbus.attach(f"cannelloni {name}", on_frame=self._on_frame)
+        self.controller = self.attach(self.vbus, f"cannelloni {name}", on_frame=self._on_frame)
 
     # -- life cycle ---------------------------------------------------------------------------
     def start(self) -> None:
@@ -95,7 +94,7 @@ class CannelloniTunnel:
             self.rig.remove_reader(self.sock.fileno())
             self.sock.close()
             self.sock = None
-        self.vbus.detach(self.controller)
+        self.detach_all()
 
     def ready_info(self) -> dict[str, Any]:
         """The tunnel's bus and local and remote addresses, for the --ready-file."""

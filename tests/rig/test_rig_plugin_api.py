@@ -1,6 +1,7 @@
-"""Capabilities as declared Protocols (issue 22: 'faults reach devices through declared capability Protocols,
-not getattr'): every built-in device satisfies the ones its faults need by its own members, and a plugin
-device that offers only a Protocol's members gets the fault."""
+"""The device plugin API of issue 22: capabilities as declared Protocols ('faults reach devices through declared
+capability Protocols, not getattr': every built-in device satisfies the ones its faults need by its own members,
+and a plugin device that offers only a Protocol's members gets the fault), and the Participant base
+('validate-once and symmetric attach/detach')."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from gatewaylab.bus.bus import Controller, ErrorState, VirtualBus
+from gatewaylab.plugin import CheckedSection, DeviceKind, Key, ParticipantBase, RigContext
 from gatewaylab.plugin.capabilities import (
     CanChannels,
     CanopenDrive,
@@ -22,6 +24,7 @@ from gatewaylab.plugin.capabilities import (
     node_of,
     segment_of,
 )
+from gatewaylab.rig import kinds
 from gatewaylab.rig.config import parse_rig
 from gatewaylab.rig.runtime import Rig
 
@@ -90,3 +93,57 @@ def test_a_plugin_with_only_the_protocol_members_gets_controller_faults() -> Non
         assert answer["channel"] == "right"
         assert plugin._channels["right"].state is ErrorState.BUS_OFF
         assert plugin._channels["left"].state is ErrorState.ERROR_ACTIVE
+
+
+class _Probe(ParticipantBase):
+    """A plugin participant on the base: it attaches in start(), so it can start again after stop()."""
+
+    def __init__(self, rig: RigContext, cfg: dict[str, Any]) -> None:
+        self.cfg = PROBE.validate(cfg, "[[device]] probe", list(rig.buses))
+        super().__init__(rig, self.cfg["name"])
+
+    def start(self) -> None:
+        self.attach(self.cfg["bus"], f"{self.name}.a")
+        self.attach(self.cfg["bus"], f"{self.name}.b", listen_only=True)
+
+
+PROBE = DeviceKind("probe", _Probe, {"name": Key(str, "probe"), "bus": Key(str, required=True, bus=True)})
+
+
+def test_participant_base_checks_once_and_detaches_what_it_attached() -> None:
+    """Issue 22 'Participant base with validate-once and symmetric attach/detach': a section the kind checked
+    passes its validate() unchanged (the same object), a raw one is checked; stop() detaches every controller
+    start() attached, and a second start attaches them again."""
+    raw = {"bus": "can0"}
+    checked = PROBE.validate(raw, "[[device]] probe", ["can0"])
+    assert isinstance(checked, CheckedSection) and checked == {"name": "probe", "bus": "can0"}
+    assert PROBE.validate(checked, "elsewhere", ["can0"]) is checked
+    with Rig(parse_rig({"clock": "simulated", "bus": [{"name": "can0"}]})) as rig:
+        bus = rig.buses["can0"]
+        probe = _Probe(rig, checked)
+        assert probe.cfg is checked
+        for _ in range(2):
+            probe.start()
+            assert [c.name for c in bus.controllers] == ["probe.a", "probe.b"]
+            probe.stop()
+            assert bus.controllers == [] and probe.controllers == []
+        probe.stop()   # idempotent
+
+
+def test_the_rig_plan_checks_each_section_once_for_its_device() -> None:
+    """Validate once: the rig's plan checks every section before anything is built (a CheckedSection of its
+    kind), and the device's own validate() call in its constructor returns that section without checking it
+    again; the tunnel and bridge participants detach what they attached when the rig closes."""
+    cfg = {"clock": "simulated", "bus": [{"name": "can0"}],
+           "device": [{"kind": "ethercat_io", "name": "io1"}],
+           "tunnel": [{"bus": "can0", "local": "127.0.0.1:0", "remote": "127.0.0.1:20000"}]}
+    config = parse_rig(cfg)
+    sections = kinds.plan(config)
+    assert [s.kind.kind for s in sections] == ["tunnel", "ethercat_io"]
+    for section in sections:
+        assert isinstance(section.cfg, CheckedSection) and section.cfg.kind == section.kind.kind
+        assert section.kind.validate(section.cfg, "elsewhere", ["can0"]) is section.cfg
+    with Rig(config) as rig:
+        tunnel = next(p for p in rig.participants if isinstance(p, ParticipantBase))
+        assert tunnel.controllers and tunnel.controllers[0] in rig.buses["can0"].controllers
+    assert rig.buses["can0"].controllers == [] and tunnel.controllers == []
