@@ -116,7 +116,6 @@ class VirtualBus:
 
     @data_bitrate.setter
     def data_bitrate(self, value: int | None) -> None:
-        """The CAN FD data-phase bit rate in bit/s; None on a classic bus."""
         self._data_bitrate = value
         for c in self.controllers:
             c._check_timing()

@@ -184,7 +184,6 @@ class Controller:
 
     @connected.setter
     def connected(self, value: bool) -> None:
-        """False while unplugged (fault injection): it neither sends nor receives."""
         self.bus._invalidate()
         self._connected = value
 
@@ -216,7 +215,6 @@ class Controller:
 
     @data_bitrate.setter
     def data_bitrate(self, value: int | None) -> None:
-        """The controller's own CAN FD data bit rate (None: the bus's)."""
         self._data_bitrate = value
         self._check_timing()
 

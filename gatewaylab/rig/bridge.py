@@ -84,7 +84,6 @@ class PythonCanBridge(ParticipantBase):
 
     @state.setter
     def state(self, value: LinkState) -> None:
-        """The link's state (LinkState), shown in ready info and logs."""
         with self._changed:
             self._state = value
             self._changed.notify_all()

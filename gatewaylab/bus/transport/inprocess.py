@@ -103,7 +103,6 @@ class InProcessBus(can.BusABC):
 
     @state.setter
     def state(self, new_state: BusState) -> None:
-        """python-can's view of the controller: ERROR when bus-off, PASSIVE when listen-only."""
         self.controller.listen_only = new_state is BusState.PASSIVE
 
     def shutdown(self) -> None:

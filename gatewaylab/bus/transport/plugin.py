@@ -449,7 +449,6 @@ class GatewaylabBus(can.BusABC):
     @state.setter
     def state(self, new_state: BusState) -> None:
         # listen-only is chosen when connecting (listen_only=True), as the rig-side controller is made then
-        """python-can's view of the remote controller: ERROR when bus-off, PASSIVE when listen-only."""
         wanted = BusState.PASSIVE if self.listen_only else BusState.ACTIVE
         if new_state is not wanted:
             raise can.CanOperationError(f"this gatewaylab connection is {wanted.name.lower()}: open it with "
