@@ -203,9 +203,9 @@ class Controller:
         return self._bitrate
 
     @bitrate.setter
-    def bitrate(self, value: int) -> None:
+    def bitrate(self, rate: int) -> None:
         """Change the nominal bit rate (LSS activate bit timing); the bus re-checks the match."""
-        self._bitrate = value
+        self._bitrate = rate
         self._check_timing()
 
     @property
@@ -214,8 +214,8 @@ class Controller:
         return self._data_bitrate
 
     @data_bitrate.setter
-    def data_bitrate(self, value: int | None) -> None:
-        self._data_bitrate = value
+    def data_bitrate(self, rate: int | None) -> None:
+        self._data_bitrate = rate
         self._check_timing()
 
     def _check_timing(self) -> None:

@@ -10,20 +10,7 @@ from typing import Any
 
 from gatewaylab.bus.bus import Controller, ErrorState, VirtualBus
 from gatewaylab.plugin import CheckedSection, DeviceKind, Key, ParticipantBase, RigContext
-from gatewaylab.plugin.capabilities import (
-    CanChannels,
-    CanopenDrive,
-    EthercatDevice,
-    HasDrive,
-    HasNode,
-    HasSegment,
-    UsbPluggable,
-    can_channels,
-    drive_of,
-    ethercat_devices,
-    node_of,
-    segment_of,
-)
+from gatewaylab.plugin import capabilities as cap
 from gatewaylab.rig import kinds
 from gatewaylab.rig.config import parse_rig
 from gatewaylab.rig.runtime import Rig
@@ -47,18 +34,18 @@ def test_every_device_declares_what_its_faults_need() -> None:
         rig.start()
         by_name = {p.name: p for p in rig.participants}
         axis2, idx1, ecan1, esd1 = by_name["axis2"], by_name["idx1"], by_name["ecan1"], by_name["esd1"]
-        assert isinstance(axis2, CanopenDrive) and isinstance(axis2, HasNode) and drive_of(axis2) is axis2
-        assert isinstance(idx1, HasNode) and isinstance(idx1, HasDrive) and isinstance(idx1, UsbPluggable)
-        assert node_of(idx1) is idx1.node and drive_of(idx1) is idx1.drive
-        assert drive_of(by_name["ax1"]) is not None and node_of(by_name["ax1"]) is None
-        assert isinstance(ecan1, CanChannels) and sorted(can_channels(ecan1)) == ["mcan0", "mcan1"]
-        assert isinstance(esd1, CanChannels) and not isinstance(esd1, UsbPluggable)
-        assert [d.name for d in ethercat_devices(rig.participants)] == ["ecan1", "esd1", "io1", "ax1"]
-        assert all(isinstance(d, EthercatDevice) for d in ethercat_devices(rig.participants))
-        segment = segment_of(rig.participants)
-        assert isinstance(by_name["ethercat"], HasSegment) and segment is not None
+        assert isinstance(axis2, cap.CanopenDrive) and isinstance(axis2, cap.HasNode) and cap.drive_of(axis2) is axis2
+        assert isinstance(idx1, cap.HasNode) and isinstance(idx1, cap.HasDrive) and isinstance(idx1, cap.UsbPluggable)
+        assert cap.node_of(idx1) is idx1.node and cap.drive_of(idx1) is idx1.drive
+        assert cap.drive_of(by_name["ax1"]) is not None and cap.node_of(by_name["ax1"]) is None
+        assert isinstance(ecan1, cap.CanChannels) and sorted(cap.can_channels(ecan1)) == ["mcan0", "mcan1"]
+        assert isinstance(esd1, cap.CanChannels) and not isinstance(esd1, cap.UsbPluggable)
+        assert [d.name for d in cap.ethercat_devices(rig.participants)] == ["ecan1", "esd1", "io1", "ax1"]
+        assert all(isinstance(d, cap.EthercatDevice) for d in cap.ethercat_devices(rig.participants))
+        segment = cap.segment_of(rig.participants)
+        assert isinstance(by_name["ethercat"], cap.HasSegment) and segment is not None
         assert [s.name for s in segment.slaves] == ["ecan1", "esd1", "io1", "ax1"]
-        assert can_channels(by_name["io1"]) == {} and drive_of(ecan1) is None
+        assert cap.can_channels(by_name["io1"]) == {} and cap.drive_of(ecan1) is None
 
 
 class _TwoChannelPlugin:
@@ -88,7 +75,7 @@ def test_a_plugin_with_only_the_protocol_members_gets_controller_faults() -> Non
         bus: VirtualBus = rig.buses["can0"]
         plugin = _TwoChannelPlugin("gadget", bus.attach("gadget.l"), bus.attach("gadget.r"))
         rig.participants.append(plugin)
-        assert isinstance(plugin, CanChannels) and not isinstance(plugin, HasNode)
+        assert isinstance(plugin, cap.CanChannels) and not isinstance(plugin, cap.HasNode)
         answer = rig.faults.bus_off("gadget", channel="right")
         assert answer["channel"] == "right"
         assert plugin._channels["right"].state is ErrorState.BUS_OFF
