@@ -51,6 +51,17 @@ class Client(Protocol):
         """Read what the client sent (the reactor saw its socket readable)."""
 
 
+def receive(sock: socket.socket, size: int = 65536) -> bytes | OSError | None:
+    """What a socket the reactor saw readable holds: its bytes (``b""``: the peer closed), None when there
+    is nothing after all (a spurious wake-up), or the OSError the receive failed with (the peer is gone)."""
+    try:
+        return sock.recv(size)
+    except BlockingIOError:
+        return None
+    except OSError as exc:
+        return exc
+
+
 C = TypeVar("C", bound=Client)
 
 

@@ -26,7 +26,7 @@ from gatewaylab.bus.bus import (
     VirtualBus,
 )
 from gatewaylab.bus.frame import CanFrame
-from gatewaylab.bus.transport.outbox import Outbox, accept_client
+from gatewaylab.bus.transport.outbox import Outbox, accept_client, receive
 from gatewaylab.common.clock import TimerHandle
 from gatewaylab.common.errors import ConfigError, GatewaylabError, LocalError, ProtocolError
 
@@ -161,12 +161,11 @@ class _Client:
 
     # client -> bus
     def readable(self) -> None:
-        try:
-            data = self.sock.recv(65536)
-        except BlockingIOError:
+        data = receive(self.sock)
+        if data is None:
             return
-        except OSError as exc:
-            self.server.drop(self, f"receive failed: {exc}")
+        if isinstance(data, OSError):
+            self.server.drop(self, f"receive failed: {data}")
             return
         if not data:
             self.server.drop(self, "client closed the connection", notify=False)
