@@ -163,15 +163,13 @@ class EsdQueueOnEcanLite(HostLoop):
     # ------------------------------------------------------------------ SDO helpers
     def _retry(self, call: Callable[[], bytes | None]) -> bytes | None:
         """An idempotent SDO service, repeated after a timeout or a late answer (as EsdHost's reads)."""
-        for attempt in range(SDO_ATTEMPTS):
+        for attempt in range(SDO_ATTEMPTS - 1):
             try:
                 return call()
             except _RETRYABLE:
-                if attempt == SDO_ATTEMPTS - 1:
-                    raise
                 self.sdo_retries += 1
                 self.clock.wait(SDO_RETRY_WAIT * (attempt + 1))
-        raise AssertionError("unreachable")
+        return call()      # the last attempt's error reaches the caller
 
     def _up(self, index: int, sub: int) -> int:
         raw = self._retry(lambda: self.backend.sdo_upload(self.position, index, sub))

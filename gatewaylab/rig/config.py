@@ -17,7 +17,8 @@ CLOCK_MODES = ("realtime", "simulated")
 
 @dataclass(frozen=True, slots=True)
 class BusConfig:
-    """One ``[[bus]]`` section: name, bit rates, timing and endpoints."""
+    """One ``[[bus]]`` section, validated: what the rig builds the virtual bus and its endpoints from."""
+
     name: str
     bitrate: int = 1_000_000
     data_bitrate: int | None = None
@@ -34,7 +35,8 @@ class BusConfig:
 
 @dataclass(frozen=True, slots=True)
 class RigConfig:
-    """A parsed rig file: the clock, the buses and the raw device sections (checked by kinds.plan)."""
+    """A whole rig file, validated (:func:`parse_rig`); participant sections stay raw tables for their kinds."""
+
     clock: str = "realtime"
     buses: tuple[BusConfig, ...] = ()
     drives: tuple[dict[str, Any], ...] = ()

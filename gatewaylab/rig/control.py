@@ -29,13 +29,13 @@ MAX_LINE = 64 * 1024
 
 
 class Reactor(Protocol):
-    """The part of the rig's reactor the control server uses."""
+    """The rig's select loop as the server sees it: the server never blocks and owns no thread."""
 
     def add_reader(self, fd: int, callback: Callable[[], None]) -> None:
-        """Call ``callback`` when ``fd`` is readable."""
+        """Call ``callback`` on the rig thread whenever ``fd`` is readable."""
 
     def remove_reader(self, fd: int) -> None:
-        """Stop watching ``fd``."""
+        """Stop watching ``fd`` (before it is closed)."""
 
 
 Handler = Callable[[Mapping[str, Any]], dict[str, Any]]
@@ -64,6 +64,8 @@ def _encode(obj: dict[str, Any]) -> bytes:
 
 
 class _Connection:
+    """One client: its unanswered partial line, and whether the rest of an over-long one is being skipped."""
+
     def __init__(self, server: ControlServer, sock: socket.socket) -> None:
         self.server = server
         self.sock = sock
@@ -76,9 +78,13 @@ class _Connection:
         data = receive(self.sock)
         if data is None:
             return
-        if not data or isinstance(data, OSError):
+        if data and not isinstance(data, OSError):    # a reset connection ends as a closed one
+            self._feed(data)
+        else:
             self.close()
-            return
+
+    def _feed(self, data: bytes) -> None:
+        """Answer every whole request line received so far; keep the rest for the next read."""
         self.buf += data
         while not self.closed:
             end = self.buf.find(b"\n")
@@ -166,12 +172,12 @@ class ControlServer:
         self.reactor.add_reader(conn.fd, conn.on_readable)
 
     def close(self) -> None:
-        """Close every connection and the listener, remove the socket file."""
-        for conn in list(self.connections):
-            conn.close()
+        """Stop listening, drop every client and remove the socket file (the rig stops)."""
         self.reactor.remove_reader(self.listener.fileno())
         with contextlib.suppress(OSError):
             self.listener.close()
+        for conn in list(self.connections):
+            conn.close()
         if self.unix_path is not None:
             with contextlib.suppress(OSError):
                 os.unlink(self.unix_path)

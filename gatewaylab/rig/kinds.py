@@ -70,7 +70,7 @@ class Section:
 
     @property
     def name(self) -> str | None:
-        """The participant's name in the rig (given, or the kind's default)."""
+        """The participant's rig-wide name (None for a section that names nothing, such as ``[ethercat]``)."""
         return self.kind.name_of(self.cfg)
 
 
