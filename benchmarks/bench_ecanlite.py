@@ -162,7 +162,7 @@ def master_ecan(iface: str, seconds: float, rate: float = RATE, drives: int = 0)
     def cycle() -> bool:
         seq = state["seq"] = (state["seq"] + 1) & 0xFFFF
         frames = state["cycle"] % every == 0
-        s0.output = encode_stream(rx, seq, [CanPacket(ch, 0x100 + ch, data=struct.pack("<HHI", ch, seq, 0))
+        s0.output = encode_stream(rx, seq, [CanPacket.of(ch, 0x100 + ch, data=struct.pack("<HHI", ch, seq, 0))
                                             for ch in range(4)] if frames else [])
         if drive_slaves:
             data = csp_output(state["cycle"])

@@ -35,6 +35,7 @@ from gatewaylab.devices.ecanlite.stream import (
     encode_into,
     packet_size,
 )
+from gatewaylab.devices.ecanlite.stream.packets import decoded_packet
 
 #: Calls of each measured function per round, and rounds.
 PER_ROUND = 100
@@ -59,12 +60,12 @@ def mixed_packets(layout: StreamLayout) -> list[CanPacket]:
         ch = i % 4
         if i % 2:
             n = _FD_LENS[i // 2 % len(_FD_LENS)]
-            p = CanPacket(ch, 0x100 + i, extended=bool(i % 3 == 0), fd=True, brs=bool(i % 4 == 1),
+            p = CanPacket.of(ch, 0x100 + i, extended=bool(i % 3 == 0), fd=True, brs=bool(i % 4 == 1),
                           data=bytes((i + k) & 0xFF for k in range(n)))
             if i % 3 == 0:
-                p = CanPacket(ch, 0x18FF0000 + i, extended=True, fd=True, data=p.data)
+                p = CanPacket.of(ch, 0x18FF0000 + i, extended=True, fd=True, data=p.data)
         else:
-            p = CanPacket(ch, 0x200 + i, data=bytes((i * 7 + k) & 0xFF for k in range(8)))
+            p = CanPacket.of(ch, 0x200 + i, data=bytes((i * 7 + k) & 0xFF for k in range(8)))
         size = packet_size(p, layout)
         if used + size > layout.frame_area_bytes or len(out) == 255:
             return out
@@ -229,7 +230,7 @@ def measure() -> dict[str, float]:
     layout = StreamLayout(multiplier=24, channel_mask=0x0F)
     mixed = _run(layout, mixed_packets(layout))
     # For scale: the same area filled with 64-byte CAN FD frames only (fewer, larger packets).
-    fd64 = [CanPacket(k % 4, 0x300 + k, fd=True, brs=True, data=bytes([k]) * 64)
+    fd64 = [CanPacket.of(k % 4, 0x300 + k, fd=True, brs=True, data=bytes([k]) * 64)
             for k in range(layout.frame_area_bytes // 68)]
     _run(layout, fd64)
     return mixed

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 
 from gatewaylab.bus.frame import CanFrame
 from gatewaylab.bus.stats import ControllerStats
-from gatewaylab.bus.timing import BUS_OFF_RECOVERY_BITS, ERROR_FRAME_BITS
+from gatewaylab.bus.timing import BUS_OFF_RECOVERY_BITS, ERROR_FRAME_BITS, arbitration_key
 from gatewaylab.common.clock import TimerHandle
 from gatewaylab.common.errors import FrameError, LocalError
 
@@ -255,6 +255,38 @@ class Controller:
     def flush_tx(self) -> None:
         """Drop every queued frame (a frame on the wire completes for nobody)."""
         self.tx_queue.clear()
+
+    # -- transmit queue editing (one way in for devices: M_CAN TX queue, cancellation) ----------
+    def withdraw(self, frame: CanFrame) -> bool:
+        """Take a queued frame (this very object) back before it is sent, as a TX buffer
+        cancellation request does (M_CAN TXBCR); False when it is on the wire now (it completes)
+        or not queued here."""
+        on_wire = self.bus.on_wire
+        busy = on_wire.frame if on_wire is not None and on_wire.sender is self else None
+        queue = self.tx_queue
+        for i, queued in enumerate(queue):
+            if queued is frame:
+                if queued is busy:
+                    return False
+                del queue[i]
+                return True
+        return False
+
+    def send_by_priority(self, frame: CanFrame) -> None:
+        """:meth:`send` in priority order, for a controller whose transmit queue picks the highest
+        arbitration priority first (M_CAN TX queue mode, TXBC.TFQM = 1): the frame goes behind the
+        queued frames with a lower or equal arbitration key, never before the one on the wire."""
+        self.send(frame)
+        queue = self.tx_queue
+        on_wire = self.bus.on_wire
+        start = 1 if on_wire is not None and on_wire.sender is self else 0
+        key = arbitration_key(frame)
+        pos = len(queue) - 1
+        while pos > start and arbitration_key(queue[pos - 1]) > key:
+            pos -= 1
+        if pos != len(queue) - 1:
+            queue.pop()
+            queue.insert(pos, frame)
 
     # -- fault confinement ------------------------------------------------------------------
     def _update_state(self) -> None:

@@ -190,7 +190,7 @@ def demo_ethercat() -> None:
           f"{info.output_bytes} B of RxPDO and {info.input_bytes} B of TxPDO (128 x N, manual 5.1)")
     peer = python_can_bus(can0)
     layout = StreamLayout.default()
-    master.pdo_write(0, 0, encode_stream(layout, 1, [CanPacket(0, 0x123, data=bytes.fromhex("1122334455667788"))]))
+    master.pdo_write(0, 0, encode_stream(layout, 1, [CanPacket.of(0, 0x123, data=bytes.fromhex("1122334455667788"))]))
     for _ in range(3):
         master.exchange_process_data()
         clock.advance(0.001)

@@ -220,7 +220,7 @@ class EsdQueueOnEcanLite(HostLoop):
             raise ConfigError(f"Tx queue size {cfg.tx_queue} (0x8000:22) exceeds the MCAN TX FIFO of {tx_room} "
                               f"elements (0x{base:04X}:46): a batch could not be taken whole")
         area = slave.rx_layout.frame_area_bytes
-        worst = cfg.tx_queue * CanPacket(self.channel, 0, cfg.extended, data=bytes(8)).raw_size
+        worst = cfg.tx_queue * CanPacket.of(self.channel, 0, cfg.extended, data=bytes(8)).raw_size
         if worst > area:
             raise ConfigError(f"a batch of {cfg.tx_queue} frames needs {worst} B, the RxPDO frame area has {area} B "
                               f"(N = {tr.multiplier}, at most 24)")
@@ -321,7 +321,7 @@ class EsdQueueOnEcanLite(HostLoop):
         """A batch into the next image, whole, when the TX FIFO has room for it; held while bus off."""
         sw = self._status_word
         for tn, f in book.take_batch(hold=bool(sw & SW_BUS_OFF) or sw & SW_STATE == STATE_BUSOFF):
-            packet = CanPacket(self.channel, f.can_id, f.extended, False, False, f.rtr, False, f.data,
+            packet = CanPacket.of(self.channel, f.can_id, f.extended, False, False, f.rtr, False, f.data,
                                dlc=f.dlc if f.rtr else -1)
             self._handed.append((port.send_packet(0, packet), tn, f))
 
