@@ -108,14 +108,9 @@ class InProcessBackend:
         in file order when it has none), frames under the rig clock's lock. Start the rig first so
         its devices run."""
         from gatewaylab.ethercat.segment import Segment as _Segment
-        from gatewaylab.plugin.capabilities import ethercat_devices
+        from gatewaylab.plugin.capabilities import ethercat_devices, segment_of
 
-        segment: Segment | None = None
-        for p in rig.participants:
-            found = getattr(p, "segment", None)
-            if isinstance(found, _Segment):
-                segment = found
-                break
+        segment = segment_of(rig.participants)
         if segment is None:
             devices = ethercat_devices(rig.participants)
             if not devices:
