@@ -47,8 +47,8 @@ class CanFrame:
                  fd: bool = False, brs: bool = False, esi: bool = False, dlc: int = -1) -> None:
         # Written out (dataclass keeps an explicit __init__): a data frame whose DLC follows from its
         # length is checked and built in one step, everything else (remote frames, an explicit dlc,
-        # data that is not bytes, any error) takes the full validation of __post_init__. The fields are set through their slot
-        # descriptors (what object.__setattr__ ends in, without looking the name up).
+        # data that is not bytes, any error) takes the full validation of __post_init__. The fields
+        # are set through their slot descriptors (what object.__setattr__ ends in, without the lookup).
         set_id, set_data, set_ext, set_rtr, set_fd, set_brs, set_esi, set_dlc = _SLOT_SETTERS
         set_id(self, can_id)
         set_data(self, data)
