@@ -54,7 +54,7 @@ N_SEGMENTED = 50
 
 
 def _rates(net: canopen.Network) -> dict[str, float]:
-    node = net.add_node(2, canopen.ObjectDictionary())
+    node = net.add_node(2, canopen.ObjectDictionary())  # type: ignore[no-untyped-call]
     node.sdo.upload(0x1000, 0)                      # warm up
     host = getattr(net.bus, "host", None)
     sim0 = host.clock.now() if host is not None else 0.0

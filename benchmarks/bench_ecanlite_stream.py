@@ -10,10 +10,11 @@ Measured in one run:
   into tuples, with the same CRC and zeroing but no validation and no objects.
 
 Rounds alternate between all measured functions; the fastest round of each counts (the machine
-is shared) and the median round is printed beside it. Target (issue 10): <= 50 us per image
-pack + parse. Printed, never asserted, together with the floors that explain why it is out of
-reach in CPython with immutable packet objects: the CRC-16 of the frame area, building the
-packets alone (the decoder's own slot stores), and the baseline's bare unpack loop.
+is shared) and the median round is printed beside it. Targets (issue 23): <= 50 us per image
+pack + parse compiled, pure Python <= 1.5x the struct loop; both run side by side in one run, each
+in its own child process (benchmarks/sides.py: GATEWAYLAB_PURE=1 and the default build). Printed,
+never asserted, together with the floors that explain the pure-Python time: the CRC-16 of the frame
+area, building the packets alone (19 slot stores per packet), and the baseline's bare unpack loop.
 """
 
 from __future__ import annotations
@@ -23,12 +24,12 @@ import statistics
 import struct
 import time
 from collections.abc import Callable
-from typing import Any
 
+from benchmarks.sides import both, compare, quick
+from benchmarks.targets import record
 from gatewaylab.devices.ecanlite.stream import (
     CanPacket,
     StreamLayout,
-    _CanPacketDraft,
     crc16,
     decode_stream,
     encode_into,
@@ -42,6 +43,11 @@ _HDR = struct.Struct("<BBHHHHHBBBB4H")
 _STD = struct.Struct("<HH")
 _EXT = struct.Struct("<HI")
 _FD_LENS = (12, 16, 20, 24, 32, 48, 64)
+#: the side-by-side table: label, measure()'s key, format
+SIDE_ROWS = (("codec pack+parse, us/image", "codec_us", ".1f"),
+             ("plain struct loop (baseline), us/image", "baseline_us", ".1f"),
+             ("ratio codec / baseline", "ratio", ".2f"),
+             ("pure-Python floor (2 CRC + objects), us", "floor_us", ".0f"))
 
 
 def mixed_packets(layout: StreamLayout) -> list[CanPacket]:
@@ -53,12 +59,12 @@ def mixed_packets(layout: StreamLayout) -> list[CanPacket]:
         ch = i % 4
         if i % 2:
             n = _FD_LENS[i // 2 % len(_FD_LENS)]
-            p = CanPacket(ch, 0x100 + i, extended=bool(i % 3 == 0), fd=True, brs=bool(i % 4 == 1),
+            p = CanPacket.of(ch, 0x100 + i, extended=bool(i % 3 == 0), fd=True, brs=bool(i % 4 == 1),
                           data=bytes((i + k) & 0xFF for k in range(n)))
             if i % 3 == 0:
-                p = CanPacket(ch, 0x18FF0000 + i, extended=True, fd=True, data=p.data)
+                p = CanPacket.of(ch, 0x18FF0000 + i, extended=True, fd=True, data=p.data)
         else:
-            p = CanPacket(ch, 0x200 + i, data=bytes((i * 7 + k) & 0xFF for k in range(8)))
+            p = CanPacket.of(ch, 0x200 + i, data=bytes((i * 7 + k) & 0xFF for k in range(8)))
         size = packet_size(p, layout)
         if used + size > layout.frame_area_bytes or len(out) == 255:
             return out
@@ -127,35 +133,24 @@ def bare_parse(buf: bytearray) -> list[tuple[int, int, bytes]]:
     return out
 
 
-def build_packets_only(packets: list[CanPacket]) -> list[CanPacket]:
-    """What the decoder spends on objects alone: for each packet a new instance, its 19 slots
-    stored from values already at hand, turned frozen (stream.decode_stream does exactly this)."""
-    out = []
-    new = object.__new__
-    for p in packets:
-        q: Any = new(_CanPacketDraft)
-        q.channel = p.channel
-        q.can_id = p.can_id
-        q.extended = p.extended
-        q.fd = p.fd
-        q.brs = p.brs
-        q.rtr = p.rtr
-        q.esi = p.esi
-        q.data = p.data
-        q.tsf = p.tsf
-        q.timestamp = p.timestamp
-        q.scheduled = p.scheduled
-        q.offset_ns = p.offset_ns
-        q.tag = p.tag
-        q.id_aux = p.id_aux
-        q.d64 = p.d64
-        q.dlc = p.dlc
-        q.ctrl = p.ctrl
-        q.raw_size = p.raw_size
-        q._wire = p._wire
-        q.__class__ = CanPacket
-        out.append(q)
-    return out
+class _Slots:
+    """A plain object of 19 slots (what the decoder builds per packet, measured without gatewaylab's
+    internals so that the floor survives changes to the packet class)."""
+
+    __slots__ = tuple(f"s{k}" for k in range(19))
+
+    def __init__(self, s0: object, s1: object, s2: object, s3: object, s4: object, s5: object, s6: object,
+                 s7: object, s8: object, s9: object, s10: object, s11: object, s12: object, s13: object,
+                 s14: object, s15: object, s16: object, s17: object, s18: object) -> None:
+        self.s0, self.s1, self.s2, self.s3, self.s4, self.s5, self.s6 = s0, s1, s2, s3, s4, s5, s6
+        self.s7, self.s8, self.s9, self.s10, self.s11, self.s12, self.s13 = s7, s8, s9, s10, s11, s12, s13
+        self.s14, self.s15, self.s16, self.s17, self.s18 = s14, s15, s16, s17, s18
+
+
+def build_packets_only(rows: list[tuple[object, ...]]) -> list[_Slots]:
+    """What the decoder spends on objects alone: for each packet a new instance with its 19 slots
+    stored from values already at hand (``rows``: 19 values per packet)."""
+    return [_Slots(*row) for row in rows]
 
 
 def _time_interleaved(fns: dict[str, Callable[[int], object]]) -> dict[str, tuple[float, float]]:
@@ -174,13 +169,15 @@ def _time_interleaved(fns: dict[str, Callable[[int], object]]) -> dict[str, tupl
     return {name: (min(v), statistics.median(v)) for name, v in samples.items()}
 
 
-def _run(layout: StreamLayout, packets: list[CanPacket]) -> tuple[float, float]:
-    """Measure and print one image; returns the codec's best seconds per pack + parse and the
-    floor nothing can go below: two CRC-16 passes plus building the packets."""
+def _run(layout: StreamLayout, packets: list[CanPacket]) -> dict[str, float]:
+    """Measure and print one image; returns the codec's and the baseline's best us per pack + parse and
+    the floor nothing can go below in pure Python: two CRC-16 passes plus building the packets."""
     buf = bytearray(layout.pdo_bytes)
     payload = sum(packet_size(p, layout) for p in packets)
     fd = sum(p.fd for p in packets)
     rows = [(p.ctrl, p.can_id, p.extended, p.data) for p in packets]
+    slot_rows: list[tuple[object, ...]] = [(p.channel, p.can_id, p.extended, p.fd, p.brs, p.rtr, p.esi, p.data,
+                                            *range(11)) for p in packets]
 
     def codec(seq: int) -> None:
         encode_into(buf, layout, seq, packets)
@@ -204,7 +201,7 @@ def _run(layout: StreamLayout, packets: list[CanPacket]) -> tuple[float, float]:
         "pack": lambda seq: encode_into(buf, layout, seq, packets),
         "parse": lambda seq: decode_stream(image, layout),
         "crc": lambda seq: crc16(area),
-        "objects": lambda seq: build_packets_only(packets),
+        "objects": lambda seq: build_packets_only(slot_rows),
         "unpack": lambda seq: bare_parse(image)})
     (t_base, m_base), (t_codec, m_codec) = t["baseline"], t["codec"]
     t_enc, t_dec, t_crc, t_obj, t_unp = (t[k][0] for k in ("pack", "parse", "crc", "objects", "unpack"))
@@ -216,23 +213,37 @@ def _run(layout: StreamLayout, packets: list[CanPacket]) -> tuple[float, float]:
     print(f"  baseline struct loop: {t_base * us:8.1f} us/image ({m_base * us:.1f})  {1 / t_base:9.0f} images/s")
     print(f"  ratio codec/baseline: {t_codec / t_base:.2f}")
     print(f"  floors: CRC-16 of the {payload}-byte frame area {t_crc * us:.1f} us (once in pack, once in parse); "
-          f"building {len(packets)} frozen packets alone {t_obj * us:.1f} us; bare struct unpack of the same bytes "
+          f"building {len(packets)} 19-slot objects alone {t_obj * us:.1f} us; bare struct unpack of the same bytes "
           f"into tuples {t_unp * us:.1f} us")
     print(f"  => parse with objects cannot go below ~{(t_crc + t_obj + t_unp) * us:.0f} us, pack below "
           f"~{t_crc * us:.0f} us (the packet bytes are joined, not packed, in encode_into)")
-    return t_codec, 2 * t_crc + t_obj
+    return {"codec_us": t_codec * us, "baseline_us": t_base * us, "ratio": t_codec / t_base,
+            "floor_us": (2 * t_crc + t_obj) * us}
+
+
+def measure() -> dict[str, float]:
+    """Both images measured and printed; the numbers of the mixed one (the target's)."""
+    global ROUNDS
+    if quick():
+        ROUNDS = 7
+    layout = StreamLayout(multiplier=24, channel_mask=0x0F)
+    mixed = _run(layout, mixed_packets(layout))
+    # For scale: the same area filled with 64-byte CAN FD frames only (fewer, larger packets).
+    fd64 = [CanPacket.of(k % 4, 0x300 + k, fd=True, brs=True, data=bytes([k]) * 64)
+            for k in range(layout.frame_area_bytes // 68)]
+    _run(layout, fd64)
+    return mixed
+
+
+def targets() -> None:
+    """Pure and compiled children side by side; records the two codec targets."""
+    sides = pure, default = compare("bench_ecanlite_stream", "ECAN-Lite stream, mixed N=24 image (best round)",
+                                    SIDE_ROWS)
+    d, p = default.result, pure.result
+    record("codec", both(sides, "codec_us", ".1f", " us"), d["codec_us"] <= 50)
+    record("codec_pure", f"{p['ratio']:.2f}x ({p['codec_us']:.1f} us vs struct loop {p['baseline_us']:.1f} us)",
+           p["ratio"] <= 1.5)
 
 
 def main() -> None:
-    layout = StreamLayout(multiplier=24, channel_mask=0x0F)
-    t_codec, floor = _run(layout, mixed_packets(layout))
-    print(f"target <= 50 us/image pack+parse (mixed image): {'met' if t_codec <= 50e-6 else 'NOT met'}; the CRC-16 "
-          f"of pack and parse plus building the packets alone take {floor * 1e6:.0f} us, before a byte is read")
-    # For scale: the same area filled with 64-byte CAN FD frames only (fewer, larger packets).
-    fd64 = [CanPacket(k % 4, 0x300 + k, fd=True, brs=True, data=bytes([k]) * 64)
-            for k in range(layout.frame_area_bytes // 68)]
-    _run(layout, fd64)
-
-
-if __name__ == "__main__":
-    main()
+    targets()

@@ -153,7 +153,7 @@ def master_ecan(iface: str, seconds: float) -> dict[str, Any]:
         if published:       # the last image reached the device: the next one carries what is pending
             batch, pending = pending[:ECAN_BATCH], pending[ECAN_BATCH:]
             seq = (seq + 1) & 0xFFFF
-            image = st.encode_stream(rx, seq, [st.CanPacket(0, TX_ID, data=struct.pack("<II", f, 0)) for f in batch])
+            image = st.encode_stream(rx, seq, [st.CanPacket.of(0, TX_ID, data=struct.pack("<II", f, 0)) for f in batch])
             committed += len(batch)
         s.output = image
         stamp = time.monotonic_ns()

@@ -25,7 +25,7 @@ from gatewaylab.od.eds import import_eds
 from gatewaylab.rig.process import RigProcess
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "canopen"))
-from canopen_monitor_kit import record_session
+from canopen_monitor_kit import record_session  # type: ignore[import-not-found]
 
 SATURATED = 8_000
 SECONDS = float(os.environ.get("BENCH_MONITOR_SECONDS", "3"))

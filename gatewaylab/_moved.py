@@ -10,6 +10,7 @@ from __future__ import annotations
 import importlib
 import importlib.abc
 import importlib.machinery
+import importlib.util
 import sys
 import warnings
 from collections.abc import Sequence
@@ -21,6 +22,7 @@ MOVED: dict[str, str] = {
     "gatewaylab.bus.transport.bridge": "gatewaylab.rig.bridge",
     "gatewaylab.bus.transport.cannelloni": "gatewaylab.rig.tunnel",
     "gatewaylab.bus.transport.send_cli": "gatewaylab.cli.send",
+    "gatewaylab.canopen.crc": "gatewaylab.od.crc",
     "gatewaylab.canopen.drive": "gatewaylab.devices.canopen_drive.device",
     "gatewaylab.canopen.homing": "gatewaylab.devices.canopen_drive.homing",
     "gatewaylab.canopen.lesson_cli": "gatewaylab.cli.lesson",
@@ -46,6 +48,7 @@ MOVED: dict[str, str] = {
     "gatewaylab.devices.esd_can_ethercat.host.gateway": "gatewaylab.hosts.esd_can_ethercat.gateway",
     "gatewaylab.devices.esd_can_ethercat.host.handshake": "gatewaylab.hosts.esd_can_ethercat.handshake",
     "gatewaylab.devices.esd_can_ethercat.host.loop": "gatewaylab.hosts.esd_can_ethercat.loop",
+    "gatewaylab.devices.modbus_gateway.gateway": "gatewaylab.devices.modbus_gateway.device",
     "gatewaylab.devices.maxon_idx.host": "gatewaylab.hosts.maxon_idx",
     "gatewaylab.devices.maxon_idx.host.cli": "gatewaylab.cli.idx",
     "gatewaylab.devices.maxon_idx.host.client": "gatewaylab.hosts.maxon_idx.client",
@@ -62,8 +65,8 @@ MOVED: dict[str, str] = {
     "gatewaylab.migrate.cli": "gatewaylab.cli.migrate",
     "gatewaylab.rig.cli": "gatewaylab.cli.main",
     "gatewaylab.rig.demo": "gatewaylab.cli.demo",
-    "gatewaylab.rig.ec": "gatewaylab.cli.ec_rig",
-    "gatewaylab.rig.ecan": "gatewaylab.cli.ecan_rig",
+    "gatewaylab.rig.ec": "gatewaylab.cli.ec",
+    "gatewaylab.rig.ecan": "gatewaylab.cli.ecan",
     "gatewaylab.rig.fault_cli": "gatewaylab.cli.fault",
     "gatewaylab.rig.migrate": "gatewaylab.cli.migrate_rig",
     "gatewaylab.rig.plugin": "gatewaylab.plugin",
@@ -75,18 +78,29 @@ class MovedModuleFinder(importlib.abc.MetaPathFinder, importlib.abc.Loader):
 
     def find_spec(self, fullname: str, path: Sequence[str] | None = None,
                   target: ModuleType | None = None) -> importlib.machinery.ModuleSpec | None:
-        if fullname not in MOVED:
+        """A spec for an old path (a package where the new path is one), None for every other name."""
+        new = MOVED.get(fullname)
+        if new is None:
             return None
-        return importlib.machinery.ModuleSpec(fullname, self, is_package=True)
+        found = importlib.util.find_spec(new)
+        is_package = found is not None and found.submodule_search_locations is not None
+        return importlib.machinery.ModuleSpec(fullname, self, is_package=is_package)
 
     def create_module(self, spec: importlib.machinery.ModuleSpec) -> ModuleType:
+        """The module at the new path (imported now if need be), with a DeprecationWarning."""
         new = MOVED[spec.name]
+        # stacklevel 2: the warnings module skips importlib's own frames, so this names the importing line
         warnings.warn(f"{spec.name} moved to {new}; the old path goes in the next release",
-                      DeprecationWarning, stacklevel=4)
-        return importlib.import_module(new)
+                      DeprecationWarning, stacklevel=2)
+        module = importlib.import_module(new)
+        spec.loader_state = module.__spec__     # importlib writes the old spec into the module next
+        return module
 
     def exec_module(self, module: ModuleType) -> None:
-        """The module ran when it was imported at its new path."""
+        """Give the module its own spec back: it ran when it was imported at its new path."""
+        old = module.__spec__
+        if old is not None and old.loader_state is not None:
+            module.__spec__ = old.loader_state
 
 
 def install() -> None:

@@ -45,10 +45,10 @@ class CanFrame:
 
     def __init__(self, can_id: int, data: bytes = b"", extended: bool = False, rtr: bool = False,
                  fd: bool = False, brs: bool = False, esi: bool = False, dlc: int = -1) -> None:
-        # Written out (dataclass keeps an explicit __init__): the classic base data frame that
-        # nearly every protocol sends is checked and built in one step, everything else takes
-        # the full validation of __post_init__. The fields are set through their slot
-        # descriptors (what object.__setattr__ ends in, without looking the name up).
+        # Written out (dataclass keeps an explicit __init__): a data frame whose DLC follows from its
+        # length is checked and built in one step, everything else (remote frames, an explicit dlc,
+        # data that is not bytes, any error) takes the full validation of __post_init__. The fields
+        # are set through their slot descriptors (what object.__setattr__ ends in, without the lookup).
         set_id, set_data, set_ext, set_rtr, set_fd, set_brs, set_esi, set_dlc = _SLOT_SETTERS
         set_id(self, can_id)
         set_data(self, data)
@@ -57,12 +57,19 @@ class CanFrame:
         set_fd(self, fd)
         set_brs(self, brs)
         set_esi(self, esi)
-        if (type(data) is bytes and dlc == -1 and not (extended or rtr or fd or brs or esi)
-                and type(can_id) is int and 0 <= can_id <= MAX_STD_ID and len(data) <= 8):
-            set_dlc(self, len(data))
-        else:
-            set_dlc(self, dlc)
-            self.__post_init__()
+        if (type(data) is bytes and dlc == -1 and not rtr and type(can_id) is int
+                and 0 <= can_id <= (MAX_EXT_ID if extended else MAX_STD_ID)):
+            # A data frame whose length says its DLC (what decoders build by the thousand): checked here.
+            n = len(data)
+            if not fd:
+                if n <= 8 and not (brs or esi):
+                    set_dlc(self, n)
+                    return
+            elif (fd_dlc := FD_LEN_TO_DLC.get(n)) is not None:
+                set_dlc(self, fd_dlc)
+                return
+        set_dlc(self, dlc)
+        self.__post_init__()
 
     def __post_init__(self) -> None:
         can_id, data = self.can_id, self.data
@@ -117,6 +124,7 @@ class CanFrame:
 
     # -- python-can interop -------------------------------------------------------------------
     def to_message(self, timestamp: float = 0.0, channel: str | None = None) -> can.Message:
+        """The frame as a python-can ``Message`` (for adapters, traces and bridges)."""
         import can
 
         return can.Message(
@@ -127,6 +135,7 @@ class CanFrame:
 
     @classmethod
     def from_message(cls, msg: can.Message) -> CanFrame:
+        """A python-can ``Message`` as a frame; error frames are refused (use fault injection)."""
         if msg.is_error_frame:
             raise FrameError("error frames cannot be sent; use the fault-injection API")
         data = bytes(msg.data) if msg.data is not None else b""

@@ -55,7 +55,8 @@ _VIEW_FIELDS = {(0x6041, 0): "statusword", (0x6060, 0): "mode", (0x6061, 0): "mo
 class SignalSource(Protocol):
     """A signal database (bus/signals.py SignalDecoder): the frames it defines, decoded."""
 
-    def decode(self, frame: CanFrame) -> DecodedMessage | None: ...
+    def decode(self, frame: CanFrame) -> DecodedMessage | None:
+        """The frame decoded into its signals, or None when the database does not define it."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -646,6 +647,7 @@ class ControllerWatch:
         self._first = True
 
     def update(self, states: Mapping[str, Mapping[str, Any]], now: float) -> list[MonitorEvent]:
+        """Compare with the last look: one ``can`` event per controller whose state or counters changed."""
         events: list[MonitorEvent] = []
 
         def say(name: str, text: str, st: Mapping[str, Any]) -> None:

@@ -132,6 +132,7 @@ class Rpdo(_Pdo):
         self._mapped_order: list[_Mapped] = []
 
     def on_frame(self, frame: CanFrame, t: float) -> None:
+        """A received RPDO: written into the mapped objects now, or at the next SYNC when synchronous."""
         if frame.rtr or not self.valid or not self.mapped:
             return
         data = frame.data
@@ -154,6 +155,7 @@ class Rpdo(_Pdo):
             self.apply(data)
 
     def configure(self) -> None:
+        """Read 0x1400+n / 0x1600+n again (COB-ID, transmission type, mapping) after a change."""
         super().configure()
         # Plain values (set-points) are written before the objects the device hooks (controlword,
         # mode), each group in mapping order: a controlword in the same PDO as its target (RPDO1 of
@@ -216,6 +218,7 @@ class Tpdo(_Pdo):
         self.sent = 0
 
     def configure(self) -> None:
+        """Read 0x1800+n / 0x1A00+n again (COB-ID, transmission type, inhibit time, event timer, mapping)."""
         super().configure()
         od = self.node.od
         self.inhibit = od.get(self.comm, 3) * 100e-6
@@ -227,6 +230,7 @@ class Tpdo(_Pdo):
         self._sampled = None
 
     def halt(self) -> None:
+        """Cancel the inhibit and event timers (NMT leaves Operational, the PDO is reconfigured)."""
         for handle in (self._inhibit_timer, self._event_timer):
             if handle is not None:
                 handle.cancel()
@@ -301,6 +305,7 @@ class Tpdo(_Pdo):
             self.transmit()
 
     def on_sync(self, counter: int | None) -> None:
+        """A SYNC: transmit when the transmission type's count of SYNCs is reached (CiA 301 7.2.2.2)."""
         if not self.mapped:
             return
         tt = self.trans_type
@@ -325,6 +330,7 @@ class Tpdo(_Pdo):
             self.transmit()
 
     def on_rtr(self, frame: CanFrame, t: float) -> None:
+        """A remote request for this TPDO: answer it when RTR is allowed (types 252/253 and on request)."""
         if not frame.rtr or not self.rtr_allowed or not self._active():
             return
         if self.trans_type == 252:
@@ -356,6 +362,7 @@ class PdoManager:
 
     # -- configuration ---------------------------------------------------------------------------
     def configure(self) -> None:
+        """Configure every PDO from the dictionary and list the synchronous ones the SYNC handler serves."""
         for pdo in (*self.rpdo, *self.tpdo):
             pdo.configure()
         self._sync_rpdos = [rpdo for rpdo in self.rpdo if rpdo.valid and rpdo.trans_type <= 240]
@@ -374,6 +381,7 @@ class PdoManager:
                              for m in tpdo.mapped if m.key is not None]
 
     def reconfigure(self) -> None:
+        """A communication or mapping object changed: halt, configure, rebuild the node's receive dispatch."""
         self.halt()
         self.configure()
         self.node.rebuild_dispatch()
@@ -382,12 +390,14 @@ class PdoManager:
                 tpdo._arm_event_timer()
 
     def halt(self) -> None:
+        """Stop every TPDO timer and forget RPDOs waiting for the next SYNC."""
         for tpdo in self.tpdo:
             tpdo.halt()
         for rpdo in self.rpdo:
             rpdo._pending = None
 
     def register(self, add: AddHandler) -> None:
+        """Hand the node's dispatch the COB-IDs the PDOs receive (valid RPDOs, TPDO remote requests)."""
         for rpdo in self.rpdo:
             if rpdo.valid:
                 add(rpdo.cob_id, rpdo.on_frame)
@@ -396,6 +406,7 @@ class PdoManager:
                 add(tpdo.cob_id, tpdo.on_rtr)
 
     def nmt_changed(self, old: NmtState, new: NmtState) -> None:
+        """PDOs run only in Operational: start counting SYNCs there, stop the timers elsewhere."""
         if new is NmtState.OPERATIONAL:
             for tpdo in self.tpdo:
                 tpdo._sync_count = 0        # counting of SYNCs starts anew in Operational

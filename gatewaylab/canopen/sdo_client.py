@@ -12,12 +12,11 @@ from __future__ import annotations
 import struct
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from enum import Enum
 from typing import Any
 
 from gatewaylab.bus.frame import CanFrame
-from gatewaylab.canopen.crc import crc16_ccitt
 from gatewaylab.common.clock import Clock, TimerHandle
 from gatewaylab.common.errors import LocalError
 from gatewaylab.od import SdoAbort, SdoAbortCode
@@ -46,18 +45,14 @@ class _Transfer:
     segmented: bool | None = None
     block: bool = False
     phase: _Phase = _Phase.INITIATE
-    buf: bytearray = field(default_factory=bytearray)
-    pos: int = 0
     #: the segmented transfer's client half (od/sdo.py), made when the server chose segments
     upload_segments: codec.ClientSegmentedUpload | None = None
     download_segments: codec.ClientSegmentedDownload | None = None
+    #: the block transfer's halves (od/sdo.py): the client receives a block upload, sends a block download
+    block_receiver: codec.BlockReceiver | None = None
+    block_sender: codec.BlockSender | None = None
     size: int | None = None
     crc: bool = False
-    blksize: int = 127
-    expected: int = 1
-    block_start: int = 0
-    sent: int = 0
-    last_sent: bool = False
     timer: TimerHandle | None = None
     size_indicated: bool = True
 
@@ -273,44 +268,35 @@ class SdoClient:
             tr.crc = bool(cs & 0x04)
             tr.size = struct.unpack_from("<I", data, 4)[0] if cs & 0x02 else None
             tr.phase = _Phase.BLOCK_SUB
-            tr.blksize = self.block_size
-            tr.expected = 1
+            tr.block_receiver = codec.BlockReceiver(self.block_size)
             self._req(tr, bytes((codec.CS_BLOCK_UPLOAD_START,)) + bytes(7))
             return
         # block end
         if cs & 0xE3 != 0xC1:
             raise SdoAbort(SdoAbortCode.COMMAND_SPECIFIER_UNKNOWN)
-        n = (cs >> 2) & 0x07
-        payload = bytes(tr.buf[:len(tr.buf) - n])
-        if tr.size is not None and len(payload) != tr.size:
-            raise SdoAbort(SdoAbortCode.LENGTH_MISMATCH)
-        if tr.crc and crc16_ccitt(payload) != struct.unpack_from("<H", data, 1)[0]:
-            raise SdoAbort(SdoAbortCode.CRC_ERROR)
+        receiver = tr.block_receiver
+        assert receiver is not None
+        payload = receiver.end(data, tr.size, tr.crc, short=SdoAbortCode.LENGTH_MISMATCH)
         self._req(tr, bytes((codec.CS_BLOCK_END_RESPONSE,)) + bytes(7), arm=False)
         self._finish(tr, payload)
 
     def _block_upload_segment(self, tr: _Transfer, data: bytes) -> None:
-        cs = data[0]
-        seq, last = cs & 0x7F, bool(cs & 0x80)
-        if seq == 0:
-            if cs == 0x80:          # the server aborted
-                self._finish(tr, SdoAbort(struct.unpack_from("<I", data, 4)[0]))
-            else:
-                self._fail(tr, SdoAbortCode.INVALID_SEQUENCE_NUMBER)
+        if data[0] == codec.CS_ABORT:          # the server aborted (sequence 0 is never a segment)
+            self._finish(tr, SdoAbort(struct.unpack_from("<I", data, 4)[0]))
             return
-        if seq == tr.expected:
-            tr.expected += 1
-            tr.buf += data[1:8]
-        else:
-            last = False
-        if seq == tr.blksize or last or cs & 0x80:
-            ackseq = tr.expected - 1
-            tr.expected = 1
-            if last:
-                tr.phase = _Phase.BLOCK_END
-            self._req(tr, codec.block_ack(ackseq, tr.blksize))
-        else:
+        receiver = tr.block_receiver
+        assert receiver is not None
+        try:
+            ack = receiver.segment(data)
+        except SdoAbort as exc:
+            self._fail(tr, exc.code)
+            return
+        if ack is None:
             self._arm(tr)
+            return
+        if receiver.last:
+            tr.phase = _Phase.BLOCK_END
+        self._req(tr, ack)
 
     def _arm(self, tr: _Transfer) -> None:
         if tr.timer is not None:
@@ -325,26 +311,19 @@ class SdoClient:
                 raise SdoAbort(SdoAbortCode.COMMAND_SPECIFIER_UNKNOWN)
             self._check_mux(tr, data)
             tr.crc = bool(cs & 0x04)
-            tr.blksize = data[4]
-            if not 1 <= tr.blksize <= 127:
+            if not 1 <= data[4] <= 127:
                 raise SdoAbort(SdoAbortCode.INVALID_BLOCK_SIZE)
-            tr.pos = 0
+            tr.block_sender = codec.BlockSender(tr.data, data[4])
             self._send_sub_block(tr)
             return
         if tr.phase is _Phase.BLOCK_SUB:
             if cs & 0xE3 != 0xA2:
                 raise SdoAbort(SdoAbortCode.COMMAND_SPECIFIER_UNKNOWN)
-            ackseq, blksize = data[1], data[2]
-            if ackseq > tr.sent:
-                raise SdoAbort(SdoAbortCode.INVALID_SEQUENCE_NUMBER)
-            if not 1 <= blksize <= 127:
-                raise SdoAbort(SdoAbortCode.INVALID_BLOCK_SIZE)
-            tr.blksize = blksize
-            tr.pos = min(tr.block_start + 7 * ackseq, len(tr.data))
-            if tr.last_sent and ackseq == tr.sent:
-                crc = crc16_ccitt(tr.data) if tr.crc else 0
+            sender = tr.block_sender
+            assert sender is not None
+            if sender.ack(data):
                 tr.phase = _Phase.BLOCK_END
-                self._req(tr, codec.block_end(0xC1, len(tr.data), crc))
+                self._req(tr, sender.end(tr.crc))
                 return
             self._send_sub_block(tr)
             return
@@ -353,16 +332,8 @@ class SdoClient:
         self._finish(tr, None)
 
     def _send_sub_block(self, tr: _Transfer) -> None:
+        sender = tr.block_sender
+        assert sender is not None
         tr.phase = _Phase.BLOCK_SUB
-        data = tr.data
-        pos = tr.block_start = tr.pos
-        seq = 0
-        last = False
-        while seq < tr.blksize and not last:
-            seq += 1
-            chunk = data[pos:pos + 7]
-            pos += 7
-            last = pos >= len(data)
-            self._req(tr, codec.block_segment(seq, chunk, last))
-        tr.sent = seq
-        tr.last_sent = last
+        for segment in sender.sub_block():
+            self._req(tr, segment)

@@ -14,13 +14,14 @@ from enum import Enum
 from typing import TYPE_CHECKING
 
 from gatewaylab.bus.frame import CanFrame
-from gatewaylab.canopen.crc import crc16_ccitt
 from gatewaylab.common.clock import TimerHandle
 from gatewaylab.od import SdoAbort, SdoAbortCode, decode
 from gatewaylab.od import sdo as codec
 from gatewaylab.od.sdo import (
     SDO_HEADER,
     SDO_HEADER_U32,
+    BlockReceiver,
+    BlockSender,
     BlockUploadSub,
     ClientCommand,
     SegmentedDownload,
@@ -85,18 +86,11 @@ class SdoServer:
         self._download: SegmentedDownload | None = None
         self._upload: SegmentedUpload | None = None
         self._timer: TimerHandle | None = None
-        # block transfers
-        self._buf = bytearray()
-        self._data = b""
-        self._pos = 0
+        # block transfers: the server receives a block download and sends a block upload
+        self._receiver: BlockReceiver | None = None
+        self._sender: BlockSender | None = None
         self._size: int | None = None
         self._crc = False
-        self._blksize = 127
-        self._ackseq = 0
-        self._sub_block: list[bytes] = []
-        self._block_start = 0
-        self._sent = 0
-        self._last_sent = False
         #: Expedited upload answers by payload: frames are immutable, polling repeats them.
         self._frames: dict[bytes, CanFrame] = {}
         #: Counters: requests answered, aborts sent, frames ignored (wrong DLC or RTR).
@@ -127,9 +121,8 @@ class SdoServer:
         self.state = SdoServerState.IDLE
         self._download = None
         self._upload = None
-        self._buf = bytearray()
-        self._data = b""
-        self._sub_block = []
+        self._receiver = None
+        self._sender = None
         if self._timer is not None:
             self._timer.cancel()
             self._timer = None
@@ -292,46 +285,27 @@ class SdoServer:
         self._crc = bool(cs & 0x04)
         self._size = _announced_size(data, entry) if cs & 0x02 else None
         self.state = SdoServerState.BLOCK_DOWNLOAD
-        self._buf = bytearray()
-        self._sub_block = []
-        self._ackseq = 0
-        self._blksize = self.block_size
+        self._receiver = BlockReceiver(self.block_size)
         self._send(SDO_HEADER.pack(codec.CS_BLOCK_DOWNLOAD_INITIATE_RESPONSE, index, sub)
-                   + bytes((self._blksize, 0, 0, 0)))
+                   + bytes((self.block_size, 0, 0, 0)))
         self._arm()
 
     def _block_segment(self, data: bytes) -> None:
-        cs = data[0]
-        seq = cs & 0x7F
-        last = bool(cs & 0x80)
-        if seq == 0 or seq > self._blksize:
-            raise SdoAbort(SdoAbortCode.INVALID_SEQUENCE_NUMBER)
-        if seq == self._ackseq + 1:
-            self._ackseq = seq
-            self._sub_block.append(data[1:8])
-        else:
-            last = False    # a segment after a lost one is discarded; the client repeats it
-        if seq == self._blksize or last or (cs & 0x80):
-            for seg in self._sub_block:
-                self._buf += seg
-            if len(self._buf) > MAX_TRANSFER:
+        receiver = self._receiver
+        assert receiver is not None
+        ack = receiver.segment(data)
+        if ack is not None:
+            if len(receiver.buf) > MAX_TRANSFER:
                 raise SdoAbort(SdoAbortCode.OUT_OF_MEMORY)
-            self._sub_block = []
-            ackseq = self._ackseq
-            self._ackseq = 0
-            if last:
+            if receiver.last:
                 self.state = SdoServerState.BLOCK_DOWNLOAD_END
-            self._send(codec.block_ack(ackseq, self._blksize))
+            self._send(ack)
         self._arm()
 
     def _block_download_end(self, data: bytes) -> None:
-        n = (data[0] >> 2) & 0x07
-        payload = bytes(self._buf[:len(self._buf) - n])
-        codec.check_size(len(payload), self._size)
-        if self._crc:
-            client_crc = struct.unpack_from("<H", data, 1)[0]
-            if crc16_ccitt(payload) != client_crc:
-                raise SdoAbort(SdoAbortCode.CRC_ERROR)
+        receiver = self._receiver
+        assert receiver is not None
+        payload = receiver.end(data, self._size, self._crc)
         index, sub = self.index, self.subindex
         self._reset()
         self.node.write(index, sub, payload)
@@ -363,9 +337,7 @@ class SdoServer:
             self._start_upload(index, sub, value)
             return
         self._crc = bool(cs & 0x04)
-        self._data = value
-        self._pos = 0
-        self._blksize = blksize
+        self._sender = BlockSender(value, blksize)
         self.state = SdoServerState.BLOCK_UPLOAD_START
         # sc only when the client asked for CRCs: some clients check it whenever the server offers it.
         self._send(SDO_HEADER_U32.pack(0xC2 | (0x04 if self._crc else 0), index, sub, len(value)))
@@ -377,35 +349,20 @@ class SdoServer:
         self._send_sub_block()
 
     def _send_sub_block(self) -> None:
+        sender = self._sender
+        assert sender is not None
         self.state = SdoServerState.BLOCK_UPLOAD
-        data = self._data
-        pos = self._block_start = self._pos
-        total = len(data)
-        seq = 0
-        last = False
-        while seq < self._blksize and not last:
-            seq += 1
-            chunk = data[pos:pos + 7]
-            pos += 7
-            last = pos >= total
-            self._send(codec.block_segment(seq, chunk, last))
-        self._sent = seq
-        self._last_sent = last
+        for segment in sender.sub_block():
+            self._send(segment)
         self._arm()
 
     def _block_upload_ack(self, data: bytes) -> None:
-        if self.state is not SdoServerState.BLOCK_UPLOAD:
+        sender = self._sender
+        if self.state is not SdoServerState.BLOCK_UPLOAD or sender is None:
             raise SdoAbort(SdoAbortCode.COMMAND_SPECIFIER_UNKNOWN)
-        ackseq, blksize = data[1], data[2]
-        if ackseq > self._sent:
-            raise SdoAbort(SdoAbortCode.INVALID_SEQUENCE_NUMBER)
-        if not 1 <= blksize <= 127:
-            raise SdoAbort(SdoAbortCode.INVALID_BLOCK_SIZE)
-        self._blksize = blksize
-        self._pos = min(self._block_start + 7 * ackseq, len(self._data))
-        if self._last_sent and ackseq == self._sent:
+        if sender.ack(data):
             self.state = SdoServerState.BLOCK_UPLOAD_END
-            self._send(codec.block_end(0xC1, len(self._data), crc16_ccitt(self._data)))
+            self._send(sender.end(crc=True))
             self._arm()
             return
         self._send_sub_block()

@@ -58,6 +58,7 @@ class Sync:
             raise SdoAbort(DATA_CANNOT_BE_STORED_DEVICE_STATE, "0x1006 is not 0 (CiA 301 7.5.2.22)")
 
     def configure(self) -> None:
+        """Read 0x1005 (COB-ID, producer bit), 0x1006 (period) and 0x1019 (counter overflow) again."""
         od = self.node.od
         cob = od.get(0x1005, 0)
         self.cob_id = cob & 0x7FF
@@ -73,15 +74,18 @@ class Sync:
         self.nmt_changed(self.node.nmt_state)
 
     def register(self, add: AddHandler) -> None:
+        """A SYNC consumer receives the SYNC COB-ID through the node's dispatch."""
         if not self.producer:
             add(self.cob_id, self.on_frame)
 
     def halt(self) -> None:
+        """Stop producing SYNCs (the node stops or leaves the running NMT states)."""
         if self._timer is not None:
             self._timer.cancel()
             self._timer = None
 
     def nmt_changed(self, state: NmtState) -> None:
+        """A producer sends SYNCs in Pre-operational and Operational only (CiA 301 7.2.5)."""
         running = state is NmtState.PRE_OPERATIONAL or state is NmtState.OPERATIONAL
         if running and self.producer and self.period > 0:
             if self._timer is None:
@@ -98,6 +102,7 @@ class Sync:
         self._consume(counter, self.node.clock.now())
 
     def on_frame(self, frame: CanFrame, t: float) -> None:
+        """A received SYNC: checked against 0x1019 (counter or none) and passed to the PDOs."""
         if frame.rtr:
             return
         data = frame.data

@@ -47,12 +47,15 @@ class Frame:
         return (self.can_id, self.extended, self.rtr, self.data)
 
     def label(self) -> str:
+        """The frame as a report cell, candump-like: ``123 [2] 01 02``, ``R`` for a remote frame."""
         ident = f"{self.can_id:08X}" if self.extended else f"{self.can_id:03X}"
         body = "R" if self.rtr else (self.data.hex(" ").upper() or "-")
         return f"{ident} [{len(self.data)}] {body}"
 
 
 class AppEventKind(Enum):
+    """Whether the application sent a frame or was handed one (the JSON rows carry the value)."""
+
     SEND = "send"
     RECV = "recv"
 
@@ -66,7 +69,7 @@ class AppEvent:
     frame: Frame
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Recording:
     """One run through one gateway: ``gateway`` is its display name ("esd CAN-EtherCAT")."""
 
@@ -77,7 +80,7 @@ class Recording:
     duration: float = 0.0
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Only:
     """A frame found in one trace only: ``index`` in that trace's bus frames."""
 
@@ -86,7 +89,7 @@ class Only:
     frame: Frame
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Moved:
     """The same frame in both traces at places the alignment could not match."""
 
@@ -95,7 +98,7 @@ class Moved:
     frame: Frame
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class PayloadDiff:
     """The same identifier at aligned places with other data (or flags)."""
 
@@ -105,7 +108,7 @@ class PayloadDiff:
     b: Frame
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Stats:
     """A latency distribution in seconds (nearest-rank percentiles)."""
 
@@ -117,6 +120,7 @@ class Stats:
 
     @classmethod
     def of(cls, values: Sequence[float]) -> Stats | None:
+        """The distribution of ``values``, None when there are none (a report prints '-')."""
         if not values:
             return None
         s = sorted(values)
@@ -129,7 +133,7 @@ def percentile(sorted_values: Sequence[float], p: float) -> float:
     return sorted_values[rank - 1]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Latencies:
     """Per-frame latencies of one recording; unmatched counts what found no partner."""
 
@@ -141,8 +145,10 @@ class Latencies:
     sent_by_app: frozenset[int]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Comparison:
+    """What :func:`compare` found between two recordings: the traffic differences and both latencies."""
+
     a: Recording
     b: Recording
     only: tuple[Only, ...]
@@ -157,6 +163,7 @@ class Comparison:
         return not (self.only or self.moved or self.payload)
 
     def only_in(self, side: int) -> tuple[Only, ...]:
+        """The frames found only in recording ``side`` (0 = a, 1 = b)."""
         return tuple(o for o in self.only if o.side == side)
 
     def verdict(self) -> str:
@@ -175,7 +182,7 @@ class Comparison:
         return f"{head}; master->CAN / CAN->master: " + ", ".join(parts)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class IdSummary:
     """The differences of one identifier; ``sender`` says who sent its frames in the traces."""
 
@@ -188,6 +195,7 @@ class IdSummary:
     sender: str          # "application", "other nodes" or "both"
 
     def label(self) -> str:
+        """The identifier as a report cell (eight hex digits when extended, three otherwise)."""
         return f"{self.can_id:08X}" if self.extended else f"{self.can_id:03X}"
 
 

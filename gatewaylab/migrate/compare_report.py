@@ -58,6 +58,7 @@ def write_csv(path: Path, frames: Sequence[Frame]) -> None:
 
 
 def read_csv(path: Path) -> tuple[Frame, ...]:
+    """The frames of a trace file :func:`write_csv` wrote (the report is made from these, as a reader sees them)."""
     return tuple(_frame(m) for m in can.CSVReader(str(path)))
 
 
@@ -79,8 +80,10 @@ def read_recording(folder: Path, prefix: str, gateway: str, duration: float = 0.
 
 
 # -- the report as blocks, rendered twice ------------------------------------------------------
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Block:
+    """One piece of the report, rendered alike to Markdown and HTML (``header`` holds an image's file)."""
+
     kind: str                 # h1, h2, p, table, img, code
     text: str = ""
     header: tuple[str, ...] = ()
@@ -166,6 +169,7 @@ def _md_cell(text: str) -> str:
 
 
 def markdown(bl: Sequence[Block]) -> str:
+    """The report as Markdown (report.md)."""
     lines: list[str] = []
     for blk in bl:
         if blk.kind == "h1":
@@ -193,6 +197,7 @@ def _inline_html(text: str) -> str:
 
 
 def to_html(bl: Sequence[Block], title: str) -> str:
+    """The report as a standalone HTML page (report.html) for readers without a Markdown viewer."""
     parts = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
              f"<title>{html.escape(title)}</title>",
              "<style>body{font-family:sans-serif;max-width:60em;margin:auto}table{border-collapse:collapse}"

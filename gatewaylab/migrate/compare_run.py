@@ -42,8 +42,11 @@ class CanRecorder(Protocol):
 
     bitrate: int
 
-    def add_monitor(self, callback: Callable[[CanFrame, float], None]) -> None: ...
-    def remove_monitor(self, callback: Callable[[CanFrame, float], None]) -> None: ...
+    def add_monitor(self, callback: Callable[[CanFrame, float], None]) -> None:
+        """Call ``callback(frame, t)`` for every frame on the bus from now on."""
+
+    def remove_monitor(self, callback: Callable[[CanFrame, float], None]) -> None:
+        """Stop calling ``callback`` (the recording ends)."""
 
 
 @dataclass
@@ -91,6 +94,7 @@ def load_app(path: str | Path) -> App:
 
 
 def takes_seconds(app: App) -> bool:
+    """Whether ``run`` accepts ``seconds=`` (else --seconds is a usage error, not a crash mid-run)."""
     try:
         return "seconds" in inspect.signature(app).parameters
     except (TypeError, ValueError):
@@ -98,6 +102,7 @@ def takes_seconds(app: App) -> bool:
 
 
 def to_frame(frame: CanFrame | can.Message, t: float) -> Frame:
+    """A bus frame or a python-can message as a trace frame at ``t``: both sides compare alike."""
     if isinstance(frame, can.Message):
         return Frame(t, frame.arbitration_id, b"" if frame.is_remote_frame else bytes(frame.data),
                      frame.is_extended_id, frame.is_remote_frame)
@@ -113,6 +118,7 @@ class Recorder:
     app: list[AppEvent] = field(default_factory=list)
 
     def on_frame(self, frame: CanFrame, t: float) -> None:
+        """Bus monitor: note ``frame`` at its time since the application's start."""
         self.bus.append(to_frame(frame, t - self.t0))
 
 
@@ -126,18 +132,21 @@ class RecordingBus(GatewayBus):
         super().__init__(host, channel_name, **kwargs)
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        """Note the call time (the start of the master -> CAN latency), then send."""
         now = self.host.clock.now()
         if not self._is_shutdown:
             self.recorder.app.append(AppEvent(AppEventKind.SEND, to_frame(msg, now - self.recorder.t0)))
         super().send(msg, timeout)
 
     def deliver(self, msgs: list[can.Message]) -> None:
+        """Note the delivery time of each data frame (the end of the CAN -> master latency), then queue them."""
         now = self.host.clock.now() - self.recorder.t0
         self.recorder.app.extend(AppEvent(AppEventKind.RECV, to_frame(m, now)) for m in msgs if not m.is_error_frame)
         super().deliver(msgs)
 
 
 def position_of(backend: MasterBackend, kind: str) -> int:
+    """Where the gateway of ``kind`` sits on the segment, found by identity (LocalError when missing)."""
     vendor, product = IDENTITY[kind]
     found = [s.position for s in backend.slaves() if (s.vendor_id, s.product_code) == (vendor, product)]
     if not found:

@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from gatewaylab.bus.frame import CanFrame
+from gatewaylab.common.errors import GatewaylabError
 from gatewaylab.ethercat.wire_netns import net_unavailable, veth_namespace
 from gatewaylab.hosts.canhost.host import EthercatHost
 from gatewaylab.hosts.ethercat.backend import PysoemBackend
@@ -51,6 +52,10 @@ OPEN_ATTEMPTS = 3
 #: seconds the master process may take at most (start-up, the application, shutdown) beyond --seconds
 RUN_TIMEOUT = 600.0
 _names = itertools.count()
+
+
+class MasterProcessError(GatewaylabError):
+    """The master child process of a wire run failed; the message is its last line on stderr."""
 
 
 @dataclass
@@ -98,7 +103,7 @@ def wire_runner(open_rig: RealtimeOpener) -> Runner:
                 sys.stderr.write(proc.stderr)
                 if proc.returncode != 0:
                     last = proc.stderr.strip().splitlines()[-1:] or [f"exit {proc.returncode}"]
-                    raise RuntimeError(f"the master process failed: {last[0]}")
+                    raise MasterProcessError(f"the master process failed: {last[0]}")
                 data = json.loads(out.read_text(encoding="utf-8"))
                 threading.Event().wait(SETTLE_S)       # answers to the last frames reach the bus
             finally:
@@ -124,26 +129,32 @@ def events_from_rows(rows: list[list[Any]], t0: float) -> tuple[AppEvent, ...]:
                  for k, t, i, x, r, d in rows)
 
 
+def _open(ifname: str, kind: str, bitrate: int, cycle_us: int) -> EthercatHost:
+    host = EthercatHost(PysoemBackend(ifname, pd_timeout_us=PD_TIMEOUT_US), cycle_us=cycle_us)
+    try:
+        pos = position_of(host.backend, kind)
+        if kind == "esd_can_ethercat":
+            host.add_esd(pos, bitrate, name="esd")
+        else:
+            host.add_ecanlite(pos, 0, bitrate, pdo_n=PDO_N, name="ecanlite")
+        host.start(timeout=10.0)
+    except BaseException:
+        host.close()
+        raise
+    return host
+
+
 def _start(ifname: str, kind: str, bitrate: int, cycle_us: int) -> EthercatHost:
-    for attempt in range(OPEN_ATTEMPTS):
-        host = EthercatHost(PysoemBackend(ifname, pd_timeout_us=PD_TIMEOUT_US), cycle_us=cycle_us)
-        try:
-            pos = position_of(host.backend, kind)
-            if kind == "esd_can_ethercat":
-                host.add_esd(pos, bitrate, name="esd")
-            else:
-                host.add_ecanlite(pos, 0, bitrate, pdo_n=PDO_N, name="ecanlite")
-            host.start(timeout=10.0)
-            return host
-        except Exception:
-            host.close()
-            if attempt == OPEN_ATTEMPTS - 1:
-                raise
-    raise AssertionError("unreachable")
+    for _ in range(OPEN_ATTEMPTS - 1):
+        with contextlib.suppress(Exception):
+            return _open(ifname, kind, bitrate, cycle_us)
+    return _open(ifname, kind, bitrate, cycle_us)     # the last attempt's error reaches the caller
 
 
 def run(ifname: str, kind: str, bitrate: int, app_path: str, out: Path, seconds: float | None,
         cycle_us: int) -> None:
+    """The child's work: the application through the gateway of ``kind`` with SOEM on ``ifname``;
+    its events, in Unix time, into ``out``."""
     app = load_app(app_path)
     host = _start(ifname, kind, bitrate, cycle_us)
     name = next(iter(host.channels))
@@ -166,6 +177,7 @@ def run(ifname: str, kind: str, bitrate: int, app_path: str, out: Path, seconds:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Entry point of the master child process (module docstring); exit 1 with the error on stderr."""
     p = argparse.ArgumentParser(prog="python -m gatewaylab.migrate.compare_wire")
     p.add_argument("ifname")
     p.add_argument("kind", choices=("esd_can_ethercat", "ecanlite"))

@@ -78,7 +78,8 @@ def report(source: str, esd_cmds: list[InitCmd] | tuple[InitCmd, ...], tr: Trans
 class SdoReader(Protocol):
     """What reading a running esd's dictionary needs (the in-process Master has it)."""
 
-    def sdo_upload(self, position: int, index: int, subindex: int, complete: bool = False) -> bytes: ...
+    def sdo_upload(self, position: int, index: int, subindex: int, complete: bool = False) -> bytes:
+        """The raw value of one object of the slave at ``position`` (an SDO upload)."""
 
 
 def read_live(master: SdoReader, position: int) -> list[InitCmd]:

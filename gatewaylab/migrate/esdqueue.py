@@ -62,6 +62,7 @@ from gatewaylab.hosts.esd_can_ethercat.handshake import (
 )
 from gatewaylab.hosts.esd_can_ethercat.loop import DEFAULT_TIMEOUT, HostLoop
 from gatewaylab.hosts.ethercat.backend import MasterBackend, MasterTimeout
+from gatewaylab.hosts.ethercat.states import walk_to
 from gatewaylab.migrate.eni import InitCmd
 from gatewaylab.migrate.translate import DEFAULT_FALLBACK_RATE, Translation, translate
 from gatewaylab.migrate.txbook import TxBook
@@ -163,15 +164,13 @@ class EsdQueueOnEcanLite(HostLoop):
     # ------------------------------------------------------------------ SDO helpers
     def _retry(self, call: Callable[[], bytes | None]) -> bytes | None:
         """An idempotent SDO service, repeated after a timeout or a late answer (as EsdHost's reads)."""
-        for attempt in range(SDO_ATTEMPTS):
+        for attempt in range(SDO_ATTEMPTS - 1):
             try:
                 return call()
             except _RETRYABLE:
-                if attempt == SDO_ATTEMPTS - 1:
-                    raise
                 self.sdo_retries += 1
                 self.clock.wait(SDO_RETRY_WAIT * (attempt + 1))
-        raise AssertionError("unreachable")
+        return call()      # the last attempt's error reaches the caller
 
     def _up(self, index: int, sub: int) -> int:
         raw = self._retry(lambda: self.backend.sdo_upload(self.position, index, sub))
@@ -186,11 +185,7 @@ class EsdQueueOnEcanLite(HostLoop):
         """The slave in PREOP (from BOOT through INIT); the queues stop until :meth:`start`."""
         with self._lock:
             self._running = False
-        state, _code = self.backend.state(self.position)
-        if state == AlState.BOOT:
-            self.backend.request_state(AlState.INIT, self.position, timeout)
-        if state != AlState.PREOP:
-            self.backend.request_state(AlState.PREOP, self.position, timeout)
+        walk_to(self.backend, self.position, AlState.PREOP, timeout)
 
     def configure(self, config: EsdConfig | None = None, /, **changes: Any) -> QueueLayout:
         """Translate ``config`` (or EsdConfig(**changes)) and write it in PREOP: the profile (5.4.3
@@ -222,7 +217,7 @@ class EsdQueueOnEcanLite(HostLoop):
             raise ConfigError(f"Tx queue size {cfg.tx_queue} (0x8000:22) exceeds the MCAN TX FIFO of {tx_room} "
                               f"elements (0x{base:04X}:46): a batch could not be taken whole")
         area = slave.rx_layout.frame_area_bytes
-        worst = cfg.tx_queue * CanPacket(self.channel, 0, cfg.extended, data=bytes(8)).raw_size
+        worst = cfg.tx_queue * CanPacket.of(self.channel, 0, cfg.extended, data=bytes(8)).raw_size
         if worst > area:
             raise ConfigError(f"a batch of {cfg.tx_queue} frames needs {worst} B, the RxPDO frame area has {area} B "
                               f"(N = {tr.multiplier}, at most 24)")
@@ -323,7 +318,7 @@ class EsdQueueOnEcanLite(HostLoop):
         """A batch into the next image, whole, when the TX FIFO has room for it; held while bus off."""
         sw = self._status_word
         for tn, f in book.take_batch(hold=bool(sw & SW_BUS_OFF) or sw & SW_STATE == STATE_BUSOFF):
-            packet = CanPacket(self.channel, f.can_id, f.extended, False, False, f.rtr, False, f.data,
+            packet = CanPacket.of(self.channel, f.can_id, f.extended, False, False, f.rtr, False, f.data,
                                dlc=f.dlc if f.rtr else -1)
             self._handed.append((port.send_packet(0, packet), tn, f))
 

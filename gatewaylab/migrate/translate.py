@@ -12,6 +12,7 @@ import math
 import struct
 from dataclasses import dataclass, field
 
+from gatewaylab.common.errors import ConfigError
 from gatewaylab.devices.ecanlite import bittiming, image
 from gatewaylab.devices.ecanlite.stream import HEADER_SIZE, MAX_FRAME_COUNT
 from gatewaylab.devices.esd_can_ethercat import bitrate as esd_rate
@@ -53,6 +54,7 @@ class EsdSettings:
 
     @property
     def extended(self) -> bool:
+        """29-bit identifiers (0x8000 flags): the packet size, and so the capacity, depends on it."""
         return bool(self.flags & esd_obj.FLAG_29BIT)
 
 
@@ -326,7 +328,7 @@ def translate(cmds: list[InitCmd] | tuple[InitCmd, ...], channel: int = 0, compl
               fallback_rate: int = DEFAULT_FALLBACK_RATE) -> Translation:
     """The ECAN-Lite startup writes (manual 5.4.2 order) for the esd startup writes ``cmds``."""
     if not 0 <= channel <= 3:
-        raise ValueError(f"channel {channel} is not 0..3")
+        raise ConfigError(f"channel {channel} is not 0..3")
     esd = read_esd(cmds)
     tr = Translation(channel=channel)
     n = _capacity(esd, tr)

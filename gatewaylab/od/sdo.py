@@ -6,7 +6,9 @@ bytes, an initiate upload response may carry the first part of the data). What i
 here: named command specifiers, pure encode/decode functions, the two server-side segmented
 transfer state machines (:class:`SegmentedDownload`, :class:`SegmentedUpload`) and their two
 client-side counterparts (:class:`ClientSegmentedUpload`, :class:`ClientSegmentedDownload`) used by
-the CANopen SDO client and the EtherCAT master. The servers and clients add framing.
+the CANopen SDO client and the EtherCAT master, and the two halves of a block transfer
+(:class:`BlockSender`, :class:`BlockReceiver`), which the CANopen server and client each play in one
+direction. The servers and clients add framing.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from dataclasses import dataclass, field
 from enum import IntEnum
 
 from gatewaylab.od.aborts import SdoAbort, SdoAbortCode
+from gatewaylab.od.crc import crc16_ccitt
 
 #: command byte, index, subindex (CiA 301 figure 20 ff.)
 SDO_HEADER = struct.Struct("<BHB")
@@ -233,6 +236,7 @@ class ClientSegmentedUpload:
 
     @property
     def data(self) -> bytes:
+        """The data received so far (all of it once ``done``)."""
         return bytes(self.buf)
 
 
@@ -266,3 +270,97 @@ class ClientSegmentedDownload:
         if (cs >> 4) & 1 != self.toggle:
             raise SdoAbort(SdoAbortCode.TOGGLE_BIT_NOT_ALTERNATED, "toggle bit in segment response")
         self.toggle ^= 1
+
+
+@dataclass(slots=True)
+class BlockSender:
+    """The sending half of a block transfer (CiA 301 7.2.4.3.9-7.2.4.3.16): the client in a block
+    download, the server in a block upload. Sends sub-blocks of up to ``blksize`` segments and
+    rewinds to what the receiver's block acknowledge confirms, so lost segments are sent again."""
+
+    data: bytes
+    blksize: int = 127
+    pos: int = 0
+    block_start: int = 0
+    sent: int = 0
+    last_sent: bool = False
+
+    def sub_block(self) -> list[bytes]:
+        """The segments of the next sub-block, from the first byte not yet acknowledged."""
+        data = self.data
+        pos = self.block_start = self.pos
+        total = len(data)
+        frames: list[bytes] = []
+        seq = 0
+        last = False
+        while seq < self.blksize and not last:
+            seq += 1
+            chunk = data[pos:pos + SEGMENT_DATA]
+            pos += SEGMENT_DATA
+            last = pos >= total
+            frames.append(block_segment(seq, chunk, last))
+        self.sent = seq
+        self.last_sent = last
+        return frames
+
+    def ack(self, data: bytes) -> bool:
+        """Take a block acknowledge (ackseq, next blksize); True when every segment is confirmed and
+        the end frame comes next. SdoAbort on an ackseq beyond the segments sent (0x05040003) or a
+        block size outside 1..127 (0x05040002)."""
+        ackseq, blksize = data[1], data[2]
+        if ackseq > self.sent:
+            raise SdoAbort(SdoAbortCode.INVALID_SEQUENCE_NUMBER)
+        if not 1 <= blksize <= 127:
+            raise SdoAbort(SdoAbortCode.INVALID_BLOCK_SIZE)
+        self.blksize = blksize
+        self.pos = min(self.block_start + SEGMENT_DATA * ackseq, len(self.data))
+        return self.last_sent and ackseq == self.sent
+
+    def end(self, crc: bool) -> bytes:
+        """The end block request/response (cs 0xC1): unused bytes of the last segment, CRC or 0."""
+        return block_end(0xC1, len(self.data), crc16_ccitt(self.data) if crc else 0)
+
+
+@dataclass(slots=True)
+class BlockReceiver:
+    """The receiving half of a block transfer (CiA 301 7.2.4.3.9-7.2.4.3.16): the server in a block
+    download, the client in a block upload. Keeps the segments that arrive in sequence and
+    acknowledges each sub-block; a segment after a lost one is dropped, the sender repeats it."""
+
+    blksize: int = 127
+    ackseq: int = 0
+    buf: bytearray = field(default_factory=bytearray)
+    #: the segment with the c bit arrived in sequence: the end frame comes next
+    last: bool = False
+
+    def segment(self, data: bytes) -> bytes | None:
+        """Take one block segment; the block acknowledge to send when the sub-block ends (segment
+        ``blksize`` or one with the c bit), else None. SdoAbort 0x05040003 on sequence number 0 or
+        beyond ``blksize``."""
+        cs = data[0]
+        seq = cs & 0x7F
+        if seq == 0 or seq > self.blksize:
+            raise SdoAbort(SdoAbortCode.INVALID_SEQUENCE_NUMBER)
+        if seq == self.ackseq + 1:
+            self.ackseq = seq
+            self.buf += data[1:8]
+            if cs & 0x80:
+                self.last = True
+        if seq == self.blksize or cs & 0x80:
+            ackseq = self.ackseq
+            self.ackseq = 0
+            return block_ack(ackseq, self.blksize)
+        return None
+
+    def end(self, data: bytes, size: int | None, crc: bool,
+            short: SdoAbortCode = SdoAbortCode.LENGTH_TOO_LOW) -> bytes:
+        """The data of a finished transfer: the end frame's n unused bytes cut off, then the size
+        checked against ``size`` (``short`` when fewer bytes came, 0x06070010 when more) and the
+        CRC when ``crc`` (0x05040004)."""
+        n = (data[0] >> 2) & 0x07
+        payload = bytes(self.buf[:len(self.buf) - n])
+        if size is not None and len(payload) != size:
+            raise SdoAbort(short if len(payload) < size else SdoAbortCode.LENGTH_MISMATCH)
+        if crc and crc16_ccitt(payload) != BLOCK_END.unpack_from(data)[1]:
+            raise SdoAbort(SdoAbortCode.CRC_ERROR)
+        return payload

@@ -10,7 +10,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from gatewaylab.common.clock import SimulatedClock
-from gatewaylab.hosts.canhost import interfaces as plugin
+from gatewaylab.hosts.canhost import interfaces
 from gatewaylab.hosts.ethercat.backend import InProcessBackend, MasterBackend
 from gatewaylab.rig.runtime import Rig
 
@@ -27,13 +27,13 @@ def open_rig(path: str) -> tuple[MasterBackend, Callable[[], None] | None, float
         raise
 
 
-class EcanliteBus(plugin.EcanliteBus):
+class EcanliteBus(interfaces.EcanliteBus):
     """``can.Bus(interface="ecanlite", ...)``: a network interface or ``rig:PATH.toml``."""
 
     open_rig = staticmethod(open_rig)
 
 
-class EsdCanEthercatBus(plugin.EsdCanEthercatBus):
+class EsdCanEthercatBus(interfaces.EsdCanEthercatBus):
     """``can.Bus(interface="esd_can_ethercat", ...)``: a network interface or ``rig:PATH.toml``."""
 
     open_rig = staticmethod(open_rig)

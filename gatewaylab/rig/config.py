@@ -15,8 +15,10 @@ from gatewaylab.rig import kinds
 CLOCK_MODES = ("realtime", "simulated")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class BusConfig:
+    """One ``[[bus]]`` section, validated: what the rig builds the virtual bus and its endpoints from."""
+
     name: str
     bitrate: int = 1_000_000
     data_bitrate: int | None = None
@@ -31,8 +33,10 @@ class BusConfig:
     socketcand_port: int = 0
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class RigConfig:
+    """A whole rig file, validated (:func:`parse_rig`); participant sections stay raw tables for their kinds."""
+
     clock: str = "realtime"
     buses: tuple[BusConfig, ...] = ()
     drives: tuple[dict[str, Any], ...] = ()

@@ -18,6 +18,7 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any, Protocol
 
+from gatewaylab.bus.transport.outbox import receive
 from gatewaylab.common.endpoint import format_tcp, format_unix
 from gatewaylab.common.errors import GatewaylabError
 
@@ -28,9 +29,13 @@ MAX_LINE = 64 * 1024
 
 
 class Reactor(Protocol):
-    def add_reader(self, fd: int, callback: Callable[[], None]) -> None: ...
+    """The rig's select loop as the server sees it: the server never blocks and owns no thread."""
 
-    def remove_reader(self, fd: int) -> None: ...
+    def add_reader(self, fd: int, callback: Callable[[], None]) -> None:
+        """Call ``callback`` on the rig thread whenever ``fd`` is readable."""
+
+    def remove_reader(self, fd: int) -> None:
+        """Stop watching ``fd`` (before it is closed)."""
 
 
 Handler = Callable[[Mapping[str, Any]], dict[str, Any]]
@@ -59,6 +64,8 @@ def _encode(obj: dict[str, Any]) -> bytes:
 
 
 class _Connection:
+    """One client: its unanswered partial line, and whether the rest of an over-long one is being skipped."""
+
     def __init__(self, server: ControlServer, sock: socket.socket) -> None:
         self.server = server
         self.sock = sock
@@ -68,15 +75,16 @@ class _Connection:
         self.closed = False
 
     def on_readable(self) -> None:
-        try:
-            data = self.sock.recv(65536)
-        except BlockingIOError:
+        data = receive(self.sock)
+        if data is None:
             return
-        except OSError:
-            data = b""
-        if not data:
+        if data and not isinstance(data, OSError):    # a reset connection ends as a closed one
+            self._feed(data)
+        else:
             self.close()
-            return
+
+    def _feed(self, data: bytes) -> None:
+        """Answer every whole request line received so far; keep the rest for the next read."""
         self.buf += data
         while not self.closed:
             end = self.buf.find(b"\n")
@@ -164,11 +172,12 @@ class ControlServer:
         self.reactor.add_reader(conn.fd, conn.on_readable)
 
     def close(self) -> None:
-        for conn in list(self.connections):
-            conn.close()
+        """Stop listening, drop every client and remove the socket file (the rig stops)."""
         self.reactor.remove_reader(self.listener.fileno())
         with contextlib.suppress(OSError):
             self.listener.close()
+        for conn in list(self.connections):
+            conn.close()
         if self.unix_path is not None:
             with contextlib.suppress(OSError):
                 os.unlink(self.unix_path)

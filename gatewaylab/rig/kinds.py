@@ -60,7 +60,7 @@ def load(name: str, where: str = "", known: Mapping[str, EntryPoint] | None = No
     return obj
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Section:
     """One rig-file section, checked: which kind builds it, where it is, its validated keys."""
 
@@ -70,6 +70,7 @@ class Section:
 
     @property
     def name(self) -> str | None:
+        """The participant's rig-wide name (None for a section that names nothing, such as ``[ethercat]``)."""
         return self.kind.name_of(self.cfg)
 
 

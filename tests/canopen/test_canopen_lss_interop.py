@@ -27,7 +27,8 @@ from gatewaylab.canopen.lss import (
 )
 from gatewaylab.canopen.nmt import NmtCommand, NmtState
 from gatewaylab.common.clock import SimulatedClock
-from gatewaylab.devices.canopen_drive.device import MAXON_VENDOR_ID, PRODUCT_CODE, REVISION, Drive
+from gatewaylab.devices.canopen_drive.device import Drive
+from gatewaylab.devices.canopen_drive.objects import MAXON_VENDOR_ID, PRODUCT_CODE, REVISION
 
 SERIALS = (0x1001, 0x1002, 0x1004)
 

@@ -9,7 +9,7 @@ import struct
 from gatewaylab.bus import CanFrame
 from gatewaylab.bus.errorframe import bus_error, state_change
 from gatewaylab.canopen.monitor import BusMonitor, hex_at_width
-from gatewaylab.devices.canopen_drive.device import build_object_dictionary
+from gatewaylab.devices.canopen_drive.objects import build_object_dictionary
 
 
 def test_a_plain_0x100_frame_is_shown_raw_not_as_a_time_stamp() -> None:

@@ -13,8 +13,8 @@ import pytest
 from canopen_testkit import barrier, remote_for
 
 from gatewaylab.canopen import errors as E
-from gatewaylab.canopen.crc import crc16_ccitt
 from gatewaylab.od import SdoAbort
+from gatewaylab.od.crc import crc16_ccitt
 
 
 def abort_code(answer: bytes | None) -> int:

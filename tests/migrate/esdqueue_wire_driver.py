@@ -10,30 +10,21 @@ from __future__ import annotations
 import dataclasses
 import json
 import sys
+from pathlib import Path
 from typing import Any
 
 from gatewaylab.bus.frame import CanFrame
-from gatewaylab.common.clock import RealTimeClock
-from gatewaylab.common.errors import GatewaylabError
 from gatewaylab.hosts.esd_can_ethercat import BitRate, EsdHost, EsdQueueApi, FilterArea
-from gatewaylab.hosts.ethercat.backend import PysoemBackend
 from gatewaylab.migrate.esdqueue import EsdQueueOnEcanLite
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # tests/: kit_paths finds the esd host driver
+import kit_paths
+
+kit_paths.add_all()
+from esd_host_driver import open_backend  # noqa: E402  (the esd host suite's retrying open)
 
 #: Generous seconds for anything that must happen in real time on a loaded machine.
 T = 20.0
-OPEN_ATTEMPTS = 3
-
-
-def open_backend(iface: str) -> PysoemBackend:
-    """Opening the line may lose a frame on a loaded machine (shared note soem-interop): open again."""
-    for attempt in range(OPEN_ATTEMPTS):
-        try:
-            return PysoemBackend(iface, timeout=5.0, pd_timeout_us=50_000)
-        except GatewaylabError:
-            if attempt == OPEN_ATTEMPTS - 1:
-                raise
-            RealTimeClock().wait(0.5)
-    raise AssertionError("unreachable")
 
 
 def application(host: EsdQueueApi) -> dict[str, Any]:

@@ -8,6 +8,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from gatewaylab.common.errors import ConfigError
 from gatewaylab.devices.esd_can_ethercat import bitrate as esd_rate
 from gatewaylab.migrate.eni import EniError, InitCmd, format_writes, parse_eni, parse_writes
 from gatewaylab.migrate.translate import read_esd, translate
@@ -226,3 +227,11 @@ def test_eni_reader_defensive() -> None:
     assert read_esd(s.init_cmds).status_pdo
     with pytest.raises(EniError):
         parse_eni(TWINCAT_STYLE.replace("<Index>#xF800</Index>", "<Index>F800h</Index>"))
+
+
+@pytest.mark.parametrize("channel", [-1, 4])
+def test_channel_out_of_range_is_a_config_error(channel: int) -> None:
+    """Manual 13.4: the ECAN-Lite has MCAN channels 0..3 (0x8001..0x8004); another channel is the caller's
+    mistake, raised as a ConfigError (issue 22: 'Every exception under GatewaylabError')."""
+    with pytest.raises(ConfigError, match=f"channel {channel} is not 0..3"):
+        translate(GOLDEN_ESD, channel)

@@ -221,7 +221,7 @@ def run_ecanlite(line: Soem | Kickcat, seconds: float) -> dict[str, Any]:
     def step(i: int) -> None:
         if i % FRAME_EVERY == 0:
             seq = i // FRAME_EVERY
-            line.write(0, encode_stream(rx, seq + 1, [CanPacket(0, M2C_ID, data=payload(seq))]))
+            line.write(0, encode_stream(rx, seq + 1, [CanPacket.of(0, M2C_ID, data=payload(seq))]))
             emit("tx", seq=seq, t=time.time())
             counts["tx"] += 1
 

@@ -26,9 +26,9 @@ from gatewaylab.bus.bus import (
     VirtualBus,
 )
 from gatewaylab.bus.frame import CanFrame
-from gatewaylab.bus.transport.outbox import Outbox, accept_client
+from gatewaylab.bus.transport.outbox import Outbox, accept_client, receive
 from gatewaylab.common.clock import TimerHandle
-from gatewaylab.common.errors import GatewaylabError, LocalError, ProtocolError
+from gatewaylab.common.errors import ConfigError, GatewaylabError, LocalError, ProtocolError
 
 log = logging.getLogger(__name__)
 
@@ -55,10 +55,17 @@ _STATE_CODES = {
 class Reactor(Protocol):
     """What the server needs from the loop that runs it (the rig runtime)."""
 
-    def add_reader(self, fd: int, callback: Callable[[], None]) -> None: ...
-    def remove_reader(self, fd: int) -> None: ...
-    def add_writer(self, fd: int, callback: Callable[[], None]) -> None: ...
-    def remove_writer(self, fd: int) -> None: ...
+    def add_reader(self, fd: int, callback: Callable[[], None]) -> None:
+        """Call ``callback`` when ``fd`` is readable."""
+
+    def remove_reader(self, fd: int) -> None:
+        """Stop watching ``fd`` for readability."""
+
+    def add_writer(self, fd: int, callback: Callable[[], None]) -> None:
+        """Call ``callback`` when ``fd`` is writable."""
+
+    def remove_writer(self, fd: int) -> None:
+        """Stop watching ``fd`` for writability."""
 
 
 class _Client:
@@ -154,12 +161,11 @@ class _Client:
 
     # client -> bus
     def readable(self) -> None:
-        try:
-            data = self.sock.recv(65536)
-        except BlockingIOError:
+        data = receive(self.sock)
+        if data is None:
             return
-        except OSError as exc:
-            self.server.drop(self, f"receive failed: {exc}")
+        if isinstance(data, OSError):
+            self.server.drop(self, f"receive failed: {data}")
             return
         if not data:
             self.server.drop(self, "client closed the connection", notify=False)
@@ -215,7 +221,7 @@ class BusServer:
     def __init__(self, bus: VirtualBus, reactor: Reactor, *, unix_path: Path | None = None,
                  tcp_port: int | None = None) -> None:
         if (unix_path is None) == (tcp_port is None):
-            raise ValueError("give exactly one of unix_path and tcp_port")
+            raise ConfigError("give exactly one of unix_path and tcp_port")
         self.bus = bus
         self.reactor = reactor
         self.clients: list[_Client] = []
@@ -310,6 +316,7 @@ class BusServer:
         self.bus.detach(ctrl)
 
     def close(self) -> None:
+        """Drop every client, stop listening and remove the socket file."""
         for client in list(self.clients):
             self.drop(client, "rig shutting down", level=logging.INFO)
         for client in list(self.orphans):

@@ -1,25 +1,25 @@
 """The maxon IDX-like CiA 402 servo drive on the gatewaylab CANopen node stack.
 
 ``Drive(clock, bus, node_id, serial, name="", store_path=None)`` builds the object dictionary
-(identity, CiA 402 objects, maxon objects 0x2006 / 0x30B0, a typical servo's default PDO
-mapping), a :class:`~gatewaylab.canopen.node.Node` on ``bus``, an LSS slave, the CiA 402 power
-state machine and a motion plant stepped every control period (1 ms) on the injected clock.
+(:mod:`.objects`: identity, CiA 402 objects, maxon objects 0x2006 / 0x30B0, a typical servo's
+default PDO mapping), a :class:`~gatewaylab.canopen.node.Node` on ``bus``, an LSS slave, the CiA
+402 power state machine and a motion plant stepped every control period (1 ms) on the injected
+clock.
 
 Controlword writes are applied at once (SDO or RPDO reception), the motion runs in the control
-tick. Everything is documented in ``docs/canopen-drive.md``; choices the manuals leave open are
-listed in ``docs/decisions.md``.
+tick: this module is the control loop and the power state machine; the modes of operation that
+compute each period's demand are :mod:`.modes`. Everything is documented in
+``docs/canopen-drive.md``; choices the manuals leave open are listed in ``docs/decisions.md``.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from gatewaylab.bus.bus import VirtualBus
-from gatewaylab.canopen.cia402 import CONTROLWORD_NEXT, STATE_BITS, SUPPORTED_MODES, Command, Cw, OpMode, PdsState, Sw
-from gatewaylab.canopen.communication import add_communication_objects, add_mapping
+from gatewaylab.canopen.cia402 import CONTROLWORD_NEXT, STATE_BITS, Command, Cw, OpMode, PdsState, Sw
 from gatewaylab.canopen.emcy import ERR_PROFILE
 from gatewaylab.canopen.errors import VALUE_RANGE_EXCEEDED, SdoAbort
 from gatewaylab.canopen.lss import BIT_TIMING_TABLE, UNCONFIGURED, LssAddress, LssConfigStore, LssSlave
@@ -27,17 +27,21 @@ from gatewaylab.canopen.nmt import NmtState
 from gatewaylab.canopen.node import Node
 from gatewaylab.common.clock import Clock, PeriodicTimer
 from gatewaylab.common.errors import ConfigError
-from gatewaylab.devices.canopen_drive.homing import SUPPORTED_METHODS, HomingRun, HomingStatus
+from gatewaylab.devices.canopen_drive.homing import SUPPORTED_METHODS, HomingStatus
+from gatewaylab.devices.canopen_drive.modes import POWER_OFF, Demand, OperationModes
+from gatewaylab.devices.canopen_drive.objects import (
+    DEVICE_NAME,
+    DEVICE_TYPE,
+    MAXON_VENDOR_ID,
+    PRODUCT_CODE,
+    REVISION,
+    add_profile_objects,
+    build_object_dictionary,
+)
 from gatewaylab.devices.canopen_drive.plant import AxisParams, ControlMode, Plant, Trapezoid
-from gatewaylab.od import Access, DataType, ObjectDictionary
+from gatewaylab.od import ObjectDictionary
 
-MAXON_VENDOR_ID = 0x000000FB
-#: Product code of the emulated drive (the IDX guide gives none; see the decisions file).
-PRODUCT_CODE = 0x61500000
-REVISION = 0x00010000
-#: CiA 402 device type: profile 402 (0x0192) with 'servo drive' in the additional information.
-DEVICE_TYPE = 0x00020192
-DEVICE_NAME = "IDX 56 M CANopen (gatewaylab)"
+#: The drive's own control period (s) when no host drives the cycle (IDX: 1 kHz position loop).
 CONTROL_PERIOD = 0.001
 
 #: EMCY / 0x603F error code of a position following error (CiA 402 / maxon 0x8611).
@@ -45,156 +49,6 @@ ERROR_FOLLOWING = 0x8611
 #: Error register 0x1001 bit set with it (plus 'generic', which the EMCY producer adds): profile.
 ERROR_REGISTER_FOLLOWING = ERR_PROFILE
 
-
-@dataclass(frozen=True, slots=True)
-class PdoDefault:
-    """One default PDO: mapped (index, sub, bits) and whether it is valid (COB-ID bit 31 = 0)."""
-
-    entries: tuple[tuple[int, int, int], ...]
-    enabled: bool = True
-
-
-#: Default mapping of a typical CiA 402 servo (RPDO1 controlword + target position, TPDO1
-#: statusword + position actual value, ...); all remappable per CiA 301.
-RPDO_DEFAULTS: tuple[PdoDefault, ...] = (
-    PdoDefault(((0x6040, 0, 16), (0x607A, 0, 32))),
-    PdoDefault(((0x6040, 0, 16), (0x60FF, 0, 32))),
-    PdoDefault(((0x6040, 0, 16), (0x6071, 0, 16))),
-    PdoDefault(((0x6060, 0, 8),)),
-)
-TPDO_DEFAULTS: tuple[PdoDefault, ...] = (
-    PdoDefault(((0x6041, 0, 16), (0x6064, 0, 32))),
-    PdoDefault(((0x6041, 0, 16), (0x606C, 0, 32)), enabled=False),
-    PdoDefault(((0x6041, 0, 16), (0x6077, 0, 16)), enabled=False),
-    PdoDefault(((0x6041, 0, 16), (0x6061, 0, 8), (0x60F4, 0, 32)), enabled=False),
-)
-
-
-def build_object_dictionary(serial: int, node_id: int | None, device_name: str = DEVICE_NAME,
-                            params: AxisParams | None = None) -> ObjectDictionary:
-    """The drive's object dictionary: identity, CiA 402 and maxon objects, default PDOs."""
-    p = params or AxisParams()
-    od = ObjectDictionary(node_id)
-    u8, u16, u32 = DataType.UNSIGNED8, DataType.UNSIGNED16, DataType.UNSIGNED32
-    RO, RW, CONST = Access.RO, Access.RW, Access.CONST
-
-    def var(index: int, name: str, dt: DataType, access: Access, default: Any = None,
-            mappable: bool = False, low: float | None = None, high: float | None = None) -> None:
-        od.add_variable(index, name, dt, access, default, pdo_mappable=mappable, low=low, high=high)
-
-    var(0x1000, "Device type", u32, RO, DEVICE_TYPE)
-    var(0x1008, "Manufacturer device name", DataType.VISIBLE_STRING, CONST, device_name)
-    var(0x1009, "Manufacturer hardware version", DataType.VISIBLE_STRING, CONST, "6550h")
-    var(0x100A, "Manufacturer software version", DataType.VISIBLE_STRING, CONST, "0170h")
-    od.add_record(0x1018, "Identity object")
-    od.add_sub(0x1018, 1, "Vendor-ID", u32, RO, MAXON_VENDOR_ID)
-    od.add_sub(0x1018, 2, "Product code", u32, RO, PRODUCT_CODE)
-    od.add_sub(0x1018, 3, "Revision number", u32, RO, REVISION)
-    od.add_sub(0x1018, 4, "Serial number", u32, RO, serial)
-    for n, pdo in enumerate(RPDO_DEFAULTS):
-        od.add_record(0x1400 + n, f"RPDO{n + 1} communication parameter")
-        od.add_sub(0x1400 + n, 1, "COB-ID used by RPDO", u32, RW,
-                   (0x200 + 0x100 * n) | (0 if pdo.enabled else 0x80000000), nodeid_offset=True)
-        od.add_sub(0x1400 + n, 2, "Transmission type", u8, RW, 255)
-        add_mapping(od, 0x1600 + n, f"RPDO{n + 1} mapping parameter", pdo.entries)
-    for n, pdo in enumerate(TPDO_DEFAULTS):
-        idx = 0x1800 + n
-        od.add_record(idx, f"TPDO{n + 1} communication parameter")
-        od.add_sub(idx, 1, "COB-ID used by TPDO", u32, RW,
-                   (0x180 + 0x100 * n) | (0 if pdo.enabled else 0x80000000), nodeid_offset=True)
-        od.add_sub(idx, 2, "Transmission type", u8, RW, 255)
-        od.add_sub(idx, 3, "Inhibit time", u16, RW, 0)
-        od.add_sub(idx, 5, "Event timer", u16, RW, 0)
-        od.add_sub(idx, 6, "SYNC start value", u8, RW, 0)
-        add_mapping(od, 0x1A00 + n, f"TPDO{n + 1} mapping parameter", pdo.entries)
-    add_profile_objects(od, p)
-    add_communication_objects(od)
-    return od
-
-
-def add_profile_objects(od: ObjectDictionary, params: AxisParams | None = None) -> None:
-    """The drive's own rows: the maxon objects and the CiA 402 profile (0x2006..0x6502). The
-    CANopen drive adds them to its node's dictionary; the EtherCAT drive (CoE, ETG.6010) serves the
-    same rows from its slave's dictionary."""
-    p = params or AxisParams()
-    u8, u16, u32 = DataType.UNSIGNED8, DataType.UNSIGNED16, DataType.UNSIGNED32
-    i8, i16, i32 = DataType.INTEGER8, DataType.INTEGER16, DataType.INTEGER32
-    RO, RW = Access.RO, Access.RW
-
-    def var(index: int, name: str, dt: DataType, access: Access, default: Any = None,
-            mappable: bool = False, low: float | None = None, high: float | None = None) -> None:
-        od.add_variable(index, name, dt, access, default, pdo_mappable=mappable, low=low, high=high)
-
-    # maxon objects later issues rely on
-    var(0x2006, "USB frame timeout", u16, RW, 500)
-    var(0x30B0, "Home position", i32, RW, 0, mappable=True)
-    # CiA 402
-    var(0x603F, "Error code", u16, RO, 0, mappable=True)
-    var(0x6040, "Controlword", u16, RW, 0, mappable=True)
-    var(0x6041, "Statusword", u16, RO, 0, mappable=True)
-    var(0x605A, "Quick stop option code", i16, RW, 6, low=0, high=6)
-    var(0x6060, "Modes of operation", i8, RW, int(OpMode.PROFILE_POSITION), mappable=True)
-    var(0x6061, "Modes of operation display", i8, RO, int(OpMode.PROFILE_POSITION), mappable=True)
-    var(0x6062, "Position demand value", i32, RO, 0, mappable=True)
-    var(0x6064, "Position actual value", i32, RO, 0, mappable=True)
-    var(0x6065, "Following error window", u32, RW, 2000, mappable=True)
-    var(0x6066, "Following error time out", u16, RW, 50, mappable=True)
-    var(0x6067, "Position window", u32, RW, 10, mappable=True)
-    var(0x6068, "Position window time", u16, RW, 5, mappable=True)
-    var(0x606B, "Velocity demand value", i32, RO, 0, mappable=True)
-    var(0x606C, "Velocity actual value", i32, RO, 0, mappable=True)
-    var(0x606D, "Velocity window", u16, RW, 100, mappable=True)
-    var(0x606E, "Velocity window time", u16, RW, 5, mappable=True)
-    var(0x6071, "Target torque", i16, RW, 0, mappable=True)
-    var(0x6072, "Max torque", u16, RW, 3000, mappable=True, low=0)
-    var(0x6074, "Torque demand", i16, RO, 0, mappable=True)
-    var(0x6076, "Motor rated torque", u32, RO, round(p.rated_torque * 1000_000))  # uNm
-    var(0x6077, "Torque actual value", i16, RO, 0, mappable=True)
-    var(0x607A, "Target position", i32, RW, 0, mappable=True)
-    od.add_record(0x607D, "Software position limit")
-    od.add_sub(0x607D, 1, "Min position limit", i32, RW, -0x80000000, pdo_mappable=True)
-    od.add_sub(0x607D, 2, "Max position limit", i32, RW, 0x7FFFFFFF, pdo_mappable=True)
-    var(0x607F, "Max profile velocity", u32, RW, 409_600, mappable=True)
-    var(0x6080, "Max motor speed", u32, RW, 409_600, mappable=True)
-    var(0x6081, "Profile velocity", u32, RW, 40_960, mappable=True)
-    var(0x6083, "Profile acceleration", u32, RW, 409_600, mappable=True, low=1)
-    var(0x6084, "Profile deceleration", u32, RW, 409_600, mappable=True, low=1)
-    var(0x6085, "Quick stop deceleration", u32, RW, 4_096_000, mappable=True, low=1)
-    var(0x6086, "Motion profile type", i16, RW, 0, low=0, high=0)
-    var(0x608F, "Position encoder resolution", u32, RO, p.increments_per_rev)
-    var(0x6098, "Homing method", i8, RW, 37, mappable=True)
-    od.add_record(0x6099, "Homing speeds")
-    od.add_sub(0x6099, 1, "Speed for switch search", u32, RW, 20_480, pdo_mappable=True, low=1)
-    od.add_sub(0x6099, 2, "Speed for zero search", u32, RW, 2_048, pdo_mappable=True, low=1)
-    var(0x609A, "Homing acceleration", u32, RW, 409_600, mappable=True, low=1)
-    var(0x60B0, "Position offset", i32, RW, 0, mappable=True)
-    var(0x60B1, "Velocity offset", i32, RW, 0, mappable=True)
-    var(0x60B2, "Torque offset", i16, RW, 0, mappable=True)
-    od.add_record(0x60C2, "Interpolation time period")
-    od.add_sub(0x60C2, 1, "Interpolation time period value", u8, RW, 1)
-    od.add_sub(0x60C2, 2, "Interpolation time index", i8, RW, -3, low=-3, high=-3)
-    var(0x60F4, "Following error actual value", i32, RO, 0, mappable=True)
-    var(0x60FD, "Digital inputs", u32, RO, 0, mappable=True)
-    var(0x60FF, "Target velocity", i32, RW, 0, mappable=True)
-    var(0x6502, "Supported drive modes", u32, RO, SUPPORTED_MODES)
-
-
-def _clamp(value: float, low: float, high: float) -> float:
-    return low if value < low else high if value > high else value
-
-
-#: What the plant follows in one control period, as a mode handler returns it:
-#: ``(control, position, velocity, acceleration, torque)``. ``position`` is the position demand
-#: value 0x6062 in user units (the plant gets it minus the homing offset) and counts only for
-#: ``ControlMode.POSITION``, otherwise the demand follows the actual position; ``velocity`` is
-#: the velocity demand 0x606B (the feed-forward of a position demand), ``acceleration`` its
-#: feed-forward, ``torque`` the command of ``ControlMode.TORQUE`` (per mille). A plain tuple,
-#: not a NamedTuple: building one of those every period costs 2-3 % of the drive benchmark.
-Demand = tuple[ControlMode, float, float, float, float]
-
-
-#: The power stage is off: the axis coasts and friction stops it.
-_POWER_OFF: Demand = (ControlMode.OFF, 0.0, 0.0, 0.0, 0.0)
 
 #: Ranges of INTEGER32 / INTEGER16 as floats (the measured values are floats: a float compares
 #: with a float faster than with an int); the saturated value rounds to the same int.
@@ -220,7 +74,7 @@ _ACTUAL_KEYS = tuple(key for key, _ in _ACTUALS)
 _MEASURED_RANGES = tuple(limits for _, limits in _ACTUALS if limits is not None)
 
 
-class Drive:
+class Drive(OperationModes):
     """A maxon IDX-like CiA 402 servo on a virtual CAN bus (see module docstring)."""
 
     def __init__(self, clock: Clock, bus: VirtualBus | None, node_id: int | None, serial: int, name: str = "",
@@ -293,23 +147,22 @@ class Drive:
     def _init_motion(self) -> None:
         self.controlword = 0
         self._set_mode(OpMode(self._v[0x6061, 0]))
-        #: user position = physical plant position + offset (homing moves the offset)
         self.offset = 0.0
         self.profile = Trapezoid()
         self.demand = 0.0
         self.demand_velocity = 0.0
-        self.target: float | None = None
-        self.pending_target: float | None = None
+        self.target = None
+        self.pending_target = None
         self.setpoint_ack = False
         self.target_reached = False
         self.internal_limit = False
         self.fe_time = 0.0
         self.fe_warning = False
         self.in_window_time = 0.0
-        self.homing: HomingRun | None = None
+        self.homing = None
         self.homing_status = HomingStatus.IDLE
         self.halted = False
-        self.prev_csp_target: float | None = None
+        self.prev_csp_target = None
         self.csp_changed_at = 0.0
         self.csp_span = CONTROL_PERIOD
         self.csp_velocity = 0.0
@@ -328,6 +181,7 @@ class Drive:
         return dict(self.ready_extra)
 
     def stop(self) -> None:
+        """Power off: stop the control tick, the LSS timers and the node."""
         if self._timer is not None:
             self._timer.cancel()
             self._timer = None
@@ -454,71 +308,6 @@ class Drive:
         self.homing_status = HomingStatus.IDLE
         self.plant.reset_integrator()
 
-    def _mode_control(self, cw: int, prev: int) -> None:
-        """The new-set-point bit (4) of PP and HM in Operation enabled (halt, bit 8, is set by
-        _on_controlword for every mode)."""
-        rising = cw & ~prev
-        mode = self.mode
-        if mode is _PP:
-            if rising & _CW_NEW_SETPOINT:
-                self._new_setpoint(cw)
-            elif not cw & _CW_NEW_SETPOINT:
-                self.setpoint_ack = False
-        elif mode is _HOMING:
-            if rising & _CW_NEW_SETPOINT:
-                self._start_homing()
-            run = self.homing
-            if self.halted and run is not None and self.homing_status in _HOMING_RUNNING:
-                run.halt()
-                self.homing_status = HomingStatus.INTERRUPTED
-                # ramp down from where the homing profile is, in user coordinates
-                self.profile.reset(run.profile.position + self.offset, run.profile.velocity)
-
-    def _soft_limits(self, x: float) -> float:
-        v = self._v     # typed values: integer objects hold ints
-        low = v[0x607D, 1]
-        high = v[0x607D, 2]
-        if low < high:
-            clamped = low if x < low else high if x > high else x
-            if clamped != x:
-                self.internal_limit = True
-            return clamped
-        return x
-
-    def _new_setpoint(self, cw: int) -> None:
-        target = float(int(self._v[0x607A, 0]))
-        if cw & Cw.RELATIVE:
-            base = self.target if self.target is not None else self.demand
-            target += base
-        self.internal_limit = False
-        target = self._soft_limits(target)
-        moving = self.target is not None and not self.target_reached
-        if moving and not cw & Cw.CHANGE_IMMEDIATELY:
-            if self.pending_target is not None:
-                return   # buffer full: no acknowledge (CiA 402 single set-point)
-            self.pending_target = target
-        else:
-            self.target = target
-            self.pending_target = None
-            self.target_reached = False
-            self.in_window_time = 0.0
-        self.setpoint_ack = True
-
-    def _start_homing(self) -> None:
-        method = int(self._v[0x6098, 0])
-        run = HomingRun(method, float(self._v[0x6099, 1]), float(self._v[0x6099, 2]),
-                        float(self._v[0x609A, 0]))
-        run.start(self.plant.state.position)
-        self.homing = run
-        self.homing_status = run.status
-        if run.home_physical is not None and run.status is HomingStatus.REACHED:
-            self._set_home(run.home_physical)   # methods 35/37: done at once
-
-    def _set_home(self, physical: float) -> None:
-        self.offset = float(int(self._v[0x30B0, 0])) - physical
-        self.demand = self.plant.state.position + self.offset
-        self.profile.reset(self.demand, 0.0)
-
     # -- control tick -----------------------------------------------------------------------
     def _tick(self) -> None:
         """One control period: the demand of the state (the mode's handler in operation
@@ -534,7 +323,7 @@ class Drive:
         elif st.velocity == 0.0 and plant.external_torque == 0.0 and not self.fe_warning:
             return   # power stage off and the axis at rest: nothing can change
         else:
-            demand = _POWER_OFF
+            demand = POWER_OFF
         control, position, velocity, acceleration, torque = demand
         offset = self.offset
         plant.step(dt, control, position - offset, velocity, acceleration, torque, float(self._v[0x6072, 0]))
@@ -555,121 +344,6 @@ class Drive:
                 self.fault(ERROR_FOLLOWING, ERROR_REGISTER_FOLLOWING)
         self._publish_actuals(x, fe)
 
-    # The mode handlers: one control period of a mode of operation in 'operation enabled'.
-    def _max_velocity(self) -> float:
-        return float(min(int(self._v[0x607F, 0]), int(self._v[0x6080, 0])))
-
-    def _follow_profile(self) -> Demand:
-        prof = self.profile
-        return (_POSITION, prof.position, prof.velocity, prof.acceleration, 0.0)
-
-    def _hold(self, dt: float) -> Demand:
-        """No mode: hold the position."""
-        return (_POSITION, self.demand, 0.0, 0.0, 0.0)
-
-    def _profile_position(self, dt: float) -> Demand:
-        """PP: a trapezoid to the target (0x6081, 0x6083, 0x6084); halt ramps down with 0x6084."""
-        v = self._v
-        prof = self.profile
-        if self.halted:
-            prof.to_velocity(0.0, 1.0, float(v[0x6084, 0]), dt)
-        elif self.target is not None and not self.target_reached:
-            vel = min(float(v[0x6081, 0]), self._max_velocity())
-            if prof.to_position(self.target, vel, float(v[0x6083, 0]), float(v[0x6084, 0]), dt):
-                self._check_window(dt)
-        return self._follow_profile()
-
-    def _profile_velocity(self, dt: float) -> Demand:
-        """PV: ramp to 0x60FF with 0x6083 / 0x6084 (0 while halted); target reached from the
-        velocity window 0x606D / 0x606E."""
-        v = self._v
-        vmax = self._max_velocity()
-        commanded = float(int(v[0x60FF, 0]))
-        target = 0.0 if self.halted else _clamp(commanded, -vmax, vmax)
-        self.internal_limit = target != commanded and not self.halted
-        if abs(self.plant.state.velocity - target) <= int(v[0x606D, 0]):
-            self.in_window_time += dt
-        else:
-            self.in_window_time = 0.0
-        self.target_reached = self.in_window_time * 1000.0 >= int(v[0x606E, 0]) - 1e-9
-        prof = self.profile
-        prof.to_velocity(target, float(v[0x6083, 0]), float(v[0x6084, 0]), dt)
-        return (_VELOCITY, 0.0, prof.velocity, prof.acceleration, 0.0)
-
-    def _homing(self, dt: float) -> Demand:
-        """HM: the homing run's profile (physical coordinates) until it ends, then hold; halt
-        and an interrupted run ramp down with 0x609A."""
-        run = self.homing
-        if run is None or self.homing_status not in _HOMING_RUNNING:
-            if self.halted or (run is not None and run.status is HomingStatus.INTERRUPTED):
-                self.profile.to_velocity(0.0, 1.0, float(self._v[0x609A, 0]), dt)
-            return self._follow_profile()
-        found_before = run.home_physical
-        run.step(dt, self.plant.digital_inputs(), self.plant.state.position)
-        if found_before is None and run.home_physical is not None:
-            # shift the user frame; the profile keeps running in physical coordinates
-            self.offset = float(int(self._v[0x30B0, 0])) - run.home_physical
-        self.homing_status = run.status
-        prof = run.profile
-        demand = prof.position + self.offset
-        if run.status not in _HOMING_RUNNING:
-            self.profile.reset(demand, 0.0)   # hold the home position afterwards
-        return (_POSITION, demand, prof.velocity, prof.acceleration, 0.0)
-
-    def _cyclic_position(self, dt: float) -> Demand:
-        """CSP: 0x607A + 0x60B0 within the software limits, feed-forward from the set-point
-        stream + 0x60B1."""
-        v = self._v
-        self.internal_limit = False
-        target = self._soft_limits(float(v[0x607A, 0] + v[0x60B0, 0]))
-        # velocity feed-forward from the set-point stream: change / time between changes, held
-        # until the next set-point is late (so master cycles other than 1 ms still run smoothly)
-        now = self.clock.now()
-        prev = self.prev_csp_target
-        self.prev_csp_target = target
-        if prev is None:
-            self.csp_changed_at, self.csp_span, self.csp_velocity = now, dt, 0.0
-        elif target != prev:
-            span = now - self.csp_changed_at
-            if span < dt:     # a set-point within one period of the previous change
-                span = dt
-            self.csp_velocity = (target - prev) / span
-            self.csp_changed_at, self.csp_span = now, span
-        elif now - self.csp_changed_at > self.csp_span + 0.5 * dt:
-            self.csp_velocity = 0.0
-        return (_POSITION, target, self.csp_velocity + float(v[0x60B1, 0]), 0.0, 0.0)
-
-    def _cyclic_velocity(self, dt: float) -> Demand:
-        """CSV: 0x60FF + 0x60B1, limited to min(0x607F, 0x6080)."""
-        raw = float(int(self._v[0x60FF, 0]) + int(self._v[0x60B1, 0]))
-        vmax = self._max_velocity()
-        target = _clamp(raw, -vmax, vmax)
-        self.internal_limit = target != raw
-        return (_VELOCITY, 0.0, target, 0.0, 0.0)
-
-    def _cyclic_torque(self, dt: float) -> Demand:
-        """CST: 0x6071 + 0x60B2, limited to 0x6072."""
-        raw = float(int(self._v[0x6071, 0]) + int(self._v[0x60B2, 0]))
-        max_torque = float(self._v[0x6072, 0])
-        torque = _clamp(raw, -max_torque, max_torque)
-        self.internal_limit = torque != raw
-        return (_TORQUE, 0.0, 0.0, 0.0, torque)
-
-    def _check_window(self, dt: float) -> None:
-        """PP target reached: actual position within 0x6067 for 0x6068 ms after the profile ended."""
-        assert self.target is not None
-        x = self.plant.state.position + self.offset
-        if abs(self.target - x) <= int(self._v[0x6067, 0]):
-            self.in_window_time += dt
-        else:
-            self.in_window_time = 0.0
-        if self.in_window_time * 1000.0 >= int(self._v[0x6068, 0]) - 1e-9:
-            self.target_reached = True
-            if self.pending_target is not None:
-                self.target, self.pending_target = self.pending_target, None
-                self.target_reached = False
-                self.in_window_time = 0.0
-
     def _stop_ramp(self, dt: float) -> Demand:
         """Quick stop / fault reaction: ramp to standstill, then the CiA 402 follow-up state
         (transition 12 or 14); quick stop option 0 switches the power stage off at once."""
@@ -677,7 +351,7 @@ class Drive:
         fault = self.state is _FAULT_REACTION_ACTIVE
         if not fault and option == 0:
             self._transition(PdsState.SWITCH_ON_DISABLED, 12)
-            return _POWER_OFF
+            return POWER_OFF
         dec_index = 0x6084 if (not fault and option in (1, 5)) else 0x6085
         # the demand ramp has ended (the axis may still be pushed by a load)
         if self.profile.to_velocity(0.0, 1.0, float(self._v[dec_index, 0]), dt):
@@ -767,7 +441,6 @@ class Drive:
 
 
 _CW_HALT = int(Cw.HALT)
-_CW_NEW_SETPOINT = int(Cw.NEW_SETPOINT)
 _SW_REMOTE = int(Sw.REMOTE)
 _SW_WARNING = int(Sw.WARNING)
 _SW_INTERNAL_LIMIT = int(Sw.INTERNAL_LIMIT)
@@ -786,10 +459,8 @@ _OPERATION_ENABLED = PdsState.OPERATION_ENABLED
 _QUICK_STOP_ACTIVE = PdsState.QUICK_STOP_ACTIVE
 _FAULT_REACTION_ACTIVE = PdsState.FAULT_REACTION_ACTIVE
 _POSITION = ControlMode.POSITION
-_VELOCITY = ControlMode.VELOCITY
-_TORQUE = ControlMode.TORQUE
-_HOMING_RUNNING = (HomingStatus.IN_PROGRESS, HomingStatus.ATTAINED)
 
 
-__all__ = ["DEVICE_TYPE", "MAXON_VENDOR_ID", "PRODUCT_CODE", "Command", "Demand", "Drive", "add_profile_objects",
-           "build_object_dictionary"]
+#: the dictionary's names stay importable from here (objects.py holds them since issue 22)
+__all__ = ["DEVICE_NAME", "DEVICE_TYPE", "MAXON_VENDOR_ID", "PRODUCT_CODE", "REVISION", "Command", "Demand", "Drive",
+           "add_profile_objects", "build_object_dictionary"]

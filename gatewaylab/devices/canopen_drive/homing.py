@@ -38,6 +38,7 @@ class HomingStatus(Enum):
 
     @property
     def bits(self) -> int:
+        """Statusword bits 10, 12 and 13 of this homing status (CiA 402 homing mode)."""
         return _HOMING_BITS[self]
 
 
@@ -70,6 +71,7 @@ class HomingRun:
     home_physical: float | None = None
 
     def start(self, physical_position: float) -> None:
+        """Begin the run from the axis's physical position; methods 35/37 are done at once."""
         self.profile.reset(physical_position, 0.0)
         if self.method in (35, 37):
             self.home_physical = physical_position

@@ -43,6 +43,7 @@ class AxisParams:
 
     @property
     def inc_per_rad(self) -> float:
+        """Encoder increments per radian: converts the motor model's SI units to increments."""
         return self.increments_per_rev / (2.0 * math.pi)
 
     @property
@@ -65,6 +66,7 @@ _OFF, _POSITION, _VELOCITY, _TORQUE = ControlMode.OFF, ControlMode.POSITION, Con
 
 @dataclass(slots=True)
 class AxisState:
+    """Where the simulated axis is after the last step, in encoder increments."""
     position: float = 0.0      # inc
     velocity: float = 0.0      # inc/s
     torque: float = 0.0        # per mille, produced by the motor in the last step
@@ -84,6 +86,7 @@ class Plant:
     _consts: tuple[Any, ...] | None = field(default=None, init=False, repr=False, compare=False)
 
     def reset_integrator(self) -> None:
+        """Forget the velocity loop's integral (enable, mode change, reset): no kick from old errors."""
         self.state.integral = 0.0
 
     def set_position(self, position: float) -> None:
@@ -176,6 +179,7 @@ class Trapezoid:
     acceleration: float = 0.0
 
     def reset(self, position: float, velocity: float) -> None:
+        """Start the profile anew at ``position`` moving at ``velocity``, not accelerating."""
         self.position, self.velocity, self.acceleration = position, velocity, 0.0
 
     def to_velocity(self, target: float, acc: float, dec: float, dt: float) -> bool:

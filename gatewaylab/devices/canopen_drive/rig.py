@@ -53,6 +53,7 @@ KEYS: dict[str, Key] = {
 
 
 def default_name(cfg: Mapping[str, Any]) -> str:
+    """A drive section's name when the rig file gives none: by node-ID, else by serial."""
     node_id, serial = cfg.get("node_id"), cfg.get("serial")
     return f"drive{node_id}" if node_id is not None else f"drive-{serial:x}"
 

@@ -83,7 +83,7 @@ def encode_payload(records: Iterable[Record]) -> bytes:
     out = bytearray()
     for r in records:
         if len(r.value) > 255:
-            raise ValueError("record value longer than 255 bytes")
+            raise ImageError("record value longer than 255 bytes", ImageStatus.IMAGE_INVALID)
         out += _RECORD.pack(r.index, r.subindex, len(r.value)) + r.value
     return bytes(out)
 

@@ -70,10 +70,12 @@ class EcanLiteParticipant:
         """Nothing to release."""
 
     def ready_info(self) -> dict[str, Any]:
+        """The rig's ready line: this device's channels and flash file."""
         return {"ecanlite": {self.name: {"channels": self.channels, "flash": str(self.flash_path)}}}
 
 
 def create_device(rig: RigContext, cfg: dict[str, Any]) -> EcanLiteParticipant:
+    """The ``ecanlite`` kind's factory: one participant from its validated table."""
     return EcanLiteParticipant(rig, cfg)
 
 

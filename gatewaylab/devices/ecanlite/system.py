@@ -15,7 +15,9 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from gatewaylab.devices.ecanlite import flash as fl
-from gatewaylab.devices.ecanlite.mcan import (
+from gatewaylab.devices.ecanlite.mcan.filters import FilterElement
+from gatewaylab.devices.ecanlite.mcan.layout import ApplyStatus, ChannelSettings
+from gatewaylab.devices.ecanlite.mcan.objects import (
     CHANNELS,
     CONFIG_BASE,
     CONFIG_PERSISTED,
@@ -27,19 +29,16 @@ from gatewaylab.devices.ecanlite.mcan import (
     RX_CACHE_MAX,
     STD_LIST_MAX,
     TX_CACHE_MAX,
-    WRITE_WHITELIST,
-    ApplyStatus,
-    ChannelSettings,
-    FilterElement,
     Row,
     rows_object,
 )
+from gatewaylab.devices.ecanlite.mcan.registers import WRITE_WHITELIST
 from gatewaylab.devices.ecanlite.ota import OtaHandler, OtaStatus, Package
 from gatewaylab.ethercat.description import ObjectDef
 from gatewaylab.od import Access, DataType, Entry, ObjectDictionary, SdoAbort, SdoAbortCode
 
 if TYPE_CHECKING:
-    from gatewaylab.devices.ecanlite.mcan import McanModel
+    from gatewaylab.devices.ecanlite.mcan.model import McanModel
     from gatewaylab.ethercat.foe import FoeHandler
 
 U8, U16, U32 = DataType.UNSIGNED8, DataType.UNSIGNED16, DataType.UNSIGNED32

@@ -2,7 +2,8 @@
 Modular Device Profile 5000 with one CAN controller on a virtual bus.
 
 ``objects`` (description and dictionary), ``codec`` (process image layouts), ``bitrate`` (0xF800),
-``device`` (:class:`EsdGateway`: the counter-handshake queues, status, statistics, FoE),
+``controller`` (the CAN controller side: bit rate, status 0xF108, statistics 0x2010, firmware update,
+FoE), ``device`` (:class:`EsdGateway`: the MDP 5000 counter-handshake queues on top of it),
 ``webmodel`` (the web pages' backend), ``rig`` (the ``esd_can_ethercat`` rig kind); ``web`` is the
 HTTP server of chapter 6.
 """

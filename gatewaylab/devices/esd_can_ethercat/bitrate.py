@@ -66,6 +66,7 @@ class BitTiming:
 
     @property
     def after_sample(self) -> int:
+        """Time quanta after the sample point (phase segment 2)."""
         return self.time_quanta - self.before_sample
 
 

@@ -14,18 +14,18 @@ The MDP 5000 counter handshake (5.1.5.1-5.1.5.4, shared note ``esd-mdp5000-queue
   input Rx counter equals the output Rx counter the gateway writes up to 0x8000:21 of them, sets
   Number of Rx Messages and increments the input Rx counter; the master acknowledges by setting
   its Rx counter equal. A full local queue counts 0x2010:35 'FIFO overrun' and sets 0xF108:03.
+
+The CAN controller side (bit rate, status, statistics, firmware) is :class:`~.controller.EsdController`,
+which :class:`EsdGateway` builds on.
 """
 
 from __future__ import annotations
 
-import re
 from collections import deque
-from dataclasses import dataclass, fields
 from typing import Any
 
 from gatewaylab.bus.bus import (
     BusEvent,
-    Controller,
     ErrorFrameEvent,
     ErrorKind,
     ErrorState,
@@ -36,7 +36,7 @@ from gatewaylab.bus.bus import (
 )
 from gatewaylab.bus.frame import CanFrame
 from gatewaylab.bus.timing import classic_bits
-from gatewaylab.common.clock import Clock, TimerHandle
+from gatewaylab.common.clock import Clock
 from gatewaylab.devices.esd_can_ethercat import bitrate as br
 from gatewaylab.devices.esd_can_ethercat.codec import (
     IN_HEADER,
@@ -50,9 +50,19 @@ from gatewaylab.devices.esd_can_ethercat.codec import (
     encode_rx29,
     input_size,
 )
+from gatewaylab.devices.esd_can_ethercat.controller import (
+    FIRMWARE_FILE,
+    FIRMWARE_HEADER,
+    FIRMWARE_PASSWORD,
+    UPDATE_LINES,
+    WARNING_LIMIT,
+    EsdController,
+    FirmwareFiles,
+    FrameKinds,
+    GatewayStats,
+    UpdateRefused,
+)
 from gatewaylab.devices.esd_can_ethercat.objects import (
-    API_BAUD,
-    BAUD_INDEX,
     DEFAULT_LOCAL_QUEUE,
     DEFAULT_QUEUE,
     FLAG_29BIT,
@@ -66,68 +76,17 @@ from gatewaylab.devices.esd_can_ethercat.objects import (
     max_tx_queue,
     resize_queues,
 )
-from gatewaylab.ethercat.errors import AlStatusCode, FoeError, FoeErrorCode
+from gatewaylab.ethercat.errors import AlStatusCode
 from gatewaylab.ethercat.esc import AlState
-from gatewaylab.ethercat.slave import Slave, SlaveApplication
+from gatewaylab.ethercat.slave import Slave
 from gatewaylab.od import Entry, ObjectDictionary, SdoAbort, SdoAbortCode
 
-#: 5.3: the file name a firmware update is written to by FoE, and its password.
-FIRMWARE_FILE = "firmwareUpdate"
-FIRMWARE_PASSWORD = 0
-#: A firmware file may start with this line to carry its version (docs/devices/esd_can_ethercat.md).
-FIRMWARE_HEADER = re.compile(rb"\ACAN-EtherCAT firmware (\d{1,3}(?:\.\d{1,3}){0,3})[\r\n\0]")
-#: Figure 39: the update's output, line by line (shown as the update proceeds).
-UPDATE_LINES = ("End of file found. All good.", "Unpacking updater. Please wait...", "img_upd.raw",
-                "Flashing updater and rebooting...")
-#: ISO 11898-1 error warning limit (0xF108:02 'Warning Limit reached').
-WARNING_LIMIT = 96
-CYCLIC_WINDOW, CAN_WINDOW = 10_000, 1_000   # 5.1.4.2: "within its last 10000 / 1000 calls"
+#: names that moved to controller.py (issue 22) stay importable from here
+__all__ = ["FIRMWARE_FILE", "FIRMWARE_HEADER", "FIRMWARE_PASSWORD", "UPDATE_LINES", "WARNING_LIMIT", "EsdGateway",
+           "FrameKinds", "GatewayStats", "UpdateRefused", "create_esd_gateway"]
 
 
-@dataclass(slots=True)
-class GatewayStats:
-    """The counters behind 0x2010 (5.1.4.2) and the web page's CAN statistics (Figure 41)."""
-
-    watchdog: int = 0            # 0x2010:08
-    tx_requested: int = 0        # :30
-    tx_forwarded: int = 0        # :31
-    rx_copied: int = 0           # :32
-    fifo_overrun: int = 0        # :35
-    error_frames: int = 0        # :36
-    aborted: int = 0             # :37
-    rx_std: int = 0              # :38
-    rx_std_rtr: int = 0          # :39
-    rx_ext: int = 0              # :3A
-    rx_ext_rtr: int = 0          # :3B
-    tx_std: int = 0              # :3C
-    tx_std_rtr: int = 0          # :3D
-    tx_ext: int = 0              # :3E
-    tx_ext_rtr: int = 0          # :3F
-    rx_bytes: int = 0
-    tx_bytes: int = 0
-    rx_bits: int = 0             # Figure 41 'Rcv bits' (stuffing as the bus model counts it)
-
-
-class _Window:
-    """Handler times in microseconds over the last ``size`` calls (min/max/avg of 5.1.4.2)."""
-
-    __slots__ = ("busy", "size", "values")
-
-    def __init__(self, size: int) -> None:
-        self.size = size
-        self.values: deque[int] = deque(maxlen=size)
-        self.busy = 0.0   # seconds spent since the last CPU usage reading
-
-    def add(self, seconds: float) -> None:
-        self.values.append(int(seconds * 1e6))
-        self.busy += seconds
-
-    def summary(self) -> tuple[int, int, int]:
-        v = self.values
-        return (min(v), max(v), sum(v) // len(v)) if v else (0, 0, 0)
-
-
-class EsdGateway(SlaveApplication):
+class EsdGateway(EsdController):
     """One esd CAN-EtherCAT: ``slave`` (the EtherCAT side) and ``controller`` (the CAN side).
 
     ``update_duration``: seconds a firmware update takes before the reboot (5.3: about 3 minutes on
@@ -140,21 +99,7 @@ class EsdGateway(SlaveApplication):
 
     def __init__(self, clock: Clock, bus: VirtualBus | None, name: str = "CAN-EtherCAT", serial: int = 0,
                  update_duration: float = 3.0) -> None:
-        self.clock = clock
-        self.bus = bus
-        self.name = name
-        self.serial = serial
-        self.update_duration = update_duration
-        self.controller: Controller | None = None
-        self.stats = GatewayStats()
-        self._cyclic = _Window(CYCLIC_WINDOW)
-        self._can = _Window(CAN_WINDOW)
-        self._started_at = clock.now()
-        self._cpu_read_at = clock.now()
-        self.setting: br.BitRateSetting = br.no_baudrate()
-        self.detected: int = 0            # autobaud: the rate found (0 while detecting)
-        self._autobaud_index = 0
-        self._autobaud_next: TimerHandle | None = None
+        super().__init__(clock, bus, name, serial, update_duration)
         # configuration from 0x8000 (applied in PREOP) and 0x8001
         self.extended = False
         self.rx_queue_size = DEFAULT_QUEUE
@@ -177,15 +122,7 @@ class EsdGateway(SlaveApplication):
         self._img = bytearray(input_size(False, DEFAULT_QUEUE))
         #: (29-bit, Rx queue, Tx queue) the queue objects and mappings were last built for
         self._layout = (False, DEFAULT_QUEUE, DEFAULT_QUEUE)
-        self._status_cache: tuple[Any, ...] = ()
-        # firmware update (5.3, 6.1.2)
-        self.firmware_version = esd_description().software_version
-        self._update_timer: TimerHandle | None = None
-        self._update_started = 0.0
-        self._update_version: str | None = None
-        self.updates = 0
-        self.reboots = 0
-        self.slave = Slave(clock, esd_description(serial), self, _FirmwareFiles(self), name=name)
+        self.slave = Slave(clock, esd_description(serial), self, FirmwareFiles(self), name=name)
 
     # ------------------------------------------------------------------ life cycle
     def start(self) -> None:
@@ -297,50 +234,16 @@ class EsdGateway(SlaveApplication):
         assert self._filter_ext is not None
         return any(lo <= frame.can_id <= hi for lo, hi in self._filter_ext)
 
-    def _check_bitrate(self, entry: Entry, value: Any) -> None:
-        """5.1.5.9: Table 6 indexes 0..6 or 255; API values per Tables 7-10 (else 0x06090030)."""
-        try:
-            if entry.subindex == BAUD_INDEX:
-                br.from_index(int(value))
-            elif entry.subindex == API_BAUD:
-                br.from_api(int(value))
-        except br.BitRateError as exc:
-            raise SdoAbort(SdoAbortCode.VALUE_RANGE_EXCEEDED, str(exc)) from None
-
-    # ------------------------------------------------------------------ bit rate
-    def _effective_setting(self) -> br.BitRateSetting:
-        od = self.slave.od
-        table = br.from_index(int(od.get(0xF800, BAUD_INDEX)))
-        return table if table is not None else br.from_api(int(od.get(0xF800, API_BAUD)))
-
-    def _apply_bitrate(self) -> None:
-        """Put the controller in the mode 0xF800 asks for: off the bus (NTCAN_NO_BAUDRATE),
-        listen-only while detecting (NTCAN_AUTOBAUD), or at a rate, active or listen-only (LOM)."""
-        self.setting = setting = self._effective_setting()
-        if self._autobaud_next is not None:
-            self._autobaud_next.cancel()
-            self._autobaud_next = None
-        self.detected = 0
-        ctrl, bus = self.controller, self.bus
-        if ctrl is None or bus is None:
-            return
+    # ------------------------------------------------------------------ hooks of the controller side
+    def _take_back_frames(self) -> None:
+        """Frames the controller has not sent yet go back to the head of the local Tx queue."""
         self._return_inflight()
-        if setting.mode is br.Mode.NONE:
-            bus.disconnect(ctrl)
-            ctrl.listen_only = True
-        elif setting.mode is br.Mode.AUTOBAUD:
-            self._autobaud_index = 0
-            ctrl.listen_only = True
-            ctrl.bitrate = br.TABLE9[br.AUTOBAUD_ORDER[0]]
-            bus.reconnect(ctrl)
-        else:
-            ctrl.listen_only = setting.listen_only
-            ctrl.bitrate = setting.bitrate
-            bus.reconnect(ctrl)
+
+    def _bitrate_applied(self) -> None:
+        """Listen-only and no bit rate abort what waits (5.1.5.9); otherwise the next frame goes out."""
         if not self._may_send():
             self._abort_local()
         self._feed()
-        self._refresh_status()
 
     def _return_inflight(self) -> None:
         """Frames the controller has not sent yet go back to the head of the local Tx queue."""
@@ -350,43 +253,10 @@ class EsdGateway(SlaveApplication):
         while self._inflight:
             self.tx_local.appendleft(self._inflight.pop())
 
-    def _can_send(self) -> bool:
-        ctrl = self.controller
-        return (ctrl is not None and ctrl.connected and not ctrl.listen_only
-                and ctrl.state is not ErrorState.BUS_OFF)
-
-    def _may_send(self) -> bool:
-        """The bit rate setting lets the gateway send (not off the bus, listen-only or still detecting)."""
-        s = self.setting
-        return not (s.mode is br.Mode.NONE or (s.listen_only and not self.detected))
-
     def _abort_local(self) -> None:
         """Listen-only and no baud rate never send (5.1.5.9): queued frames are aborted (0x2010:37)."""
         self.stats.aborted += len(self.tx_local)
         self.tx_local.clear()
-
-    def _autobaud_step(self) -> None:
-        """A frame at a foreign rate (form error): try the next rate of the table."""
-        self._autobaud_next = None
-        ctrl = self.controller
-        if ctrl is None or self.setting.mode is not br.Mode.AUTOBAUD or self.detected:
-            return
-        self._autobaud_index = (self._autobaud_index + 1) % len(br.AUTOBAUD_ORDER)
-        ctrl.bitrate = br.TABLE9[br.AUTOBAUD_ORDER[self._autobaud_index]]
-
-    def _autobaud_found(self) -> None:
-        """A frame received without error between two other nodes: the rate is found, go active."""
-        ctrl = self.controller
-        assert ctrl is not None
-        self.detected = ctrl.bitrate
-        ctrl.listen_only = False
-        self._feed()
-
-    def actual_timing(self) -> br.BitTiming | None:
-        """The controller's bit timing now (a detected autobaud rate included)."""
-        if self.setting.mode is br.Mode.AUTOBAUD:
-            return br.timing_for(self.detected) if self.detected else None
-        return self.setting.timing
 
     # ------------------------------------------------------------------ CAN side
     def _on_frame(self, frame: CanFrame, t: float) -> None:
@@ -394,16 +264,7 @@ class EsdGateway(SlaveApplication):
         (0x6000, 5.1.5.1) cannot carry a 29-bit identifier: in 11-bit mode such frames are only counted."""
         t0 = self.clock.now()
         st = self.stats
-        if frame.extended:
-            if frame.rtr:
-                st.rx_ext_rtr += 1
-            else:
-                st.rx_ext += 1
-        elif frame.rtr:
-            st.rx_std_rtr += 1
-        else:
-            st.rx_std += 1
-        st.rx_bytes += len(frame.data)
+        st.rx.count(frame)
         st.rx_bits += classic_bits(frame.extended, len(frame.data))
         if self.setting.mode is br.Mode.AUTOBAUD and not self.detected:
             self._autobaud_found()
@@ -451,17 +312,7 @@ class EsdGateway(SlaveApplication):
         if not self._inflight or self._inflight[0][1] is not frame:
             return
         tn, _ = self._inflight.popleft()
-        st = self.stats
-        if frame.extended:
-            if frame.rtr:
-                st.tx_ext_rtr += 1
-            else:
-                st.tx_ext += 1
-        elif frame.rtr:
-            st.tx_std_rtr += 1
-        else:
-            st.tx_std += 1
-        st.tx_bytes += len(frame.data)
+        self.stats.tx.count(frame)
         self._tx_tn = tn
         self._write_header()
         if self._tx_pending:
@@ -569,92 +420,7 @@ class EsdGateway(SlaveApplication):
         if self.slave.state in (AlState.SAFEOP, AlState.OP):
             self.slave.write_inputs(bytes(self._img[:IN_HEADER.size]))
 
-    # ------------------------------------------------------------------ status and statistics
-    def _refresh_status(self) -> None:
-        """0xF108 from the controller (5.1.5.8): bus off, warning limit, Rx overflow, REC, TEC."""
-        ctrl = self.controller
-        tec = ctrl.tec if ctrl is not None else 0
-        rec = ctrl.rec if ctrl is not None else 0
-        bus_off = ctrl is not None and ctrl.state is ErrorState.BUS_OFF
-        status = (bus_off, tec >= WARNING_LIMIT or rec >= WARNING_LIMIT or bus_off,
-                  self.stats.fifo_overrun > 0, min(rec, 255), tec, rec)
-        if status == self._status_cache:
-            return
-        self._status_cache = status
-        self.slave.od.put_many(((0xF108, 1), (0xF108, 2), (0xF108, 3), (0xF108, 0x21), (0xF108, 0x22)),
-                               (status[0], status[1], status[2], status[3], min(tec, 255)))
-
-    def statistics(self) -> dict[int, int]:
-        """0x2010 subindex -> value now (5.1.4.2)."""
-        st = self.stats
-        cmin, cmax, cavg = self._cyclic.summary()
-        hmin, hmax, havg = self._can.summary()
-        now = self.clock.now()
-        span = now - self._cpu_read_at
-        usage = 0 if span <= 0 else min(100, round(100 * (self._cyclic.busy + self._can.busy) / span))
-        self._cpu_read_at = now
-        self._cyclic.busy = self._can.busy = 0.0
-        return {0x02: cmin, 0x03: cmax, 0x04: cavg, 0x05: hmin, 0x06: hmax, 0x07: havg, 0x08: st.watchdog,
-                0x20: usage, 0x21: 0, 0x30: st.tx_requested, 0x31: st.tx_forwarded, 0x32: st.rx_copied,
-                0x34: 0, 0x35: st.fifo_overrun, 0x36: st.error_frames, 0x37: st.aborted, 0x38: st.rx_std,
-                0x39: st.rx_std_rtr, 0x3A: st.rx_ext, 0x3B: st.rx_ext_rtr, 0x3C: st.tx_std, 0x3D: st.tx_std_rtr,
-                0x3E: st.tx_ext, 0x3F: st.tx_ext_rtr}
-
-    def _refresh_statistics(self) -> None:
-        od = self.slave.od
-        for sub, value in self.statistics().items():
-            od.put(0x2010, sub, value & 0xFFFFFFFF)
-
-    def _reset_statistics(self, entry: Entry, value: Any) -> None:
-        """5.1.4.2 'Reset': writing resets the statistics; reading then shows the time of the reset
-        in milliseconds since the device started."""
-        if entry.subindex != 1:
-            return
-        self.reset_statistics()
-
-    def reset_statistics(self) -> None:
-        """Zero every counter of 0x2010 (and the web page's statistics)."""
-        for f in fields(GatewayStats):
-            setattr(self.stats, f.name, 0)
-        self._cyclic = _Window(CYCLIC_WINDOW)
-        self._can = _Window(CAN_WINDOW)
-        self._cpu_read_at = self.clock.now()
-        self.slave.od.put(0x2010, 1, round(1000 * (self.clock.now() - self._started_at)) & 0xFFFFFFFF)
-        self._refresh_status()
-
-    # ------------------------------------------------------------------ firmware update and reboot
-    def start_update(self, data: bytes) -> None:
-        """Begin a firmware update with ``data`` (FoE 5.3 or the web page 6.1.2): after
-        ``update_duration`` on the clock the device takes the version the file carries and reboots."""
-        if self._update_timer is not None:
-            raise ValueError("a firmware update is already running")
-        if not data:
-            raise ValueError("the firmware file is empty")
-        m = FIRMWARE_HEADER.match(data[:64])
-        self._update_version = m.group(1).decode("ascii") if m else None
-        self._update_started = self.clock.now()
-        self.updates += 1
-        self._update_timer = self.clock.call_later(self.update_duration, self._finish_update)
-
-    def update_progress(self) -> str | None:
-        """Figure 39's output so far; None when no update runs."""
-        if self._update_timer is None:
-            return None
-        part = (self.clock.now() - self._update_started) / self.update_duration if self.update_duration > 0 else 1
-        shown = 2 + int(part * (len(UPDATE_LINES) - 1))
-        return "\n".join(UPDATE_LINES[:min(shown, len(UPDATE_LINES))]) + "\n"
-
-    @property
-    def updating(self) -> bool:
-        """A firmware update is running."""
-        return self._update_timer is not None
-
-    def _finish_update(self) -> None:
-        self._update_timer = None
-        if self._update_version is not None:
-            self.firmware_version = self._update_version
-        self.reboot()
-
+    # ------------------------------------------------------------------ reboot
     def reboot(self) -> None:
         """Restart (6.1.3, and the end of a firmware update): settings back to their defaults,
         queues and statistics cleared, the controller off the bus, EtherCAT state INIT."""
@@ -679,37 +445,6 @@ class EsdGateway(SlaveApplication):
         self._status_cache = ()
         self._apply_bitrate()
         self.slave.esc.force_state(AlState.INIT)
-
-
-class _FirmwareFiles:
-    """FoE of 5.3: ``firmwareUpdate`` with password 0, in BOOT only (0x8008 'bootstrap only' in
-    any other state); nothing to read."""
-
-    def __init__(self, gateway: EsdGateway) -> None:
-        self.gateway = gateway
-
-    def foe_read(self, name: str, password: int) -> bytes:
-        """The gateway offers no files."""
-        raise FoeError(f"no file {name!r}", FoeErrorCode.NOT_FOUND)
-
-    def foe_check_write(self, name: str, password: int) -> None:
-        """The write request itself is refused (before any data) for another file name, another
-        state than BOOT or another password."""
-        if name != FIRMWARE_FILE:
-            raise FoeError(f"no file {name!r} (only {FIRMWARE_FILE!r})", FoeErrorCode.NOT_FOUND)
-        if self.gateway.slave.state != AlState.BOOT:
-            raise FoeError("firmware updates only in BOOT", FoeErrorCode.BOOTSTRAP_ONLY)
-        if password != FIRMWARE_PASSWORD:
-            raise FoeError("wrong password", FoeErrorCode.NO_RIGHTS)
-
-    def foe_write(self, name: str, password: int, data: bytes) -> None:
-        """Start the update, or refuse with the FoE error code."""
-        g = self.gateway
-        self.foe_check_write(name, password)
-        try:
-            g.start_update(data)
-        except ValueError as exc:
-            raise FoeError(str(exc), FoeErrorCode.ILLEGAL) from None
 
 
 def create_esd_gateway(clock: Clock, bus: VirtualBus | None, name: str = "CAN-EtherCAT", serial: int = 0,

@@ -75,10 +75,12 @@ class EsdParticipant:
         return {"can": ctrl} if ctrl is not None else {}
 
     def ready_info(self) -> dict[str, Any]:
+        """The web interface's URL for the ready file, when the rig serves it."""
         return {"web": {self.name: self.url}} if self.url else {}
 
 
 def create(rig: RigContext, cfg: dict[str, Any]) -> EsdParticipant:
+    """The rig kind's factory: one gateway from its checked section."""
     return EsdParticipant(rig, cfg)
 
 

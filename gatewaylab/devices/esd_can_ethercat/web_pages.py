@@ -25,6 +25,8 @@ from dataclasses import dataclass, field
 from email.message import Message
 from typing import Protocol, TypeVar
 
+from gatewaylab.common.errors import GatewaylabError, RemoteError
+
 __all__ = [
     "CanStatusView",
     "DeviceInfoView",
@@ -152,12 +154,13 @@ class Response:
     headers: tuple[tuple[str, str], ...] = ()
 
 
-class ServerClosed(Exception):
+class ServerClosed(GatewaylabError):
     """The server stopped while a request waited for the lock (answered 503, backend untouched)."""
 
 
-class MultipartError(ValueError):
-    """A multipart/form-data body that does not follow RFC 7578 / RFC 2046 5.1."""
+class MultipartError(RemoteError, ValueError):
+    """A multipart/form-data body that does not follow RFC 7578 / RFC 2046 5.1 (the client's fault;
+    a ValueError too, for callers that catch that)."""
 
 
 @dataclass(frozen=True, slots=True)

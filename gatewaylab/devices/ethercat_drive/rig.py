@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from gatewaylab.devices.canopen_drive.device import Drive
 from gatewaylab.devices.canopen_drive.rig import PLANT_KEYS, axis_params
 from gatewaylab.devices.ethercat_drive.device import MAX_AXES, EthercatDrive
 from gatewaylab.ethercat.slave import Slave
@@ -41,6 +42,11 @@ class DriveParticipant:
         self.device = EthercatDrive(rig.clock, self.name, cfg["serial"], cfg["axes"], axis_params(cfg["plant"]))
         self.slave: Slave = self.device.slave
 
+    @property
+    def drive(self) -> Drive:
+        """Axis 0's drive (capability HasDrive: what `gatewaylab fault drive-fault NAME` acts on)."""
+        return self.device.drive
+
     def start(self) -> None:
         """Nothing to open: the segment owns the wire; the axes run from construction."""
 
@@ -49,10 +55,12 @@ class DriveParticipant:
         self.device.stop()
 
     def ready_info(self) -> dict[str, Any]:
+        """An EtherCAT drive publishes no endpoints of its own (its segment does)."""
         return {}
 
 
 def create_drive_device(rig: RigContext, cfg: dict[str, Any]) -> DriveParticipant:
+    """The rig kind's factory: one EtherCAT drive from its checked section."""
     return DriveParticipant(rig, cfg)
 
 

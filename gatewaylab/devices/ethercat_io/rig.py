@@ -37,10 +37,12 @@ class IoDevice:
         """Nothing to release."""
 
     def ready_info(self) -> dict[str, Any]:
+        """Nothing for the ready file: a master finds the I/O slave on the segment by its identity."""
         return {}
 
 
 def create_io_device(rig: RigContext, cfg: dict[str, Any]) -> IoDevice:
+    """The factory :data:`KIND` hands the rig: one I/O slave per ``[[device]]`` section."""
     return IoDevice(rig, cfg)
 
 

@@ -32,15 +32,19 @@ class NodeObjects:
         self.node = node
 
     def read(self, index: int, subindex: int) -> bytes:
+        """Read an object of the drive's dictionary (SDO rules and abort codes)."""
         return self.node.read(index, subindex)
 
     def write(self, index: int, subindex: int, data: bytes) -> None:
+        """Write an object of the drive's dictionary (SDO rules and abort codes)."""
         self.node.write(index, subindex, data)
 
     def value_size(self, index: int, subindex: int) -> int | None:
+        """The object's fixed size in bytes, None for variable-length objects."""
         return self.node.od.entry(index, subindex).size
 
     def check_write(self, index: int, subindex: int) -> None:
+        """Refuse a segmented write to a read-only object before any data is sent."""
         if not self.node.od.entry(index, subindex).access.writable:
             raise IdxRemoteError(SdoAbortCode.READ_ONLY, f"0x{index:04X}:{subindex:02X} is read only")
 
@@ -86,9 +90,11 @@ class IdxDevice:
         return slave
 
     def start(self) -> None:
+        """Power on the drive behind the USB side."""
         self.drive.start()
 
     def stop(self) -> None:
+        """Close every host channel, then power the drive off."""
         for channel in self.channels:
             channel.close()
         self.drive.stop()

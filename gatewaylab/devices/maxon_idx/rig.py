@@ -15,7 +15,9 @@ from __future__ import annotations
 
 from typing import Any
 
+from gatewaylab.canopen.node import Node
 from gatewaylab.common.endpoint import format_tcp
+from gatewaylab.devices.canopen_drive.device import Drive
 from gatewaylab.devices.maxon_idx.commands import MAX_SEGMENT
 from gatewaylab.devices.maxon_idx.device import IdxDevice
 from gatewaylab.devices.maxon_idx.transport.pty import PtyPort
@@ -57,7 +59,18 @@ class IdxParticipant:
         self.tcp: TcpServer | None = None
         self.unplugged = False
 
+    @property
+    def node(self) -> Node:
+        """The IDX's CANopen node (capability HasNode: fault injection finds it by node-ID)."""
+        return self.device.node
+
+    @property
+    def drive(self) -> Drive:
+        """The drive inside the IDX (capability HasDrive: power cycle and drive faults)."""
+        return self.device.drive
+
     def start(self) -> None:
+        """Start the device and open its USB side (virtual serial port and/or TCP port)."""
         self.device.start()
         self._open_usb()
 
@@ -89,6 +102,7 @@ class IdxParticipant:
             self._open_usb()
 
     def stop(self) -> None:
+        """Close the USB side, then stop the device."""
         if self.pty is not None:
             self.pty.close()
             self.pty = None
@@ -98,6 +112,7 @@ class IdxParticipant:
         self.device.stop()
 
     def ready_info(self) -> dict[str, Any]:
+        """Where hosts reach this IDX (pty path, TCP address) for the ready file."""
         entry: dict[str, Any] = {}
         if self.pty is not None:
             entry["pty"] = self.pty.path
@@ -107,6 +122,7 @@ class IdxParticipant:
 
 
 def create_device(rig: RigContext, cfg: dict[str, Any]) -> IdxParticipant:
+    """The rig kind's factory: one IDX from its checked section."""
     return IdxParticipant(rig, cfg)
 
 

@@ -21,7 +21,7 @@ from typing import Any
 
 from gatewaylab.common.endpoint import format_tcp
 from gatewaylab.common.errors import ConfigError
-from gatewaylab.devices.modbus_gateway.gateway import ModbusGateway
+from gatewaylab.devices.modbus_gateway.device import ModbusGateway
 from gatewaylab.devices.modbus_gateway.mapping import RegisterMap, default_cia402_map, parse_map
 from gatewaylab.devices.modbus_gateway.server import ModbusTcpFace
 from gatewaylab.plugin.participant import DeviceKind, Key, RigContext
@@ -69,6 +69,7 @@ class ModbusGatewayParticipant:
         self.face: ModbusTcpFace | None = None
 
     def start(self) -> None:
+        """Start the gateway and, on a real-time rig with a port, its Modbus TCP server."""
         self.gateway.start()
         # A simulated clock runs only when its owner moves it: no server thread could wait on it.
         if self.rig.realtime and self.tcp_port is not None and self.face is None:
@@ -77,18 +78,21 @@ class ModbusGatewayParticipant:
             self.face = face
 
     def stop(self) -> None:
+        """Stop the Modbus TCP server, then the gateway."""
         if self.face is not None:
             self.face.stop()
             self.face = None
         self.gateway.stop()
 
     def ready_info(self) -> dict[str, Any]:
+        """The Modbus TCP address for the ready file, when the server runs."""
         if self.face is None:
             return {}
         return {"modbus": {self.name: format_tcp(self.face.host, self.face.port)}}
 
 
 def create_device(rig: RigContext, cfg: dict[str, Any]) -> ModbusGatewayParticipant:
+    """The rig kind's factory: one Modbus gateway from its checked section."""
     return ModbusGatewayParticipant(rig, cfg)
 
 

@@ -38,7 +38,8 @@ from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
 from gatewaylab.common.clock import Clock
-from gatewaylab.devices.modbus_gateway.gateway import ModbusGateway
+from gatewaylab.common.errors import LocalError
+from gatewaylab.devices.modbus_gateway.device import ModbusGateway
 from gatewaylab.devices.modbus_gateway.mapping import ModbusException, RegisterKind
 
 log = logging.getLogger(__name__)
@@ -56,6 +57,17 @@ LOG_BURST = 10
 LOG_WINDOW = 10.0
 #: pymodbus's logger (``pymodbus.logging.Log`` writes to it; ``Log.setLevel`` sets its level).
 PYMODBUS_LOGGER = "pymodbus.logging"
+
+
+class ModbusServerError(LocalError, OSError):
+    """The Modbus TCP server cannot listen (port in use, no start in time); an OSError with the errno
+    too, so that callers that handle socket errors (``gatewaylab run``, the rig) keep doing so."""
+
+    def __init__(self, err: int, message: str) -> None:
+        OSError.__init__(self, err, message)
+
+    def __str__(self) -> str:
+        return self.strerror or OSError.__str__(self)
 
 
 class LogLimiter:
@@ -106,6 +118,7 @@ class BadRequestLog(logging.Handler):
         self._last = ""
 
     def emit(self, record: logging.LogRecord) -> None:
+        """Count a pymodbus complaint about a request and log it as one line, rate-limited."""
         try:
             text = one_line(record.getMessage())
         except Exception:           # a record pymodbus could not format: still one line
@@ -185,13 +198,13 @@ class ModbusTcpFace:
         self.thread.start()
         if not self._started.wait(START_TIMEOUT):
             self.stop()
-            raise OSError(errno.ETIMEDOUT, f"the Modbus TCP server did not start within {START_TIMEOUT:g} s")
+            raise ModbusServerError(errno.ETIMEDOUT, f"the Modbus TCP server did not start within {START_TIMEOUT:g} s")
         if self._error is not None:
             error = self._error
             self.stop()
             if isinstance(error, OSError):
                 raise error
-            raise OSError(errno.EADDRINUSE, f"cannot listen on {self.host}:{self.port}: {error}")
+            raise ModbusServerError(errno.EADDRINUSE, f"cannot listen on {self.host}:{self.port}: {error}")
 
     def _probe(self) -> None:
         """Bind the port once as asyncio will (SO_REUSEADDR): a port in use fails here with its errno,

@@ -11,11 +11,7 @@ periodic timer), and ``send()`` runs the simulation until the frame is on the bu
 to it came back up through the gateway, as ``gatewaylab/bus/transport/inprocess.py`` does, so a
 canopen SDO client gets its answers without anyone advancing the clock.
 
-A channel is anything with ``before_exchange()``, ``after_exchange(wkc, expected)``, ``submit``
-and ``stop``: :class:`EsdChannel` wraps the esd counter handshake
-(:class:`~gatewaylab.hosts.esd_can_ethercat.EsdHost`), :class:`EcanChannel` one MCAN channel
-of an ECAN-Lite through the MCAN Port (:mod:`gatewaylab.hosts.ecanlite.port`); with
-ECAN-Lite channels the port's ``cycle_end`` makes the one exchange of the cycle for everybody.
+Each gateway's side of the cycle is a channel (:mod:`gatewaylab.hosts.canhost.channels`).
 """
 
 from __future__ import annotations
@@ -24,20 +20,20 @@ import logging
 import queue
 import threading
 from collections.abc import Callable
-from contextlib import nullcontext
-from dataclasses import replace
-from typing import Any, Protocol
+from typing import Any
 
 import can
 from can.bus import BusState, CanProtocol
 
+from gatewaylab.bus.errorframe import CAN_ERR_BUSOFF, CAN_ERR_CRTL, CAN_ERR_CRTL_RX_OVERFLOW
 from gatewaylab.bus.frame import CanFrame
 from gatewaylab.common.clock import Clock, PeriodicTimer, SimulatedClock
 from gatewaylab.common.errors import GatewaylabError, LocalError
 from gatewaylab.ethercat.esc import AlState
+from gatewaylab.hosts.canhost.channels import Channel, EcanChannel, EsdChannel
 from gatewaylab.hosts.ecanlite.adapter import AdapterConfig, EcanAdapter, SlaveConfig
-from gatewaylab.hosts.ecanlite.port import ChannelConfig, McanPort, PortConfig
-from gatewaylab.hosts.esd_can_ethercat import BitRate, EsdHost, RxOverflowError, for_bitrate
+from gatewaylab.hosts.ecanlite.port import McanPort, PortConfig
+from gatewaylab.hosts.esd_can_ethercat import RxOverflowError
 from gatewaylab.hosts.ethercat.backend import MasterBackend
 
 log = logging.getLogger("can.gatewaylab.ethercat")
@@ -54,170 +50,9 @@ WKC_RECOVER = 10
 #: Seconds between two looks at the slaves' AL states anyway: a slave in SAFEOP may still count
 #: the datagrams (the working counter stays right) while it takes no outputs.
 STATE_CHECK_PERIOD = 0.1
-#: SocketCAN error classes (linux/can/error.h) used for error frames.
-CAN_ERR_CRTL, CAN_ERR_BUSOFF = 0x04, 0x40
-CAN_ERR_CRTL_RX_OVERFLOW = 0x01
-#: Chapter 7 status word bits 0..2 = 3: the MCAN channel is bus-off.
-_ECAN_BUSOFF = 3
 #: The ECAN-Lite encapsulation profile the host selects (0x8010/0x8011:05): compact inline,
 #: variable DLC, delta16 timestamps of the bus receive instant in the TxPDO (manual 8.4, 9).
 TIMESTAMP_PROFILE = 1
-
-
-class Channel(Protocol):
-    """One gateway CAN channel as the host drives it."""
-
-    name: str
-    fd: bool
-    position: int
-
-    def before_exchange(self) -> None: ...
-    def after_exchange(self, wkc: int, expected: int) -> None: ...
-    def submit(self, frame: CanFrame) -> Callable[[], bool]: ...   # returns 'frame done?'
-    def room(self, frame: CanFrame) -> bool: ...                     # the Tx path takes it now
-    def take(self) -> list[can.Message]: ...
-    def idle(self) -> bool: ...                                      # nothing in flight
-    def stop(self) -> None: ...
-    def bus_off(self) -> bool: ...
-
-
-class EsdChannel:
-    """The one CAN channel of an esd CAN-EtherCAT at ``position`` (manual 5.1.5), configured at
-    :meth:`EthercatHost.start`: bit rate (0xF800), status PDO 0x1A85 assigned for bus-off and Rx
-    overflow. Received frames carry the time of the cycle that brought them (the esd Rx PDO has no
-    time stamp, 5.1.5.1). Its Tx path holds the gateway's local Tx queue (0x8000:24) plus one Tx
-    batch (0x8000:22): the frames queued or in flight beyond that wait in ``send()``."""
-
-    fd = False
-
-    def __init__(self, host: EthercatHost, position: int, bitrate: int, name: str) -> None:
-        self.host = host
-        self.position = position
-        self.bitrate = bitrate
-        self.name = name
-        self.esd = EsdHost(host.backend, position, cycle_time=host.cycle_s, external_cycle=True)
-        self._errors: list[can.Message] = []
-        self._was_bus_off = False
-
-    def configure(self) -> None:
-        rate: BitRate = for_bitrate(self.bitrate)
-        self.esd.configure(bitrate=rate, status_pdo=True)
-
-    def attach(self) -> None:
-        cfg = self.esd.config
-        if cfg is not None:
-            self.esd.tx_limit = cfg.local_tx_queue + cfg.tx_queue
-        self.esd.attach()
-
-    def before_exchange(self) -> None:
-        self.esd.before_exchange()
-
-    def after_exchange(self, wkc: int, expected: int) -> None:
-        if not self.esd.after_exchange(wkc, expected):
-            return
-        status = self.esd.pdo_status()
-        off = bool(status is not None and status.bus_off)
-        if off and not self._was_bus_off:
-            self._errors.append(self.host.error_frame(self.name, bus_off=True))
-        self._was_bus_off = off
-
-    def submit(self, frame: CanFrame) -> Callable[[], bool]:
-        tn = self.esd.queue([frame])[0]
-        return lambda: self.esd.completed(tn)
-
-    def room(self, frame: CanFrame) -> bool:
-        hs = self.esd.handshake
-        return hs is None or hs.pending + hs.in_flight < hs.tx_limit
-
-    def take(self) -> list[can.Message]:
-        out, self._errors = self._errors, []
-        hs = self.esd.handshake
-        if hs is None:
-            return out
-        if hs.overflow_reported():
-            out.append(self.host.error_frame(self.name, overflow=True))
-        for rx in hs.take_received():
-            out.append(rx.frame.to_message(self.host.timestamp(rx.timestamp), self.name))
-        return out
-
-    def idle(self) -> bool:
-        hs = self.esd.handshake
-        return hs is None or hs.in_flight == 0
-
-    def bus_off(self) -> bool:
-        return self._was_bus_off
-
-    def stop(self) -> None:
-        self.esd.stop()
-
-
-class EcanChannel:
-    """One MCAN channel ``can_channel`` (0..3) of an ECAN-Lite at ``position`` through the MCAN
-    Port of the host's adapter (manual 15.1). Configured at :meth:`EthercatHost.start` (classic or
-    FD bit rates, 13.4; PDO multiplier ``pdo_n``, 5.2). The host parses each TxPDO once and hands
-    each channel its frames; the chapter-7 status word's BUSOFF and the header's overflow count
-    become error frames, a rejected TxPDO (parse error) an error frame of class CAN_ERR_CRTL.
-    The TxPDO profile is 1 (delta16 timestamps, chapter 9): received frames carry the device's bus
-    receive instant (8.4). Its Tx path is the next RxPDO's frame area: frames beyond one image
-    wait in ``send()``."""
-
-    def __init__(self, host: EthercatHost, position: int, can_channel: int, bitrate: int,
-                 data_bitrate: int | None, fd: bool, pdo_n: int, name: str) -> None:
-        if not 0 <= can_channel <= 3:
-            raise LocalError(f"MCAN channel {can_channel} is not 0..3")
-        self.host = host
-        self.position = position
-        self.can_channel = can_channel
-        self.fd = fd
-        self.pdo_n = pdo_n
-        self.name = name
-        # a python-can bus hands over every frame: the data path drains the whole RX cache each cycle
-        self.config = replace(ChannelConfig.canfd(bitrate, data_bitrate or bitrate) if fd
-                              else ChannelConfig.classic(bitrate), drain_all=True)
-        self.slave_k = -1      # the adapter slave, set at start
-        self._rx: list[can.Message] = []
-        self._was_bus_off = False
-
-    def before_exchange(self) -> None:
-        pass
-
-    def after_exchange(self, wkc: int, expected: int) -> None:
-        port = self.host.port
-        assert port is not None
-        word = port.status_words(self.slave_k)[self.can_channel]
-        off = word & 0x07 == _ECAN_BUSOFF
-        if off and not self._was_bus_off:
-            self._rx.append(self.host.error_frame(self.name, bus_off=True))
-        self._was_bus_off = off
-
-    def deliver(self, msg: can.Message) -> None:
-        self._rx.append(msg)
-
-    def submit(self, frame: CanFrame) -> Callable[[], bool]:
-        port = self.host.port
-        if port is None:
-            raise LocalError("the host is not started")
-        port.send_frame(self.slave_k, self.can_channel, frame)
-        k = self.slave_k
-        return lambda: port.pending(k) == 0
-
-    def room(self, frame: CanFrame) -> bool:
-        port = self.host.port
-        return port is None or port.fits_next_image(self.slave_k, port.frame_packet(self.can_channel, frame))
-
-    def take(self) -> list[can.Message]:
-        out, self._rx = self._rx, []
-        return out
-
-    def idle(self) -> bool:
-        port = self.host.port
-        return port is None or port.pending(self.slave_k) == 0
-
-    def bus_off(self) -> bool:
-        return self._was_bus_off
-
-    def stop(self) -> None:
-        pass   # the adapter brings every ECAN-Lite to PREOP (EthercatHost.close)
 
 
 class EthercatHost:
@@ -256,8 +91,8 @@ class EthercatHost:
         self._lock = threading.RLock()
         #: notified after every cycle (a send() waiting for room in a Tx path looks again)
         self._cycled = threading.Condition(self._lock)
-        if self.simulated and isinstance(self.clock.lock, nullcontext):
-            self.clock.lock = threading.RLock()
+        if self.simulated:
+            self.clock.ensure_lock()
 
     # -- set-up --------------------------------------------------------------------------------
     def add_esd(self, position: int, bitrate: int = 500_000, name: str = "") -> EsdChannel:
@@ -427,6 +262,7 @@ class EthercatHost:
                 c.deliver(self.error_frame(c.name, overflow=True))
 
     def timestamp(self, t: float) -> float:
+        """``Message.timestamp`` for clock time ``t`` (a simulated clock starts at 0, users expect Unix time)."""
         return self.wall_epoch + t
 
     def error_frame(self, channel: str, *, bus_off: bool = False, overflow: bool = False) -> can.Message:
@@ -605,14 +441,17 @@ class GatewayBus(can.BusABC):
         host.buses.append(self)
 
     def deliver(self, msgs: list[can.Message]) -> None:
+        """The host's cycle hands this channel's received frames to the bus for ``recv()``."""
         self.received += len(msgs)
         for m in msgs:
             self._queue.put(m)
 
     def wake(self) -> None:
+        """Make a ``recv()`` blocked in another thread return None (shutdown, host closed)."""
         self._queue.put(_WAKE)
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        """python-can's send: the gateway's errors become :class:`can.CanOperationError`."""
         if self._is_shutdown:
             raise can.CanOperationError(f"{self.channel_info} was shut down")
         if msg.is_fd and not self.host.channels[self.channel_name].fd:
@@ -657,6 +496,7 @@ class GatewayBus(can.BusABC):
 
     @property
     def state(self) -> BusState:
+        """ERROR while the gateway's controller is bus-off, else ACTIVE."""
         return BusState.ERROR if self.host.channels[self.channel_name].bus_off() else BusState.ACTIVE
 
     @state.setter
@@ -665,6 +505,7 @@ class GatewayBus(can.BusABC):
             raise can.CanOperationError("the gateway channels are always active (no listen-only mode)")
 
     def shutdown(self) -> None:
+        """Wake a waiting ``recv()``, leave the host (and close it when this bus owns it)."""
         if self._is_shutdown:
             return
         super().shutdown()

@@ -47,18 +47,22 @@ class StartupSdo:
 
     @classmethod
     def u8(cls, position: int, index: int, sub: int, value: int, what: str = "") -> StartupSdo:
+        """A one-byte download."""
         return cls(position, index, sub, _U8.pack(value), False, what)
 
     @classmethod
     def u16(cls, position: int, index: int, sub: int, value: int, what: str = "") -> StartupSdo:
+        """A two-byte download (little-endian)."""
         return cls(position, index, sub, _U16.pack(value), False, what)
 
     @classmethod
     def u32(cls, position: int, index: int, sub: int, value: int, what: str = "") -> StartupSdo:
+        """A four-byte download (little-endian)."""
         return cls(position, index, sub, _U32.pack(value), False, what)
 
     @classmethod
     def expect(cls, position: int, index: int, sub: int, data: bytes, what: str = "") -> StartupSdo:
+        """An upload that must read back ``data`` (startup check)."""
         return cls(position, index, sub, data, True, what)
 
 
@@ -135,6 +139,7 @@ class PeriodStats:
     last: float | None = None
 
     def mark(self, t: float) -> None:
+        """One cycle started at ``t``: records the period since the last one."""
         if self.last is not None:
             self.samples.append(t - self.last)
         self.last = t
@@ -188,6 +193,7 @@ class EcanAdapter:
     # ------------------------------------------------------------------ configuration
     @property
     def slave_count(self) -> int:
+        """ECAN-Lite slaves this adapter drives."""
         return len(self.config.slaves)
 
     def slave(self, k: int) -> SlaveConfig:

@@ -108,6 +108,7 @@ class AxisResult:
 
     @property
     def error(self) -> int:
+        """Following error: target minus actual position (increments)."""
         return self.target - self.actual
 
     def reached(self, window: int = 10) -> bool:
@@ -150,7 +151,7 @@ class Cia402:
         self.sched_sync_ns: int | None = None
         self.cycle_count = 0
         # SYNC is the same packet every cycle: built once per bus (packets are frozen).
-        self._sync = {(slave, channel): CanPacket(channel, 0x080) for slave, channel in self.buses}
+        self._sync = {(slave, channel): CanPacket.of(channel, 0x080) for slave, channel in self.buses}
         self.sdo_errors = 0
         self.other_frames = 0
 
@@ -321,6 +322,7 @@ class Cia402:
 
     @staticmethod
     def enabled(st: _AxisState) -> bool:
+        """Statusword says 'operation enabled' (CiA 402 state machine)."""
         return st.statusword & 0x6F == 0x27
 
     def enable_all(self, timeout: float = 2.0) -> None:

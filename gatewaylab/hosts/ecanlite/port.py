@@ -105,12 +105,14 @@ class ChannelConfig:
 
     @classmethod
     def classic(cls, bitrate: int = 1_000_000, sample_point: tuple[int, int] = (750, 875)) -> ChannelConfig:
+        """A classic CAN channel with the classic Message RAM layout."""
         return cls(bitrate, 0, False, sample_point, sample_point, False, ram=MessageRam.classic())
 
     @classmethod
     def canfd(cls, bitrate: int = 1_000_000, data_bitrate: int = 5_000_000,
               nominal_sp: tuple[int, int] = (750, 875), data_sp: tuple[int, int] = (750, 875),
               tdc: bool = True) -> ChannelConfig:
+        """A CAN FD channel (data phase, TDC) with the CAN FD default Message RAM layout."""
         return cls(bitrate, data_bitrate, True, nominal_sp, data_sp, tdc, ram=MessageRam())
 
     def sdos(self, position: int, channel: int) -> list[StartupSdo]:
@@ -165,6 +167,7 @@ class PortConfig:
 
     @property
     def masks(self) -> tuple[int, int]:
+        """The (TxPDO, RxPDO) channel masks: the configured channels unless set explicitly."""
         configured = sum(1 << ch for ch in self.channels)
         return (configured if self.tx_mask < 0 else self.tx_mask, configured if self.rx_mask < 0 else self.rx_mask)
 
@@ -320,24 +323,24 @@ class McanPort:
                  rtr: bool = False, dlc: int = -1) -> int:
         """``igh_mcan_port_send_can``: one classic frame in the next cycle."""
         if extended or rtr or dlc != -1:
-            return self.send_packet(slave, CanPacket(channel, can_id, extended, rtr=rtr, data=bytes(data), dlc=dlc))
+            return self.send_packet(slave, CanPacket.of(channel, can_id, extended, rtr=rtr, data=bytes(data), dlc=dlc))
         return self.send_packet(slave, CanPacket.classic(channel, can_id, bytes(data)))
 
     def send_canfd(self, slave: int, channel: int, can_id: int, data: bytes = b"", *, extended: bool = False,
                    brs: bool = True) -> int:
         """``igh_mcan_port_send_canfd``: one CAN FD frame (BRS by default) in the next cycle."""
-        return self.send_packet(slave, CanPacket(channel, can_id, extended, fd=True, brs=brs, data=bytes(data)))
+        return self.send_packet(slave, CanPacket.of(channel, can_id, extended, fd=True, brs=brs, data=bytes(data)))
 
     def schedule_can(self, slave: int, channel: int, can_id: int, data: bytes = b"", *, offset_ns: int,
                      tag: int = 0, extended: bool = False) -> int:
         """``igh_mcan_port_schedule_can``: sent ``offset_ns`` after the next SYNC0 (8.4 TSF_FULL64 format 1)."""
-        return self.send_packet(slave, CanPacket(channel, can_id, extended, data=bytes(data), tsf=Tsf.FULL64,
+        return self.send_packet(slave, CanPacket.of(channel, can_id, extended, data=bytes(data), tsf=Tsf.FULL64,
                                                  scheduled=True, offset_ns=offset_ns, tag=tag & 0xFFFF))
 
     def schedule_canfd(self, slave: int, channel: int, can_id: int, data: bytes = b"", *, offset_ns: int,
                        tag: int = 0, extended: bool = False, brs: bool = True) -> int:
         """``igh_mcan_port_schedule_canfd``: a CAN FD frame at SYNC0 + ``offset_ns`` (8.4)."""
-        return self.send_packet(slave, CanPacket(channel, can_id, extended, fd=True, brs=brs, data=bytes(data),
+        return self.send_packet(slave, CanPacket.of(channel, can_id, extended, fd=True, brs=brs, data=bytes(data),
                                                  tsf=Tsf.FULL64, scheduled=True, offset_ns=offset_ns,
                                                  tag=tag & 0xFFFF))
 
@@ -348,8 +351,7 @@ class McanPort:
     @staticmethod
     def frame_packet(channel: int, frame: CanFrame) -> CanPacket:
         """The RxPDO packet that carries ``frame`` on ``channel`` (send now, 8.1)."""
-        return CanPacket(channel, frame.can_id, frame.extended, frame.fd, frame.brs, frame.rtr, frame.esi,
-                         frame.data, dlc=frame.dlc if frame.rtr else -1)
+        return CanPacket(channel, frame)
 
     def fits_next_image(self, slave: int, packet: CanPacket) -> bool:
         """Whether ``packet`` still goes out with the next RxPDO: the frames queued for ``slave`` and

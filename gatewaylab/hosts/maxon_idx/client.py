@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import struct
 import time
-from dataclasses import dataclass
 from typing import Any
 
+from gatewaylab.canopen.lss import Cs, LssAddress
 from gatewaylab.common.clock import RealTimeClock
 from gatewaylab.common.errors import GatewaylabError, LocalError, RemoteError
 from gatewaylab.devices.maxon_idx.codec import DecoderEvent, FrameDecoder, FrameReceived, encode_frame
@@ -45,18 +45,20 @@ _TYPES: dict[str, struct.Struct] = {
     "i8": struct.Struct("<b"), "i16": struct.Struct("<h"), "i32": struct.Struct("<i"),
 }
 
-# CiA 305 LSS command specifiers (IDX guide 3.5.2 and CiA 305 fastscan).
-LSS_SWITCH_GLOBAL = 0x04
-LSS_CONFIGURE_NODE_ID = 0x11
-LSS_STORE = 0x17
-LSS_SWITCH_SELECTIVE = (0x40, 0x41, 0x42, 0x43)
-LSS_SWITCH_SELECTIVE_RESPONSE = 0x44
-LSS_IDENTIFY_REMOTE = 0x46
-LSS_IDENTIFY_NON_CONFIGURED = 0x4C
-LSS_IDENTIFY_RESPONSE = 0x4F
-LSS_NON_CONFIGURED_RESPONSE = 0x50
-LSS_FASTSCAN = 0x51
-LSS_INQUIRE = {"vendor": 0x5A, "product": 0x5B, "revision": 0x5C, "serial": 0x5D, "node_id": 0x5E}
+# CiA 305 LSS command specifiers (IDX guide 3.5.2 and CiA 305 fastscan), named as the client uses them.
+LSS_SWITCH_GLOBAL = Cs.SWITCH_STATE_GLOBAL
+LSS_CONFIGURE_NODE_ID = Cs.CONFIGURE_NODE_ID
+LSS_STORE = Cs.STORE_CONFIGURATION
+LSS_SWITCH_SELECTIVE = (Cs.SWITCH_SELECTIVE_VENDOR, Cs.SWITCH_SELECTIVE_PRODUCT, Cs.SWITCH_SELECTIVE_REVISION,
+                        Cs.SWITCH_SELECTIVE_SERIAL)
+LSS_SWITCH_SELECTIVE_RESPONSE = Cs.SWITCH_SELECTIVE_RESPONSE
+LSS_IDENTIFY_REMOTE = Cs.IDENTIFY_VENDOR
+LSS_IDENTIFY_NON_CONFIGURED = Cs.IDENTIFY_NON_CONFIGURED
+LSS_IDENTIFY_RESPONSE = Cs.IDENTIFY_SLAVE
+LSS_NON_CONFIGURED_RESPONSE = Cs.IDENTIFY_NON_CONFIGURED_SLAVE
+LSS_FASTSCAN = Cs.FASTSCAN
+LSS_INQUIRE = {"vendor": Cs.INQUIRE_VENDOR, "product": Cs.INQUIRE_PRODUCT, "revision": Cs.INQUIRE_REVISION,
+               "serial": Cs.INQUIRE_SERIAL, "node_id": Cs.INQUIRE_NODE_ID}
 
 
 class IdxError(RemoteError):
@@ -78,7 +80,8 @@ class IdxError(RemoteError):
 
 
 class IdxValueError(LocalError, ValueError):
-    """A typed read asked for a type narrower than the object's value."""
+    """A value that does not fit where the caller put it: a typed read narrower than the object's
+    value, or more than 4 bytes for WriteObject (a ValueError too, for callers that catch that)."""
 
 
 class IdxTimeout(IdxError):
@@ -88,20 +91,6 @@ class IdxTimeout(IdxError):
     def __init__(self, request: str = "", timeout: float | None = None, detail: str = "") -> None:
         within = f" within {timeout:g} s" if timeout is not None else ""
         super().__init__(SdoAbortCode.SDO_PROTOCOL_TIMED_OUT, request, detail or f"no reply frame from the IDX{within}")
-
-
-@dataclass(frozen=True, slots=True)
-class LssAddress:
-    """A CiA 305 LSS address (vendor, product, revision, serial) that names one drive, e.g. as fastscan found it."""
-
-    vendor_id: int
-    product_code: int
-    revision: int
-    serial: int
-
-    def as_tuple(self) -> tuple[int, int, int, int]:
-        """The four fields in LSS order, the order switch_state_selective sends them in (0x40..0x43)."""
-        return (self.vendor_id, self.product_code, self.revision, self.serial)
 
 
 class IdxClient:
@@ -189,7 +178,7 @@ class IdxClient:
     def write_object(self, node_id: int, index: int, subindex: int, data: bytes) -> None:
         """WriteObject (2.1.2.1) of up to 4 bytes."""
         if len(data) > 4:
-            raise ValueError("WriteObject carries at most 4 bytes; use write_segmented")
+            raise IdxValueError("WriteObject carries at most 4 bytes; use write_segmented")
         self._ok(WriteObject(node_id, index, subindex, data.ljust(4, b"\x00")),
                  f"write node {node_id} 0x{index:04X}:{subindex:02X}")
 
@@ -291,7 +280,7 @@ class IdxClient:
 
     def switch_state_selective(self, address: LssAddress, timeout_ms: int = 50) -> bool:
         """3.5.2.2: the slave with this LSS address enters configuration state (answers 0x44)."""
-        for cs, value in zip(LSS_SWITCH_SELECTIVE, address.as_tuple()):
+        for cs, value in zip(LSS_SWITCH_SELECTIVE, (address.part(sub) for sub in range(4))):
             if cs != LSS_SWITCH_SELECTIVE[-1]:
                 self.send_lss(bytes([cs]) + value.to_bytes(4, "little"))
         cs, value = LSS_SWITCH_SELECTIVE[-1], address.serial

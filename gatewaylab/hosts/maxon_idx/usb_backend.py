@@ -41,7 +41,7 @@ import usb.core
 import usb.util
 
 from gatewaylab.common.endpoint import EndpointKind, parse_endpoint
-from gatewaylab.common.errors import ConfigError
+from gatewaylab.common.errors import ConfigError, LocalError
 from gatewaylab.hosts.maxon_idx.link import USB_IDS
 
 #: The identity of a real EPOS4/IDX in public udev rules (maxon's vendor id 0x24E7).
@@ -73,6 +73,11 @@ _ENDPOINT = struct.Struct("<BBBBHB")
 _U16 = struct.Struct("<H")
 
 
+class NoSuchDescriptor(LocalError, IndexError):
+    """A descriptor the IDX does not have (it has one configuration, one interface, two endpoints);
+    an IndexError too, as pyusb's backend protocol expects when it walks the descriptors."""
+
+
 def _error(code: int, text: str, err: int) -> usb.core.USBError:
     return usb.core.USBError(text, code, err)
 
@@ -101,6 +106,7 @@ class EndpointDescriptor:
     extra_descriptors: tuple[int, ...] = ()
 
     def pack(self) -> bytes:
+        """The 7 bytes of the descriptor (USB 2.0 table 9-13)."""
         return _ENDPOINT.pack(self.bLength, self.bDescriptorType, self.bEndpointAddress, self.bmAttributes,
                               self.wMaxPacketSize, self.bInterval)
 
@@ -121,6 +127,7 @@ class InterfaceDescriptor:
     extra_descriptors: tuple[int, ...] = ()
 
     def pack(self) -> bytes:
+        """The 9 bytes of the descriptor (USB 2.0 table 9-12)."""
         return _INTERFACE.pack(self.bLength, self.bDescriptorType, self.bInterfaceNumber, self.bAlternateSetting,
                                self.bNumEndpoints, self.bInterfaceClass, self.bInterfaceSubClass,
                                self.bInterfaceProtocol, self.iInterface)
@@ -141,6 +148,7 @@ class ConfigurationDescriptor:
     extra_descriptors: tuple[int, ...] = ()
 
     def pack(self) -> bytes:
+        """The 9 bytes of the descriptor (USB 2.0 table 9-10)."""
         return _CONFIG.pack(self.bLength, self.bDescriptorType, self.wTotalLength, self.bNumInterfaces,
                             self.bConfigurationValue, self.iConfiguration, self.bmAttributes, self.bMaxPower)
 
@@ -170,6 +178,7 @@ class DeviceDescriptor:
     speed: int = usb.util.SPEED_FULL
 
     def pack(self) -> bytes:
+        """The 18 bytes of the descriptor (USB 2.0 table 9-8)."""
         return _DEVICE.pack(self.bLength, self.bDescriptorType, self.bcdUSB, self.bDeviceClass,
                             self.bDeviceSubClass, self.bDeviceProtocol, self.bMaxPacketSize0, self.idVendor,
                             self.idProduct, self.bcdDevice, self.iManufacturer, self.iProduct,
@@ -186,13 +195,15 @@ def string_descriptor(text: str) -> bytes:
 class Pipe(Protocol):
     """The USB byte channel of one opened device: what bulk OUT sends and bulk IN receives."""
 
-    def send(self, data: bytes) -> None: ...
+    def send(self, data: bytes) -> None:
+        """Bytes the host writes to the bulk OUT endpoint."""
 
     def receive(self, size: int, timeout: float | None) -> bytes:
         """Up to ``size`` bytes; ``b""`` when none came within ``timeout`` seconds (None: for ever)."""
         ...
 
-    def close(self) -> None: ...
+    def close(self) -> None:
+        """End the connection to the IDX."""
 
 
 class TcpPipe:
@@ -207,6 +218,7 @@ class TcpPipe:
         self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
 
     def send(self, data: bytes) -> None:
+        """Send to the rig's IDX TCP port; a closed connection is a libusb I/O error."""
         try:
             self.sock.settimeout(5.0)
             self.sock.sendall(data)
@@ -215,6 +227,7 @@ class TcpPipe:
                          errno.ENODEV) from exc
 
     def receive(self, size: int, timeout: float | None) -> bytes:
+        """Up to ``size`` bytes from the rig; ``b""`` when none came within ``timeout`` seconds."""
         self.sock.settimeout(timeout)
         try:
             data = self.sock.recv(size)
@@ -228,6 +241,7 @@ class TcpPipe:
         return data
 
     def close(self) -> None:
+        """Close the TCP connection."""
         self.sock.close()
 
 
@@ -235,9 +249,11 @@ class ChannelOwner(Protocol):
     """What :class:`DevicePipe` needs of an in-process IDX (an :class:`~..device.IdxDevice`)."""
 
     @property
-    def clock(self) -> Any: ...
+    def clock(self) -> Any:
+        """The clock the device's protocol runs on (a simulated one is advanced by the caller)."""
 
-    def open_channel(self, send: Any) -> Any: ...
+    def open_channel(self, send: Any) -> Any:
+        """A new host channel whose replies go to ``send``."""
 
 
 class DevicePipe:
@@ -262,6 +278,7 @@ class DevicePipe:
             self._ready.notify_all()
 
     def send(self, data: bytes) -> None:
+        """Feed the host's bytes to the in-process IDX's channel."""
         if self.clock.is_simulated:
             with self.clock.lock:
                 self.channel.receive(bytes(data))
@@ -275,6 +292,7 @@ class DevicePipe:
         return chunk[:size]
 
     def receive(self, size: int, timeout: float | None) -> bytes:
+        """Up to ``size`` bytes the IDX answered; ``b""`` when none came within ``timeout`` seconds."""
         if self.clock.is_simulated:
             return self._receive_simulated(size, timeout)
         with self._ready:
@@ -298,6 +316,7 @@ class DevicePipe:
             return self._take(size)
 
     def close(self) -> None:
+        """Close the IDX channel."""
         if self.clock.is_simulated:
             with self.clock.lock:
                 self.channel.close()
@@ -318,6 +337,7 @@ class EmulatedDevice:
     endpoints: tuple[EndpointDescriptor, ...] = (EndpointDescriptor(EP_OUT), EndpointDescriptor(EP_IN))
 
     def open_pipe(self) -> Pipe:
+        """A fresh connection to the IDX (open, or a USB bus reset)."""
         if isinstance(self.target, str):
             ep = parse_endpoint(self.target)
             return TcpPipe(ep.host, ep.port)
@@ -383,68 +403,85 @@ class IdxUsbBackend(usb.backend.IBackend):  # type: ignore[misc]
 
     # -- enumeration and descriptors ------------------------------------------------------------------
     def enumerate_devices(self) -> list[EmulatedDevice]:
+        """pyusb backend: the emulated IDXs this backend was given."""
         return list(self.devices)
 
     def get_parent(self, dev: EmulatedDevice) -> None:
+        """pyusb backend: no hub above the emulated device."""
         return None
 
     def get_device_descriptor(self, dev: EmulatedDevice) -> DeviceDescriptor:
+        """pyusb backend: the IDX's device descriptor (maxon vendor and product IDs)."""
         return dev.descriptor
 
     def get_configuration_descriptor(self, dev: EmulatedDevice, config: int) -> ConfigurationDescriptor:
+        """pyusb backend: the one configuration; IndexError (NoSuchDescriptor) for any other."""
         if config != 0:
-            raise IndexError(f"configuration {config} (the IDX has one)")
+            raise NoSuchDescriptor(f"configuration {config} (the IDX has one)")
         return dev.configuration
 
     def get_interface_descriptor(self, dev: EmulatedDevice, intf: int, alt: int, config: int) -> InterfaceDescriptor:
+        """pyusb backend: the one interface; IndexError (NoSuchDescriptor) for any other."""
         if config != 0 or intf != 0 or alt != 0:
-            raise IndexError(f"interface {intf} alternate setting {alt} of configuration {config}")
+            raise NoSuchDescriptor(f"interface {intf} alternate setting {alt} of configuration {config}")
         return dev.interface
 
     def get_endpoint_descriptor(self, dev: EmulatedDevice, ep: int, intf: int, alt: int,
                                 config: int) -> EndpointDescriptor:
+        """pyusb backend: the bulk IN/OUT endpoints; IndexError (NoSuchDescriptor) for any other."""
         if config != 0 or intf != 0 or alt != 0 or not 0 <= ep < len(dev.endpoints):
-            raise IndexError(f"endpoint {ep} of interface {intf}")
+            raise NoSuchDescriptor(f"endpoint {ep} of interface {intf}")
         return dev.endpoints[ep]
 
     # -- handles ----------------------------------------------------------------------------------------
     def open_device(self, dev: EmulatedDevice) -> _Handle:
+        """pyusb backend: a handle with its own connection to the IDX."""
         return _Handle(dev)
 
     def close_device(self, dev_handle: _Handle) -> None:
+        """pyusb backend: close the handle's connection."""
         dev_handle.pipe.close()
 
     def set_configuration(self, dev_handle: _Handle, config_value: int) -> None:
+        """pyusb backend: SET_CONFIGURATION (0 unconfigures); other values stall, as on the device."""
         if config_value not in (0, CONFIGURATION_VALUE):
             raise _stall()
         dev_handle.configuration = config_value
         dev_handle.halted.clear()
 
     def get_configuration(self, dev_handle: _Handle) -> int:
+        """pyusb backend: the configuration value set last."""
         return dev_handle.configuration
 
     def set_interface_altsetting(self, dev_handle: _Handle, intf: int, altsetting: int) -> None:
+        """pyusb backend: only interface 0 alternate setting 0 exists; others stall."""
         if intf != 0 or altsetting != 0:
             raise _stall()
 
     def claim_interface(self, dev_handle: _Handle, intf: int) -> None:
+        """pyusb backend: claim interface 0 (libusb's 'entity not found' for others)."""
         if intf != 0:
             raise _error(-5, "Entity not found", errno.ENOENT)
         dev_handle.claimed.add(intf)
 
     def release_interface(self, dev_handle: _Handle, intf: int) -> None:
+        """pyusb backend: release a claimed interface."""
         dev_handle.claimed.discard(intf)
 
     def is_kernel_driver_active(self, dev_handle: _Handle, intf: int) -> bool:
+        """pyusb backend: no kernel driver binds the emulated device."""
         return False
 
     def detach_kernel_driver(self, dev_handle: _Handle, intf: int) -> None:
+        """pyusb backend: libusb's answer when no driver is attached."""
         raise _error(-5, "Entity not found", errno.ENOENT)     # libusb: no driver attached
 
     def attach_kernel_driver(self, dev_handle: _Handle, intf: int) -> None:
+        """pyusb backend: libusb's answer when there is no driver to attach."""
         raise _error(-5, "Entity not found", errno.ENOENT)
 
     def clear_halt(self, dev_handle: _Handle, ep: int) -> None:
+        """pyusb backend: CLEAR_FEATURE(ENDPOINT_HALT) lifts a stall of ``ep``."""
         dev_handle.halted.discard(ep)
 
     def reset_device(self, dev_handle: _Handle) -> None:
@@ -464,6 +501,7 @@ class IdxUsbBackend(usb.backend.IBackend):  # type: ignore[misc]
             raise _stall()
 
     def bulk_write(self, dev_handle: _Handle, ep: int, intf: int, data: array.array[int], timeout: int) -> int:
+        """pyusb backend: bytes to the bulk OUT endpoint, on to the IDX."""
         self._check_bulk(dev_handle, ep, EP_OUT)
         payload = data.tobytes()
         dev_handle.pipe.send(payload)
@@ -480,9 +518,11 @@ class IdxUsbBackend(usb.backend.IBackend):  # type: ignore[misc]
         return len(data)
 
     def intr_write(self, dev_handle: _Handle, ep: int, intf: int, data: array.array[int], timeout: int) -> int:
+        """pyusb backend: the IDX has no interrupt endpoint (invalid parameter)."""
         raise _error(_LIBUSB_ERROR_INVALID_PARAM, "Invalid parameter", errno.EINVAL)   # no interrupt endpoint
 
     def intr_read(self, dev_handle: _Handle, ep: int, intf: int, buff: array.array[int], timeout: int) -> int:
+        """pyusb backend: the IDX has no interrupt endpoint (invalid parameter)."""
         raise _error(_LIBUSB_ERROR_INVALID_PARAM, "Invalid parameter", errno.EINVAL)
 
     def ctrl_transfer(self, dev_handle: _Handle, bmRequestType: int, bRequest: int, wValue: int, wIndex: int,

@@ -18,7 +18,8 @@ from canopen.sdo import SdoAbortedError
 from gatewaylab.bus import CanFrame, VirtualBus, python_can_bus
 from gatewaylab.canopen.cia402 import PdsState, state_from_statusword
 from gatewaylab.common.clock import SimulatedClock
-from gatewaylab.devices.canopen_drive.device import DEVICE_TYPE, MAXON_VENDOR_ID, PRODUCT_CODE, Drive
+from gatewaylab.devices.canopen_drive.device import Drive
+from gatewaylab.devices.canopen_drive.objects import DEVICE_TYPE, MAXON_VENDOR_ID, PRODUCT_CODE
 
 logging.getLogger("canopen.profiles.p402").setLevel(logging.ERROR)
 

@@ -252,17 +252,17 @@ def scenario_datapath(iface: str, cycles: int) -> dict[str, Any]:
 
     out["op"] = _to_op(master, seen)
     bad = run(20)
-    frames = [CanPacket(0, 0x101, data=b"\x01\x02\x03"), CanPacket(1, 0x1ABCDE0, extended=True, data=b"ext"),
-              CanPacket(2, 0x202, data=bytes(range(64)), fd=True, brs=True), CanPacket(3, 0x303, data=b"")]
+    frames = [CanPacket.of(0, 0x101, data=b"\x01\x02\x03"), CanPacket.of(1, 0x1ABCDE0, extended=True, data=b"ext"),
+              CanPacket.of(2, 0x202, data=bytes(range(64)), fd=True, brs=True), CanPacket.of(3, 0x303, data=b"")]
     s0.output = encode_stream(rx, 1, frames)
     bad += run(cycles)
-    image = bytearray(encode_stream(rx, 2, [CanPacket(0, 0x666, data=b"bad")]))
+    image = bytearray(encode_stream(rx, 2, [CanPacket.of(0, 0x666, data=b"bad")]))
     image[28] ^= 0xFF                                  # a data byte: payload_crc16 no longer matches
     s0.output = bytes(image)
     bad += run(cycles)
     r = _Retry(s0)
     out["after_bad"] = [_u(r.sdo_read(0x8011, 14)), _u(r.sdo_read(0x8011, 15)), _u(r.sdo_read(0x8011, 2))]
-    s0.output = encode_stream(rx, 3, [CanPacket(0, 0x102, data=b"ok")])
+    s0.output = encode_stream(rx, 3, [CanPacket.of(0, 0x102, data=b"ok")])
     bad += run(cycles)
     out["bad_wkc"] = bad
     out["rx_packets"] = packets

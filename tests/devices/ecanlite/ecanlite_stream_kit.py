@@ -120,13 +120,13 @@ def can_packets(draw: st.DrawFn, layout: StreamLayout) -> CanPacket:
     shape = draw(st.sampled_from(("classic", "remote", "fd")))
     if shape == "classic":
         data = draw(st.binary(max_size=8))
-        return CanPacket(ch, can_id, extended, data=data, tsf=tsf, timestamp=timestamp, scheduled=scheduled,
+        return CanPacket.of(ch, can_id, extended, data=data, tsf=tsf, timestamp=timestamp, scheduled=scheduled,
                          offset_ns=offset_ns, tag=tag, id_aux=id_aux)
     if shape == "remote":
-        return CanPacket(ch, can_id, extended, rtr=True, dlc=draw(st.integers(0, 8)), tsf=tsf, timestamp=timestamp,
+        return CanPacket.of(ch, can_id, extended, rtr=True, dlc=draw(st.integers(0, 8)), tsf=tsf, timestamp=timestamp,
                          scheduled=scheduled, offset_ns=offset_ns, tag=tag, id_aux=id_aux)
     n = draw(st.sampled_from(FD_LENGTHS))
-    return CanPacket(ch, can_id, extended, fd=True, brs=draw(st.booleans()), esi=draw(st.booleans()),
+    return CanPacket.of(ch, can_id, extended, fd=True, brs=draw(st.booleans()), esi=draw(st.booleans()),
                      data=draw(st.binary(min_size=n, max_size=n)), tsf=tsf, timestamp=timestamp,
                      scheduled=scheduled, offset_ns=offset_ns, tag=tag, id_aux=id_aux,
                      d64=d64_ok and draw(st.booleans()))

@@ -120,7 +120,7 @@ def test_profile_4_d64_frame_reaches_the_bus(rig: Rig) -> None:
     rx = _layout(3, Direction.RX, profile=4)
     client = python_can_bus(rig.buses[2])
     try:
-        frame = CanPacket(2, 0x1AB, data=bytes(range(12)), fd=True, brs=True, d64=True)
+        frame = CanPacket.of(2, 0x1AB, data=bytes(range(12)), fd=True, brs=True, d64=True)
         rig.master.pdo_write(0, 0, encode_stream(rx, 1, [frame]))
         rig.cycle(3)
         msg = client.recv(0)

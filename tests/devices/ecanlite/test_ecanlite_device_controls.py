@@ -9,11 +9,11 @@ import can
 from ecanlite_device_kit import Rig, bring_up
 
 from gatewaylab.bus import python_can_bus
-from gatewaylab.devices.ecanlite.device import Status
 from gatewaylab.devices.ecanlite.stream import (
     CanPacket,
     Direction,
     PdoError,
+    ProfileStatus,
     StreamLayout,
     crc16,
     decode_stream,
@@ -71,7 +71,7 @@ def _tx_ids(rig: Rig) -> list[int]:
 
 # ------------------------------------------------------------------ LastPDOError from the header
 def _with_layout_id(layout_id: int) -> bytes:
-    image = bytearray(encode_stream(rx_layout(), 5, [CanPacket(0, 0x123, data=b"12345678")]))
+    image = bytearray(encode_stream(rx_layout(), 5, [CanPacket.of(0, 0x123, data=b"12345678")]))
     struct.pack_into("<H", image, 10, layout_id)
     return bytes(image)
 
@@ -84,7 +84,7 @@ def _expect_error(rig: Rig, image: bytes, code: int) -> None:
         assert _received(client) == []
         m = rig.master
         assert (m.sdo_upload16(0, 0x8011, 14), m.sdo_upload32(0, 0x8011, 15)) == (code, 1)
-        assert m.sdo_upload8(0, 0x8011, 2) == Status.ENCAPSULATION_ERROR
+        assert m.sdo_upload8(0, 0x8011, 2) == ProfileStatus.ENCAPSULATION_ERROR
         _publish(rig, image)                                   # the same image again: no-op (13.8)
         assert m.sdo_upload32(0, 0x8011, 15) == 1
     finally:
@@ -119,7 +119,7 @@ def test_d64_frame_in_profile_0_is_frame_overrun_2(rig: Rig) -> None:
     """13.2 LastPDOError 2 'frame overrun: a single frame exceeds the encapsulation capability
     supported by the current profile' (9: D64 only in profiles 4/5)."""
     bring_up(rig, n=3)
-    image = bytearray(encode_stream(rx_layout(), 5, [CanPacket(0, 0x123, data=bytes(64), fd=True)]))
+    image = bytearray(encode_stream(rx_layout(), 5, [CanPacket.of(0, 0x123, data=bytes(64), fd=True)]))
     image[25] |= 0x80                                          # control word bit 15 D64
     struct.pack_into("<H", image, 8, crc16(image[24:24 + struct.unpack_from("<H", image, 6)[0]]))
     _expect_error(rig, bytes(image), PdoError.FRAME_OVERRUN)
@@ -133,12 +133,12 @@ def test_rxpdo_parse_bypass_takes_the_header_not_the_frames(rig: Rig) -> None:
     _test_control(rig, 3, 0x08)
     client = python_can_bus(rig.buses[0])
     try:
-        _publish(rig, encode_stream(rx_layout(), 7, [CanPacket(0, 0x101, data=b"a")]))
+        _publish(rig, encode_stream(rx_layout(), 7, [CanPacket.of(0, 0x101, data=b"a")]))
         assert _received(client) == []
         m = rig.master
         assert m.sdo_upload16(0, 0x8011, 13) == 7 and m.sdo_upload32(0, 0x8011, 15) == 0
         m.sdo_download32(0, 0x8030, 3, 0)
-        _publish(rig, encode_stream(rx_layout(), 8, [CanPacket(0, 0x102, data=b"b")]))
+        _publish(rig, encode_stream(rx_layout(), 8, [CanPacket.of(0, 0x102, data=b"b")]))
         assert _received(client) == [0x102]
     finally:
         client.shutdown()
@@ -151,7 +151,7 @@ def test_rxpdo_stage_bypass_ignores_the_image(rig: Rig) -> None:
     _test_control(rig, 3, 0x04)
     client = python_can_bus(rig.buses[0])
     try:
-        image = bytearray(encode_stream(rx_layout(), 9, [CanPacket(0, 0x103, data=b"c")]))
+        image = bytearray(encode_stream(rx_layout(), 9, [CanPacket.of(0, 0x103, data=b"c")]))
         image[30] ^= 0xFF                                      # a bad CRC would be error 15
         _publish(rig, bytes(image))
         m = rig.master
@@ -159,7 +159,7 @@ def test_rxpdo_stage_bypass_ignores_the_image(rig: Rig) -> None:
         assert m.sdo_upload16(0, 0x8011, 13) == 0 and m.sdo_upload32(0, 0x8011, 15) == 0
         m.sdo_download32(0, 0x8030, 1, 0)
         assert m.sdo_upload32(0, 0x8030, 3) == 0
-        _publish(rig, encode_stream(rx_layout(), 10, [CanPacket(0, 0x104, data=b"d")]))
+        _publish(rig, encode_stream(rx_layout(), 10, [CanPacket.of(0, 0x104, data=b"d")]))
         assert _received(client) == [0x104]
     finally:
         client.shutdown()
@@ -173,7 +173,7 @@ def test_app_link_bypass_rx_parses_and_sends_nothing(rig: Rig) -> None:
     _test_control(rig, 6, 2)
     client = python_can_bus(rig.buses[0])
     try:
-        _publish(rig, encode_stream(rx_layout(), 3, [CanPacket(0, 0x105, data=b"e")]))
+        _publish(rig, encode_stream(rx_layout(), 3, [CanPacket.of(0, 0x105, data=b"e")]))
         assert _received(client) == [] and rig.master.sdo_upload16(0, 0x8011, 13) == 3
     finally:
         client.shutdown()
@@ -249,7 +249,7 @@ def test_crc_test_policy_force_no_crc16(rig: Rig) -> None:
         image = _inputs(rig)
         assert image[15] == 0 and image[8:10] == b"\0\0"
         assert _received(client) == [0x203]                     # the peer's own frame on the bus
-        bad = bytearray(encode_stream(rx_layout(), 4, [CanPacket(0, 0x106, data=b"f")]))
+        bad = bytearray(encode_stream(rx_layout(), 4, [CanPacket.of(0, 0x106, data=b"f")]))
         bad[8] ^= 0xFF
         _publish(rig, bytes(bad))
         assert _received(client) == [0x106] and rig.master.sdo_upload32(0, 0x8011, 15) == 0
@@ -268,7 +268,7 @@ def test_crc_test_policy_force_crc16_over_no_crc16_option(rig: Rig) -> None:
     assert image[15] == 1 and struct.unpack_from("<H", image, 8)[0] == crc16(image[24:24 + n])
     client = python_can_bus(rig.buses[0])
     try:
-        _publish(rig, encode_stream(rx_layout(options=0x04), 4, [CanPacket(0, 0x107, data=b"g")]))
+        _publish(rig, encode_stream(rx_layout(options=0x04), 4, [CanPacket.of(0, 0x107, data=b"g")]))
         assert _received(client) == []
         assert rig.master.sdo_upload16(0, 0x8011, 14) in (PdoError.BAD_HEADER, PdoError.BAD_CRC)
     finally:

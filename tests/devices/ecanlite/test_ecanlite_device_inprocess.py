@@ -10,13 +10,13 @@ import pytest
 from ecanlite_device_kit import CYCLE, Rig, bring_up, make_rig
 
 from gatewaylab.bus import python_can_bus
-from gatewaylab.devices.ecanlite.device import Status
 from gatewaylab.devices.ecanlite.image import SM_SIZE
 from gatewaylab.devices.ecanlite.stream import (
     CanPacket,
     Direction,
     HeaderFlags,
     PdoError,
+    ProfileStatus,
     StreamLayout,
     TxResultCode,
     TxResultPacket,
@@ -143,8 +143,8 @@ def test_frames_both_directions_on_all_four_channels_classic_and_fd(rig: Rig) ->
     try:
         packets = []
         for ch in range(4):
-            packets.append(CanPacket(ch, 0x100 + ch, data=bytes([ch]) * 8))
-            packets.append(CanPacket(ch, 0x1000000 + ch, extended=True, fd=True, brs=True, data=bytes(range(64))))
+            packets.append(CanPacket.of(ch, 0x100 + ch, data=bytes([ch]) * 8))
+            packets.append(CanPacket.of(ch, 0x1000000 + ch, extended=True, fd=True, brs=True, data=bytes(range(64))))
         publish(rig, encode_stream(rx_layout(), 7, packets), cycles=5)
         for ch, c in enumerate(clients):
             a, b = c.recv(0), c.recv(0)
@@ -175,7 +175,8 @@ def test_tx_result_reports_each_rxpdo_frame(rig: Rig) -> None:
     RefPacketSeq = the committed RxPDO sequence and RefFrameIndex = its CAN_FRAME index."""
     bring_up(rig, n=3, tx_options=0x01)
     peers = [python_can_bus(rig.buses[ch]) for ch in (0, 2)]  # someone must acknowledge the frames
-    publish(rig, encode_stream(rx_layout(3), 41, [CanPacket(0, 0x10, data=b"\1"), CanPacket(2, 0x20, data=b"\2")]))
+    publish(rig, encode_stream(rx_layout(3), 41,
+                               [CanPacket.of(0, 0x10, data=b"\1"), CanPacket.of(2, 0x20, data=b"\2")]))
     results: list[TxResultPacket] = []
     for _ in range(4):
         results += [p for p in read_tx(rig, tx_layout(3, options=1)) if isinstance(p, TxResultPacket)]
@@ -192,7 +193,7 @@ def test_align4_both_directions(rig: Rig) -> None:
     assert rig.master.sdo_upload32(0, 0x8011, 12) == 2 | 0x0F << 5 | 0x02 << 21
     client = python_can_bus(rig.buses[1])
     try:
-        frame = CanPacket(1, 0x1234567, extended=True, data=b"ABCDEFGH")
+        frame = CanPacket.of(1, 0x1234567, extended=True, data=b"ABCDEFGH")
         publish(rig, encode_stream(rx_layout(3, options=2), 1, [frame]), cycles=3)
         msg = client.recv(0)
         assert msg is not None and msg.arbitration_id == 0x1234567 and bytes(msg.data) == b"ABCDEFGH"
@@ -213,7 +214,7 @@ def _with_crc(image: bytearray) -> bytes:
 
 
 def _bad_images(layout: StreamLayout) -> dict[PdoError, bytes]:
-    good = bytearray(encode_stream(layout, 5, [CanPacket(0, 0x123, data=b"12345678")]))
+    good = bytearray(encode_stream(layout, 5, [CanPacket.of(0, 0x123, data=b"12345678")]))
     out: dict[PdoError, bytes] = {}
     img = bytearray(good)
     img[24] = 0x00 | (9 << 3)  # classic frame with DLC 9
@@ -242,7 +243,7 @@ def _bad_images(layout: StreamLayout) -> dict[PdoError, bytes]:
     img = bytearray(good)
     struct.pack_into("<H", img, 10, 0x1234)  # layout_id of another profile
     out[PdoError.ACTIVE_AREA] = bytes(img)
-    sched = bytearray(encode_stream(layout, 5, [CanPacket(0, 0x123, data=b"1", tsf=3, scheduled=True,
+    sched = bytearray(encode_stream(layout, 5, [CanPacket.of(0, 0x123, data=b"1", tsf=3, scheduled=True,
                                                           offset_ns=100_000)]))
     sched[28] = 2  # format 2
     out[PdoError.BAD_SCHEDULE] = _with_crc(sched)
@@ -270,10 +271,10 @@ def test_each_last_pdo_error_counts_and_sends_nothing(rig: Rig, code: PdoError) 
         m = rig.master
         assert m.sdo_upload16(0, 0x8011, 14) == code
         assert m.sdo_upload32(0, 0x8011, 15) == 1
-        assert m.sdo_upload8(0, 0x8011, 2) == Status.ENCAPSULATION_ERROR
+        assert m.sdo_upload8(0, 0x8011, 2) == ProfileStatus.ENCAPSULATION_ERROR
         m.sdo_download8(0, 0x8011, 8, 0x02)  # clear errors
         assert m.sdo_upload16(0, 0x8011, 14) == 0 and m.sdo_upload32(0, 0x8011, 15) == 0
-        publish(rig, encode_stream(rx_layout(3), 6, [CanPacket(0, 0x321, data=b"ok")]), cycles=3)
+        publish(rig, encode_stream(rx_layout(3), 6, [CanPacket.of(0, 0x321, data=b"ok")]), cycles=3)
         msg = client.recv(0)
         assert msg is not None and msg.arbitration_id == 0x321
     finally:
@@ -286,9 +287,9 @@ def test_duplicate_sequence_with_other_content_is_error_10(rig: Rig) -> None:
     bring_up(rig, n=1)
     client = python_can_bus(rig.buses[0])
     try:
-        publish(rig, encode_stream(rx_layout(1), 9, [CanPacket(0, 0x1, data=b"a")]), cycles=3)
-        publish(rig, encode_stream(rx_layout(1), 9, [CanPacket(0, 0x1, data=b"a")]), cycles=3)
-        publish(rig, encode_stream(rx_layout(1), 9, [CanPacket(0, 0x2, data=b"b")]), cycles=3)
+        publish(rig, encode_stream(rx_layout(1), 9, [CanPacket.of(0, 0x1, data=b"a")]), cycles=3)
+        publish(rig, encode_stream(rx_layout(1), 9, [CanPacket.of(0, 0x1, data=b"a")]), cycles=3)
+        publish(rig, encode_stream(rx_layout(1), 9, [CanPacket.of(0, 0x2, data=b"b")]), cycles=3)
         assert [msg.arbitration_id for msg in iter(lambda: client.recv(0), None)] == [0x1]
         assert rig.master.sdo_upload16(0, 0x8011, 14) == PdoError.DUPLICATE_SEQUENCE
         assert rig.master.sdo_upload32(0, 0x8011, 15) == 1
@@ -301,7 +302,7 @@ def test_torn_image_is_ignored(rig: Rig) -> None:
     bring_up(rig, n=1)
     client = python_can_bus(rig.buses[0])
     try:
-        image = bytearray(encode_stream(rx_layout(1), 3, [CanPacket(0, 0x7, data=b"x")]))
+        image = bytearray(encode_stream(rx_layout(1), 3, [CanPacket.of(0, 0x7, data=b"x")]))
         struct.pack_into("<H", image, 4, 2)
         publish(rig, bytes(image), cycles=3)
         assert client.recv(0) is None and rig.master.sdo_upload32(0, 0x8011, 15) == 0
@@ -347,21 +348,21 @@ def test_state_rules_of_14_2(rig: Rig) -> None:
     m = rig.master
     bring_up(rig, n=3)
     m.sdo_download8(0, 0x8011, 3, 8)
-    assert m.sdo_upload8(0, 0x8011, 2) == Status.PENDING_APPLY
+    assert m.sdo_upload8(0, 0x8011, 2) == ProfileStatus.PENDING_APPLY
     m.sdo_download8(0, 0x8011, 1, 1)
-    assert m.sdo_upload8(0, 0x8011, 2) == Status.INVALID_STATE
+    assert m.sdo_upload8(0, 0x8011, 2) == ProfileStatus.INVALID_STATE
     assert m.sdo_upload16(0, 0x8011, 9) == 384
     m.set_state(AlState.PREOP)
     m.sdo_download8(0, 0x8011, 1, 1)  # 8 requested, 3 assigned
-    assert m.sdo_upload8(0, 0x8011, 2) == Status.MAPPING_RELOAD_REQUIRED and m.sdo_upload16(0, 0x8011, 9) == 384
+    assert m.sdo_upload8(0, 0x8011, 2) == ProfileStatus.MAPPING_RELOAD_REQUIRED and m.sdo_upload16(0, 0x8011, 9) == 384
     m.sdo_download8(0, 0x8011, 3, 3)
     m.sdo_download8(0, 0x8011, 7, 0x20)
     m.sdo_download8(0, 0x8011, 1, 1)
-    assert m.sdo_upload8(0, 0x8011, 2) == Status.UNSUPPORTED_OPTION
+    assert m.sdo_upload8(0, 0x8011, 2) == ProfileStatus.UNSUPPORTED_OPTION
     m.sdo_download8(0, 0x8011, 7, 0)
     m.sdo_download8(0, 0x8011, 3, 25)
     m.sdo_download8(0, 0x8011, 1, 1)
-    assert m.sdo_upload8(0, 0x8011, 2) == Status.INVALID_MULTIPLIER
+    assert m.sdo_upload8(0, 0x8011, 2) == ProfileStatus.INVALID_MULTIPLIER
     # assignment of 4 chunks, profile still 3: SAFEOP is fine, OP is refused (16.1)
     for assign, base in ((0x1C12, 0x1600), (0x1C13, 0x1A00)):
         m.sdo_download8(0, assign, 0, 0)
@@ -385,15 +386,15 @@ def test_scheduled_transmit_on_sync0(rig: Rig) -> None:
     seen: list[tuple[int, float]] = []
     rig.buses[0].add_monitor(lambda f, t: seen.append((f.can_id, t)))
     try:
-        publish(rig, encode_stream(rx_layout(1), 1, [CanPacket(0, 0x55, data=b"s", tsf=3, scheduled=True,
+        publish(rig, encode_stream(rx_layout(1), 1, [CanPacket.of(0, 0x55, data=b"s", tsf=3, scheduled=True,
                                                                offset_ns=100_000)]))
         assert m.sdo_upload16(0, 0x8011, 14) == PdoError.BAD_SCHEDULE and not seen
         m.configure_sync0(0, 0.001, start_delay=0.0005)
         rig.cycle(2)
         sync = rig.device.app._last_sync0
-        publish(rig, encode_stream(rx_layout(1), 2, [CanPacket(0, 0x66, data=b"s", tsf=3, scheduled=True,
+        publish(rig, encode_stream(rx_layout(1), 2, [CanPacket.of(0, 0x66, data=b"s", tsf=3, scheduled=True,
                                                                offset_ns=300_000),
-                                                     CanPacket(0, 0x77, data=b"l", tsf=3, scheduled=True,
+                                                     CanPacket.of(0, 0x77, data=b"l", tsf=3, scheduled=True,
                                                                offset_ns=2_000_000)]), cycles=3)
         assert sync is not None
         sent = [(i, t) for i, t in seen if i == 0x66]
@@ -431,7 +432,7 @@ def test_n24_runs_3072_bytes_each_way(tmp_path: Path) -> None:
     bring_up(rig, n=24)
     client = python_can_bus(rig.buses[3])
     try:
-        packets = [CanPacket(3, 0x400 + i, fd=True, brs=True, data=bytes([i]) * 64) for i in range(30)]
+        packets = [CanPacket.of(3, 0x400 + i, fd=True, brs=True, data=bytes([i]) * 64) for i in range(30)]
         publish(rig, encode_stream(rx_layout(24), 1, packets), cycles=10)
         ids = [msg.arbitration_id for msg in iter(lambda: client.recv(0), None)]
         assert ids == [0x400 + i for i in range(30)]

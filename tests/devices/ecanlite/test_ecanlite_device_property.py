@@ -37,7 +37,7 @@ def images(draw: st.DrawFn) -> bytes:
     """Mostly-valid images with a few random bytes changed (CRC repaired or not), or pure noise."""
     if draw(st.booleans()):
         return draw(st.binary(min_size=128 * N, max_size=128 * N))
-    packets = draw(st.lists(st.builds(lambda ch, i, d: CanPacket(ch, i, data=d), st.integers(0, 3),
+    packets = draw(st.lists(st.builds(lambda ch, i, d: CanPacket.of(ch, i, data=d), st.integers(0, 3),
                                       st.integers(0, 0x7FF), st.binary(max_size=8)), max_size=4))
     image = bytearray(encode_stream(LAYOUT, draw(st.integers(0, 0xFFFF)), packets))
     for _ in range(draw(st.integers(1, 4))):

@@ -93,7 +93,7 @@ def test_allocation_feeds_the_encoder() -> None:
     """Chapters 8.3 and 12: sizes from packet_size (ALIGN4 included) allocated to the TxPDO frame
     area always encode; what was left behind is what the device reports as STREAM_TRUNCATED."""
     layout = StreamLayout(multiplier=1, options=Option.ALIGN_4_ENABLE, direction=Direction.TX)
-    queues = {ch: [CanPacket(ch, 0x100 + k, True, data=bytes(k % 9)) for k in range(6)] for ch in range(4)}
+    queues = {ch: [CanPacket.of(ch, 0x100 + k, True, data=bytes(k % 9)) for k in range(6)] for ch in range(4)}
     alloc = allocate(layout.budget_policy, layout.frame_area_bytes, layout.channels,
                      {ch: [packet_size(p, layout) for p in q] for ch, q in queues.items()})
     chosen = [p for ch in layout.channels for p in queues[ch][:alloc[ch]]]
@@ -147,5 +147,5 @@ def test_default_reserve_holds_one_classic_frame() -> None:
     """Chapter 12 'minimum packet budget': the default reserve takes one classic 8-byte frame in its
     largest form (extended id, full64 timestamp, ALIGN4)."""
     layout = StreamLayout(profile=1, options=Option.ALIGN_4_ENABLE, direction=Direction.TX)
-    biggest = CanPacket(0, 0x1FFFFFFF, True, data=bytes(8), tsf=Tsf.FULL64, timestamp=1)
+    biggest = CanPacket.of(0, 0x1FFFFFFF, True, data=bytes(8), tsf=Tsf.FULL64, timestamp=1)
     assert packet_size(biggest, layout) == DEFAULT_RESERVE_BYTES

@@ -254,7 +254,7 @@ def test_bad_schedule_capability() -> None:
     ts = struct.pack("<BBHI", 1, 0, 7, 100_000)
     rejected(image_by_hand(layout, 1, std_packet(0, 1, b"", tsf=3, ts=ts), 1), layout, PdoError.BAD_SCHEDULE)
     with pytest.raises(StreamEncodeError) as info:
-        encode_stream(layout, 1, [CanPacket(0, 1, tsf=Tsf.FULL64, scheduled=True)])
+        encode_stream(layout, 1, [CanPacket.of(0, 1, tsf=Tsf.FULL64, scheduled=True)])
     assert info.value.pdo_error is PdoError.BAD_SCHEDULE
 
 
@@ -281,25 +281,25 @@ def test_unsupported_profile_and_option_are_layout_errors() -> None:
 
 
 @pytest.mark.parametrize(("make", "code"), [
-    (lambda: CanPacket(8, 1), PdoError.INVALID_CHANNEL),
-    (lambda: CanPacket(-1, 1), PdoError.INVALID_CHANNEL),
-    (lambda: CanPacket(0, 1, data=bytes(9)), PdoError.INVALID_DLC),
-    (lambda: CanPacket(0, 1, fd=True, data=bytes(9)), PdoError.INVALID_DLC),
-    (lambda: CanPacket(0, 1, rtr=True, dlc=9), PdoError.INVALID_DLC),
-    (lambda: CanPacket(0, 1, rtr=True, data=b"x"), PdoError.INVALID_DLC),
-    (lambda: CanPacket(0, 1, fd=True, rtr=True), PdoError.INVALID_DLC),
-    (lambda: CanPacket(0, 1, brs=True), PdoError.INVALID_DLC),
-    (lambda: CanPacket(0, 1, d64=True), PdoError.INVALID_DLC),
-    (lambda: CanPacket(0, 1, data=b"ab", dlc=3), PdoError.INVALID_DLC),
-    (lambda: CanPacket(0, 1, tsf=4), PdoError.INVALID_TSF),                               # type: ignore[arg-type]
-    (lambda: CanPacket(0, 1, tsf=Tsf.DELTA16, timestamp=0x10000), PdoError.INVALID_TSF),
-    (lambda: CanPacket(0, 1, timestamp=5), PdoError.INVALID_TSF),
-    (lambda: CanPacket(0, 1, scheduled=True), PdoError.BAD_SCHEDULE),
-    (lambda: CanPacket(0, 1, tsf=Tsf.FULL64, scheduled=True, offset_ns=1 << 32), PdoError.BAD_SCHEDULE),
-    (lambda: CanPacket(0, 1, tsf=Tsf.FULL64, offset_ns=5), PdoError.BAD_SCHEDULE),
-    (lambda: CanPacket(0, 0x800), PdoError.RESERVED_BIT),
-    (lambda: CanPacket(0, 0x20000000, True), PdoError.RESERVED_BIT),
-    (lambda: CanPacket(0, 1, id_aux=8), PdoError.RESERVED_BIT),
+    (lambda: CanPacket.of(8, 1), PdoError.INVALID_CHANNEL),
+    (lambda: CanPacket.of(-1, 1), PdoError.INVALID_CHANNEL),
+    (lambda: CanPacket.of(0, 1, data=bytes(9)), PdoError.INVALID_DLC),
+    (lambda: CanPacket.of(0, 1, fd=True, data=bytes(9)), PdoError.INVALID_DLC),
+    (lambda: CanPacket.of(0, 1, rtr=True, dlc=9), PdoError.INVALID_DLC),
+    (lambda: CanPacket.of(0, 1, rtr=True, data=b"x"), PdoError.INVALID_DLC),
+    (lambda: CanPacket.of(0, 1, fd=True, rtr=True), PdoError.INVALID_DLC),
+    (lambda: CanPacket.of(0, 1, brs=True), PdoError.INVALID_DLC),
+    (lambda: CanPacket.of(0, 1, d64=True), PdoError.INVALID_DLC),
+    (lambda: CanPacket.of(0, 1, data=b"ab", dlc=3), PdoError.INVALID_DLC),
+    (lambda: CanPacket.of(0, 1, tsf=4), PdoError.INVALID_TSF),                               # type: ignore[arg-type]
+    (lambda: CanPacket.of(0, 1, tsf=Tsf.DELTA16, timestamp=0x10000), PdoError.INVALID_TSF),
+    (lambda: CanPacket.of(0, 1, timestamp=5), PdoError.INVALID_TSF),
+    (lambda: CanPacket.of(0, 1, scheduled=True), PdoError.BAD_SCHEDULE),
+    (lambda: CanPacket.of(0, 1, tsf=Tsf.FULL64, scheduled=True, offset_ns=1 << 32), PdoError.BAD_SCHEDULE),
+    (lambda: CanPacket.of(0, 1, tsf=Tsf.FULL64, offset_ns=5), PdoError.BAD_SCHEDULE),
+    (lambda: CanPacket.of(0, 0x800), PdoError.RESERVED_BIT),
+    (lambda: CanPacket.of(0, 0x20000000, True), PdoError.RESERVED_BIT),
+    (lambda: CanPacket.of(0, 1, id_aux=8), PdoError.RESERVED_BIT),
     (lambda: TxResultPacket(0, 1, 256, TxResultCode.OK), PdoError.UNKNOWN_KIND),
     (lambda: TxResultPacket(0, 1, 0, 6), PdoError.UNKNOWN_KIND),                         # type: ignore[arg-type]
     (lambda: TxResultPacket(9, 1, 0, TxResultCode.OK), PdoError.INVALID_CHANNEL),
@@ -315,14 +315,14 @@ def test_packets_no_layout_can_carry(make: Callable[[], object], code: PdoError)
 
 
 @pytest.mark.parametrize(("layout", "packet", "code"), [
-    (RX, CanPacket(4, 1), PdoError.INVALID_CHANNEL),
-    (StreamLayout(channel_mask=1), CanPacket(1, 1), PdoError.INVALID_CHANNEL),
-    (RX, CanPacket(0, 1, fd=True, d64=True), PdoError.FRAME_OVERRUN),
-    (TX, CanPacket(0, 1, tsf=Tsf.DELTA32), PdoError.INVALID_TSF),
-    (StreamLayout(direction=Direction.TX), CanPacket(0, 1, tsf=Tsf.DELTA16), PdoError.INVALID_TSF),
-    (RX, CanPacket(0, 1, tsf=Tsf.DELTA16), PdoError.INVALID_TSF),
-    (RX, CanPacket(0, 1, tsf=Tsf.FULL64), PdoError.BAD_SCHEDULE),
-    (TX, CanPacket(0, 1, tsf=Tsf.FULL64, scheduled=True), PdoError.BAD_SCHEDULE),
+    (RX, CanPacket.of(4, 1), PdoError.INVALID_CHANNEL),
+    (StreamLayout(channel_mask=1), CanPacket.of(1, 1), PdoError.INVALID_CHANNEL),
+    (RX, CanPacket.of(0, 1, fd=True, d64=True), PdoError.FRAME_OVERRUN),
+    (TX, CanPacket.of(0, 1, tsf=Tsf.DELTA32), PdoError.INVALID_TSF),
+    (StreamLayout(direction=Direction.TX), CanPacket.of(0, 1, tsf=Tsf.DELTA16), PdoError.INVALID_TSF),
+    (RX, CanPacket.of(0, 1, tsf=Tsf.DELTA16), PdoError.INVALID_TSF),
+    (RX, CanPacket.of(0, 1, tsf=Tsf.FULL64), PdoError.BAD_SCHEDULE),
+    (TX, CanPacket.of(0, 1, tsf=Tsf.FULL64, scheduled=True), PdoError.BAD_SCHEDULE),
     (RX, TxResultPacket(0, 1, 0, TxResultCode.OK), PdoError.UNKNOWN_KIND),
     (StreamLayout(direction=Direction.TX), TxResultPacket(0, 1, 0, TxResultCode.OK), PdoError.UNKNOWN_KIND),
     (TX, TxResultPacket(5, 1, 0, TxResultCode.OK), PdoError.INVALID_CHANNEL),
@@ -337,7 +337,7 @@ def test_encoder_refuses_with_the_receivers_code(layout: StreamLayout, packet: C
     assert info.value.pdo_error is code
     buf = bytearray(b"\x55" * layout.pdo_bytes)
     with pytest.raises(StreamEncodeError) as info:
-        encode_into(buf, layout, 1, [CanPacket(0, 2), packet])
+        encode_into(buf, layout, 1, [CanPacket.of(0, 2), packet])
     assert info.value.pdo_error is code
     assert buf == b"\x55" * layout.pdo_bytes
 
@@ -347,12 +347,12 @@ def test_encoder_packet_overrun_and_frame_count() -> None:
     byte, so at most 255 packets per image."""
     layout = StreamLayout(multiplier=1)
     with pytest.raises(StreamEncodeError) as info:
-        encode_stream(layout, 1, [CanPacket(0, 1, fd=True, data=bytes(64))] * 2)
+        encode_stream(layout, 1, [CanPacket.of(0, 1, fd=True, data=bytes(64))] * 2)
     assert info.value.pdo_error is PdoError.PACKET_OVERRUN
     big = StreamLayout(multiplier=24)
-    assert len(decode_stream(encode_stream(big, 1, [CanPacket(0, 1)] * 255), big).packets) == 255
+    assert len(decode_stream(encode_stream(big, 1, [CanPacket.of(0, 1)] * 255), big).packets) == 255
     with pytest.raises(StreamEncodeError):
-        encode_stream(big, 1, [CanPacket(0, 1)] * 256)
+        encode_stream(big, 1, [CanPacket.of(0, 1)] * 256)
 
 
 def test_diag_fields_of_a_packet_error() -> None:
@@ -370,10 +370,10 @@ def test_diag_fields_of_a_packet_error() -> None:
 
 
 @pytest.mark.parametrize("make", [
-    lambda: CanPacket(0, 1.0),                            # type: ignore[arg-type]
-    lambda: CanPacket(0, 1, data="text"),                 # type: ignore[arg-type]
-    lambda: CanPacket(0, 1, tsf=Tsf.DELTA16, timestamp=2.5),  # type: ignore[arg-type]
-    lambda: CanPacket(True, 1),
+    lambda: CanPacket.of(0, 1.0),                            # type: ignore[arg-type]
+    lambda: CanPacket.of(0, 1, data="text"),                 # type: ignore[arg-type]
+    lambda: CanPacket.of(0, 1, tsf=Tsf.DELTA16, timestamp=2.5),  # type: ignore[arg-type]
+    lambda: CanPacket.of(True, 1),
     lambda: TxResultPacket(0, 1.0, 0, TxResultCode.OK),   # type: ignore[arg-type]
 ])
 def test_non_integer_fields_refused(make: Callable[[], object]) -> None:

@@ -20,7 +20,6 @@ from gatewaylab.devices.ecanlite.stream import (
     DEFAULT_FEATURES,
     OPTION_MASK,
     PROFILE_MASK,
-    ApplyStatus,
     CanPacket,
     Direction,
     Feature,
@@ -28,6 +27,7 @@ from gatewaylab.devices.ecanlite.stream import (
     Option,
     PacketKind,
     PdoError,
+    ProfileStatus,
     StreamHeader,
     StreamLayout,
     Tsf,
@@ -63,7 +63,7 @@ def test_manual_rxpdo_frame_encodes_to_the_byte() -> None:
     overflow_sat 0, crc_alg 1, status 0; the rest of the 1024 bytes 0."""
     layout = StreamLayout.default()
     seq = 1
-    image = encode_stream(layout, seq, [CanPacket(0, 0x123, data=bytes.fromhex("1122334455667788"))])
+    image = encode_stream(layout, seq, [CanPacket.of(0, 0x123, data=bytes.fromhex("1122334455667788"))])
     crc = crc16_bitwise(MANUAL_FRAME)
     assert crc == 0x56D3   # the reference's value for the manual's 12 bytes, kept as a golden number
     layout_id = layout_id_by_hand(8, 0x0F, 0, 0, 0)
@@ -84,7 +84,7 @@ def test_manual_rxpdo_frame_decodes() -> None:
     assert decoded.header == StreamHeader(HeaderFlags(0), 7, 7, 12, crc16_bitwise(MANUAL_FRAME), 0x01E7, 0x0F, 1,
                                           0, 1, (0, 0, 0, 0), 0x16)
     (packet,) = decoded.packets
-    assert packet == CanPacket(0, 0x123, data=bytes.fromhex("1122334455667788"))
+    assert packet == CanPacket.of(0, 0x123, data=bytes.fromhex("1122334455667788"))
     assert packet.frame.can_id == 0x123 and packet.frame.data == bytes.fromhex("1122334455667788")
 
 
@@ -92,7 +92,7 @@ def test_control_word_formula_of_the_example() -> None:
     """5.4.4.1: ctrl = channel | dlc<<3 | ide<<7 | fdf<<8 | brs<<9 | x<<10 | tsf<<11 | kind<<13;
     the example's values give 0x0040."""
     assert ctrl_word(0, 8) == 0x0040
-    packet = CanPacket(0, 0x123, data=bytes(8))
+    packet = CanPacket.of(0, 0x123, data=bytes(8))
     assert encode_stream(StreamLayout.default(), 1, [packet])[24:26] == b"\x40\x00"
 
 
@@ -135,7 +135,7 @@ def test_control_word_bit_positions(field: str, value: int, bit: int) -> None:
 def test_std_id_field_and_id_aux() -> None:
     """8.1 StdIdField: bits 0..10 STD_ID, 11..13 ID_AUX; ExtIdField bits 0..28 EXT_ID, 29..31 ID_AUX."""
     layout = StreamLayout.default()
-    image = encode_stream(layout, 1, [CanPacket(0, 0x7FF, id_aux=5), CanPacket(1, 0x1FFFFFFF, True, id_aux=7)])
+    image = encode_stream(layout, 1, [CanPacket.of(0, 0x7FF, id_aux=5), CanPacket.of(1, 0x1FFFFFFF, True, id_aux=7)])
     assert struct.unpack_from("<H", image, 26)[0] == 0x7FF | 5 << 11
     assert struct.unpack_from("<I", image, 30)[0] == 0x1FFFFFFF | 7 << 29
     a, b = decode_stream(image, layout).packets
@@ -149,15 +149,15 @@ def test_dlc_table() -> None:
     layout = StreamLayout(multiplier=2)
     for dlc in range(16):
         n = dlc_to_len(dlc)
-        image = encode_stream(layout, 1, [CanPacket(0, 1, fd=True, data=bytes(range(n)))])
+        image = encode_stream(layout, 1, [CanPacket.of(0, 1, fd=True, data=bytes(range(n)))])
         assert image[24] >> 3 & 15 == dlc and struct.unpack_from("<H", image, 6)[0] == 4 + n
 
 
 @pytest.mark.parametrize(("packet", "raw", "aligned"), [
-    (CanPacket(0, 0x123, data=bytes(8)), 12, 12),
-    (CanPacket(0, 0x123456, True, data=bytes(8)), 14, 16),
-    (CanPacket(0, 0x123, fd=True, data=bytes(64)), 68, 68),
-    (CanPacket(0, 0x123456, True, fd=True, data=bytes(64), tsf=Tsf.DELTA16, timestamp=9), 72, 72),
+    (CanPacket.of(0, 0x123, data=bytes(8)), 12, 12),
+    (CanPacket.of(0, 0x123456, True, data=bytes(8)), 14, 16),
+    (CanPacket.of(0, 0x123, fd=True, data=bytes(64)), 68, 68),
+    (CanPacket.of(0, 0x123456, True, fd=True, data=bytes(64), tsf=Tsf.DELTA16, timestamp=9), 72, 72),
 ])
 def test_align4_length_examples(packet: CanPacket, raw: int, aligned: int) -> None:
     """8.3.1 length example: std DLC8 12/12; ext DLC8 14/16 (last 2 B padding 0); std FD DLC15
@@ -176,8 +176,8 @@ def test_align4_length_examples(packet: CanPacket, raw: int, aligned: int) -> No
 def test_multi_frame_offsets_and_align4() -> None:
     """5.4.4.1 'For multiple frames': the second packet follows the first's packet_bytes;
     payload_len is their sum, frame_count their number; with ALIGN4 each advances by align4(raw)."""
-    a = CanPacket(0, 0x100, True, data=b"\x01")          # 2 + 4 + 1 = 7 -> 8
-    b = CanPacket(1, 0x200, data=b"\x02\x03")             # 2 + 2 + 2 = 6 -> 8
+    a = CanPacket.of(0, 0x100, True, data=b"\x01")          # 2 + 4 + 1 = 7 -> 8
+    b = CanPacket.of(1, 0x200, data=b"\x02\x03")             # 2 + 2 + 2 = 6 -> 8
     plain = StreamLayout()
     image = encode_stream(plain, 1, [a, b])
     assert image[24:37] == ext_packet(0, 0x100, b"\x01") + std_packet(1, 0x200, b"\x02\x03")
@@ -194,13 +194,13 @@ def test_tsf_sizes_and_schedule_format() -> None:
     tag u16, offset_ns u32 after the id field."""
     tx = StreamLayout(profile=5, direction=Direction.TX, features=DEFAULT_FEATURES | Feature.TSF_DELTA32)
     for tsf, nbytes in zip(Tsf, (0, 2, 4, 8)):
-        p = CanPacket(0, 1, tsf=tsf, timestamp=(1 << (8 * nbytes)) - 1 if nbytes else 0)
+        p = CanPacket.of(0, 1, tsf=tsf, timestamp=(1 << (8 * nbytes)) - 1 if nbytes else 0)
         assert packet_size(p, tx) == 4 + nbytes
         image = encode_stream(tx, 1, [p])
         assert image[28:28 + nbytes] == b"\xff" * nbytes
         assert decode_stream(image, tx).packets == (p,)
     rx = StreamLayout()
-    p = CanPacket(2, 0x181, tsf=Tsf.FULL64, scheduled=True, tag=0xBEEF, offset_ns=100_000, data=b"\xaa")
+    p = CanPacket.of(2, 0x181, tsf=Tsf.FULL64, scheduled=True, tag=0xBEEF, offset_ns=100_000, data=b"\xaa")
     image = encode_stream(rx, 9, [p])
     assert image[24:37] == std_packet(2, 0x181, b"\xaa", tsf=3, ts=struct.pack("<BBHI", 1, 0, 0xBEEF, 100_000))
     assert decode_stream(image, rx).packets == (p,)
@@ -287,7 +287,7 @@ def test_tx_result_layout_and_codes() -> None:
     assert [(c.value, c.name) for c in TxResultCode] == [
         (0, "OK"), (1, "QUEUED"), (2, "BUS_BUSY"), (3, "INVALID_CHANNEL"), (4, "TX_FIFO_FULL"), (5, "BUS_OFF")]
     layout = StreamLayout(options=Option.TX_RESULT_ENABLE, direction=Direction.TX)
-    packets = [TxResultPacket(2, 0x1234, 5, TxResultCode.BUS_OFF), CanPacket(1, 0x80)]
+    packets = [TxResultPacket(2, 0x1234, 5, TxResultCode.BUS_OFF), CanPacket.of(1, 0x80)]
     image = encode_stream(layout, 1, packets)
     assert image[24:30] == tx_result_bytes(2, 0x1234, 5, 5) == bytes([0x02, 0x20, 0x34, 0x12, 5, 5])
     decoded = decode_stream(image, layout)
@@ -300,11 +300,11 @@ def test_crc_covers_payload_only() -> None:
     """6.1 / 11: payload_crc16 covers [24, 24+payload_len), not the header: changing a status word
     keeps the CRC, changing a payload byte changes it."""
     layout = StreamLayout.default(Direction.TX)
-    p = [CanPacket(0, 0x123, data=b"\x01\x02")]
+    p = [CanPacket.of(0, 0x123, data=b"\x01\x02")]
     a = encode_stream(layout, 1, p, status_words=(1, 2, 3, 4))
     b = encode_stream(layout, 1, p)
     assert a[8:10] == b[8:10]
-    c = encode_stream(layout, 1, [CanPacket(0, 0x123, data=b"\x01\x03")])
+    c = encode_stream(layout, 1, [CanPacket.of(0, 0x123, data=b"\x01\x03")])
     assert c[8:10] != b[8:10]
     assert struct.unpack_from("<H", a, 8)[0] == crc16_bitwise(a[24:24 + 6])
 
@@ -312,9 +312,9 @@ def test_crc_covers_payload_only() -> None:
 def test_no_crc16_header() -> None:
     """9.1 NO_CRC16_ENABLE: crc_alg 0 and payload_crc16 0 in the header."""
     layout = StreamLayout(options=Option.NO_CRC16_ENABLE)
-    image = encode_stream(layout, 1, [CanPacket(0, 5, data=b"x")])
+    image = encode_stream(layout, 1, [CanPacket.of(0, 5, data=b"x")])
     assert image[15] == 0 and image[8:10] == b"\0\0"
-    assert decode_stream(image, layout).packets == (CanPacket(0, 5, data=b"x"),)
+    assert decode_stream(image, layout).packets == (CanPacket.of(0, 5, data=b"x"),)
 
 
 def test_last_pdo_error_table() -> None:
@@ -329,20 +329,20 @@ def test_last_pdo_error_table() -> None:
 def test_apply_status_table_and_checks() -> None:
     """13.2 Status values; 5.2 N 1..24; 9 profiles 0/1/4/5 (mask 0x33, 13.8); 12 policy 3
     reserved; 9.1 reserved option bits 5..7 -> 10 unsupported option flag."""
-    assert [s.value for s in ApplyStatus] == [0, 1, 2, 3, 4, 5, 7, 8, 9, 10]
-    assert check_layout(8, 0x0F, 0, 0, 0) is ApplyStatus.OK
-    assert check_layout(0, 0x0F, 0, 0, 0) is ApplyStatus.INVALID_MULTIPLIER
-    assert check_layout(25, 0x0F, 0, 0, 0) is ApplyStatus.INVALID_MULTIPLIER
-    assert check_layout(8, 0x10, 0, 0, 0) is ApplyStatus.INVALID_CHANNEL_MASK
-    assert [check_layout(8, 0x0F, p, 0, 0) is ApplyStatus.OK for p in range(8)] == [
+    assert [s.value for s in ProfileStatus] == [0, 1, 2, 3, 4, 5, 7, 8, 9, 10]
+    assert check_layout(8, 0x0F, 0, 0, 0) is ProfileStatus.OK
+    assert check_layout(0, 0x0F, 0, 0, 0) is ProfileStatus.INVALID_MULTIPLIER
+    assert check_layout(25, 0x0F, 0, 0, 0) is ProfileStatus.INVALID_MULTIPLIER
+    assert check_layout(8, 0x10, 0, 0, 0) is ProfileStatus.INVALID_CHANNEL_MASK
+    assert [check_layout(8, 0x0F, p, 0, 0) is ProfileStatus.OK for p in range(8)] == [
         bool(PROFILE_MASK >> p & 1) for p in range(8)]
-    assert check_layout(8, 0x0F, 2, 0, 0) is ApplyStatus.INVALID_PROFILE
-    assert check_layout(8, 0x0F, 0, 3, 0) is ApplyStatus.INVALID_PROFILE
+    assert check_layout(8, 0x0F, 2, 0, 0) is ProfileStatus.INVALID_PROFILE
+    assert check_layout(8, 0x0F, 0, 3, 0) is ProfileStatus.INVALID_PROFILE
     for value in (0x00, 0x01, 0x02, 0x03, 0x04, 0x08, 0x10, 0x1F):   # 9.1 "Commonly written values"
-        assert check_options(value) is ApplyStatus.OK
+        assert check_options(value) is ProfileStatus.OK
     for bit in (0x20, 0x40, 0x80):
-        assert check_options(bit) is ApplyStatus.UNSUPPORTED_OPTION
-        assert check_layout(8, 0x0F, 0, 0, bit | 1) is ApplyStatus.UNSUPPORTED_OPTION
+        assert check_options(bit) is ProfileStatus.UNSUPPORTED_OPTION
+        assert check_layout(8, 0x0F, 0, 0, bit | 1) is ProfileStatus.UNSUPPORTED_OPTION
 
 
 def test_option_and_feature_masks() -> None:
@@ -361,7 +361,7 @@ def test_profile_feature_table(profile: int) -> None:
     """Chapter 9: D64 only in profiles 4/5, delta16 only in 1/5 (TxPDO timestamps)."""
     tx = StreamLayout(profile=profile, direction=Direction.TX)
     assert tx.allows_tsf(Tsf.DELTA16) == (profile in (1, 5))
-    d64 = CanPacket(0, 1, fd=True, data=bytes(8), d64=True)
+    d64 = CanPacket.of(0, 1, fd=True, data=bytes(8), d64=True)
     if profile in (4, 5):
         assert packet_size(d64, tx) == 2 + 2 + 64
     else:

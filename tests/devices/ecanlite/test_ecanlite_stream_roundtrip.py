@@ -53,17 +53,17 @@ def _shapes(layout: StreamLayout) -> list[Packet]:
             kw = {"tsf": tsf, "timestamp": stamp, "scheduled": scheduled, "offset_ns": 250_000 if scheduled else 0,
                   "tag": 0x77 if scheduled else 0}
             for n in range(9):
-                out.append(CanPacket(i % 4, can_id, extended, data=bytes(range(n)), id_aux=i % 8, **kw))
+                out.append(CanPacket.of(i % 4, can_id, extended, data=bytes(range(n)), id_aux=i % 8, **kw))
                 i += 1
             for dlc in range(9):
-                out.append(CanPacket(i % 4, can_id, extended, rtr=True, dlc=dlc, **kw))
+                out.append(CanPacket.of(i % 4, can_id, extended, rtr=True, dlc=dlc, **kw))
                 i += 1
             for n in FD_LENGTHS:
-                out.append(CanPacket(i % 4, can_id, extended, fd=True, brs=bool(i & 1), esi=bool(i & 2),
+                out.append(CanPacket.of(i % 4, can_id, extended, fd=True, brs=bool(i & 1), esi=bool(i & 2),
                                      data=bytes(range(100, 100 + n)), **kw))
                 i += 1
                 if layout.profile in (4, 5):
-                    out.append(CanPacket(i % 4, can_id, extended, fd=True, data=bytes(range(n)), d64=True, **kw))
+                    out.append(CanPacket.of(i % 4, can_id, extended, fd=True, data=bytes(range(n)), d64=True, **kw))
                     i += 1
     if layout.direction is Direction.TX and layout.options & Option.TX_RESULT_ENABLE:
         out += [TxResultPacket(ch, 0xFFFF - ch, ch * 50, code) for ch, code in zip(range(4), TxResultCode)]
@@ -104,8 +104,10 @@ def test_prefixes_of_an_image() -> None:
     """5.4.4 / 6.1: a receiver given only the first k bytes of an image (the rest still zero, or
     missing) gets a StreamError or, once header and payload are all there, exactly the packets."""
     layout = StreamLayout(multiplier=2, options=Option.ALIGN_4_ENABLE)
-    packets = [CanPacket(1, 0x100, data=b"\xa5" * 5), CanPacket(2, 0x1234567, True, fd=True, data=bytes(range(20))),
-               CanPacket(3, 0x7F, rtr=True, dlc=2), CanPacket(0, 0x55, tsf=Tsf.FULL64, scheduled=True, offset_ns=9)]
+    packets = [CanPacket.of(1, 0x100, data=b"\xa5" * 5),
+               CanPacket.of(2, 0x1234567, True, fd=True, data=bytes(range(20))),
+               CanPacket.of(3, 0x7F, rtr=True, dlc=2),
+               CanPacket.of(0, 0x55, tsf=Tsf.FULL64, scheduled=True, offset_ns=9)]
     image = encode_stream(layout, 0x1234, packets)
     complete = HEADER_SIZE + struct.unpack_from("<H", image, 6)[0]
     for k in range(len(image) + 1):
@@ -126,8 +128,8 @@ def test_commit_order_never_shows_a_half_image() -> None:
     sequences differ) or SAME (only bytes beyond the old payload changed) until seq_end lands;
     then NEW with the new frames."""
     layout = StreamLayout.default()
-    old = encode_stream(layout, 41, [CanPacket(0, 0x111, data=b"old")])
-    new = encode_stream(layout, 42, [CanPacket(1, 0x222, data=b"newframe"), CanPacket(2, 0x333, fd=True,
+    old = encode_stream(layout, 41, [CanPacket.of(0, 0x111, data=b"old")])
+    new = encode_stream(layout, 42, [CanPacket.of(1, 0x222, data=b"newframe"), CanPacket.of(2, 0x333, fd=True,
                                                                                         data=bytes(48))])
     order = [*range(HEADER_SIZE, len(new)), 0, 1, 2, 3, *range(6, HEADER_SIZE), 4, 5]
     state = bytearray(old)
@@ -147,7 +149,7 @@ def test_payload_len_boundaries_give_fewer_packets() -> None:
     """6: payload_len and frame_count say how many packets count; the same bytes with a header
     covering only the first k packets decode to exactly those k (the rest is ignored)."""
     layout = StreamLayout(multiplier=3, channel_mask=0x0F)
-    packets = [CanPacket(k % 4, 0x100 + k, data=bytes([k]) * (k % 9)) for k in range(12)]
+    packets = [CanPacket.of(k % 4, 0x100 + k, data=bytes([k]) * (k % 9)) for k in range(12)]
     image = bytearray(encode_stream(layout, 7, packets))
     off = HEADER_SIZE
     for k in range(len(packets) + 1):
@@ -163,7 +165,7 @@ def test_trailing_garbage_ignored_but_not_under_the_crc() -> None:
     """9.1 PAYLOAD_ONLY / 6.1: receivers ignore bytes beyond payload_len (garbage there changes
     nothing); the CRC covers exactly [24, 24+payload_len), so a CRC taken over the garbage too fails."""
     layout = StreamLayout.default()
-    packets = [CanPacket(0, 0x123, data=b"\x11\x22")]
+    packets = [CanPacket.of(0, 0x123, data=b"\x11\x22")]
     image = bytearray(encode_stream(layout, 1, packets))
     image[30:] = bytes((i * 37 + 11) & 0xFF for i in range(len(image) - 30))
     assert decode_stream(bytes(image), layout).packets == tuple(packets)
@@ -177,9 +179,9 @@ def test_payload_only_leaves_the_rest_of_the_buffer() -> None:
     """9.1 PAYLOAD_ONLY_ENABLE: 'update only the 24-byte header and valid payload'; without it the
     unused frame area is zeroed (8.3)."""
     buf = bytearray(b"\xee" * 1024)
-    n = encode_into(buf, StreamLayout(options=Option.PAYLOAD_ONLY_ENABLE), 3, [CanPacket(0, 1, data=b"a")])
+    n = encode_into(buf, StreamLayout(options=Option.PAYLOAD_ONLY_ENABLE), 3, [CanPacket.of(0, 1, data=b"a")])
     assert n == 5 and buf[29:] == b"\xee" * (1024 - 29)
-    encode_into(buf, StreamLayout(), 4, [CanPacket(0, 1, data=b"a")])
+    encode_into(buf, StreamLayout(), 4, [CanPacket.of(0, 1, data=b"a")])
     assert buf[29:] == bytes(1024 - 29)
 
 
@@ -196,7 +198,7 @@ def test_process_image_views() -> None:
     image gives the bytes encode_stream returns, and decode_stream / commit_state read views too."""
     layout = StreamLayout(multiplier=3, options=Option.ALIGN_4_ENABLE | Option.TX_RESULT_ENABLE,
                           direction=Direction.TX)
-    packets: list[Packet] = [TxResultPacket(1, 2, 3, TxResultCode.QUEUED), CanPacket(3, 0x1F, data=b"\x01\x02\x03")]
+    packets: list[Packet] = [TxResultPacket(1, 2, 3, TxResultCode.QUEUED), CanPacket.of(3, 0x1F, data=b"\x01\x02\x03")]
     process = bytearray(b"\xaa" * 1000)
     view = memoryview(process)[100:100 + layout.pdo_bytes]
     assert encode_into(view, layout, 77, packets) == 8 + 8

@@ -11,7 +11,7 @@ from ecdrive_testkit import CSP, CSV, RX, STATE_MASK, TX, Line, make_line
 
 from gatewaylab.canopen.cia402 import PdsState
 from gatewaylab.common.clock import SimulatedClock
-from gatewaylab.devices.canopen_drive.device import build_object_dictionary
+from gatewaylab.devices.canopen_drive.objects import build_object_dictionary
 from gatewaylab.devices.ethercat_drive import PRODUCT_CODE, EthercatDrive, drive_description
 from gatewaylab.devices.ethercat_io.device import VENDOR_ID
 from gatewaylab.ethercat.errors import AlStatusCode, AlStatusError, SdoAbort, SdoAbortCode

@@ -11,7 +11,7 @@ from typing import Any
 import pytest
 from ecdrive_testkit import DriveVeth, serve_raw
 
-from gatewaylab.devices.canopen_drive.device import DEVICE_TYPE
+from gatewaylab.devices.canopen_drive.objects import DEVICE_TYPE
 
 pytest.importorskip("kickcat", reason="KickCAT (PyPI kickcat) is not installed")
 pytestmark = [pytest.mark.net, pytest.mark.slow]

@@ -186,7 +186,7 @@ def test_parse_diag_on_corrupted_image(tmp_path: Path) -> None:
     with host_rig(tmp_path, ((),)) as h:
         _adapter, port = classic_port(h.backend, channels=(0,))
         layout = StreamLayout(3, 0x01, direction=Direction.TX)
-        image = bytearray(encode_stream(layout, 77, [CanPacket(0, 0x181, data=b"\x01\x02")]))
+        image = bytearray(encode_stream(layout, 77, [CanPacket.of(0, 0x181, data=b"\x01\x02")]))
         image[28] ^= 0xFF
         port.parse(0, bytes(image))
         assert port.parse_errors == 1 and port.receive() == []
@@ -219,7 +219,7 @@ def test_classic_packet_is_the_full_constructors(channel: int, can_id: int, data
         except StreamEncodeError as exc:
             return int(exc.pdo_error)
     fast = build(lambda: CanPacket.classic(channel, can_id, data, tsf=tsf, timestamp=timestamp))
-    full = build(lambda: CanPacket(channel, can_id, data=data, tsf=tsf, timestamp=timestamp))
+    full = build(lambda: CanPacket.of(channel, can_id, data=data, tsf=tsf, timestamp=timestamp))
     assert fast == full
     if isinstance(fast, CanPacket) and isinstance(full, CanPacket):
         assert (fast.ctrl, fast.raw_size, fast.dlc) == (full.ctrl, full.raw_size, full.dlc)

@@ -14,17 +14,21 @@ MAX_BACKLOG = 1 << 16
 class Reactor(Protocol):
     """The rig runtime's file-descriptor interface (callbacks run holding ``clock.lock``)."""
 
-    def add_reader(self, fd: int, callback: Callable[[], None]) -> None: ...
+    def add_reader(self, fd: int, callback: Callable[[], None]) -> None:
+        """Call ``callback`` whenever ``fd`` is readable."""
 
-    def remove_reader(self, fd: int) -> None: ...
+    def remove_reader(self, fd: int) -> None:
+        """Stop watching ``fd``."""
 
 
 class Channel(Protocol):
     """One host connection's protocol endpoint (an :class:`~..protocol.IdxSlave`)."""
 
-    def receive(self, data: bytes) -> None: ...
+    def receive(self, data: bytes) -> None:
+        """Bytes from the host, in any pieces."""
 
-    def close(self) -> None: ...
+    def close(self) -> None:
+        """The host connection ended: drop what is pending."""
 
 
 #: Build a channel whose replies go to the given ``send``.

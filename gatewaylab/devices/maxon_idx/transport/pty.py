@@ -55,6 +55,7 @@ class PtyPort(ReplyWriter):
         return os.write(self.master_fd, data)
 
     def close(self) -> None:
+        """Stop serving the port and close both ends (idempotent)."""
         if self._closed:
             return
         self._closed = True

@@ -74,10 +74,12 @@ class TcpServer:
 
     @property
     def url(self) -> str:
+        """The pyserial URL a host opens (``socket://host:port``)."""
         return f"socket://{self.host}:{self.port}"
 
     @property
     def address(self) -> str:
+        """``host:port`` as the ready file lists it."""
         return f"{self.host}:{self.port}"
 
     def _accept(self) -> None:
@@ -92,6 +94,7 @@ class TcpServer:
         self.reactor.add_reader(conn.fd, conn.on_readable)
 
     def close(self) -> None:
+        """Close every connection and the listening socket."""
         for conn in list(self.connections):
             conn.close()
         self.reactor.remove_reader(self.sock.fileno())

@@ -49,10 +49,12 @@ class ModbusGateway:
         self.counters: dict[str, int] = {}
 
     def start(self) -> None:
+        """Attach to the CAN bus: the SDO client receives the drives' answers."""
         if self.controller is None:
             self.controller = self.bus.attach(self.name, on_frame=self.sdo.on_frame)
 
     def stop(self) -> None:
+        """Cancel pending SDO transfers and detach from the bus."""
         self.sdo.cancel_all()
         if self.controller is not None:
             self.bus.detach(self.controller)
