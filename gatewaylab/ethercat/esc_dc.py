@@ -14,20 +14,8 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from gatewaylab.common.clock import Clock, TimerHandle
-from gatewaylab.ethercat.esc_registers import (
-    REG_DC_ACTIVATION,
-    REG_DC_RECV_TIME,
-    REG_DC_RECV_TIME_PU,
-    REG_DC_START_TIME,
-    REG_DC_SYNC0_CYCLE,
-    REG_DC_SYNC0_STATUS,
-    REG_DC_SYNC1_CYCLE,
-    REG_DC_SYSTEM_OFFSET,
-    REG_DC_SYSTEM_TIME,
-    SYNC0_MIN_CYCLE_NS,
-    U32,
-    U64,
-)
+from gatewaylab.ethercat import esc_registers as reg
+from gatewaylab.ethercat.esc_registers import SYNC0_MIN_CYCLE_NS, U32, U64
 
 #: 0x0981 bits: cyclic unit enabled, SYNC0 generated, SYNC1 generated.
 DC_ACT_CYCLIC = 0x01
@@ -58,34 +46,34 @@ class DistributedClocks:
 
     def system_time_ns(self) -> int:
         """Local time plus the offset the master wrote to 0x0920: the line's common time base."""
-        offset: int = U64.unpack_from(self.mem, REG_DC_SYSTEM_OFFSET)[0]
+        offset: int = U64.unpack_from(self.mem, reg.REG_DC_SYSTEM_OFFSET)[0]
         return (self.local_time_ns() + offset) & _MASK64
 
     # ------------------------------------------------------------------ settings the firmware reads
     @property
     def sync0_active(self) -> bool:
         """The master activated the cyclic unit and SYNC0 generation (0x0981 bits 0 and 1)."""
-        return self.mem[REG_DC_ACTIVATION] & (DC_ACT_CYCLIC | DC_ACT_SYNC0) == DC_ACT_CYCLIC | DC_ACT_SYNC0
+        return self.mem[reg.REG_DC_ACTIVATION] & (DC_ACT_CYCLIC | DC_ACT_SYNC0) == DC_ACT_CYCLIC | DC_ACT_SYNC0
 
     @property
     def sync1_active(self) -> bool:
         """The master activated the cyclic unit and SYNC1 generation (0x0981 bits 0 and 2)."""
-        return self.mem[REG_DC_ACTIVATION] & (DC_ACT_CYCLIC | DC_ACT_SYNC1) == DC_ACT_CYCLIC | DC_ACT_SYNC1
+        return self.mem[reg.REG_DC_ACTIVATION] & (DC_ACT_CYCLIC | DC_ACT_SYNC1) == DC_ACT_CYCLIC | DC_ACT_SYNC1
 
     @property
     def sync0_cycle_ns(self) -> int:
         """SYNC0 cycle time as the master wrote it (0x09A0), in ns, whether active or not."""
-        return int(U32.unpack_from(self.mem, REG_DC_SYNC0_CYCLE)[0])
+        return int(U32.unpack_from(self.mem, reg.REG_DC_SYNC0_CYCLE)[0])
 
     @property
     def sync1_cycle_ns(self) -> int:
         """SYNC1 cycle time as the master wrote it (0x09A4), in ns."""
-        return int(U32.unpack_from(self.mem, REG_DC_SYNC1_CYCLE)[0])
+        return int(U32.unpack_from(self.mem, reg.REG_DC_SYNC1_CYCLE)[0])
 
     @property
     def sync0_start_time_ns(self) -> int:
         """Start time of the SYNC0 train in system time (0x0990), in ns."""
-        return int(U64.unpack_from(self.mem, REG_DC_START_TIME)[0])
+        return int(U64.unpack_from(self.mem, reg.REG_DC_START_TIME)[0])
 
     @property
     def sync0_period(self) -> float:
@@ -104,28 +92,28 @@ class DistributedClocks:
     # ------------------------------------------------------------------ master accesses
     def refresh(self, address: int, end: int) -> None:
         """A master read of [address, end): the system time register shows the time of the read."""
-        if end > REG_DC_SYSTEM_TIME and address < REG_DC_SYSTEM_TIME + 8:
-            U64.pack_into(self.mem, REG_DC_SYSTEM_TIME, self.system_time_ns())
+        if end > reg.REG_DC_SYSTEM_TIME and address < reg.REG_DC_SYSTEM_TIME + 8:
+            U64.pack_into(self.mem, reg.REG_DC_SYSTEM_TIME, self.system_time_ns())
 
     def write(self, address: int, end: int, old: bytes) -> None:
         """A master wrote [address, end) (``old``: the bytes before): latch receive times, absorb
         drift compensation, (re)start the SYNC0 train on an activation write."""
         mem = self.mem
-        if address < REG_DC_RECV_TIME + 4 and end > REG_DC_RECV_TIME:
+        if address < reg.REG_DC_RECV_TIME + 4 and end > reg.REG_DC_RECV_TIME:
             # A write to port 0's receive time latches the receive times of all ports.
             t = self.local_time_ns()
-            U32.pack_into(mem, REG_DC_RECV_TIME, t & 0xFFFFFFFF)
+            U32.pack_into(mem, reg.REG_DC_RECV_TIME, t & 0xFFFFFFFF)
             t1 = t + 40 * self.downstream if self.downstream else 0
-            U32.pack_into(mem, REG_DC_RECV_TIME + 4, t1 & 0xFFFFFFFF)
-            U32.pack_into(mem, REG_DC_RECV_TIME + 8, 0)
-            U32.pack_into(mem, REG_DC_RECV_TIME + 12, 0)
-            U64.pack_into(mem, REG_DC_RECV_TIME_PU, t)
-        if address < REG_DC_SYSTEM_TIME + 8 and end > REG_DC_SYSTEM_TIME:
+            U32.pack_into(mem, reg.REG_DC_RECV_TIME + 4, t1 & 0xFFFFFFFF)
+            U32.pack_into(mem, reg.REG_DC_RECV_TIME + 8, 0)
+            U32.pack_into(mem, reg.REG_DC_RECV_TIME + 12, 0)
+            U64.pack_into(mem, reg.REG_DC_RECV_TIME_PU, t)
+        if address < reg.REG_DC_SYSTEM_TIME + 8 and end > reg.REG_DC_SYSTEM_TIME:
             # Writes to the system time feed drift compensation; our local clocks do not drift.
-            stop = min(end, REG_DC_SYSTEM_TIME + 8)
-            lo = max(address, REG_DC_SYSTEM_TIME)
+            stop = min(end, reg.REG_DC_SYSTEM_TIME + 8)
+            lo = max(address, reg.REG_DC_SYSTEM_TIME)
             mem[lo:stop] = old[lo - address:stop - address]
-        if address <= REG_DC_ACTIVATION < end:
+        if address <= reg.REG_DC_ACTIVATION < end:
             self._configure()
 
     # ------------------------------------------------------------------ SYNC0 pulses
@@ -140,7 +128,7 @@ class DistributedClocks:
         cycle_ns = self.sync0_cycle_ns
         if not self.sync0_active or cycle_ns == 0:
             return
-        offset = U64.unpack_from(self.mem, REG_DC_SYSTEM_OFFSET)[0]
+        offset = U64.unpack_from(self.mem, reg.REG_DC_SYSTEM_OFFSET)[0]
         start = ((self.sync0_start_time_ns - offset) & _MASK64) / 1e9
         cycle = max(cycle_ns, SYNC0_MIN_CYCLE_NS) / 1e9
         now = self.clock.now()
@@ -158,5 +146,5 @@ class DistributedClocks:
             nxt += (int((now - nxt) / self._sync0_cycle) + 1) * self._sync0_cycle
         self._sync0_next = nxt
         self._sync0_timer = self.clock.call_at(self._sync0_next, self._fire)
-        self.mem[REG_DC_SYNC0_STATUS] |= 0x01
+        self.mem[reg.REG_DC_SYNC0_STATUS] |= 0x01
         self.on_sync0(t)

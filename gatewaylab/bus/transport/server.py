@@ -13,18 +13,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Protocol
 
+from gatewaylab.bus import controller as events
 from gatewaylab.bus import wire
-from gatewaylab.bus.bus import (
-    BusEvent,
-    Controller,
-    ErrorFrameEvent,
-    ErrorKind,
-    ErrorState,
-    StateChangeEvent,
-    TxAbortedEvent,
-    TxDoneEvent,
-    VirtualBus,
-)
+from gatewaylab.bus.bus import BusEvent, Controller, VirtualBus
 from gatewaylab.bus.frame import CanFrame
 from gatewaylab.bus.transport.outbox import Outbox, accept_client, receive
 from gatewaylab.common.clock import TimerHandle
@@ -44,11 +35,11 @@ CONTROL_BACKLOG = 1024 * 1024
 ORPHAN_PATIENCE = 2.0
 
 #: The bus's error kinds as the STATUS record's tail carries them (docs/bus-wire.md).
-_ERROR_CODES = {kind: wire.ErrorCode[kind.name] for kind in ErrorKind}
+_ERROR_CODES = {kind: wire.ErrorCode[kind.name] for kind in events.ErrorKind}
 _STATE_CODES = {
-    ErrorState.ERROR_ACTIVE: wire.ControllerStateCode.ERROR_ACTIVE,
-    ErrorState.ERROR_PASSIVE: wire.ControllerStateCode.ERROR_PASSIVE,
-    ErrorState.BUS_OFF: wire.ControllerStateCode.BUS_OFF,
+    events.ErrorState.ERROR_ACTIVE: wire.ControllerStateCode.ERROR_ACTIVE,
+    events.ErrorState.ERROR_PASSIVE: wire.ControllerStateCode.ERROR_PASSIVE,
+    events.ErrorState.BUS_OFF: wire.ControllerStateCode.BUS_OFF,
 }
 
 
@@ -123,25 +114,25 @@ class _Client:
 
     def on_event(self, ev: BusEvent) -> None:
         if self.closed:   # departed, its queue still on the bus
-            if isinstance(ev, (TxDoneEvent, TxAbortedEvent)):
+            if isinstance(ev, (events.TxDoneEvent, events.TxAbortedEvent)):
                 self.completed += 1
             self.server.orphan_progress(self)
             return
-        if isinstance(ev, TxDoneEvent):
+        if isinstance(ev, events.TxDoneEvent):
             self.completed += 1
             if self.receive_own and self.accepts(ev.frame):
                 self.write_frame(wire.encode_frame(ev.frame, ev.timestamp, echo=True))
             self.write(wire.encode_txdone(wire.TxOutcome.TRANSMITTED))
-        elif isinstance(ev, TxAbortedEvent):
+        elif isinstance(ev, events.TxAbortedEvent):
             self.completed += 1
             self.write(wire.encode_txdone(wire.TxOutcome.ABORTED))
-        elif isinstance(ev, ErrorFrameEvent):
+        elif isinstance(ev, events.ErrorFrameEvent):
             ctrl = self.controller
             assert ctrl is not None
             self.write(wire.encode_status(wire.StatusKind.ERROR_FRAME, _STATE_CODES[ctrl.state],
                                           ctrl.tec, ctrl.rec, ev.timestamp, _ERROR_CODES[ev.kind],
                                           ev.transmitter))
-        elif isinstance(ev, StateChangeEvent):
+        elif isinstance(ev, events.StateChangeEvent):
             self.write(wire.encode_status(wire.StatusKind.STATE, _STATE_CODES[ev.new], ev.tec, ev.rec,
                                           ev.timestamp, old=_STATE_CODES[ev.old]))
 
