@@ -26,6 +26,17 @@ COMPILED_MODULES: tuple[str, ...] = (
     "gatewaylab.common.clock",
     "gatewaylab.od.types",
     "gatewaylab.od.dictionary",
+    # the ESC frame path (issue 23: "the ESC frame path (ethercat/esc.py, datagram handling, ...)")
+    "gatewaylab.ethercat.datagram",
+    "gatewaylab.ethercat.esc",
+    "gatewaylab.ethercat.esc_memory",
+    "gatewaylab.ethercat.esc_al",
+    "gatewaylab.ethercat.esc_dc",
+    "gatewaylab.ethercat.esc_sii",
+    "gatewaylab.ethercat.esc_events",
+    "gatewaylab.ethercat.esc_registers",
+    "gatewaylab.ethercat.slave",
+    "gatewaylab.ethercat.segment",
 )
 
 #: Set to anything but "" or "0": every gatewaylab module is imported from its ``.py`` source.

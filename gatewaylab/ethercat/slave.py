@@ -18,6 +18,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from mypy_extensions import mypyc_attr
+
 from gatewaylab.common.clock import Clock
 from gatewaylab.ethercat.coe import CoeServer, emergency_message
 from gatewaylab.ethercat.description import DeviceDescription, Pdo, build_od
@@ -35,6 +37,7 @@ U32 = struct.Struct("<I")
 _RANK_ORDER = (AlState.INIT, AlState.PREOP, AlState.BOOT, AlState.SAFEOP, AlState.OP)
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)  # devices subclass it; the ESC path is compiled
 class SlaveApplication:
     """Hooks of a device behind the ESC; every method has a harmless default."""
 
