@@ -26,6 +26,20 @@ COMPILED_MODULES: tuple[str, ...] = (
     "gatewaylab.common.clock",
     "gatewaylab.od.types",
     "gatewaylab.od.dictionary",
+    "gatewaylab.od.sdo",
+    "gatewaylab.canopen.pdo",
+    "gatewaylab.canopen.sync",
+    "gatewaylab.canopen.sdo_server",
+    "gatewaylab.devices.canopen_drive.device",
+    "gatewaylab.devices.canopen_drive.modes",
+    "gatewaylab.devices.canopen_drive.plant",
+    "gatewaylab.devices.ecanlite.stream.format",
+    "gatewaylab.devices.ecanlite.stream.layout",
+    "gatewaylab.devices.ecanlite.stream.packets",
+    "gatewaylab.devices.ecanlite.stream.encode",
+    "gatewaylab.devices.ecanlite.stream.decode",
+    "gatewaylab.devices.ecanlite.budget",
+    "gatewaylab.devices.esd_can_ethercat.codec",
 )
 
 #: Set to anything but "" or "0": every gatewaylab module is imported from its ``.py`` source.

@@ -110,6 +110,11 @@ class CanFrame:
                     raise FrameError(f"DLC {self.dlc} does not match {n} data bytes")
         object.__setattr__(self, "dlc", dlc)
 
+    def __reduce__(self) -> tuple[type[CanFrame], tuple[int, bytes, bool, bool, bool, bool, bool, int]]:
+        # Pickled by its constructor: compiled (mypyc), a class with its own __init__ cannot be made
+        # empty by copyreg's cls.__new__(cls) and filled in afterwards.
+        return CanFrame, (self.can_id, self.data, self.extended, self.rtr, self.fd, self.brs, self.esi, self.dlc)
+
     @property
     def length(self) -> int:
         """Bytes on the wire in the data field (0 for remote frames)."""

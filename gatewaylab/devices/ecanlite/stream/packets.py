@@ -42,6 +42,18 @@ def refuse(code: PdoError, message: str) -> StreamEncodeError:
     return StreamEncodeError(code, message)
 
 
+def _ints(*values: object) -> bool:
+    """All ``values`` are integers: the check of arguments typed ``int`` that a caller may still get
+    wrong (an ``isinstance`` of a name typed ``int`` is unreachable to mypy, and mypyc mistranslates
+    the error branch under it)."""
+    return all(isinstance(v, int) for v in values)
+
+
+def _bytes_like(data: object) -> bool:
+    """``data`` is bytes, a bytearray or a memoryview (see :func:`_ints`)."""
+    return isinstance(data, (bytes, bytearray, memoryview))
+
+
 @dataclass(frozen=True, slots=True)
 class StreamHeader:
     """The 24-byte fixed header (chapter 6), field by field."""
@@ -135,8 +147,7 @@ class CanPacket:
         if type(channel) is not int or not 0 <= channel <= 7:
             raise refuse(PdoError.INVALID_CHANNEL, f"channel {channel!r} does not fit CH (0..7, chapter 8)")
         timestamp, offset_ns, tag, id_aux = self.timestamp, self.offset_ns, self.tag, self.id_aux
-        if not (isinstance(timestamp, int) and isinstance(offset_ns, int) and isinstance(tag, int)
-                and isinstance(id_aux, int)):
+        if not _ints(timestamp, offset_ns, tag, id_aux):
             raise refuse(PdoError.RESERVED_BIT, "timestamp, offset_ns, tag, ID_AUX are integers: "
                                                 f"{(timestamp, offset_ns, tag, id_aux)!r}")
         if self.d64 and not frame.fd:
@@ -182,11 +193,11 @@ class CanPacket:
         classic remote frames (no data, DLC = requested length), else -1 derives it from ``data``.
         A frame CAN cannot carry is refused with INVALID_DLC (RESERVED_BIT for an identifier out
         of range, 8.1)."""
-        if not isinstance(data, (bytes, bytearray, memoryview)):
+        if not _bytes_like(data):
             raise refuse(PdoError.INVALID_DLC, f"data must be bytes, got {type(data).__name__}")
         if type(channel) is not int or not 0 <= channel <= 7:
             raise refuse(PdoError.INVALID_CHANNEL, f"channel {channel!r} does not fit CH (0..7, chapter 8)")
-        if not isinstance(can_id, int) or not isinstance(dlc, int):
+        if not _ints(can_id, dlc):
             raise refuse(PdoError.RESERVED_BIT, f"id and DLC are integers: {(can_id, dlc)!r}")
         if d64 and not fd:
             raise refuse(PdoError.INVALID_DLC, "D64 needs CAN FD (8.2)")
@@ -275,7 +286,7 @@ def decoded_packet(channel: int, frame: CanFrame, tsf: Tsf, timestamp: int, sche
                    tag: int, id_aux: int, d64: bool, ctrl: int, wire: bytes) -> CanPacket:
     """A CanPacket read from an image: its fields come from a control word the decoder checked
     and a CanFrame that checked itself, so they are stored as they are."""
-    p = object.__new__(CanPacket)
+    p = CanPacket.__new__(CanPacket)
     _set_channel(p, channel)
     _set_frame(p, frame)
     _set_tsf(p, tsf)
@@ -308,7 +319,7 @@ class TxResultPacket:
         channel, seq, index, result = self.channel, self.ref_packet_seq, self.ref_frame_index, self.result
         if type(channel) is not int or not 0 <= channel <= 7:
             raise refuse(PdoError.INVALID_CHANNEL, f"channel {channel!r} does not fit CH (0..7, chapter 8)")
-        if not isinstance(seq, int) or not isinstance(index, int) or not 0 <= seq <= 0xFFFF or not 0 <= index <= 0xFF:
+        if not _ints(seq, index) or not 0 <= seq <= 0xFFFF or not 0 <= index <= 0xFF:
             raise refuse(PdoError.UNKNOWN_KIND, "RefPacketSeq is u16, RefFrameIndex u8 (10)")
         if type(result) is not TxResultCode:
             if result not in RESULT_VALUES:
