@@ -35,7 +35,6 @@ from gatewaylab.devices.ecanlite.stream import (
     encode_into,
     packet_size,
 )
-from gatewaylab.devices.ecanlite.stream.packets import decoded_packet
 
 #: Calls of each measured function per round, and rounds.
 PER_ROUND = 100

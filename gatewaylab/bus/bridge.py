@@ -61,9 +61,11 @@ class EchoFilter:
         self._sent: deque[tuple[float, CanFrame]] = deque(maxlen=limit)
 
     def sent(self, frame: CanFrame, now: float) -> None:
+        """Remember a frame this side forwarded, so its echo from the other side is recognised."""
         self._sent.append((now + self.window, frame))
 
     def is_echo(self, frame: CanFrame, now: float) -> bool:
+        """True when ``frame`` is the echo of one forwarded within the window (it is then forgotten)."""
         sent = self._sent
         while sent and sent[0][0] < now:
             sent.popleft()

@@ -119,6 +119,7 @@ class FilterSet:
     err_mask: int = 0
 
     def accepts(self, frame: CanFrame) -> bool:
+        """True when a data frame passes the candump-style id/mask filters (no filter: all pass)."""
         if not self.filters:
             return True
         sid = socketcan_id(frame)
@@ -127,6 +128,7 @@ class FilterSet:
         return any(f.matches(sid) for f in self.filters)
 
     def accepts_error(self, frame: ErrorFrame) -> bool:
+        """True when an error frame's class bits are in the error mask."""
         return bool(self.err_mask & frame.can_id & CAN_ERR_MASK)
 
 
@@ -251,6 +253,7 @@ class IdRow:
 
     @property
     def key(self) -> tuple[bool, int]:
+        """The row's sort and lookup key: (extended, CAN id)."""
         return self.frame.extended, self.frame.can_id
 
 
@@ -262,6 +265,7 @@ class IdTable:
         self.rows: dict[tuple[bool, int], IdRow] = {}
 
     def feed(self, frame: CanFrame, t: float) -> IdRow:
+        """Count a frame into its identifier's row (made on first sight); returns the row."""
         key = (frame.extended, frame.can_id)
         row = self.rows.get(key)
         if row is None:
@@ -272,6 +276,7 @@ class IdTable:
         return row
 
     def sorted_rows(self) -> list[IdRow]:
+        """The rows by identifier, base frames first."""
         return [self.rows[k] for k in sorted(self.rows)]
 
     def lines(self, now: float) -> list[str]:

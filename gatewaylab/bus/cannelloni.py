@@ -189,6 +189,7 @@ class SeqTracker:
     received: int = 0
 
     def seen(self, seq_no: int) -> None:
+        """Count a received packet's sequence number; a jump counts the packets lost in between."""
         self.received += 1
         if self.expected is not None and seq_no != self.expected:
             gap = (seq_no - self.expected) & 0xFF

@@ -79,10 +79,12 @@ class ErrorFrame:
 
     @property
     def tec(self) -> int:
+        """The transmit error counter the frame reports (data byte 6)."""
         return self.data[6]
 
     @property
     def rec(self) -> int:
+        """The receive error counter the frame reports (data byte 7)."""
         return self.data[7]
 
 

@@ -128,6 +128,7 @@ class CanFrame:
 
     # -- python-can interop -------------------------------------------------------------------
     def to_message(self, timestamp: float = 0.0, channel: str | None = None) -> can.Message:
+        """The frame as a python-can ``Message`` (for adapters, traces and bridges)."""
         import can
 
         return can.Message(
@@ -138,6 +139,7 @@ class CanFrame:
 
     @classmethod
     def from_message(cls, msg: can.Message) -> CanFrame:
+        """A python-can ``Message`` as a frame; error frames are refused (use fault injection)."""
         if msg.is_error_frame:
             raise FrameError("error frames cannot be sent; use the fault-injection API")
         data = bytes(msg.data) if msg.data is not None else b""

@@ -53,9 +53,11 @@ class SignalDecoder:
         return len(self._by_id)
 
     def knows(self, frame: CanFrame) -> bool:
+        """True when the database describes this frame's identifier."""
         return (frame.can_id, frame.extended) in self._by_id
 
     def decode(self, frame: CanFrame) -> DecodedMessage | None:
+        """The frame's signals by name (None: an unknown identifier or a remote frame)."""
         message = self._by_id.get((frame.can_id, frame.extended))
         if message is None or frame.rtr:
             return None

@@ -119,6 +119,7 @@ class UpdateJob:
 
 @dataclass(frozen=True, slots=True)
 class DeleteJob:
+    """A client's ``< delete >``: stop a cyclic transmission job."""
     can_id: int
     extended: bool
 
@@ -134,6 +135,7 @@ class Subscribe:
 
 @dataclass(frozen=True, slots=True)
 class Unsubscribe:
+    """A client's ``< unsubscribe >``: stop reporting an identifier."""
     can_id: int
     extended: bool
 
@@ -214,6 +216,7 @@ class Session:
 
     @staticmethod
     def greeting() -> bytes:
+        """What the server sends first on a new connection (``< hi >``)."""
         return HI
 
     def feed(self, data: bytes) -> list[Event]:

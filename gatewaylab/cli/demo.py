@@ -23,7 +23,12 @@ import can
 
 from gatewaylab.bus.frame import CanFrame
 from gatewaylab.canopen.explain import explain
+from gatewaylab.common.errors import LocalError
 from gatewaylab.rig.config import load_rig
+
+
+class DemoRigDown(LocalError, RuntimeError):
+    """The demo's rig exited or wrote no ready file in time."""
 
 
 class Narrator(can.Listener):
@@ -40,6 +45,7 @@ class Narrator(can.Listener):
         self.lock = threading.Lock()
 
     def on_message_received(self, msg: can.Message) -> None:
+        """Print each frame of the demo bus with its explanation, as the narrator of the tour."""
         if msg.is_error_frame:
             return
         frame = CanFrame.from_message(msg)
@@ -63,7 +69,7 @@ def _wait_ready(proc: subprocess.Popen[bytes], ready: Path, timeout: float = 30.
     while not ready.exists():
         remaining = deadline - time.monotonic()
         if remaining <= 0 or proc.poll() is not None:
-            raise RuntimeError(f"the rig did not come up (exit code {proc.poll()})")
+            raise DemoRigDown(f"the rig did not come up (exit code {proc.poll()})")
         if sel.select(remaining):
             line = os.read(proc.stdout.fileno(), 65536)
             sys.stdout.write("".join(f"  | {x}\n" for x in line.decode().splitlines()))
@@ -73,6 +79,7 @@ def _wait_ready(proc: subprocess.Popen[bytes], ready: Path, timeout: float = 30.
 
 
 def step(title: str) -> None:
+    """Print the heading of the next demo step."""
     print(f"\n== {title}", flush=True)
 
 

@@ -23,6 +23,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from gatewaylab.cli.ask import ask
 from gatewaylab.common.errors import GatewaylabError
 from gatewaylab.hosts.ethercat.backend import MasterBackend
 
@@ -187,21 +188,13 @@ def _alive(path: Path) -> bool:
 
 def request(path: str, message: dict[str, Any], timeout: float = 600.0) -> dict[str, Any]:
     """Send one request to the master at ``path``; its answer (GatewaylabError when it is not there)."""
-    sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-    sock.settimeout(timeout)
     try:
-        sock.connect(path)
+        line = ask(path, message, timeout)
     except FileNotFoundError:
-        sock.close()
         raise GatewaylabError(f"{path}: no master serving there (start one: gatewaylab ec master --serve {path} "
                               "-i IFNAME)") from None
     except OSError as exc:
-        sock.close()
         raise GatewaylabError(f"{path}: cannot reach the master: {exc.strerror or exc}") from None
-    with sock, sock.makefile("rwb") as f:
-        f.write(json.dumps(message).encode() + b"\n")
-        f.flush()
-        line = f.readline()
     if not line:
         raise GatewaylabError(f"{path}: the master closed the connection without an answer")
     answer: dict[str, Any] = json.loads(line)

@@ -95,9 +95,8 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"gatewaylab ecan: {message}\n")
 
 
-def add_subcommand(sub: Any, open_rig: Any = None) -> None:
-    """Register ``gatewaylab ecan`` with its sub-commands; ``open_rig`` (injected by the rig layer,
-    ``gatewaylab.cli.ecan_rig``) lets the host programs run on ``--rig RIG.toml``."""
+def add_subcommand(sub: Any) -> None:
+    """Register ``gatewaylab ecan`` with its sub-commands (cli/main.py EXTRA_SUBCOMMANDS)."""
     ecan = sub.add_parser("ecan", help="ECAN-Lite tools (OTA package, host programs of 15.4/15.6)",
                           description="Tools for the ECAN-Lite EtherCAT to CAN FD gateway.")
     ecan_sub = ecan.add_subparsers(dest="ecan_command", metavar="COMMAND", parser_class=_Parser)
@@ -114,7 +113,7 @@ def add_subcommand(sub: Any, open_rig: Any = None) -> None:
                    help="device type, 0xF000:01 (default 0 = ECAN-Lite)")
     p.add_argument("-o", "--output", required=True, metavar="FILE", help="package to write")
     p.set_defaults(func=cmd_pack)
-    add_host_commands(ecan_sub, open_rig)
+    add_host_commands(ecan_sub)
 
     def no_command(args: argparse.Namespace) -> int:
         ecan.print_help()

@@ -13,83 +13,44 @@ import argparse
 import json
 import struct
 import sys
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass
-from pathlib import Path
-from typing import IO, Any, Protocol
+from typing import IO, TYPE_CHECKING, Any
 
-from gatewaylab.common.errors import ConfigError, GatewaylabError, LocalError
+from gatewaylab.cli.ec import open_line
+from gatewaylab.common.errors import GatewaylabError, LocalError
 from gatewaylab.hosts.ecanlite.adapter import AdapterConfig, EcanAdapter, SlaveConfig, find_ecanlite
 from gatewaylab.hosts.ecanlite.cia402 import Axis, Cia402, parse_axes
 from gatewaylab.hosts.ecanlite.demo import rig_axes, rig_channel_bitrates
-from gatewaylab.hosts.ecanlite.port import ChannelConfig, McanPort, PortConfig
+from gatewaylab.hosts.ecanlite.port import ChannelConfig, McanPort, PortConfig, RxFrame
 from gatewaylab.hosts.ethercat.backend import MasterBackend
 from gatewaylab.od import SdoAbort
 
+if TYPE_CHECKING:
+    from gatewaylab.rig.runtime import Rig
+
 __all__ = ["add_host_commands"]
-
-
-class OpenRig(Protocol):
-    """A started rig (``gatewaylab.rig.runtime.Rig``)."""
-
-    @property
-    def clock(self) -> Any: ...
-
-    @property
-    def participants(self) -> Any: ...
-
-    @property
-    def buses(self) -> Any: ...
-
-    def close(self) -> None: ...
-
-
-RigOpener = Callable[[str], OpenRig]
 
 
 class Usage(LocalError):
     """A wrong command line (exit 2)."""
 
 
-@dataclass
+@dataclass(frozen=True, slots=True)
 class Line:
+    """The line a host program runs on: its master backend and, with ``--rig``, the rig in process."""
+
     backend: MasterBackend
-    rig: OpenRig | None
+    rig: Rig | None
 
 
 @contextmanager
 def _line(args: argparse.Namespace) -> Iterator[Line]:
     if bool(args.interface) == bool(args.rig):
         raise Usage("give the line: -i IFNAME (real interface, root) or --rig RIG.toml (in process)")
-    if args.interface:
-        from gatewaylab.hosts.ethercat.pysoem_backend import PysoemBackend
-
-        backend: MasterBackend = PysoemBackend(args.interface)
-        try:
-            yield Line(backend, None)
-        finally:
-            backend.close()
-        return
-    open_rig: RigOpener | None = getattr(args, "open_rig", None)
-    if open_rig is None:
-        raise Usage("--rig needs the rig runtime (run through the gatewaylab command)")
-    if not Path(args.rig).is_file():
-        raise Usage(f"rig file {args.rig} does not exist")
-    try:
-        rig = open_rig(args.rig)
-    except ConfigError as exc:
-        raise Usage(" ".join(str(exc).split())) from None
-    try:
-        from gatewaylab.hosts.ethercat.backend import InProcessBackend
-
-        backend = InProcessBackend.from_rig(rig)
-        try:
-            yield Line(backend, rig)
-        finally:
-            backend.close()
-    finally:
-        rig.close()
+    with open_line(args.interface, args.rig, Usage) as (backend, rig):
+        yield Line(backend, rig)
 
 
 def _positions(line: Line, count: int | None) -> list[int]:
@@ -187,16 +148,21 @@ def cmd_simple_loop(args: argparse.Namespace, out: IO[str]) -> int:
         ok = dict.fromkeys(channels, 0)
         failed = dict.fromkeys(channels, 0)
         received = dict.fromkeys(channels, 0)
+
+        def tally(frames: Iterable[RxFrame]) -> None:
+            """Count what came back: received frames and TX results (ok or failed) per channel."""
+            for r in frames:
+                received[r.channel] = received.get(r.channel, 0) + 1
+            for res in port.take_tx_results():
+                if res.request > 0 and res.code <= 1:
+                    ok[res.channel] = ok.get(res.channel, 0) + 1
+                else:
+                    failed[res.channel] = failed.get(res.channel, 0) + 1
+
         with _progress(args, args.cycles, "simple-loop") as progress:
             for i in range(args.cycles):
                 port.cycle_begin()
-                for r in port.receive():
-                    received[r.channel] = received.get(r.channel, 0) + 1
-                for res in port.take_tx_results():
-                    if res.request > 0 and res.code <= 1:
-                        ok[res.channel] += 1
-                    else:
-                        failed[res.channel] = failed.get(res.channel, 0) + 1
+                tally(port.receive())
                 for ch in channels:
                     port.send_can(0, ch, args.id + ch, struct.pack("<Q", i))
                     sent[ch] += 1
@@ -205,13 +171,7 @@ def cmd_simple_loop(args: argparse.Namespace, out: IO[str]) -> int:
                 if progress:
                     progress(i + 1)
         for _ in range(5):      # the last TX results and frames
-            for r in port.exchange():
-                received[r.channel] = received.get(r.channel, 0) + 1
-            for res in port.take_tx_results():
-                if res.request > 0 and res.code <= 1:
-                    ok[res.channel] += 1
-                else:
-                    failed[res.channel] = failed.get(res.channel, 0) + 1
+            tally(port.exchange())
         adapter.stop()
         report: dict[str, Any] = {"command": "simple-loop", "slave": positions[0],
                   "master_period": adapter.master_period.summary(adapter.period), "errors": _errors(adapter, port),
@@ -369,7 +329,7 @@ _EPILOG = {
 }
 
 
-def add_host_commands(ecan_sub: Any, open_rig: RigOpener | None) -> None:
+def add_host_commands(ecan_sub: Any) -> None:
     """Register simple-loop, sdo-probe and cia402 under ``gatewaylab ecan``."""
     fmt = argparse.RawDescriptionHelpFormatter
     p = ecan_sub.add_parser("simple-loop", help="send and receive on every channel (15.4 igh_simple_loop)",
@@ -380,7 +340,7 @@ def add_host_commands(ecan_sub: Any, open_rig: RigOpener | None) -> None:
     p.add_argument("--data-bitrate", type=int, default=None, metavar="BPS", help="CAN FD data bit rate")
     p.add_argument("--cycles", type=int, default=100, metavar="N", help="cycles to run (default 100)")
     p.add_argument("--id", type=_int, default=0x100, metavar="ID", help="CAN id of channel 0; channel k sends id+k")
-    p.set_defaults(func=_run(cmd_simple_loop), open_rig=open_rig)
+    p.set_defaults(func=_run(cmd_simple_loop))
 
     p = ecan_sub.add_parser("sdo-probe", help="SDO upload from a CANopen node behind the gateway (15.4)",
                             description=cmd_sdo_probe.__doc__, epilog=_EPILOG["sdo-probe"], formatter_class=fmt)
@@ -391,7 +351,7 @@ def add_host_commands(ecan_sub: Any, open_rig: RigOpener | None) -> None:
     p.add_argument("--index", type=_int, required=True, metavar="INDEX")
     p.add_argument("--sub", type=_int, default=0, metavar="SUB")
     p.add_argument("--timeout", type=float, default=1.0, metavar="S", help="SDO timeout in seconds (default 1)")
-    p.set_defaults(func=_run(cmd_sdo_probe), open_rig=open_rig)
+    p.set_defaults(func=_run(cmd_sdo_probe))
 
     p = ecan_sub.add_parser("cia402", help="CiA 402 axes in CSP through the gateway (15.6 demo)",
                             description=cmd_cia402.__doc__, epilog=_EPILOG["cia402"], formatter_class=fmt)
@@ -414,4 +374,4 @@ def add_host_commands(ecan_sub: Any, open_rig: RigOpener | None) -> None:
     p.add_argument("--sdo-timeout", type=float, default=0.5, metavar="S",
                    help="SDO timeout per transfer to a drive in seconds (default 0.5)")
     p.add_argument("--settle-s", type=float, default=1.0, metavar="S", help="time to reach the final targets")
-    p.set_defaults(func=_run(cmd_cia402), open_rig=open_rig)
+    p.set_defaults(func=_run(cmd_cia402))

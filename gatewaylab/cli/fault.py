@@ -9,11 +9,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import socket
 import sys
 from pathlib import Path
 from typing import Any
 
+from gatewaylab.cli.ask import ask, endpoint_address
 from gatewaylab.common.endpoint import EndpointKind, parse_endpoint
 from gatewaylab.common.errors import ConfigError, GatewaylabError
 from gatewaylab.rig.faults import DRIVE_FAULTS
@@ -125,22 +125,7 @@ def send_request(ready_file: str, req: dict[str, Any], timeout: float = 10.0) ->
     except (ValueError, KeyError, TypeError):
         raise FaultCliError(f"{ready_file}: not the ready file of a rig with a control endpoint") from None
     try:
-        if endpoint.kind is EndpointKind.UNIX:
-            sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-            address: Any = endpoint.path
-        else:
-            sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-            address = (endpoint.host, endpoint.port)
-        with sock:
-            sock.settimeout(timeout)
-            sock.connect(address)
-            sock.sendall(json.dumps(req).encode() + b"\n")
-            buf = b""
-            while not buf.endswith(b"\n"):
-                chunk = sock.recv(65536)
-                if not chunk:
-                    break
-                buf += chunk
+        buf = ask(endpoint_address(endpoint), req, timeout)
     except OSError as exc:
         raise FaultCliError(f"cannot reach the rig at {endpoint}: {exc.strerror or exc} (is it running?)") from None
     try:
@@ -151,6 +136,7 @@ def send_request(ready_file: str, req: dict[str, Any], timeout: float = 10.0) ->
 
 
 def cmd_fault(args: argparse.Namespace) -> int:
+    """``gatewaylab fault``: send the request, print the rig's answer (``--json``: as JSON); exit 0 when done."""
     answer = send_request(args.ready_file, build_request(args))
     if not answer.get("ok"):
         raise FaultCliError(f"fault refused: {answer.get('error', answer)}")

@@ -40,6 +40,10 @@ Exit codes: 0 ok, 1 the IDX or the port failed, 2 the command line is wrong.
 """
 
 
+class IdxValueError(LocalError, ValueError):
+    """A ``write`` VALUE that is no number or does not fit its type (exit 2, as other usage errors)."""
+
+
 def _ranged(what: str, low: int, high: int, fmt: str) -> Callable[[str], int]:
     """An argparse type: an integer (0x.. ok) in low..high, with a message that says so."""
     def parse(text: str) -> int:
@@ -90,11 +94,11 @@ def _value(text: str, type_: str) -> int:
     try:
         value = int(text, 0)
     except ValueError:
-        raise ValueError(f"VALUE {text!r} is not a number (use -t str or -t hex for bytes)") from None
+        raise IdxValueError(f"VALUE {text!r} is not a number (use -t str or -t hex for bytes)") from None
     bits = int(type_[1:])
     low, high = (0, (1 << bits) - 1) if type_[0] == "u" else (-(1 << (bits - 1)), (1 << (bits - 1)) - 1)
     if not low <= value <= high:
-        raise ValueError(f"VALUE {text} does not fit {type_} ({low}..{high})")
+        raise IdxValueError(f"VALUE {text} does not fit {type_} ({low}..{high})")
     return value
 
 

@@ -72,6 +72,7 @@ class Classroom:
 
     # -- cast -----------------------------------------------------------------------------------
     def add_drive(self, name: str, node_id: int | None, serial: int) -> Drive:
+        """Put a drive on the lesson's bus (its parameters stored in the classroom's folder) and return it."""
         store = Path(self._store.name) / f"{name.replace(' ', '-')}.params.json"
         drive = Drive(self.clock, self.bus, node_id, serial, name=name, store_path=store)
         self.drives[name] = drive
@@ -172,6 +173,7 @@ class Classroom:
         self._store.cleanup()
 
     def sdo_busy(self) -> bool:
+        """Whether an SDO transfer to one of the drives is still running (a lesson waits for it)."""
         return any(self.sdo.busy(d.node.node_id) for d in self.drives.values() if d.node.node_id is not None)
 
     def send(self, frame: CanFrame) -> None:
@@ -189,6 +191,7 @@ class Classroom:
 
     # -- the end --------------------------------------------------------------------------------
     def participants(self) -> list[str]:
+        """The lanes of the sequence diagram: the master first, then every node in the order it first appeared."""
         seen = ["master"]
         for a in self.arrows:
             for who in (a.sender, a.receiver):

@@ -40,7 +40,7 @@ from gatewaylab.canopen.lss import (
 from gatewaylab.canopen.monitor import FastscanNarrator
 from gatewaylab.common.clock import RealTimeClock
 from gatewaylab.common.endpoint import EndpointError, bus_endpoint
-from gatewaylab.common.errors import GatewaylabError
+from gatewaylab.common.errors import ConfigError, GatewaylabError
 
 _PARTS = ("vendor", "product", "revision", "serial")
 _INQUIRE = {"vendor": Cs.INQUIRE_VENDOR, "product": Cs.INQUIRE_PRODUCT, "revision": Cs.INQUIRE_REVISION,
@@ -191,7 +191,7 @@ def _service(args: argparse.Namespace, session: LssSession) -> tuple[str, Any]:
                 session.run(lambda cb: m.store_configuration(cb))
                 text += "\nconfiguration stored"
         return text, result
-    raise AssertionError(cmd)
+    raise ConfigError(f"unknown LSS service {cmd!r}")
 
 
 def cmd_lss(args: argparse.Namespace) -> int:

@@ -33,10 +33,10 @@ EXTRA_SUBCOMMANDS = (
     "gatewaylab.cli.lesson",
     "gatewaylab.cli.plot",
     "gatewaylab.cli.net",
-    "gatewaylab.cli.ec_rig",
+    "gatewaylab.cli.ec",
     "gatewaylab.cli.fault",
-    "gatewaylab.cli.ecan_rig",
-    "gatewaylab.cli.migrate_rig",
+    "gatewaylab.cli.ecan",
+    "gatewaylab.cli.migrate",
 )
 
 RIG_HELP = """\
@@ -138,6 +138,7 @@ def _stop_at_once(signum: int, frame: FrameType | None) -> None:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
+    """``gatewaylab run RIG.toml``: start the rig (ready file, trace, web page on request) and run it until stopped."""
     from dataclasses import replace
 
     from gatewaylab.rig.config import load_rig
@@ -226,12 +227,14 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
+    """``gatewaylab demo``: the guided tour (cli/demo.py)."""
     from gatewaylab.cli.demo import main as demo_main
 
     return demo_main([] if args.rig is None else [args.rig])
 
 
 def cmd_rig_show(args: argparse.Namespace) -> int:
+    """``gatewaylab rig show [RIG.toml]``: print the rig file (the default rig without one) to start a new one from."""
     from importlib import resources
 
     if args.rig is None:
@@ -243,6 +246,7 @@ def cmd_rig_show(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The ``gatewaylab`` parser with every sub-command (those of EXTRA_SUBCOMMANDS included)."""
     parser = argparse.ArgumentParser(
         prog="gatewaylab",
         description="Emulated industrial CAN gateways (ECAN-Lite, esd CAN-EtherCAT, maxon IDX) on virtual "
@@ -303,6 +307,7 @@ def _one_line(exc: BaseException) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """The ``gatewaylab`` command: parse ``argv`` and run the sub-command; its exit code."""
     parser = build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose_log else logging.WARNING,

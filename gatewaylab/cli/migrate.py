@@ -8,7 +8,6 @@ import argparse
 import contextlib
 import json
 import sys
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -17,9 +16,6 @@ from gatewaylab.hosts.ethercat.pysoem_backend import PysoemBackend
 from gatewaylab.migrate.config import DEVICES, device_slave, ecanlite_slave, esi_text, find_esd, read_live, report
 from gatewaylab.migrate.eni import EniError, SlaveConfig, format_writes, parse_eni, parse_writes, write_eni
 from gatewaylab.migrate.translate import DEFAULT_FALLBACK_RATE, translate
-
-#: ``open_compare(rig_path, bus, wire)`` -> the runner of ``migrate compare`` (the rig layer's)
-CompareOpener = Callable[[str, str, bool], Any]
 
 _EPILOG = """\
 examples:
@@ -53,6 +49,7 @@ def _read_wire(ifname: str, position: int) -> SlaveConfig:
 
 
 def cmd_config(args: argparse.Namespace) -> int:
+    """``migrate config``: an esd ENI, startup list or live esd -> the ECAN-Lite ENI and the report."""
     if (args.input is None) == (args.ifname is None):
         raise ConfigError("give either INPUT or -i IFNAME (with -p POS)")
     if args.ifname is not None:
@@ -88,6 +85,7 @@ def cmd_config(args: argparse.Namespace) -> int:
 
 
 def cmd_esi(args: argparse.Namespace) -> int:
+    """``migrate esi``: write the ESI file of a device kind."""
     Path(args.output).write_text(esi_text(args.device), encoding="utf-8")
     print(f"{args.output}: ESI of {args.device}")
     return 0
@@ -112,13 +110,13 @@ failed during a run.
 """
 
 
-def cmd_compare(args: argparse.Namespace, open_compare: CompareOpener | None) -> int:
+def cmd_compare(args: argparse.Namespace) -> int:
+    """``migrate compare``: the application through both gateways on copies of the rig; verdict, report, exit code."""
+    from gatewaylab.cli.migrate_rig import open_compare
     from gatewaylab.migrate.compare import compare
     from gatewaylab.migrate.compare_report import latency_summary, read_recording, write_recording, write_report
     from gatewaylab.migrate.compare_run import GATEWAYS, Runner, load_app, takes_seconds
 
-    if open_compare is None:
-        raise ConfigError("migrate compare needs the rig layer (run it as `gatewaylab migrate compare`)")
     if args.seconds is not None and args.seconds <= 0:
         raise ConfigError(f"--seconds {args.seconds}: must be positive")
     app = load_app(args.app)
@@ -169,8 +167,8 @@ def _channel(text: str) -> int:
     return k
 
 
-def add_subcommand(sub: Any, open_compare: CompareOpener | None = None) -> None:
-    """Register ``gatewaylab migrate``; ``open_compare`` (the rig layer's) makes ``compare`` work."""
+def add_subcommand(sub: Any) -> None:
+    """Register ``gatewaylab migrate`` (cli/main.py EXTRA_SUBCOMMANDS)."""
     m = sub.add_parser("migrate", help="esd CAN-EtherCAT -> ECAN-Lite migration (config translation, ESI)",
                        description="esd CAN-EtherCAT -> ECAN-Lite migration kit.")
     msub = m.add_subparsers(dest="migrate_command", metavar="COMMAND")
@@ -203,7 +201,7 @@ def add_subcommand(sub: Any, open_compare: CompareOpener | None = None) -> None:
     k.add_argument("--wire", action="store_true",
                    help="real time over a veth pair with SOEM (pysoem) as master (root); not deterministic")
     k.add_argument("--json", action="store_true", help="print the summary as JSON instead of the verdict line")
-    k.set_defaults(func=lambda args: cmd_compare(args, open_compare))
+    k.set_defaults(func=cmd_compare)
 
     def no_command(args: argparse.Namespace) -> int:
         m.print_help()

@@ -1,8 +1,7 @@
-"""``gatewaylab migrate``: the migration kit's commands with the rig opener of ``migrate compare``.
+"""The lines ``gatewaylab migrate compare`` runs on: fresh copies of a rig file with one gateway added,
+in process on a simulated clock or (``--wire``) in real time with the EtherCAT segment on an interface.
 
-The commands live in the migrate layer; building a rig from a file belongs to this layer, so the
-opener is handed down here (docs/architecture.md layering: migrate never imports rig), as
-``gatewaylab ec`` / ``ecan`` do.
+Imported by ``cli/migrate.py`` only when ``compare`` runs, so other commands do not load the rig runtime.
 """
 
 from __future__ import annotations
@@ -11,10 +10,9 @@ import dataclasses
 from pathlib import Path
 from typing import Any
 
-from gatewaylab.cli import migrate as migrate_cli
 from gatewaylab.common.clock import RealTimeClock, SimulatedClock
 from gatewaylab.common.errors import ConfigError
-from gatewaylab.hosts.ethercat.backend import InProcessBackend
+from gatewaylab.hosts.ethercat.inprocess import InProcessBackend
 from gatewaylab.migrate.compare_run import GATEWAYS, Line, LineOpener, Runner, simulated_runner
 from gatewaylab.migrate.compare_wire import RealtimeOpener, WireLine, wire_runner, wire_unavailable
 from gatewaylab.rig.config import RigConfig, load_rig
@@ -94,7 +92,3 @@ def open_compare(path: str, bus: str, wire: bool = False) -> Runner:
         raise ConfigError(f"--wire {reason}")
     return wire_runner(realtime_opener(config, bus))
 
-
-def add_subcommand(subparsers: Any) -> None:
-    """Register ``gatewaylab migrate`` (rig/cli.py EXTRA_SUBCOMMANDS)."""
-    migrate_cli.add_subcommand(subparsers, open_compare=open_compare)

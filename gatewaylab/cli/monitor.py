@@ -107,20 +107,11 @@ class _ControlPoller:
         self.failed: str | None = None
 
     def _ask(self) -> dict[str, Any]:
-        import socket
-
+        from gatewaylab.cli.ask import ask, endpoint_address
         from gatewaylab.common.endpoint import EndpointKind, parse_endpoint
+
         ep = parse_endpoint(self.endpoint, bare_path=EndpointKind.UNIX)
-        if ep.kind is EndpointKind.UNIX:
-            sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-            sock.settimeout(2.0)
-            sock.connect(ep.path)
-        else:
-            sock = socket.create_connection((ep.host, ep.port), timeout=2.0)
-        with sock, sock.makefile("rwb") as f:
-            f.write(json.dumps({"fault": self.request}).encode() + b"\n")
-            f.flush()
-            answer: dict[str, Any] = json.loads(f.readline() or b"{}")
+        answer: dict[str, Any] = json.loads(ask(endpoint_address(ep), {"fault": self.request}, 2.0) or b"{}")
         return answer
 
     def poll(self, now: float) -> list[MonitorEvent]:
@@ -139,6 +130,7 @@ class _ControlPoller:
         return self.changes(answer, now)
 
     def changes(self, answer: dict[str, Any], now: float) -> list[MonitorEvent]:
+        """What changed since the last answer, as monitor events (each watcher reads its part of the answer)."""
         raise NotImplementedError
 
 
@@ -154,6 +146,7 @@ class EthercatWatcher(_ControlPoller):
         self.states: dict[str, str] = {}
 
     def changes(self, answer: dict[str, Any], now: float) -> list[MonitorEvent]:
+        """What changed in the rig's device states since the last answer, as monitor events."""
         events = []
         for name, st in (answer.get("devices") or {}).items():
             text = st.get("state", "?") + (f", AL status code 0x{st['code']:04X}" if st.get("error") else "")
@@ -179,6 +172,7 @@ class CanWatcher(_ControlPoller):
         self.watch = ControllerWatch()
 
     def changes(self, answer: dict[str, Any], now: float) -> list[MonitorEvent]:
+        """What changed on the watched bus since the last answer, as monitor events."""
         return self.watch.update((answer.get("buses") or {}).get(self.bus) or {}, now)
 
 

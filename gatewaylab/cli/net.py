@@ -10,8 +10,18 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from gatewaylab.common.errors import ConfigError, LocalError
+
 DEFAULT_NAME = "gl-ecat"
 MAX_IFNAME = 15
+
+
+class NetUsage(ConfigError, ValueError):
+    """A name ``gatewaylab net`` cannot use (exit 2); a ValueError for callers that expect one."""
+
+
+class NetFailed(LocalError, OSError):
+    """``ip`` refused to add, set up or delete an interface (exit 1); an OSError for callers that expect one."""
 CAP_NET_ADMIN = 12
 
 #: ``gatewaylab net --help``: plain text (argparse prints it as is).
@@ -42,6 +52,7 @@ def has_net_admin(status: str | None = None) -> bool:
 
 
 def peer_name(name: str) -> str:
+    """The master-side name of the veth pair whose emulator side is ``name``."""
     return f"{name}-m"
 
 
@@ -58,24 +69,26 @@ def _disable_ipv6(iface: str) -> None:
 
 
 def net_up(name: str) -> tuple[str, str]:
+    """Create the veth pair ``name``/``name-m`` and bring both ends up (IPv6 off); (emulator, master) names."""
     peer = peer_name(name)
     if len(peer) > MAX_IFNAME:
-        raise ValueError(f"interface names are at most {MAX_IFNAME} characters: {peer!r}")
+        raise NetUsage(f"interface names are at most {MAX_IFNAME} characters: {peer!r}")
     r = _ip("link", "add", name, "type", "veth", "peer", "name", peer)
     if r.returncode != 0:
-        raise OSError(r.stderr.strip() or f"ip link add {name} failed")
+        raise NetFailed(r.stderr.strip() or f"ip link add {name} failed")
     for iface in (name, peer):
         _disable_ipv6(iface)
         r = _ip("link", "set", iface, "up")
         if r.returncode != 0:
-            raise OSError(r.stderr.strip())
+            raise NetFailed(r.stderr.strip())
     return name, peer
 
 
 def net_down(name: str) -> None:
+    """Delete the veth pair (deleting one end removes both)."""
     r = _ip("link", "del", name)
     if r.returncode != 0:
-        raise OSError(r.stderr.strip() or f"ip link del {name} failed")
+        raise NetFailed(r.stderr.strip() or f"ip link del {name} failed")
 
 
 def _cmd(args: argparse.Namespace) -> int:
@@ -104,6 +117,7 @@ def _cmd(args: argparse.Namespace) -> int:
 
 
 def add_subcommand(subparsers: Any) -> None:
+    """Register ``gatewaylab net up|down`` (cli/main.py EXTRA_SUBCOMMANDS)."""
     p = subparsers.add_parser("net", help="create/remove a veth pair for a local EtherCAT master",
                               description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("action", choices=["up", "down"])

@@ -133,7 +133,7 @@ def _derivative(points: list[tuple[float, int]]) -> list[tuple[float, float]]:
     return [(t1, (p1 - p0) / (t1 - t0)) for (t0, p0), (t1, p1) in itertools.pairwise(points) if t1 > t0]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Panel:
     """One axes of the figure: what matplotlib is handed (lines of x/y arrays), for tests to read."""
 

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import heapq
 import math
+import threading
 import time
 from collections import deque
 from collections.abc import Callable
@@ -45,6 +46,7 @@ class TimerHandle:
         self.cancelled = False
 
     def cancel(self) -> None:
+        """Keep the callback from running (it stays queued, skipped when due)."""
         self.cancelled = True
 
     def __repr__(self) -> str:
@@ -67,12 +69,29 @@ class Clock:
         #: While the loop that runs this clock waits (between :meth:`begin_wait` and :meth:`end_wait`):
         #: the time it wakes up by itself; an event scheduled before it wakes the loop. -inf otherwise.
         self._wake_before = -math.inf
-        #: Serialises access to the protocol state when several threads touch it. The in-process
-        #: python-can adapter installs a real lock here; single-threaded use needs none.
+        #: Serialises access to the protocol state when several threads touch it: a real lock once
+        #: :meth:`ensure_lock` was called; single-threaded use needs none (a no-op context).
         self.lock: AbstractContextManager[Any] = nullcontext()
         #: Unix time (seconds since the epoch) of clock time 0: an event at clock time ``t``
         #: happened at ``wall_epoch + t``. The one time base of traces, client timestamps and the demo.
         self.wall_epoch: float = time.time()
+
+    def ensure_lock(self) -> AbstractContextManager[Any]:
+        """Make this clock safe to share between threads, and return its :attr:`lock`.
+
+        The contract: the thread that runs the clock (the rig's loop, a simulation's owner) holds
+        :attr:`lock` while it runs events, and every other thread (a wire thread, a python-can
+        adapter's caller, a web server, a host library's cycle thread) takes it before it touches
+        any state of the protocol cores that share the clock, or schedules on the clock. The lock
+        is re-entrant, so a callback may call code that takes it again. The first call installs
+        it; later calls (from every component that shares the clock) return the same lock, so
+        all of them serialise on one. Protocol code never takes it itself: only the code that
+        brings threads in does.
+        """
+        lock = self.lock
+        if isinstance(lock, nullcontext):
+            lock = self.lock = threading.RLock()
+        return lock
 
     # -- time ---------------------------------------------------------------------------------
     def now(self) -> float:
@@ -81,6 +100,7 @@ class Clock:
 
     @property
     def is_simulated(self) -> bool:
+        """True for a clock whose time moves only when its owner moves it."""
         return False
 
     # -- scheduling ---------------------------------------------------------------------------
@@ -106,11 +126,13 @@ class Clock:
             self._wake_loop()
 
     def call_later(self, delay: float, callback: Callback, *args: Any) -> TimerHandle:
+        """Run ``callback(*args)`` ``delay`` seconds from now."""
         if delay < 0:
             raise LocalError(f"negative delay {delay}")
         return self.call_at(self.now() + delay, callback, *args)
 
     def call_soon(self, callback: Callback, *args: Any) -> TimerHandle:
+        """Run ``callback(*args)`` now, after the events already due."""
         return self.call_at(self.now(), callback, *args)
 
     def call_every(self, period: float, callback: Callback, *args: Any,
@@ -166,6 +188,7 @@ class Clock:
         raise NotImplementedError
 
     def pending(self) -> int:
+        """How many events wait (cancelled ones not counted): for tests and diagnostics."""
         return sum(1 for _, _, h in self._heap if not h.cancelled) + len(self._injected)
 
     def _drain_injected(self) -> None:
@@ -201,12 +224,14 @@ class PeriodicTimer:
         self.callback(*self.args)
 
     def cancel(self) -> None:
+        """Stop the timer (idempotent)."""
         if self._handle is not None:
             self._handle.cancel()
             self._handle = None
 
     @property
     def active(self) -> bool:
+        """True until the timer is cancelled."""
         return self._handle is not None
 
 
@@ -219,10 +244,12 @@ class SimulatedClock(Clock):
         self.wall_epoch -= start
 
     def now(self) -> float:
+        """The simulated time: moves only in advance/run_until/step."""
         return self._now
 
     @property
     def is_simulated(self) -> bool:
+        """Always True: nothing runs unless the owner moves the clock."""
         return True
 
     def step(self) -> bool:
@@ -310,6 +337,7 @@ class RealTimeClock(Clock):
         self.pass_limit = 1000
 
     def now(self) -> float:
+        """Monotonic seconds since the clock was made."""
         return time.monotonic() - self._t0
 
     def wait(self, delay: float) -> None:

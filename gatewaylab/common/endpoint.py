@@ -37,7 +37,7 @@ class EndpointError(ConfigError, ValueError):
     """Text that is not an endpoint in any accepted form."""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Endpoint:
     """A parsed endpoint; ``str()`` gives its canonical form."""
 

@@ -26,6 +26,7 @@ class ServerThread:
         self._thread = threading.Thread(target=self._serve, name=name, daemon=True)
 
     def start(self) -> None:
+        """Start serving in the thread (stop() wakes and joins it)."""
         self._thread.start()
 
     def _serve(self) -> None:

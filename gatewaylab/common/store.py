@@ -13,6 +13,12 @@ import os
 from pathlib import Path
 from typing import Any, Protocol
 
+from gatewaylab.common.errors import ConfigError
+
+
+class StoreError(ConfigError, ValueError):
+    """A store file that holds something else than what a device stored (its callers also catch ValueError)."""
+
 
 class ParameterStore(Protocol):
     """Where a device keeps its non-volatile data (one JSON-compatible dict)."""
@@ -51,7 +57,7 @@ class JsonFileStore:
             return None
         raw = json.loads(self.path.read_text())
         if not isinstance(raw, dict):
-            raise ValueError(f"{self.path}: not a JSON object")
+            raise StoreError(f"{self.path}: not a JSON object")
         return raw
 
     def save(self, data: dict[str, Any]) -> None:

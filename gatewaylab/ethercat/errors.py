@@ -115,6 +115,14 @@ class EtherCATConfigError(ConfigError):
     """A device description or rig section that cannot describe a real slave."""
 
 
+class SlavePositionError(LocalError, IndexError):
+    """A slave position the segment does not have (fault injection: unplug a slave)."""
+
+
+class PcapFormatError(LocalError, ValueError):
+    """Bytes that are not a pcap of :class:`~gatewaylab.ethercat.wire_pcap.PcapWriter`'s format."""
+
+
 class MasterError(LocalError):
     """The in-process master was asked for something impossible (no such slave, not scanned...)."""
 

@@ -20,6 +20,7 @@ from collections import deque
 from dataclasses import dataclass, field
 
 from gatewaylab.ethercat.datagram import ETH_HEADER_LEN, ETHERTYPE_ETHERCAT, LEN_MASK, MORE
+from gatewaylab.ethercat.errors import SlavePositionError
 from gatewaylab.ethercat.esc import REG_RX_ERROR, Esc
 from gatewaylab.ethercat.slave import Slave
 
@@ -34,6 +35,8 @@ LOG_EVERY = 1000
 
 @dataclass(slots=True)
 class SegmentStats:
+    """Counters of one line: frames served and dropped, datagram executions that raised."""
+
     frames: int = 0
     bad_frames: int = 0
     datagrams: int = 0
@@ -51,22 +54,22 @@ class Segment:
         self.stats = SegmentStats()
         #: positions of the slaves unplugged from the line (fault injection)
         self.unplugged: set[int] = set()
-        self._escs = [s.esc for s in self.slaves]
+        self._reached: list[Slave] = list(self.slaves)
         self._link()
 
     def _link(self) -> None:
         """The slaves a frame reaches: the line up to the first unplugged one, whose upstream
         neighbour closes its port and returns the frame (ESC automatic port loop-back)."""
         reach = min(self.unplugged, default=len(self.slaves))
-        self._escs = [s.esc for s in self.slaves[:reach]]
-        for i, esc in enumerate(self._escs):
-            esc.set_downstream(reach - 1 - i)
+        self._reached = self.slaves[:reach]
+        for i, slave in enumerate(self._reached):
+            slave.esc.set_downstream(reach - 1 - i)
 
     def unplug(self, position: int) -> None:
         """Pull a slave out of the line: it and every slave behind it stop answering (the working
         counter of every datagram for them drops)."""
         if not 0 <= position < len(self.slaves):
-            raise IndexError(f"no slave at position {position}")
+            raise SlavePositionError(f"no slave at position {position}")
         self.unplugged.add(position)
         self._link()
 
@@ -81,24 +84,26 @@ class Segment:
     def process(self, frame: bytearray) -> bool:
         """Execute every datagram on every slave in place; False for a dropped (bad) frame, or
         when the first slave is unplugged (no link: the frame never comes back)."""
-        if not self._escs and self.unplugged:
+        if not self._reached and self.unplugged:
             return False
         parsed = self._parse(frame)
         if parsed is None:
             self.stats.bad_frames += 1
-            if self._escs:
-                mem = self._escs[0].mem
+            if self._reached:
+                mem = self._reached[0].esc.mem
                 mem[REG_RX_ERROR] = min(0xFF, mem[REG_RX_ERROR] + 1)
             return False
         self.stats.frames += 1
         self.stats.datagrams += len(parsed)
-        for esc in self._escs:
-            pd = esc.process_datagram
+        for slave in self._reached:
+            pd = slave.esc.process_datagram
             for pos, cmd, dlen in parsed:
                 try:
-                    pd(frame, pos, cmd, dlen)
+                    events = pd(frame, pos, cmd, dlen)
+                    if events is not None:  # Slave.process_datagram, inlined: most datagrams raise none
+                        slave.serve_events(events)
                 except Exception as exc:  # isolation boundary: one datagram never costs the frame
-                    self._datagram_error(esc, cmd, exc)
+                    self._datagram_error(slave.esc, cmd, exc)
         if len(frame) > ETH_HEADER_LEN:
             frame[6] |= 0x02  # the ESC marks the source MAC as locally administered on the way back
         return True

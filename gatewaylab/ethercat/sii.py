@@ -27,6 +27,8 @@ MAX_EEPROM_BYTES = 65536
 
 
 class Category(enum.IntEnum):
+    """SII category types after the fixed words (ETG.1000.6 table 'Category Types')."""
+
     STRINGS = 10
     DATA_TYPES = 20
     GENERAL = 30
@@ -39,6 +41,8 @@ class Category(enum.IntEnum):
 
 
 class SmType(enum.IntEnum):
+    """What a SyncManager is for, in the SII SyncManager category (ETG.1000.6 'Sync Manager')."""
+
     UNUSED = 0
     MAILBOX_OUT = 1
     MAILBOX_IN = 2

@@ -23,6 +23,7 @@ from gatewaylab.ethercat.coe import CoeServer, emergency_message
 from gatewaylab.ethercat.description import DeviceDescription, Pdo, build_od
 from gatewaylab.ethercat.errors import AlStatusCode, EtherCATConfigError, MailboxErrorCode
 from gatewaylab.ethercat.esc import REG_AL_STATUS, REG_SM, SM_STATUS_FULL, AlState, Esc
+from gatewaylab.ethercat.esc_events import AlControlRequested, EscEvent, SmRead, SmWritten
 from gatewaylab.ethercat.foe import FoeFiles, FoeHandler, FoeServer
 from gatewaylab.ethercat.mailbox import MailboxEndpoint, MailboxMessage, MailboxType, error_reply
 from gatewaylab.ethercat.sii import build_sii
@@ -92,7 +93,7 @@ def _desc_entries(pdos: tuple[Pdo, ...]) -> list[MappedEntry]:
 
 
 class Slave:
-    """One slave in a segment: feed it datagrams through ``esc.process_datagram``."""
+    """One slave in a segment: feed it datagrams through :meth:`process_datagram`."""
 
     def __init__(self, clock: Clock, desc: DeviceDescription, app: SlaveApplication | None = None,
                  foe: FoeHandler | None = None, *, name: str | None = None, alias: int = 0) -> None:
@@ -134,9 +135,35 @@ class Slave:
                 self.od.on_read(obj.index, self._refresh_mapped)
         self.app.setup_od(self, self.od)
 
-    # ------------------------------------------------------------------ EscApplication
+    # ------------------------------------------------------------------ datagrams and PDI events
+    def process_datagram(self, buf: bytearray, pos: int, cmd: int, dlen: int) -> None:
+        """Run one datagram of a frame through the ESC, delivering the PDI events of each access
+        before the next access runs (the contract in :mod:`gatewaylab.ethercat.esc`)."""
+        events = self.esc.process_datagram(buf, pos, cmd, dlen)
+        if events is not None:
+            self.serve_events(events)
+
+    def serve_events(self, events: list[EscEvent]) -> None:
+        """Deliver the PDI events of a paused datagram to the firmware, in order, and resume it, until
+        it is complete: mailbox and process data SyncManagers, the AL state machine, the SM-change
+        check (SOES's ESC_ALevent / ESC_sm_act_event)."""
+        esc = self.esc
+        pending: list[EscEvent] | None = events
+        while pending is not None:
+            for ev in pending:
+                if isinstance(ev, SmWritten):
+                    self.sm_written(ev.sm, esc.memory.pdi_outputs[ev.sm])
+                elif isinstance(ev, SmRead):
+                    self.sm_read(ev.sm)
+                elif isinstance(ev, AlControlRequested):
+                    esc.al_control(ev.control)
+                else:
+                    self.sm_changed()
+            pending = esc.resume_datagram()
+
+    # ------------------------------------------------------------------ the firmware (EscApplication)
     def check_transition(self, old: AlState, new: AlState) -> int:
-        """ESC callback: 0 to accept an AL state transition, else the AL status code."""
+        """AL state machine: 0 to accept an AL state transition, else the AL status code."""
         d = self.desc
         if new == AlState.BOOT:
             if not d.bootstrap:
@@ -197,7 +224,7 @@ class Slave:
         return True
 
     def state_changed(self, old: AlState, new: AlState, code: int) -> None:
-        """ESC callback after an AL state change: mailbox reset, safe outputs, application."""
+        """AL state machine, after a state change: mailbox reset, safe outputs, application."""
         if new in (AlState.INIT, AlState.BOOT):
             self.mailbox.reset()
             size = self.desc.bootstrap_mailbox[3] if new == AlState.BOOT else self.desc.mailbox_in[1]
@@ -215,14 +242,14 @@ class Slave:
         self.app.on_state(self, old, new, code)
 
     def sm_written(self, sm: int, data: bytes) -> None:
-        """ESC callback: the master wrote a SyncManager buffer (mailbox or outputs)."""
+        """PDI event: the master wrote a SyncManager buffer (mailbox or outputs)."""
         if sm == 0 and self.has_mailbox:
             self.mailbox_received(data)
         elif sm == self.sm_outputs:
             self.outputs_written(sm, data)
 
     def sm_changed(self) -> None:
-        """ESC callback: the master wrote SyncManager registers (the SM-change event, ET1100 AL event
+        """PDI event: the master wrote SyncManager registers (the SM-change event, ET1100 AL event
         0x0220 bit 4). As SOES's ``ESC_sm_act_event`` does, a running mailbox whose SyncManagers no
         longer match the SII (moved, resized, disabled, or not activated by the ESC because the master
         put them over the registers) stops: INIT + error, AL status code 0x0016 invalid mailbox
@@ -249,7 +276,7 @@ class Slave:
         return self._pd_sm_ok(index, start, length, control & 0x0F) and (length == 0 or self.esc.sm_active(index))
 
     def sm_read(self, sm: int) -> None:
-        """ESC callback: the master read a SyncManager buffer (mailbox or inputs)."""
+        """PDI event: the master read a SyncManager buffer (mailbox or inputs)."""
         if sm == 1 and self.has_mailbox:
             self.mailbox.pump()
         elif sm == self.sm_inputs:
@@ -282,7 +309,7 @@ class Slave:
             self.app.on_outputs(self, self._outputs)
 
     def sync0(self, t: float) -> None:
-        """ESC callback: a SYNC0 pulse."""
+        """The ESC's SYNC0 line (a clock timer, not an access): the application's SYNC0 hook."""
         self.app.on_sync0(self, t)
 
     # ------------------------------------------------------------------ mailbox protocols

@@ -26,7 +26,6 @@ import select
 import socket
 import threading
 import time
-from contextlib import nullcontext
 from typing import Any, cast
 
 from gatewaylab.common.clock import Clock, RealTimeClock
@@ -76,6 +75,7 @@ class WireTransport:
         self.errors: list[str] = []
 
     def start(self) -> None:
+        """Open the raw socket on the interface and start the wire thread serving the segment."""
         try:
             sock = socket.socket(socket.AF_PACKET, socket.SOCK_RAW, socket.htons(ETHERTYPE_ETHERCAT))
         except PermissionError as exc:
@@ -87,8 +87,7 @@ class WireTransport:
             raise ConfigError(f"cannot bind to interface {self.interface!r}: {exc}") from exc
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
         sock.setblocking(False)
-        if isinstance(self.clock.lock, nullcontext):
-            self.clock.lock = threading.RLock()  # this thread and the clock's owner share the state
+        self.clock.ensure_lock()  # this thread and the clock's owner share the state
         self._wake_r, self._wake_w = socket.socketpair()
         self._wake_r.setblocking(False)
         self._wake_w.setblocking(False)

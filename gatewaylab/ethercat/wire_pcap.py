@@ -11,6 +11,8 @@ import struct
 import threading
 from typing import TYPE_CHECKING, BinaryIO
 
+from gatewaylab.ethercat.errors import PcapFormatError
+
 if TYPE_CHECKING:
     from gatewaylab.common.clock import Clock
 
@@ -40,6 +42,7 @@ class PcapWriter:
         self.frames = 0
 
     def write(self, t: float, frame: bytes | bytearray) -> None:
+        """Append one frame seen at time ``t`` (Unix or clock time, see the class docstring)."""
         sec = int(t)
         usec = round((t - sec) * 1e6)
         if self.epoch:
@@ -56,10 +59,12 @@ class PcapWriter:
                 self._f.flush()
 
     def flush(self) -> None:
+        """Push what is written to the file now (a capture read while the wire still runs)."""
         with self._lock:
             self._f.flush()
 
     def close(self) -> None:
+        """Flush, and close the file when the writer opened it (a stream given to it stays open)."""
         with self._lock:
             self._f.flush()
             if self._own:
@@ -70,7 +75,7 @@ def read_pcap(data: bytes) -> list[tuple[float, bytes]]:
     """Parse a pcap written by :class:`PcapWriter` (for tests and tools)."""
     magic, _vmaj, _vmin, _tz, _sig, _snap, link = PCAP_GLOBAL.unpack_from(data, 0)
     if magic != PCAP_MAGIC or link != LINKTYPE_ETHERNET:
-        raise ValueError("not an Ethernet pcap of this writer's format")
+        raise PcapFormatError("not an Ethernet pcap of this writer's format")
     pos = PCAP_GLOBAL.size
     out: list[tuple[float, bytes]] = []
     while pos + PCAP_RECORD.size <= len(data):

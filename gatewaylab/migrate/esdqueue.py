@@ -62,6 +62,7 @@ from gatewaylab.hosts.esd_can_ethercat.handshake import (
 )
 from gatewaylab.hosts.esd_can_ethercat.loop import DEFAULT_TIMEOUT, HostLoop
 from gatewaylab.hosts.ethercat.backend import MasterBackend, MasterTimeout
+from gatewaylab.hosts.ethercat.states import walk_to
 from gatewaylab.migrate.eni import InitCmd
 from gatewaylab.migrate.translate import DEFAULT_FALLBACK_RATE, Translation, translate
 from gatewaylab.migrate.txbook import TxBook
@@ -184,11 +185,7 @@ class EsdQueueOnEcanLite(HostLoop):
         """The slave in PREOP (from BOOT through INIT); the queues stop until :meth:`start`."""
         with self._lock:
             self._running = False
-        state, _code = self.backend.state(self.position)
-        if state == AlState.BOOT:
-            self.backend.request_state(AlState.INIT, self.position, timeout)
-        if state != AlState.PREOP:
-            self.backend.request_state(AlState.PREOP, self.position, timeout)
+        walk_to(self.backend, self.position, AlState.PREOP, timeout)
 
     def configure(self, config: EsdConfig | None = None, /, **changes: Any) -> QueueLayout:
         """Translate ``config`` (or EsdConfig(**changes)) and write it in PREOP: the profile (5.4.3

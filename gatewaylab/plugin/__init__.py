@@ -2,12 +2,15 @@
 may use of the rig. Devices inside and outside gatewaylab import these names from here."""
 
 from gatewaylab.plugin.participant import (
+    CheckedSection,
     DeviceKind,
     Key,
     Participant,
+    ParticipantBase,
     RigContext,
     section_error,
     validate_table,
 )
 
-__all__ = ["DeviceKind", "Key", "Participant", "RigContext", "section_error", "validate_table"]
+__all__ = ["CheckedSection", "DeviceKind", "Key", "Participant", "ParticipantBase", "RigContext", "section_error",
+           "validate_table"]

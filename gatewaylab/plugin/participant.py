@@ -11,7 +11,7 @@ unknown keys, types, ranges, bus names; each failure a one-line :class:`ConfigEr
 file, the section and the key), then calls ``kind.create(rig, cfg)`` with a :class:`RigContext`
 and the validated section (every key present, defaults filled in).
 
-It lives in ``bus/`` (it depends only on ``common`` and the bus) so that ``canopen/``, ``ethercat/``
+It lives in ``plugin/``, above the protocol packages (it names their types) and below ``devices/``,
 and ``devices/`` import it without an upward dependency; ``gatewaylab.plugin`` re-exports it as
 the public name for device packages outside gatewaylab.
 """
@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
-from gatewaylab.bus.bus import VirtualBus
+from gatewaylab.bus.bus import Controller, VirtualBus
 from gatewaylab.common.clock import Clock
 from gatewaylab.common.errors import ConfigError
 
@@ -33,37 +33,102 @@ class Participant(Protocol):
 
     name: str
 
-    def start(self) -> None: ...          # called once every participant exists
-    def stop(self) -> None: ...           # release endpoints, files, threads
-    def ready_info(self) -> dict[str, Any]: ...  # merged into the --ready-file JSON
+    def start(self) -> None:
+        """Called once every participant exists: open endpoints, attach, start timers."""
+
+    def stop(self) -> None:
+        """Release what start() took (endpoints, files, threads); returns within milliseconds."""
+
+    def ready_info(self) -> dict[str, Any]:
+        """What the participant adds to the --ready-file JSON (deep-merged with the others)."""
+
+
+class ParticipantBase:
+    """A base a participant may derive from (it is a :class:`Participant`): the controllers it attaches
+    through :meth:`attach` are detached by :meth:`detach_all`, which :meth:`stop` calls, so attach and
+    detach are symmetric: a stopped participant (the rig closing, a power cycle) leaves nothing on a bus,
+    and one that attaches in :meth:`start` can start again. Its section is checked once by the rig
+    (:class:`CheckedSection`); a subclass that checks what it is given pays nothing for it."""
+
+    def __init__(self, rig: RigContext, name: str) -> None:
+        self.rig = rig
+        self.name = name
+        #: what :meth:`attach` attached and :meth:`detach_all` has not detached yet, in attachment order
+        self.controllers: list[Controller] = []
+
+    def attach(self, bus: str | VirtualBus, label: str, **options: Any) -> Controller:
+        """A controller on ``bus`` (a rig bus name, or the bus) named ``label``, detached again by
+        :meth:`detach_all`; ``options`` are :meth:`VirtualBus.attach`'s."""
+        vbus = self.rig.bus(bus) if isinstance(bus, str) else bus
+        ctrl = vbus.attach(label, **options)
+        self.controllers.append(ctrl)
+        return ctrl
+
+    def detach_all(self) -> None:
+        """Detach every controller :meth:`attach` attached, the last one first (idempotent)."""
+        controllers = self.controllers
+        while controllers:
+            ctrl = controllers.pop()
+            ctrl.bus.detach(ctrl)
+
+    def start(self) -> None:
+        """Nothing to open by default."""
+
+    def stop(self) -> None:
+        """Detach what :meth:`attach` attached; a subclass releases its own resources, then calls this."""
+        self.detach_all()
+
+    def ready_info(self) -> dict[str, Any]:
+        """Nothing for the --ready-file by default."""
+        return {}
 
 
 class RigContext(Protocol):
     """What a factory and its participant may use of the rig they are built into."""
 
     @property
-    def clock(self) -> Clock: ...         # the one clock; schedule with call_later/call_every
-    @property
-    def buses(self) -> Mapping[str, VirtualBus]: ...
-    @property
-    def realtime(self) -> bool: ...       # False: a simulated clock, nothing runs by itself
-    @property
-    def state_dir(self) -> Path: ...      # the run's own folder: sockets, stored parameters
-    @property
-    def participants(self) -> Sequence[Participant]: ...  # built so far, in rig-file order
+    def clock(self) -> Clock:
+        """The one clock: schedule with call_later/call_every, never sleep."""
 
-    def bus(self, name: str) -> VirtualBus: ...
-    def add_reader(self, fd: int, callback: Callable[[], None]) -> None: ...
-    def remove_reader(self, fd: int) -> None: ...
-    def add_writer(self, fd: int, callback: Callable[[], None]) -> None: ...
-    def remove_writer(self, fd: int) -> None: ...
-    def wake(self) -> None: ...
+    @property
+    def buses(self) -> Mapping[str, VirtualBus]:
+        """The rig's buses by name."""
+
+    @property
+    def realtime(self) -> bool:
+        """False: a simulated clock, nothing runs by itself (open no servers that wait on it)."""
+
+    @property
+    def state_dir(self) -> Path:
+        """The run's own folder: sockets, stored parameters."""
+
+    @property
+    def participants(self) -> Sequence[Participant]:
+        """The participants built so far, in rig-file order."""
+
+    def bus(self, name: str) -> VirtualBus:
+        """The bus of that name (a ConfigError naming the declared ones otherwise)."""
+
+    def add_reader(self, fd: int, callback: Callable[[], None]) -> None:
+        """Call ``callback`` on the rig's loop, holding clock.lock, when ``fd`` is readable."""
+
+    def remove_reader(self, fd: int) -> None:
+        """Stop watching ``fd`` for readability."""
+
+    def add_writer(self, fd: int, callback: Callable[[], None]) -> None:
+        """Call ``callback`` on the rig's loop, holding clock.lock, when ``fd`` is writable."""
+
+    def remove_writer(self, fd: int) -> None:
+        """Stop watching ``fd`` for writability."""
+
+    def wake(self) -> None:
+        """Interrupt the loop's wait (safe from any thread), e.g. after changing what it waits for."""
 
 
 Factory = Callable[[RigContext, dict[str, Any]], Participant]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Key:
     """One key of a rig-file section: its type, whether it is required, its default and range.
 
@@ -86,7 +151,7 @@ class Key:
     help: str = ""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class DeviceKind:
     """A rig-file ``kind``: its factory and its keys (besides ``kind``)."""
 
@@ -106,14 +171,32 @@ class DeviceKind:
     default_name: Callable[[Mapping[str, Any]], str] | None = None
 
     def name_of(self, cfg: Mapping[str, Any]) -> str | None:
+        """The participant's name: the section's ``name``, or the kind's default for it."""
         name = cfg.get("name")
         if isinstance(name, str):
             return name
         return self.default_name(cfg) if self.default_name is not None else None
 
     def validate(self, cfg: Mapping[str, Any], where: str, buses: Sequence[str] | None = None) -> dict[str, Any]:
-        """The section checked against :attr:`keys` (``kind`` itself is allowed and dropped)."""
-        return validate_table({k: v for k, v in cfg.items() if k != "kind"}, self.keys, where, buses)
+        """The section checked against :attr:`keys` (``kind`` itself is allowed and dropped), as a
+        :class:`CheckedSection`; a section this kind checked already is returned as it is (validate once:
+        the rig checks every section before it builds anything, and a participant that checks what it is
+        given, to be usable without a rig, does not check it again)."""
+        if isinstance(cfg, CheckedSection) and cfg.kind == self.kind:
+            return cfg
+        return CheckedSection(self.kind, validate_table({k: v for k, v in cfg.items() if k != "kind"},
+                                                        self.keys, where, buses))
+
+
+class CheckedSection(dict[str, Any]):
+    """A rig-file section checked against the keys of the kind named :attr:`kind` (every key present,
+    defaults filled in): :meth:`DeviceKind.validate` of that kind passes it through unchecked."""
+
+    __slots__ = ("kind",)
+
+    def __init__(self, kind: str, items: Mapping[str, Any]) -> None:
+        super().__init__(items)
+        self.kind = kind
 
 
 def _num(value: float) -> str:

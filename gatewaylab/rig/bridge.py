@@ -29,7 +29,7 @@ import can
 from gatewaylab.bus.bridge import Backoff, BridgeStats, EchoFilter, LinkState, Verdict, classify
 from gatewaylab.bus.frame import CanFrame
 from gatewaylab.common.errors import ConfigError, FrameError, LocalError
-from gatewaylab.plugin.participant import DeviceKind, Key, RigContext
+from gatewaylab.plugin.participant import DeviceKind, Key, ParticipantBase, RigContext
 
 log = logging.getLogger(__name__)
 
@@ -43,14 +43,13 @@ MAX_QUEUE = 10_000
 LOOPING_INTERFACES = frozenset({"udp_multicast"})
 
 
-class PythonCanBridge:
+class PythonCanBridge(ParticipantBase):
     """One ``[[bridge]]``: the participant that joins ``bus`` to ``can.Bus(interface, channel, **kwargs)``."""
 
     def __init__(self, rig: RigContext, name: str, bus: str, interface: str, channel: str | int | None,
                  kwargs: Mapping[str, Any], *, retry_initial: float = 0.1, retry_max: float = 5.0,
                  echo_filter: bool | None = None) -> None:
-        self.name = name
-        self.rig = rig
+        super().__init__(rig, name)
         self.clock = rig.clock
         self.vbus = rig.bus(bus)
         self.interface = interface
@@ -76,10 +75,11 @@ class PythonCanBridge:
         #: seconds the reader waits before the next attempt to open the real side
         self._pause = 0.0
         self._threads: list[threading.Thread] = []
-        self.controller = self.vbus.attach(f"bridge {name}", on_frame=self._on_frame)
+        self.controller = self.attach(self.vbus, f"bridge {name}", on_frame=self._on_frame)
 
     @property
     def state(self) -> LinkState:
+        """The link's state (LinkState), shown in ready info and logs."""
         return self._state
 
     @state.setter
@@ -95,6 +95,7 @@ class PythonCanBridge:
 
     @property
     def where(self) -> str:
+        """The python-can interface and channel, as log lines name them."""
         return f"{self.interface} channel {self.channel!r}" if self.channel is not None else self.interface
 
     # -- life cycle ---------------------------------------------------------------------------
@@ -107,6 +108,7 @@ class PythonCanBridge:
             self._threads.append(thread)
 
     def stop(self) -> None:
+        """Stop the bridge thread, close the python-can bus and detach from the virtual bus."""
         self._stop.set()
         try:
             self._queue.put_nowait(None)
@@ -116,9 +118,10 @@ class PythonCanBridge:
             thread.join(2.0)
         self._close()
         self.state = LinkState.CLOSED
-        self.vbus.detach(self.controller)
+        self.detach_all()
 
     def ready_info(self) -> dict[str, Any]:
+        """The bridge's bus, interface, channel and state for the --ready-file."""
         return {"bridges": {self.name: {"bus": self.vbus.name, "interface": self.interface,
                                         "channel": self.channel, "state": self.state.value}}}
 
@@ -286,6 +289,7 @@ KEYS: dict[str, Key] = {
 
 
 def create(rig: RigContext, cfg: dict[str, Any]) -> PythonCanBridge:
+    """The ``[[bridge]]`` factory: a bridge between a rig bus and a python-can interface."""
     channel = cfg["channel"]
     if channel is not None and (isinstance(channel, bool) or not isinstance(channel, str | int)):
         raise ConfigError(f"channel must be a string or an integer, got {channel!r}")

@@ -18,6 +18,7 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any, Protocol
 
+from gatewaylab.bus.transport.outbox import receive
 from gatewaylab.common.endpoint import format_tcp, format_unix
 from gatewaylab.common.errors import GatewaylabError
 
@@ -74,13 +75,10 @@ class _Connection:
         self.closed = False
 
     def on_readable(self) -> None:
-        try:
-            data = self.sock.recv(65536)
-        except BlockingIOError:
+        data = receive(self.sock)
+        if data is None:
             return
-        except OSError:           # a reset connection ends as a closed one
-            data = b""
-        if data:
+        if data and not isinstance(data, OSError):    # a reset connection ends as a closed one
             self._feed(data)
         else:
             self.close()

@@ -5,15 +5,17 @@ changes the rig under ``clock.lock`` and returns a JSON-ready dict saying what i
 endpoint (``control.py``) and ``gatewaylab fault`` only translate requests into these calls
 (:meth:`Faults.request`), so the three faces cannot drift apart. See docs/faults.md.
 
-How a device takes part (duck-typed, so a plugin needs nothing from here):
+How a device takes part: by the capability Protocols of :mod:`gatewaylab.plugin.capabilities` (structural,
+so a plugin device only needs the members, nothing from here):
 
-* CAN channels: ``can_channels() -> Mapping[str, Controller]`` (an EtherCAT gateway lists its
-  channels, e.g. ``{"can0": ..., "can1": ...}``); a drive or an IDX is found through its CANopen
-  ``node`` (one channel, ``"can"``).
-* power cycle and drive faults: a :class:`~gatewaylab.devices.canopen_drive.device.Drive`, or a participant with
-  a ``drive`` or ``device.drive`` attribute.
-* EtherCAT: a participant with ``is_ethercat`` and a ``slave`` in the rig's ``[ethercat]`` segment.
-* USB: a participant with ``usb_unplug()`` / ``usb_replug()`` (the maxon IDX).
+* CAN channels: :class:`~gatewaylab.plugin.capabilities.CanChannels` (an EtherCAT gateway lists its
+  channels, e.g. ``{"mcan0": ..., "mcan1": ...}``); a drive or an IDX is found through its CANopen
+  node (:class:`~gatewaylab.plugin.capabilities.HasNode`: one channel, ``"can"``).
+* power cycle and drive faults: a :class:`~gatewaylab.plugin.capabilities.CanopenDrive` (the drive itself) or a
+  :class:`~gatewaylab.plugin.capabilities.HasDrive` (the maxon IDX).
+* EtherCAT: an :class:`~gatewaylab.plugin.capabilities.EthercatDevice` in the rig's ``[ethercat]`` segment
+  (:class:`~gatewaylab.plugin.capabilities.HasSegment`).
+* USB: a :class:`~gatewaylab.plugin.capabilities.UsbPluggable` (the maxon IDX).
 """
 
 from __future__ import annotations
@@ -24,17 +26,24 @@ from typing import TYPE_CHECKING, Any
 
 from gatewaylab.bus.bus import Controller, VirtualBus
 from gatewaylab.canopen.emcy import ERR_CURRENT, ERR_PROFILE
-from gatewaylab.canopen.node import Node
 from gatewaylab.common.clock import TimerHandle
 from gatewaylab.common.errors import GatewaylabError
-from gatewaylab.devices.canopen_drive.device import Drive
 from gatewaylab.ethercat.esc import AlState
+from gatewaylab.ethercat.segment import Segment
+from gatewaylab.plugin.capabilities import (
+    CanopenDrive,
+    UsbPluggable,
+    can_channels,
+    drive_of,
+    ethercat_devices,
+    node_of,
+    segment_of,
+)
 
 if TYPE_CHECKING:
-    from gatewaylab.ethercat.segment import Segment
     from gatewaylab.rig.runtime import Rig
 
-__all__ = ["DRIVE_FAULTS", "FaultRefused", "Faults"]
+__all__ = ["DRIVE_FAULTS", "FaultRefused", "Faults", "can_channels"]
 
 
 class FaultRefused(GatewaylabError):
@@ -48,32 +57,6 @@ DRIVE_FAULTS: dict[str, tuple[int, int]] = {
 }
 
 
-def _node_of(p: object) -> Node | None:
-    node = getattr(p, "node", None)
-    if isinstance(node, Node):
-        return node
-    node = getattr(getattr(p, "device", None), "node", None)
-    return node if isinstance(node, Node) else None
-
-
-def _drive_of(p: object) -> Drive | None:
-    if isinstance(p, Drive):
-        return p
-    for candidate in (getattr(p, "drive", None), getattr(getattr(p, "device", None), "drive", None)):
-        if isinstance(candidate, Drive):
-            return candidate
-    return None
-
-
-def can_channels(p: object) -> dict[str, Controller]:
-    """The CAN controllers of a participant by channel name (see the module docstring)."""
-    method = getattr(p, "can_channels", None)
-    if callable(method):
-        return dict(method())
-    node = _node_of(p)
-    return {"can": node.controller} if node is not None else {}
-
-
 class Faults:
     """The faults of one rig (``rig.faults``); each call returns what it did as a dict."""
 
@@ -81,7 +64,7 @@ class Faults:
         self._rig = rig
         #: pending power-ons and fault ends, cancelled when the rig closes
         self._timers: list[TimerHandle] = []
-        self._powered_off: dict[str, Drive] = {}
+        self._powered_off: dict[str, CanopenDrive] = {}
 
     # -- lookup ---------------------------------------------------------------------------------
     def _bus(self, name: str) -> VirtualBus:
@@ -101,7 +84,7 @@ class Faults:
         """The participant whose CANopen node has ``node_id`` on ``bus``."""
         b = self._bus(bus)
         for p in self._rig.participants:
-            node = _node_of(p)
+            node = node_of(p)
             if node is not None and node.bus is b and node.node_id == node_id:
                 return p
         raise FaultRefused(f"no node {node_id} on bus {bus!r}")
@@ -128,25 +111,28 @@ class Faults:
             raise FaultRefused(f"{p.name} has no CAN channel {channel!r} (channels: {', '.join(channels)})")
         return p, channel, ctrl
 
-    def _drive(self, device: str | int, bus: str | None) -> tuple[Any, Drive]:
+    def _drive(self, device: str | int, bus: str | None) -> tuple[Any, CanopenDrive]:
         p = self._target(device, bus)
-        drive = _drive_of(p)
+        drive = drive_of(p)
         if drive is None:
             raise FaultRefused(f"{p.name} is not a drive")
         return p, drive
 
     def _segment(self, device: str) -> tuple[Segment, int]:
-        from gatewaylab.ethercat.segment import Segment
-
         p = self._device(device)
-        slave = getattr(p, "slave", None)
-        if not getattr(p, "is_ethercat", False) or slave is None:
+        if not ethercat_devices([p]):
             raise FaultRefused(f"{device} is not an EtherCAT device")
-        for owner in self._rig.participants:
-            segment = getattr(owner, "segment", None)
-            if isinstance(segment, Segment) and slave in segment.slaves:
-                return segment, segment.slaves.index(slave)
-        raise FaultRefused(f"{device} is in no [ethercat] segment")
+        slave = p.slave
+        segment = segment_of(self._rig.participants)
+        if segment is None or slave not in segment.slaves:
+            raise FaultRefused(f"{device} is in no [ethercat] segment")
+        return segment, segment.slaves.index(slave)
+
+    def _usb(self, device: str) -> UsbPluggable:
+        p = self._device(device)
+        if not isinstance(p, UsbPluggable):
+            raise FaultRefused(f"{device} has no USB port")
+        return p
 
     def _locked(self, action: Callable[[], dict[str, Any]]) -> dict[str, Any]:
         with self._rig.clock.lock:
@@ -307,9 +293,7 @@ class Faults:
     def usb_unplug(self, device: str) -> dict[str, Any]:
         """Pull a device's USB cable: its host connections drop, new ones are refused."""
         def act() -> dict[str, Any]:
-            p = self._device(device)
-            if not callable(getattr(p, "usb_unplug", None)):
-                raise FaultRefused(f"{device} has no USB port")
+            p = self._usb(device)
             p.usb_unplug()
             return {"fault": "usb-unplug", "device": device}
         return self._locked(act)
@@ -317,9 +301,7 @@ class Faults:
     def usb_replug(self, device: str) -> dict[str, Any]:
         """Plug the USB cable back in; the answer gives the port's endpoints (a pty gets a new path)."""
         def act() -> dict[str, Any]:
-            p = self._device(device)
-            if not callable(getattr(p, "usb_replug", None)):
-                raise FaultRefused(f"{device} has no USB port")
+            p = self._usb(device)
             p.usb_replug()
             return {"fault": "usb-replug", "device": device, **p.ready_info()}
         return self._locked(act)
@@ -329,16 +311,14 @@ class Faults:
         """AL state and AL status code of every EtherCAT device of the rig (ETG.1000.6 AL status)."""
         def act() -> dict[str, Any]:
             states: dict[str, Any] = {}
-            for p in self._rig.participants:
-                slave = getattr(p, "slave", None)
-                if getattr(p, "is_ethercat", False) and slave is not None:
-                    esc = slave.esc
-                    status = esc.al_status
-                    try:
-                        state = AlState(status & 0x0F).name
-                    except ValueError:
-                        state = f"0x{status & 0x0F:X}"
-                    states[p.name] = {"state": state, "error": bool(status & 0x10), "code": esc.al_status_code}
+            for p in ethercat_devices(self._rig.participants):
+                esc = p.slave.esc
+                status = esc.al_status
+                try:
+                    state = AlState(status & 0x0F).name
+                except ValueError:
+                    state = f"0x{status & 0x0F:X}"
+                states[p.name] = {"state": state, "error": bool(status & 0x10), "code": esc.al_status_code}
             return {"fault": "ethercat-states", "devices": states}
         return self._locked(act)
 

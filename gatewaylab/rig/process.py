@@ -22,6 +22,8 @@ from pathlib import Path
 from types import TracebackType
 from typing import IO, Any
 
+from gatewaylab.common.errors import ConfigError, GatewaylabError
+
 
 def _value(value: Any) -> str:
     if isinstance(value, bool):
@@ -34,7 +36,7 @@ def _value(value: Any) -> str:
         return "{ " + ", ".join(f"{_key(k)} = {_value(v)}" for k, v in value.items()) + " }"
     if isinstance(value, list | tuple):
         return "[" + ", ".join(_value(v) for v in value) + "]"
-    raise TypeError(f"a rig file has no values of type {type(value).__name__} ({value!r})")
+    raise RigFileValueError(f"a rig file has no values of type {type(value).__name__} ({value!r})")
 
 
 def _key(key: str) -> str:
@@ -71,7 +73,11 @@ def free_udp_ports(n: int, host: str = "127.0.0.1") -> list[int]:
             sock.close()
 
 
-class RigStartTimeout(RuntimeError):
+class RigFileValueError(ConfigError, TypeError):
+    """A rig given as a mapping holds a value no TOML file can (a TypeError to callers that expect one)."""
+
+
+class RigStartTimeout(GatewaylabError, RuntimeError):
     """The child did not write its ready file in time, or exited before it did."""
 
 

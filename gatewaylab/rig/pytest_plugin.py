@@ -29,6 +29,7 @@ if TYPE_CHECKING:
     from gatewaylab.rig.process import RigProcess
     from gatewaylab.rig.runtime import Rig
 
+from gatewaylab.common.errors import ConfigError
 from gatewaylab.rig.process import free_udp_ports, rig_toml
 
 __all__ = ["RigHandle", "free_udp_ports", "rig_toml"]
@@ -105,7 +106,7 @@ class RigHandle:
 def _start(workdir: Path, rig: str | Path | Mapping[str, Any] | None, clock: str, in_process: bool,
            args: tuple[str, ...], timeout: float) -> RigHandle:
     if clock not in ("realtime", "simulated"):
-        raise ValueError(f"clock must be 'realtime' or 'simulated', not {clock!r}")
+        raise ConfigError(f"clock must be 'realtime' or 'simulated', not {clock!r}")
     path: Path | None
     if isinstance(rig, Mapping):
         path = workdir / "rig.toml"
@@ -118,7 +119,7 @@ def _start(workdir: Path, rig: str | Path | Mapping[str, Any] | None, clock: str
         process = RigProcess(path, *args, workdir=workdir, timeout=timeout)
         return RigHandle(workdir, process.info, process=process)
     if args:
-        raise ValueError("args are `gatewaylab run` options: only for a rig in a child process")
+        raise ConfigError("args are `gatewaylab run` options: only for a rig in a child process")
     from gatewaylab.common.clock import RealTimeClock, SimulatedClock
     from gatewaylab.rig.config import load_rig
     from gatewaylab.rig.runtime import Rig
@@ -155,6 +156,7 @@ def gatewaylab_rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Callabl
 
 
 def pytest_configure(config: pytest.Config) -> None:
+    """Register the plugin's markers (so --strict-markers accepts them)."""
     for name, text in MARKERS.items():
         config.addinivalue_line("markers", f"{name}: {text}")
 
@@ -166,6 +168,7 @@ def _veth_unavailable() -> str | None:
 
 
 def pytest_runtest_setup(item: pytest.Item) -> None:
+    """Skip tests marked for root or veth pairs where those are not available."""
     if item.get_closest_marker("gatewaylab_root") is not None and os.geteuid() != 0:
         pytest.skip("needs root (marked gatewaylab_root)")
     if item.get_closest_marker("gatewaylab_veth") is not None:

@@ -40,6 +40,7 @@ from gatewaylab.bus.transport.trace import Trace
 from gatewaylab.common.clock import Clock, RealTimeClock, SimulatedClock
 from gatewaylab.common.errors import ConfigError, GatewaylabError
 from gatewaylab.plugin import Participant
+from gatewaylab.plugin.participant import CheckedSection
 from gatewaylab.rig import kinds
 from gatewaylab.rig.config import RigConfig, load_rig
 from gatewaylab.rig.control import ControlServer
@@ -184,8 +185,7 @@ class Rig:
         """Wake the loop when other threads inject work; log failing callbacks. Neither hook holds
         a strong reference to the rig (a clock may outlive it)."""
         clock = self.clock
-        if isinstance(clock.lock, contextlib.nullcontext):
-            clock.lock = threading.RLock()
+        clock.ensure_lock()   # the loop, wire threads and servers share the protocol state
         wake_w = self._wake_w
 
         def wake() -> None:
@@ -251,6 +251,7 @@ class Rig:
 
     @classmethod
     def from_file(cls, path: str | Path | None = None, **kwargs: Any) -> Rig:
+        """A rig from a rig file (default: the one load_rig finds)."""
         return cls(load_rig(path), **kwargs)
 
     # -- construction -----------------------------------------------------------------------
@@ -258,7 +259,7 @@ class Rig:
         """One participant per checked section, in build order (``kinds.plan``)."""
         for section in self._sections:
             try:
-                participant = section.kind.create(self, dict(section.cfg))
+                participant = section.kind.create(self, CheckedSection(section.kind.kind, section.cfg))
             except ConfigError as exc:
                 message = str(exc)
                 if not message.startswith(self.config.source):
@@ -271,6 +272,7 @@ class Rig:
             self.participants.append(participant)
 
     def bus(self, name: str) -> VirtualBus:
+        """The bus of that name; a ConfigError naming the declared ones otherwise."""
         try:
             return self.buses[name]
         except KeyError:
@@ -284,18 +286,22 @@ class Rig:
 
     # -- reactor interface (used by transports) ----------------------------------------------
     def add_reader(self, fd: int, callback: Callable[[], None]) -> None:
+        """Call ``callback`` on the rig's loop when ``fd`` is readable (holding clock.lock)."""
         self._readers[fd] = callback
         self._update(fd)
 
     def remove_reader(self, fd: int) -> None:
+        """Stop watching ``fd`` for readability."""
         self._readers.pop(fd, None)
         self._update(fd)
 
     def add_writer(self, fd: int, callback: Callable[[], None]) -> None:
+        """Call ``callback`` on the rig's loop when ``fd`` is writable (holding clock.lock)."""
         self._writers[fd] = callback
         self._update(fd)
 
     def remove_writer(self, fd: int) -> None:
+        """Stop watching ``fd`` for writability."""
         self._writers.pop(fd, None)
         self._update(fd)
 
@@ -338,6 +344,7 @@ class Rig:
     # -- life cycle ---------------------------------------------------------------------------
     @property
     def closed(self) -> bool:
+        """True once close() ran: the rig cannot start again."""
         return self._closed
 
     def start(self) -> None:
@@ -358,6 +365,7 @@ class Rig:
                                         f"{exc.strerror or exc}{hint}") from None
 
     def ready_info(self) -> dict[str, Any]:
+        """What the --ready-file holds: pid, buses and endpoints, then every participant's info."""
         info: dict[str, Any] = {"pid": os.getpid(), "buses": {}}
         for name, bus in self.buses.items():
             entry: dict[str, Any] = {"bitrate": bus.bitrate}

@@ -50,6 +50,7 @@ class SegmentParticipant:
         self.wire: WireTransport | None = None
 
     def start(self) -> None:
+        """In real time, open the wire (and the capture) on the interface."""
         if not self.rig.realtime:
             return
         if self.pcap_path:
@@ -59,6 +60,7 @@ class SegmentParticipant:
         self.wire.start()
 
     def stop(self) -> None:
+        """Stop the wire thread and close the capture."""
         if self.wire is not None:
             self.wire.stop()
             self.wire = None
@@ -67,6 +69,7 @@ class SegmentParticipant:
             self.pcap = None
 
     def ready_info(self) -> dict[str, Any]:
+        """The interface and the slaves in position order, for the --ready-file."""
         return {"ethercat": {"interface": self.interface, "slaves": [
             {"name": s.name, "position": i, "vendor_id": s.desc.vendor_id, "product_code": s.desc.product_code}
             for i, s in enumerate(self.segment.slaves)]}}

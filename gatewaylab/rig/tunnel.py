@@ -20,13 +20,14 @@ from gatewaylab.bus import cannelloni as cn
 from gatewaylab.bus.frame import CanFrame
 from gatewaylab.common.clock import TimerHandle
 from gatewaylab.common.errors import ConfigError, LocalError
-from gatewaylab.plugin.participant import DeviceKind, Key, RigContext, section_error
+from gatewaylab.plugin.participant import DeviceKind, Key, ParticipantBase, RigContext, section_error
 
 log = logging.getLogger(__name__)
 
 
 @dataclass(slots=True)
 class TunnelStats:
+    """What the tunnel sent, received and lost (ready info, tests)."""
     sent_frames: int = 0
     sent_packets: int = 0
     send_errors: int = 0          # datagrams the socket refused (peer gone: ICMP unreachable, buffer full)
@@ -47,14 +48,13 @@ def _address(text: str, what: str, *, any_port: bool) -> tuple[str, int]:
     return host, int(port)
 
 
-class CannelloniTunnel:
+class CannelloniTunnel(ParticipantBase):
     """One ``[[tunnel]]``: the participant that joins ``bus`` to a cannelloni peer at ``remote``."""
 
     def __init__(self, rig: RigContext, name: str, bus: str, local: tuple[str, int], remote: tuple[str, int],
                  *, timeout: float = 0.001, timeouts: Mapping[tuple[int, bool], float] | None = None,
                  mtu: int = 1500, sort: bool = False, check_peer: bool = True) -> None:
-        self.name = name
-        self.rig = rig
+        super().__init__(rig, name)
         self.clock = rig.clock
         self.vbus = rig.bus(bus)
         self.local = local
@@ -69,10 +69,11 @@ class CannelloniTunnel:
         self._due_at = 0.0
         self.sock: socket.socket | None = None
         self._family = family
-        self.controller = self.vbus.attach(f"cannelloni {name}", on_frame=self._on_frame)
+        self.controller = self.attach(self.vbus, f"cannelloni {name}", on_frame=self._on_frame)
 
     # -- life cycle ---------------------------------------------------------------------------
     def start(self) -> None:
+        """Bind the UDP socket and watch it on the rig's loop."""
         sock = socket.socket(self._family, socket.SOCK_DGRAM)
         try:
             sock.bind(self.local)
@@ -85,6 +86,7 @@ class CannelloniTunnel:
         self.rig.add_reader(sock.fileno(), self._readable)
 
     def stop(self) -> None:
+        """Cancel the pending send, close the socket and detach from the bus."""
         if self._due is not None:
             self._due.cancel()
             self._due = None
@@ -92,9 +94,10 @@ class CannelloniTunnel:
             self.rig.remove_reader(self.sock.fileno())
             self.sock.close()
             self.sock = None
-        self.vbus.detach(self.controller)
+        self.detach_all()
 
     def ready_info(self) -> dict[str, Any]:
+        """The tunnel's bus and local and remote addresses, for the --ready-file."""
         return {"tunnels": {self.name: {"kind": "cannelloni", "bus": self.vbus.name,
                                         "local": f"{self.local[0]}:{self.local[1]}",
                                         "remote": f"{self.remote[0]}:{self.remote[1]}"}}}
@@ -206,6 +209,7 @@ KEYS: dict[str, Key] = {
 
 
 def create(rig: RigContext, cfg: dict[str, Any]) -> CannelloniTunnel:
+    """The ``[[tunnel]]`` factory: a cannelloni UDP tunnel of a rig bus."""
     name = KIND.name_of(cfg)
     assert name is not None
     where = f"[[tunnel]] {name}"
@@ -215,15 +219,16 @@ def create(rig: RigContext, cfg: dict[str, Any]) -> CannelloniTunnel:
                             mtu=cfg["mtu"], sort=cfg["sort"], check_peer=cfg["check_peer"])
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class TunnelKind(DeviceKind):
     """``[[tunnel]]``: its ``kind`` names the tunnel format; cannelloni is the one there is."""
 
     def validate(self, cfg: Mapping[str, Any], where: str, buses: Any = None) -> dict[str, Any]:
+        """Check a ``[[tunnel]]`` section (kind must be cannelloni), defaults filled in."""
         kind = cfg.get("kind", "cannelloni")
         if kind != "cannelloni":
             raise section_error(where, f"kind = {kind!r}: the tunnel kinds are 'cannelloni'")
-        return super().validate(cfg, where, buses)
+        return DeviceKind.validate(self, cfg, where, buses)   # (a slotted dataclass: no zero-argument super())
 
 
 KIND = TunnelKind("tunnel", create, KEYS, summary="a rig bus tunnelled over UDP in the cannelloni format",

@@ -115,3 +115,15 @@ def test_wait_lets_time_pass_through_the_clock() -> None:
     assert seen == ["slave answered", "due"]
     with pytest.raises(LocalError):
         real.wait(-1.0)
+
+
+def test_ensure_lock_installs_one_reentrant_lock_every_sharer_gets() -> None:
+    """Issue 22 'one clock-lock method on Clock instead of four installs': the first sharer installs a
+    re-entrant lock, every later one (the adapter, the rig runtime, the wire thread, a host library)
+    gets the same, so all of them serialise on one lock."""
+    clock = SimulatedClock()
+    first = clock.ensure_lock()
+    assert clock.lock is first
+    assert clock.ensure_lock() is first
+    with first, clock.lock:    # re-entrant: a callback may call code that takes it again
+        pass

@@ -190,16 +190,17 @@ def test_any_datagram_never_raises_nor_writes_read_only_registers(
         steps: list[tuple[int, int, bytes]]) -> None:
     """Hypothesis over sequences of datagrams for one slave in OP: any command byte (0-255), address
     (register area included), length and data, SyncManagers programmed over the registers, SDO requests
-    into SM0, mailbox reads and AL control values 0x00-0x1F. ``Esc.process_datagram`` itself never
-    raises; the static read-only registers keep their values; AL status always holds a defined state
-    (bits 0-4: state + error flag, ETG.1000.6) and AL status code a code of the ETG.1000.6 table."""
+    into SM0, mailbox reads and AL control values 0x00-0x1F. ``Slave.process_datagram`` (the ESC and the
+    delivery of its PDI events to the firmware) never raises; the static read-only registers keep their
+    values; AL status always holds a defined state (bits 0-4: state + error flag, ETG.1000.6) and AL
+    status code a code of the ETG.1000.6 table."""
     clock, seg, m = _io_line(1)
     esc = seg.slaves[0].esc
     station = m.slave(0).station
     static = [bytes(esc.mem[lo:hi]) for lo, hi in STATIC_RO]
     for cmd, ado, data in steps:
         raw = _frame(Datagram.physical(Command.NOP, 0, station, ado, data))
-        esc.process_datagram(raw, 16, int(cmd) & 0xFF, len(data))  # any command byte, unknown ones too
+        seg.slaves[0].process_datagram(raw, 16, int(cmd) & 0xFF, len(data))  # any command byte, unknown ones too
         clock.advance(0.001)
         assert [bytes(esc.mem[lo:hi]) for lo, hi in STATIC_RO] == static
         status = esc.al_status

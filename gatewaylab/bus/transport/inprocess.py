@@ -13,8 +13,6 @@ the clock.
 from __future__ import annotations
 
 import queue
-import threading
-from contextlib import nullcontext
 from typing import Any
 
 import can
@@ -22,14 +20,8 @@ from can.bus import BusState, CanProtocol
 
 from gatewaylab.bus.bus import Controller, ErrorState, VirtualBus
 from gatewaylab.bus.frame import CanFrame
-from gatewaylab.common.clock import Clock, SimulatedClock
+from gatewaylab.common.clock import SimulatedClock
 from gatewaylab.common.errors import GatewaylabError
-
-
-def install_lock(clock: Clock) -> None:
-    """Give a clock a real lock so several threads can drive the simulation safely."""
-    if isinstance(clock.lock, nullcontext):
-        clock.lock = threading.RLock()
 
 
 class InProcessBus(can.BusABC):
@@ -46,7 +38,7 @@ class InProcessBus(can.BusABC):
         clock = vbus.clock
         self._simulated = isinstance(clock, SimulatedClock)
         if self._simulated:
-            install_lock(clock)
+            clock.ensure_lock()   # several threads may drive the simulation
         with clock.lock:
             self.controller: Controller = vbus.attach(
                 name or f"python-can{len(vbus.controllers)}", receive_own=receive_own_messages,
@@ -60,6 +52,7 @@ class InProcessBus(can.BusABC):
         self._put(frame.to_message(t, self._channel_name))
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        """Queue a message on the virtual bus; on a simulated clock, run until the bus is quiet."""
         frame = CanFrame.from_message(msg)
         vbus = self.vbus
         clock = vbus.clock
@@ -103,6 +96,7 @@ class InProcessBus(can.BusABC):
 
     @property
     def state(self) -> BusState:
+        """python-can's view of the controller: ERROR when bus-off, PASSIVE when listen-only."""
         if self.controller.listen_only:
             return BusState.PASSIVE
         return BusState.ERROR if self.controller.state is ErrorState.BUS_OFF else BusState.ACTIVE
@@ -112,6 +106,7 @@ class InProcessBus(can.BusABC):
         self.controller.listen_only = new_state is BusState.PASSIVE
 
     def shutdown(self) -> None:
+        """Detach the controller from the virtual bus (idempotent)."""
         if not self._is_shutdown:
             with self.vbus.clock.lock:
                 self.vbus.detach(self.controller)

@@ -27,18 +27,39 @@ def accept(listener: socket.socket, index: int) -> tuple[socket.socket, str] | N
 
 
 class WriterReactor(Protocol):
-    def add_writer(self, fd: int, callback: Callable[[], None]) -> None: ...
-    def remove_writer(self, fd: int) -> None: ...
+    """The part of the rig's reactor an outbox uses: wake me when the socket can take bytes."""
+
+    def add_writer(self, fd: int, callback: Callable[[], None]) -> None:
+        """Call ``callback`` when ``fd`` is writable."""
+
+    def remove_writer(self, fd: int) -> None:
+        """Stop watching ``fd`` for writability."""
 
 
 class ClientReactor(WriterReactor, Protocol):
-    def add_reader(self, fd: int, callback: Callable[[], None]) -> None: ...
+    """The reactor a server with clients uses: readers and writers."""
+
+    def add_reader(self, fd: int, callback: Callable[[], None]) -> None:
+        """Call ``callback`` when ``fd`` is readable."""
 
 
 class Client(Protocol):
+    """A connected client of a server: its socket and what to do when it has bytes."""
     sock: socket.socket
 
-    def readable(self) -> None: ...
+    def readable(self) -> None:
+        """Read what the client sent (the reactor saw its socket readable)."""
+
+
+def receive(sock: socket.socket, size: int = 65536) -> bytes | OSError | None:
+    """What a socket the reactor saw readable holds: its bytes (``b""``: the peer closed), None when there
+    is nothing after all (a spurious wake-up), or the OSError the receive failed with (the peer is gone)."""
+    try:
+        return sock.recv(size)
+    except BlockingIOError:
+        return None
+    except OSError as exc:
+        return exc
 
 
 C = TypeVar("C", bound=Client)
@@ -70,6 +91,7 @@ class Outbox:
         self.writing = False
 
     def write(self, data: bytes) -> None:
+        """Send ``data`` now, or queue it behind bytes the socket did not take yet."""
         if self.out:
             self.out += data
         else:
@@ -91,6 +113,7 @@ class Outbox:
                 self.reactor.add_writer(self.sock.fileno(), self.flush)
 
     def flush(self) -> None:
+        """Send queued bytes (the socket became writable); stop watching once empty."""
         try:
             sent = self.sock.send(self.out)
         except BlockingIOError:

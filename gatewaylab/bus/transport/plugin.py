@@ -333,6 +333,7 @@ class GatewaylabBus(can.BusABC):
             raise can.CanOperationError(f"{self.channel_info} was shut down")
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        """Hand a message to the rig's bus (python-can ``BusABC.send``)."""
         self._check_open()
         if self.listen_only:
             raise can.CanOperationError("this bus was opened with listen_only=True: it never transmits")
@@ -435,10 +436,12 @@ class GatewaylabBus(can.BusABC):
             self._write(wire.encode_filters(server_side), None)
 
     def flush_tx_buffer(self) -> None:
+        """Not possible: frames handed to the rig cannot be called back."""
         raise NotImplementedError("frames handed to the rig are on their way to the bus")
 
     @property
     def state(self) -> BusState:
+        """python-can's view of the remote controller: ERROR when bus-off, PASSIVE when listen-only."""
         if self.controller_state is wire.ControllerStateCode.BUS_OFF:
             return BusState.ERROR
         return BusState.PASSIVE if self.listen_only else BusState.ACTIVE

@@ -13,22 +13,13 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Protocol
 
+from gatewaylab.bus import controller as events
 from gatewaylab.bus import wire
-from gatewaylab.bus.bus import (
-    BusEvent,
-    Controller,
-    ErrorFrameEvent,
-    ErrorKind,
-    ErrorState,
-    StateChangeEvent,
-    TxAbortedEvent,
-    TxDoneEvent,
-    VirtualBus,
-)
+from gatewaylab.bus.bus import BusEvent, Controller, VirtualBus
 from gatewaylab.bus.frame import CanFrame
-from gatewaylab.bus.transport.outbox import Outbox, accept_client
+from gatewaylab.bus.transport.outbox import Outbox, accept_client, receive
 from gatewaylab.common.clock import TimerHandle
-from gatewaylab.common.errors import GatewaylabError, LocalError, ProtocolError
+from gatewaylab.common.errors import ConfigError, GatewaylabError, LocalError, ProtocolError
 
 log = logging.getLogger(__name__)
 
@@ -44,21 +35,28 @@ CONTROL_BACKLOG = 1024 * 1024
 ORPHAN_PATIENCE = 2.0
 
 #: The bus's error kinds as the STATUS record's tail carries them (docs/bus-wire.md).
-_ERROR_CODES = {kind: wire.ErrorCode[kind.name] for kind in ErrorKind}
+_ERROR_CODES = {kind: wire.ErrorCode[kind.name] for kind in events.ErrorKind}
 _STATE_CODES = {
-    ErrorState.ERROR_ACTIVE: wire.ControllerStateCode.ERROR_ACTIVE,
-    ErrorState.ERROR_PASSIVE: wire.ControllerStateCode.ERROR_PASSIVE,
-    ErrorState.BUS_OFF: wire.ControllerStateCode.BUS_OFF,
+    events.ErrorState.ERROR_ACTIVE: wire.ControllerStateCode.ERROR_ACTIVE,
+    events.ErrorState.ERROR_PASSIVE: wire.ControllerStateCode.ERROR_PASSIVE,
+    events.ErrorState.BUS_OFF: wire.ControllerStateCode.BUS_OFF,
 }
 
 
 class Reactor(Protocol):
     """What the server needs from the loop that runs it (the rig runtime)."""
 
-    def add_reader(self, fd: int, callback: Callable[[], None]) -> None: ...
-    def remove_reader(self, fd: int) -> None: ...
-    def add_writer(self, fd: int, callback: Callable[[], None]) -> None: ...
-    def remove_writer(self, fd: int) -> None: ...
+    def add_reader(self, fd: int, callback: Callable[[], None]) -> None:
+        """Call ``callback`` when ``fd`` is readable."""
+
+    def remove_reader(self, fd: int) -> None:
+        """Stop watching ``fd`` for readability."""
+
+    def add_writer(self, fd: int, callback: Callable[[], None]) -> None:
+        """Call ``callback`` when ``fd`` is writable."""
+
+    def remove_writer(self, fd: int) -> None:
+        """Stop watching ``fd`` for writability."""
 
 
 class _Client:
@@ -116,25 +114,25 @@ class _Client:
 
     def on_event(self, ev: BusEvent) -> None:
         if self.closed:   # departed, its queue still on the bus
-            if isinstance(ev, (TxDoneEvent, TxAbortedEvent)):
+            if isinstance(ev, (events.TxDoneEvent, events.TxAbortedEvent)):
                 self.completed += 1
             self.server.orphan_progress(self)
             return
-        if isinstance(ev, TxDoneEvent):
+        if isinstance(ev, events.TxDoneEvent):
             self.completed += 1
             if self.receive_own and self.accepts(ev.frame):
                 self.write_frame(wire.encode_frame(ev.frame, ev.timestamp, echo=True))
             self.write(wire.encode_txdone(wire.TxOutcome.TRANSMITTED))
-        elif isinstance(ev, TxAbortedEvent):
+        elif isinstance(ev, events.TxAbortedEvent):
             self.completed += 1
             self.write(wire.encode_txdone(wire.TxOutcome.ABORTED))
-        elif isinstance(ev, ErrorFrameEvent):
+        elif isinstance(ev, events.ErrorFrameEvent):
             ctrl = self.controller
             assert ctrl is not None
             self.write(wire.encode_status(wire.StatusKind.ERROR_FRAME, _STATE_CODES[ctrl.state],
                                           ctrl.tec, ctrl.rec, ev.timestamp, _ERROR_CODES[ev.kind],
                                           ev.transmitter))
-        elif isinstance(ev, StateChangeEvent):
+        elif isinstance(ev, events.StateChangeEvent):
             self.write(wire.encode_status(wire.StatusKind.STATE, _STATE_CODES[ev.new], ev.tec, ev.rec,
                                           ev.timestamp, old=_STATE_CODES[ev.old]))
 
@@ -154,12 +152,11 @@ class _Client:
 
     # client -> bus
     def readable(self) -> None:
-        try:
-            data = self.sock.recv(65536)
-        except BlockingIOError:
+        data = receive(self.sock)
+        if data is None:
             return
-        except OSError as exc:
-            self.server.drop(self, f"receive failed: {exc}")
+        if isinstance(data, OSError):
+            self.server.drop(self, f"receive failed: {data}")
             return
         if not data:
             self.server.drop(self, "client closed the connection", notify=False)
@@ -215,7 +212,7 @@ class BusServer:
     def __init__(self, bus: VirtualBus, reactor: Reactor, *, unix_path: Path | None = None,
                  tcp_port: int | None = None) -> None:
         if (unix_path is None) == (tcp_port is None):
-            raise ValueError("give exactly one of unix_path and tcp_port")
+            raise ConfigError("give exactly one of unix_path and tcp_port")
         self.bus = bus
         self.reactor = reactor
         self.clients: list[_Client] = []
@@ -310,6 +307,7 @@ class BusServer:
         self.bus.detach(ctrl)
 
     def close(self) -> None:
+        """Drop every client, stop listening and remove the socket file."""
         for client in list(self.clients):
             self.drop(client, "rig shutting down", level=logging.INFO)
         for client in list(self.orphans):

@@ -12,17 +12,10 @@ import logging
 import socket
 
 from gatewaylab.bus import socketcand as sc
-from gatewaylab.bus.bus import (
-    BusEvent,
-    Controller,
-    ErrorFrameEvent,
-    ErrorKind,
-    ErrorState,
-    StateChangeEvent,
-    VirtualBus,
-)
+from gatewaylab.bus.bus import VirtualBus
+from gatewaylab.bus.controller import BusEvent, Controller, ErrorFrameEvent, ErrorKind, ErrorState, StateChangeEvent
 from gatewaylab.bus.frame import CanFrame
-from gatewaylab.bus.transport.outbox import Outbox, accept_client
+from gatewaylab.bus.transport.outbox import Outbox, accept_client, receive
 from gatewaylab.bus.transport.server import Reactor
 from gatewaylab.common.clock import PeriodicTimer, TimerHandle
 from gatewaylab.common.errors import LocalError
@@ -124,12 +117,11 @@ class _Client:
 
     # -- client -> bus -----------------------------------------------------------------------
     def readable(self) -> None:
-        try:
-            data = self.sock.recv(65536)
-        except BlockingIOError:
+        data = receive(self.sock)
+        if data is None:
             return
-        except OSError as exc:
-            self.server.drop(self, f"receive failed: {exc}", level=logging.INFO)
+        if isinstance(data, OSError):
+            self.server.drop(self, f"receive failed: {data}", level=logging.INFO)
             return
         if not data:
             self.server.drop(self, "client closed the connection", level=logging.INFO)
@@ -272,6 +264,7 @@ class SocketcandServer:
             self.bus.detach(client.controller)
 
     def close(self) -> None:
+        """Drop every client and stop listening."""
         for client in list(self.clients):
             self.drop(client, "rig shutting down", level=logging.INFO)
         self.reactor.remove_reader(self.listener.fileno())

@@ -114,15 +114,18 @@ class PcapSink:
         self.f.write(_PCAP_GLOBAL.pack(_PCAP_MAGIC, 2, 4, 0, 0, 72, LINKTYPE_CAN_SOCKETCAN))
 
     def write(self, frame: CanFrame, t: float) -> None:
+        """Append one frame as a SocketCAN record at its clock time."""
         record = socketcan_record(frame)
         usec_total = self.epoch_us + round(t * 1e6)
         self.f.write(_PCAP_RECORD.pack(usec_total // 1_000_000, usec_total % 1_000_000, len(record), len(record)))
         self.f.write(record)
 
     def flush(self) -> None:
+        """Push buffered records to the file (readable by a live Wireshark)."""
         self.f.flush()
 
     def close(self) -> None:
+        """Close the file."""
         self.f.close()
 
 
@@ -145,15 +148,18 @@ class PcapngSink:
         self.f.write(_BLOCK_HEAD.pack(block_type, length) + body + struct.pack("<I", length))
 
     def write(self, frame: CanFrame, t: float) -> None:
+        """Append one frame as an enhanced packet block at its clock time."""
         record = socketcan_record(frame)
         ns = self.epoch_ns + round(t * 1e9)
         self._block(0x00000006, _EPB.pack(0, ns >> 32, ns & 0xFFFFFFFF, len(record), len(record))
                     + record)
 
     def flush(self) -> None:
+        """Push buffered blocks to the file (readable by a live Wireshark)."""
         self.f.flush()
 
     def close(self) -> None:
+        """Close the file."""
         self.f.close()
 
 
@@ -175,9 +181,11 @@ class PythonCanSink:
             w.start_timestamp = int(epoch * 1000) / 1000
 
     def write(self, frame: CanFrame, t: float) -> None:
+        """Hand one frame to the python-can writer at its wall-clock time."""
         self.writer.on_message_received(frame.to_message(self.epoch + t, self.channel))
 
     def flush(self) -> None:
+        """Make the file readable as it is (BLF: a complete container and header)."""
         w = self.writer
         if isinstance(w, can.BLFWriter):
             # a complete container and an up-to-date header: readable even if the rig is killed
@@ -192,6 +200,7 @@ class PythonCanSink:
             file.flush()
 
     def close(self) -> None:
+        """Stop the python-can writer (it writes its trailer)."""
         self.writer.stop()
 
 
@@ -237,6 +246,7 @@ class Trace:
         self._sink.flush()
 
     def close(self) -> None:
+        """Stop recording: remove the monitor, flush and close the file."""
         if self._flush_timer is not None:
             self._flush_timer.cancel()
             self._flush_timer = None

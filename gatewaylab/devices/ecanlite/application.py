@@ -75,7 +75,7 @@ from gatewaylab.devices.ecanlite.stream import (
 )
 from gatewaylab.devices.ecanlite.system import DiagFlag
 from gatewaylab.ethercat.errors import AlStatusCode
-from gatewaylab.ethercat.esc import REG_DC_ACTIVATION, REG_DC_SYNC0_CYCLE, SYNC0_MIN_CYCLE_NS, AlState
+from gatewaylab.ethercat.esc import AlState
 from gatewaylab.ethercat.slave import Slave, SlaveApplication
 from gatewaylab.od import Entry, ObjectDictionary, SdoAbort, SdoAbortCode
 
@@ -411,13 +411,9 @@ class EcanLiteApplication(SlaveApplication):
         return self._sync0_cycle() > 0
 
     def _sync0_cycle(self) -> float:
-        """The SYNC0 period from the ESC's DC registers (0x0981 activation, 0x09A0 cycle); 0 = off."""
+        """The SYNC0 period the ESC's DC unit runs (0x0981 activation, 0x09A0 cycle); 0 = off."""
         assert self.slave is not None
-        mem = self.slave.esc.mem
-        if mem[REG_DC_ACTIVATION] & 0x03 != 0x03:
-            return 0.0
-        ns = int.from_bytes(mem[REG_DC_SYNC0_CYCLE:REG_DC_SYNC0_CYCLE + 4], "little")
-        return max(ns, SYNC0_MIN_CYCLE_NS) / 1e9 if ns else 0.0
+        return self.slave.esc.sync0_period
 
     def _maintenance_flag(self, flag: DiagFlag) -> None:
         """Latch a 0xB000:06 legacy diag flag (13.7) in the maintenance model."""

@@ -24,7 +24,8 @@ from __future__ import annotations
 from collections import deque
 from typing import Any
 
-from gatewaylab.bus.bus import (
+from gatewaylab.bus.bus import VirtualBus
+from gatewaylab.bus.controller import (
     BusEvent,
     ErrorFrameEvent,
     ErrorKind,
@@ -32,7 +33,6 @@ from gatewaylab.bus.bus import (
     StateChangeEvent,
     TxAbortedEvent,
     TxDoneEvent,
-    VirtualBus,
 )
 from gatewaylab.bus.frame import CanFrame
 from gatewaylab.bus.timing import classic_bits

@@ -46,7 +46,7 @@ from gatewaylab.devices.canopen_drive.plant import AxisParams
 from gatewaylab.devices.ethercat_io.device import VENDOR_ID
 from gatewaylab.ethercat.description import DeviceDescription, Pdo, PdoEntry
 from gatewaylab.ethercat.errors import AlStatusCode
-from gatewaylab.ethercat.esc import REG_DC_ACTIVATION, REG_DC_SYNC0_CYCLE, AlState
+from gatewaylab.ethercat.esc import AlState
 from gatewaylab.ethercat.slave import Slave, SlaveApplication
 from gatewaylab.od import Access, DataType, Entry, ObjectCode, ObjectDictionary, SdoAbort
 from gatewaylab.od.dictionary import ReadHook, Validator, WriteHook
@@ -405,8 +405,7 @@ class DriveApplication(SlaveApplication):
             if len(keys) != len(set(keys)):
                 return code
         od = slave.od
-        act = slave.esc.mem[REG_DC_ACTIVATION]
-        dc_on = act & 0x03 == 0x03
+        dc_on = slave.esc.sync0_active
         if self._sync_written:
             mode = int(od.values[(0x1C32, 1)])
         else:
@@ -416,7 +415,7 @@ class DriveApplication(SlaveApplication):
         if mode == DC_SYNC0:
             if not dc_on:
                 return AlStatusCode.INVALID_DC_SYNC_CONFIG
-            cycle_ns = int.from_bytes(slave.esc.mem[REG_DC_SYNC0_CYCLE:REG_DC_SYNC0_CYCLE + 4], "little")
+            cycle_ns = slave.esc.sync0_cycle_ns
             if cycle_ns < int(od.values[(0x1C32, 5)]):
                 od.put(0x1C32, 12, (int(od.values[(0x1C32, 12)]) + 1) & 0xFFFF)
                 return AlStatusCode.INVALID_DC_CYCLE_TIME

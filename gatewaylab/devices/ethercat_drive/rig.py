@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from gatewaylab.devices.canopen_drive.device import Drive
 from gatewaylab.devices.canopen_drive.rig import PLANT_KEYS, axis_params
 from gatewaylab.devices.ethercat_drive.device import MAX_AXES, EthercatDrive
 from gatewaylab.ethercat.slave import Slave
@@ -40,6 +41,11 @@ class DriveParticipant:
         self.name: str = cfg["name"]
         self.device = EthercatDrive(rig.clock, self.name, cfg["serial"], cfg["axes"], axis_params(cfg["plant"]))
         self.slave: Slave = self.device.slave
+
+    @property
+    def drive(self) -> Drive:
+        """Axis 0's drive (capability HasDrive: what `gatewaylab fault drive-fault NAME` acts on)."""
+        return self.device.drive
 
     def start(self) -> None:
         """Nothing to open: the segment owns the wire; the axes run from construction."""

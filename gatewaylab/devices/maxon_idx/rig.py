@@ -15,7 +15,9 @@ from __future__ import annotations
 
 from typing import Any
 
+from gatewaylab.canopen.node import Node
 from gatewaylab.common.endpoint import format_tcp
+from gatewaylab.devices.canopen_drive.device import Drive
 from gatewaylab.devices.maxon_idx.commands import MAX_SEGMENT
 from gatewaylab.devices.maxon_idx.device import IdxDevice
 from gatewaylab.devices.maxon_idx.transport.pty import PtyPort
@@ -56,6 +58,16 @@ class IdxParticipant:
         self.pty: PtyPort | None = None
         self.tcp: TcpServer | None = None
         self.unplugged = False
+
+    @property
+    def node(self) -> Node:
+        """The IDX's CANopen node (capability HasNode: fault injection finds it by node-ID)."""
+        return self.device.node
+
+    @property
+    def drive(self) -> Drive:
+        """The drive inside the IDX (capability HasDrive: power cycle and drive faults)."""
+        return self.device.drive
 
     def start(self) -> None:
         """Start the device and open its USB side (virtual serial port and/or TCP port)."""

@@ -20,7 +20,6 @@ import logging
 import queue
 import threading
 from collections.abc import Callable
-from contextlib import nullcontext
 from typing import Any
 
 import can
@@ -92,8 +91,8 @@ class EthercatHost:
         self._lock = threading.RLock()
         #: notified after every cycle (a send() waiting for room in a Tx path looks again)
         self._cycled = threading.Condition(self._lock)
-        if self.simulated and isinstance(self.clock.lock, nullcontext):
-            self.clock.lock = threading.RLock()
+        if self.simulated:
+            self.clock.ensure_lock()
 
     # -- set-up --------------------------------------------------------------------------------
     def add_esd(self, position: int, bitrate: int = 500_000, name: str = "") -> EsdChannel:

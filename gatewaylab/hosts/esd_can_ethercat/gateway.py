@@ -36,6 +36,7 @@ from gatewaylab.hosts.esd_can_ethercat.handshake import (
 )
 from gatewaylab.hosts.esd_can_ethercat.loop import DEFAULT_TIMEOUT, HostLoop
 from gatewaylab.hosts.ethercat.backend import MasterBackend, MasterTimeout
+from gatewaylab.hosts.ethercat.states import walk_to
 
 #: DEFAULT_TIMEOUT (5 s: a full local Tx queue of 1000 frames at 125 kbit/s takes about a second to
 #: drain), WKC_RECOVER and STATE_CHECK_PERIOD live in loop.py with the waiting they govern.
@@ -133,11 +134,7 @@ class EsdHost(HostLoop):
         """Bring the slave to PREOP (from BOOT through INIT); the handshake stops until :meth:`attach`."""
         with self._lock:
             self.handshake = None
-        state, _code = self.backend.state(self.position)
-        if state == AlState.BOOT:
-            self.backend.request_state(AlState.INIT, self.position, timeout)
-        if state != AlState.PREOP:
-            self.backend.request_state(AlState.PREOP, self.position, timeout)
+        walk_to(self.backend, self.position, AlState.PREOP, timeout)
 
     def configure(self, config: EsdConfig | None = None, /, **changes: Any) -> QueueLayout:
         """Write ``config`` (or EsdConfig(**changes)) in PREOP with readback checks, then read the

@@ -284,13 +284,12 @@ class PysoemBackend:
         return value.decode("latin-1") if isinstance(value, bytes) else str(value)
 
     def _info(self, obj: Any) -> ObjectInfo:
-        for attempt in range(INFO_ATTEMPTS):
+        for _attempt in range(INFO_ATTEMPTS - 1):
             try:
                 return self._info_once(obj)
             except ProtocolError:
-                if attempt == INFO_ATTEMPTS - 1:
-                    raise
-        raise AssertionError("unreachable")
+                pass
+        return self._info_once(obj)     # the last attempt: its ProtocolError goes to the caller
 
     def _info_once(self, obj: Any) -> ObjectInfo:
         p = self._pysoem

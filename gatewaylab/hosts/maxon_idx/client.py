@@ -15,28 +15,8 @@ from typing import Any
 from gatewaylab.canopen.lss import Cs, LssAddress
 from gatewaylab.common.clock import RealTimeClock
 from gatewaylab.common.errors import GatewaylabError, LocalError, RemoteError
+from gatewaylab.devices.maxon_idx import commands as cmd
 from gatewaylab.devices.maxon_idx.codec import DecoderEvent, FrameDecoder, FrameReceived, encode_frame
-from gatewaylab.devices.maxon_idx.commands import (
-    MAX_SEGMENT,
-    InitiateSegmentedRead,
-    InitiateSegmentedReadReply,
-    InitiateSegmentedWrite,
-    NmtCommand,
-    ReadLss,
-    ReadLssReply,
-    ReadObject,
-    ReadObjectReply,
-    Reply,
-    Request,
-    SegmentRead,
-    SegmentReadReply,
-    SegmentWrite,
-    SegmentWriteReply,
-    SendLss,
-    SendNmtService,
-    WriteObject,
-    decode_reply,
-)
 from gatewaylab.devices.maxon_idx.errors import SdoAbortCode, error_cause, error_name
 from gatewaylab.hosts.maxon_idx.link import Link, open_link
 
@@ -127,7 +107,7 @@ class IdxClient:
             self._frames.append(event.frame)
 
     # -- one transaction ------------------------------------------------------------------------------
-    def transact(self, request: Request, timeout: float | None = None, what: str = "") -> Reply:
+    def transact(self, request: cmd.Request, timeout: float | None = None, what: str = "") -> cmd.Reply:
         """Send ``request``, wait for its reply frame (guide 2.2.8 D: one request at a time)."""
         if self._stale:                  # an earlier request timed out: its reply may still come
             self._drop_late_reply()
@@ -144,7 +124,7 @@ class IdxClient:
                     f"no reply frame from the IDX to {type(request).__name__} within {waited:g} s"))
             self._decoder.feed(self.link.read(512, left))
         try:
-            return decode_reply(request.opcode, self._frames[0])
+            return cmd.decode_reply(request.opcode, self._frames[0])
         except GatewaylabError as exc:
             raise IdxError(exc.code or SdoAbortCode.GENERAL_ERROR, type(request).__name__) from exc
 
@@ -162,7 +142,7 @@ class IdxClient:
         self.late_replies_dropped += len(self._frames)
         self.link.reset_input()
 
-    def _ok(self, request: Request, what: str, timeout: float | None = None) -> Any:
+    def _ok(self, request: cmd.Request, what: str, timeout: float | None = None) -> Any:
         reply = self.transact(request, timeout, what)
         if reply.error:
             raise IdxError(reply.error, what)
@@ -171,7 +151,7 @@ class IdxClient:
     # -- objects ------------------------------------------------------------------------------------
     def read_object(self, node_id: int, index: int, subindex: int) -> bytes:
         """ReadObject (2.1.1.1): the 4 data bytes (objects shorter than 4 bytes are zero-padded)."""
-        reply: ReadObjectReply = self._ok(ReadObject(node_id, index, subindex),
+        reply: cmd.ReadObjectReply = self._ok(cmd.ReadObject(node_id, index, subindex),
                                           f"read node {node_id} 0x{index:04X}:{subindex:02X}")
         return reply.data
 
@@ -179,7 +159,7 @@ class IdxClient:
         """WriteObject (2.1.2.1) of up to 4 bytes."""
         if len(data) > 4:
             raise IdxValueError("WriteObject carries at most 4 bytes; use write_segmented")
-        self._ok(WriteObject(node_id, index, subindex, data.ljust(4, b"\x00")),
+        self._ok(cmd.WriteObject(node_id, index, subindex, data.ljust(4, b"\x00")),
                  f"write node {node_id} 0x{index:04X}:{subindex:02X}")
 
     def read(self, node_id: int, index: int, subindex: int, type_: str = "u32") -> int:
@@ -206,11 +186,11 @@ class IdxClient:
     def read_segmented(self, node_id: int, index: int, subindex: int) -> bytes:
         """InitiateSegmentedRead + SegmentRead (2.1.1.2/2.1.1.3) until the last-segment bit."""
         what = f"segmented read node {node_id} 0x{index:04X}:{subindex:02X}"
-        first: InitiateSegmentedReadReply = self._ok(InitiateSegmentedRead(node_id, index, subindex), what)
+        first: cmd.InitiateSegmentedReadReply = self._ok(cmd.InitiateSegmentedRead(node_id, index, subindex), what)
         data = bytearray(first.data)
         toggle = False
         while len(data) < first.total_length:
-            seg: SegmentReadReply = self._ok(SegmentRead(toggle), what)
+            seg: cmd.SegmentReadReply = self._ok(cmd.SegmentRead(toggle), what)
             if seg.toggle != toggle:
                 raise IdxError(SdoAbortCode.TOGGLE_BIT_NOT_ALTERNATED, what, "the reply's toggle bit did not alternate")
             data += seg.data
@@ -229,17 +209,17 @@ class IdxClient:
         return self.read_segmented(node_id, index, subindex).rstrip(b"\x00").decode("latin-1")
 
     def write_segmented(self, node_id: int, index: int, subindex: int, data: bytes,
-                        segment: int = MAX_SEGMENT) -> None:
+                        segment: int = cmd.MAX_SEGMENT) -> None:
         """InitiateSegmentedWrite + SegmentWrite (2.1.2.2/2.1.2.3); the IDX's own objects only."""
         what = f"segmented write node {node_id} 0x{index:04X}:{subindex:02X}"
-        self._ok(InitiateSegmentedWrite(node_id, index, subindex, len(data)), what)
+        self._ok(cmd.InitiateSegmentedWrite(node_id, index, subindex, len(data)), what)
         toggle = False
         offset = 0
         while True:
             chunk = data[offset:offset + segment]
             offset += len(chunk)
             last = offset >= len(data)
-            reply: SegmentWriteReply = self._ok(SegmentWrite(toggle, last, chunk), what)
+            reply: cmd.SegmentWriteReply = self._ok(cmd.SegmentWrite(toggle, last, chunk), what)
             if reply.length_written != len(chunk):
                 raise IdxError(SdoAbortCode.LENGTH_MISMATCH, what)
             toggle = not toggle
@@ -247,19 +227,19 @@ class IdxClient:
                 return
 
     # -- NMT ----------------------------------------------------------------------------------------
-    def nmt(self, node_id: int, command: NmtCommand | int) -> None:
+    def nmt(self, node_id: int, command: cmd.NmtCommand | int) -> None:
         """SendNMTService (2.1.2.4); node 0 addresses every node."""
-        self._ok(SendNmtService(node_id, int(command)), f"NMT {int(command)} to node {node_id}")
+        self._ok(cmd.SendNmtService(node_id, int(command)), f"NMT {int(command)} to node {node_id}")
 
     # -- LSS ----------------------------------------------------------------------------------------
     def send_lss(self, data: bytes) -> None:
         """SendLSS (2.1.3.1): put an LSS master message, padded to 8 bytes, on the bus; answers come by ReadLSS."""
-        self._ok(SendLss(data.ljust(8, b"\x00")), "SendLSS")
+        self._ok(cmd.SendLss(data.ljust(8, b"\x00")), "SendLSS")
 
     def read_lss(self, timeout_ms: int = 50) -> bytes | None:
         """ReadLSS (2.1.3.2): the next LSS slave message, or None when none came in time."""
-        reply = self.transact(ReadLss(timeout_ms), self.timeout + timeout_ms / 1000)
-        assert isinstance(reply, ReadLssReply)
+        reply = self.transact(cmd.ReadLss(timeout_ms), self.timeout + timeout_ms / 1000)
+        assert isinstance(reply, cmd.ReadLssReply)
         if reply.error == SdoAbortCode.SDO_PROTOCOL_TIMED_OUT:
             return None
         if reply.error:

@@ -1,7 +1,8 @@
-"""(Imported by the conftests of tests/devices/esd_can_ethercat and tests/hosts/esd_can_ethercat.) Fixtures of the esd CAN-EtherCAT device tests: one gateway on a 500 kbit/s virtual bus with a peer
-node, driven by the in-process master on a simulated clock (:class:`EsdKit` speaks the MDP 5000
-counter handshake the way master code does, shared note 'esd-mdp5000-queues'); and a veth pair in a
-test-made network namespace for pysoem (driver script ``esd_soem_driver.py``)."""
+"""Fixtures of the esd CAN-EtherCAT device and host tests (their conftests import them): one gateway on a
+500 kbit/s virtual bus with a peer node, driven by the in-process master on a simulated clock
+(:class:`EsdKit` speaks the MDP 5000 counter handshake the way master code does, shared note
+'esd-mdp5000-queues'); and a veth pair in a test-made network namespace for pysoem (driver script
+``esd_soem_driver.py``)."""
 
 from __future__ import annotations
 

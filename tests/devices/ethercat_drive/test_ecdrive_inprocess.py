@@ -217,7 +217,7 @@ def test_dc_sync0_configured_by_the_master_samples_targets_at_sync0() -> None:
     line.enable(0)
     drive = line.drives[0].drives[0]
     esc = line.drives[0].slave.esc
-    next_pulse = esc._sync0_next
+    next_pulse = esc.sync0_next
     line.clock.run_until(next_pulse + 0.0003)                   # 0.3 ms after a pulse
     line.outputs(0, 0x0F, target=500)
     m.exchange_process_data()

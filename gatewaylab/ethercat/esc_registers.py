@@ -1,0 +1,142 @@
+"""The ET1100 register map the emulated ESC implements: addresses, bit meanings, AL states, counters.
+
+One table shared by every part of the ESC (memory, AL state machine, SII interface, distributed
+clocks) and by masters that address the registers; :class:`EscStats` is what those parts count.
+Register map and bit meanings follow the ET1100 hardware data sheet section II; the states follow
+IDX guide 4.2 (tables 4-16..4-18).
+"""
+
+from __future__ import annotations
+
+import enum
+import struct
+from dataclasses import dataclass
+
+U8 = struct.Struct("<B")
+U16 = struct.Struct("<H")
+U32 = struct.Struct("<I")
+U64 = struct.Struct("<Q")
+FMMU_REG = struct.Struct("<IHBBHBBB3x")
+SM_REG = struct.Struct("<HHBBBB")
+
+# Register addresses (ET1100 data sheet section II).
+REG_TYPE = 0x0000
+REG_FEATURES = 0x0008
+REG_STATION_ADDRESS = 0x0010
+REG_STATION_ALIAS = 0x0012
+REG_DL_CONTROL = 0x0100
+REG_DL_STATUS = 0x0110
+REG_AL_CONTROL = 0x0120
+REG_AL_STATUS = 0x0130
+REG_AL_STATUS_CODE = 0x0134
+REG_PDI_CONTROL = 0x0140
+REG_RX_ERROR = 0x0300
+REG_WD_DIVIDER = 0x0400
+REG_WD_TIME_PDI = 0x0410
+REG_WD_TIME_SM = 0x0420
+REG_WD_STATUS_SM = 0x0440
+REG_WD_COUNTER_SM = 0x0442
+REG_SII_CONFIG = 0x0500
+REG_SII_CONTROL = 0x0502
+REG_SII_ADDRESS = 0x0504
+REG_SII_DATA = 0x0508
+REG_FMMU = 0x0600
+REG_SM = 0x0800
+REG_DC_RECV_TIME = 0x0900
+REG_DC_SYSTEM_TIME = 0x0910
+REG_DC_RECV_TIME_PU = 0x0918
+REG_DC_SYSTEM_OFFSET = 0x0920
+REG_DC_SYSTEM_DELAY = 0x0928
+REG_DC_ACTIVATION = 0x0981
+REG_DC_SYNC0_STATUS = 0x098E
+REG_DC_START_TIME = 0x0990
+REG_DC_SYNC0_CYCLE = 0x09A0
+REG_DC_SYNC1_CYCLE = 0x09A4
+RAM_START = 0x1000
+#: Shortest SYNC0 period the emulated firmware follows (a shorter 0x09A0 is raised to it): a Python
+#: PDI cannot take interrupts faster, and a 1 ns cycle would otherwise flood the clock (docs/decisions.md).
+SYNC0_MIN_CYCLE_NS = 10_000
+
+AL_ERROR = 0x10
+AL_ACK = 0x10
+SII_BUSY = 0x8000
+SII_ERR_CHECKSUM = 0x0800
+SII_ERR_ACK = 0x2000
+SII_ERR_WRITE_ENABLE = 0x4000
+SII_READ8 = 0x0040
+#: 0x0502 bit 7: EEPROM above 16 kbit, two address bytes (ET1100: bits 5..7 are read-only configuration)
+SII_TWO_ADDRESS_BYTES = 0x0080
+SM_STATUS_FULL = 0x08
+SM_STATUS_WRITE_EVENT = 0x01
+SM_STATUS_READ_EVENT = 0x02
+SM_CTRL_MAILBOX = 0x02
+SM_CTRL_ECAT_WRITE = 0x04
+SM_CTRL_WATCHDOG = 0x40
+SM_ACT_ENABLE = 0x01
+SM_ACT_REPEAT = 0x02
+SM_PDI_DISABLE = 0x01
+SM_PDI_REPEAT_ACK = 0x02
+DL_STATUS_PDI_OPERATIONAL = 0x0001
+DL_STATUS_WD_OK = 0x0002
+
+
+class AlState(enum.IntEnum):
+    """EtherCAT states as coded in AL control / AL status bits 3..0 (IDX guide table 4-18)."""
+
+    INIT = 0x01
+    PREOP = 0x02
+    BOOT = 0x03
+    SAFEOP = 0x04
+    OP = 0x08
+
+
+#: Legal transitions (IDX guide table 4-17); anything else is refused with 0x0011.
+AL_TRANSITIONS: frozenset[tuple[AlState, AlState]] = frozenset({
+    (AlState.INIT, AlState.PREOP), (AlState.INIT, AlState.BOOT),
+    (AlState.PREOP, AlState.INIT), (AlState.PREOP, AlState.SAFEOP),
+    (AlState.SAFEOP, AlState.PREOP), (AlState.SAFEOP, AlState.OP), (AlState.SAFEOP, AlState.INIT),
+    (AlState.OP, AlState.SAFEOP), (AlState.OP, AlState.PREOP), (AlState.OP, AlState.INIT),
+    (AlState.BOOT, AlState.INIT),
+})
+
+
+@dataclass(frozen=True, slots=True)
+class SmConfig:
+    """A SyncManager as the master configured it (registers 0x0800 + 8n)."""
+
+    index: int
+    start: int
+    length: int
+    control: int
+    activate: int
+
+    @property
+    def enabled(self) -> bool:
+        """Activated by the master (0x0806 bit 0) with a buffer of at least one byte."""
+        return bool(self.activate & SM_ACT_ENABLE) and self.length > 0
+
+    @property
+    def mailbox(self) -> bool:
+        """1-buffer (mailbox) mode, 0x0804 bits 1..0 = 10: a full buffer refuses the next write."""
+        return (self.control & 0x03) == SM_CTRL_MAILBOX
+
+    @property
+    def ecat_writes(self) -> bool:
+        """The master writes this buffer (0x0804 bit 2), the PDI reads it: outputs, mailbox out."""
+        return bool(self.control & SM_CTRL_ECAT_WRITE)
+
+
+@dataclass(slots=True)
+class EscStats:
+    """Counters a test or a user can read (frames seen by this ESC and what it refused)."""
+
+    datagrams: int = 0
+    #: Datagrams whose processing raised (Segment isolates them: the frame's other datagrams still run).
+    datagram_errors: int = 0
+    refused_accesses: int = 0
+    #: SyncManagers the master enabled that the ESC did not activate (buffer in the register area, or
+    #: overlapping a lower SyncManager), counted on every configuration write that leaves one so.
+    refused_sms: int = 0
+    al_refusals: int = 0
+    watchdog_expiries: int = 0
+    sii_commands: int = 0

@@ -1,0 +1,113 @@
+"""The ESC's EEPROM interface (SII, registers 0x0500-0x050F) and the EEPROM image behind it.
+
+A master reads and writes the slave information interface through the ESC's registers: it puts a
+word address into 0x0504, a command into 0x0502 (read, write, reload) and finds the data in 0x0508.
+The ESC loads the configuration area (words 0..7) into PDI control, PDI configuration and station
+alias at power-on and on a reload, when its checksum holds (ET1100 data sheet, "EEPROM interface").
+The SII contents (categories, strings) are built in :mod:`gatewaylab.ethercat.sii`.
+"""
+
+from __future__ import annotations
+
+from gatewaylab.ethercat.esc_registers import (
+    DL_STATUS_PDI_OPERATIONAL,
+    REG_DL_STATUS,
+    REG_PDI_CONTROL,
+    REG_SII_ADDRESS,
+    REG_SII_CONTROL,
+    REG_SII_DATA,
+    REG_STATION_ALIAS,
+    SII_ERR_ACK,
+    SII_ERR_CHECKSUM,
+    SII_ERR_WRITE_ENABLE,
+    SII_READ8,
+    SII_TWO_ADDRESS_BYTES,
+    U16,
+    U32,
+    EscStats,
+)
+
+
+def sii_checksum(config_area: bytes) -> int:
+    """CRC-8 (poly 0x07, init 0xFF) over SII words 0..6, stored in word 7 (ET1100 data sheet)."""
+    crc = 0xFF
+    for b in config_area[:14]:
+        crc ^= b
+        for _ in range(8):
+            crc = ((crc << 1) ^ 0x07) & 0xFF if crc & 0x80 else (crc << 1) & 0xFF
+    return crc
+
+
+class SiiInterface:
+    """The EEPROM image and the register interface a master reaches it through."""
+
+    __slots__ = ("eeprom", "mem", "stats")
+
+    def __init__(self, mem: bytearray, stats: EscStats, eeprom: bytes, eeprom_size: int | None = None) -> None:
+        self.mem = mem
+        self.stats = stats
+        if eeprom_size is None:
+            eeprom_size = max(2048, len(eeprom))
+        image = bytearray(eeprom[:eeprom_size])
+        image.extend(b"\xff" * (eeprom_size - len(image)))
+        #: The EEPROM contents (a master's SII writes land here and survive a power cycle).
+        self.eeprom = image
+
+    def config_bits(self) -> int:
+        """0x0502 bits 5..7, fixed by the hardware: 8-byte reads, address bytes by EEPROM size."""
+        return SII_READ8 | (SII_TWO_ADDRESS_BYTES if len(self.eeprom) > 2048 else 0)
+
+    def reset(self) -> None:
+        """Power-on: the control register shows the configuration bits only, then the ESC loads
+        the configuration area."""
+        U16.pack_into(self.mem, REG_SII_CONTROL, self.config_bits())
+        self.reload()
+
+    def reload(self) -> bool:
+        """Load the SII configuration area (words 0..7); False and no load on a bad checksum."""
+        e = self.eeprom
+        mem = self.mem
+        if sii_checksum(bytes(e[:14])) != e[14]:
+            ctrl = U16.unpack_from(mem, REG_SII_CONTROL)[0] | SII_ERR_CHECKSUM
+            U16.pack_into(mem, REG_SII_CONTROL, ctrl)
+            dl = U16.unpack_from(mem, REG_DL_STATUS)[0] & ~DL_STATUS_PDI_OPERATIONAL
+            U16.pack_into(mem, REG_DL_STATUS, dl)
+            return False
+        mem[REG_PDI_CONTROL:REG_PDI_CONTROL + 2] = e[0:2]
+        mem[0x0150:0x0152] = e[2:4]
+        mem[REG_STATION_ALIAS:REG_STATION_ALIAS + 2] = e[8:10]
+        dl = U16.unpack_from(mem, REG_DL_STATUS)[0] | DL_STATUS_PDI_OPERATIONAL
+        U16.pack_into(mem, REG_DL_STATUS, dl)
+        return True
+
+    def command(self) -> None:
+        """The master wrote 0x0502: execute the command it holds (1 read, 2 write, 4 reload)."""
+        mem = self.mem
+        ctrl = U16.unpack_from(mem, REG_SII_CONTROL)[0]
+        cmd = (ctrl >> 8) & 0x07
+        # A master writes the whole word (KickCAT: 0x0100 for a read): the configuration bits stay what
+        # the hardware says; errors, command and busy are cleared.
+        status = self.config_bits()
+        if cmd == 0:
+            U16.pack_into(mem, REG_SII_CONTROL, status)
+            return
+        self.stats.sii_commands += 1
+        word = U32.unpack_from(mem, REG_SII_ADDRESS)[0]
+        size = len(self.eeprom)
+        if cmd == 1:
+            start = (word * 2) % size
+            data = bytes(self.eeprom[start:start + 8]).ljust(8, b"\xff")
+            mem[REG_SII_DATA:REG_SII_DATA + 8] = data
+        elif cmd == 2:
+            if not ctrl & 0x0001:
+                status |= SII_ERR_WRITE_ENABLE
+            elif word * 2 + 2 > size:
+                status |= SII_ERR_ACK
+            else:
+                self.eeprom[word * 2:word * 2 + 2] = mem[REG_SII_DATA:REG_SII_DATA + 2]
+        elif cmd == 4:
+            if not self.reload():
+                status |= SII_ERR_CHECKSUM
+        else:
+            status |= SII_ERR_ACK
+        U16.pack_into(mem, REG_SII_CONTROL, status)
