@@ -23,6 +23,7 @@ if TYPE_CHECKING:
 COMPILED_MODULES: tuple[str, ...] = (
     "gatewaylab.bus.frame",
     "gatewaylab.bus.bus",
+    "gatewaylab.bus.timing",
     "gatewaylab.common.clock",
     "gatewaylab.od.types",
     "gatewaylab.od.dictionary",
