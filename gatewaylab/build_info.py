@@ -24,6 +24,8 @@ COMPILED_MODULES: tuple[str, ...] = (
     "gatewaylab.bus.frame",
     "gatewaylab.bus.bus",
     "gatewaylab.bus.timing",
+    "gatewaylab.bus.controller",
+    "gatewaylab.bus.stats",
     "gatewaylab.common.clock",
     "gatewaylab.od.types",
     "gatewaylab.od.dictionary",
