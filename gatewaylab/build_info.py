@@ -23,6 +23,9 @@ if TYPE_CHECKING:
 COMPILED_MODULES: tuple[str, ...] = (
     "gatewaylab.bus.frame",
     "gatewaylab.bus.bus",
+    "gatewaylab.bus.timing",
+    "gatewaylab.bus.controller",
+    "gatewaylab.bus.stats",
     "gatewaylab.common.clock",
     "gatewaylab.od.types",
     "gatewaylab.od.dictionary",
@@ -37,6 +40,20 @@ COMPILED_MODULES: tuple[str, ...] = (
     "gatewaylab.ethercat.esc_registers",
     "gatewaylab.ethercat.slave",
     "gatewaylab.ethercat.segment",
+    "gatewaylab.od.sdo",
+    "gatewaylab.canopen.pdo",
+    "gatewaylab.canopen.sync",
+    "gatewaylab.canopen.sdo_server",
+    "gatewaylab.devices.canopen_drive.device",
+    "gatewaylab.devices.canopen_drive.modes",
+    "gatewaylab.devices.canopen_drive.plant",
+    "gatewaylab.devices.ecanlite.stream.format",
+    "gatewaylab.devices.ecanlite.stream.layout",
+    "gatewaylab.devices.ecanlite.stream.packets",
+    "gatewaylab.devices.ecanlite.stream.encode",
+    "gatewaylab.devices.ecanlite.stream.decode",
+    "gatewaylab.devices.ecanlite.budget",
+    "gatewaylab.devices.esd_can_ethercat.codec",
 )
 
 #: Set to anything but "" or "0": every gatewaylab module is imported from its ``.py`` source.

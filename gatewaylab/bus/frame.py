@@ -2,9 +2,8 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass, fields
-from typing import TYPE_CHECKING, Any
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from gatewaylab.common.errors import FrameError
 
@@ -47,28 +46,28 @@ class CanFrame:
                  fd: bool = False, brs: bool = False, esi: bool = False, dlc: int = -1) -> None:
         # Written out (dataclass keeps an explicit __init__): a data frame whose DLC follows from its
         # length is checked and built in one step, everything else (remote frames, an explicit dlc,
-        # data that is not bytes, any error) takes the full validation of __post_init__. The fields
-        # are set through their slot descriptors (what object.__setattr__ ends in, without the lookup).
-        set_id, set_data, set_ext, set_rtr, set_fd, set_brs, set_esi, set_dlc = _SLOT_SETTERS
-        set_id(self, can_id)
-        set_data(self, data)
-        set_ext(self, extended)
-        set_rtr(self, rtr)
-        set_fd(self, fd)
-        set_brs(self, brs)
-        set_esi(self, esi)
+        # data that is not bytes, any error) takes the full validation of __post_init__. Fields are
+        # stored with object.__setattr__(self, "name", ...), written out: compiled (mypyc), each is a
+        # direct store into the native object (docs/performance.md, "Rules that keep a module compilable").
+        object.__setattr__(self, "can_id", can_id)
+        object.__setattr__(self, "data", data)
+        object.__setattr__(self, "extended", extended)
+        object.__setattr__(self, "rtr", rtr)
+        object.__setattr__(self, "fd", fd)
+        object.__setattr__(self, "brs", brs)
+        object.__setattr__(self, "esi", esi)
         if (type(data) is bytes and dlc == -1 and not rtr and type(can_id) is int
                 and 0 <= can_id <= (MAX_EXT_ID if extended else MAX_STD_ID)):
             # A data frame whose length says its DLC (what decoders build by the thousand): checked here.
             n = len(data)
             if not fd:
                 if n <= 8 and not (brs or esi):
-                    set_dlc(self, n)
+                    object.__setattr__(self, "dlc", n)
                     return
             elif (fd_dlc := FD_LEN_TO_DLC.get(n)) is not None:
-                set_dlc(self, fd_dlc)
+                object.__setattr__(self, "dlc", fd_dlc)
                 return
-        set_dlc(self, dlc)
+        object.__setattr__(self, "dlc", dlc)
         self.__post_init__()
 
     def __post_init__(self) -> None:
@@ -153,7 +152,3 @@ class CanFrame:
         return cls(msg.arbitration_id, data, msg.is_extended_id, False, msg.is_fd,
                    msg.bitrate_switch, msg.error_state_indicator)
 
-
-#: The setters of CanFrame's slots in field order (frozen: only __init__ / __post_init__ use them).
-_SLOT_SETTERS: tuple[Callable[[CanFrame, Any], None], ...] = tuple(
-    vars(CanFrame)[f.name].__set__ for f in fields(CanFrame))

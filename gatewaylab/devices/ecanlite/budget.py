@@ -20,8 +20,9 @@ starting at a rotating channel so no channel is always first.
 from __future__ import annotations
 
 import enum
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import ItemsView, Iterator, KeysView, Mapping, Sequence
 from dataclasses import dataclass
+from typing import final
 
 from gatewaylab.common.errors import LocalError
 
@@ -43,10 +44,13 @@ class BudgetPolicy(enum.IntEnum):
     DETERMINISTIC = 2
 
 
+@final
 @dataclass(frozen=True, slots=True)
-class Allocation(Mapping[int, int]):
-    """How many of each channel's oldest packets go into this cycle (a mapping channel -> count),
-    plus what stayed behind, which the device reports as STREAM_TRUNCATED / overflow."""
+class Allocation:
+    """How many of each channel's oldest packets go into this cycle (read like a mapping channel ->
+    count: ``alloc[ch]``, ``dict(alloc)``), plus what stayed behind, which the device reports as
+    STREAM_TRUNCATED / overflow. Not a ``collections.abc.Mapping`` subclass: a compiled (mypyc)
+    class cannot derive from an ABC; the mapping methods below are written out."""
 
     counts: Mapping[int, int]
     #: packets of enabled channels that did not fit this cycle, per channel (only channels > 0).
@@ -77,6 +81,17 @@ class Allocation(Mapping[int, int]):
 
     def __len__(self) -> int:
         return len(self.counts)
+
+    def __contains__(self, channel: object) -> bool:
+        return channel in self.counts
+
+    def keys(self) -> KeysView[int]:
+        """The enabled channels (``dict(alloc)`` reads them)."""
+        return self.counts.keys()
+
+    def items(self) -> ItemsView[int, int]:
+        """(channel, count) pairs."""
+        return self.counts.items()
 
 
 def allocate(policy: BudgetPolicy | int, area_bytes: int, enabled_channels: Sequence[int],

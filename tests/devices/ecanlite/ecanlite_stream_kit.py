@@ -4,17 +4,27 @@
 from __future__ import annotations
 
 import struct
+from importlib.machinery import ExtensionFileLoader
 
 from hypothesis import strategies as st
 
 from gatewaylab.devices.ecanlite.stream import (
     CanPacket,
     Direction,
+    StreamEncodeError,
     StreamLayout,
     Tsf,
     TxResultCode,
     TxResultPacket,
 )
+from gatewaylab.devices.ecanlite.stream import packets as packets_module
+
+#: The packet module runs compiled (mypyc): it checks the declared types of its arguments itself, so
+#: an argument of a type mypy rejects (a float for an int, an int for an enum) is a TypeError at the
+#: call; pure Python refuses it with the LastPDOError a receiver would report.
+PACKETS_COMPILED = isinstance(packets_module.__spec__.loader, ExtensionFileLoader)
+#: What a packet built from mistyped arguments raises (see PACKETS_COMPILED).
+MISTYPED: tuple[type[Exception], ...] = (StreamEncodeError, TypeError) if PACKETS_COMPILED else (StreamEncodeError,)
 
 FD_LENGTHS = (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64)
 

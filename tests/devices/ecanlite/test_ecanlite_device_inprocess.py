@@ -18,6 +18,7 @@ from gatewaylab.devices.ecanlite.stream import (
     PdoError,
     ProfileStatus,
     StreamLayout,
+    Tsf,
     TxResultCode,
     TxResultPacket,
     crc16,
@@ -243,7 +244,7 @@ def _bad_images(layout: StreamLayout) -> dict[PdoError, bytes]:
     img = bytearray(good)
     struct.pack_into("<H", img, 10, 0x1234)  # layout_id of another profile
     out[PdoError.ACTIVE_AREA] = bytes(img)
-    sched = bytearray(encode_stream(layout, 5, [CanPacket.of(0, 0x123, data=b"1", tsf=3, scheduled=True,
+    sched = bytearray(encode_stream(layout, 5, [CanPacket.of(0, 0x123, data=b"1", tsf=Tsf.FULL64, scheduled=True,
                                                           offset_ns=100_000)]))
     sched[28] = 2  # format 2
     out[PdoError.BAD_SCHEDULE] = _with_crc(sched)
@@ -386,15 +387,15 @@ def test_scheduled_transmit_on_sync0(rig: Rig) -> None:
     seen: list[tuple[int, float]] = []
     rig.buses[0].add_monitor(lambda f, t: seen.append((f.can_id, t)))
     try:
-        publish(rig, encode_stream(rx_layout(1), 1, [CanPacket.of(0, 0x55, data=b"s", tsf=3, scheduled=True,
+        publish(rig, encode_stream(rx_layout(1), 1, [CanPacket.of(0, 0x55, data=b"s", tsf=Tsf.FULL64, scheduled=True,
                                                                offset_ns=100_000)]))
         assert m.sdo_upload16(0, 0x8011, 14) == PdoError.BAD_SCHEDULE and not seen
         m.configure_sync0(0, 0.001, start_delay=0.0005)
         rig.cycle(2)
         sync = rig.device.app._last_sync0
-        publish(rig, encode_stream(rx_layout(1), 2, [CanPacket.of(0, 0x66, data=b"s", tsf=3, scheduled=True,
+        publish(rig, encode_stream(rx_layout(1), 2, [CanPacket.of(0, 0x66, data=b"s", tsf=Tsf.FULL64, scheduled=True,
                                                                offset_ns=300_000),
-                                                     CanPacket.of(0, 0x77, data=b"l", tsf=3, scheduled=True,
+                                                     CanPacket.of(0, 0x77, data=b"l", tsf=Tsf.FULL64, scheduled=True,
                                                                offset_ns=2_000_000)]), cycles=3)
         assert sync is not None
         sent = [(i, t) for i, t in seen if i == 0x66]

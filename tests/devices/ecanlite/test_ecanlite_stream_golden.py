@@ -278,7 +278,7 @@ def test_configuration_example_of_6_1() -> None:
     layout = StreamLayout(8, 0x0F, 0, 0, 0)
     assert layout == StreamLayout.default()
     assert (layout.pdo_bytes, layout.frame_area_bytes, layout.channels) == (1024, 1000, (0, 1, 2, 3))
-    assert layout.budget_policy is BudgetPolicy.BALANCED
+    assert layout.budget_policy == BudgetPolicy.BALANCED
 
 
 def test_tx_result_layout_and_codes() -> None:

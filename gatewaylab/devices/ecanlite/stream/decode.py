@@ -121,7 +121,6 @@ def decode_stream(image: bytes | bytearray | memoryview, layout: StreamLayout) -
     # One copy of the image (bytes, so no view pins the caller's buffer) with a zero tail.
     data = b"".join((image, _DECODE_TAIL))
     packets: list[Packet] = []
-    append = packets.append
     chmask = layout.channel_mask & 0x0F
     tsf_mask = layout.tsf_mask
     d64_ok = layout.d64_allowed
@@ -132,8 +131,6 @@ def decode_stream(image: bytes | bytearray | memoryview, layout: StreamLayout) -
     lengths = FD_DLC_TO_LEN
     tsfs = TSFS
     tsf_bytes = TSF_BYTES
-    frame_of = CanFrame
-    packet_of = decoded_packet
     off = HEADER_SIZE
     while off < end:
         if off + 2 > end:
@@ -158,7 +155,7 @@ def decode_stream(image: bytes | bytearray | memoryview, layout: StreamLayout) -
                 raise fail(PdoError.UNKNOWN_KIND, f"ResultCode {result} undefined (10)", off, nxt, ctrl)
             if align4 and data[off + 6] | data[off + 7]:
                 raise fail(PdoError.RESERVED_BIT, "ALIGN4 padding must be 0 (8.3)", off, nxt, ctrl)
-            append(TxResultPacket(ctrl & 7, ref_seq, ref_index, _RESULT_CODES[result]))
+            packets.append(TxResultPacket(ctrl & 7, ref_seq, ref_index, _RESULT_CODES[result]))
             off = nxt
             continue
         ide = ctrl & 0x80 != 0
@@ -192,16 +189,16 @@ def decode_stream(image: bytes | bytearray | memoryview, layout: StreamLayout) -
         start = off + head
         payload = data[start:start + n]
         if ide:
-            frame = frame_of(word & 0x1FFFFFFF, payload, True, rtr, fdf, ctrl & 0x200 != 0, x and fdf,
+            frame = CanFrame(word & 0x1FFFFFFF, payload, True, rtr, fdf, ctrl & 0x200 != 0, x and fdf,
                              dlc if rtr else -1)
         elif rtr or fdf:
-            frame = frame_of(word & 0x7FF, payload, False, rtr, fdf, ctrl & 0x200 != 0, x and fdf,
+            frame = CanFrame(word & 0x7FF, payload, False, rtr, fdf, ctrl & 0x200 != 0, x and fdf,
                              dlc if rtr else -1)
         else:
-            frame = frame_of(word & 0x7FF, payload)
+            frame = CanFrame(word & 0x7FF, payload)
         # a D64 window's tail is written 0 whatever the sender left there (8.1, 8.3)
         wire = data[off:pend] if not d64 else data[off:start + n] + ZERO_PAD[:64 - n]
-        append(packet_of(ctrl & 7, frame, tsfs[tsf], stamp, shape == 4, offset_ns, tag,
+        packets.append(decoded_packet(ctrl & 7, frame, tsfs[tsf], stamp, shape == 4, offset_ns, tag,
                          word >> (29 if ide else 11), d64, ctrl, wire))
         off = nxt
     if len(packets) != count:

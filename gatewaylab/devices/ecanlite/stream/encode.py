@@ -54,6 +54,12 @@ def packet_size(packet: Packet, layout: StreamLayout) -> int:
     return (raw + 3) & ~3 if layout.align4 else raw
 
 
+def _first_foreign(items: Sequence[object]) -> object:
+    """The first item that is not a packet (typed ``object``: compiled, a loop variable typed as a
+    packet would fail its own type check on it)."""
+    return next(p for p in items if type(p) is not CanPacket and type(p) is not TxResultPacket)
+
+
 def judge(packets: Sequence[Packet], layout: StreamLayout) -> int:
     """Refuse what ``layout`` cannot carry before anything is written: the first control word it
     refuses in stream order, then a TSF_FULL64 packet of the wrong direction (reservation in the
@@ -61,9 +67,8 @@ def judge(packets: Sequence[Packet], layout: StreamLayout) -> int:
     (chapter 6), else 0. Each distinct control word of the image is tested once."""
     try:
         ctrls = {p.ctrl for p in packets}
-    except AttributeError:
-        bad = next(p for p in packets if type(p) is not CanPacket and type(p) is not TxResultPacket)
-        raise LocalError(f"not a packet: {bad!r}") from None
+    except (AttributeError, TypeError):   # compiled (mypyc), a non-packet fails the type check of p
+        raise LocalError(f"not a packet: {_first_foreign(packets)!r}") from None
     chmask = layout.channel_mask & 0x0F
     tsf_mask = layout.tsf_mask
     d64_ok = layout.d64_allowed

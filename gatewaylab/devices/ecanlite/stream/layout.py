@@ -43,6 +43,8 @@ class StreamLayout:
     multiplier: int = 8
     channel_mask: int = 0x0F
     profile: int = 0
+    #: 0x8010/0x8011:06 as an integer (a BudgetPolicy compares equal). Not made a BudgetPolicy here: a
+    #: compiled (mypyc) ``int`` attribute stores a machine integer, the enum would not survive.
     budget_policy: int = BudgetPolicy.BALANCED
     options: int = 0
     direction: Direction = Direction.RX
@@ -66,7 +68,6 @@ class StreamLayout:
         if status is not ProfileStatus.OK:
             raise LocalError(f"not an ECAN-Lite layout ({status.name}): {self!r}")
         derive = object.__setattr__
-        derive(self, "budget_policy", BudgetPolicy(self.budget_policy))
         feat = self.features
         tx = self.direction is Direction.TX
         tsf_mask = 1 << Tsf.NONE

@@ -9,9 +9,7 @@ or the scheduled-transmit reservation (8.4), ID_AUX and the D64 window (8.1).
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass, field, fields
-from typing import Any
+from dataclasses import dataclass, field
 
 from gatewaylab.bus.frame import MAX_EXT_ID, MAX_STD_ID, CanFrame
 from gatewaylab.common.errors import FrameError
@@ -40,6 +38,18 @@ from gatewaylab.devices.ecanlite.stream.format import (
 def refuse(code: PdoError, message: str) -> StreamEncodeError:
     """The error for a packet no receiver would take, with the LastPDOError it would report."""
     return StreamEncodeError(code, message)
+
+
+def _ints(*values: object) -> bool:
+    """All ``values`` are integers: the check of arguments typed ``int`` that a caller may still get
+    wrong (an ``isinstance`` of a name typed ``int`` is unreachable to mypy, and mypyc mistranslates
+    the error branch under it)."""
+    return all(isinstance(v, int) for v in values)
+
+
+def _bytes_like(data: object) -> bool:
+    """``data`` is bytes, a bytearray or a memoryview (see :func:`_ints`)."""
+    return isinstance(data, (bytes, bytearray, memoryview))
 
 
 @dataclass(frozen=True, slots=True)
@@ -128,6 +138,28 @@ class CanPacket:
     #: The packet's bytes on the wire (8.1, 8.3 without ALIGN4 padding), derived from the fields.
     wire: bytes = field(init=False, repr=False, compare=False, default=b"")
 
+    def __init__(self, channel: int, frame: CanFrame, tsf: Tsf = Tsf.NONE, timestamp: int = 0,
+                 scheduled: bool = False, offset_ns: int = 0, tag: int = 0, id_aux: int = 0, d64: bool = False,
+                 *, ctrl: int = -1, wire: bytes = b"") -> None:
+        # Written out (dataclass keeps an explicit __init__), fields stored with object.__setattr__:
+        # compiled (mypyc), each is a direct store into the native object. Given ``ctrl`` and ``wire``
+        # (only :func:`decoded_packet`: the decoder checked the control word, the frame checked
+        # itself), the fields are stored as they are; else __post_init__ checks and derives them.
+        object.__setattr__(self, "channel", channel)
+        object.__setattr__(self, "frame", frame)
+        object.__setattr__(self, "tsf", tsf)
+        object.__setattr__(self, "timestamp", timestamp)
+        object.__setattr__(self, "scheduled", scheduled)
+        object.__setattr__(self, "offset_ns", offset_ns)
+        object.__setattr__(self, "tag", tag)
+        object.__setattr__(self, "id_aux", id_aux)
+        object.__setattr__(self, "d64", d64)
+        if ctrl < 0:
+            self.__post_init__()
+            return
+        object.__setattr__(self, "ctrl", ctrl)
+        object.__setattr__(self, "wire", wire)
+
     def __post_init__(self) -> None:
         frame, channel, tsf = self.frame, self.channel, self.tsf
         if type(frame) is not CanFrame:
@@ -135,8 +167,7 @@ class CanPacket:
         if type(channel) is not int or not 0 <= channel <= 7:
             raise refuse(PdoError.INVALID_CHANNEL, f"channel {channel!r} does not fit CH (0..7, chapter 8)")
         timestamp, offset_ns, tag, id_aux = self.timestamp, self.offset_ns, self.tag, self.id_aux
-        if not (isinstance(timestamp, int) and isinstance(offset_ns, int) and isinstance(tag, int)
-                and isinstance(id_aux, int)):
+        if not _ints(timestamp, offset_ns, tag, id_aux):
             raise refuse(PdoError.RESERVED_BIT, "timestamp, offset_ns, tag, ID_AUX are integers: "
                                                 f"{(timestamp, offset_ns, tag, id_aux)!r}")
         if self.d64 and not frame.fd:
@@ -173,6 +204,12 @@ class CanPacket:
         object.__setattr__(self, "ctrl", ctrl)
         object.__setattr__(self, "wire", wire + data + ZERO_PAD[:64 - len(data)] if self.d64 else wire + data)
 
+    def __reduce__(self) -> tuple[type[CanPacket], tuple[int, CanFrame, Tsf, int, bool, int, int, int, bool]]:
+        # Pickled by its constructor: compiled (mypyc), the default pickling refills a frozen object
+        # through setattr and fails.
+        return CanPacket, (self.channel, self.frame, self.tsf, self.timestamp, self.scheduled, self.offset_ns,
+                           self.tag, self.id_aux, self.d64)
+
     @classmethod
     def of(cls, channel: int, can_id: int, extended: bool = False, fd: bool = False, brs: bool = False,
            rtr: bool = False, esi: bool = False, data: bytes = b"", tsf: Tsf = Tsf.NONE, timestamp: int = 0,
@@ -182,11 +219,11 @@ class CanPacket:
         classic remote frames (no data, DLC = requested length), else -1 derives it from ``data``.
         A frame CAN cannot carry is refused with INVALID_DLC (RESERVED_BIT for an identifier out
         of range, 8.1)."""
-        if not isinstance(data, (bytes, bytearray, memoryview)):
+        if not _bytes_like(data):
             raise refuse(PdoError.INVALID_DLC, f"data must be bytes, got {type(data).__name__}")
         if type(channel) is not int or not 0 <= channel <= 7:
             raise refuse(PdoError.INVALID_CHANNEL, f"channel {channel!r} does not fit CH (0..7, chapter 8)")
-        if not isinstance(can_id, int) or not isinstance(dlc, int):
+        if not _ints(can_id, dlc):
             raise refuse(PdoError.RESERVED_BIT, f"id and DLC are integers: {(can_id, dlc)!r}")
         if d64 and not fd:
             raise refuse(PdoError.INVALID_DLC, "D64 needs CAN FD (8.2)")
@@ -262,32 +299,11 @@ class CanPacket:
         return len(self.wire)
 
 
-#: CanPacket's slot setters in field order: :func:`decoded_packet` fills a packet whose control
-#: word the decoder has already checked (the CanFrame checks its own fields) without the
-#: __post_init__ round (the same idiom as CanFrame.__init__; docs/decisions.md, issue 22).
-_CAN_PACKET_SETTERS: tuple[Callable[[CanPacket, Any], None], ...] = tuple(
-    vars(CanPacket)[f.name].__set__ for f in fields(CanPacket))
-(_set_channel, _set_frame, _set_tsf, _set_timestamp, _set_scheduled, _set_offset_ns, _set_tag, _set_id_aux,
- _set_d64, _set_ctrl, _set_wire) = _CAN_PACKET_SETTERS
-
-
 def decoded_packet(channel: int, frame: CanFrame, tsf: Tsf, timestamp: int, scheduled: bool, offset_ns: int,
                    tag: int, id_aux: int, d64: bool, ctrl: int, wire: bytes) -> CanPacket:
     """A CanPacket read from an image: its fields come from a control word the decoder checked
-    and a CanFrame that checked itself, so they are stored as they are."""
-    p = object.__new__(CanPacket)
-    _set_channel(p, channel)
-    _set_frame(p, frame)
-    _set_tsf(p, tsf)
-    _set_timestamp(p, timestamp)
-    _set_scheduled(p, scheduled)
-    _set_offset_ns(p, offset_ns)
-    _set_tag(p, tag)
-    _set_id_aux(p, id_aux)
-    _set_d64(p, d64)
-    _set_ctrl(p, ctrl)
-    _set_wire(p, wire)
-    return p
+    and a CanFrame that checked itself, so they are stored as they are (no __post_init__ round)."""
+    return CanPacket(channel, frame, tsf, timestamp, scheduled, offset_ns, tag, id_aux, d64, ctrl=ctrl, wire=wire)
 
 
 @dataclass(frozen=True, slots=True)
@@ -308,7 +324,7 @@ class TxResultPacket:
         channel, seq, index, result = self.channel, self.ref_packet_seq, self.ref_frame_index, self.result
         if type(channel) is not int or not 0 <= channel <= 7:
             raise refuse(PdoError.INVALID_CHANNEL, f"channel {channel!r} does not fit CH (0..7, chapter 8)")
-        if not isinstance(seq, int) or not isinstance(index, int) or not 0 <= seq <= 0xFFFF or not 0 <= index <= 0xFF:
+        if not _ints(seq, index) or not 0 <= seq <= 0xFFFF or not 0 <= index <= 0xFF:
             raise refuse(PdoError.UNKNOWN_KIND, "RefPacketSeq is u16, RefFrameIndex u8 (10)")
         if type(result) is not TxResultCode:
             if result not in RESULT_VALUES:
@@ -318,6 +334,10 @@ class TxResultPacket:
         ctrl = channel | 1 << 13
         object.__setattr__(self, "ctrl", ctrl)
         object.__setattr__(self, "wire", TX_RESULT.pack(ctrl, seq, index, result))
+
+    def __reduce__(self) -> tuple[type[TxResultPacket], tuple[int, int, int, TxResultCode]]:
+        # Pickled by its constructor (see CanPacket.__reduce__).
+        return TxResultPacket, (self.channel, self.ref_packet_seq, self.ref_frame_index, self.result)
 
     @property
     def kind(self) -> PacketKind:
