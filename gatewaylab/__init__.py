@@ -27,8 +27,8 @@ class _SourceOnlyFinder(MetaPathFinder):
         return None   # e.g. a folder without __init__.py: the ordinary finders make it a namespace package
 
 
-_moved.install()
 if build_info.pure_forced():
     sys.meta_path.insert(0, _SourceOnlyFinder())
 else:
     build_info.warn_if_stale()
+_moved.install()  # first on sys.meta_path: an old path is an alias, never a second copy of a module
