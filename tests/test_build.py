@@ -102,3 +102,17 @@ def test_an_extension_older_than_its_source_is_stale(tmp_path: Path) -> None:
     os.utime(extension, (1_000_200, 1_000_200))
     assert build_info.stale_extensions(("gatewaylab.bus.bus",), tmp_path) == []
     assert build_info.stale_extensions(("gatewaylab.bus.frame",), tmp_path) == []
+
+
+def test_the_ready_file_names_the_modules_that_run_compiled() -> None:
+    """Issue 23 packaging: '`gatewaylab --version` (and the ready file) say which modules run compiled' --
+    the ready file's ``compiled`` list is what runs compiled in the rig's process (empty when pure)."""
+    from gatewaylab.rig.config import parse_rig
+    from gatewaylab.rig.runtime import Rig
+
+    with Rig(parse_rig({"clock": "simulated", "bus": [{"name": "can0", "endpoint": "none"}]})) as rig:
+        info = rig.ready_info()
+    assert info["compiled"] == build_info.compiled_modules()
+    assert set(info["compiled"]) <= set(build_info.COMPILED_MODULES)
+    if build_info.pure_forced():
+        assert info["compiled"] == []

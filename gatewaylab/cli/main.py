@@ -200,7 +200,9 @@ def cmd_run(args: argparse.Namespace) -> int:
                 print(f"  bus {name}: socketcand 127.0.0.1:{bus['socketcand']}  ->  can.Bus(interface='socketcand', "
                       f"host='127.0.0.1', port={bus['socketcand']}, channel={name!r})")
         for key, value in info.items():
-            if key not in ("pid", "buses"):
+            if key == "compiled":
+                print(f"  {len(value)} modules compiled" if value else "  pure Python")
+            elif key not in ("pid", "buses"):
                 print(f"  {key}: {json.dumps(value)}")
         sys.stdout.flush()
         rig.run()      # its own handlers: the loop returns at its next pass (docs/rig.md)

@@ -33,6 +33,7 @@ from pathlib import Path
 from types import FrameType
 from typing import Any
 
+from gatewaylab import build_info
 from gatewaylab.bus.bus import VirtualBus
 from gatewaylab.bus.transport.server import BusServer
 from gatewaylab.bus.transport.socketcand import SocketcandServer
@@ -365,8 +366,9 @@ class Rig:
                                         f"{exc.strerror or exc}{hint}") from None
 
     def ready_info(self) -> dict[str, Any]:
-        """What the --ready-file holds: pid, buses and endpoints, then every participant's info."""
-        info: dict[str, Any] = {"pid": os.getpid(), "buses": {}}
+        """What the --ready-file holds: pid, the modules that run compiled (issue 23: a master's test log
+        says which build it ran against), buses and endpoints, then every participant's info."""
+        info: dict[str, Any] = {"pid": os.getpid(), "compiled": build_info.compiled_modules(), "buses": {}}
         for name, bus in self.buses.items():
             entry: dict[str, Any] = {"bitrate": bus.bitrate}
             if bus.data_bitrate:
