@@ -93,7 +93,7 @@ def test_stop_ends_the_thread_while_the_caller_holds_the_clock_lock(veth_ns: Any
         deadline = time.monotonic() + 30
         while wire.frames_in == 0 and time.monotonic() < deadline:   # received: now it waits for the lock
             time.sleep(0.001)
-        assert wire.frames_in == 1
+        assert wire.frames_in >= 1   # (a frame of the namespace's own, e.g. IPv6 neighbour discovery, may come too)
         wire.stop()
         alive = thread.is_alive()
     thread.join(10)
