@@ -127,8 +127,9 @@ class CanFrame:
         return f"{ident}{sep}{self.data.hex().upper()}"
 
     # -- python-can interop -------------------------------------------------------------------
-    def to_message(self, timestamp: float = 0.0, channel: str | None = None) -> can.Message:
-        """The frame as a python-can ``Message`` (for adapters, traces and bridges)."""
+    def to_message(self, timestamp: float = 0.0, channel: str | int | None = None) -> can.Message:
+        """The frame as a python-can ``Message`` (for adapters, traces and bridges); ``channel`` is what the
+        user gave python-can (a name or a number: a compiled frame checks the annotation)."""
         import can
 
         return can.Message(
