@@ -73,3 +73,12 @@ def test_any_construction_is_a_valid_frame_or_a_frame_error(can_id, data, extend
     bus.attach("b", on_frame=lambda f, t: got.append(f))
     clock.advance(0.01)
     assert got == [frame]
+
+
+def test_to_message_keeps_the_channel_users_gave_python_can() -> None:
+    """python-can's Message.channel is a name or a number (``can.Bus(0, interface=...)``, as python-can's own
+    notifier_test does through the gatewaylab interface): both pass through, compiled or pure."""
+    frame = CanFrame(0x123, b"\x01")
+    assert frame.to_message(1.5, 0).channel == 0
+    assert frame.to_message(1.5, "can0").channel == "can0"
+    assert frame.to_message().channel is None
