@@ -2,13 +2,14 @@
 
 One server channel (0x1200). The state machine is driven by received request frames and by a
 timeout on the node's clock; every failure is answered with the abort code of IDX guide
-chapter 6. Object access goes through :meth:`Node.read` / :meth:`Node.write`, so SDO sees exactly
-the access rights, lengths and limits that the contract promises.
+chapter 6. Object access does what :meth:`Node.read` / :meth:`Node.write` do (the node's dictionary
+with the node's access policy, :attr:`Node.access`), so SDO sees exactly the access rights, lengths
+and limits that the contract promises; the server calls the dictionary itself because, compiled,
+that is a native call and a call into the (pure Python) node is not.
 """
 
 from __future__ import annotations
 
-import struct
 from collections.abc import Callable
 from enum import Enum
 from typing import TYPE_CHECKING, Final
@@ -32,6 +33,7 @@ from gatewaylab.od.sdo import (
 if TYPE_CHECKING:
     from gatewaylab.canopen.node import Node
     from gatewaylab.od import Entry, ObjectDictionary
+    from gatewaylab.od.dictionary import AccessPolicy
 
 #: Initiate upload response command byte for an expedited answer of n bytes, and its padding.
 _EXPEDITED_CS: Final = (b"", b"\x4F", b"\x4B", b"\x47", b"\x43")
@@ -43,7 +45,7 @@ MAX_TRANSFER: Final = 1 << 20
 def _announced_size(data: bytes, entry: Entry) -> int:
     """The size a segmented or block download announces, checked against the object (CiA 301
     7.2.4.3.3 / 7.2.4.3.9: too large for the server, or not the size of a fixed-size object)."""
-    size: int = struct.unpack_from("<I", data, 4)[0]
+    size = data[4] | (data[5] << 8) | (data[6] << 16) | (data[7] << 24)
     if size > MAX_TRANSFER:
         raise SdoAbort(SdoAbortCode.OUT_OF_MEMORY)
     if entry.size is not None:
@@ -85,6 +87,8 @@ class SdoServer:
         #: natively (the node itself is a Python object: every call into it is a generic call).
         self._od: ObjectDictionary = node.od
         self._clock: Clock = node.clock
+        #: CiA 301 access rules in the node's NMT state (:attr:`Node.access`).
+        self._access: AccessPolicy = node.access
         #: Seconds without the next request before a transfer is aborted with 0x05040000.
         self.timeout = timeout
         #: Block size the server asks for in block download (1..127).
@@ -107,7 +111,8 @@ class SdoServer:
         self._sender: BlockSender | None = None
         self._size: int | None = None
         self._crc = False
-        #: Expedited upload answers by payload: frames are immutable, polling repeats them.
+        #: Answers by payload: frames are immutable, and polling, acknowledges and download
+        #: responses repeat them (a dictionary lookup instead of a new frame).
         self._frames: dict[bytes, CanFrame] = {}
         #: Counters: requests answered, aborts sent, frames ignored (wrong DLC or RTR).
         self.requests = 0
@@ -126,7 +131,13 @@ class SdoServer:
 
     # -- plumbing ------------------------------------------------------------------------------
     def _send(self, payload: bytes) -> None:
-        self._send_frame(CanFrame(self.tx_cob_id, payload))
+        cache = self._frames
+        frame = cache.get(payload)
+        if frame is None or frame.can_id != self.tx_cob_id:
+            if len(cache) >= 512:
+                cache.clear()
+            frame = cache[payload] = CanFrame(self.tx_cob_id, payload)
+        self._send_frame(frame)
 
     def _send_frame(self, frame: CanFrame) -> None:
         """What :meth:`Node.send` does (queue on the node's controller, count what fails), called
@@ -218,16 +229,16 @@ class SdoServer:
         value = self._od.read(index, sub)       # what Node.read does: CiA 301 reads need no state
         n = len(value)
         if 0 < n <= 4:
-            payload = _EXPEDITED_CS[n] + data[1:4] + value + _PAD[n]
-            cache = self._frames
-            frame = cache.get(payload)
-            if frame is None or frame.can_id != self.tx_cob_id:
-                if len(cache) >= 512:
-                    cache.clear()
-                frame = cache[payload] = CanFrame(self.tx_cob_id, payload)
-            self._send_frame(frame)
+            self._send(_EXPEDITED_CS[n] + data[1:4] + value + _PAD[n])
         else:
             self._start_upload(index, sub, value)
+
+    def _writable(self, index: int, sub: int) -> Entry:
+        """The entry, if a download may write it in the present NMT state: what
+        :meth:`Node.check_writable` does, on the dictionary directly (a native call compiled)."""
+        entry = self._od.entry(index, sub)
+        self._access.check_write(entry, b"")
+        return entry
 
     def _unknown(self, data: bytes) -> None:
         if self._state is _IDLE:
@@ -249,7 +260,7 @@ class SdoServer:
     def _initiate_download(self, data: bytes) -> None:
         cs = data[0]
         index, sub = self._begin(data)
-        entry = self.node.check_writable(index, sub)
+        entry = self._writable(index, sub)
         if cs & 0x02:                                   # expedited
             size = codec.expedited_size(cs)
             if size is None:
@@ -270,7 +281,7 @@ class SdoServer:
         if last:
             codec.check_size(len(transfer.buf), transfer.size)
             self._reset()
-            self.node.write(transfer.index, transfer.subindex, bytes(transfer.buf))
+            self._od.write(transfer.index, transfer.subindex, bytes(transfer.buf), self._access)   # Node.write
         else:
             self._arm()
         self._send(codec.segment_ack(0x20, toggle))
@@ -315,7 +326,7 @@ class SdoServer:
         index, sub = self._begin(data)
         if cs & 0x18:       # bits 4..3 are reserved
             raise SdoAbort(SdoAbortCode.COMMAND_SPECIFIER_UNKNOWN)
-        entry = self.node.check_writable(index, sub)
+        entry = self._writable(index, sub)
         self._crc = bool(cs & 0x04)
         self._size = _announced_size(data, entry) if cs & 0x02 else None
         self.state = SdoServerState.BLOCK_DOWNLOAD
@@ -342,7 +353,7 @@ class SdoServer:
         payload = receiver.end(data, self._size, self._crc)
         index, sub = self.index, self.subindex
         self._reset()
-        self.node.write(index, sub, payload)
+        self._od.write(index, sub, payload, self._access)     # Node.write
         self._send(bytes((codec.CS_BLOCK_END_RESPONSE, 0, 0, 0, 0, 0, 0, 0)))
 
     # -- block upload --------------------------------------------------------------------------
