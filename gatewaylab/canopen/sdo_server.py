@@ -111,8 +111,8 @@ class SdoServer:
         self._sender: BlockSender | None = None
         self._size: int | None = None
         self._crc = False
-        #: Answers by payload: frames are immutable, and polling, acknowledges and download
-        #: responses repeat them (a dictionary lookup instead of a new frame).
+        #: Answers by payload: frames are immutable, and polling, acknowledges and initiate
+        #: responses repeat them (a dictionary lookup instead of a new frame; data segments never).
         self._frames: dict[bytes, CanFrame] = {}
         #: Counters: requests answered, aborts sent, frames ignored (wrong DLC or RTR).
         self.requests = 0
@@ -131,6 +131,8 @@ class SdoServer:
 
     # -- plumbing ------------------------------------------------------------------------------
     def _send(self, payload: bytes) -> None:
+        """An answer that repeats (expedited uploads, acknowledges, initiate responses): the frame
+        from the cache by payload when it was sent before."""
         cache = self._frames
         frame = cache.get(payload)
         if frame is None or frame.can_id != self.tx_cob_id:
@@ -138,6 +140,11 @@ class SdoServer:
                 cache.clear()
             frame = cache[payload] = CanFrame(self.tx_cob_id, payload)
         self._send_frame(frame)
+
+    def _send_data(self, payload: bytes) -> None:
+        """A segment of an object's data (segmented or block upload): a new frame, the cache would
+        only fill with payloads that do not come again."""
+        self._send_frame(CanFrame(self.tx_cob_id, payload))
 
     def _send_frame(self, frame: CanFrame) -> None:
         """What :meth:`Node.send` does (queue on the node's controller, count what fails), called
@@ -310,7 +317,7 @@ class SdoServer:
             self._reset()
         else:
             self._arm()
-        self._send(reply)
+        self._send_data(reply)
 
     # -- block download ------------------------------------------------------------------------
     def _block_download(self, data: bytes) -> None:
@@ -398,7 +405,7 @@ class SdoServer:
         assert sender is not None
         self.state = SdoServerState.BLOCK_UPLOAD
         for segment in sender.sub_block():
-            self._send(segment)
+            self._send_data(segment)
         self._arm()
 
     def _block_upload_ack(self, data: bytes) -> None:
