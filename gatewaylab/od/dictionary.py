@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import replace
-from typing import Any, Protocol
+from typing import Any, Final, Protocol
 
 from gatewaylab.common.errors import ConfigError
 from gatewaylab.od.aborts import SdoAbort, SdoAbortCode
@@ -33,7 +33,7 @@ ReadHook = Callable[[int, int], None]
 Where = int | range
 
 #: What :meth:`ObjectDictionary.put_many` compares with when a key holds no value (equal to nothing).
-_ABSENT = object()
+_ABSENT: Final = object()
 
 
 class AccessPolicy(Protocol):

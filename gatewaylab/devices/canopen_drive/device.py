@@ -15,12 +15,13 @@ compute each period's demand are :mod:`.modes`. Everything is documented in
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Final
+from typing import Any, Final, Protocol
 
 from gatewaylab.bus.bus import VirtualBus
 from gatewaylab.canopen.cia402 import CONTROLWORD_NEXT, STATE_BITS, Command, Cw, OpMode, PdsState, Sw
-from gatewaylab.canopen.emcy import ERR_PROFILE
+from gatewaylab.canopen.emcy import ERR_GENERIC, ERR_PROFILE
 from gatewaylab.canopen.errors import VALUE_RANGE_EXCEEDED, SdoAbort
 from gatewaylab.canopen.lss import BIT_TIMING_TABLE, UNCONFIGURED, LssAddress, LssConfigStore, LssSlave
 from gatewaylab.canopen.nmt import NmtState
@@ -39,7 +40,7 @@ from gatewaylab.devices.canopen_drive.objects import (
     build_object_dictionary,
 )
 from gatewaylab.devices.canopen_drive.plant import AxisParams, ControlMode, Plant, Trapezoid
-from gatewaylab.od import KeyObject, ObjectDictionary, key_object
+from gatewaylab.od import KeyObject, ObjectDictionary, WriteHook, key_object
 
 #: The drive's own control period (s) when no host drives the cycle (IDX: 1 kHz position loop).
 CONTROL_PERIOD = 0.001
@@ -103,16 +104,71 @@ def _saturated_int(value: float, low: float, high: float) -> int:
     return whole
 
 
+class DriveEmcy(Protocol):
+    """What the drive uses of its host's EMCY producer (:class:`~gatewaylab.canopen.emcy.Emcy`)."""
+
+    @property
+    def active(self) -> dict[int, int]:
+        """Active errors: code -> error register bits."""
+
+    def raise_error(self, code: int, register_bits: int = ERR_GENERIC, info: bytes = b"") -> None:
+        """Send an error (once per error event)."""
+
+    def clear_error(self, code: int) -> None:
+        """The error went away: 'error reset'."""
+
+
+class DriveHost(Protocol):
+    """What the drive uses of the node that hosts it: a CANopen :class:`Node`, or another
+    protocol's stand-in (the EtherCAT drive's ``CoeHost``). A Protocol, not a base class: a
+    compiled ``Node`` is a native class, and a compiled attribute typed ``Node`` refuses anything else."""
+
+    @property
+    def nmt_state(self) -> NmtState:
+        """Statusword bit 9 'remote' follows NMT Operational."""
+
+    @property
+    def running(self) -> bool:
+        """Switched on (between start and stop)."""
+
+    @property
+    def emcy(self) -> DriveEmcy:
+        """The EMCY producer of the drive's errors."""
+
+    def set(self, index: int, subindex: int, value: Any) -> None:
+        """The device's own write of a typed value (no access checks, no hooks)."""
+
+    def on_write(self, index: int | range, callback: WriteHook) -> None:
+        """``callback(index, subindex, value)`` after a remote write was stored."""
+
+    def on_nmt_change(self, callback: Callable[[NmtState, NmtState], None]) -> None:
+        """``callback(old, new)`` on every NMT state change."""
+
+    def on_reset(self, callback: Callable[[bool], None]) -> None:
+        """``callback(reset_node)`` at the start of an NMT reset."""
+
+    def start(self) -> None:
+        """Power on the communication side."""
+
+    def stop(self) -> None:
+        """Power off the communication side."""
+
+
 class Drive(OperationModes):
     """A maxon IDX-like CiA 402 servo on a virtual CAN bus (see module docstring)."""
 
+    #: the CANopen node of a drive on CAN (a hosted drive has none: see ``host``)
+    node: Node
+    #: what the drive uses of its node: ``node``, or the host given by another protocol
+    host: DriveHost
+
     def __init__(self, clock: Clock, bus: VirtualBus | None, node_id: int | None, serial: int, name: str = "",
                  store_path: Path | None = None, params: AxisParams | None = None, *,
-                 od: ObjectDictionary | None = None, node: Node | None = None) -> None:
-        """``od`` and ``node``: another protocol hosts the drive (the EtherCAT drive: its slave's
-        dictionary holds the rows of :func:`add_profile_objects`, ``node`` offers what the drive
-        uses of a Node: set, emcy, nmt_state, on_write/on_nmt_change/on_reset, start/stop); then
-        no CANopen node and no LSS slave are built and ``bus`` is not used."""
+                 od: ObjectDictionary | None = None, host: DriveHost | None = None) -> None:
+        """``od`` and ``host``: another protocol hosts the drive (the EtherCAT drive: its slave's
+        dictionary holds the rows of :func:`add_profile_objects`, ``host`` offers what the drive
+        uses of a Node, :class:`DriveHost`); then no CANopen node and no LSS slave are built,
+        ``bus`` is not used and the drive has no ``node``."""
         if node_id is not None and not 1 <= node_id <= 127:
             raise ConfigError(f"drive node_id {node_id} outside 1..127")
         if not 0 <= serial <= 0xFFFFFFFF:
@@ -131,12 +187,12 @@ class Drive(OperationModes):
         #: with the entries' key objects (``key_object``)
         self._v: dict[Any, Any] = self.od.values
         self._lss: LssSlave | None = None
-        if node is not None:
-            self.node = node
+        if host is not None:
+            self.host = host
         else:
             if bus is None:
                 raise ConfigError(f"drive {self.name}: a CANopen drive needs a bus")
-            self.node = Node(clock, bus, node_id, self.od, name=self.name, store_path=store_path)
+            self.node = self.host = Node(clock, bus, node_id, self.od, name=self.name, store_path=store_path)
             if stored is not None:
                 rate = BIT_TIMING_TABLE[stored[1]] if stored[1] < len(BIT_TIMING_TABLE) else None
                 if rate is not None:
@@ -152,11 +208,11 @@ class Drive(OperationModes):
         self._timer: PeriodicTimer | None = None
         self._enter(PdsState.NOT_READY_TO_SWITCH_ON)
         self._init_motion()
-        self.node.on_write(0x6040, self._on_controlword)
-        self.node.on_write(0x6060, self._on_mode)
-        self.node.on_write(0x6098, self._on_homing_method)
-        self.node.on_nmt_change(self._on_nmt_change)
-        self.node.on_reset(self._on_reset)
+        self.host.on_write(0x6040, self._on_controlword)
+        self.host.on_write(0x6060, self._on_mode)
+        self.host.on_write(0x6098, self._on_homing_method)
+        self.host.on_nmt_change(self._on_nmt_change)
+        self.host.on_reset(self._on_reset)
 
     # -- life cycle -------------------------------------------------------------------------
     def _init_motion(self) -> None:
@@ -184,7 +240,7 @@ class Drive(OperationModes):
 
     def start(self) -> None:
         """Power on: boot the node, leave 'not ready to switch on', start the control tick."""
-        self.node.start()
+        self.host.start()
         self._transition(PdsState.SWITCH_ON_DISABLED, 1)   # after the self-test
         self._publish()
         if self._timer is None:
@@ -202,7 +258,12 @@ class Drive(OperationModes):
             self._timer = None
         if self._lss is not None:
             self._lss.stop()
-        self.node.stop()
+        self.host.stop()
+
+    @property
+    def running(self) -> bool:
+        """Switched on: its node (or the protocol that hosts it) runs (fault injection's power cycle)."""
+        return self.host.running
 
     @property
     def lss(self) -> LssSlave:
@@ -242,7 +303,7 @@ class Drive(OperationModes):
     def _set_mode(self, op: OpMode) -> None:
         """The active mode and its display 0x6061 (the control tick runs its handler, _mode_demand)."""
         self.mode = op
-        self.node.set(0x6061, 0, int(op))
+        self.host.set(0x6061, 0, int(op))
 
     def _mode_demand(self, dt: float) -> Demand:
         """The demand of one control period in 'operation enabled': the handler of the mode
@@ -407,23 +468,23 @@ class Drive(OperationModes):
         if self.state in (PdsState.FAULT, PdsState.FAULT_REACTION_ACTIVE):
             return
         self.faults += 1
-        self.node.set(0x603F, 0, error_code)
+        self.host.set(0x603F, 0, error_code)
         self._raise_error(error_code, error_register, data)
         self._transition(PdsState.FAULT_REACTION_ACTIVE, 13)
         self._publish()
 
     def _raise_error(self, error_code: int, error_register: int, data: bytes) -> None:
         self.active_errors.add(error_code)
-        self.node.emcy.raise_error(error_code, error_register, data)
+        self.host.emcy.raise_error(error_code, error_register, data)
 
     def _clear_errors(self, send: bool) -> None:
         """Fault reset (transition 15): 0x603F cleared, EMCY 'error reset' for each drive error."""
-        self.node.set(0x603F, 0, 0)
+        self.host.set(0x603F, 0, 0)
         for code in sorted(self.active_errors):
             if send:
-                self.node.emcy.clear_error(code)
+                self.host.emcy.clear_error(code)
             else:
-                self.node.emcy.active.pop(code, None)
+                self.host.emcy.active.pop(code, None)
         self.active_errors.clear()
 
     # -- outputs ----------------------------------------------------------------------------
@@ -432,7 +493,7 @@ class Drive(OperationModes):
         # enum members through module constants: Enum class attribute access is slow in 3.11
         state = self.state
         sw = self._state_bits
-        if self.node.nmt_state is _NMT_OPERATIONAL:
+        if self.host.nmt_state is _NMT_OPERATIONAL:
             sw |= _SW_REMOTE
         if self.fe_warning:
             sw |= _SW_WARNING
