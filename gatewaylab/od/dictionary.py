@@ -371,8 +371,10 @@ class ObjectDictionary:
 
     def store(self, entry: Entry, value: Any) -> None:
         """A checked, decoded remote value: command, validators, store, write hooks, reactions, listeners."""
-        index = entry.index
-        key: Any = entry.key     # the one tuple object the table holds (see Entry.key)
+        # the index as one object (compiled: an int above 256 is boxed anew for every lookup of
+        # the hook tables below) and the key as the one tuple object the table holds (Entry.key)
+        index: Any = entry.index
+        key: Any = entry.key
         values: dict[Any, Any] = self.values
         if index not in self.intercepted:    # a plain value (e.g. a PDO-mapped set-point)
             old = values[key]
