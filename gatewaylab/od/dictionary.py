@@ -218,8 +218,8 @@ class ObjectDictionary:
             for key, value in zip(keys_, new):
                 old = values.get(key, _ABSENT)
                 if old is _ABSENT:
-                    self._unknown(key)
-                    raise KeyError(key)
+                    self._unknown(key)      # SdoAbort for an unknown key
+                    old = values[key]       # an entry without a value: KeyError, as before
                 if old != value:
                     values[key] = value
                     changed = True
