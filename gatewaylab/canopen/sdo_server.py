@@ -2,10 +2,9 @@
 
 One server channel (0x1200). The state machine is driven by received request frames and by a
 timeout on the node's clock; every failure is answered with the abort code of IDX guide
-chapter 6. Object access does what :meth:`Node.read` / :meth:`Node.write` do (the node's dictionary
-with the node's access policy, :attr:`Node.access`), so SDO sees exactly the access rights, lengths
-and limits that the contract promises; the server calls the dictionary itself because, compiled,
-that is a native call and a call into the (pure Python) node is not.
+chapter 6. Object access goes through :meth:`Node.read` / :meth:`Node.write` (the node's dictionary
+with the node's access policy), so SDO sees exactly the access rights, lengths and limits that the
+contract promises (both modules compiled: native calls).
 """
 
 from __future__ import annotations
@@ -16,7 +15,6 @@ from typing import TYPE_CHECKING, Final
 
 from gatewaylab.bus.frame import CanFrame
 from gatewaylab.common.clock import Clock, TimerHandle
-from gatewaylab.common.errors import LocalError
 from gatewaylab.od import SdoAbort, SdoAbortCode, decode
 from gatewaylab.od import sdo as codec
 from gatewaylab.od.sdo import (
@@ -32,8 +30,7 @@ from gatewaylab.od.sdo import (
 
 if TYPE_CHECKING:
     from gatewaylab.canopen.node import Node
-    from gatewaylab.od import Entry, ObjectDictionary
-    from gatewaylab.od.dictionary import AccessPolicy
+    from gatewaylab.od import Entry
 
 #: Initiate upload response command byte for an expedited answer of n bytes, and its padding.
 _EXPEDITED_CS: Final = (b"", b"\x4F", b"\x4B", b"\x47", b"\x43")
@@ -83,12 +80,7 @@ class SdoServer:
 
     def __init__(self, node: Node, timeout: float = 1.0, block_size: int = 127) -> None:
         self.node = node
-        #: The node's dictionary and clock, held here so that the compiled hot paths call them
-        #: natively (the node itself is a Python object: every call into it is a generic call).
-        self._od: ObjectDictionary = node.od
         self._clock: Clock = node.clock
-        #: CiA 301 access rules in the node's NMT state (:attr:`Node.access`).
-        self._access: AccessPolicy = node.access
         #: Seconds without the next request before a transfer is aborted with 0x05040000.
         self.timeout = timeout
         #: Block size the server asks for in block download (1..127).
@@ -147,13 +139,7 @@ class SdoServer:
         self._send_frame(CanFrame(self.tx_cob_id, payload))
 
     def _send_frame(self, frame: CanFrame) -> None:
-        """What :meth:`Node.send` does (queue on the node's controller, count what fails), called
-        on the controller directly: a native call in the compiled build."""
-        node = self.node
-        try:
-            node.controller.send(frame)
-        except LocalError:
-            node.count("tx_errors")
+        self.node.send(frame)
 
     def _abort(self, code: int) -> None:
         self._reset()
@@ -233,7 +219,7 @@ class SdoServer:
         index = data[1] | (data[2] << 8)
         sub = data[3]
         self.index, self.subindex = index, sub
-        value = self._od.read(index, sub)       # what Node.read does: CiA 301 reads need no state
+        value = self.node.read(index, sub)
         n = len(value)
         if 0 < n <= 4:
             self._send(_EXPEDITED_CS[n] + data[1:4] + value + _PAD[n])
@@ -241,11 +227,7 @@ class SdoServer:
             self._start_upload(index, sub, value)
 
     def _writable(self, index: int, sub: int) -> Entry:
-        """The entry, if a download may write it in the present NMT state: what
-        :meth:`Node.check_writable` does, on the dictionary directly (a native call compiled)."""
-        entry = self._od.entry(index, sub)
-        self._access.check_write(entry, b"")
-        return entry
+        return self.node.check_writable(index, sub)
 
     def _unknown(self, data: bytes) -> None:
         if self._state is _IDLE:
@@ -272,7 +254,7 @@ class SdoServer:
             size = codec.expedited_size(cs)
             if size is None:
                 size = entry.size if entry.size is not None and entry.size <= 4 else 4
-            self._od.store(entry, decode(entry, data[4:4 + size]))   # Node.store; access checked above
+            self.node.store(entry, decode(entry, data[4:4 + size]))   # access checked above
             self._send(codec.download_response(index, sub))
             return
         size = _announced_size(data, entry) if cs & 0x01 else None
@@ -288,7 +270,7 @@ class SdoServer:
         if last:
             codec.check_size(len(transfer.buf), transfer.size)
             self._reset()
-            self._od.write(transfer.index, transfer.subindex, bytes(transfer.buf), self._access)   # Node.write
+            self.node.write(transfer.index, transfer.subindex, bytes(transfer.buf))
         else:
             self._arm()
         self._send(codec.segment_ack(0x20, toggle))
@@ -296,7 +278,7 @@ class SdoServer:
     # -- expedited / segmented upload ----------------------------------------------------------
     def _initiate_upload(self, data: bytes) -> None:
         index, sub = self._begin(data)
-        value = self._od.read(index, sub)
+        value = self.node.read(index, sub)
         self._start_upload(index, sub, value)
 
     def _start_upload(self, index: int, sub: int, value: bytes) -> None:
@@ -360,7 +342,7 @@ class SdoServer:
         payload = receiver.end(data, self._size, self._crc)
         index, sub = self.index, self.subindex
         self._reset()
-        self._od.write(index, sub, payload, self._access)     # Node.write
+        self.node.write(index, sub, payload)
         self._send(bytes((codec.CS_BLOCK_END_RESPONSE, 0, 0, 0, 0, 0, 0, 0)))
 
     # -- block upload --------------------------------------------------------------------------
@@ -383,7 +365,7 @@ class SdoServer:
             raise SdoAbort(SdoAbortCode.COMMAND_SPECIFIER_UNKNOWN)
         if not 1 <= blksize <= 127:
             raise SdoAbort(SdoAbortCode.INVALID_BLOCK_SIZE)
-        value = self._od.read(index, sub)
+        value = self.node.read(index, sub)
         if pst and len(value) <= pst:
             # Protocol switch threshold: answer with the normal upload protocol (CiA 301 7.2.4.3.13)
             self._start_upload(index, sub, value)
