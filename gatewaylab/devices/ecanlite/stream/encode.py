@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import binascii
 from collections.abc import Sequence
+from typing import Final
 
 from gatewaylab.common.errors import LocalError
 from gatewaylab.devices.ecanlite.stream.format import (
@@ -29,7 +30,9 @@ from gatewaylab.devices.ecanlite.stream.layout import StreamLayout, ctrl_error
 from gatewaylab.devices.ecanlite.stream.packets import CanPacket, Packet, TxResultPacket, refuse
 
 #: Control-word TSF bits 11-12 both set: TSF_FULL64 (a TX_RESULT leaves them 0).
-_TSF_FULL64 = 0x1800
+_TSF_FULL64: Final = 0x1800
+#: (an int: compiled, ``int & Option.X`` goes through the enum's Python-level ``__rand__``)
+_PAYLOAD_ONLY: Final = int(Option.PAYLOAD_ONLY_ENABLE)
 
 
 def _schedule_refusal() -> StreamEncodeError:
@@ -64,36 +67,43 @@ def judge(packets: Sequence[Packet], layout: StreamLayout) -> int:
     """Refuse what ``layout`` cannot carry before anything is written: the first control word it
     refuses in stream order, then a TSF_FULL64 packet of the wrong direction (reservation in the
     RxPDO, timestamp in the TxPDO, 8.4). Returns TX_RESULT_PRESENT when a TX_RESULT is there
-    (chapter 6), else 0. Each distinct control word of the image is tested once."""
-    try:
-        ctrls = {p.ctrl for p in packets}
-    except (AttributeError, TypeError):   # compiled (mypyc), a non-packet fails the type check of p
-        raise LocalError(f"not a packet: {_first_foreign(packets)!r}") from None
+    (chapter 6), else 0. One test per packet for the common case; the receiver's full verdict
+    (:func:`~.layout.ctrl_error`) from the first packet that fails it."""
     chmask = layout.channel_mask & 0x0F
     tsf_mask = layout.tsf_mask
     d64_ok = layout.d64_allowed
-    # the common case in one test per control word: KIND 0, channel in the mask, TSF allowed, no
-    # D64 or allowed (a CanPacket's frame already obeys the CAN rules of 8.2)
-    special = {ctrl for ctrl in ctrls
-               if ctrl & 0x6000 or not chmask >> (ctrl & 7) & 1 or not tsf_mask >> (ctrl >> 11 & 3) & 1
-               or (ctrl & 0x8000 and not d64_ok)}
-    flags = 0
-    if special:
+    first = -1          # the first packet the common-case test does not clear
+    full64 = False
+    kinds = 0
+    i = 0
+    try:
         for p in packets:
-            if p.ctrl in special:
-                if type(p) is not CanPacket and type(p) is not TxResultPacket:
-                    raise LocalError(f"not a packet: {p!r}")
-                code, why = ctrl_error(p.ctrl, layout)
-                if code:
-                    raise refuse(code, why)
-                if p.ctrl & 0x6000:
-                    flags = HeaderFlags.TX_RESULT_PRESENT
-    if any(ctrl & 0x7800 == _TSF_FULL64 for ctrl in ctrls):
+            ctrl = p.ctrl
+            # the common case: KIND 0, channel in the mask, TSF allowed, no D64 or allowed (a
+            # CanPacket's frame already obeys the CAN rules of 8.2)
+            if first < 0 and (ctrl & 0x6000 or not chmask >> (ctrl & 7) & 1 or not tsf_mask >> (ctrl >> 11 & 3) & 1
+                              or (ctrl & 0x8000 and not d64_ok)):
+                first = i
+            if ctrl & 0x7800 == _TSF_FULL64:
+                full64 = True
+            kinds |= ctrl
+            i += 1
+    except (AttributeError, TypeError):   # compiled (mypyc), a non-packet fails the type check of p
+        raise LocalError(f"not a packet: {_first_foreign(packets)!r}") from None
+    if first >= 0:
+        for p in packets[first:]:
+            if type(p) is not CanPacket and type(p) is not TxResultPacket:
+                raise LocalError(f"not a packet: {p!r}")
+            code, why = ctrl_error(p.ctrl, layout)
+            if code:
+                raise refuse(code, why)
+    if full64:
         schedule = layout.schedule_allowed
         for p in packets:
             if p.ctrl & 0x7800 == _TSF_FULL64 and p.scheduled != schedule:  # type: ignore[union-attr]
                 raise _schedule_refusal()
-    return int(flags)
+    # every control word passed: one with KIND bits set is a TX_RESULT (chapter 10)
+    return int(HeaderFlags.TX_RESULT_PRESENT) if kinds & 0x6000 else 0
 
 
 def encode_into(buf: bytearray | memoryview, layout: StreamLayout, seq: int, packets: Sequence[Packet], *,
@@ -122,7 +132,7 @@ def encode_into(buf: bytearray | memoryview, layout: StreamLayout, seq: int, pac
         raise refuse(PdoError.PACKET_OVERRUN, f"packets need {off - HEADER_SIZE} bytes, the frame area has "
                                               f"{end - HEADER_SIZE} (chapter 12)")
     buf[HEADER_SIZE:off] = blob
-    if not layout.options & Option.PAYLOAD_ONLY_ENABLE:
+    if not layout.options & _PAYLOAD_ONLY:
         buf[off:end] = bytes(end - off)
     payload_len = off - HEADER_SIZE
     if layout.crc_enabled:
