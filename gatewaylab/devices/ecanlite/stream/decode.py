@@ -11,7 +11,7 @@ its frame is a :class:`~gatewaylab.bus.frame.CanFrame`, which checks its own fie
 from __future__ import annotations
 
 import binascii
-from typing import Final
+from typing import TYPE_CHECKING, Final
 
 from gatewaylab.bus.frame import FD_DLC_TO_LEN, CanFrame
 from gatewaylab.devices.ecanlite.stream.format import (
@@ -38,6 +38,9 @@ from gatewaylab.devices.ecanlite.stream.packets import (
     StreamHeader,
     TxResultPacket,
 )
+
+if TYPE_CHECKING:
+    from mypy_extensions import i64  # compiled: a machine integer; pure Python never evaluates it
 
 #: Appended to the decoder's copy of an image, so a packet head can be read before the check
 #: that it ends inside payload_len (a full64 head is 2 + 4 + 8 bytes).
@@ -131,7 +134,7 @@ def decode_stream(image: bytes | bytearray | memoryview, layout: StreamLayout) -
         raise _fail(PdoError.PACKET_OVERRUN, f"payload_len {payload_len} > frame area {size - HEADER_SIZE} (6.1)",
                     seq, payload_len, crc, layout_id)
     if layout.crc_enabled:
-        calc = binascii.crc_hqx(data[HEADER_SIZE:end], 0xFFFF)
+        calc = binascii.crc_hqx(memoryview(data)[HEADER_SIZE:end], 0xFFFF)   # (a view of our own copy)
         if calc != crc:
             raise _fail(PdoError.BAD_CRC, f"payload_crc16 0x{crc:04X} != 0x{calc:04X} (6.1)",
                         seq, payload_len, crc, layout_id)
@@ -154,26 +157,28 @@ def _decode_packets(data: bytes, end: int, layout: StreamLayout, seq: int, paylo
                     layout_id: int) -> list[Packet]:
     """The packets of ``data[24:end]`` (chapter 8), each checked where it is read.
 
-    Fields are read by indexing ``data`` (compiled: native ints, no tuple per packet); the packet
-    is built from values already checked (its CanFrame checks its own fields)."""
+    Fields are read by indexing ``data`` (compiled: native ints, no tuple per packet; the locals
+    typed ``i64`` are machine words, no tagged-int checks), and the packet is built from values
+    already checked (its CanFrame checks its own fields)."""
     packets: list[Packet] = []
-    chmask = layout.channel_mask & 0x0F
-    tsf_mask = layout.tsf_mask
+    chmask: i64 = layout.channel_mask & 0x0F
+    tsf_mask: i64 = layout.tsf_mask
     d64_ok = layout.d64_allowed
-    reservation = 4 if layout.schedule_allowed else 3
+    schedule = layout.schedule_allowed
     align4 = layout.align4
     lengths = FD_DLC_TO_LEN
     tsfs = TSFS
     tsf_bytes = TSF_BYTES
-    off = HEADER_SIZE
-    while off < end:
+    stop: i64 = end
+    off: i64 = HEADER_SIZE
+    while off < stop:
         if off + 2 > end:
             raise _fail(PdoError.TRUNCATED, "control word cut by payload_len (8)", seq, payload_len, crc, layout_id,
                         off, off + 2)
-        ctrl = data[off] | data[off + 1] << 8
-        dlc = ctrl >> 3 & 15
+        ctrl: i64 = data[off] | data[off + 1] << 8
+        dlc: i64 = ctrl >> 3 & 15
         fdf = ctrl & 0x100 != 0
-        tsf = ctrl >> 11 & 3
+        tsf: i64 = ctrl >> 11 & 3
         # the common case in one test: KIND 0, channel in the mask, classic rules (8.2), TSF and
         # D64 allowed here; anything else gets the receiver's full verdict
         if (ctrl & 0x6000 or not chmask >> (ctrl & 7) & 1 or not tsf_mask >> tsf & 1
@@ -182,7 +187,7 @@ def _decode_packets(data: bytes, end: int, layout: StreamLayout, seq: int, paylo
             if code:
                 raise _fail(code, why, seq, payload_len, crc, layout_id, off, -1, ctrl)
             # only a TX_RESULT passes ctrl_error here (KIND 1 allowed, chapter 10)
-            nxt = off + (8 if align4 else 6)
+            nxt: i64 = off + (8 if align4 else 6)
             if nxt > end:
                 raise _fail(PdoError.TRUNCATED, "TX_RESULT cut by payload_len (10)", seq, payload_len, crc,
                             layout_id, off, nxt, ctrl)
@@ -201,14 +206,15 @@ def _decode_packets(data: bytes, end: int, layout: StreamLayout, seq: int, paylo
         x = ctrl & 0x400 != 0
         rtr = x and not fdf
         d64 = ctrl >= 0x8000
-        n = 0 if rtr else lengths[dlc]
-        head = (6 if ide else 4) + tsf_bytes[tsf]
-        raw = head + (64 if d64 else n)
+        n: i64 = 0 if rtr else dlc if dlc <= 8 else lengths[dlc]
+        head: i64 = (6 if ide else 4) + (tsf_bytes[tsf] if tsf else 0)
+        raw: i64 = head + (64 if d64 else n)
         nxt = off + ((raw + 3) & ~3 if align4 else raw)
-        if nxt > end:
+        if nxt > stop:
             raise _fail(PdoError.TRUNCATED, f"packet ends at {nxt} beyond payload end {end} (8.3)", seq,
                         payload_len, crc, layout_id, off, nxt, ctrl)
-        at = off + 2
+        at: i64 = off + 2
+        word: i64
         if ide:
             word = data[at] | data[at + 1] << 8 | data[at + 2] << 16 | data[at + 3] << 24
             at += 4
@@ -222,7 +228,7 @@ def _decode_packets(data: bytes, end: int, layout: StreamLayout, seq: int, paylo
                 stamp = data[at] | data[at + 1] << 8
             elif tsf == 2:
                 stamp = data[at] | data[at + 1] << 8 | data[at + 2] << 16 | data[at + 3] << 24
-            elif reservation == 3:
+            elif not schedule:
                 stamp = int.from_bytes(data[at:at + 8], "little")
             else:           # RxPDO: TSF_FULL64 is only the reservation format (8.4)
                 fmt = data[at]
@@ -236,14 +242,14 @@ def _decode_packets(data: bytes, end: int, layout: StreamLayout, seq: int, paylo
         if not ide and word & 0xC000:
             raise _fail(PdoError.RESERVED_BIT, "StdIdField bits 14/15 must be 0 (8.1)", seq, payload_len, crc,
                         layout_id, off, nxt, ctrl)
-        pend = off + raw
-        while pend < nxt:   # ALIGN4 padding (8.3)
-            if data[pend]:
+        pend: i64 = off + raw
+        pad: i64 = pend
+        while pad < nxt:    # ALIGN4 padding (8.3)
+            if data[pad]:
                 raise _fail(PdoError.RESERVED_BIT, "ALIGN4 padding must be 0 (8.3)", seq, payload_len, crc,
                             layout_id, off, nxt, ctrl)
-            pend += 1
-        pend = off + raw
-        start = off + head
+            pad += 1
+        start: i64 = off + head
         payload = data[start:start + n]
         if ide:
             frame = CanFrame(word & 0x1FFFFFFF, payload, True, rtr, fdf, ctrl & 0x200 != 0, x and fdf,

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import binascii
 from collections.abc import Sequence
-from typing import Final
+from typing import TYPE_CHECKING, Final
 
 from gatewaylab.common.errors import LocalError
 from gatewaylab.devices.ecanlite.stream.format import (
@@ -28,6 +28,9 @@ from gatewaylab.devices.ecanlite.stream.format import (
 )
 from gatewaylab.devices.ecanlite.stream.layout import StreamLayout, ctrl_error
 from gatewaylab.devices.ecanlite.stream.packets import CanPacket, Packet, TxResultPacket, refuse
+
+if TYPE_CHECKING:
+    from mypy_extensions import i64  # compiled: a machine integer; pure Python never evaluates it
 
 #: Control-word TSF bits 11-12 both set: TSF_FULL64 (a TX_RESULT leaves them 0).
 _TSF_FULL64: Final = 0x1800
@@ -69,16 +72,16 @@ def judge(packets: Sequence[Packet], layout: StreamLayout) -> int:
     RxPDO, timestamp in the TxPDO, 8.4). Returns TX_RESULT_PRESENT when a TX_RESULT is there
     (chapter 6), else 0. One test per packet for the common case; the receiver's full verdict
     (:func:`~.layout.ctrl_error`) from the first packet that fails it."""
-    chmask = layout.channel_mask & 0x0F
-    tsf_mask = layout.tsf_mask
+    chmask: i64 = layout.channel_mask & 0x0F
+    tsf_mask: i64 = layout.tsf_mask
     d64_ok = layout.d64_allowed
-    first = -1          # the first packet the common-case test does not clear
+    first: i64 = -1     # the first packet the common-case test does not clear
     full64 = False
-    kinds = 0
-    i = 0
+    kinds: i64 = 0
+    i: i64 = 0
     try:
         for p in packets:
-            ctrl = p.ctrl
+            ctrl: i64 = p.ctrl
             # the common case: KIND 0, channel in the mask, TSF allowed, no D64 or allowed (a
             # CanPacket's frame already obeys the CAN rules of 8.2)
             if first < 0 and (ctrl & 0x6000 or not chmask >> (ctrl & 7) & 1 or not tsf_mask >> (ctrl >> 11 & 3) & 1
