@@ -76,21 +76,16 @@ def judge(packets: Sequence[Packet], layout: StreamLayout) -> int:
     tsf_mask: i64 = layout.tsf_mask
     d64_ok = layout.d64_allowed
     first: i64 = -1     # the first packet the common-case test does not clear
-    full64 = False
-    kinds: i64 = 0
-    i: i64 = 0
+    kinds: i64 = 0      # every control word OR-ed: TSF_FULL64 bits, KIND bits
     try:
-        for p in packets:
+        for i, p in enumerate(packets):
             ctrl: i64 = p.ctrl
+            kinds |= ctrl
             # the common case: KIND 0, channel in the mask, TSF allowed, no D64 or allowed (a
             # CanPacket's frame already obeys the CAN rules of 8.2)
             if first < 0 and (ctrl & 0x6000 or not chmask >> (ctrl & 7) & 1 or not tsf_mask >> (ctrl >> 11 & 3) & 1
                               or (ctrl & 0x8000 and not d64_ok)):
                 first = i
-            if ctrl & 0x7800 == _TSF_FULL64:
-                full64 = True
-            kinds |= ctrl
-            i += 1
     except (AttributeError, TypeError):   # compiled (mypyc), a non-packet fails the type check of p
         raise LocalError(f"not a packet: {_first_foreign(packets)!r}") from None
     if first >= 0:
@@ -100,7 +95,7 @@ def judge(packets: Sequence[Packet], layout: StreamLayout) -> int:
             code, why = ctrl_error(p.ctrl, layout)
             if code:
                 raise refuse(code, why)
-    if full64:
+    if kinds & _TSF_FULL64 == _TSF_FULL64:      # some packet may be TSF_FULL64
         schedule = layout.schedule_allowed
         for p in packets:
             if p.ctrl & 0x7800 == _TSF_FULL64 and p.scheduled != schedule:  # type: ignore[union-attr]
