@@ -175,8 +175,8 @@ COMMIT: Final = struct.Struct("<HHHH")
 TX_RESULT: Final = struct.Struct("<HHBB")
 #: A CAN_FRAME's control word, id field and timestamp field in one format (8.1, 8.4), by
 #: [IDE][shape]: shape 0 no timestamp, 1 delta16, 2 delta32, 3 full64, 4 the RxPDO reservation
-#: (format u8, flags u8, tag u16, offset_ns u32). The packet packs its head with these, the
-#: decoder unpacks a head with one call.
+#: (format u8, flags u8, tag u16, offset_ns u32). The packet packs its head with these; the
+#: decoder reads the same fields by indexing its bytes (compiled: native ints, docs/performance.md).
 PACKET_HEADS: Final = tuple(tuple(struct.Struct("<H" + id_fmt + ts_fmt) for ts_fmt in ("", "H", "I", "Q", "BBHI"))
                      for id_fmt in ("H", "I"))
 #: Zeros for a D64 window tail (< 64) plus ALIGN4 padding (< 4).
