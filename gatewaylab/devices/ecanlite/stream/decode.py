@@ -163,7 +163,8 @@ def _decode_packets(data: bytes, end: int, layout: StreamLayout, seq: int, paylo
     packets: list[Packet] = []
     chmask: i64 = layout.channel_mask & 0x0F
     tsf_mask: i64 = layout.tsf_mask
-    d64_ok = layout.d64_allowed
+    # KIND bits, and D64 where the layout has no D64 windows: any of them set needs the full verdict
+    refused: i64 = 0x6000 if layout.d64_allowed else 0xE000
     schedule = layout.schedule_allowed
     align4 = layout.align4
     lengths = FD_DLC_TO_LEN
@@ -181,8 +182,8 @@ def _decode_packets(data: bytes, end: int, layout: StreamLayout, seq: int, paylo
         tsf: i64 = ctrl >> 11 & 3
         # the common case in one test: KIND 0, channel in the mask, classic rules (8.2), TSF and
         # D64 allowed here; anything else gets the receiver's full verdict
-        if (ctrl & 0x6000 or not chmask >> (ctrl & 7) & 1 or not tsf_mask >> tsf & 1
-                or (ctrl & 0x8000 and not d64_ok) or (not fdf and (dlc > 8 or ctrl & 0x8200))):
+        if (ctrl & refused or not chmask >> (ctrl & 7) & 1 or not tsf_mask >> tsf & 1
+                or (not fdf and (dlc > 8 or ctrl & 0x8200))):
             code, why = ctrl_error(ctrl, layout)
             if code:
                 raise _fail(code, why, seq, payload_len, crc, layout_id, off, -1, ctrl)

@@ -74,7 +74,8 @@ def judge(packets: Sequence[Packet], layout: StreamLayout) -> int:
     (:func:`~.layout.ctrl_error`) from the first packet that fails it."""
     chmask: i64 = layout.channel_mask & 0x0F
     tsf_mask: i64 = layout.tsf_mask
-    d64_ok = layout.d64_allowed
+    # KIND bits, and D64 where the layout has no D64 windows: any of them set needs the full verdict
+    refused: i64 = 0x6000 if layout.d64_allowed else 0xE000
     first: i64 = -1     # the first packet the common-case test does not clear
     kinds: i64 = 0      # every control word OR-ed: TSF_FULL64 bits, KIND bits
     try:
@@ -83,8 +84,7 @@ def judge(packets: Sequence[Packet], layout: StreamLayout) -> int:
             kinds |= ctrl
             # the common case: KIND 0, channel in the mask, TSF allowed, no D64 or allowed (a
             # CanPacket's frame already obeys the CAN rules of 8.2)
-            if first < 0 and (ctrl & 0x6000 or not chmask >> (ctrl & 7) & 1 or not tsf_mask >> (ctrl >> 11 & 3) & 1
-                              or (ctrl & 0x8000 and not d64_ok)):
+            if first < 0 and (ctrl & refused or not chmask >> (ctrl & 7) & 1 or not tsf_mask >> (ctrl >> 11 & 3) & 1):
                 first = i
     except (AttributeError, TypeError):   # compiled (mypyc), a non-packet fails the type check of p
         raise LocalError(f"not a packet: {_first_foreign(packets)!r}") from None
