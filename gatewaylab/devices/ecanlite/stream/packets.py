@@ -88,6 +88,13 @@ class StreamHeader:
         object.__setattr__(self, "channel_status", channel_status)
         object.__setattr__(self, "ver_ihl", ver_ihl)
 
+    def __reduce__(self) -> tuple[type[StreamHeader], tuple[HeaderFlags, int, int, int, int, int, int, int, int, int,
+                                                            tuple[int, int, int, int], int]]:
+        # Pickled and copied by its constructor (see CanPacket.__reduce__).
+        return StreamHeader, (self.header_flags, self.seq_begin, self.seq_end, self.payload_len, self.payload_crc16,
+                              self.layout_id, self.channel_mask, self.frame_count, self.overflow_sat, self.crc_alg,
+                              self.channel_status, self.ver_ihl)
+
     @property
     def crc(self) -> int:
         """payload_crc16 (the name parse_diag uses, 16.2)."""
@@ -380,6 +387,10 @@ class DecodedStream:
         # Written out (see StreamHeader.__init__).
         object.__setattr__(self, "header", header)
         object.__setattr__(self, "packets", packets)
+
+    def __reduce__(self) -> tuple[type[DecodedStream], tuple[StreamHeader, tuple[Packet, ...]]]:
+        # Pickled and copied by its constructor (see CanPacket.__reduce__).
+        return DecodedStream, (self.header, self.packets)
 
     @property
     def frames(self) -> tuple[CanPacket, ...]:
