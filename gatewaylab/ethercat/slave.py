@@ -16,7 +16,7 @@ import itertools
 import struct
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Final, final
 
 from mypy_extensions import mypyc_attr
 
@@ -33,7 +33,7 @@ from gatewaylab.od import DataType, Entry, ObjectDictionary, SdoAbort, decode, e
 
 __all__ = ["MappedEntry", "Slave", "SlaveApplication", "build_od"]
 
-U32 = struct.Struct("<I")
+U32: Final = struct.Struct("<I")
 _RANK_ORDER = (AlState.INIT, AlState.PREOP, AlState.BOOT, AlState.SAFEOP, AlState.OP)
 
 
@@ -45,6 +45,15 @@ class SlaveApplication:
     #: device that parses the raw outputs in :meth:`on_outputs`, e.g. large message queues);
     #: a CoE read of a mapped output then decodes it from the outputs image instead.
     store_outputs: bool = True
+
+    #: True: outputs reach the application on the SM2 write event, inside the frame, before the same
+    #: datagram reads the inputs (``ethercat_io``'s loop-back answers in the same LRW). False: the
+    #: ESC takes the buffer in the frame and the application gets it once the frame has passed
+    #: (:meth:`Slave.after_frame`): a real ESC answers a frame as it passes while the firmware reads
+    #: and writes process RAM between frames (ET1100 data sheet: the SM2 buffer event interrupts the
+    #: PDI), so the application's work (a drive's controlword and set-points) is not part of the round
+    #: trip; its answer is in the inputs of the next frame.
+    outputs_in_frame: bool = True
 
     def setup_od(self, slave: Slave, od: ObjectDictionary) -> None:
         """Bind the device's object hooks once the dictionary exists: ``od.on_read`` (status
@@ -59,7 +68,8 @@ class SlaveApplication:
         """The state changed (``code`` != 0 when the slave fell back by itself, e.g. 0x001B)."""
 
     def on_outputs(self, slave: Slave, data: bytes) -> None:
-        """New outputs arrived in OP (called from the frame path: keep it short)."""
+        """New outputs arrived in OP: called from the frame path (keep it short), or once the frame has
+        passed when ``outputs_in_frame`` is False."""
 
     def on_inputs_read(self, slave: Slave) -> None:
         """The master read the whole inputs buffer; refresh inputs for the next cycle here."""
@@ -82,6 +92,33 @@ class MappedEntry:
     def key(self) -> tuple[int, int]:
         """(index, subindex) of the mapped object."""
         return (self.index, self.subindex)
+
+
+@final
+class _Slot:
+    """A byte-aligned mapped object of fixed size whose raw bytes its entry's struct reads and writes:
+    the process image's fast path (decoded once per layout, not per cycle)."""
+
+    __slots__ = ("codec", "entry", "index", "key", "offset", "subindex")
+
+    def __init__(self, m: MappedEntry, entry: Entry, codec: struct.Struct) -> None:
+        self.key = m.key
+        self.index = m.index
+        self.subindex = m.subindex
+        self.entry = entry
+        self.codec = codec
+        self.offset = m.bit_offset // 8
+
+
+def _slot(m: MappedEntry, entry: Entry | None) -> _Slot | None:
+    """The fast-path slot of a mapped object, or None where the general path must serve it (bit-wise
+    mapping, a mapping length other than the type's, variable size, limits to check)."""
+    if entry is None or entry.codec is None or entry.limited or m.bit_offset % 8:
+        return None
+    codec = entry.codec
+    if 8 * codec.size != m.bit_length:
+        return None
+    return _Slot(m, entry, codec)
 
 
 def _desc_entries(pdos: tuple[Pdo, ...]) -> list[MappedEntry]:
@@ -127,11 +164,18 @@ class Slave:
         self._inputs = bytearray(self.input_bytes)
         self._outputs = bytes(self.output_bytes)
         self.outputs_valid = False
+        #: Outputs taken in the frame whose delivery to the application waits for :meth:`after_frame`
+        #: (``SlaveApplication.outputs_in_frame`` False).
+        self.outputs_pending = False
         self._inputs_one_buffer = False
         self.cycles = 0
         self._unbind: list[Callable[[], None]] = []
         self._input_by_key: dict[tuple[int, int], MappedEntry] = {}
         self._output_by_key: dict[tuple[int, int], MappedEntry] = {}
+        #: fast paths of the image (see ``_Slot``): mapped inputs by key, outputs in mapping order
+        #: (None: some output needs the general path)
+        self._input_slots: dict[tuple[int, int], _Slot] = {}
+        self._output_slots: list[_Slot] | None = None
         self._bind_image()
         for obj in self.od:
             if any(e.tx_pdo or e.rx_pdo for e in obj.entries.values()):
@@ -241,6 +285,7 @@ class Slave:
         if new != AlState.OP and old == AlState.OP:
             self._outputs = bytes(self.output_bytes)  # safe state
             self.outputs_valid = False
+            self.outputs_pending = False
             self._store_outputs()
         self.app.on_state(self, old, new, code)
 
@@ -307,9 +352,27 @@ class Slave:
         if esc.mem[REG_AL_STATUS] & 0x0F == AlState.OP:  # hot path: no enum construction
             self._outputs = data if len(data) == self.output_bytes else data[:self.output_bytes]
             self.outputs_valid = True
-            if self.app.store_outputs:
+            app = self.app
+            if not app.outputs_in_frame:
+                self.outputs_pending = True     # delivered by after_frame, once the frame has passed
+                return
+            if app.store_outputs:
                 self._store_outputs()
-            self.app.on_outputs(self, self._outputs)
+            app.on_outputs(self, self._outputs)
+
+    def after_frame(self) -> None:
+        """The PDI's work between frames: outputs taken in the last frame reach the application (an
+        application with ``outputs_in_frame`` False); nothing when none are pending. The outputs are
+        dropped when the slave left OP meanwhile (its safe state is already applied)."""
+        if not self.outputs_pending:
+            return
+        self.outputs_pending = False
+        if self.esc.mem[REG_AL_STATUS] & 0x0F != AlState.OP or not self.outputs_valid:
+            return
+        app = self.app
+        if app.store_outputs:
+            self._store_outputs()
+        app.on_outputs(self, self._outputs)
 
     def sync0(self, t: float) -> None:
         """The ESC's SYNC0 line (a clock timer, not an access): the application's SYNC0 hook."""
@@ -383,8 +446,22 @@ class Slave:
                 self.esc.sm_set_full(self.sm_inputs)
 
     def _input_changed(self, key: tuple[int, int], value: Any) -> None:
-        m = self._input_by_key[key]
-        self._pack_input(m, self.od.entries[key], value)
+        slot = self._input_slots.get(key)
+        if slot is None:
+            m = self._input_by_key[key]
+            self._pack_input(m, self.od.entries[key], value)
+            return
+        # the fast path of _pack_input: the value packed into the image and into process RAM
+        inputs = self._inputs
+        offset = slot.offset
+        codec = slot.codec
+        if offset + codec.size > len(inputs):
+            self._pack_input(self._input_by_key[key], slot.entry, value)
+            return
+        codec.pack_into(inputs, offset, value)
+        self.esc.pdi_write(self.desc.inputs_start + offset, inputs[offset:offset + codec.size])
+        if self._inputs_one_buffer:
+            self.esc.sm_set_full(self.sm_inputs)
 
     def _bind_image(self) -> None:
         """Subscribe to the mapped input objects (after every layout change)."""
@@ -392,6 +469,19 @@ class Slave:
             unsubscribe()
         self._input_by_key = {m.key: m for m in self.inputs_map}
         self._output_by_key = {m.key: m for m in self.outputs_map}
+        entries = self.od.entries
+        self._input_slots = {}
+        for m in self.inputs_map:
+            slot = _slot(m, entries.get(m.key))
+            if slot is not None:
+                self._input_slots[m.key] = slot
+        outputs: list[_Slot] = []
+        for m in self.outputs_map:
+            slot = _slot(m, entries.get(m.key))
+            if slot is None:
+                break
+            outputs.append(slot)
+        self._output_slots = outputs if len(outputs) == len(self.outputs_map) else None
         self._unbind = [self.od.subscribe(key, self._input_changed)
                         for key in self._input_by_key if key in self.od.entries]
 
@@ -399,6 +489,20 @@ class Slave:
         """The outputs the device acts on, into their mapped objects."""
         od = self.od
         data = self._outputs
+        slots = self._output_slots
+        if slots is not None:
+            # fast path (every output a byte-aligned fixed-size object without limits): only the
+            # values that differ from the stored ones are put (put stores nothing else either)
+            values = od.values
+            size = len(data)
+            for slot in slots:
+                codec = slot.codec
+                if slot.offset + codec.size > size:
+                    continue
+                value = codec.unpack_from(data, slot.offset)[0]
+                if values[slot.key] != value:
+                    od.put(slot.index, slot.subindex, value)
+            return
         for m in self.outputs_map:
             entry = od.entries.get(m.key)
             if entry is not None and m.bit_offset + m.bit_length <= 8 * len(data):

@@ -209,7 +209,7 @@ class WireTransport:
                 if not self._acquire(lock):
                     return
                 try:
-                    ok = segment.process(frame)
+                    ok = segment.process(frame, defer=True)
                 finally:
                     lock.release()
                 if not ok:
@@ -219,10 +219,17 @@ class WireTransport:
                 except OSError as exc:
                     if len(self.errors) < MAX_ERRORS_KEPT:  # a storm must not grow the list without end
                         self.errors.append(str(exc))
-                    continue
-                self.frames_out += 1
-                if pcap is not None:
-                    pcap.write(time.time(), frame)
+                else:
+                    self.frames_out += 1
+                    if pcap is not None:
+                        pcap.write(time.time(), frame)
+                # the applications' work (outputs to the drives) once the frame is on its way back
+                if not self._acquire(lock):
+                    return
+                try:
+                    segment.after_frame()
+                finally:
+                    lock.release()
             except Exception as exc:
                 self._fault(f"frame {self.frames_in}", exc)
             finally:

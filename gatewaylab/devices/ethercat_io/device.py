@@ -10,7 +10,9 @@ cycles, so a master can check both directions of process data.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Final
+
+from mypy_extensions import mypyc_attr
 
 from gatewaylab.common.clock import Clock
 from gatewaylab.ethercat.description import DeviceDescription, ObjectDef, Pdo, PdoEntry
@@ -22,7 +24,7 @@ from gatewaylab.od import Access, DataType, Entry, ObjectDictionary
 VENDOR_ID = 0x47574C42  # 'GWLB', not an ETG-assigned id (see docs/decisions.md)
 PRODUCT_CODE = 0x00010001
 #: Loop-back wiring: output object -> input object that echoes it.
-_ECHO = (((0x7000, 1), (0x6000, 1)), ((0x7010, 1), (0x6010, 1)), ((0x7010, 2), (0x6010, 2)))
+_ECHO: Final = (((0x7000, 1), (0x6000, 1)), ((0x7010, 1), (0x6010, 1)), ((0x7010, 2), (0x6010, 2)))
 
 
 def io_description(name: str = "GL-IO 8DIO 2AIO", serial: int = 0, revision: int = 1) -> DeviceDescription:
@@ -63,6 +65,7 @@ def io_description(name: str = "GL-IO 8DIO 2AIO", serial: int = 0, revision: int
         ))
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)  # tests subclass it (counting, faulty boxes)
 class IoApplication(SlaveApplication):
     """Loop-back behaviour: inputs = previous outputs, counter = number of output cycles; writing an
     error code to 0x8001 sends that CoE emergency right after the SDO response."""
