@@ -24,8 +24,9 @@ CYCLES = 500
 ROUNDS = 5
 
 
-def build(drives: int, ios: int = IO_WITH) -> tuple[Any, Any, bytearray, Callable[[int], None]]:
-    """A segment in OP with ``drives`` enabled drives (CSP) + ``ios`` io; (clock, segment, frame, set_cycle)."""
+def build(drives: int, ios: int = IO_WITH, clock: Any = None) -> tuple[Any, Any, bytearray, Callable[[int], None]]:
+    """A segment in OP with ``drives`` enabled drives (CSP) + ``ios`` io; (clock, segment, frame, set_cycle).
+    ``clock``: a RealTimeClock to build on (no loop runs it yet), else a new SimulatedClock."""
     from gatewaylab.common.clock import SimulatedClock
     from gatewaylab.devices.ethercat_drive import EthercatDrive
     from gatewaylab.devices.ethercat_io.device import create_io_slave
@@ -33,7 +34,14 @@ def build(drives: int, ios: int = IO_WITH) -> tuple[Any, Any, bytearray, Callabl
     from gatewaylab.ethercat.segment import Segment
     from gatewaylab.hosts.ethercat.master import Master
 
-    clock = SimulatedClock()
+    clock = SimulatedClock() if clock is None else clock
+
+    def advance() -> None:
+        if isinstance(clock, SimulatedClock):
+            clock.advance(0.001)
+        else:
+            clock.wait(0.001)   # no loop: wait runs the clock's events
+
     devices = [EthercatDrive(clock, f"GL-Drive #{i}", serial=0x3001 + i) for i in range(drives)]
     slaves = [d.slave for d in devices] + [create_io_slave(clock, f"GL-IO #{i}", revision=i + 1)
                                            for i in range(ios)]
@@ -53,7 +61,7 @@ def build(drives: int, ios: int = IO_WITH) -> tuple[Any, Any, bytearray, Callabl
     m.set_state(AlState.SAFEOP)
     for _ in range(2):
         m.exchange_process_data()
-        clock.advance(0.001)
+        advance()
     m.set_state(AlState.OP)
 
     def outputs(i: int, cw: int = 0x0F) -> None:
@@ -67,13 +75,13 @@ def build(drives: int, ios: int = IO_WITH) -> tuple[Any, Any, bytearray, Callabl
         outputs(0, cw)
         for _ in range(20):
             m.exchange_process_data()
-            clock.advance(0.001)
+            advance()
     enabled = sum(1 for d in devices if d.drive.state.name == "OPERATION_ENABLED")
     if enabled != drives:
         raise RuntimeError(f"{enabled}/{drives} drives enabled")
     frames.clear()
     m.exchange_process_data()
-    clock.advance(0.001)
+    advance()
     frame = bytearray(frames[-1])
 
     def set_cycle(i: int) -> None:
@@ -91,6 +99,16 @@ def build(drives: int, ios: int = IO_WITH) -> tuple[Any, Any, bytearray, Callabl
     return clock, segment, frame, set_cycle
 
 
+def _process_deferred(segment: Any, buf: bytearray) -> bool:
+    """``segment.process`` leaving the applications' work for ``after_frame`` (True), or all of it in the frame
+    path where the segment has no ``after_frame`` (False: the code before issue 23's second round)."""
+    if hasattr(segment, "after_frame"):
+        segment.process(buf, defer=True)
+        return True
+    segment.process(buf)
+    return False
+
+
 def measure(drives: int, ios: int = IO_WITH, cycles: int = CYCLES, rounds: int = ROUNDS) -> dict[str, float]:
     """Best-of-``rounds`` CPU us per cycle: frame path, after the reply, and their sum."""
     clock, segment, frame, set_cycle = build(drives, ios)
@@ -103,9 +121,10 @@ def measure(drives: int, ios: int = IO_WITH, cycles: int = CYCLES, rounds: int =
             set_cycle(i)
             buf = bytearray(frame)
             t0 = time.thread_time()
-            segment.process(buf, defer=True)
+            deferred = _process_deferred(segment, buf)
             t1 = time.thread_time()
-            segment.after_frame()
+            if deferred:
+                segment.after_frame()
             clock.advance(0.001)
             t2 = time.thread_time()
             t_frame += t1 - t0
@@ -113,6 +132,127 @@ def measure(drives: int, ios: int = IO_WITH, cycles: int = CYCLES, rounds: int =
         best_frame = min(best_frame, t_frame / cycles * 1e6)
         best_after = min(best_after, t_after / cycles * 1e6)
     return {"frame_us": best_frame, "after_us": best_after, "total_us": best_frame + best_after}
+
+
+def _can_load(clock: Any, buses: int = 4, per_bus: int = 2) -> Callable[[], None]:
+    """CAN work on ``clock``: ``buses`` 1 Mbit/s buses with ``per_bus`` CiA 402 drives each in CSP, a master
+    sending RPDO1 to each drive and SYNC every ms (TPDO1 answers): bench_canopen_drive's 4-bus layout. Returns
+    the stop function."""
+    from benchmarks.bench_canopen_drive import RPDO, _prepare
+    from gatewaylab.bus import CanFrame, VirtualBus
+    from gatewaylab.devices.canopen_drive.device import Drive
+
+    drives: list[Drive] = []
+    plan = []
+    with clock.lock:
+        for b in range(buses):
+            bus = VirtualBus(clock, f"can{b}")
+            group = []
+            for i in range(per_bus):
+                node_id = 1 + b * per_bus + i
+                d = Drive(clock, bus, node_id, 0x1000 + node_id)
+                d.start()
+                group.append(d)
+            drives += group
+            plan.append((bus.attach(f"master{b}"), [0x200 + d.node.node_id for d in group]))
+    clock.wait(0.01)
+    with clock.lock:
+        for d in drives:
+            _prepare(d)
+    sync = CanFrame(0x80, b"")
+    n = [0]
+
+    def cycle() -> None:
+        n[0] += 1
+        for master, cob_ids in plan:
+            for cob_id in cob_ids:
+                master.send(CanFrame(cob_id, RPDO.pack(0x0F, 10 * (n[0] % 1000))))
+            master.send(sync)
+
+    with clock.lock:
+        timer = clock.call_every(0.001, cycle)
+
+    def stop() -> None:
+        with clock.lock:
+            timer.cancel()
+            for d in drives:
+                d.stop()
+    return stop
+
+
+def contention(drives: int = 8, seconds: float = 3.0, rounds: int = 3) -> None:
+    """Issue 23's own-process question, in one process: the frame path served by a 1 kHz 'wire' thread under
+    ``clock.lock`` (as WireTransport with a rig) while a 'rig loop' thread runs the clock's events (the EtherCAT
+    drives' control periods), alternating rounds without and with CAN work in that loop (8 CAN drives on 4
+    buses, SYNC + RPDO/TPDO at 1 kHz). Per frame: the round trip (lock wait + frame path) and the wire thread's
+    CPU time for it; the difference is the time the frame waited for clock.lock or the GIL."""
+    import statistics
+    import threading
+
+    from benchmarks.wire import pct, pin
+    from gatewaylab.common.clock import RealTimeClock
+
+    clock = RealTimeClock()
+    clock.ensure_lock()
+    _, segment, frame, set_cycle = build(drives, IO_WITH, clock)
+    stop_loop = threading.Event()
+    passes: list[float] = []
+
+    def loop() -> None:      # the rig's loop: wait for the next deadline, run what is due
+        pin(0)
+        while not stop_loop.is_set():
+            due = clock.next_deadline()
+            delay = 0.001 if due is None else min(0.001, max(0.0, due - clock.now()))
+            if delay:
+                time.sleep(delay)
+            t0 = time.perf_counter()
+            clock.run_due()
+            passes.append(time.perf_counter() - t0)
+
+    def wire(n: int) -> tuple[list[float], list[float]]:
+        rtts: list[float] = []
+        cpus: list[float] = []
+        lock = clock.lock
+        pin(1)        # as WireTransport(cpu=1) in the wire benchmarks
+        t_next = time.perf_counter() + 0.001
+        for i in range(n):
+            while time.perf_counter() < t_next:
+                time.sleep(0.0001)
+            t_next += 0.001
+            set_cycle(i)
+            buf = bytearray(frame)
+            t0 = time.perf_counter()
+            c0 = time.thread_time()
+            with lock:
+                segment.process(buf, defer=True)
+            rtts.append(time.perf_counter() - t0)     # the frame would be sent here
+            cpus.append(time.thread_time() - c0)
+            with lock:
+                segment.after_frame()
+        return rtts, cpus
+
+    thread = threading.Thread(target=loop, daemon=True)
+    thread.start()
+    print(f"contention: {drives} EtherCAT drives + {IO_WITH} io served by a 1 kHz wire thread, a rig loop thread "
+          f"running the clock; {seconds:g} s per round, rounds alternate")
+    try:
+        for r in range(rounds):
+            for load in (False, True):
+                stop_can = _can_load(clock) if load else None
+                passes.clear()
+                rtts, cpus = wire(int(seconds * 1000))
+                if stop_can is not None:
+                    stop_can()
+                waits = [a - b for a, b in zip(rtts, cpus, strict=True)]
+                print(f"round {r + 1} {'with CAN work   ' if load else 'without CAN work'}: frame path CPU median "
+                      f"{1e6 * statistics.median(cpus):5.0f} us; round trip median "
+                      f"{1e6 * statistics.median(rtts):5.0f} "
+                      f"p99 {1e6 * pct(rtts, 0.99):6.0f} us; waited p99 {1e6 * pct(waits, 0.99):6.0f} max "
+                      f"{1e6 * max(waits):6.0f} us; loop pass (holds clock.lock) median "
+                      f"{1e6 * statistics.median(passes):5.0f} p99 {1e6 * pct(passes, 0.99):6.0f} us", flush=True)
+    finally:
+        stop_loop.set()
+        thread.join(1.0)
 
 
 def profile(drives: int) -> None:
@@ -135,6 +275,9 @@ def profile(drives: int) -> None:
 def main(argv: list[str]) -> None:
     from gatewaylab import build_info
 
+    if argv[:1] == ["--contention"]:
+        contention(int(argv[1]) if len(argv) > 1 else 8)
+        return
     if argv[:1] == ["--profile"]:
         profile(int(argv[1]) if len(argv) > 1 else 8)
         return

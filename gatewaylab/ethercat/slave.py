@@ -24,7 +24,7 @@ from gatewaylab.common.clock import Clock
 from gatewaylab.ethercat.coe import CoeServer, emergency_message
 from gatewaylab.ethercat.description import DeviceDescription, Pdo, build_od
 from gatewaylab.ethercat.errors import AlStatusCode, EtherCATConfigError, MailboxErrorCode
-from gatewaylab.ethercat.esc import REG_AL_STATUS, REG_SM, SM_STATUS_FULL, AlState, Esc
+from gatewaylab.ethercat.esc import RAM_START, REG_AL_STATUS, REG_SM, SM_STATUS_FULL, AlState, Esc
 from gatewaylab.ethercat.esc_events import AlControlRequested, EscEvent, SmRead, SmWritten
 from gatewaylab.ethercat.foe import FoeFiles, FoeHandler, FoeServer
 from gatewaylab.ethercat.mailbox import MailboxEndpoint, MailboxMessage, MailboxType, error_reply
@@ -99,7 +99,7 @@ class _Slot:
     """A byte-aligned mapped object of fixed size whose raw bytes its entry's struct reads and writes:
     the process image's fast path (decoded once per layout, not per cycle)."""
 
-    __slots__ = ("codec", "entry", "index", "key", "offset", "subindex")
+    __slots__ = ("codec", "entry", "index", "key", "offset", "ram", "subindex")
 
     def __init__(self, m: MappedEntry, entry: Entry, codec: struct.Struct) -> None:
         self.key = m.key
@@ -108,6 +108,8 @@ class _Slot:
         self.entry = entry
         self.codec = codec
         self.offset = m.bit_offset // 8
+        #: an input's address in ESC memory when it lies inside process RAM, else -1 (set by the slave)
+        self.ram = -1
 
 
 def _slot(m: MappedEntry, entry: Entry | None) -> _Slot | None:
@@ -459,7 +461,10 @@ class Slave:
             self._pack_input(self._input_by_key[key], slot.entry, value)
             return
         codec.pack_into(inputs, offset, value)
-        self.esc.pdi_write(self.desc.inputs_start + offset, inputs[offset:offset + codec.size])
+        if slot.ram >= 0:
+            codec.pack_into(self.esc.mem, slot.ram, value)      # pdi_write without the copies
+        else:
+            self.esc.pdi_write(self.desc.inputs_start + offset, inputs[offset:offset + codec.size])
         if self._inputs_one_buffer:
             self.esc.sm_set_full(self.sm_inputs)
 
@@ -471,9 +476,13 @@ class Slave:
         self._output_by_key = {m.key: m for m in self.outputs_map}
         entries = self.od.entries
         self._input_slots = {}
+        ram_end = len(self.esc.mem)
         for m in self.inputs_map:
             slot = _slot(m, entries.get(m.key))
             if slot is not None:
+                address = self.desc.inputs_start + slot.offset
+                if address >= RAM_START and address + slot.codec.size <= ram_end:
+                    slot.ram = address
                 self._input_slots[m.key] = slot
         outputs: list[_Slot] = []
         for m in self.outputs_map:
