@@ -138,21 +138,14 @@ def _can_load(clock: Any, buses: int = 4, per_bus: int = 2) -> Callable[[], None
     """CAN work on ``clock``: ``buses`` 1 Mbit/s buses with ``per_bus`` CiA 402 drives each in CSP, a master
     sending RPDO1 to each drive and SYNC every ms (TPDO1 answers): bench_canopen_drive's 4-bus layout. Returns
     the stop function."""
-    from benchmarks.bench_canopen_drive import RPDO, _prepare
-    from gatewaylab.bus import CanFrame, VirtualBus
+    from benchmarks.bench_canopen_drive import RPDO, _prepare, drive_groups
+    from gatewaylab.bus import CanFrame
     from gatewaylab.devices.canopen_drive.device import Drive
 
     drives: list[Drive] = []
     plan = []
     with clock.lock:
-        for b in range(buses):
-            bus = VirtualBus(clock, f"can{b}")
-            group = []
-            for i in range(per_bus):
-                node_id = 1 + b * per_bus + i
-                d = Drive(clock, bus, node_id, 0x1000 + node_id)
-                d.start()
-                group.append(d)
+        for b, (bus, group) in enumerate(drive_groups(clock, buses, per_bus)):
             drives += group
             plan.append((bus.attach(f"master{b}"), [0x200 + d.node.node_id for d in group]))
     clock.wait(0.01)
@@ -185,7 +178,8 @@ def contention(drives: int = 8, seconds: float = 3.0, rounds: int = 3) -> None:
     ``clock.lock`` (as WireTransport with a rig) while a 'rig loop' thread runs the clock's events (the EtherCAT
     drives' control periods), alternating rounds without and with CAN work in that loop (8 CAN drives on 4
     buses, SYNC + RPDO/TPDO at 1 kHz). Per frame: the round trip (lock wait + frame path) and the wire thread's
-    CPU time for it; the difference is the time the frame waited for clock.lock or the GIL."""
+    CPU time for it; the difference is the time the frame waited for clock.lock, the GIL or a CPU (other
+    processes), and how many frames found clock.lock taken by the loop."""
     import statistics
     import threading
 
@@ -209,9 +203,10 @@ def contention(drives: int = 8, seconds: float = 3.0, rounds: int = 3) -> None:
             clock.run_due()
             passes.append(time.perf_counter() - t0)
 
-    def wire(n: int) -> tuple[list[float], list[float]]:
+    def wire(n: int) -> tuple[list[float], list[float], list[float]]:
         rtts: list[float] = []
         cpus: list[float] = []
+        blocked: list[float] = []   # frames that found clock.lock taken: how long they waited for it
         lock = clock.lock
         pin(1)        # as WireTransport(cpu=1) in the wire benchmarks
         t_next = time.perf_counter() + 0.001
@@ -223,13 +218,18 @@ def contention(drives: int = 8, seconds: float = 3.0, rounds: int = 3) -> None:
             buf = bytearray(frame)
             t0 = time.perf_counter()
             c0 = time.thread_time()
-            with lock:
+            if not lock.acquire(False):
+                lock.acquire()
+                blocked.append(time.perf_counter() - t0)
+            try:
                 segment.process(buf, defer=True)
+            finally:
+                lock.release()
             rtts.append(time.perf_counter() - t0)     # the frame would be sent here
             cpus.append(time.thread_time() - c0)
             with lock:
                 segment.after_frame()
-        return rtts, cpus
+        return rtts, cpus, blocked
 
     thread = threading.Thread(target=loop, daemon=True)
     thread.start()
@@ -240,16 +240,21 @@ def contention(drives: int = 8, seconds: float = 3.0, rounds: int = 3) -> None:
             for load in (False, True):
                 stop_can = _can_load(clock) if load else None
                 passes.clear()
-                rtts, cpus = wire(int(seconds * 1000))
+                rtts, cpus, blocked = wire(int(seconds * 1000))
                 if stop_can is not None:
                     stop_can()
                 waits = [a - b for a, b in zip(rtts, cpus, strict=True)]
+                left_op = sum(1 for slave in segment.slaves if slave.state.name != "OP")
                 print(f"round {r + 1} {'with CAN work   ' if load else 'without CAN work'}: frame path CPU median "
                       f"{1e6 * statistics.median(cpus):5.0f} us; round trip median "
                       f"{1e6 * statistics.median(rtts):5.0f} "
                       f"p99 {1e6 * pct(rtts, 0.99):6.0f} us; waited p99 {1e6 * pct(waits, 0.99):6.0f} max "
                       f"{1e6 * max(waits):6.0f} us; loop pass (holds clock.lock) median "
-                      f"{1e6 * statistics.median(passes):5.0f} p99 {1e6 * pct(passes, 0.99):6.0f} us", flush=True)
+                      f"{1e6 * statistics.median(passes):5.0f} p99 {1e6 * pct(passes, 0.99):6.0f} us; "
+                      f"found the lock taken "
+                      f"{len(blocked)} of {len(rtts)} frames (waited max {1e6 * max(blocked, default=0.0):5.0f} us)"
+                      + (f"; INVALID: {left_op} slaves left OP (SM watchdog: the process stalled)" if left_op else ""),
+                      flush=True)
     finally:
         stop_loop.set()
         thread.join(1.0)
