@@ -16,7 +16,7 @@ import itertools
 import struct
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Final, final
+from typing import Any, ClassVar, Final, final
 
 from mypy_extensions import mypyc_attr
 
@@ -44,8 +44,11 @@ class SlaveApplication:
     #: False: outputs received in OP are not stored into their mapped objects every cycle (a
     #: device that parses the raw outputs in :meth:`on_outputs`, e.g. large message queues);
     #: a CoE read of a mapped output then decodes it from the outputs image instead.
-    store_outputs: bool = True
+    store_outputs: ClassVar[bool] = True
 
+    #: (Both are ``ClassVar``: compiled, a plain attribute is a slot of the native base class that the
+    #: ``store_outputs = False`` of an interpreted subclass does not reach; the native code read True.)
+    #:
     #: True: outputs reach the application on the SM2 write event, inside the frame, before the same
     #: datagram reads the inputs (``ethercat_io``'s loop-back answers in the same LRW). False: the
     #: ESC takes the buffer in the frame and the application gets it once the frame has passed
@@ -53,7 +56,7 @@ class SlaveApplication:
     #: and writes process RAM between frames (ET1100 data sheet: the SM2 buffer event interrupts the
     #: PDI), so the application's work (a drive's controlword and set-points) is not part of the round
     #: trip; its answer is in the inputs of the next frame.
-    outputs_in_frame: bool = True
+    outputs_in_frame: ClassVar[bool] = True
 
     def setup_od(self, slave: Slave, od: ObjectDictionary) -> None:
         """Bind the device's object hooks once the dictionary exists: ``od.on_read`` (status
