@@ -64,11 +64,13 @@ def _layout(buses: int, per_bus: int, timing: bool, control: bool = True) -> tup
     for b, (bus, group) in enumerate(drive_groups(clock, buses, per_bus, timing)):
         drives += group
 
-        def on_frame(frame: CanFrame, t: float) -> None:
-            if 0x181 <= frame.can_id <= 0x1FF:
-                received[0] += 1
+        def on_tpdo(frame: CanFrame, t: float) -> None:
+            received[0] += 1
 
-        master = bus.attach(f"master{b}", on_frame=on_frame)
+        # the master's acceptance filter takes the TPDO1 COB-IDs 0x181..0x1FF (standard frames)
+        # only, as a master's CAN controller would: the bus calls it for those frames alone
+        master = bus.attach(f"master{b}")
+        master.rx_table = {cob_id: on_tpdo for cob_id in range(0x181, 0x200)}
         masters.append((master, group))
     clock.advance(0.01)
     for d in drives:
@@ -87,10 +89,14 @@ def _layout(buses: int, per_bus: int, timing: bool, control: bool = True) -> tup
     def cycle() -> None:
         t = clock.now() - start
         amplitude = 10_000 * (1.0 - math.cos(2 * math.pi * t))
+        # the RPDO1 data of each amplitude factor (1..3), packed once per cycle: drives with the
+        # same factor get the same set-point
+        data = (b"", pack(0x0F, round(amplitude)), pack(0x0F, round(amplitude * 2)),
+                pack(0x0F, round(amplitude * 3)))
         for master, group in plan:
             send = master.send
             for cob_id, factor in group:
-                send(CanFrame(cob_id, pack(0x0F, round(amplitude * factor))))
+                send(CanFrame(cob_id, data[factor]))
             send(sync)
 
     clock.call_every(PERIOD, cycle, first=0.0)

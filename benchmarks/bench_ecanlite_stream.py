@@ -14,7 +14,8 @@ is shared) and the median round is printed beside it. Targets (issue 23): <= 50 
 pack + parse compiled, pure Python <= 1.5x the struct loop; both run side by side in one run, each
 in its own child process (benchmarks/sides.py: GATEWAYLAB_PURE=1 and the default build). Printed,
 never asserted, together with the floors that explain the pure-Python time: the CRC-16 of the frame
-area, building the packets alone (19 slot stores per packet), and the baseline's bare unpack loop.
+area, building the packets alone (19 slot stores per packet, as plain objects and as the frozen
+``CanFrame`` + ``CanPacket`` records the decoder builds), and the baseline's bare unpack loop.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from collections.abc import Callable
 
 from benchmarks.sides import both, compare, quick
 from benchmarks.targets import record
+from gatewaylab.bus.frame import CanFrame
 from gatewaylab.devices.ecanlite.stream import (
     CanPacket,
     StreamLayout,
@@ -47,7 +49,8 @@ _FD_LENS = (12, 16, 20, 24, 32, 48, 64)
 SIDE_ROWS = (("codec pack+parse, us/image", "codec_us", ".1f"),
              ("plain struct loop (baseline), us/image", "baseline_us", ".1f"),
              ("ratio codec / baseline", "ratio", ".2f"),
-             ("pure-Python floor (2 CRC + objects), us", "floor_us", ".0f"))
+             ("pure-Python floor (2 CRC + objects), us", "floor_us", ".0f"),
+             ("frozen records alone (CanFrame + CanPacket), us", "records_us", ".0f"))
 
 
 def mixed_packets(layout: StreamLayout) -> list[CanPacket]:
@@ -153,6 +156,15 @@ def build_packets_only(rows: list[tuple[object, ...]]) -> list[_Slots]:
     return [_Slots(*row) for row in rows]
 
 
+def build_records_only(rows: list[tuple[CanFrame, CanPacket]]) -> list[CanPacket]:
+    """What the decoder spends on its frozen records alone: per packet a ``CanFrame`` and a ``CanPacket``
+    built the way the decoder builds them, from values already at hand (``rows``: the packets to copy)."""
+    return [CanPacket(p.channel, CanFrame(f.can_id, f.data, f.extended, f.rtr, f.fd, f.brs, f.esi,
+                                          f.dlc if f.rtr else -1),
+                      p.tsf, p.timestamp, p.scheduled, p.offset_ns, p.tag, p.id_aux, p.d64, ctrl=p.ctrl, wire=p.wire)
+            for f, p in rows]
+
+
 def _time_interleaved(fns: dict[str, Callable[[int], object]]) -> dict[str, tuple[float, float]]:
     """(best, median) seconds per call of each function: rounds alternate between them, so a load
     spike on the shared machine does not favour one side."""
@@ -176,6 +188,7 @@ def _run(layout: StreamLayout, packets: list[CanPacket]) -> dict[str, float]:
     payload = sum(packet_size(p, layout) for p in packets)
     fd = sum(p.fd for p in packets)
     rows = [(p.ctrl, p.can_id, p.extended, p.data) for p in packets]
+    record_rows = [(p.frame, p) for p in packets]
     slot_rows: list[tuple[object, ...]] = [(p.channel, p.can_id, p.extended, p.fd, p.brs, p.rtr, p.esi, p.data,
                                             *range(11)) for p in packets]
 
@@ -202,9 +215,11 @@ def _run(layout: StreamLayout, packets: list[CanPacket]) -> dict[str, float]:
         "parse": lambda seq: decode_stream(image, layout),
         "crc": lambda seq: crc16(area),
         "objects": lambda seq: build_packets_only(slot_rows),
+        "records": lambda seq: build_records_only(record_rows),
         "unpack": lambda seq: bare_parse(image)})
     (t_base, m_base), (t_codec, m_codec) = t["baseline"], t["codec"]
-    t_enc, t_dec, t_crc, t_obj, t_unp = (t[k][0] for k in ("pack", "parse", "crc", "objects", "unpack"))
+    t_enc, t_dec, t_crc, t_obj, t_unp, t_rec = (t[k][0] for k in ("pack", "parse", "crc", "objects", "unpack",
+                                                                    "records"))
     us = 1e6
     print(f"image: N={layout.multiplier}, {layout.pdo_bytes} B, {len(packets)} packets ({fd} CAN FD, "
           f"{len(packets) - fd} classic), payload {payload} B, 4 channels; best (median) of {ROUNDS} rounds")
@@ -214,11 +229,12 @@ def _run(layout: StreamLayout, packets: list[CanPacket]) -> dict[str, float]:
     print(f"  ratio codec/baseline: {t_codec / t_base:.2f}")
     print(f"  floors: CRC-16 of the {payload}-byte frame area {t_crc * us:.1f} us (once in pack, once in parse); "
           f"building {len(packets)} 19-slot objects alone {t_obj * us:.1f} us; bare struct unpack of the same bytes "
-          f"into tuples {t_unp * us:.1f} us")
+          f"into tuples {t_unp * us:.1f} us; the frozen records alone ({len(packets)} CanFrame + CanPacket) "
+          f"{t_rec * us:.1f} us")
     print(f"  => parse with objects cannot go below ~{(t_crc + t_obj + t_unp) * us:.0f} us, pack below "
           f"~{t_crc * us:.0f} us (the packet bytes are joined, not packed, in encode_into)")
     return {"codec_us": t_codec * us, "baseline_us": t_base * us, "ratio": t_codec / t_base,
-            "floor_us": (2 * t_crc + t_obj) * us}
+            "floor_us": (2 * t_crc + t_obj) * us, "records_us": t_rec * us}
 
 
 def measure() -> dict[str, float]:

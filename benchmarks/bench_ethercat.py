@@ -1,5 +1,10 @@
-"""EtherCAT process data over a veth pair: SOEM (pysoem) against 3 emulated slaves, next to a minimal
-echo on the same veth measured in the same run. Printed, never asserted.
+"""EtherCAT process data over a veth pair: SOEM (pysoem) against 3 emulated slaves, next to two minimal
+echoes on the same veth measured in the same run. Printed, never asserted.
+
+The echoes answer every frame unchanged, busy-polling a raw socket on CPU 1 like the emulator's wire
+thread: the C echo (benchmarks/echo.c, built here at run time with the C compiler the package build
+uses; issue 23's target compares paced SOEM with it) and the Python one (class Echo, the floor of a
+Python wire thread). Without a working C compiler the bench says so and compares with the Python echo.
 
 Targets (issue 5): >= 10,000 cycles/s back to back, p99 < 250 us and 0 lost frames paced at 1 kHz.
 Needs root (network namespace + veth); prints why and returns otherwise. GL_BENCH_SECONDS shortens
@@ -14,10 +19,14 @@ from __future__ import annotations
 
 import json
 import os
+import shlex
 import socket
 import statistics
 import struct
+import subprocess
 import sys
+import sysconfig
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -28,6 +37,10 @@ from benchmarks.wire import bench_seconds, go_init, paced, pct, pin, request_op,
 
 ETHERTYPE = 0x88A4
 PACKET_OUTGOING = 4
+ECHO_C = Path(__file__).with_name("echo.c")
+#: the table's labels of the two echoes
+C_ECHO = "C echo"
+PY_ECHO = "Python echo"
 
 
 def _back_to_back(n: int, cycle: Any) -> dict[str, Any]:
@@ -104,7 +117,7 @@ def master_raw(iface: str, n: int, seconds: float) -> dict[str, Any]:
 
 # ---------------------------------------------------------------------------------- emulator side
 class Echo:
-    """The floor: answer every frame unchanged, busy-polling like the emulator's wire thread."""
+    """The Python floor: answer every frame unchanged, busy-polling like the emulator's wire thread."""
 
     def __init__(self, iface: str) -> None:
         self.sock = socket.socket(socket.AF_PACKET, socket.SOCK_RAW, socket.htons(ETHERTYPE))
@@ -131,6 +144,40 @@ class Echo:
         self.running = False
         self.thread.join(2)
         self.sock.close()
+
+
+def build_c_echo(folder: str) -> tuple[str | None, str]:
+    """Compile benchmarks/echo.c into ``folder`` with the C compiler the package build uses (``CC``, else
+    Python's own, as setuptools picks it): (the program, "") or (None, why not)."""
+    cc = shlex.split(os.environ.get("CC") or sysconfig.get_config_var("CC") or "gcc")
+    program = os.path.join(folder, "gl-echo")
+    try:
+        proc = subprocess.run([*cc, "-O2", "-o", program, str(ECHO_C)], capture_output=True, text=True,
+                              timeout=120, check=False)
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        return None, f"no C compiler ({' '.join(cc)}: {exc})"
+    if proc.returncode != 0:
+        last = proc.stderr.strip().splitlines()[-1:] or [f"exit {proc.returncode}"]
+        return None, f"the C compiler failed ({' '.join(cc)}: {last[0]})"
+    return program, ""
+
+
+class CEcho:
+    """The C echo (benchmarks/echo.c) as a child process pinned to CPU 1, started once its socket is bound."""
+
+    def __init__(self, program: str, iface: str) -> None:
+        self.proc = subprocess.Popen([program, iface, "1"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                     text=True)
+        assert self.proc.stdout is not None
+        if self.proc.stdout.readline().strip() != "ready":
+            _, err = self.proc.communicate(timeout=5)
+            raise RuntimeError(f"the C echo did not start: {err.strip()}")
+
+    def stop(self) -> str:
+        """End it; what it says it echoed."""
+        self.proc.terminate()
+        out, _ = self.proc.communicate(timeout=5)
+        return out.strip()
 
 
 def _run_master(ns: str, iface: str, kind: str, n: int, seconds: float) -> dict[str, Any]:
@@ -183,10 +230,11 @@ MODES: tuple[tuple[str, dict[str, Any]], ...] = (
     ("block, no spin", {"spin_s": 0.0}))
 
 
-def measure(modes: tuple[tuple[str, dict[str, Any]], ...]) -> tuple[dict[str, Any], dict[str, dict[str, Any]]] | None:
-    """The minimal echo (raw master), then for each wire-thread mode 3 emulated slaves (raw master and
-    SOEM), all in one namespace, printed; (echo, results by mode), or None after printing why this cannot
-    run here."""
+def measure(modes: tuple[tuple[str, dict[str, Any]], ...]
+            ) -> tuple[dict[str, dict[str, Any]], dict[str, dict[str, Any]]] | None:
+    """The echoes (raw master; the C one when a C compiler works, then the Python one), then for each
+    wire-thread mode 3 emulated slaves (raw master and SOEM), all in one namespace, printed; (echoes by
+    label, results by mode), or None after printing why this cannot run here."""
     seconds = bench_seconds(60)
     if seconds is None:
         return None
@@ -197,10 +245,21 @@ def measure(modes: tuple[tuple[str, dict[str, Any]], ...]) -> tuple[dict[str, An
 
     n = int(os.environ.get("GL_BENCH_CYCLES", "20000"))
     results: dict[str, dict[str, Any]] = {}
-    with veth_namespace("gl-bench-", "glb") as (ns, emu, mst):
+    floors: dict[str, dict[str, Any]] = {}
+    with tempfile.TemporaryDirectory(prefix="gl-bench-echo-") as folder, \
+            veth_namespace("gl-bench-", "glb") as (ns, emu, mst):
+        program, why = build_c_echo(folder)
+        if program is None:
+            print(f"{C_ECHO}: {why}; paced SOEM is compared with the {PY_ECHO} instead")
+        else:
+            c_echo = CEcho(program, emu)
+            try:
+                floors[C_ECHO] = _run_master(ns, mst, "raw", n, seconds)
+            finally:
+                print(f"{C_ECHO}: {c_echo.stop()}")
         echo = Echo(emu)
         try:
-            floor = _run_master(ns, mst, "raw", n, seconds)
+            floors[PY_ECHO] = _run_master(ns, mst, "raw", n, seconds)
         finally:
             echo.stop()
         for label, options in modes:
@@ -218,25 +277,36 @@ def measure(modes: tuple[tuple[str, dict[str, Any]], ...]) -> tuple[dict[str, An
             finally:
                 wire.stop()
     print(f"EtherCAT over veth, {n} back-to-back cycles, then {seconds:.0f} s paced at 1 kHz")
-    print(_line("minimal echo (raw master)", floor))
+    for label, floor in floors.items():
+        print(_line(f"{label} (raw master)", floor))
     for label, r in results.items():
         print(f"wire thread: {label} -- idle, it wants {r['idle']:.0%} of a CPU")
         print(_line("  3 emulated slaves (raw master)", r["raw"]))
         print(_line("  3 emulated slaves (pysoem/SOEM)", r["soem"]))
-    return floor, results
+    return floors, results
 
 
-def _record_echo(floor: dict[str, Any], results: dict[str, dict[str, Any]]) -> None:
-    """Issue 23: SOEM's paced p99 with the default wire thread <= 2x the minimal echo's, same run."""
+def _reference(floors: dict[str, dict[str, Any]]) -> tuple[str, dict[str, Any]]:
+    """The echo the targets compare with: the C one, else (no C compiler) the Python one."""
+    label = C_ECHO if C_ECHO in floors else PY_ECHO
+    return label, floors[label]
+
+
+def _record_echo(floors: dict[str, dict[str, Any]], results: dict[str, dict[str, Any]]) -> None:
+    """Issue 23: SOEM's paced p99 with the default wire thread <= 2x the C echo's, same run."""
     label = MODES[1][0]
+    echo_label, floor = _reference(floors)
     if label not in results:
         record("echo", f"the SOEM master failed ({label})", False)
         return
     soem, echo = results[label]["soem"]["paced"]["p99_us"], floor["paced"]["p99_us"]
-    print(f"paced p99 SOEM (3 ethercat_io, {label}) / minimal echo: {soem:.0f} / {echo:.0f} us = "
-          f"{soem / echo:.2f} (target <= 2)")
-    lost = f"; lost: SOEM {results[label]['soem']['paced']['lost']}, echo {floor['paced']['lost']}"
-    record("echo", f"{soem / echo:.2f}x (SOEM p99 {soem:.0f} us, echo p99 {echo:.0f} us{lost})", soem <= 2 * echo)
+    others = "".join(f", {other} p99 {f['paced']['p99_us']:.0f} us" for other, f in floors.items()
+                     if other != echo_label)
+    print(f"paced p99 SOEM (3 ethercat_io, {label}) / {echo_label}: {soem:.0f} / {echo:.0f} us = "
+          f"{soem / echo:.2f} (target <= 2){others}")
+    lost = f"; lost: SOEM {results[label]['soem']['paced']['lost']}, {echo_label} {floor['paced']['lost']}"
+    record("echo", f"{soem / echo:.2f}x (SOEM p99 {soem:.0f} us, {echo_label} p99 {echo:.0f} us{others}{lost})",
+           soem <= 2 * echo)
 
 
 def targets() -> None:
@@ -250,14 +320,15 @@ def main() -> None:
     measured = measure(MODES)
     if measured is None:
         return
-    floor, results = measured
-    _record_echo(floor, results)
+    floors, results = measured
+    _record_echo(floors, results)
     if MODES[0][0] not in results:
         return
     raw = results[MODES[0][0]]["raw"]
-    ratio = raw["b2b"]["cycles_per_s"] / floor["b2b"]["cycles_per_s"]
-    p99_ratio = raw["paced"]["p99_us"] / floor["paced"]["p99_us"]
-    print(f"busy poll/echo back-to-back throughput ratio: {ratio:.2f}; paced p99 ratio: {p99_ratio:.2f}")
+    for echo_label, floor in floors.items():
+        ratio = raw["b2b"]["cycles_per_s"] / floor["b2b"]["cycles_per_s"]
+        p99_ratio = raw["paced"]["p99_us"] / floor["paced"]["p99_us"]
+        print(f"busy poll/{echo_label} back-to-back throughput ratio: {ratio:.2f}; paced p99 ratio: {p99_ratio:.2f}")
     busy = results[MODES[0][0]]["soem"]
     for label, _ in MODES[1:]:
         if label not in results:

@@ -47,6 +47,8 @@ COMPILED_MODULES: tuple[str, ...] = (
     "gatewaylab.od.sdo",
     "gatewaylab.canopen.pdo",
     "gatewaylab.canopen.sync",
+    # the node's frame path (send of every TPDO) and the node attributes PDO/SYNC/SDO read natively
+    "gatewaylab.canopen.node",
     "gatewaylab.canopen.sdo_server",
     "gatewaylab.devices.canopen_drive.device",
     "gatewaylab.devices.canopen_drive.modes",

@@ -9,7 +9,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from enum import Enum
 from types import MappingProxyType
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Final
 
 from gatewaylab.bus.frame import CanFrame
 from gatewaylab.bus.stats import ControllerStats
@@ -30,9 +30,10 @@ class ErrorState(Enum):
 
 
 #: Enum members as module constants for the per-frame paths (attribute access on an Enum class
-#: costs about 80 ns in Python 3.11, a global about 10 ns).
-_BUS_OFF = ErrorState.BUS_OFF
-_ACTIVE = ErrorState.ERROR_ACTIVE
+#: costs about 80 ns in Python 3.11, a global about 10 ns; ``Final``: compiled, a static instead of a
+#: lookup in the module's dictionary on every frame).
+_BUS_OFF: Final = ErrorState.BUS_OFF
+_ACTIVE: Final = ErrorState.ERROR_ACTIVE
 
 
 class ErrorKind(Enum):

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Final
 
 from gatewaylab.common.errors import FrameError
 
@@ -11,10 +11,11 @@ if TYPE_CHECKING:
     import can
 
 #: CAN FD DLC -> payload length (ISO 11898-1:2015); DLC 0..8 mean 0..8 bytes.
-FD_DLC_TO_LEN: tuple[int, ...] = (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64)
-FD_LEN_TO_DLC: dict[int, int] = {n: i for i, n in enumerate(FD_DLC_TO_LEN)}
-MAX_STD_ID = 0x7FF
-MAX_EXT_ID = 0x1FFFFFFF
+#: (Final: compiled, mypyc reads a Final module constant natively instead of from the module's dict.)
+FD_DLC_TO_LEN: Final[tuple[int, ...]] = (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64)
+FD_LEN_TO_DLC: Final[dict[int, int]] = {n: i for i, n in enumerate(FD_DLC_TO_LEN)}
+MAX_STD_ID: Final = 0x7FF
+MAX_EXT_ID: Final = 0x1FFFFFFF
 
 
 def len_to_dlc(length: int) -> int:
@@ -56,15 +57,16 @@ class CanFrame:
         object.__setattr__(self, "fd", fd)
         object.__setattr__(self, "brs", brs)
         object.__setattr__(self, "esi", esi)
-        if (type(data) is bytes and dlc == -1 and not rtr and type(can_id) is int
-                and 0 <= can_id <= (MAX_EXT_ID if extended else MAX_STD_ID)):
+        # (no type(can_id) check: compiled, can_id is a machine int and the check would box it; pure, a
+        # non-int either compares like one or raises TypeError on both paths)
+        if type(data) is bytes and dlc == -1 and not rtr and 0 <= can_id <= (MAX_EXT_ID if extended else MAX_STD_ID):
             # A data frame whose length says its DLC (what decoders build by the thousand): checked here.
             n = len(data)
-            if not fd:
-                if n <= 8 and not (brs or esi):
+            if n <= 8:
+                if not (brs or esi) or fd:
                     object.__setattr__(self, "dlc", n)
                     return
-            elif (fd_dlc := FD_LEN_TO_DLC.get(n)) is not None:
+            elif fd and (fd_dlc := FD_LEN_TO_DLC.get(n, -1)) >= 0:
                 object.__setattr__(self, "dlc", fd_dlc)
                 return
         object.__setattr__(self, "dlc", dlc)

@@ -28,7 +28,7 @@ from gatewaylab.canopen.errors import (
 )
 from gatewaylab.canopen.nmt import NmtState
 from gatewaylab.common.clock import TimerHandle
-from gatewaylab.od import DataType, Entry, decode, encode, type_size
+from gatewaylab.od import DataType, Entry, KeyObject, decode, encode, type_size
 
 if TYPE_CHECKING:
     from gatewaylab.canopen.node import Node
@@ -49,11 +49,11 @@ def restricted_cob_id(cob: int) -> bool:
 
 
 class _Mapped:
-    """One mapped object: its key (None = dummy), byte offset and size in the PDO."""
+    """One mapped object: its key (the entry's own key object, None = dummy), byte offset and size in the PDO."""
 
     __slots__ = ("entry", "key", "offset", "size")
 
-    def __init__(self, entry: Entry | None, key: Key | None, offset: int, size: int) -> None:
+    def __init__(self, entry: Entry | None, key: KeyObject | None, offset: int, size: int) -> None:
         self.entry = entry
         self.key = key
         self.offset = offset
@@ -64,6 +64,8 @@ class _Pdo:
     def __init__(self, manager: PdoManager, number: int, comm: int, mapping: int) -> None:
         self.manager = manager
         self.node = manager.node
+        #: the node's dictionary (compiled: a native object, where the node is reached through Python)
+        self.od = manager.node.od
         self.number = number
         self.comm = comm
         self.mapping = mapping
@@ -74,7 +76,7 @@ class _Pdo:
         self.mapped: list[_Mapped] = []
         self.length = 0
         self._whole: struct.Struct | None = None
-        self._keys: tuple[Key, ...] = ()
+        self._keys: tuple[KeyObject, ...] = ()
         self._entries: tuple[Entry, ...] = ()
 
     def configure(self) -> None:
@@ -101,7 +103,7 @@ class _Pdo:
         # One struct for the whole PDO when every mapped object has a fixed-size codec (dummy
         # entries become pad bytes): a PDO is packed / unpacked in one call on the hot path.
         fmt = "<"
-        keys: list[Key] = []
+        keys: list[KeyObject] = []
         entries: list[Entry] = []
         for m in mapped:
             entry = m.entry
@@ -170,14 +172,14 @@ class Rpdo(_Pdo):
     def apply(self, data: bytes) -> None:
         """Write the mapped objects: set-points first, then the hooked objects (see configure)."""
         node = self.node
-        store = node.od.store
+        od = self.od
         whole = self._whole
         if whole is not None:   # unlimited fixed-size objects: decoding cannot fail
             values = whole.unpack_from(data)
             entries = self._entries
             for i in self._order:
                 try:
-                    store(entries[i], values[i])
+                    od.store(entries[i], values[i])
                 except SdoAbort:
                     node.count("rpdo_value_errors")
                 except Exception:   # device hook misbehaved: count it, the bus carries on
@@ -193,7 +195,7 @@ class Rpdo(_Pdo):
                     value = codec.unpack_from(data, m.offset)[0]
                 else:
                     value = decode(entry, data[m.offset:m.offset + m.size])
-                store(entry, value)
+                od.store(entry, value)
             except SdoAbort:
                 node.count("rpdo_value_errors")
             except Exception:   # device hook misbehaved: count it, the bus carries on
@@ -238,7 +240,7 @@ class Tpdo(_Pdo):
 
     def build(self) -> bytes:
         """Sample the mapped objects now."""
-        values = self.node.od.values
+        values: dict[Any, Any] = self.od.values   # indexed by the entries' key objects
         whole = self._whole
         if whole is not None:
             return whole.pack(*[values[key] for key in self._keys])

@@ -2,19 +2,19 @@
 
 One server channel (0x1200). The state machine is driven by received request frames and by a
 timeout on the node's clock; every failure is answered with the abort code of IDX guide
-chapter 6. Object access goes through :meth:`Node.read` / :meth:`Node.write`, so SDO sees exactly
-the access rights, lengths and limits that the contract promises.
+chapter 6. Object access goes through :meth:`Node.read` / :meth:`Node.write` (the node's dictionary
+with the node's access policy), so SDO sees exactly the access rights, lengths and limits that the
+contract promises (both modules compiled: native calls).
 """
 
 from __future__ import annotations
 
-import struct
 from collections.abc import Callable
 from enum import Enum
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Final
 
 from gatewaylab.bus.frame import CanFrame
-from gatewaylab.common.clock import TimerHandle
+from gatewaylab.common.clock import Clock, TimerHandle
 from gatewaylab.od import SdoAbort, SdoAbortCode, decode
 from gatewaylab.od import sdo as codec
 from gatewaylab.od.sdo import (
@@ -33,16 +33,16 @@ if TYPE_CHECKING:
     from gatewaylab.od import Entry
 
 #: Initiate upload response command byte for an expedited answer of n bytes, and its padding.
-_EXPEDITED_CS = (b"", b"\x4F", b"\x4B", b"\x47", b"\x43")
-_PAD = (b"", b"\x00\x00\x00", b"\x00\x00", b"\x00", b"")
+_EXPEDITED_CS: Final = (b"", b"\x4F", b"\x4B", b"\x47", b"\x43")
+_PAD: Final = (b"", b"\x00\x00\x00", b"\x00\x00", b"\x00", b"")
 #: Largest object a segmented or block download may carry before "out of memory".
-MAX_TRANSFER = 1 << 20
+MAX_TRANSFER: Final = 1 << 20
 
 
 def _announced_size(data: bytes, entry: Entry) -> int:
     """The size a segmented or block download announces, checked against the object (CiA 301
     7.2.4.3.3 / 7.2.4.3.9: too large for the server, or not the size of a fixed-size object)."""
-    size: int = struct.unpack_from("<I", data, 4)[0]
+    size = data[4] | (data[5] << 8) | (data[6] << 16) | (data[7] << 24)
     if size > MAX_TRANSFER:
         raise SdoAbort(SdoAbortCode.OUT_OF_MEMORY)
     if entry.size is not None:
@@ -62,8 +62,16 @@ class SdoServerState(Enum):
     BLOCK_UPLOAD = "block upload (wait for ack)"
     BLOCK_UPLOAD_END = "block upload (wait for end)"
 
+    #: Members are singletons compared by identity: hash them by identity too, in C (Enum's
+    #: own ``__hash__`` is Python code, run on every change of state to find its dispatch row).
+    __hash__ = object.__hash__
 
-_IDLE = SdoServerState.IDLE
+
+#: The states as constants: compiled, a Final global is a static, an attribute of the Enum class a lookup.
+_IDLE: Final = SdoServerState.IDLE
+_DOWNLOAD_SEGMENTED: Final = SdoServerState.DOWNLOAD_SEGMENTED
+_UPLOAD_SEGMENTED: Final = SdoServerState.UPLOAD_SEGMENTED
+_BLOCK_DOWNLOAD: Final = SdoServerState.BLOCK_DOWNLOAD
 
 
 class SdoServer:
@@ -72,6 +80,7 @@ class SdoServer:
 
     def __init__(self, node: Node, timeout: float = 1.0, block_size: int = 127) -> None:
         self.node = node
+        self._clock: Clock = node.clock
         #: Seconds without the next request before a transfer is aborted with 0x05040000.
         self.timeout = timeout
         #: Block size the server asks for in block download (1..127).
@@ -85,13 +94,17 @@ class SdoServer:
         self.subindex = 0
         self._download: SegmentedDownload | None = None
         self._upload: SegmentedUpload | None = None
+        #: The one timeout timer (pending or None) and the time the transfer in progress times out:
+        #: a request moves the deadline, not the timer (no handle per segment).
         self._timer: TimerHandle | None = None
+        self._deadline = 0.0
         # block transfers: the server receives a block download and sends a block upload
         self._receiver: BlockReceiver | None = None
         self._sender: BlockSender | None = None
         self._size: int | None = None
         self._crc = False
-        #: Expedited upload answers by payload: frames are immutable, polling repeats them.
+        #: Answers by payload: frames are immutable, and polling, acknowledges and initiate
+        #: responses repeat them (a dictionary lookup instead of a new frame; data segments never).
         self._frames: dict[bytes, CanFrame] = {}
         #: Counters: requests answered, aborts sent, frames ignored (wrong DLC or RTR).
         self.requests = 0
@@ -110,7 +123,23 @@ class SdoServer:
 
     # -- plumbing ------------------------------------------------------------------------------
     def _send(self, payload: bytes) -> None:
-        self.node.send(CanFrame(self.tx_cob_id, payload))
+        """An answer that repeats (expedited uploads, acknowledges, initiate responses): the frame
+        from the cache by payload when it was sent before."""
+        cache = self._frames
+        frame = cache.get(payload)
+        if frame is None or frame.can_id != self.tx_cob_id:
+            if len(cache) >= 512:
+                cache.clear()
+            frame = cache[payload] = CanFrame(self.tx_cob_id, payload)
+        self._send_frame(frame)
+
+    def _send_data(self, payload: bytes) -> None:
+        """A segment of an object's data (segmented or block upload): a new frame, the cache would
+        only fill with payloads that do not come again."""
+        self._send_frame(CanFrame(self.tx_cob_id, payload))
+
+    def _send_frame(self, frame: CanFrame) -> None:
+        self.node.send(frame)
 
     def _abort(self, code: int) -> None:
         self._reset()
@@ -118,14 +147,11 @@ class SdoServer:
         self._send(codec.abort(self.index, self.subindex, code))
 
     def _reset(self) -> None:
-        self.state = SdoServerState.IDLE
+        self.state = _IDLE
         self._download = None
         self._upload = None
         self._receiver = None
         self._sender = None
-        if self._timer is not None:
-            self._timer.cancel()
-            self._timer = None
 
     def configure(self) -> None:
         """Take the COB-IDs from 0x1200 (bit 31 set = server not valid)."""
@@ -138,16 +164,30 @@ class SdoServer:
     def cancel(self) -> None:
         """Drop any transfer in progress without a frame (NMT reset, node stop)."""
         self._reset()
-
-    def _arm(self) -> None:
         if self._timer is not None:
             self._timer.cancel()
-        self._timer = self.node.clock.call_later(self.timeout, self._timed_out)
+            self._timer = None
+
+    def _arm(self) -> None:
+        """The transfer times out ``timeout`` seconds from now. One timer at most: a timer still
+        pending (armed earlier, maybe by a finished transfer) stays and finds the new deadline when
+        it runs, so a segment costs a float store, not a scheduled and a cancelled event."""
+        clock = self._clock
+        self._deadline = deadline = clock.now() + self.timeout
+        if self._timer is None:
+            self._timer = clock.call_at(deadline, self._timed_out)
 
     def _timed_out(self) -> None:
+        handle = self._timer
         self._timer = None
-        if self.state is not SdoServerState.IDLE:
-            self._abort(SdoAbortCode.SDO_PROTOCOL_TIMED_OUT)
+        if self._state is _IDLE or handle is None:
+            return          # the transfer ended (or was cancelled) before its deadline
+        clock = self._clock
+        if clock.now() < self._deadline:
+            self._timer = handle            # the client answered since: wait for the new deadline
+            clock.reschedule(handle, self._deadline)
+            return
+        self._abort(SdoAbortCode.SDO_PROTOCOL_TIMED_OUT)
 
     # -- entry point ---------------------------------------------------------------------------
     def on_frame(self, frame: CanFrame, t: float) -> None:
@@ -162,7 +202,7 @@ class SdoServer:
             if data[0] == codec.CS_UPLOAD_REQUEST and state is _IDLE:
                 self._fast_upload(data)     # the most frequent request, kept short
                 return
-            if state is SdoServerState.BLOCK_DOWNLOAD:
+            if state is _BLOCK_DOWNLOAD:
                 if data[0] == codec.CS_ABORT:
                     self._reset()       # client abort during a sub-block (sequence 0 is never a segment)
                 else:
@@ -176,28 +216,22 @@ class SdoServer:
             self._abort(SdoAbortCode.GENERAL_ERROR)
 
     def _fast_upload(self, data: bytes) -> None:
-        node = self.node
         index = data[1] | (data[2] << 8)
         sub = data[3]
         self.index, self.subindex = index, sub
-        value = node.read(index, sub)
+        value = self.node.read(index, sub)
         n = len(value)
         if 0 < n <= 4:
-            payload = _EXPEDITED_CS[n] + data[1:4] + value + _PAD[n]
-            cache = self._frames
-            frame = cache.get(payload)
-            if frame is None or frame.can_id != self.tx_cob_id:
-                if len(cache) >= 512:
-                    cache.clear()
-                frame = cache[payload] = CanFrame(self.tx_cob_id, payload)
-            node.send(frame)
+            self._send(_EXPEDITED_CS[n] + data[1:4] + value + _PAD[n])
         else:
             self._start_upload(index, sub, value)
 
+    def _writable(self, index: int, sub: int) -> Entry:
+        return self.node.check_writable(index, sub)
+
     def _unknown(self, data: bytes) -> None:
-        if self.state is SdoServerState.IDLE:
-            _, index, sub = SDO_HEADER.unpack_from(data)
-            self.index, self.subindex = index, sub
+        if self._state is _IDLE:
+            self.index, self.subindex = data[1] | (data[2] << 8), data[3]
         raise SdoAbort(SdoAbortCode.COMMAND_SPECIFIER_UNKNOWN)
 
     def _client_abort(self, data: bytes) -> None:
@@ -205,7 +239,8 @@ class SdoServer:
 
     def _begin(self, data: bytes) -> tuple[int, int]:
         """A new initiate request ends any transfer in progress (CiA 301: the new one wins)."""
-        _, index, sub = SDO_HEADER.unpack_from(data)
+        index = data[1] | (data[2] << 8)
+        sub = data[3]
         self._reset()
         self.index, self.subindex = index, sub
         return index, sub
@@ -214,18 +249,17 @@ class SdoServer:
     def _initiate_download(self, data: bytes) -> None:
         cs = data[0]
         index, sub = self._begin(data)
-        node = self.node
-        entry = node.check_writable(index, sub)
+        entry = self._writable(index, sub)
         if cs & 0x02:                                   # expedited
             size = codec.expedited_size(cs)
             if size is None:
                 size = entry.size if entry.size is not None and entry.size <= 4 else 4
-            node.store(entry, decode(entry, data[4:4 + size]))   # access already checked above
+            self.node.store(entry, decode(entry, data[4:4 + size]))   # access checked above
             self._send(codec.download_response(index, sub))
             return
         size = _announced_size(data, entry) if cs & 0x01 else None
         self._download = SegmentedDownload(index, sub, size, MAX_TRANSFER)
-        self.state = SdoServerState.DOWNLOAD_SEGMENTED
+        self.state = _DOWNLOAD_SEGMENTED
         self._send(codec.download_response(index, sub))
         self._arm()
 
@@ -252,7 +286,7 @@ class SdoServer:
         if 0 < n <= 4:
             self._send(codec.expedited_upload_response(index, sub, value))
             return
-        self.state = SdoServerState.UPLOAD_SEGMENTED
+        self.state = _UPLOAD_SEGMENTED
         self._upload = SegmentedUpload(index, sub, value)
         self._send(SDO_HEADER_U32.pack(codec.CS_UPLOAD_SEGMENTED_RESPONSE, index, sub, n))
         self._arm()
@@ -265,7 +299,7 @@ class SdoServer:
             self._reset()
         else:
             self._arm()
-        self._send(reply)
+        self._send_data(reply)
 
     # -- block download ------------------------------------------------------------------------
     def _block_download(self, data: bytes) -> None:
@@ -281,7 +315,7 @@ class SdoServer:
         index, sub = self._begin(data)
         if cs & 0x18:       # bits 4..3 are reserved
             raise SdoAbort(SdoAbortCode.COMMAND_SPECIFIER_UNKNOWN)
-        entry = self.node.check_writable(index, sub)
+        entry = self._writable(index, sub)
         self._crc = bool(cs & 0x04)
         self._size = _announced_size(data, entry) if cs & 0x02 else None
         self.state = SdoServerState.BLOCK_DOWNLOAD
@@ -353,7 +387,7 @@ class SdoServer:
         assert sender is not None
         self.state = SdoServerState.BLOCK_UPLOAD
         for segment in sender.sub_block():
-            self._send(segment)
+            self._send_data(segment)
         self._arm()
 
     def _block_upload_ack(self, data: bytes) -> None:
@@ -393,5 +427,5 @@ def _dispatch_table() -> dict[tuple[SdoServerState, int], _Handler]:
 
 _DISPATCH = _dispatch_table()
 #: The table as one row per state, indexed by the command specifier (0..7): no hashing on the hot path.
-_ROWS: dict[SdoServerState, tuple[_Handler, ...]] = {
+_ROWS: Final[dict[SdoServerState, tuple[_Handler, ...]]] = {
     state: tuple(_DISPATCH.get((state, ccs), SdoServer._unknown) for ccs in range(8)) for state in SdoServerState}

@@ -10,7 +10,7 @@ of 0x1006 (us).
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Final
 
 from gatewaylab.bus.frame import CanFrame
 from gatewaylab.canopen.emcy import EMCY_UNEXPECTED_SYNC_LENGTH, ERR_COMMUNICATION
@@ -23,7 +23,7 @@ if TYPE_CHECKING:
     from gatewaylab.canopen.node import Node
 
 AddHandler = Callable[[int, Callable[[CanFrame, float], None]], None]
-_OPERATIONAL = NmtState.OPERATIONAL
+_OPERATIONAL: Final = NmtState.OPERATIONAL
 
 
 class Sync:

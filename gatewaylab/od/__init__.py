@@ -16,12 +16,14 @@ from gatewaylab.od.types import (
     Access,
     DataType,
     Entry,
+    KeyObject,
     ObjectCode,
     OdObject,
     check_limits,
     coerce,
     decode,
     encode,
+    key_object,
     type_default,
     type_range,
     type_size,
@@ -29,7 +31,7 @@ from gatewaylab.od.types import (
 
 __all__ = [
     "BYTES_TYPES", "ESI_TYPE_NAMES", "FLOAT_TYPES", "INT_TYPES", "STRING_TYPES", "Access", "AccessPolicy",
-    "DataType", "Entry", "Key", "Listener", "ObjectCode", "ObjectDictionary", "OdObject", "ReadHook",
+    "DataType", "Entry", "Key", "KeyObject", "Listener", "ObjectCode", "ObjectDictionary", "OdObject", "ReadHook",
     "SdoAbort", "SdoAbortCode", "Validator", "WriteHook", "abort_text", "check_limits", "coerce", "decode",
-    "encode", "type_default", "type_range", "type_size",
+    "encode", "key_object", "type_default", "type_range", "type_size",
 ]

@@ -13,11 +13,11 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import replace
-from typing import Any, Protocol
+from typing import Any, Final, Protocol
 
 from gatewaylab.common.errors import ConfigError
 from gatewaylab.od.aborts import SdoAbort, SdoAbortCode
-from gatewaylab.od.types import Access, DataType, Entry, ObjectCode, OdObject, coerce, decode, encode
+from gatewaylab.od.types import Access, DataType, Entry, KeyObject, ObjectCode, OdObject, coerce, decode, encode
 
 Key = tuple[int, int]
 #: ``listener((index, subindex), value)`` after a value changed.
@@ -33,7 +33,7 @@ ReadHook = Callable[[int, int], None]
 Where = int | range
 
 #: What :meth:`ObjectDictionary.put_many` compares with when a key holds no value (equal to nothing).
-_ABSENT = object()
+_ABSENT: Final = object()
 
 
 class AccessPolicy(Protocol):
@@ -60,7 +60,8 @@ class ObjectDictionary:
         self.device_info: dict[str, str] = {}
         #: Name of the node or slave whose hooks this dictionary holds (one owner per dictionary).
         self.owner: str | None = None
-        self._listeners: dict[Key, list[Listener]] = {}
+        #: keyed by the entries' own key objects (:attr:`Entry.key`, see put_many) or equal tuples
+        self._listeners: dict[Any, list[Listener]] = {}
         self._validators: dict[int, list[Validator]] = {}
         self._reactions: dict[int, list[Validator]] = {}
         self._commands: dict[int, Validator] = {}
@@ -74,9 +75,11 @@ class ObjectDictionary:
     # -- building ------------------------------------------------------------------------------
     def _add_entry(self, obj: OdObject, entry: Entry) -> Entry:
         obj.entries[entry.subindex] = entry
-        key = entry.key
-        self.entries[key] = entry
-        self.values[key] = coerce(entry, entry.default_for(self.node_id))
+        key = entry.key     # the one tuple object both tables hold (see Entry.key)
+        entries: dict[Any, Entry] = self.entries
+        values: dict[Any, Any] = self.values
+        entries[key] = entry
+        values[key] = coerce(entry, entry.default_for(self.node_id))
         return entry
 
     def _new_object(self, index: int, name: str, code: ObjectCode) -> OdObject:
@@ -194,34 +197,37 @@ class ObjectDictionary:
         fits its data type, so it is stored without coercion (see :meth:`put_many`)."""
         return self.put_many(((index, subindex),), (value,), typed=typed)
 
-    def put_many(self, keys: Sequence[Key], new: Iterable[Any], *, typed: bool = False) -> bool:
+    def put_many(self, keys: Sequence[KeyObject], new: Iterable[Any], *, typed: bool = False) -> bool:
         """:meth:`put` of each value to its key, in order (the one implementation of both): a
         control loop publishes its actual values every period in one call. Returns True when
         any value changed; the listeners of a key run as soon as its value has changed.
 
-        ``typed``: the caller guarantees that every value already has its entry's Python type
-        and fits its data type (a control loop that rounds and saturates what it publishes), so
-        values are stored without coercion; a value of the wrong type would be stored as it is."""
-        values = self.values
+        ``keys``: ``(index, subindex)`` tuples; the entries' own key objects (:attr:`Entry.key`)
+        are found fastest. ``typed``: the caller guarantees that every value already has its
+        entry's Python type and fits its data type (a control loop that rounds and saturates what
+        it publishes), so values are stored without coercion; a value of the wrong type would be
+        stored as it is."""
+        # Any-typed keys and table: compiled, a key stays the object the caller holds (a
+        # tuple[int, int] would be unboxed and boxed anew for every lookup)
+        keys_: Sequence[Any] = keys
+        values: dict[Any, Any] = self.values
         listeners_of = self._listeners
         changed = False
         if typed and not listeners_of:
             # nobody listens to any key (no event-driven TPDO mapped): compare and store only
-            try:
-                for key, value in zip(keys, new):
-                    if values[key] != value:
-                        values[key] = value
-                        changed = True
-            except KeyError:
-                self.entry(*key)     # SdoAbort for an unknown key
-                raise
+            for key, value in zip(keys_, new):
+                old = values.get(key, _ABSENT)
+                if old is _ABSENT:
+                    self._unknown(key)      # SdoAbort for an unknown key
+                    old = values[key]       # an entry without a value: KeyError, as before
+                if old != value:
+                    values[key] = value
+                    changed = True
             return changed
-        for key, value in zip(keys, new):
-            try:
-                old = values[key]
-            except KeyError:
-                self.entry(*key)     # SdoAbort for an unknown key
-                old = _ABSENT
+        for key, value in zip(keys_, new):
+            old = values.get(key, _ABSENT)
+            if old is _ABSENT:
+                self._unknown(key)
             if old == value:
                 # the value the entry holds: coerced it would be the same (a value equal to a
                 # stored one converts to it), so nothing is stored and nobody is told. Control
@@ -241,11 +247,17 @@ class ObjectDictionary:
                     listener(key, value)
         return changed
 
+    def _unknown(self, key: Any) -> None:
+        """SdoAbort for a key with no entry (put / put_many); returns when it names one whose
+        value is absent (a table filled by hand)."""
+        index, subindex = key
+        self.entry(index, subindex)
+
     def set(self, index: int, subindex: int, value: Any) -> None:
         """:meth:`put` without the result (typed local access for device code)."""
         self.put(index, subindex, value)
 
-    def subscribe(self, key: Key, listener: Listener) -> Callable[[], None]:
+    def subscribe(self, key: KeyObject, listener: Listener) -> Callable[[], None]:
         """``listener(key, value)`` whenever the value at ``key`` changes; returns the unsubscribe."""
         self._listeners.setdefault(key, []).append(listener)
 
@@ -257,7 +269,7 @@ class ObjectDictionary:
                     del self._listeners[key]
         return unsubscribe
 
-    def _changed(self, key: Key, value: Any) -> None:
+    def _changed(self, key: Any, value: Any) -> None:
         listeners = self._listeners.get(key)
         if listeners is not None:
             for listener in listeners:
@@ -359,14 +371,17 @@ class ObjectDictionary:
 
     def store(self, entry: Entry, value: Any) -> None:
         """A checked, decoded remote value: command, validators, store, write hooks, reactions, listeners."""
-        index = entry.index
-        key = entry.key
-        values = self.values
+        # the index as one object (compiled: an int above 256 is boxed anew for every lookup of
+        # the hook tables below) and the key as the one tuple object the table holds (Entry.key)
+        index: Any = entry.index
+        key: Any = entry.key
+        values: dict[Any, Any] = self.values
         if index not in self.intercepted:    # a plain value (e.g. a PDO-mapped set-point)
             old = values[key]
             values[key] = value
             if old != value:
-                listeners = self._listeners.get(key)
+                listeners_of = self._listeners
+                listeners = listeners_of.get(key) if listeners_of else None
                 if listeners is not None:
                     for listener in listeners:
                         listener(key, value)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import struct
+from collections.abc import Hashable
 from dataclasses import dataclass, field
 from enum import Enum, IntEnum
 from typing import Any
@@ -157,6 +158,24 @@ def type_default(data_type: DataType) -> Any:
     return 0
 
 
+#: An entry's key ``(index, subindex)`` as the one tuple object the dictionary stores its value
+#: under (:attr:`Entry.key`, :func:`key_object`); index ``ObjectDictionary.values`` with it
+#: through a ``dict[Any, Any]``.
+KeyObject = Hashable
+
+#: One tuple object per ``(index, subindex)``, shared by every dictionary (see :func:`key_object`).
+_KEY_OBJECTS: dict[KeyObject, KeyObject] = {}
+
+
+def key_object(index: int, subindex: int) -> KeyObject:
+    """The one ``(index, subindex)`` tuple object every :class:`Entry` of that address uses as its
+    key: a dict finds an identical key without comparing tuples, so a hot path that reads
+    ``values[key_object(...)]`` through a constant it made once gets the fastest lookup, and
+    compiled code (which makes a new tuple of every ``tuple[int, int]`` it boxes) keeps it."""
+    key: KeyObject = (index, subindex)     # boxed once (compiled)
+    return _KEY_OBJECTS.setdefault(key, key)
+
+
 @dataclass(frozen=True, slots=True)
 class Entry:
     """One addressable variable (index, sub-index) of the dictionary, without its value.
@@ -186,7 +205,10 @@ class Entry:
     int_range: tuple[int, int] | None = field(init=False, compare=False, repr=False)
     #: ``(index, subindex)``, built once: the dictionary stores values under this very tuple,
     #: and a dict finds an identical key without comparing tuples (PDO and SDO hot paths).
-    key: tuple[int, int] = field(init=False, compare=False, repr=False)
+    #: Typed :data:`KeyObject`, not ``tuple[int, int]``: compiled (mypyc), a ``tuple[int, int]``
+    #: is held unboxed and boxed into a new tuple at every use (a new hash and a tuple
+    #: comparison in every lookup); an ``object`` stays this one tuple.
+    key: KeyObject = field(init=False, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         dt = DataType(self.data_type)
@@ -198,7 +220,7 @@ class Entry:
                 else 3 if dt in STRING_TYPES else 4)
         object.__setattr__(self, "kind", kind)
         object.__setattr__(self, "int_range", type_range(dt) if kind == 1 else None)
-        object.__setattr__(self, "key", (self.index, self.subindex))
+        object.__setattr__(self, "key", key_object(self.index, self.subindex))
 
     @property
     def bit_length(self) -> int:

@@ -73,8 +73,8 @@ class CanopenDrive(Protocol):
     """What fault injection does to a CiA 402 drive: switch it off and on, put it in Fault."""
 
     @property
-    def node(self) -> Node:
-        """Its CANopen node (``running`` while switched on)."""
+    def running(self) -> bool:
+        """Switched on: its CANopen node (or the protocol that hosts it) runs."""
         ...
 
     @property

@@ -263,7 +263,7 @@ class Faults:
 
         def act() -> dict[str, Any]:
             p, drive = self._drive(device, bus)
-            if not drive.node.running:
+            if not drive.running:
                 raise FaultRefused(f"{p.name} is switched off")
             drive.fault(error_code, register)
             return {"fault": "drive-fault", "device": p.name, "kind": kind, "error_code": error_code,

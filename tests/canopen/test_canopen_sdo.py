@@ -353,6 +353,28 @@ def test_stopped_node_does_not_answer_sdo(make_node, raw) -> None:
     assert raw.sdo(5, [0x40, 0x00, 0x10, 0x00]) is not None
 
 
+def test_sdo_server_timeout_restarts_with_each_request(make_node, raw, clock) -> None:
+    """IDX table 6-20 0x05040000: the timeout runs from the client's last request -- a segment
+    received restarts it, and a transfer that ended leaves nothing that aborts the next one early."""
+    node = make_node()
+    timeout = node.sdo.timeout
+    assert raw.sdo(5, [0x21, 0x02, 0x20, 0x00, 14, 0, 0, 0]) is not None
+    clock.advance(timeout * 0.6)
+    assert raw.sdo(5, [0x00, *b"abcdefg"]) == bytes([0x20]) + bytes(7)
+    raw.received.clear()
+    clock.advance(timeout * 0.6)                # 1.2 timeouts after the initiate, 0.6 after the segment
+    assert raw.take(0x585) == []
+    assert raw.sdo(5, [0x11, *b"hijklmn"]) == bytes([0x30]) + bytes(7)     # last segment: done
+    assert node.get(0x2002) == b"abcdefghijklmn"
+    clock.advance(timeout * 0.5)
+    assert raw.sdo(5, [0x21, 0x02, 0x20, 0x00, 14, 0, 0, 0]) is not None    # a new transfer
+    raw.received.clear()
+    clock.advance(timeout * 0.9)                # past the first transfer's deadlines, not this one's
+    assert raw.take(0x585) == []
+    clock.advance(timeout * 0.2)
+    assert [abort_code(f.data) for f in raw.take(0x585)] == [E.SDO_PROTOCOL_TIMED_OUT]
+
+
 def test_block_transfer_timeouts(make_node, raw, clock) -> None:
     """IDX table 6-20 0x05040000: a block upload waiting for the client's acknowledgement and a
     block download waiting for the next segment are aborted when the server's timer expires."""

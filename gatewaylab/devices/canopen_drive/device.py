@@ -14,13 +14,14 @@ compute each period's demand are :mod:`.modes`. Everything is documented in
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, Final, Protocol
 
 from gatewaylab.bus.bus import VirtualBus
 from gatewaylab.canopen.cia402 import CONTROLWORD_NEXT, STATE_BITS, Command, Cw, OpMode, PdsState, Sw
-from gatewaylab.canopen.emcy import ERR_PROFILE
+from gatewaylab.canopen.emcy import ERR_GENERIC, ERR_PROFILE
 from gatewaylab.canopen.errors import VALUE_RANGE_EXCEEDED, SdoAbort
 from gatewaylab.canopen.lss import BIT_TIMING_TABLE, UNCONFIGURED, LssAddress, LssConfigStore, LssSlave
 from gatewaylab.canopen.nmt import NmtState
@@ -39,7 +40,7 @@ from gatewaylab.devices.canopen_drive.objects import (
     build_object_dictionary,
 )
 from gatewaylab.devices.canopen_drive.plant import AxisParams, ControlMode, Plant, Trapezoid
-from gatewaylab.od import ObjectDictionary
+from gatewaylab.od import KeyObject, ObjectDictionary, WriteHook, key_object
 
 #: The drive's own control period (s) when no host drives the cycle (IDX: 1 kHz position loop).
 CONTROL_PERIOD = 0.001
@@ -54,6 +55,10 @@ ERROR_REGISTER_FOLLOWING = ERR_PROFILE
 #: with a float faster than with an int); the saturated value rounds to the same int.
 _I32 = (-2147483648.0, 2147483647.0)
 _I16 = (-32768.0, 32767.0)
+_I32_LOW: Final = -2147483648.0
+_I32_HIGH: Final = 2147483647.0
+_I16_LOW: Final = -32768.0
+_I16_HIGH: Final = 32767.0
 
 #: The actual values the control tick publishes every period, in this order (an event-driven
 #: TPDO mapping them samples the dictionary as each one changes): (index, subindex) and the
@@ -70,20 +75,100 @@ _ACTUALS: tuple[tuple[tuple[int, int], tuple[float, float] | None], ...] = (
     ((0x60FD, 0), None),   # digital inputs
     ((0x6041, 0), None),   # statusword
 )
-_ACTUAL_KEYS = tuple(key for key, _ in _ACTUALS)
-_MEASURED_RANGES = tuple(limits for _, limits in _ACTUALS if limits is not None)
+#: _ACTUALS' keys as the entries' own key objects (a dict finds an identical key without
+#: comparing tuples; compiled code keeps them boxed): the puts of every control period
+_ACTUAL_KEYS: Final[tuple[KeyObject, ...]] = tuple(key_object(*key) for key, _ in _ACTUALS)
+_STATUSWORD_KEY: Final[tuple[KeyObject, ...]] = (key_object(0x6041, 0),)
+# the objects the control tick reads every period
+_K_CONTROLWORD: Final = key_object(0x6040, 0)
+_K_QUICK_STOP_OPTION: Final = key_object(0x605A, 0)
+_K_MAX_TORQUE: Final = key_object(0x6072, 0)
+_K_FE_WINDOW: Final = key_object(0x6065, 0)
+_K_FE_TIMEOUT: Final = key_object(0x6066, 0)
+
+
+def _saturated_int(value: float, low: float, high: float) -> int:
+    """``round(value)`` saturated to ``[low, high]`` (a measured value stored in an integer object).
+
+    Rounds half to even as ``round`` does, with a floor and the exact fraction ``value - floor``
+    (compiled these are C operations; ``round`` would be a call of the builtin). A NaN raises
+    ValueError as ``round`` does."""
+    if value < low:
+        value = low
+    elif value > high:
+        value = high
+    whole = math.floor(value)
+    rest = value - whole
+    if rest > 0.5 or (rest == 0.5 and whole & 1):
+        return whole + 1
+    return whole
+
+
+class DriveEmcy(Protocol):
+    """What the drive uses of its host's EMCY producer (:class:`~gatewaylab.canopen.emcy.Emcy`)."""
+
+    @property
+    def active(self) -> dict[int, int]:
+        """Active errors: code -> error register bits."""
+
+    def raise_error(self, code: int, register_bits: int = ERR_GENERIC, info: bytes = b"") -> None:
+        """Send an error (once per error event)."""
+
+    def clear_error(self, code: int) -> None:
+        """The error went away: 'error reset'."""
+
+
+class DriveHost(Protocol):
+    """What the drive uses of the node that hosts it: a CANopen :class:`Node`, or another
+    protocol's stand-in (the EtherCAT drive's ``CoeHost``). A Protocol, not a base class: a
+    compiled ``Node`` is a native class, and a compiled attribute typed ``Node`` refuses anything else."""
+
+    @property
+    def nmt_state(self) -> NmtState:
+        """Statusword bit 9 'remote' follows NMT Operational."""
+
+    @property
+    def running(self) -> bool:
+        """Switched on (between start and stop)."""
+
+    @property
+    def emcy(self) -> DriveEmcy:
+        """The EMCY producer of the drive's errors."""
+
+    def set(self, index: int, subindex: int, value: Any) -> None:
+        """The device's own write of a typed value (no access checks, no hooks)."""
+
+    def on_write(self, index: int | range, callback: WriteHook) -> None:
+        """``callback(index, subindex, value)`` after a remote write was stored."""
+
+    def on_nmt_change(self, callback: Callable[[NmtState, NmtState], None]) -> None:
+        """``callback(old, new)`` on every NMT state change."""
+
+    def on_reset(self, callback: Callable[[bool], None]) -> None:
+        """``callback(reset_node)`` at the start of an NMT reset."""
+
+    def start(self) -> None:
+        """Power on the communication side."""
+
+    def stop(self) -> None:
+        """Power off the communication side."""
 
 
 class Drive(OperationModes):
     """A maxon IDX-like CiA 402 servo on a virtual CAN bus (see module docstring)."""
 
+    #: the CANopen node of a drive on CAN (a hosted drive has none: see ``host``)
+    node: Node
+    #: what the drive uses of its node: ``node``, or the host given by another protocol
+    host: DriveHost
+
     def __init__(self, clock: Clock, bus: VirtualBus | None, node_id: int | None, serial: int, name: str = "",
                  store_path: Path | None = None, params: AxisParams | None = None, *,
-                 od: ObjectDictionary | None = None, node: Node | None = None) -> None:
-        """``od`` and ``node``: another protocol hosts the drive (the EtherCAT drive: its slave's
-        dictionary holds the rows of :func:`add_profile_objects`, ``node`` offers what the drive
-        uses of a Node: set, emcy, nmt_state, on_write/on_nmt_change/on_reset, start/stop); then
-        no CANopen node and no LSS slave are built and ``bus`` is not used."""
+                 od: ObjectDictionary | None = None, host: DriveHost | None = None) -> None:
+        """``od`` and ``host``: another protocol hosts the drive (the EtherCAT drive: its slave's
+        dictionary holds the rows of :func:`add_profile_objects`, ``host`` offers what the drive
+        uses of a Node, :class:`DriveHost`); then no CANopen node and no LSS slave are built,
+        ``bus`` is not used and the drive has no ``node``."""
         if node_id is not None and not 1 <= node_id <= 127:
             raise ConfigError(f"drive node_id {node_id} outside 1..127")
         if not 0 <= serial <= 0xFFFFFFFF:
@@ -99,19 +184,15 @@ class Drive(OperationModes):
             node_id = None if stored[0] == UNCONFIGURED else stored[0]
         self.od = od if od is not None else build_object_dictionary(serial, node_id, params=params)
         #: the dictionary's value table (typed values), read directly on the 1 kHz hot path
-        self._v: dict[tuple[int, int], Any] = self.od.values
-        #: _ACTUAL_KEYS as the entries' own key objects (Entry.key: a dict finds an identical
-        #: key without comparing tuples; the puts of every control period)
-        entries = self.od.entries
-        self._actual_keys = tuple(entries[key].key for key in _ACTUAL_KEYS)
-        self._statusword_key = (entries[0x6041, 0].key,)
+        #: with the entries' key objects (``key_object``)
+        self._v: dict[Any, Any] = self.od.values
         self._lss: LssSlave | None = None
-        if node is not None:
-            self.node = node
+        if host is not None:
+            self.host = host
         else:
             if bus is None:
                 raise ConfigError(f"drive {self.name}: a CANopen drive needs a bus")
-            self.node = Node(clock, bus, node_id, self.od, name=self.name, store_path=store_path)
+            self.node = self.host = Node(clock, bus, node_id, self.od, name=self.name, store_path=store_path)
             if stored is not None:
                 rate = BIT_TIMING_TABLE[stored[1]] if stored[1] < len(BIT_TIMING_TABLE) else None
                 if rate is not None:
@@ -125,23 +206,13 @@ class Drive(OperationModes):
         self.faults = 0
         self.active_errors: set[int] = set()
         self._timer: PeriodicTimer | None = None
-        #: Modes of operation -> the handler that computes the demand of one control period.
-        self._modes: dict[OpMode, Callable[[float], Demand]] = {
-            OpMode.NO_MODE: self._hold,
-            OpMode.PROFILE_POSITION: self._profile_position,
-            OpMode.PROFILE_VELOCITY: self._profile_velocity,
-            OpMode.HOMING: self._homing,
-            OpMode.CYCLIC_SYNC_POSITION: self._cyclic_position,
-            OpMode.CYCLIC_SYNC_VELOCITY: self._cyclic_velocity,
-            OpMode.CYCLIC_SYNC_TORQUE: self._cyclic_torque,
-        }
-        self.state = PdsState.NOT_READY_TO_SWITCH_ON
+        self._enter(PdsState.NOT_READY_TO_SWITCH_ON)
         self._init_motion()
-        self.node.on_write(0x6040, self._on_controlword)
-        self.node.on_write(0x6060, self._on_mode)
-        self.node.on_write(0x6098, self._on_homing_method)
-        self.node.on_nmt_change(self._on_nmt_change)
-        self.node.on_reset(self._on_reset)
+        self.host.on_write(0x6040, self._on_controlword)
+        self.host.on_write(0x6060, self._on_mode)
+        self.host.on_write(0x6098, self._on_homing_method)
+        self.host.on_nmt_change(self._on_nmt_change)
+        self.host.on_reset(self._on_reset)
 
     # -- life cycle -------------------------------------------------------------------------
     def _init_motion(self) -> None:
@@ -169,7 +240,7 @@ class Drive(OperationModes):
 
     def start(self) -> None:
         """Power on: boot the node, leave 'not ready to switch on', start the control tick."""
-        self.node.start()
+        self.host.start()
         self._transition(PdsState.SWITCH_ON_DISABLED, 1)   # after the self-test
         self._publish()
         if self._timer is None:
@@ -187,7 +258,12 @@ class Drive(OperationModes):
             self._timer = None
         if self._lss is not None:
             self._lss.stop()
-        self.node.stop()
+        self.host.stop()
+
+    @property
+    def running(self) -> bool:
+        """Switched on: its node (or the protocol that hosts it) runs (fault injection's power cycle)."""
+        return self.host.running
 
     @property
     def lss(self) -> LssSlave:
@@ -225,10 +301,27 @@ class Drive(OperationModes):
             self._publish()
 
     def _set_mode(self, op: OpMode) -> None:
-        """The active mode, its display 0x6061 and its handler for the control tick."""
+        """The active mode and its display 0x6061 (the control tick runs its handler, _mode_demand)."""
         self.mode = op
-        self._run_mode = self._modes[op]
-        self.node.set(0x6061, 0, int(op))
+        self.host.set(0x6061, 0, int(op))
+
+    def _mode_demand(self, dt: float) -> Demand:
+        """The demand of one control period in 'operation enabled': the handler of the mode
+        (called by name, not through a table of bound methods: compiled, a direct call)."""
+        mode = self.mode
+        if mode is _CSP:
+            return self._cyclic_position(dt)
+        if mode is _PP:
+            return self._profile_position(dt)
+        if mode is _CSV:
+            return self._cyclic_velocity(dt)
+        if mode is _CST:
+            return self._cyclic_torque(dt)
+        if mode is _PV:
+            return self._profile_velocity(dt)
+        if mode is _HOMING:
+            return self._homing(dt)
+        return self._hold(dt)
 
     @staticmethod
     def _on_homing_method(index: int, sub: int, value: Any) -> None:
@@ -259,13 +352,13 @@ class Drive(OperationModes):
         self._set_mode(op)
 
     def _on_controlword(self, *args: Any) -> None:
-        cw = self._v[0x6040, 0]
+        cw: int = self._v[_K_CONTROLWORD]
         prev, self.controlword = self.controlword, cw
         # next_state(state, decode_command(cw, prev)) from one precomputed table (every SYNC)
-        hit = CONTROLWORD_NEXT[self.state][(cw & 0x8F) | ((prev & 0x80) << 1)]
+        hit = self._cw_next[(cw & 0x8F) | ((prev & 0x80) << 1)]
         # CiA 402: transition 16 only with the quick stop option codes 5..8
-        if hit is not None and not (hit[1] == 16 and int(self._v[0x605A, 0]) < 5):
-            self._transition(*hit)
+        if hit is not None and not (hit[1] == 16 and int(self._v[_K_QUICK_STOP_OPTION]) < 5):
+            self._transition(hit[0], hit[1])
         if self.state is _OPERATION_ENABLED:
             self.halted = bool(cw & _CW_HALT)
             mode = self.mode
@@ -281,7 +374,7 @@ class Drive(OperationModes):
         ramp ended), 13 (fault), 14 (fault reaction ended). The caller publishes the statusword.
         """
         old = self.state
-        self.state = new
+        self._enter(new)
         if new is _OPERATION_ENABLED:
             if old is not PdsState.QUICK_STOP_ACTIVE:   # 16 resumes the running motion
                 self._restart_motion()
@@ -292,6 +385,13 @@ class Drive(OperationModes):
             self.fe_time = 0.0
         elif number == 15:     # fault reset
             self._clear_errors(send=True)
+
+    def _enter(self, new: PdsState) -> None:
+        """The state and what depends on it alone, looked up once here: its statusword bits and
+        its row of the controlword table (an Enum-keyed lookup hashes in Python: every period)."""
+        self.state = new
+        self._state_bits = STATE_BITS[new]
+        self._cw_next = CONTROLWORD_NEXT[new]
 
     def _restart_motion(self) -> None:
         """Take over the actual position as demand (enable, mode change)."""
@@ -317,7 +417,7 @@ class Drive(OperationModes):
         st = plant.state
         state = self.state
         if state is _OPERATION_ENABLED:
-            demand = self._run_mode(dt)
+            demand = self._mode_demand(dt)
         elif state is _QUICK_STOP_ACTIVE or state is _FAULT_REACTION_ACTIVE:
             demand = self._stop_ramp(dt)
         elif st.velocity == 0.0 and plant.external_torque == 0.0 and not self.fe_warning:
@@ -326,21 +426,23 @@ class Drive(OperationModes):
             demand = POWER_OFF
         control, position, velocity, acceleration, torque = demand
         offset = self.offset
-        plant.step(dt, control, position - offset, velocity, acceleration, torque, float(self._v[0x6072, 0]))
+        v = self._v
+        max_torque: int = v[_K_MAX_TORQUE]
+        plant.step(dt, control, position - offset, velocity, acceleration, torque, float(max_torque))
         x = st.position + offset
         supervised = control is _POSITION and state is _OPERATION_ENABLED
         self.demand = position if control is _POSITION else x
         self.demand_velocity = velocity
         fe = self.demand - x if supervised else 0.0
         # following error supervision: outside the window 0x6065 for longer than 0x6066 ms is a fault
-        window = self._v[0x6065, 0]
+        window: int = v[_K_FE_WINDOW]
         if not supervised or window == 0xFFFFFFFF or abs(fe) <= window:
             self.fe_time = 0.0
             self.fe_warning = False
         else:
             self.fe_warning = True
             self.fe_time += dt
-            if self.fe_time * 1000.0 > int(self._v[0x6066, 0]) + 1e-9 and self.state is _OPERATION_ENABLED:
+            if self.fe_time * 1000.0 > int(v[_K_FE_TIMEOUT]) + 1e-9 and self.state is _OPERATION_ENABLED:
                 self.fault(ERROR_FOLLOWING, ERROR_REGISTER_FOLLOWING)
         self._publish_actuals(x, fe)
 
@@ -366,23 +468,23 @@ class Drive(OperationModes):
         if self.state in (PdsState.FAULT, PdsState.FAULT_REACTION_ACTIVE):
             return
         self.faults += 1
-        self.node.set(0x603F, 0, error_code)
+        self.host.set(0x603F, 0, error_code)
         self._raise_error(error_code, error_register, data)
         self._transition(PdsState.FAULT_REACTION_ACTIVE, 13)
         self._publish()
 
     def _raise_error(self, error_code: int, error_register: int, data: bytes) -> None:
         self.active_errors.add(error_code)
-        self.node.emcy.raise_error(error_code, error_register, data)
+        self.host.emcy.raise_error(error_code, error_register, data)
 
     def _clear_errors(self, send: bool) -> None:
         """Fault reset (transition 15): 0x603F cleared, EMCY 'error reset' for each drive error."""
-        self.node.set(0x603F, 0, 0)
+        self.host.set(0x603F, 0, 0)
         for code in sorted(self.active_errors):
             if send:
-                self.node.emcy.clear_error(code)
+                self.host.emcy.clear_error(code)
             else:
-                self.node.emcy.active.pop(code, None)
+                self.host.emcy.active.pop(code, None)
         self.active_errors.clear()
 
     # -- outputs ----------------------------------------------------------------------------
@@ -390,8 +492,8 @@ class Drive(OperationModes):
         """0x6041 from the FSA state, NMT state and the mode's bits (plain ints: 1 kHz path)."""
         # enum members through module constants: Enum class attribute access is slow in 3.11
         state = self.state
-        sw = STATE_BITS[state]
-        if self.node.nmt_state is _NMT_OPERATIONAL:
+        sw = self._state_bits
+        if self.host.nmt_state is _NMT_OPERATIONAL:
             sw |= _SW_REMOTE
         if self.fe_warning:
             sw |= _SW_WARNING
@@ -424,41 +526,47 @@ class Drive(OperationModes):
 
     def _publish(self) -> None:
         """The statusword into the dictionary (event-driven TPDOs mapping it see a change)."""
-        self.od.put_many(self._statusword_key, (self.statusword(),), typed=True)
+        self.od.put_many(_STATUSWORD_KEY, [self.statusword()], typed=True)
 
     def _publish_actuals(self, x: float, fe: float) -> None:
         """The actual values of this period into the dictionary, in the order of ``_ACTUALS``:
         the measured ones rounded and saturated to their type, so they are stored typed."""
         plant = self.plant
         st = plant.state
-        values = []      # a for loop, not a comprehension: no function call per period (Python 3.11)
-        for (low, high), value in zip(_MEASURED_RANGES, (
-                x, st.velocity, st.torque, st.torque, self.demand, self.demand_velocity, fe)):
-            values.append(round(low if value < low else high if value > high else value))
-        values.append(plant.digital_inputs())
-        values.append(self.statusword())
-        self.od.put_many(self._actual_keys, values, typed=True)
+        torque = _saturated_int(st.torque, _I16_LOW, _I16_HIGH)
+        self.od.put_many(_ACTUAL_KEYS, [
+            _saturated_int(x, _I32_LOW, _I32_HIGH),
+            _saturated_int(st.velocity, _I32_LOW, _I32_HIGH),
+            torque,
+            torque,
+            _saturated_int(self.demand, _I32_LOW, _I32_HIGH),
+            _saturated_int(self.demand_velocity, _I32_LOW, _I32_HIGH),
+            _saturated_int(fe, _I32_LOW, _I32_HIGH),
+            plant.digital_inputs(),
+            self.statusword(),
+        ], typed=True)
 
 
-_CW_HALT = int(Cw.HALT)
-_SW_REMOTE = int(Sw.REMOTE)
-_SW_WARNING = int(Sw.WARNING)
-_SW_INTERNAL_LIMIT = int(Sw.INTERNAL_LIMIT)
-_SW_TARGET_REACHED = int(Sw.TARGET_REACHED)
-_SW_BIT12 = int(Sw.OP_SPECIFIC_12)
-_SW_BIT13 = int(Sw.OP_SPECIFIC_13)
-# enum members through module constants: Enum class attribute access is slow in 3.11
-_CSP = OpMode.CYCLIC_SYNC_POSITION
-_PP = OpMode.PROFILE_POSITION
-_PV = OpMode.PROFILE_VELOCITY
-_HOMING = OpMode.HOMING
-_CSV = OpMode.CYCLIC_SYNC_VELOCITY
-_CST = OpMode.CYCLIC_SYNC_TORQUE
-_NMT_OPERATIONAL = NmtState.OPERATIONAL
-_OPERATION_ENABLED = PdsState.OPERATION_ENABLED
-_QUICK_STOP_ACTIVE = PdsState.QUICK_STOP_ACTIVE
-_FAULT_REACTION_ACTIVE = PdsState.FAULT_REACTION_ACTIVE
-_POSITION = ControlMode.POSITION
+_CW_HALT: Final = int(Cw.HALT)
+_SW_REMOTE: Final = int(Sw.REMOTE)
+_SW_WARNING: Final = int(Sw.WARNING)
+_SW_INTERNAL_LIMIT: Final = int(Sw.INTERNAL_LIMIT)
+_SW_TARGET_REACHED: Final = int(Sw.TARGET_REACHED)
+_SW_BIT12: Final = int(Sw.OP_SPECIFIC_12)
+_SW_BIT13: Final = int(Sw.OP_SPECIFIC_13)
+# enum members through module constants: Enum class attribute access is slow in 3.11 (Final:
+# compiled, a C static instead of a lookup in the module's dict)
+_CSP: Final = OpMode.CYCLIC_SYNC_POSITION
+_PP: Final = OpMode.PROFILE_POSITION
+_PV: Final = OpMode.PROFILE_VELOCITY
+_HOMING: Final = OpMode.HOMING
+_CSV: Final = OpMode.CYCLIC_SYNC_VELOCITY
+_CST: Final = OpMode.CYCLIC_SYNC_TORQUE
+_NMT_OPERATIONAL: Final = NmtState.OPERATIONAL
+_OPERATION_ENABLED: Final = PdsState.OPERATION_ENABLED
+_QUICK_STOP_ACTIVE: Final = PdsState.QUICK_STOP_ACTIVE
+_FAULT_REACTION_ACTIVE: Final = PdsState.FAULT_REACTION_ACTIVE
+_POSITION: Final = ControlMode.POSITION
 
 
 #: the dictionary's names stay importable from here (objects.py holds them since issue 22)

@@ -9,12 +9,13 @@ control loop and power state machine around it.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Final
 
 from gatewaylab.canopen.cia402 import Cw, OpMode, PdsState
 from gatewaylab.common.clock import Clock
 from gatewaylab.devices.canopen_drive.homing import HomingRun, HomingStatus
 from gatewaylab.devices.canopen_drive.plant import ControlMode, Plant, Trapezoid
+from gatewaylab.od import key_object
 
 
 def _clamp(value: float, low: float, high: float) -> float:
@@ -44,8 +45,9 @@ class OperationModes:
     plant: Plant
     state: PdsState
     mode: OpMode
-    #: the dictionary's value table (typed values), read directly on the 1 kHz hot path
-    _v: dict[tuple[int, int], Any]
+    #: the dictionary's value table (typed values), read directly on the 1 kHz hot path (the
+    #: objects of every period through their key objects, ``key_object``: see od.types)
+    _v: dict[Any, Any]
     # the motion state the handlers keep
     #: user position = physical plant position + offset (homing moves the offset)
     offset: float
@@ -87,8 +89,8 @@ class OperationModes:
 
     def _soft_limits(self, x: float) -> float:
         v = self._v     # typed values: integer objects hold ints
-        low = v[0x607D, 1]
-        high = v[0x607D, 2]
+        low: int = v[_K_MIN_POSITION]
+        high: int = v[_K_MAX_POSITION]
         if low < high:
             clamped = low if x < low else high if x > high else x
             if clamped != x:
@@ -197,7 +199,9 @@ class OperationModes:
         stream + 0x60B1."""
         v = self._v
         self.internal_limit = False
-        target = self._soft_limits(float(v[0x607A, 0] + v[0x60B0, 0]))
+        target_position: int = v[_K_TARGET_POSITION]
+        position_offset: int = v[_K_POSITION_OFFSET]
+        target = self._soft_limits(float(target_position + position_offset))
         # velocity feed-forward from the set-point stream: change / time between changes, held
         # until the next set-point is late (so master cycles other than 1 ms still run smoothly)
         now = self.clock.now()
@@ -213,7 +217,8 @@ class OperationModes:
             self.csp_changed_at, self.csp_span = now, span
         elif now - self.csp_changed_at > self.csp_span + 0.5 * dt:
             self.csp_velocity = 0.0
-        return (_POSITION, target, self.csp_velocity + float(v[0x60B1, 0]), 0.0, 0.0)
+        velocity_offset: int = v[_K_VELOCITY_OFFSET]
+        return (_POSITION, target, self.csp_velocity + float(velocity_offset), 0.0, 0.0)
 
     def _cyclic_velocity(self, dt: float) -> Demand:
         """CSV: 0x60FF + 0x60B1, limited to min(0x607F, 0x6080)."""
@@ -247,11 +252,18 @@ class OperationModes:
                 self.in_window_time = 0.0
 
 
-_CW_NEW_SETPOINT = int(Cw.NEW_SETPOINT)
-# enum members through module constants: Enum class attribute access is slow in 3.11
-_PP = OpMode.PROFILE_POSITION
-_HOMING = OpMode.HOMING
-_POSITION = ControlMode.POSITION
-_VELOCITY = ControlMode.VELOCITY
-_TORQUE = ControlMode.TORQUE
-_HOMING_RUNNING = (HomingStatus.IN_PROGRESS, HomingStatus.ATTAINED)
+_CW_NEW_SETPOINT: Final = int(Cw.NEW_SETPOINT)
+# enum members through module constants: Enum class attribute access is slow in 3.11 (Final:
+# compiled, a C static instead of a lookup in the module's dict)
+_PP: Final = OpMode.PROFILE_POSITION
+_HOMING: Final = OpMode.HOMING
+_POSITION: Final = ControlMode.POSITION
+_VELOCITY: Final = ControlMode.VELOCITY
+_TORQUE: Final = ControlMode.TORQUE
+_HOMING_RUNNING: Final = (HomingStatus.IN_PROGRESS, HomingStatus.ATTAINED)
+# the objects CSP reads every period, by their key objects
+_K_TARGET_POSITION: Final = key_object(0x607A, 0)
+_K_POSITION_OFFSET: Final = key_object(0x60B0, 0)
+_K_VELOCITY_OFFSET: Final = key_object(0x60B1, 0)
+_K_MIN_POSITION: Final = key_object(0x607D, 1)
+_K_MAX_POSITION: Final = key_object(0x607D, 2)

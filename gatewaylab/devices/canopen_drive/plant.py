@@ -20,7 +20,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from enum import Enum
-from typing import Any
+from typing import Final
 
 
 @dataclass(frozen=True, slots=True)
@@ -61,7 +61,36 @@ class ControlMode(Enum):
     TORQUE = "torque"      # torque command in per mille
 
 
-_OFF, _POSITION, _VELOCITY, _TORQUE = ControlMode.OFF, ControlMode.POSITION, ControlMode.VELOCITY, ControlMode.TORQUE
+_OFF: Final = ControlMode.OFF
+_POSITION: Final = ControlMode.POSITION
+_VELOCITY: Final = ControlMode.VELOCITY
+_TORQUE: Final = ControlMode.TORQUE
+
+
+class _StepConstants:
+    """What ``Plant.step`` derives from its :class:`AxisParams`, computed once per params object.
+
+    Typed fields, not a tuple: compiled, the arithmetic of ``step`` stays on C doubles (the values
+    of an ``Any`` tuple made every operation a generic Python one)."""
+
+    __slots__ = ("coulomb", "has_high", "has_low", "high", "inc_per_rad", "k", "ki", "kp", "kv", "low",
+                 "params", "rated_torque", "viscous_friction")
+
+    def __init__(self, p: AxisParams) -> None:
+        self.params = p
+        self.k: float = p.accel_per_permille
+        self.kp: float = p.kp
+        self.kv: float = p.kv
+        self.ki: float = p.ki
+        self.inc_per_rad: float = p.inc_per_rad
+        self.viscous_friction: float = p.viscous_friction
+        self.rated_torque: float = p.rated_torque
+        self.coulomb: float = p.coulomb_friction / p.rated_torque * 1000.0
+        high, low = p.hard_stop_high, p.hard_stop_low
+        self.has_high = high is not None
+        self.high: float = high if high is not None else 0.0
+        self.has_low = low is not None
+        self.low: float = low if low is not None else 0.0
 
 
 @dataclass(slots=True)
@@ -83,7 +112,7 @@ class Plant:
     state: AxisState = field(default_factory=AxisState)
     #: External load torque in per mille (fault injection / teaching: a blocked or loaded axis).
     external_torque: float = 0.0
-    _consts: tuple[Any, ...] | None = field(default=None, init=False, repr=False, compare=False)
+    _consts: _StepConstants | None = field(default=None, init=False, repr=False, compare=False)
 
     def reset_integrator(self) -> None:
         """Forget the velocity loop's integral (enable, mode change, reset): no kick from old errors."""
@@ -93,22 +122,16 @@ class Plant:
         """Redefine the current position (homing); the physics does not move."""
         self.state.position = position
 
-    def _constants(self) -> tuple[Any, ...]:
-        """Per-parameter constants of ``step`` (computed the same way as inline, cached)."""
-        p = self.params
-        return (p, p.accel_per_permille, p.kp, p.kv, p.ki, p.inc_per_rad, p.viscous_friction,
-                p.rated_torque, p.coulomb_friction / p.rated_torque * 1000.0, p.hard_stop_high,
-                p.hard_stop_low)
-
     def step(self, dt: float, mode: ControlMode, position: float = 0.0, velocity: float = 0.0,
              acceleration: float = 0.0, torque: float = 0.0, max_torque: float = 1000.0) -> None:
         """One control period: compute the motor torque for ``mode``, integrate the axis.
 
         The inputs may be passed by position (the drive's 1 kHz path does) or by keyword."""
         c = self._consts
-        if c is None or c[0] is not self.params:
-            c = self._consts = self._constants()
-        _, k, kp, kv, ki, inc_per_rad, viscous_friction, rated_torque, coulomb, high, low = c
+        if c is None or c.params is not self.params:
+            c = self._consts = _StepConstants(self.params)
+        k = c.k
+        coulomb = c.coulomb
         st = self.state
         v = st.velocity
         # k: inc/s^2 per per mille
@@ -123,9 +146,9 @@ class Plant:
             if mode is _POSITION:
                 # compare with where the axis will be at the end of this step, so that the
                 # actual position matches the set-point of the same instant (no one-step lead)
-                v_cmd += kp * (position - st.position - v * dt)
+                v_cmd += c.kp * (position - st.position - v * dt)
             err = v_cmd - v
-            cmd = (kv * err + ki * (st.integral + err * dt) + acceleration) / k
+            cmd = (c.kv * err + c.ki * (st.integral + err * dt) + acceleration) / k
         limit = abs(max_torque)
         saturated = cmd > limit or cmd < -limit
         if saturated:
@@ -136,7 +159,7 @@ class Plant:
         st.saturated = saturated
         st.torque = cmd
         # forces in per mille of rated torque
-        viscous = viscous_friction * (v / inc_per_rad) / rated_torque * 1000.0
+        viscous = c.viscous_friction * (v / c.inc_per_rad) / c.rated_torque * 1000.0
         drive = cmd + self.external_torque - viscous
         if v == 0.0 and abs(drive) <= coulomb:
             acc = 0.0          # stiction holds the axis
@@ -148,10 +171,10 @@ class Plant:
             v_new = 0.0        # friction brings it to rest within the step, it does not reverse
         x_new = st.position + v_new * dt
         at_stop = False
-        if high is not None and x_new >= high:
-            x_new, v_new, at_stop = high, min(v_new, 0.0), True
-        if low is not None and x_new <= low:
-            x_new, v_new, at_stop = low, max(v_new, 0.0), True
+        if c.has_high and x_new >= c.high:
+            x_new, v_new, at_stop = c.high, min(v_new, 0.0), True
+        if c.has_low and x_new <= c.low:
+            x_new, v_new, at_stop = c.low, max(v_new, 0.0), True
         st.at_stop = at_stop
         st.velocity = v_new
         st.position = x_new

@@ -33,12 +33,11 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import replace
 from functools import partial
-from typing import Any, cast
+from typing import Any
 
 from gatewaylab.canopen.cia402 import PdsState
 from gatewaylab.canopen.emcy import ERR_CURRENT, ERR_GENERIC
 from gatewaylab.canopen.nmt import NmtState
-from gatewaylab.canopen.node import Node
 from gatewaylab.common.clock import Clock, PeriodicTimer
 from gatewaylab.common.errors import ConfigError
 from gatewaylab.devices.canopen_drive.device import DEVICE_TYPE, Drive, add_profile_objects
@@ -222,7 +221,7 @@ class CoeEmergency:
 
 
 class CoeHost:
-    """What the drive uses of a CANopen Node (Drive(node=...)) on an EtherCAT slave: the typed
+    """What the drive uses of a CANopen Node (Drive(host=...): a DriveHost) on an EtherCAT slave: the typed
     dictionary access, the CoE emergency producer and an NMT-like state that follows the EtherCAT
     state (OP = operational: statusword bit 9 'remote')."""
 
@@ -349,7 +348,7 @@ class DriveApplication(SlaveApplication):
             host = CoeHost(axis_od, CoeEmergency(slave, n, register))
             # The drive takes the part of a Node it uses from the CoE host (see CoeHost).
             drive = Drive(slave.clock, None, None, self.serial, name=f"{slave.name} axis {n + 1}",
-                          params=self.params, od=axis_od, node=cast(Node, host))
+                          params=self.params, od=axis_od, host=host)
             self.axis_ods.append(axis_od)
             self.hosts.append(host)
             self.drives.append(drive)

@@ -10,7 +10,9 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
+from gatewaylab.devices.ecanlite.rig import EcanLiteParticipant
 from gatewaylab.hosts.ecanlite.cia402 import Axis
+from gatewaylab.plugin.capabilities import ethercat_devices, node_of
 
 __all__ = ["rig_axes", "rig_channel_bitrates", "rig_toml"]
 
@@ -41,16 +43,10 @@ def rig_toml(drives_per_channel: Sequence[Sequence[int]] = ((1,),), *, bitrate: 
     return "\n".join(lines)
 
 
-def _ecanlites(rig: Any) -> list[tuple[int, Any]]:
+def _ecanlites(rig: Any) -> list[tuple[int, EcanLiteParticipant]]:
     """(line position, participant) of the rig's ECAN-Lites (EtherCAT devices in file order)."""
-    out = []
-    pos = 0
-    for p in rig.participants:
-        if getattr(p, "is_ethercat", False):
-            if hasattr(p, "channels") and type(p).__name__ == "EcanLiteParticipant":
-                out.append((pos, p))
-            pos += 1
-    return out
+    return [(pos, p) for pos, p in enumerate(ethercat_devices(rig.participants))
+            if isinstance(p, EcanLiteParticipant)]
 
 
 def rig_axes(rig: Any, step: int = 0) -> tuple[list[int], list[Axis]]:
@@ -61,10 +57,8 @@ def rig_axes(rig: Any, step: int = 0) -> tuple[list[int], list[Axis]]:
         positions.append(pos)
         for ch, bus_name in enumerate(ecan.channels):
             for p in rig.participants:
-                bus = getattr(p, "bus", None)
-                node = getattr(p, "node", None)
-                if bus is not None and node is not None and getattr(bus, "name", None) == bus_name \
-                        and node.node_id is not None:
+                node = node_of(p)
+                if node is not None and node.bus.name == bus_name and node.node_id is not None:
                     axes.append(Axis(k, ch, node.node_id, step))
     return positions, axes
 

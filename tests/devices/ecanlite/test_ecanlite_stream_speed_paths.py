@@ -5,6 +5,7 @@ for common control words never changes what is accepted or refused (chapters 8-1
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import pickle
 import struct
@@ -36,6 +37,7 @@ from gatewaylab.devices.ecanlite.stream import (
     PdoError,
     StreamEncodeError,
     StreamError,
+    StreamHeader,
     StreamLayout,
     Tsf,
     TxResultCode,
@@ -109,6 +111,22 @@ def test_decoded_packets_are_ordinary_frozen_packets(stream: tuple[StreamLayout,
             assert read.raw_size == built.raw_size and read.frame == built.frame
             assert dataclasses.replace(read) == read
             assert encode_stream(layout, 1, [dataclasses.replace(read)]) == encode_stream(layout, 1, [read])
+
+
+def test_a_decoded_image_pickles_and_copies() -> None:
+    """Chapter 6, chapter 10: the records of a decoded image (its header, the image with its
+    CAN_FRAME and TX_RESULT packets) are values like the packets: pickled, copied and deep-copied
+    they come back equal (compiled, the header and the image needed their own ``__reduce__``:
+    mypyc's default refills a frozen record through setattr)."""
+    packets = [CanPacket.of(1, 0x55, data=b"ab"), TxResultPacket(2, 7, 0, TxResultCode.OK)]
+    image = encode_stream(TX_RESULT_LAYOUT, 7, packets,
+                          status_words=(1, 2, 3, 4), overflow_sat=3)
+    decoded = decode_stream(image, TX_RESULT_LAYOUT)
+    for record in (decoded, decoded.header, StreamHeader()):
+        for twin in (pickle.loads(pickle.dumps(record)), copy.copy(record), copy.deepcopy(record),
+                     dataclasses.replace(record)):
+            assert twin == record and hash(twin) == hash(record) and repr(twin) == repr(record)
+    assert pickle.loads(pickle.dumps(decoded)).header.channel_status == (1, 2, 3, 4)
 
 
 @_SETTINGS

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import html
 import re
-import threading
 from typing import Any
 
 from esd_web_kit import multipart, request
@@ -36,8 +35,7 @@ def test_pages_follow_the_gateway_through_traffic_update_and_reboot(kit: Any) ->
     the master sent and the peer sent counted per kind; 6.1.2 an upload through the form starts the
     update, the page shows Figure 39's output, after the update the device is back in INIT with the
     file's version; a bad file is refused with the device's reason; 6.1.3 "Reboot now" restarts it."""
-    kit.clock.lock = threading.RLock()  # what the rig runtime installs (docs/architecture.md "Threads")
-    server = EsdWebServer(EsdWebModel(kit.gw), kit.clock.lock)
+    server = EsdWebServer(EsdWebModel(kit.gw), kit.clock.ensure_lock())  # as the rig runtime does
     url = server.start()
     try:
         lines = _can_lines(url)

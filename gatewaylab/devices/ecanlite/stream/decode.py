@@ -11,17 +11,15 @@ its frame is a :class:`~gatewaylab.bus.frame.CanFrame`, which checks its own fie
 from __future__ import annotations
 
 import binascii
+from typing import TYPE_CHECKING, Final
 
 from gatewaylab.bus.frame import FD_DLC_TO_LEN, CanFrame
 from gatewaylab.devices.ecanlite.stream.format import (
     COMMIT,
     CRC_ALG_CCITT_FALSE,
-    HEADER,
     HEADER_SIZE,
-    PACKET_HEADS,
     TSF_BYTES,
     TSFS,
-    TX_RESULT,
     U16,
     VER_IHL,
     ZERO_PAD,
@@ -34,18 +32,22 @@ from gatewaylab.devices.ecanlite.stream.format import (
 )
 from gatewaylab.devices.ecanlite.stream.layout import StreamLayout, ctrl_error
 from gatewaylab.devices.ecanlite.stream.packets import (
+    CanPacket,
     DecodedStream,
     Packet,
     StreamHeader,
     TxResultPacket,
-    decoded_packet,
 )
 
-#: Appended to the decoder's copy of an image, so a packet head can be unpacked before the check
+if TYPE_CHECKING:
+    from mypy_extensions import i64  # compiled: a machine integer; pure Python never evaluates it
+
+#: Appended to the decoder's copy of an image, so a packet head can be read before the check
 #: that it ends inside payload_len (a full64 head is 2 + 4 + 8 bytes).
-_DECODE_TAIL = bytes(16)
-_RESULT_CODES = tuple(TxResultCode)
-_TX_RESULT_UNPACK = TX_RESULT.unpack_from
+_DECODE_TAIL: Final = bytes(16)
+_RESULT_CODES: Final = tuple(TxResultCode)
+#: header_flags bits 0-5 by value (an enum call per image costs ~1 us).
+_HEADER_FLAGS: Final = tuple(HeaderFlags(v) for v in range(64))
 
 
 def commit_state(image: bytes | bytearray | memoryview, previous: bytes | bytearray | memoryview | None) -> Commit:
@@ -74,6 +76,21 @@ def commit_state(image: bytes | bytearray | memoryview, previous: bytes | bytear
     return Commit.DUPLICATE
 
 
+def _fail(code: PdoError, reason: str, seq: int, payload_len: int, crc: int, layout_id: int, offset: int = -1,
+          packet_end: int = -1, ctrl: int = -1) -> StreamError:
+    """The StreamError of a parse failure with its parse_diag (16.2): header fields, where, the control word.
+    (A module function, not a closure: compiled, a closure puts the captured locals in an object.)"""
+    if ctrl < 0:
+        return StreamError(code, ParseDiag(offset, packet_end, -1, seq, payload_len, crc, layout_id, reason=reason))
+    return StreamError(code, ParseDiag(offset, packet_end, ctrl, seq, payload_len, crc, layout_id,
+                                       ctrl & 7, ctrl >> 3 & 15, ctrl >> 11 & 3, ctrl >> 13 & 3, reason))
+
+
+def _u16(data: bytes, off: int) -> int:
+    """The little-endian u16 at ``off`` (compiled: byte indexing of ``bytes`` is native)."""
+    return data[off] | data[off + 1] << 8
+
+
 def decode_stream(image: bytes | bytearray | memoryview, layout: StreamLayout) -> DecodedStream:
     """Parse one image of ``layout`` (6.1 order), raising :class:`StreamError` at the first error.
 
@@ -88,105 +105,152 @@ def decode_stream(image: bytes | bytearray | memoryview, layout: StreamLayout) -
     if size != layout.pdo_bytes:
         raise StreamError(PdoError.ACTIVE_AREA, ParseDiag(
             reason=f"image of {size} bytes, the active layout has {layout.pdo_bytes} (5.2)"))
-    (ver_ihl, flags, seq, seq_end, payload_len, crc, layout_id, mask, count, overflow, crc_alg,
-     s0, s1, s2, s3) = HEADER.unpack_from(image, 0)
-
-    def fail(code: PdoError, reason: str, offset: int = -1, packet_end: int = -1, ctrl: int = -1) -> StreamError:
-        if ctrl < 0:
-            return StreamError(code, ParseDiag(offset, packet_end, -1, seq, payload_len, crc, layout_id,
-                                               reason=reason))
-        return StreamError(code, ParseDiag(offset, packet_end, ctrl, seq, payload_len, crc, layout_id,
-                                           ctrl & 7, ctrl >> 3 & 15, ctrl >> 11 & 3, ctrl >> 13 & 3, reason))
-
+    # One copy of the image (bytes: no view pins the caller's buffer, and compiled, ``data[i]`` is a
+    # native int) with a zero tail, so a packet head can be read before the check that it ends
+    # inside payload_len (a full64 head is 2 + 4 + 8 bytes).
+    data = b"".join((image, _DECODE_TAIL))
+    ver_ihl = data[0]
+    seq = _u16(data, 2)
+    seq_end = _u16(data, 4)
+    payload_len = _u16(data, 6)
+    crc = _u16(data, 8)
+    layout_id = _u16(data, 10)
+    mask = data[12]
+    crc_alg = data[15]
     if ver_ihl != VER_IHL:
-        raise fail(PdoError.BAD_HEADER, f"ver_ihl 0x{ver_ihl:02X}, expected 0x16 (chapter 6)")
+        raise _fail(PdoError.BAD_HEADER, f"ver_ihl 0x{ver_ihl:02X}, expected 0x16 (chapter 6)",
+                    seq, payload_len, crc, layout_id)
     if seq != seq_end:
-        raise fail(PdoError.BAD_HEADER, f"torn image: seq_begin {seq} != seq_end {seq_end} (6.1)")
+        raise _fail(PdoError.BAD_HEADER, f"torn image: seq_begin {seq} != seq_end {seq_end} (6.1)",
+                    seq, payload_len, crc, layout_id)
     if layout.crc_enabled:
         if crc_alg != CRC_ALG_CCITT_FALSE:
-            raise fail(PdoError.BAD_HEADER, f"crc_alg {crc_alg}, expected 1 (6.1)")
+            raise _fail(PdoError.BAD_HEADER, f"crc_alg {crc_alg}, expected 1 (6.1)", seq, payload_len, crc, layout_id)
     elif crc_alg != 0 or crc != 0:
-        raise fail(PdoError.BAD_HEADER, f"crc_alg {crc_alg} / crc 0x{crc:04X}, NO_CRC16 expects 0 / 0 (9.1)")
+        raise _fail(PdoError.BAD_HEADER, f"crc_alg {crc_alg} / crc 0x{crc:04X}, NO_CRC16 expects 0 / 0 (9.1)",
+                    seq, payload_len, crc, layout_id)
     end = HEADER_SIZE + payload_len
     if end > size:
-        raise fail(PdoError.PACKET_OVERRUN, f"payload_len {payload_len} > frame area {size - HEADER_SIZE} (6.1)")
+        raise _fail(PdoError.PACKET_OVERRUN, f"payload_len {payload_len} > frame area {size - HEADER_SIZE} (6.1)",
+                    seq, payload_len, crc, layout_id)
     if layout.crc_enabled:
-        # (a copy, not a memoryview: a view kept alive by a traceback would pin the caller's bytearray)
-        calc = binascii.crc_hqx(image[HEADER_SIZE:end], 0xFFFF)
+        calc = binascii.crc_hqx(memoryview(data)[HEADER_SIZE:end], 0xFFFF)   # (a view of our own copy)
         if calc != crc:
-            raise fail(PdoError.BAD_CRC, f"payload_crc16 0x{crc:04X} != 0x{calc:04X} (6.1)")
+            raise _fail(PdoError.BAD_CRC, f"payload_crc16 0x{crc:04X} != 0x{calc:04X} (6.1)",
+                        seq, payload_len, crc, layout_id)
     if layout_id != layout.layout_id or mask != layout.channel_mask:
-        raise fail(PdoError.ACTIVE_AREA, f"layout_id 0x{layout_id:04X} / channel_mask 0x{mask:02X}, active "
-                                         f"0x{layout.layout_id:04X} / 0x{layout.channel_mask:02X} (5.4.4.1)")
-    # One copy of the image (bytes, so no view pins the caller's buffer) with a zero tail.
-    data = b"".join((image, _DECODE_TAIL))
+        raise _fail(PdoError.ACTIVE_AREA, f"layout_id 0x{layout_id:04X} / channel_mask 0x{mask:02X}, active "
+                                          f"0x{layout.layout_id:04X} / 0x{layout.channel_mask:02X} (5.4.4.1)",
+                    seq, payload_len, crc, layout_id)
+    packets = _decode_packets(data, end, layout, seq, payload_len, crc, layout_id)
+    count = data[13]
+    if len(packets) != count:
+        raise _fail(PdoError.BAD_HEADER, f"frame_count {count} but {len(packets)} packets in payload_len (6)",
+                    seq, payload_len, crc, layout_id, end)
+    header = StreamHeader(_HEADER_FLAGS[data[1] & 0x3F], seq, seq_end, payload_len, crc, layout_id, mask, count,
+                          data[14], crc_alg, (_u16(data, 16), _u16(data, 18), _u16(data, 20), _u16(data, 22)),
+                          ver_ihl)
+    return DecodedStream(header, tuple(packets))
+
+
+def _decode_packets(data: bytes, end: int, layout: StreamLayout, seq: int, payload_len: int, crc: int,
+                    layout_id: int) -> list[Packet]:
+    """The packets of ``data[24:end]`` (chapter 8), each checked where it is read.
+
+    Fields are read by indexing ``data`` (compiled: native ints, no tuple per packet; the locals
+    typed ``i64`` are machine words, no tagged-int checks), and the packet is built from values
+    already checked (its CanFrame checks its own fields)."""
     packets: list[Packet] = []
-    chmask = layout.channel_mask & 0x0F
-    tsf_mask = layout.tsf_mask
-    d64_ok = layout.d64_allowed
-    reservation = 4 if layout.schedule_allowed else 3
+    chmask: i64 = layout.channel_mask & 0x0F
+    tsf_mask: i64 = layout.tsf_mask
+    # KIND bits, and D64 where the layout has no D64 windows: any of them set needs the full verdict
+    refused: i64 = 0x6000 if layout.d64_allowed else 0xE000
+    schedule = layout.schedule_allowed
     align4 = layout.align4
-    u16 = U16.unpack_from
-    heads = PACKET_HEADS
     lengths = FD_DLC_TO_LEN
     tsfs = TSFS
     tsf_bytes = TSF_BYTES
-    off = HEADER_SIZE
-    while off < end:
+    stop: i64 = end
+    off: i64 = HEADER_SIZE
+    while off < stop:
         if off + 2 > end:
-            raise fail(PdoError.TRUNCATED, "control word cut by payload_len (8)", off, off + 2)
-        ctrl = u16(data, off)[0]
-        dlc = ctrl >> 3 & 15
+            raise _fail(PdoError.TRUNCATED, "control word cut by payload_len (8)", seq, payload_len, crc, layout_id,
+                        off, off + 2)
+        ctrl: i64 = data[off] | data[off + 1] << 8
+        dlc: i64 = ctrl >> 3 & 15
         fdf = ctrl & 0x100 != 0
-        tsf = ctrl >> 11 & 3
+        tsf: i64 = ctrl >> 11 & 3
         # the common case in one test: KIND 0, channel in the mask, classic rules (8.2), TSF and
         # D64 allowed here; anything else gets the receiver's full verdict
-        if (ctrl & 0x6000 or not chmask >> (ctrl & 7) & 1 or not tsf_mask >> tsf & 1
-                or (ctrl & 0x8000 and not d64_ok) or (not fdf and (dlc > 8 or ctrl & 0x8200))):
+        if (ctrl & refused or not chmask >> (ctrl & 7) & 1 or not tsf_mask >> tsf & 1
+                or (not fdf and (dlc > 8 or ctrl & 0x8200))):
             code, why = ctrl_error(ctrl, layout)
             if code:
-                raise fail(code, why, off, -1, ctrl)
+                raise _fail(code, why, seq, payload_len, crc, layout_id, off, -1, ctrl)
             # only a TX_RESULT passes ctrl_error here (KIND 1 allowed, chapter 10)
-            nxt = off + (8 if align4 else 6)
+            nxt: i64 = off + (8 if align4 else 6)
             if nxt > end:
-                raise fail(PdoError.TRUNCATED, "TX_RESULT cut by payload_len (10)", off, nxt, ctrl)
-            _c, ref_seq, ref_index, result = _TX_RESULT_UNPACK(data, off)
+                raise _fail(PdoError.TRUNCATED, "TX_RESULT cut by payload_len (10)", seq, payload_len, crc,
+                            layout_id, off, nxt, ctrl)
+            result = data[off + 5]
             if result > 5:
-                raise fail(PdoError.UNKNOWN_KIND, f"ResultCode {result} undefined (10)", off, nxt, ctrl)
+                raise _fail(PdoError.UNKNOWN_KIND, f"ResultCode {result} undefined (10)", seq, payload_len, crc,
+                            layout_id, off, nxt, ctrl)
             if align4 and data[off + 6] | data[off + 7]:
-                raise fail(PdoError.RESERVED_BIT, "ALIGN4 padding must be 0 (8.3)", off, nxt, ctrl)
-            packets.append(TxResultPacket(ctrl & 7, ref_seq, ref_index, _RESULT_CODES[result]))
+                raise _fail(PdoError.RESERVED_BIT, "ALIGN4 padding must be 0 (8.3)", seq, payload_len, crc,
+                            layout_id, off, nxt, ctrl)
+            packets.append(TxResultPacket(ctrl & 7, data[off + 2] | data[off + 3] << 8, data[off + 4],
+                                          _RESULT_CODES[result]))
             off = nxt
             continue
         ide = ctrl & 0x80 != 0
         x = ctrl & 0x400 != 0
         rtr = x and not fdf
         d64 = ctrl >= 0x8000
-        n = 0 if rtr else lengths[dlc]
-        head = (6 if ide else 4) + tsf_bytes[tsf]
-        raw = head + (64 if d64 else n)
+        n: i64 = 0 if rtr else dlc if dlc <= 8 else lengths[dlc]
+        head: i64 = (6 if ide else 4) + (tsf_bytes[tsf] if tsf else 0)
+        raw: i64 = head + (64 if d64 else n)
         nxt = off + ((raw + 3) & ~3 if align4 else raw)
-        if nxt > end:
-            raise fail(PdoError.TRUNCATED, f"packet ends at {nxt} beyond payload end {end} (8.3)", off, nxt, ctrl)
-        shape = reservation if tsf == 3 else tsf
-        if shape == 0:
-            word = heads[ide][0].unpack_from(data, off)[1]
-            stamp = offset_ns = tag = 0
-        elif shape != 4:
-            _c, word, stamp = heads[ide][tsf].unpack_from(data, off)
-            offset_ns = tag = 0
-        else:               # RxPDO: TSF_FULL64 is only the reservation format (8.4)
-            _c, word, fmt, sflags, tag, offset_ns = heads[ide][4].unpack_from(data, off)
-            if fmt != 1 or sflags:
-                raise fail(PdoError.BAD_SCHEDULE, f"reservation format {fmt} flags {sflags}, expected 1 / 0 "
-                                                  "(8.4)", off, nxt, ctrl)
-            stamp = 0
+        if nxt > stop:
+            raise _fail(PdoError.TRUNCATED, f"packet ends at {nxt} beyond payload end {end} (8.3)", seq,
+                        payload_len, crc, layout_id, off, nxt, ctrl)
+        at: i64 = off + 2
+        word: i64
+        if ide:
+            word = data[at] | data[at + 1] << 8 | data[at + 2] << 16 | data[at + 3] << 24
+            at += 4
+        else:
+            word = data[at] | data[at + 1] << 8
+            at += 2
+        stamp = offset_ns = tag = 0
+        scheduled = False
+        if tsf:
+            if tsf == 1:
+                stamp = data[at] | data[at + 1] << 8
+            elif tsf == 2:
+                stamp = data[at] | data[at + 1] << 8 | data[at + 2] << 16 | data[at + 3] << 24
+            elif not schedule:
+                stamp = int.from_bytes(data[at:at + 8], "little")
+            else:           # RxPDO: TSF_FULL64 is only the reservation format (8.4)
+                fmt = data[at]
+                sflags = data[at + 1]
+                if fmt != 1 or sflags:
+                    raise _fail(PdoError.BAD_SCHEDULE, f"reservation format {fmt} flags {sflags}, expected 1 / 0 "
+                                                       "(8.4)", seq, payload_len, crc, layout_id, off, nxt, ctrl)
+                tag = data[at + 2] | data[at + 3] << 8
+                offset_ns = data[at + 4] | data[at + 5] << 8 | data[at + 6] << 16 | data[at + 7] << 24
+                scheduled = True
         if not ide and word & 0xC000:
-            raise fail(PdoError.RESERVED_BIT, "StdIdField bits 14/15 must be 0 (8.1)", off, nxt, ctrl)
-        pend = off + raw
-        if nxt != pend and data[pend:nxt].count(0) != nxt - pend:
-            raise fail(PdoError.RESERVED_BIT, "ALIGN4 padding must be 0 (8.3)", off, nxt, ctrl)
-        start = off + head
+            raise _fail(PdoError.RESERVED_BIT, "StdIdField bits 14/15 must be 0 (8.1)", seq, payload_len, crc,
+                        layout_id, off, nxt, ctrl)
+        pend: i64 = off + raw
+        pad: i64 = pend
+        while pad < nxt:    # ALIGN4 padding (8.3)
+            if data[pad]:
+                raise _fail(PdoError.RESERVED_BIT, "ALIGN4 padding must be 0 (8.3)", seq, payload_len, crc,
+                            layout_id, off, nxt, ctrl)
+            pad += 1
+        start: i64 = off + head
         payload = data[start:start + n]
         if ide:
             frame = CanFrame(word & 0x1FFFFFFF, payload, True, rtr, fdf, ctrl & 0x200 != 0, x and fdf,
@@ -198,11 +262,7 @@ def decode_stream(image: bytes | bytearray | memoryview, layout: StreamLayout) -
             frame = CanFrame(word & 0x7FF, payload)
         # a D64 window's tail is written 0 whatever the sender left there (8.1, 8.3)
         wire = data[off:pend] if not d64 else data[off:start + n] + ZERO_PAD[:64 - n]
-        packets.append(decoded_packet(ctrl & 7, frame, tsfs[tsf], stamp, shape == 4, offset_ns, tag,
-                         word >> (29 if ide else 11), d64, ctrl, wire))
+        packets.append(CanPacket(ctrl & 7, frame, tsfs[tsf], stamp, scheduled, offset_ns, tag,
+                                 word >> (29 if ide else 11), d64, ctrl=ctrl, wire=wire))
         off = nxt
-    if len(packets) != count:
-        raise fail(PdoError.BAD_HEADER, f"frame_count {count} but {len(packets)} packets in payload_len (6)", off)
-    header = StreamHeader(HeaderFlags(flags & 0x3F), seq, seq_end, payload_len, crc, layout_id, mask, count,
-                          overflow, crc_alg, (s0, s1, s2, s3), ver_ihl)
-    return DecodedStream(header, tuple(packets))
+    return packets

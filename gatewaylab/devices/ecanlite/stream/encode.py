@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import binascii
 from collections.abc import Sequence
+from typing import TYPE_CHECKING, Final
 
 from gatewaylab.common.errors import LocalError
 from gatewaylab.devices.ecanlite.stream.format import (
@@ -28,8 +29,13 @@ from gatewaylab.devices.ecanlite.stream.format import (
 from gatewaylab.devices.ecanlite.stream.layout import StreamLayout, ctrl_error
 from gatewaylab.devices.ecanlite.stream.packets import CanPacket, Packet, TxResultPacket, refuse
 
+if TYPE_CHECKING:
+    from mypy_extensions import i64  # compiled: a machine integer; pure Python never evaluates it
+
 #: Control-word TSF bits 11-12 both set: TSF_FULL64 (a TX_RESULT leaves them 0).
-_TSF_FULL64 = 0x1800
+_TSF_FULL64: Final = 0x1800
+#: (an int: compiled, ``int & Option.X`` goes through the enum's Python-level ``__rand__``)
+_PAYLOAD_ONLY: Final = int(Option.PAYLOAD_ONLY_ENABLE)
 
 
 def _schedule_refusal() -> StreamEncodeError:
@@ -64,36 +70,38 @@ def judge(packets: Sequence[Packet], layout: StreamLayout) -> int:
     """Refuse what ``layout`` cannot carry before anything is written: the first control word it
     refuses in stream order, then a TSF_FULL64 packet of the wrong direction (reservation in the
     RxPDO, timestamp in the TxPDO, 8.4). Returns TX_RESULT_PRESENT when a TX_RESULT is there
-    (chapter 6), else 0. Each distinct control word of the image is tested once."""
+    (chapter 6), else 0. One test per packet for the common case; the receiver's full verdict
+    (:func:`~.layout.ctrl_error`) from the first packet that fails it."""
+    chmask: i64 = layout.channel_mask & 0x0F
+    tsf_mask: i64 = layout.tsf_mask
+    # KIND bits, and D64 where the layout has no D64 windows: any of them set needs the full verdict
+    refused: i64 = 0x6000 if layout.d64_allowed else 0xE000
+    first: i64 = -1     # the first packet the common-case test does not clear
+    kinds: i64 = 0      # every control word OR-ed: TSF_FULL64 bits, KIND bits
     try:
-        ctrls = {p.ctrl for p in packets}
+        for i, p in enumerate(packets):
+            ctrl: i64 = p.ctrl
+            kinds |= ctrl
+            # the common case: KIND 0, channel in the mask, TSF allowed, no D64 or allowed (a
+            # CanPacket's frame already obeys the CAN rules of 8.2)
+            if first < 0 and (ctrl & refused or not chmask >> (ctrl & 7) & 1 or not tsf_mask >> (ctrl >> 11 & 3) & 1):
+                first = i
     except (AttributeError, TypeError):   # compiled (mypyc), a non-packet fails the type check of p
         raise LocalError(f"not a packet: {_first_foreign(packets)!r}") from None
-    chmask = layout.channel_mask & 0x0F
-    tsf_mask = layout.tsf_mask
-    d64_ok = layout.d64_allowed
-    # the common case in one test per control word: KIND 0, channel in the mask, TSF allowed, no
-    # D64 or allowed (a CanPacket's frame already obeys the CAN rules of 8.2)
-    special = {ctrl for ctrl in ctrls
-               if ctrl & 0x6000 or not chmask >> (ctrl & 7) & 1 or not tsf_mask >> (ctrl >> 11 & 3) & 1
-               or (ctrl & 0x8000 and not d64_ok)}
-    flags = 0
-    if special:
-        for p in packets:
-            if p.ctrl in special:
-                if type(p) is not CanPacket and type(p) is not TxResultPacket:
-                    raise LocalError(f"not a packet: {p!r}")
-                code, why = ctrl_error(p.ctrl, layout)
-                if code:
-                    raise refuse(code, why)
-                if p.ctrl & 0x6000:
-                    flags = HeaderFlags.TX_RESULT_PRESENT
-    if any(ctrl & 0x7800 == _TSF_FULL64 for ctrl in ctrls):
+    if first >= 0:
+        for p in packets[first:]:
+            if type(p) is not CanPacket and type(p) is not TxResultPacket:
+                raise LocalError(f"not a packet: {p!r}")
+            code, why = ctrl_error(p.ctrl, layout)
+            if code:
+                raise refuse(code, why)
+    if kinds & _TSF_FULL64 == _TSF_FULL64:      # some packet may be TSF_FULL64
         schedule = layout.schedule_allowed
         for p in packets:
             if p.ctrl & 0x7800 == _TSF_FULL64 and p.scheduled != schedule:  # type: ignore[union-attr]
                 raise _schedule_refusal()
-    return int(flags)
+    # every control word passed: one with KIND bits set is a TX_RESULT (chapter 10)
+    return int(HeaderFlags.TX_RESULT_PRESENT) if kinds & 0x6000 else 0
 
 
 def encode_into(buf: bytearray | memoryview, layout: StreamLayout, seq: int, packets: Sequence[Packet], *,
@@ -122,7 +130,7 @@ def encode_into(buf: bytearray | memoryview, layout: StreamLayout, seq: int, pac
         raise refuse(PdoError.PACKET_OVERRUN, f"packets need {off - HEADER_SIZE} bytes, the frame area has "
                                               f"{end - HEADER_SIZE} (chapter 12)")
     buf[HEADER_SIZE:off] = blob
-    if not layout.options & Option.PAYLOAD_ONLY_ENABLE:
+    if not layout.options & _PAYLOAD_ONLY:
         buf[off:end] = bytes(end - off)
     payload_len = off - HEADER_SIZE
     if layout.crc_enabled:

@@ -10,25 +10,27 @@ import binascii
 import enum
 import struct
 from dataclasses import dataclass
+from typing import Final
 
 from gatewaylab.bus.frame import FD_DLC_TO_LEN
 from gatewaylab.common.errors import LocalError, ProtocolError
 
+# (Constants are Final: compiled, mypyc reads them natively, not from the module's dict.)
 #: ver_ihl: version 1 in the high nibble, 6 four-byte words in the low nibble (chapter 6).
-VER_IHL = 0x16
-HEADER_SIZE = 24
+VER_IHL: Final = 0x16
+HEADER_SIZE: Final = 24
 #: crc_alg value for CRC-16/CCITT-FALSE (chapter 6); 0 with NO_CRC16_ENABLE (9.1).
-CRC_ALG_CCITT_FALSE = 1
+CRC_ALG_CCITT_FALSE: Final = 1
 #: 0xF000:14 Max CAN channels.
-MAX_CHANNELS = 4
+MAX_CHANNELS: Final = 4
 #: frame_count is one byte (chapter 6).
-MAX_FRAME_COUNT = 255
+MAX_FRAME_COUNT: Final = 255
 #: 0xF000:12 Encapsulation profile mask: profiles 0, 1, 4, 5.
-PROFILE_MASK = 0x33
+PROFILE_MASK: Final = 0x33
 #: 0xF000:15 PDO option flags mask.
-OPTION_MASK = 0x1F
+OPTION_MASK: Final = 0x1F
 #: One tick of delta16/delta32/full64 timestamps (8.4 gives no unit; docs/decisions.md).
-TIMESTAMP_UNIT_S = 1e-6
+TIMESTAMP_UNIT_S: Final = 1e-6
 
 
 class PdoError(enum.IntEnum):
@@ -120,7 +122,7 @@ class Feature(enum.IntFlag):
 NO_FLAGS = HeaderFlags(0)
 
 #: 0xF000:16 default 0x00001F3B (13.8): no delta32, no stream CRC32.
-DEFAULT_FEATURES = 0x1F3B
+DEFAULT_FEATURES: Final = 0x1F3B
 
 
 class Tsf(enum.IntEnum):
@@ -163,21 +165,22 @@ class Commit(enum.Enum):
     DUPLICATE = "duplicate"
 
 
-TSF_BYTES = (0, 2, 4, 8)
-TSFS = tuple(Tsf)
-HEADER = struct.Struct("<BBHHHHHBBBB4H")
-HEADER_SEQ_END = struct.Struct("<H")
-U16 = struct.Struct("<H")
-COMMIT = struct.Struct("<HHHH")
-TX_RESULT = struct.Struct("<HHBB")
+#: (A tuple of any length to mypy: compiled, a fixed-length tuple indexed by a variable is boxed first.)
+TSF_BYTES: Final[tuple[int, ...]] = (0, 2, 4, 8)
+TSFS: Final = tuple(Tsf)
+HEADER: Final = struct.Struct("<BBHHHHHBBBB4H")
+HEADER_SEQ_END: Final = struct.Struct("<H")
+U16: Final = struct.Struct("<H")
+COMMIT: Final = struct.Struct("<HHHH")
+TX_RESULT: Final = struct.Struct("<HHBB")
 #: A CAN_FRAME's control word, id field and timestamp field in one format (8.1, 8.4), by
 #: [IDE][shape]: shape 0 no timestamp, 1 delta16, 2 delta32, 3 full64, 4 the RxPDO reservation
-#: (format u8, flags u8, tag u16, offset_ns u32). The packet packs its head with these, the
-#: decoder unpacks a head with one call.
-PACKET_HEADS = tuple(tuple(struct.Struct("<H" + id_fmt + ts_fmt) for ts_fmt in ("", "H", "I", "Q", "BBHI"))
+#: (format u8, flags u8, tag u16, offset_ns u32). The packet packs its head with these; the
+#: decoder reads the same fields by indexing its bytes (compiled: native ints, docs/performance.md).
+PACKET_HEADS: Final = tuple(tuple(struct.Struct("<H" + id_fmt + ts_fmt) for ts_fmt in ("", "H", "I", "Q", "BBHI"))
                      for id_fmt in ("H", "I"))
 #: Zeros for a D64 window tail (< 64) plus ALIGN4 padding (< 4).
-ZERO_PAD = bytes(68)
+ZERO_PAD: Final = bytes(68)
 
 
 def dlc_to_len(dlc: int) -> int:

@@ -8,6 +8,7 @@ from __future__ import annotations
 import struct
 import zlib
 from dataclasses import dataclass, field
+from typing import Final
 
 from gatewaylab.common.errors import LocalError
 from gatewaylab.devices.ecanlite.budget import BudgetPolicy
@@ -27,7 +28,7 @@ from gatewaylab.devices.ecanlite.stream.format import (
     profile_word,
 )
 
-_LAYOUT_CRC = struct.Struct("<IHH")
+_LAYOUT_CRC: Final = struct.Struct("<IHH")
 
 
 @dataclass(frozen=True, slots=True)
@@ -129,7 +130,7 @@ class StreamLayout:
 
 
 #: Control-word bits a TX_RESULT leaves 0: DLC, IDE, FDF, BRS, X, TSF, D64 (chapter 10: CH + KIND).
-_TX_RESULT_CTRL_ZERO = 0x9FF8
+_TX_RESULT_CTRL_ZERO: Final = 0x9FF8
 
 
 def ctrl_error(ctrl: int, layout: StreamLayout) -> tuple[PdoError, str]:

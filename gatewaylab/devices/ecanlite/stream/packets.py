@@ -69,6 +69,32 @@ class StreamHeader:
     channel_status: tuple[int, int, int, int] = (0, 0, 0, 0)
     ver_ihl: int = VER_IHL
 
+    def __init__(self, header_flags: HeaderFlags = NO_FLAGS, seq_begin: int = 0, seq_end: int = 0, payload_len: int = 0,
+                 payload_crc16: int = 0, layout_id: int = 0, channel_mask: int = 0, frame_count: int = 0,
+                 overflow_sat: int = 0, crc_alg: int = CRC_ALG_CCITT_FALSE,
+                 channel_status: tuple[int, int, int, int] = (0, 0, 0, 0), ver_ihl: int = VER_IHL) -> None:
+        # Written out like CanPacket's (compiled, a dataclass-made __init__ is an interpreted call
+        # through an argument tuple: ~2 us per decoded image).
+        object.__setattr__(self, "header_flags", header_flags)
+        object.__setattr__(self, "seq_begin", seq_begin)
+        object.__setattr__(self, "seq_end", seq_end)
+        object.__setattr__(self, "payload_len", payload_len)
+        object.__setattr__(self, "payload_crc16", payload_crc16)
+        object.__setattr__(self, "layout_id", layout_id)
+        object.__setattr__(self, "channel_mask", channel_mask)
+        object.__setattr__(self, "frame_count", frame_count)
+        object.__setattr__(self, "overflow_sat", overflow_sat)
+        object.__setattr__(self, "crc_alg", crc_alg)
+        object.__setattr__(self, "channel_status", channel_status)
+        object.__setattr__(self, "ver_ihl", ver_ihl)
+
+    def __reduce__(self) -> tuple[type[StreamHeader], tuple[HeaderFlags, int, int, int, int, int, int, int, int, int,
+                                                            tuple[int, int, int, int], int]]:
+        # Pickled and copied by its constructor (see CanPacket.__reduce__).
+        return StreamHeader, (self.header_flags, self.seq_begin, self.seq_end, self.payload_len, self.payload_crc16,
+                              self.layout_id, self.channel_mask, self.frame_count, self.overflow_sat, self.crc_alg,
+                              self.channel_status, self.ver_ihl)
+
     @property
     def crc(self) -> int:
         """payload_crc16 (the name parse_diag uses, 16.2)."""
@@ -143,8 +169,8 @@ class CanPacket:
                  *, ctrl: int = -1, wire: bytes = b"") -> None:
         # Written out (dataclass keeps an explicit __init__), fields stored with object.__setattr__:
         # compiled (mypyc), each is a direct store into the native object. Given ``ctrl`` and ``wire``
-        # (only :func:`decoded_packet`: the decoder checked the control word, the frame checked
-        # itself), the fields are stored as they are; else __post_init__ checks and derives them.
+        # (only the decoder, :mod:`.decode`: it checked the control word, the frame checked itself), the
+        # fields are stored as they are; else __post_init__ checks and derives them.
         object.__setattr__(self, "channel", channel)
         object.__setattr__(self, "frame", frame)
         object.__setattr__(self, "tsf", tsf)
@@ -299,13 +325,6 @@ class CanPacket:
         return len(self.wire)
 
 
-def decoded_packet(channel: int, frame: CanFrame, tsf: Tsf, timestamp: int, scheduled: bool, offset_ns: int,
-                   tag: int, id_aux: int, d64: bool, ctrl: int, wire: bytes) -> CanPacket:
-    """A CanPacket read from an image: its fields come from a control word the decoder checked
-    and a CanFrame that checked itself, so they are stored as they are (no __post_init__ round)."""
-    return CanPacket(channel, frame, tsf, timestamp, scheduled, offset_ns, tag, id_aux, d64, ctrl=ctrl, wire=wire)
-
-
 @dataclass(frozen=True, slots=True)
 class TxResultPacket:
     """A TX_RESULT packet (chapter 10): the outcome of frame ``ref_frame_index`` (counting KIND 0
@@ -319,6 +338,14 @@ class TxResultPacket:
     ctrl: int = field(init=False, repr=False, compare=False, default=0)
     #: The 6 bytes on the wire, derived from the fields.
     wire: bytes = field(init=False, repr=False, compare=False, default=b"")
+
+    def __init__(self, channel: int, ref_packet_seq: int, ref_frame_index: int, result: TxResultCode) -> None:
+        # Written out (see StreamHeader.__init__), then checked and derived by __post_init__.
+        object.__setattr__(self, "channel", channel)
+        object.__setattr__(self, "ref_packet_seq", ref_packet_seq)
+        object.__setattr__(self, "ref_frame_index", ref_frame_index)
+        object.__setattr__(self, "result", result)
+        self.__post_init__()
 
     def __post_init__(self) -> None:
         channel, seq, index, result = self.channel, self.ref_packet_seq, self.ref_frame_index, self.result
@@ -355,6 +382,15 @@ class DecodedStream:
 
     header: StreamHeader
     packets: tuple[Packet, ...]
+
+    def __init__(self, header: StreamHeader, packets: tuple[Packet, ...]) -> None:
+        # Written out (see StreamHeader.__init__).
+        object.__setattr__(self, "header", header)
+        object.__setattr__(self, "packets", packets)
+
+    def __reduce__(self) -> tuple[type[DecodedStream], tuple[StreamHeader, tuple[Packet, ...]]]:
+        # Pickled and copied by its constructor (see CanPacket.__reduce__).
+        return DecodedStream, (self.header, self.packets)
 
     @property
     def frames(self) -> tuple[CanPacket, ...]:
