@@ -23,7 +23,7 @@ from benchmarks.sides import both, compare, quick
 from benchmarks.targets import record
 from gatewaylab.bus import CanFrame, VirtualBus
 from gatewaylab.canopen.nmt import NmtCommand
-from gatewaylab.common.clock import SimulatedClock
+from gatewaylab.common.clock import Clock, SimulatedClock
 from gatewaylab.devices.canopen_drive.device import Drive
 
 PERIOD = 0.001
@@ -41,11 +41,9 @@ def _prepare(drive: Drive) -> None:
     node.nmt_command(NmtCommand.START_REMOTE_NODE)
 
 
-def _layout(buses: int, per_bus: int, timing: bool, control: bool = True) -> tuple[float, int, int]:
-    clock = SimulatedClock()
-    received = [0]
-    drives: list[Drive] = []
-    masters = []
+def drive_groups(clock: Clock, buses: int, per_bus: int, timing: bool = True) -> list[tuple[VirtualBus, list[Drive]]]:
+    """``buses`` buses with ``per_bus`` started drives each (node ids 1.. over all buses)."""
+    out: list[tuple[VirtualBus, list[Drive]]] = []
     for b in range(buses):
         bus = VirtualBus(clock, f"can{b}", timing=timing)
         group = []
@@ -54,6 +52,16 @@ def _layout(buses: int, per_bus: int, timing: bool, control: bool = True) -> tup
             d = Drive(clock, bus, node_id, 0x1000 + node_id)
             d.start()
             group.append(d)
+        out.append((bus, group))
+    return out
+
+
+def _layout(buses: int, per_bus: int, timing: bool, control: bool = True) -> tuple[float, int, int]:
+    clock = SimulatedClock()
+    received = [0]
+    drives: list[Drive] = []
+    masters = []
+    for b, (bus, group) in enumerate(drive_groups(clock, buses, per_bus, timing)):
         drives += group
 
         def on_tpdo(frame: CanFrame, t: float) -> None:

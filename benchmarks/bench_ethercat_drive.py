@@ -149,6 +149,7 @@ def _run_line(ns: str, emu: str, mst: str, drives: int, ios: int, seconds: float
     slaves = [d.slave for d in devices] + [create_io_slave(clock, f"GL-IO #{i}", revision=i + 1) for i in range(ios)]
     wire = WireTransport(Segment(slaves), emu, clock, drive_clock=True, cpu=1)
     wire.start()
+    cpu_s = 0.0
     try:
         proc = run_in_namespace(ns, "benchmarks.bench_ethercat_drive",
                                 ["--master", mst, str(drives), str(ios), str(seconds)], seconds * 3 + 120,
@@ -156,6 +157,7 @@ def _run_line(ns: str, emu: str, mst: str, drives: int, ios: int, seconds: float
     except subprocess.TimeoutExpired:
         return {"error": "the master did not finish"}
     finally:
+        cpu_s = wire_thread_cpu(wire)
         wire.stop()
         with clock.lock:
             for d in devices:
@@ -166,7 +168,21 @@ def _run_line(ns: str, emu: str, mst: str, drives: int, ios: int, seconds: float
             frames = [ln for ln in lines if ln.startswith("File ") and "benchmarks" in ln]
             return {"error": "master hung at " + (frames[0].split(", ")[-1] if frames else "?")}
         return {"error": lines[-1] if lines else "master failed"}
-    return last_json(proc)
+    result = last_json(proc)
+    if wire.frames_in:  # the wire thread's CPU time per frame (bring-up included): independent of the load
+        result["wire_cpu_us"] = 1e6 * cpu_s / wire.frames_in
+    return result
+
+
+def wire_thread_cpu(wire: Any) -> float:
+    """CPU seconds the wire thread has used so far (0.0 where the platform cannot tell)."""
+    thread = getattr(wire, "_thread", None)
+    if thread is None or thread.ident is None or not hasattr(time, "pthread_getcpuclockid"):
+        return 0.0
+    try:
+        return time.clock_gettime(time.pthread_getcpuclockid(thread.ident))
+    except OSError:
+        return 0.0
 
 
 def _ok(r: dict[str, Any]) -> bool:
@@ -178,8 +194,9 @@ def _ok(r: dict[str, Any]) -> bool:
 def _cell(r: dict[str, Any]) -> str:
     if "error" in r:
         return f"{r['error'][:44]:<44}"
+    cpu = f"  wire CPU {r['wire_cpu_us']:5.0f} us/frame" if "wire_cpu_us" in r else ""
     return (f"wrong wkc {r['wrong_wkc']:>4}  median {r['median_us']:6.1f}  p99 {r['p99_us']:7.1f}  "
-            f"max {r['max_us']:8.1f} us")
+            f"max {r['max_us']:8.1f} us{cpu}")
 
 
 def search(ns: str, emu: str, mst: str, seconds: float, max_drives: int) -> list[tuple[int, dict[str, Any]]]:

@@ -40,6 +40,10 @@ COMPILED_MODULES: tuple[str, ...] = (
     "gatewaylab.ethercat.esc_registers",
     "gatewaylab.ethercat.slave",
     "gatewaylab.ethercat.segment",
+    # the applications behind the ESC in every cycle of a segment: the drives' outputs and control
+    # periods, the io box's loop-back (issue 23: 1 kHz segment, docs/performance.md)
+    "gatewaylab.devices.ethercat_drive.device",
+    "gatewaylab.devices.ethercat_io.device",
     "gatewaylab.od.sdo",
     "gatewaylab.canopen.pdo",
     "gatewaylab.canopen.sync",

@@ -11,27 +11,28 @@ from __future__ import annotations
 import enum
 import struct
 from dataclasses import dataclass
+from typing import Final
 
 from gatewaylab.ethercat.errors import FrameFormatError
 
-ETHERTYPE_ETHERCAT = 0x88A4
-ETH_HEADER = struct.Struct("!6s6sH")
-ECAT_HEADER = struct.Struct("<H")
-DATAGRAM_HEADER = struct.Struct("<BBIHH")  # cmd, idx, address, len/flags, irq
-WKC = struct.Struct("<H")
-ADP_ADO = struct.Struct("<HH")
+ETHERTYPE_ETHERCAT: Final = 0x88A4
+ETH_HEADER: Final = struct.Struct("!6s6sH")
+ECAT_HEADER: Final = struct.Struct("<H")
+DATAGRAM_HEADER: Final = struct.Struct("<BBIHH")  # cmd, idx, address, len/flags, irq
+WKC: Final = struct.Struct("<H")
+ADP_ADO: Final = struct.Struct("<HH")
 
-ETH_HEADER_LEN = 14
-ECAT_HEADER_LEN = 2
-DATAGRAM_OVERHEAD = 12  # 10 header + 2 working counter
-MAX_DATAGRAM_DATA = 1486  # 1500 - 2 (EtherCAT header) - 12 (one datagram's overhead)
+ETH_HEADER_LEN: Final = 14
+ECAT_HEADER_LEN: Final = 2
+DATAGRAM_OVERHEAD: Final = 12  # 10 header + 2 working counter
+MAX_DATAGRAM_DATA: Final = 1486  # 1500 - 2 (EtherCAT header) - 12 (one datagram's overhead)
 BROADCAST_MAC = b"\xff" * 6
-ECAT_TYPE_DATAGRAMS = 1
-MIN_ETH_PAYLOAD = 46  # frames shorter than 60 bytes are padded on the wire
+ECAT_TYPE_DATAGRAMS: Final = 1
+MIN_ETH_PAYLOAD: Final = 46  # frames shorter than 60 bytes are padded on the wire
 
-LEN_MASK = 0x07FF
+LEN_MASK: Final = 0x07FF
 CIRCULATING = 0x4000
-MORE = 0x8000
+MORE: Final = 0x8000
 
 
 class Command(enum.IntEnum):

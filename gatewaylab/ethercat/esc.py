@@ -46,7 +46,7 @@ machine follows IDX guide 4.2 (tables 4-16..4-18).
 
 from __future__ import annotations
 
-from typing import Protocol
+from typing import Final, Protocol
 
 from gatewaylab.common.clock import Clock
 from gatewaylab.ethercat.esc_al import AlFirmware, AlStateMachine
@@ -138,11 +138,28 @@ __all__ = [
 ]
 
 # Commands by number (datagram.Command), inlined on the hot path.
-_APRD, _APWR, _APRW, _FPRD, _FPWR, _FPRW, _BRD, _BWR, _BRW, _LRD, _LWR, _LRW, _ARMW, _FRMW = range(1, 15)
+_APRD: Final = 1
+_APWR: Final = 2
+_APRW: Final = 3
+_FPRD: Final = 4
+_FPWR: Final = 5
+_FPRW: Final = 6
+_BRD: Final = 7
+_BWR: Final = 8
+_BRW: Final = 9
+_LRD: Final = 10
+_LWR: Final = 11
+_LRW: Final = 12
+_ARMW: Final = 13
+_FRMW: Final = 14
 # What resume_datagram does next: nothing pending, write the working counter, the write half of a
 # read-write command (the data as it arrived), the writing FMMUs of a logical datagram, its reading ones.
-_IDLE, _FINISH, _WRITE_BACK, _WRITES, _READS = range(5)
-_NO_BUF = bytearray()
+_IDLE: Final = 0
+_FINISH: Final = 1
+_WRITE_BACK: Final = 2
+_WRITES: Final = 3
+_READS: Final = 4
+_NO_BUF: Final = bytearray()
 
 
 class EscApplication(AlFirmware, Protocol):
@@ -314,7 +331,7 @@ class Esc:
         """Load the SII configuration area (words 0..7); False and no load on a bad checksum."""
         return self.sii.reload()
 
-    def pdi_write(self, address: int, data: bytes) -> None:
+    def pdi_write(self, address: int, data: bytes | bytearray) -> None:
         """The application writes process RAM (inputs buffer); no ECAT-side effects."""
         self.memory.store(address, data)
 

@@ -12,16 +12,17 @@ Register meanings: ET1100 data sheet section II, "Distributed Clocks".
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Final
 
 from gatewaylab.common.clock import Clock, TimerHandle
 from gatewaylab.ethercat import esc_registers as reg
 from gatewaylab.ethercat.esc_registers import SYNC0_MIN_CYCLE_NS, U32, U64
 
 #: 0x0981 bits: cyclic unit enabled, SYNC0 generated, SYNC1 generated.
-DC_ACT_CYCLIC = 0x01
-DC_ACT_SYNC0 = 0x02
-DC_ACT_SYNC1 = 0x04
-_MASK64 = 0xFFFFFFFFFFFFFFFF
+DC_ACT_CYCLIC: Final = 0x01
+DC_ACT_SYNC0: Final = 0x02
+DC_ACT_SYNC1: Final = 0x04
+_MASK64: Final = 0xFFFFFFFFFFFFFFFF
 
 
 class DistributedClocks:

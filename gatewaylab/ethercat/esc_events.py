@@ -12,7 +12,7 @@ SyncManager): the frame path allocates nothing for them.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TypeAlias
+from typing import Final, TypeAlias
 
 
 @dataclass(frozen=True, slots=True)
@@ -49,4 +49,4 @@ class SmChanged:
 EscEvent: TypeAlias = SmWritten | SmRead | AlControlRequested | SmChanged
 
 #: The one SM-change event (no payload).
-SM_CHANGED = SmChanged()
+SM_CHANGED: Final = SmChanged()

@@ -283,7 +283,7 @@ class EscMemory:
             o0 = max(laddr, f.lstart)
             o1 = min(lend, f.lend)
             fo = off + o0 - laddr
-            return self.ecat_write(f.phys + o0 - f.lstart, bytes(buf[fo:fo + o1 - o0]))
+            return self.ecat_write(f.phys + o0 - f.lstart, buf[fo:fo + o1 - o0])  # a copy: the frame moves on
         bits = self._fmmu_bits(f, laddr, lend)
         if not bits:
             return False

@@ -10,6 +10,12 @@ that datagram is left as it is for that slave (no working counter increment), th
 (``stats.datagram_errors``, the ESC's ``stats.datagram_errors``) and logged on one line (the first
 few, then every 1000th), and the frame's other datagrams and slaves are served as usual; a real
 ESC processes every datagram whatever its firmware does.
+
+The frame path is the ESCs' work only where the applications allow it: outputs of an application with
+``SlaveApplication.outputs_in_frame`` False (the drives) reach it after the frame, in
+:meth:`Segment.after_frame`, which a transport calls once it has sent the frame back (the wire thread)
+and :meth:`Segment.process` runs itself at its end unless asked to ``defer`` it. A raising application
+there is isolated per slave as a datagram is.
 """
 
 from __future__ import annotations
@@ -18,19 +24,20 @@ import logging
 import struct
 from collections import deque
 from dataclasses import dataclass, field
+from typing import Final
 
 from gatewaylab.ethercat.datagram import ETH_HEADER_LEN, ETHERTYPE_ETHERCAT, LEN_MASK, MORE
 from gatewaylab.ethercat.errors import SlavePositionError
 from gatewaylab.ethercat.esc import REG_RX_ERROR, Esc
 from gatewaylab.ethercat.slave import Slave
 
-_U16 = struct.Struct("<H")
-_BE16 = struct.Struct("!H")
-_DG_HDR = struct.Struct("<B5xH")  # cmd, (idx + address skipped), len/flags
+_U16: Final = struct.Struct("<H")
+_BE16: Final = struct.Struct("!H")
+_DG_HDR: Final = struct.Struct("<B5xH")  # cmd, (idx + address skipped), len/flags
 _log = logging.getLogger(__name__)
 #: Datagram errors logged one line each before only every ``LOG_EVERY``-th is.
-LOG_FIRST = 10
-LOG_EVERY = 1000
+LOG_FIRST: Final = 10
+LOG_EVERY: Final = 1000
 
 
 @dataclass(slots=True)
@@ -55,6 +62,8 @@ class Segment:
         #: positions of the slaves unplugged from the line (fault injection)
         self.unplugged: set[int] = set()
         self._reached: list[Slave] = list(self.slaves)
+        #: :meth:`process` left PDI work for :meth:`after_frame`
+        self._after_pending = False
         self._link()
 
     def _link(self) -> None:
@@ -81,9 +90,15 @@ class Segment:
             self.slaves[position].esc.power_cycle()
             self._link()
 
-    def process(self, frame: bytearray) -> bool:
+    def process(self, frame: bytearray, *, defer: bool = False) -> bool:
         """Execute every datagram on every slave in place; False for a dropped (bad) frame, or
-        when the first slave is unplugged (no link: the frame never comes back)."""
+        when the first slave is unplugged (no link: the frame never comes back).
+
+        ``defer``: leave the applications' work after the frame (:meth:`after_frame`) to the caller,
+        who sends the frame back first; without it, it runs before this returns. Work a caller left
+        pending runs before the next frame."""
+        if self._after_pending:
+            self.after_frame()
         if not self._reached and self.unplugged:
             return False
         parsed = self._parse(frame)
@@ -96,17 +111,33 @@ class Segment:
         self.stats.frames += 1
         self.stats.datagrams += len(parsed)
         for slave in self._reached:
-            pd = slave.esc.process_datagram
+            esc = slave.esc
             for pos, cmd, dlen in parsed:
                 try:
-                    events = pd(frame, pos, cmd, dlen)
+                    events = esc.process_datagram(frame, pos, cmd, dlen)  # a native call (no bound-method alias)
                     if events is not None:  # Slave.process_datagram, inlined: most datagrams raise none
                         slave.serve_events(events)
                 except Exception as exc:  # isolation boundary: one datagram never costs the frame
-                    self._datagram_error(slave.esc, cmd, exc)
+                    self._datagram_error(esc, cmd, exc)
         if len(frame) > ETH_HEADER_LEN:
             frame[6] |= 0x02  # the ESC marks the source MAC as locally administered on the way back
+        if defer:
+            self._after_pending = True
+        else:
+            self.after_frame()
         return True
+
+    def after_frame(self) -> None:
+        """The PDI work the last frame left (:meth:`Slave.after_frame` of each slave it reached, in line
+        order); call it once the frame is on its way back. One raising application costs only its own
+        delivery (counted and logged as a datagram error, see the module docstring)."""
+        self._after_pending = False
+        for slave in self._reached:
+            if slave.outputs_pending:
+                try:
+                    slave.after_frame()
+                except Exception as exc:  # isolation boundary, as for a datagram
+                    self._datagram_error(slave.esc, -1, exc)
 
     def _datagram_error(self, esc: Esc, cmd: int, exc: Exception) -> None:
         esc.stats.datagram_errors += 1

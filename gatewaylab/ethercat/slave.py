@@ -16,7 +16,7 @@ import itertools
 import struct
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar, Final, final
 
 from mypy_extensions import mypyc_attr
 
@@ -24,7 +24,7 @@ from gatewaylab.common.clock import Clock
 from gatewaylab.ethercat.coe import CoeServer, emergency_message
 from gatewaylab.ethercat.description import DeviceDescription, Pdo, build_od
 from gatewaylab.ethercat.errors import AlStatusCode, EtherCATConfigError, MailboxErrorCode
-from gatewaylab.ethercat.esc import REG_AL_STATUS, REG_SM, SM_STATUS_FULL, AlState, Esc
+from gatewaylab.ethercat.esc import RAM_START, REG_AL_STATUS, REG_SM, SM_STATUS_FULL, AlState, Esc
 from gatewaylab.ethercat.esc_events import AlControlRequested, EscEvent, SmRead, SmWritten
 from gatewaylab.ethercat.foe import FoeFiles, FoeHandler, FoeServer
 from gatewaylab.ethercat.mailbox import MailboxEndpoint, MailboxMessage, MailboxType, error_reply
@@ -33,7 +33,7 @@ from gatewaylab.od import DataType, Entry, ObjectDictionary, SdoAbort, decode, e
 
 __all__ = ["MappedEntry", "Slave", "SlaveApplication", "build_od"]
 
-U32 = struct.Struct("<I")
+U32: Final = struct.Struct("<I")
 _RANK_ORDER = (AlState.INIT, AlState.PREOP, AlState.BOOT, AlState.SAFEOP, AlState.OP)
 
 
@@ -44,7 +44,19 @@ class SlaveApplication:
     #: False: outputs received in OP are not stored into their mapped objects every cycle (a
     #: device that parses the raw outputs in :meth:`on_outputs`, e.g. large message queues);
     #: a CoE read of a mapped output then decodes it from the outputs image instead.
-    store_outputs: bool = True
+    store_outputs: ClassVar[bool] = True
+
+    #: (Both are ``ClassVar``: compiled, a plain attribute is a slot of the native base class that the
+    #: ``store_outputs = False`` of an interpreted subclass does not reach; the native code read True.)
+    #:
+    #: True: outputs reach the application on the SM2 write event, inside the frame, before the same
+    #: datagram reads the inputs (``ethercat_io``'s loop-back answers in the same LRW). False: the
+    #: ESC takes the buffer in the frame and the application gets it once the frame has passed
+    #: (:meth:`Slave.after_frame`): a real ESC answers a frame as it passes while the firmware reads
+    #: and writes process RAM between frames (ET1100 data sheet: the SM2 buffer event interrupts the
+    #: PDI), so the application's work (a drive's controlword and set-points) is not part of the round
+    #: trip; its answer is in the inputs of the next frame.
+    outputs_in_frame: ClassVar[bool] = True
 
     def setup_od(self, slave: Slave, od: ObjectDictionary) -> None:
         """Bind the device's object hooks once the dictionary exists: ``od.on_read`` (status
@@ -59,7 +71,8 @@ class SlaveApplication:
         """The state changed (``code`` != 0 when the slave fell back by itself, e.g. 0x001B)."""
 
     def on_outputs(self, slave: Slave, data: bytes) -> None:
-        """New outputs arrived in OP (called from the frame path: keep it short)."""
+        """New outputs arrived in OP: called from the frame path (keep it short), or once the frame has
+        passed when ``outputs_in_frame`` is False."""
 
     def on_inputs_read(self, slave: Slave) -> None:
         """The master read the whole inputs buffer; refresh inputs for the next cycle here."""
@@ -82,6 +95,35 @@ class MappedEntry:
     def key(self) -> tuple[int, int]:
         """(index, subindex) of the mapped object."""
         return (self.index, self.subindex)
+
+
+@final
+class _Slot:
+    """A byte-aligned mapped object of fixed size whose raw bytes its entry's struct reads and writes:
+    the process image's fast path (decoded once per layout, not per cycle)."""
+
+    __slots__ = ("codec", "entry", "index", "key", "offset", "ram", "subindex")
+
+    def __init__(self, m: MappedEntry, entry: Entry, codec: struct.Struct) -> None:
+        self.key = m.key
+        self.index = m.index
+        self.subindex = m.subindex
+        self.entry = entry
+        self.codec = codec
+        self.offset = m.bit_offset // 8
+        #: an input's address in ESC memory when it lies inside process RAM, else -1 (set by the slave)
+        self.ram = -1
+
+
+def _slot(m: MappedEntry, entry: Entry | None) -> _Slot | None:
+    """The fast-path slot of a mapped object, or None where the general path must serve it (bit-wise
+    mapping, a mapping length other than the type's, variable size, limits to check)."""
+    if entry is None or entry.codec is None or entry.limited or m.bit_offset % 8:
+        return None
+    codec = entry.codec
+    if 8 * codec.size != m.bit_length:
+        return None
+    return _Slot(m, entry, codec)
 
 
 def _desc_entries(pdos: tuple[Pdo, ...]) -> list[MappedEntry]:
@@ -127,11 +169,18 @@ class Slave:
         self._inputs = bytearray(self.input_bytes)
         self._outputs = bytes(self.output_bytes)
         self.outputs_valid = False
+        #: Outputs taken in the frame whose delivery to the application waits for :meth:`after_frame`
+        #: (``SlaveApplication.outputs_in_frame`` False).
+        self.outputs_pending = False
         self._inputs_one_buffer = False
         self.cycles = 0
         self._unbind: list[Callable[[], None]] = []
         self._input_by_key: dict[tuple[int, int], MappedEntry] = {}
         self._output_by_key: dict[tuple[int, int], MappedEntry] = {}
+        #: fast paths of the image (see ``_Slot``): mapped inputs by key, outputs in mapping order
+        #: (None: some output needs the general path)
+        self._input_slots: dict[tuple[int, int], _Slot] = {}
+        self._output_slots: list[_Slot] | None = None
         self._bind_image()
         for obj in self.od:
             if any(e.tx_pdo or e.rx_pdo for e in obj.entries.values()):
@@ -241,6 +290,7 @@ class Slave:
         if new != AlState.OP and old == AlState.OP:
             self._outputs = bytes(self.output_bytes)  # safe state
             self.outputs_valid = False
+            self.outputs_pending = False
             self._store_outputs()
         self.app.on_state(self, old, new, code)
 
@@ -307,9 +357,27 @@ class Slave:
         if esc.mem[REG_AL_STATUS] & 0x0F == AlState.OP:  # hot path: no enum construction
             self._outputs = data if len(data) == self.output_bytes else data[:self.output_bytes]
             self.outputs_valid = True
-            if self.app.store_outputs:
+            app = self.app
+            if not app.outputs_in_frame:
+                self.outputs_pending = True     # delivered by after_frame, once the frame has passed
+                return
+            if app.store_outputs:
                 self._store_outputs()
-            self.app.on_outputs(self, self._outputs)
+            app.on_outputs(self, self._outputs)
+
+    def after_frame(self) -> None:
+        """The PDI's work between frames: outputs taken in the last frame reach the application (an
+        application with ``outputs_in_frame`` False); nothing when none are pending. The outputs are
+        dropped when the slave left OP meanwhile (its safe state is already applied)."""
+        if not self.outputs_pending:
+            return
+        self.outputs_pending = False
+        if self.esc.mem[REG_AL_STATUS] & 0x0F != AlState.OP or not self.outputs_valid:
+            return
+        app = self.app
+        if app.store_outputs:
+            self._store_outputs()
+        app.on_outputs(self, self._outputs)
 
     def sync0(self, t: float) -> None:
         """The ESC's SYNC0 line (a clock timer, not an access): the application's SYNC0 hook."""
@@ -383,8 +451,25 @@ class Slave:
                 self.esc.sm_set_full(self.sm_inputs)
 
     def _input_changed(self, key: tuple[int, int], value: Any) -> None:
-        m = self._input_by_key[key]
-        self._pack_input(m, self.od.entries[key], value)
+        slot = self._input_slots.get(key)
+        if slot is None:
+            m = self._input_by_key[key]
+            self._pack_input(m, self.od.entries[key], value)
+            return
+        # the fast path of _pack_input: the value packed into the image and into process RAM
+        inputs = self._inputs
+        offset = slot.offset
+        codec = slot.codec
+        if offset + codec.size > len(inputs):
+            self._pack_input(self._input_by_key[key], slot.entry, value)
+            return
+        codec.pack_into(inputs, offset, value)
+        if slot.ram >= 0:
+            codec.pack_into(self.esc.mem, slot.ram, value)      # pdi_write without the copies
+        else:
+            self.esc.pdi_write(self.desc.inputs_start + offset, inputs[offset:offset + codec.size])
+        if self._inputs_one_buffer:
+            self.esc.sm_set_full(self.sm_inputs)
 
     def _bind_image(self) -> None:
         """Subscribe to the mapped input objects (after every layout change)."""
@@ -392,6 +477,23 @@ class Slave:
             unsubscribe()
         self._input_by_key = {m.key: m for m in self.inputs_map}
         self._output_by_key = {m.key: m for m in self.outputs_map}
+        entries = self.od.entries
+        self._input_slots = {}
+        ram_end = len(self.esc.mem)
+        for m in self.inputs_map:
+            slot = _slot(m, entries.get(m.key))
+            if slot is not None:
+                address = self.desc.inputs_start + slot.offset
+                if address >= RAM_START and address + slot.codec.size <= ram_end:
+                    slot.ram = address
+                self._input_slots[m.key] = slot
+        outputs: list[_Slot] = []
+        for m in self.outputs_map:
+            slot = _slot(m, entries.get(m.key))
+            if slot is None:
+                break
+            outputs.append(slot)
+        self._output_slots = outputs if len(outputs) == len(self.outputs_map) else None
         self._unbind = [self.od.subscribe(key, self._input_changed)
                         for key in self._input_by_key if key in self.od.entries]
 
@@ -399,6 +501,20 @@ class Slave:
         """The outputs the device acts on, into their mapped objects."""
         od = self.od
         data = self._outputs
+        slots = self._output_slots
+        if slots is not None:
+            # fast path (every output a byte-aligned fixed-size object without limits): only the
+            # values that differ from the stored ones are put (put stores nothing else either)
+            values = od.values
+            size = len(data)
+            for slot in slots:
+                codec = slot.codec
+                if slot.offset + codec.size > size:
+                    continue
+                value = codec.unpack_from(data, slot.offset)[0]
+                if values[slot.key] != value:
+                    od.put(slot.index, slot.subindex, value)
+            return
         for m in self.outputs_map:
             entry = od.entries.get(m.key)
             if entry is not None and m.bit_offset + m.bit_length <= 8 * len(data):

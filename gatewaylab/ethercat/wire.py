@@ -42,6 +42,10 @@ SPIN_AFTER_FRAME_S = 0.0002
 #: With ``drive_clock``: the longest blocking wait, so an event another thread scheduled under the
 #: lock (without waking anyone) still runs within this time.
 DRIVE_MAX_WAIT_S = 0.001
+#: With ``drive_clock``: clock events one pass runs at most before the thread looks at its socket again,
+#: so a frame waits for a few of the work the last frame left (the drives' control periods, ~10-20 us
+#: each compiled) instead of all of it (issue 23).
+DRIVE_PASS_EVENTS = 4
 #: How often a thread waiting for ``clock.lock`` looks whether it was asked to stop.
 LOCK_POLL_S = 0.002
 #: How long :meth:`WireTransport.stop` waits for the thread (it ends within ``LOCK_POLL_S``).
@@ -172,15 +176,20 @@ class WireTransport:
                     if now >= next_clock:
                         if not self._acquire(lock):
                             return
+                        ran = 0
+                        limit = clock.pass_limit
                         try:
-                            clock.run_due()
+                            clock.pass_limit = DRIVE_PASS_EVENTS   # this thread drives the clock
+                            ran = clock.run_due()
                             due = clock.next_deadline()
                         except Exception as exc:
                             self._fault("a clock event", exc)
                             due = None
                         finally:
+                            clock.pass_limit = limit
                             lock.release()
-                        next_clock = now + 0.0002
+                        # a full pass: more may be due, run them after a look at the socket
+                        next_clock = now if ran >= DRIVE_PASS_EVENTS else now + 0.0002
                         timeout = DRIVE_MAX_WAIT_S if due is None else min(
                             DRIVE_MAX_WAIT_S, max(0.0, due - clock.now()))
                     else:
@@ -209,7 +218,7 @@ class WireTransport:
                 if not self._acquire(lock):
                     return
                 try:
-                    ok = segment.process(frame)
+                    ok = segment.process(frame, defer=True)
                 finally:
                     lock.release()
                 if not ok:
@@ -219,10 +228,17 @@ class WireTransport:
                 except OSError as exc:
                     if len(self.errors) < MAX_ERRORS_KEPT:  # a storm must not grow the list without end
                         self.errors.append(str(exc))
-                    continue
-                self.frames_out += 1
-                if pcap is not None:
-                    pcap.write(time.time(), frame)
+                else:
+                    self.frames_out += 1
+                    if pcap is not None:
+                        pcap.write(time.time(), frame)
+                # the applications' work (outputs to the drives) once the frame is on its way back
+                if not self._acquire(lock):
+                    return
+                try:
+                    segment.after_frame()
+                finally:
+                    lock.release()
             except Exception as exc:
                 self._fault(f"frame {self.frames_in}", exc)
             finally:

@@ -64,11 +64,14 @@ class _Flaky:
         self.segment = segment
         self.fail = fail
 
-    def process(self, frame: bytearray) -> bool:
+    def process(self, frame: bytearray, *, defer: bool = False) -> bool:
         if self.fail:
             self.fail -= 1
             raise RuntimeError("injected fault")
-        return self.segment.process(frame)
+        return self.segment.process(frame, defer=defer)
+
+    def after_frame(self) -> None:
+        self.segment.after_frame()
 
 
 def test_frame_loop_survives_exceptions_with_one_log_line_each(veth_ns: Any,

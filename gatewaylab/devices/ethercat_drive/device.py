@@ -303,7 +303,13 @@ class _AxisMirror:
 
 
 class DriveApplication(SlaveApplication):
-    """The axes behind the ESC: CiA 402 over EtherCAT (ETG.6010) and the ETG.1020 sync modes."""
+    """The axes behind the ESC: CiA 402 over EtherCAT (ETG.6010) and the ETG.1020 sync modes.
+
+    Outputs reach the axes once the frame has passed (``outputs_in_frame`` False), as a drive's
+    firmware reads the SM2 buffer after its interrupt: the frame's round trip is the ESC's work only,
+    and the statusword answering a controlword is in the next frame's inputs."""
+
+    outputs_in_frame = False
 
     def __init__(self, axes: int = 1, params: AxisParams | None = None, serial: int = 0) -> None:
         self.n_axes = axes
