@@ -116,3 +116,16 @@ def test_the_ready_file_names_the_modules_that_run_compiled() -> None:
     assert set(info["compiled"]) <= set(build_info.COMPILED_MODULES)
     if build_info.pure_forced():
         assert info["compiled"] == []
+
+
+def test_architecture_names_exactly_the_compiled_modules() -> None:
+    """Issue 23 "Done when": docs/architecture.md says which modules are compiled -- the same list as
+    COMPILED_MODULES, the one the build compiles."""
+    import re
+
+    text = (Path(gatewaylab.__file__).parent.parent / "docs" / "architecture.md").read_text()
+    bullet = text[text.index("* **Compiled modules**"):]
+    bullet = bullet[:bullet.index("\n*")] if "\n*" in bullet else bullet
+    listed = bullet[bullet.index("Compiled today"):bullet.index("Rules that keep")]
+    named = {f"gatewaylab.{m}" for m in re.findall(r"`([a-z_.]+)`", listed) if "." in m.strip(".")}
+    assert named == set(build_info.COMPILED_MODULES)

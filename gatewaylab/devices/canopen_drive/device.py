@@ -291,6 +291,8 @@ class Drive(OperationModes):
     # -- object hooks -----------------------------------------------------------------------
     def _on_mode(self, *args: Any) -> None:
         mode = int(self._v[0x6060, 0])
+        if mode == self._mode_code:
+            return          # the same mode written again (a cyclic master's RxPDO)
         try:
             op = OpMode(mode)
         except ValueError:
@@ -303,6 +305,7 @@ class Drive(OperationModes):
     def _set_mode(self, op: OpMode) -> None:
         """The active mode and its display 0x6061 (the control tick runs its handler, _mode_demand)."""
         self.mode = op
+        self._mode_code = int(op)
         self.host.set(0x6061, 0, int(op))
 
     def _mode_demand(self, dt: float) -> Demand:

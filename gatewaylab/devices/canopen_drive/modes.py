@@ -45,6 +45,9 @@ class OperationModes:
     plant: Plant
     state: PdsState
     mode: OpMode
+    #: ``int(mode)``: 0x6060 is written every cycle over EtherCAT, mostly unchanged (compared as an int,
+    #: no enum built)
+    _mode_code: int
     #: the dictionary's value table (typed values), read directly on the 1 kHz hot path (the
     #: objects of every period through their key objects, ``key_object``: see od.types)
     _v: dict[Any, Any]
