@@ -11,7 +11,9 @@ p99 >= 500 us, a drive fault, a failed bring-up); target: >= 32 drives + 8 io. `
 
 Needs root (network namespace + veth); prints why and returns otherwise. GL_BENCH_SECONDS sets the
 paced run per line (default 30 s). The master runs in a subprocess inside the namespace on CPU 0,
-the emulator's busy-polling wire thread on CPU 1.
+the emulator's wire thread on CPU 1, busy polling (the rig's ``busy_poll = true``, the setting for
+latency work on a dedicated CPU: docs/decisions.md issue 21); ``GL_BENCH_BUSY_POLL=0`` measures the
+rig's default instead (blocking in select, 200 us spin after each frame).
 """
 
 from __future__ import annotations
@@ -147,7 +149,8 @@ def _run_line(ns: str, emu: str, mst: str, drives: int, ios: int, seconds: float
     clock = RealTimeClock()
     devices = [EthercatDrive(clock, f"GL-Drive #{i}", serial=0x3001 + i) for i in range(drives)]
     slaves = [d.slave for d in devices] + [create_io_slave(clock, f"GL-IO #{i}", revision=i + 1) for i in range(ios)]
-    wire = WireTransport(Segment(slaves), emu, clock, drive_clock=True, cpu=1)
+    wire = WireTransport(Segment(slaves), emu, clock, drive_clock=True, cpu=1,
+                         busy_poll=busy_poll())
     wire.start()
     cpu_s = 0.0
     try:
@@ -172,6 +175,11 @@ def _run_line(ns: str, emu: str, mst: str, drives: int, ios: int, seconds: float
     if wire.frames_in:  # the wire thread's CPU time per frame (bring-up included): independent of the load
         result["wire_cpu_us"] = 1e6 * cpu_s / wire.frames_in
     return result
+
+
+def busy_poll() -> bool:
+    """The wire thread busy polls (``busy_poll = true``) unless GL_BENCH_BUSY_POLL=0."""
+    return os.environ.get("GL_BENCH_BUSY_POLL", "1") != "0"
 
 
 def wire_thread_cpu(wire: Any) -> float:
@@ -218,7 +226,8 @@ def search(ns: str, emu: str, mst: str, seconds: float, max_drives: int) -> list
 def _search_and_record(ns: str, emu: str, mst: str, seconds: float) -> None:
     max_drives = int(os.environ.get("GL_BENCH_MAX_DRIVES", str(SEARCH[-1])))
     print(f"segment search: drives (CSP) + {IO_WITH} ethercat_io, pysoem over veth, {seconds:g} s at 1 kHz each, "
-          f"up to {max_drives} drives (--max-drives), stopping at the first failure")
+          f"up to {max_drives} drives (--max-drives), stopping at the first failure; wire thread "
+          f"{'busy polling (busy_poll = true)' if busy_poll() else 'blocking (the default, GL_BENCH_BUSY_POLL=0)'}")
     rows = search(ns, emu, mst, seconds, max_drives)
     best = max((d for d, r in rows if _ok(r)), default=0)
     failed = [(d, r) for d, r in rows if not _ok(r)]
@@ -228,7 +237,7 @@ def _search_and_record(ns: str, emu: str, mst: str, seconds: float) -> None:
     elif rows and rows[-1][0] < SEARCH[-1]:
         text += f" (search stopped at --max-drives {max_drives})"
     print(f"largest segment with 0 wrong working counters and p99 < {P99_LIMIT_US:.0f} us: {text}")
-    record("segment", text, best >= 32)
+    record("segment", text + ("" if busy_poll() else " (wire thread blocking: GL_BENCH_BUSY_POLL=0)"), best >= 32)
 
 
 def targets() -> None:
