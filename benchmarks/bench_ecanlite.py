@@ -192,7 +192,10 @@ def master_ecan(iface: str, seconds: float, rate: float = RATE, drives: int = 0)
                 "tx_overflows": int.from_bytes(_sdo(s0.sdo_read, 0x8010, 16), "little"),
                 # 13.2.5 RX dropped old/new: cache overflows while the master stalled
                 "rx_cache_drops": sum(int.from_bytes(_sdo(s0.sdo_read, 0x9020 + k, sub), "little")
-                                      for k in range(4) for sub in (6, 7))})
+                                      for k in range(4) for sub in (6, 7)),
+                # 13.2.5 TX FIFO full / stale frames dropped: RxPDO frames the channels could not queue
+                "tx_fifo_drops": sum(int.from_bytes(_sdo(s0.sdo_read, 0x9020 + k, sub), "little")
+                                     for k in range(4) for sub in (11, 12))})
     master.close()
     return out
 
@@ -287,7 +290,8 @@ def report(io: dict[str, Any], ecan: dict[str, Any], counts: dict[str, Any], rat
     print(f"  CAN -> master: peers sent {counts['peer_sent']}, master parsed {ecan['received']}, lost "
           f"{to_master_lost} (RX cache overflows while the master was late, 0x9020..0x9023:06/07: "
           f"{ecan['rx_cache_drops']})")
-    print(f"  master -> CAN: master sent {ecan['sent']}, peers heard {counts['heard']}, lost {to_bus_lost}")
+    print(f"  master -> CAN: master sent {ecan['sent']}, peers heard {counts['heard']}, lost {to_bus_lost} "
+          f"(TX FIFO full or stale, 0x9020..0x9023:11/12: {ecan.get('tx_fifo_drops', '?')})")
     print(f"  PDO errors: RxPDO 0x8011:15 = {ecan['pdo_errors']}, TxPDO parse errors {ecan['parse_errors']}; "
           f"TxPDO overflows 0x8010:16 = {ecan['tx_overflows']}")
     print(f"  emulator frame errors: {len(counts['errors'])} {counts['errors'][:1]}")
