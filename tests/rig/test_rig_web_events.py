@@ -96,7 +96,10 @@ def test_bus_off_unplug_error_frames_and_a_leaving_client_are_logged(rig: RigPro
     bits), an unplugged cable and its replug, a corrupted frame (CRC error frame) and a client that
     disconnects are events of the page's log."""
     fault(rig, "bus-off", "axis2")
-    wait(rig, log_has("CAN axis2: went bus-off and recovered"))
+    # the page looks at the controllers every WATCH_PERIOD: a recovery 1.4 ms later usually falls between
+    # two looks ("went bus-off and recovered"), but a look may land inside the bus-off (two lines)
+    wait(rig, lambda s: log_has("CAN axis2: went bus-off and recovered")(s)
+         or log_has("CAN axis2: bus-off -> error-active (recovered)")(s))
     fault(rig, "can-unplug", "axis3")
     s = wait(rig, log_has("CAN axis3: unplugged, left the bus"))
     assert s["buses"]["can0"]["controllers"]["axis3"]["connected"] is False
@@ -120,13 +123,17 @@ def test_page_shows_the_controllers_table_and_filters_heartbeats(rig: RigProcess
         fault(rig, "can-unplug", "axis3")
         page.wait_for_function("document.querySelector('#ctrl-can0-axis3').textContent.includes('unplugged')",
                                timeout=30_000)
+        replugs = page.inner_text("#log").count("plugged in again")     # the earlier test's replug may show
         fault(rig, "can-replug", "axis3")
+        # the replug shows at the watch's next look (WATCH_PERIOD): the frames below must not overtake it
+        page.wait_for_function("(document.getElementById('log').textContent.match(/plugged in again/g) || [])"
+                               f".length > {replugs}", timeout=30_000)
         with can.Bus(interface="gatewaylab", channel=rig.endpoint("can0")) as bus:
             bus.send(can.Message(arbitration_id=0x703, data=b"\x05", is_extended_id=False))   # a heartbeat
             bus.send(can.Message(arbitration_id=0x100, data=b"\xca\xfe", is_extended_id=False))
         page.wait_for_function("document.getElementById('log').textContent.includes('CA FE')", timeout=30_000)
         log = page.inner_text("#log")
-        assert "heartbeat of node 3" not in log and "plugged in again" in log
+        assert "heartbeat of node 3" not in log
 
 
 
