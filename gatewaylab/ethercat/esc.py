@@ -162,6 +162,17 @@ _READS: Final = 4
 _NO_BUF: Final = bytearray()
 
 
+def _le16(buf: bytearray, at: int) -> int:
+    """A little-endian 16-bit field of a frame (byte indexing: compiled, no struct tuple per field)."""
+    return buf[at] | buf[at + 1] << 8
+
+
+def _put_le16(buf: bytearray, at: int, value: int) -> None:
+    """Store ``value`` modulo 2**16 as a little-endian 16-bit field (the working counter wraps)."""
+    buf[at] = value & 0xFF
+    buf[at + 1] = (value >> 8) & 0xFF
+
+
 class EscApplication(AlFirmware, Protocol):
     """What the ESC asks of the slave behind it outside the events: the AL state machine's
     questions (:class:`AlFirmware`) and the SYNC0 pulses (the real ESC raises the SYNC0 line)."""
@@ -403,7 +414,7 @@ class Esc:
             self._buf = buf
             self._off = off
             self._dlen = dlen
-            self._addr = U32.unpack_from(buf, pos + 2)[0]
+            self._addr = buf[pos + 2] | buf[pos + 3] << 8 | buf[pos + 4] << 16 | buf[pos + 5] << 24
             self._cmd = cmd
             self._fi = -1
             self._inc = 0
@@ -412,15 +423,15 @@ class Esc:
         else:
             broadcast = _BRD <= cmd <= _BRW
             if cmd <= _APRW or cmd == _ARMW or broadcast:
-                adp = U16.unpack_from(buf, pos + 2)[0]
-                U16.pack_into(buf, pos + 2, (adp + 1) & 0xFFFF)
+                adp = _le16(buf, pos + 2)
+                _put_le16(buf, pos + 2, adp + 1)
                 addressed = adp == 0 or broadcast
             else:
-                adp = U16.unpack_from(buf, pos + 2)[0]
+                adp = _le16(buf, pos + 2)
                 mem = self.mem
-                addressed = adp == U16.unpack_from(mem, REG_STATION_ADDRESS)[0] or (
-                    bool(mem[REG_DL_CONTROL + 3] & 0x01) and adp == U16.unpack_from(mem, REG_STATION_ALIAS)[0])
-            ado = U16.unpack_from(buf, pos + 4)[0]
+                addressed = adp == _le16(mem, REG_STATION_ADDRESS) or (
+                    bool(mem[REG_DL_CONTROL + 3] & 0x01) and adp == _le16(mem, REG_STATION_ALIAS))
+            ado = _le16(buf, pos + 4)
             if cmd >= _ARMW:
                 inc = self._read(buf, off, ado, dlen) if addressed else self._write(ado, bytes(buf[off:off + dlen]))
             elif addressed:
@@ -428,7 +439,7 @@ class Esc:
         if step == _FINISH and not memory.events:
             if inc:
                 wkc_at = off + dlen
-                U16.pack_into(buf, wkc_at, (U16.unpack_from(buf, wkc_at)[0] + inc) & 0xFFFF)
+                _put_le16(buf, wkc_at, _le16(buf, wkc_at) + inc)
             return None
         self._buf = buf
         self._off = off
@@ -504,7 +515,7 @@ class Esc:
         if inc:
             buf = self._buf
             wkc_at = self._off + self._dlen
-            U16.pack_into(buf, wkc_at, (U16.unpack_from(buf, wkc_at)[0] + inc) & 0xFFFF)
+            _put_le16(buf, wkc_at, _le16(buf, wkc_at) + inc)
         self._buf = _NO_BUF
         self._step = _IDLE
         return None
@@ -515,7 +526,7 @@ class Esc:
         if inc:
             buf = self._buf
             wkc_at = self._off + self._dlen
-            U16.pack_into(buf, wkc_at, (U16.unpack_from(buf, wkc_at)[0] + inc) & 0xFFFF)
+            _put_le16(buf, wkc_at, _le16(buf, wkc_at) + inc)
         self._buf = _NO_BUF
         self._fmmus = ()
         self._step = _IDLE

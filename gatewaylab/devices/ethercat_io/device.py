@@ -21,7 +21,7 @@ from gatewaylab.ethercat.errors import EtherCATConfigError
 from gatewaylab.ethercat.esc import AlState
 from gatewaylab.ethercat.foe import FoeHandler
 from gatewaylab.ethercat.slave import Slave, SlaveApplication
-from gatewaylab.od import Access, DataType, Entry, ObjectDictionary
+from gatewaylab.od import Access, DataType, Entry, ObjectDictionary, key_object
 
 VENDOR_ID = 0x47574C42  # 'GWLB', not an ETG-assigned id (see docs/decisions.md)
 PRODUCT_CODE = 0x00010001
@@ -30,6 +30,8 @@ _OUTPUTS: Final = struct.Struct("<Bhh")
 _DEFAULT_OUTPUTS: Final = ((0x7000, 1, 0, 8), (0x7010, 1, 8, 16), (0x7010, 2, 24, 16))
 #: Loop-back wiring: output object -> input object that echoes it.
 _ECHO: Final = (((0x7000, 1), (0x6000, 1)), ((0x7010, 1), (0x6010, 1)), ((0x7010, 2), (0x6010, 2)))
+#: The inputs the default echo writes each cycle, in order: the echoed outputs, then the counter.
+_ECHO_INPUTS: Final = tuple(key_object(*k) for k in ((0x6000, 1), (0x6010, 1), (0x6010, 2), (0x6020, 1)))
 
 
 def io_description(name: str = "GL-IO 8DIO 2AIO", serial: int = 0, revision: int = 1) -> DeviceDescription:
@@ -100,17 +102,17 @@ class IoApplication(SlaveApplication):
         self.counter = (self.counter + 1) & 0xFFFFFFFF
         od = slave.od
         if self._default_outputs and len(data) >= _OUTPUTS.size:
+            # one dictionary call with the interned keys; "<Bhh" yields ints that fit U8 / INT16 and the
+            # counter is masked to U32: typed, stored without coercion (this runs inside the frame)
             digital, analog1, analog2 = _OUTPUTS.unpack_from(data, 0)
-            od.put(0x6000, 1, digital)
-            od.put(0x6010, 1, analog1)
-            od.put(0x6010, 2, analog2)
-        else:
-            for out_key, in_key in _ECHO:
-                try:
-                    value = slave.read_output(out_key[0], out_key[1])
-                except EtherCATConfigError:     # not mapped: the object's own value
-                    value = od.values[out_key]
-                od.put(in_key[0], in_key[1], value)
+            od.put_many(_ECHO_INPUTS, (digital, analog1, analog2, self.counter), typed=True)
+            return
+        for out_key, in_key in _ECHO:
+            try:
+                value = slave.read_output(out_key[0], out_key[1])
+            except EtherCATConfigError:     # not mapped: the object's own value
+                value = od.values[out_key]
+            od.put(in_key[0], in_key[1], value)
         od.put(0x6020, 1, self.counter)
 
     def on_state(self, slave: Slave, old: AlState, new: AlState, code: int) -> None:
