@@ -49,6 +49,11 @@ DRIVE_MAX_WAIT_S = 0.001
 #: every pass of 4 let a 4 kHz segment's CAN buses fall behind real time and lose frames (issue 23).
 DRIVE_PASS_EVENTS = 4
 DRIVE_PASS_S = 0.0002
+#: With ``drive_clock``: frames come first, but never for longer than this without a clock slice. After a
+#: stall the socket holds a backlog a busy segment drains only slowly (a 4 kHz frame every 250 us, each
+#: taking most of that): frames first without a bound starved the clock for up to 28 ms, and the CAN
+#: controllers' TX FIFOs (32 frames, 1 frame/ms each) overflowed behind it (issue 23, 4 kHz row).
+DRIVE_MAX_STARVE_S = 0.0005
 #: How often a thread waiting for ``clock.lock`` looks whether it was asked to stop.
 LOCK_POLL_S = 0.002
 #: How long :meth:`WireTransport.stop` waits for the thread (it ends within ``LOCK_POLL_S``).
@@ -140,6 +145,17 @@ class WireTransport:
                 return True
         return False
 
+    @staticmethod
+    def _clock_slice(clock: RealTimeClock, now: float) -> int:
+        """Passes of ``DRIVE_PASS_EVENTS`` due clock events for up to ``DRIVE_PASS_S`` (the caller holds
+        ``clock.lock`` and restores ``clock.pass_limit``); the events the last pass ran."""
+        clock.pass_limit = DRIVE_PASS_EVENTS   # this thread drives the clock
+        slice_end = now + DRIVE_PASS_S
+        while True:
+            ran = clock.run_due()
+            if ran < DRIVE_PASS_EVENTS or time.monotonic() >= slice_end:
+                return ran
+
     def _wait(self, sock: socket.socket, wake: socket.socket, timeout: float | None) -> None:
         """Block until a frame (or a wake-up from :meth:`stop`) arrives or ``timeout`` passed."""
         ready, _, _ = select.select([sock, wake], [], [], timeout)
@@ -168,7 +184,25 @@ class WireTransport:
         spin = self.spin_s
         spin_until = 0.0
         next_clock = 0.0
+        last_slice = time.monotonic()
         while self._running:
+            if drive and time.monotonic() - last_slice >= DRIVE_MAX_STARVE_S:
+                # no clock slice for that long: when an event is overdue by as much (frames back to back,
+                # a backlog), the clock's slice comes before the next frame
+                assert isinstance(clock, RealTimeClock)
+                if not self._acquire(lock):
+                    return
+                limit = clock.pass_limit
+                try:
+                    due = clock.next_deadline()
+                    if due is not None and clock.now() - due >= DRIVE_MAX_STARVE_S:
+                        self._clock_slice(clock, time.monotonic())
+                except Exception as exc:
+                    self._fault("a clock event", exc)
+                finally:
+                    clock.pass_limit = limit
+                    lock.release()
+                last_slice = time.monotonic()
             try:
                 n, addr = sock.recvfrom_into(buf)
             except BlockingIOError:
@@ -182,12 +216,7 @@ class WireTransport:
                         ran = 0
                         limit = clock.pass_limit
                         try:
-                            clock.pass_limit = DRIVE_PASS_EVENTS   # this thread drives the clock
-                            slice_end = now + DRIVE_PASS_S
-                            while True:
-                                ran = clock.run_due()
-                                if ran < DRIVE_PASS_EVENTS or time.monotonic() >= slice_end:
-                                    break
+                            ran = self._clock_slice(clock, now)
                             due = clock.next_deadline()
                         except Exception as exc:
                             self._fault("a clock event", exc)
@@ -195,6 +224,7 @@ class WireTransport:
                         finally:
                             clock.pass_limit = limit
                             lock.release()
+                        last_slice = time.monotonic()
                         # a full pass: more may be due, run them after a look at the socket
                         next_clock = now if ran >= DRIVE_PASS_EVENTS else now + 0.0002
                         timeout = DRIVE_MAX_WAIT_S if due is None else min(

@@ -15,14 +15,16 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from gatewaylab.common.clock import RealTimeClock
 from gatewaylab.devices.ethercat_io.device import create_io_slave
 from gatewaylab.ethercat.segment import Segment
 from gatewaylab.ethercat.wire import WireTransport
+from gatewaylab.ethercat.wire_pcap import PcapWriter
 from gatewaylab.rig.process import RigProcess
 
 #: the share of one CPU the busiest thread of an idle rig may use (the old busy poll: ~95 %)
@@ -99,3 +101,61 @@ def test_stop_ends_the_thread_while_the_caller_holds_the_clock_lock(veth_ns: Any
     thread.join(10)
     assert not alive
     assert wire.frames_out == 0      # the frame that came in while stopping is not answered
+
+
+
+#: ``sys.argv[2]`` BRDs of register 0x0000, back to back, from the master's end of the pair.
+SEND_FRAMES = SEND_ONE_FRAME.replace("sock.send(", "for _ in range(int(sys.argv[2])):\n    sock.send(")
+
+
+class _HoldFirstFrame:
+    """A capture (``WireTransport(pcap=...)``, written before the frame is processed) that holds the wire
+    thread inside its first frame until ``release`` is set: the frames sent meanwhile pile up in the socket,
+    as they do behind an emulator that stalled."""
+
+    def __init__(self) -> None:
+        self.arrived = threading.Event()
+        self.release = threading.Event()
+
+    def write(self, t: float, frame: bytes | bytearray) -> None:
+        if not self.arrived.is_set():
+            self.arrived.set()
+            self.release.wait(30)
+
+    def close(self) -> None:
+        """Nothing to close."""
+
+
+def _send(veth_ns: Any, count: int) -> None:
+    subprocess.run(["ip", "netns", "exec", veth_ns.namespace, sys.executable, "-c", SEND_FRAMES,
+                    veth_ns.master_iface, str(count)], check=True, timeout=60)
+
+
+def test_a_backlog_of_frames_does_not_starve_the_clock(veth_ns: Any) -> None:
+    """docs/ethercat.md 'Use it with a real master', issue 23 (4 kHz row): with ``drive_clock`` the wire thread
+    answers frames first, but a backlog (frames that piled up while the emulator stalled) must not keep the
+    clock from running for its whole length: the CAN controllers' TX FIFOs filled behind a clock starved for
+    28 ms. A clock event overdue by more than DRIVE_MAX_STARVE_S runs before the next frame of the backlog
+    (the old thread ran it once the socket was empty: after all 50 frames)."""
+    count = 50
+    clock = RealTimeClock()
+    hold = _HoldFirstFrame()
+    wire = WireTransport(Segment([create_io_slave(clock, "io")]), veth_ns.emulator_iface, clock, drive_clock=True,
+                         pcap=cast(PcapWriter, hold))
+    seen_at: list[int] = []
+    wire.start()
+    try:
+        _send(veth_ns, 1)
+        assert hold.arrived.wait(30)            # the thread is inside frame 1
+        _send(veth_ns, count - 1)               # the backlog
+        with clock.lock:                        # due 10 ms ago: overdue far beyond the bound
+            clock.call_at(clock.now() - 0.01, lambda: seen_at.append(wire.frames_in))
+        hold.release.set()
+        deadline = time.monotonic() + 30
+        while wire.frames_out < count and time.monotonic() < deadline:
+            time.sleep(0.001)
+    finally:
+        hold.release.set()
+        wire.stop()
+    assert wire.frames_out >= count
+    assert seen_at and seen_at[0] < count, (seen_at, wire.frames_in)   # not after the whole backlog
