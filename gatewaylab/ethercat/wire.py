@@ -145,16 +145,32 @@ class WireTransport:
                 return True
         return False
 
-    @staticmethod
-    def _clock_slice(clock: RealTimeClock, now: float) -> int:
-        """Passes of ``DRIVE_PASS_EVENTS`` due clock events for up to ``DRIVE_PASS_S`` (the caller holds
-        ``clock.lock`` and restores ``clock.pass_limit``); the events the last pass ran."""
-        clock.pass_limit = DRIVE_PASS_EVENTS   # this thread drives the clock
-        slice_end = now + DRIVE_PASS_S
-        while True:
-            ran = clock.run_due()
-            if ran < DRIVE_PASS_EVENTS or time.monotonic() >= slice_end:
-                return ran
+    def _clock_slice(self, clock: RealTimeClock, lock: Any, overdue: float = 0.0) -> tuple[int, float | None] | None:
+        """With ``drive_clock``: take ``clock.lock`` and run passes of ``DRIVE_PASS_EVENTS`` due events for up
+        to ``DRIVE_PASS_S`` -- only when the earliest event is ``overdue`` seconds late, if given. Returns
+        (events the last pass ran, the next deadline), or None once :meth:`stop` was called."""
+        if not self._acquire(lock):
+            return None
+        limit = clock.pass_limit
+        ran = 0
+        try:
+            due = clock.next_deadline()
+            if overdue and (due is None or clock.now() - due < overdue):
+                return 0, due
+            clock.pass_limit = DRIVE_PASS_EVENTS   # this thread drives the clock
+            slice_end = time.monotonic() + DRIVE_PASS_S
+            while True:
+                ran = clock.run_due()
+                if ran < DRIVE_PASS_EVENTS or time.monotonic() >= slice_end:
+                    break
+            due = clock.next_deadline()
+        except Exception as exc:
+            self._fault("a clock event", exc)
+            due = None
+        finally:
+            clock.pass_limit = limit
+            lock.release()
+        return ran, due
 
     def _wait(self, sock: socket.socket, wake: socket.socket, timeout: float | None) -> None:
         """Block until a frame (or a wake-up from :meth:`stop`) arrives or ``timeout`` passed."""
@@ -190,18 +206,8 @@ class WireTransport:
                 # no clock slice for that long: when an event is overdue by as much (frames back to back,
                 # a backlog), the clock's slice comes before the next frame
                 assert isinstance(clock, RealTimeClock)
-                if not self._acquire(lock):
+                if self._clock_slice(clock, lock, DRIVE_MAX_STARVE_S) is None:
                     return
-                limit = clock.pass_limit
-                try:
-                    due = clock.next_deadline()
-                    if due is not None and clock.now() - due >= DRIVE_MAX_STARVE_S:
-                        self._clock_slice(clock, time.monotonic())
-                except Exception as exc:
-                    self._fault("a clock event", exc)
-                finally:
-                    clock.pass_limit = limit
-                    lock.release()
                 last_slice = time.monotonic()
             try:
                 n, addr = sock.recvfrom_into(buf)
@@ -211,19 +217,10 @@ class WireTransport:
                 if drive:
                     assert isinstance(clock, RealTimeClock)
                     if now >= next_clock:
-                        if not self._acquire(lock):
+                        turn = self._clock_slice(clock, lock)
+                        if turn is None:
                             return
-                        ran = 0
-                        limit = clock.pass_limit
-                        try:
-                            ran = self._clock_slice(clock, now)
-                            due = clock.next_deadline()
-                        except Exception as exc:
-                            self._fault("a clock event", exc)
-                            due = None
-                        finally:
-                            clock.pass_limit = limit
-                            lock.release()
+                        ran, due = turn
                         last_slice = time.monotonic()
                         # a full pass: more may be due, run them after a look at the socket
                         next_clock = now if ran >= DRIVE_PASS_EVENTS else now + 0.0002

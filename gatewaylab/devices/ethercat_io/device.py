@@ -31,7 +31,8 @@ _DEFAULT_OUTPUTS: Final = ((0x7000, 1, 0, 8), (0x7010, 1, 8, 16), (0x7010, 2, 24
 #: Loop-back wiring: output object -> input object that echoes it.
 _ECHO: Final = (((0x7000, 1), (0x6000, 1)), ((0x7010, 1), (0x6010, 1)), ((0x7010, 2), (0x6010, 2)))
 #: The inputs the default echo writes each cycle, in order: the echoed outputs, then the counter.
-_ECHO_INPUTS: Final = tuple(key_object(*k) for k in ((0x6000, 1), (0x6010, 1), (0x6010, 2), (0x6020, 1)))
+_COUNTER: Final = (0x6020, 1)
+_ECHO_INPUTS: Final = tuple(key_object(*k) for k in (*(inp for _, inp in _ECHO), _COUNTER))
 
 
 def io_description(name: str = "GL-IO 8DIO 2AIO", serial: int = 0, revision: int = 1) -> DeviceDescription:
@@ -113,7 +114,7 @@ class IoApplication(SlaveApplication):
             except EtherCATConfigError:     # not mapped: the object's own value
                 value = od.values[out_key]
             od.put(in_key[0], in_key[1], value)
-        od.put(0x6020, 1, self.counter)
+        od.put(*_COUNTER, self.counter)
 
     def on_state(self, slave: Slave, old: AlState, new: AlState, code: int) -> None:
         """The counter restarts with every PREOP -> SAFEOP (the output mapping is known then)."""
