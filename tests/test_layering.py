@@ -172,20 +172,29 @@ def test_no_module_takes_a_private_name_from_another() -> None:
 
 def _edges(path: Path) -> set[str]:
     """The gatewaylab modules ``path`` imports at run time. ``from pkg import name`` leads to the module
-    ``pkg.name`` where that is a module, else to ``pkg``; the parent packages Python initialises on the
-    way are not edges (a package that re-exports its submodules would otherwise cycle with each)."""
+    ``pkg.name`` where that is a module, else to ``pkg``. Importing ``a.b.c`` also runs the
+    ``__init__`` of the packages on the way (``a.b``): an edge too, except for the packages ``path``
+    itself lives in -- those are already importing when it runs, and a package re-exporting its own
+    submodules is no cycle."""
     me = _module_name(path)
-    out: set[str] = set()
+    targets: set[str] = set()
     for node in _runtime_imports(ast.parse(path.read_text(), str(path))):
         if isinstance(node, ast.Import):
-            out.update(a.name for a in node.names if a.name in KNOWN)
+            targets.update(a.name for a in node.names if a.name in KNOWN)
             continue
         module = _absolute(path, node)
         for alias in node.names:
             if f"{module}.{alias.name}" in KNOWN:
-                out.add(f"{module}.{alias.name}")
+                targets.add(f"{module}.{alias.name}")
             elif module in KNOWN:
-                out.add(module)
+                targets.add(module)
+    out = set(targets)
+    for target in targets:
+        parts = target.split(".")
+        for i in range(1, len(parts)):
+            package = ".".join(parts[:i])
+            if not (me == package or me.startswith(package + ".")):
+                out.add(package)
     out.discard(me)
     return out
 
