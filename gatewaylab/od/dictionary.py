@@ -6,7 +6,8 @@ present NMT / EtherCAT state?) is a small :class:`AccessPolicy` the caller passe
 typed Python values in ``values`` keyed by (index, subindex); :meth:`put` is the device's own
 write and the one change notification (:meth:`subscribe`); :meth:`write` is the remote write with
 the device's validators, commands, write hooks and reactions; :meth:`read` the remote read with
-its read hooks. EDS/DCF import and export live in :mod:`.eds`, the ESI dictionary in :mod:`.esi`.
+its read hooks. EDS/DCF import and export live in :mod:`.eds` (``export_eds(od)``, ``import_eds(text)``:
+the format knows the dictionary, not the other way round), the ESI dictionary in :mod:`.esi`.
 """
 
 from __future__ import annotations
@@ -410,17 +411,3 @@ class ObjectDictionary:
                 reaction(entry, value)
         if old != value:
             self._changed(key, value)
-
-    # -- EDS / ESI -------------------------------------------------------------------------------
-    def to_eds(self, *, dcf: bool = False, node_id: int | None = None) -> str:
-        """CiA 306 EDS text (or DCF with ``ParameterValue`` lines when ``dcf``)."""
-        from gatewaylab.od.eds import export_eds
-
-        return export_eds(self, dcf=dcf, node_id=node_id)
-
-    @classmethod
-    def from_eds(cls, text: str, node_id: int | None = None) -> ObjectDictionary:
-        """Build a dictionary from EDS or DCF text (DCF ``ParameterValue`` become the values)."""
-        from gatewaylab.od.eds import import_eds
-
-        return import_eds(text, node_id)
