@@ -191,3 +191,10 @@ def test_no_sdo_information_request_raises(body: bytes, index: int, sub: int, op
         replies = _ANY.handle(coe_header(CoeService.SDO_INFO) + req)
         assert replies and all(6 <= len(r) <= MAILBOX - 6 for r in replies)
         assert all(r[1] >> 4 == CoeService.SDO_INFO for r in replies)
+
+
+def test_in_process_master_joins_fragmented_descriptions(clock: SimulatedClock) -> None:
+    """The project's own master reads an object description that came in fragments whole (5.6.3.2)."""
+    long_name = "A rather long object name, " * 8
+    m, _ = _master(clock, ObjectDef(0x2000, long_name, DataType.UNSIGNED8, 0, Access.RW))
+    assert m.object_description(0, 0x2000).name == long_name
