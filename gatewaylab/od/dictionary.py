@@ -98,11 +98,11 @@ class ObjectDictionary:
     def add_variable(self, index: int, name: str, data_type: DataType, access: Access = Access.RW,
                      default: Any = None, *, pdo_mappable: bool = False, low: float | None = None,
                      high: float | None = None, nodeid_offset: bool = False,
-                     preop_only: bool = False) -> Entry:
-        """Add a VAR object (subindex 0)."""
+                     preop_only: bool = False, max_length: int | None = None) -> Entry:
+        """Add a VAR object (subindex 0). ``max_length``: a string's size in bytes (see :class:`Entry`)."""
         obj = self._new_object(index, name, ObjectCode.VAR)
         return self._add_entry(obj, Entry(index, 0, name, DataType(data_type), access, pdo_mappable,
-                                          default, low, high, nodeid_offset, preop_only))
+                                          default, low, high, nodeid_offset, preop_only, max_length))
 
     def add_record(self, index: int, name: str, code: ObjectCode = ObjectCode.RECORD) -> OdObject:
         """Add an empty RECORD (or ARRAY); fill it with :meth:`add_sub`. Subindex 0 is added for you."""
@@ -111,11 +111,13 @@ class ObjectDictionary:
     def add_sub(self, index: int, subindex: int, name: str, data_type: DataType,
                 access: Access = Access.RW, default: Any = None, *, pdo_mappable: bool = False,
                 low: float | None = None, high: float | None = None, nodeid_offset: bool = False,
-                preop_only: bool = False, sub0_name: str = "Highest sub-index supported") -> Entry:
-        """Add a subindex to a RECORD/ARRAY; subindex 0 'highest sub-index supported' follows."""
+                preop_only: bool = False, sub0_name: str = "Highest sub-index supported",
+                max_length: int | None = None) -> Entry:
+        """Add a subindex to a RECORD/ARRAY; subindex 0 'highest sub-index supported' follows.
+        ``max_length``: a string's size in bytes (see :class:`Entry`)."""
         obj = self.objects[index]
         entry = self._add_entry(obj, Entry(index, subindex, name, DataType(data_type), access, pdo_mappable,
-                                           default, low, high, nodeid_offset, preop_only))
+                                           default, low, high, nodeid_offset, preop_only, max_length))
         if subindex != 0:
             sub0 = obj.entries.get(0)
             highest = max(s for s in obj.entries if s != 0)
@@ -282,10 +284,15 @@ class ObjectDictionary:
         return encode(entry, self.values[(index, subindex)])
 
     def bit_length(self, index: int, subindex: int) -> int:
-        """Bits the entry takes in a PDO: its type's size, or the present length of a string."""
+        """Bits of the entry as its description declares them (ESI BitSize, SDO information): its
+        type's size, a string's maximum length (or its present length when the device stored a
+        longer value itself), the present length of a DOMAIN."""
         entry = self.entry(index, subindex)
         bits = entry.bit_length
-        return bits if bits else 8 * len(encode(entry, self.values[(index, subindex)]))
+        if bits:
+            return bits
+        present = 8 * len(encode(entry, self.values[(index, subindex)]))
+        return max(entry.declared_bits, present)
 
     def reset_values(self, indices: range | None = None) -> None:
         """Put the defaults back (all, or the objects whose index is in ``indices``)."""
