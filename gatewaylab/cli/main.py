@@ -32,6 +32,7 @@ EXTRA_SUBCOMMANDS = (
     "gatewaylab.cli.lss",
     "gatewaylab.cli.monitor",
     "gatewaylab.cli.send",
+    "gatewaylab.cli.sdo",
     "gatewaylab.cli.lesson",
     "gatewaylab.cli.plot",
     "gatewaylab.cli.net",
