@@ -18,7 +18,9 @@ from gatewaylab.od.dictionary import ObjectDictionary
 from gatewaylab.od.types import (
     BYTES_TYPES,
     FLOAT_TYPES,
+    SIZED_TYPES,
     STRING_TYPES,
+    UNDECLARED_STRING_LENGTH,
     Access,
     DataType,
     Entry,
@@ -209,7 +211,13 @@ def read_eds(text: str, node_id: int | None = None, *,
         if dt not in STRING_TYPES and dt not in BYTES_TYPES:
             low = _parse_value(dt, get(section, "LowLimit", fallback=""))[0]
             high = _parse_value(dt, get(section, "HighLimit", fallback=""))[0]
-        args = {"data_type": dt, "access": access, "default": default,
+        max_length = None
+        if dt in SIZED_TYPES:
+            # CiA 306 has no key for a string's size: a default's length is no limit a device would have
+            size = len(default.encode("utf-16-le") if dt is DataType.UNICODE_STRING else default.encode()) \
+                if isinstance(default, str) else len(default or b"")
+            max_length = max(size, UNDECLARED_STRING_LENGTH)
+        args = {"data_type": dt, "access": access, "default": default, "max_length": max_length,
                 "pdo_mappable": bool(int(get(section, "PDOMapping", fallback="0") or "0", 0)),
                 "low": low, "high": high, "nodeid_offset": relative,
                 "preop_only": get(section, "GatewaylabPreOpOnly", fallback="0").strip() == "1"}

@@ -149,3 +149,15 @@ def test_a_rule_that_does_not_fit_is_one_line(tmp_path: Path, behaviour: dict[st
 def test_a_missing_file_names_the_key(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match=r"eds = '.*nope.dcf': cannot read"):
         make_rig(tmp_path, {"eds": str(tmp_path / "nope.dcf")})
+
+
+def test_strings_of_an_eds_take_more_than_their_default() -> None:
+    """CiA 306 declares no string sizes: a string read from an EDS holds 255 bytes (or its default's length
+    when longer), so a name longer than the default can be written; more aborts 0x06070012 (CiA 301)."""
+    from gatewaylab.od.eds import read_eds
+
+    text = DCF.read_text() + "\n[2001]\nParameterName=Tag\nObjectType=0x7\nDataType=0x0009\nAccessType=rw\n" \
+                             "DefaultValue=ab\nPDOMapping=0\n"
+    od, warnings = read_eds(text)
+    assert not warnings
+    assert od.entries[(0x2001, 0)].max_length == 255
