@@ -19,6 +19,7 @@ from typing import Any
 import can
 
 from gatewaylab.common.endpoint import EndpointError, bus_endpoint
+from gatewaylab.common.errors import ConfigError
 
 __all__ = ["TYPES", "SdoType", "add_subcommand", "cmd_sdo", "format_value", "parse_value"]
 
@@ -75,7 +76,7 @@ examples:
 """
 
 
-class UsageError(Exception):
+class UsageError(ConfigError):
     """A wrong argument: exit 2 with this text."""
 
 

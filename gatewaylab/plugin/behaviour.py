@@ -50,19 +50,20 @@ class Rule:
 
 
 def parse_address(text: str) -> Address:
-    """``"0x6000:01"`` / ``"6000:1"`` / ``"0x2001"`` -> (index, subindex); ValueError otherwise."""
+    """``"0x6000:01"`` / ``"6000:1"`` / ``"0x2001"`` -> (index, subindex); ConfigError (or ValueError from
+    ``int``) otherwise."""
     index_text, _, sub_text = text.strip().partition(":")
     index = int(index_text, 16)
     sub = int(sub_text, 16) if sub_text else 0
     if not (0 <= index <= 0xFFFF and 0 <= sub <= 0xFF):
-        raise ValueError(f"{text!r} is outside 0x0000..0xFFFF:00..FF")
+        raise ConfigError(f"{text!r} is outside 0x0000..0xFFFF:00..FF")
     return index, sub
 
 
 def _number(table: Mapping[str, Any], key: str, default: float | None = None) -> float:
     value = table.get(key, default)
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ValueError(f"{key} must be a number" + ("" if key in table else " (missing)"))
+        raise ConfigError(f"{key} must be a number" + ("" if key in table else " (missing)"))
     return float(value)
 
 
@@ -73,47 +74,47 @@ def _rule(address: Address, raw: Any, od: ObjectDictionary) -> Rule:
     elif isinstance(raw, dict) and len(raw) == 1:
         kind, params = next(iter(raw.items()))
     else:
-        raise ValueError(f"wants one rule ({', '.join(RULES)}): a name or a table with one key")
+        raise ConfigError(f"wants one rule ({', '.join(RULES)}): a name or a table with one key")
     if kind not in RULES:
-        raise ValueError(f"unknown rule {kind!r} (known: {', '.join(RULES)})")
+        raise ConfigError(f"unknown rule {kind!r} (known: {', '.join(RULES)})")
     entry = od.entries.get(address)
     if entry is None:
-        raise ValueError("no such entry in the dictionary")
+        raise ConfigError("no such entry in the dictionary")
     numeric = type_range(entry.data_type) is not None or entry.data_type in FLOAT_TYPES
     if kind != "echo" and kind != "value" and not numeric:
-        raise ValueError(f"{kind} needs a numeric entry ({entry.data_type.name} is not)")
+        raise ConfigError(f"{kind} needs a numeric entry ({entry.data_type.name} is not)")
     if kind == "echo":
         if not isinstance(params, str):
-            raise ValueError('echo wants the source address, e.g. { echo = "0x6200:01" }')
+            raise ConfigError('echo wants the source address, e.g. { echo = "0x6200:01" }')
         source = parse_address(params)
         if source not in od.entries:
-            raise ValueError(f"echo source {params!r} is not in the dictionary")
+            raise ConfigError(f"echo source {params!r} is not in the dictionary")
         return Rule(address, kind, (source,))
     if kind == "counter":
         step = 1.0 if params == {} else params
         if isinstance(step, bool) or not isinstance(step, (int, float)):
-            raise ValueError("counter wants a step number, e.g. { counter = 5 }")
+            raise ConfigError("counter wants a step number, e.g. { counter = 5 }")
         return Rule(address, kind, (step,))
     if kind == "value":
         try:
             return Rule(address, kind, (coerce(entry, params),))
         except (ConfigError, ValueError, TypeError) as exc:
-            raise ValueError(f"value {params!r} does not fit {entry.data_type.name}: {exc}") from None
+            raise ConfigError(f"value {params!r} does not fit {entry.data_type.name}: {exc}") from None
     if not isinstance(params, dict):
-        raise ValueError(f"{kind} wants a table of parameters")
+        raise ConfigError(f"{kind} wants a table of parameters")
     if kind == "sine":
         period = _number(params, "period")
         if period <= 0:
-            raise ValueError("sine period must be > 0 s")
+            raise ConfigError("sine period must be > 0 s")
         return Rule(address, kind, (_number(params, "amplitude"), period, _number(params, "offset", 0.0)))
     if kind == "ramp":
         period = _number(params, "period")
         if period <= 0:
-            raise ValueError("ramp period must be > 0 s")
+            raise ConfigError("ramp period must be > 0 s")
         return Rule(address, kind, (_number(params, "from", 0.0), _number(params, "to"), period))
     low, high = _number(params, "min"), _number(params, "max")
     if low > high:
-        raise ValueError("random min > max")
+        raise ConfigError("random min > max")
     return Rule(address, kind, (low, high))
 
 
@@ -124,7 +125,7 @@ def parse_behaviour(table: Mapping[str, Any], od: ObjectDictionary) -> tuple[Rul
     for key, raw in table.items():
         try:
             rules.append(_rule(parse_address(key), raw, od))
-        except ValueError as exc:
+        except (ConfigError, ValueError) as exc:
             raise ConfigError(f"behaviour {key!r}: {exc}") from None
     return tuple(rules)
 
