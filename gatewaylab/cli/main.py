@@ -33,6 +33,7 @@ EXTRA_SUBCOMMANDS = (
     "gatewaylab.cli.monitor",
     "gatewaylab.cli.send",
     "gatewaylab.cli.sdo",
+    "gatewaylab.cli.eds",
     "gatewaylab.cli.lesson",
     "gatewaylab.cli.plot",
     "gatewaylab.cli.net",

@@ -25,6 +25,7 @@ from gatewaylab.common.errors import ConfigError
 from gatewaylab.devices.canopen_node.device import CanopenNodeDevice
 from gatewaylab.od.eds import read_eds
 from gatewaylab.plugin.behaviour import Behaviour, load_hook, parse_behaviour
+from gatewaylab.plugin.capabilities import HasNode
 from gatewaylab.plugin.participant import DeviceKind, Key, RigContext
 
 __all__ = ["KEYS", "KIND", "create_node", "default_name"]
@@ -69,6 +70,12 @@ def create_node(rig: RigContext, cfg: dict[str, Any]) -> CanopenNodeDevice:
     for warning in warnings:
         log.warning("%s: %s: %s", name, source.name, warning)
     node_id = cfg["node_id"] if cfg["node_id"] is not None else od.node_id
+    if node_id is not None:
+        for other in rig.participants:   # a node-ID the file gave is checked here (the rig file's by the planner)
+            if isinstance(other, HasNode) and other.node.bus is rig.bus(cfg["bus"]) and other.node.node_id == node_id:
+                raise ConfigError(f"node_id {node_id} (from {source.name if cfg['node_id'] is None else 'node_id'}) "
+                                  f"is already used on bus {cfg['bus']!r} by {other.name} (CANopen node-IDs are "
+                                  "unique per bus)")
     lss = od.device_info.get("LSS_Supported", "0").strip() not in ("", "0", "false", "False")
     device = CanopenNodeDevice(rig, name, cfg["bus"], node_id, od, source=source, serial=cfg["serial"], lss=lss,
                                store_path=rig.state_dir / f"{name}.params.json",

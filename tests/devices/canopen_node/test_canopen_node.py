@@ -161,3 +161,38 @@ def test_strings_of_an_eds_take_more_than_their_default() -> None:
     od, warnings = read_eds(text)
     assert not warnings
     assert od.entries[(0x2001, 0)].max_length == 255
+
+
+def test_two_nodes_with_one_node_id_from_their_files_are_refused(tmp_path: Path) -> None:
+    """CiA 301: a node-ID is unique per network; the DCF's NodeID counts like the rig file's."""
+    device = {"kind": "canopen_node", "eds": str(DCF), "bus": "can0"}
+    with pytest.raises(ConfigError, match=r"node_id 12 \(from io-module.dcf\) is already used on bus 'can0'"):
+        Rig(parse_rig({"clock": "simulated", "bus": [{"name": "can0", "endpoint": "none"}],
+                       "device": [device, dict(device, name="second")]}))
+
+
+@pytest.mark.parametrize("kind", ["drive", "maxon_idx"])
+def test_an_exported_eds_runs_as_the_same_dictionary(tmp_path: Path, kind: str) -> None:
+    """`gatewaylab eds KIND` writes what the device answers; a canopen_node built from that file holds the same
+    entries (data type, access, PDO mapping) with the same power-on values (CiA 306 round trip)."""
+    from gatewaylab.cli.eds import KINDS, eds_of
+    from gatewaylab.plugin.capabilities import HasNode
+
+    path = tmp_path / f"{kind}.eds"
+    path.write_text(eds_of(kind, 2))
+    rigs = {}
+    for source in ("original", "eds"):
+        section = {"kind": "canopen_node", "eds": str(path)} if source == "eds" else KINDS[kind]
+        rigs[source] = Rig(parse_rig({"clock": "simulated", "bus": [{"name": "can0", "endpoint": "none"}],
+                                      "device": [{**section, "bus": "can0", "node_id": 2, "name": "n"}]}))
+    try:
+        a, b = ((p for p in r.participants if isinstance(p, HasNode)) for r in rigs.values())
+        od_a, od_b = next(a).node.od, next(b).node.od
+        rows = {key: (e.data_type, e.access, e.pdo_mappable) for key, e in od_a.entries.items() if key[0] >= 0x1000}
+        assert rows == {key: (e.data_type, e.access, e.pdo_mappable) for key, e in od_b.entries.items()
+                        if key[0] >= 0x1000}
+        assert {k: od_a.values[k] for k in rows} == {k: od_b.values[k] for k in rows}
+        assert len(rows) > 100
+    finally:
+        for r in rigs.values():
+            r.close()
