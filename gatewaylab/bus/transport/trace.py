@@ -383,11 +383,14 @@ class _CountedLines(io.StringIO):
     """A text file for python-can's readers that knows which line they are on (for error messages)."""
 
     lineno = 0
+    #: the line the reader read last (the one its message comes from)
+    last = ""
 
     def readline(self, size: int | None = -1, /) -> str:  # type: ignore[override]
         line = super().readline(-1 if size is None else size)
         if line:
             self.lineno += 1
+            self.last = line
         return line
 
 
@@ -461,6 +464,8 @@ def read_trace(path: str | Path) -> list[TraceItem]:
     out: list[TraceItem] = []
     try:
         for msg in reader:
+            if suffix == ".asc" and msg.is_fd and msg.is_remote_frame:
+                msg = asc_empty_fd_frame(msg, lines.last)
             out.append(_message_item(msg, f"{name}: line {lines.lineno}"))
     except TraceError:
         raise
@@ -472,6 +477,50 @@ def read_trace(path: str | Path) -> list[TraceItem]:
             raise TraceError(f"{name}: line {first}: no CAN frame in this {suffix} file "
                              f"({text.splitlines()[first - 1].strip()[:60]!r})")
     return out
+
+
+#: Vector ASC ``CANFD`` event flags (the same bits as BLF's CAN_FD_MESSAGE_64): remote frame, EDL (a
+#: CAN FD frame; without it the line is a classic frame on an FD channel)
+_ASC_FD_FLAG_REMOTE = 0x0010
+_ASC_FD_FLAG_EDL = 0x1000
+
+
+def asc_empty_fd_frame(msg: can.Message, line: str) -> can.Message:
+    """The frame of an ``.asc`` ``CANFD`` line that python-can's ASCReader took for a remote frame.
+
+    The reader (python-can 4.x ``ASCReader._process_fd_can_frame``) decides "remote" from a data length of
+    0 alone, so every CAN FD frame without data (``123##0`` in candump's notation) comes back as an FD
+    remote frame, which CAN FD does not have (ISO 11898-1:2015: an FD frame's RRS bit is always
+    dominant). The line's flags field says what it is: EDL set -> a CAN FD data frame of length 0; EDL
+    clear -> a classic frame on an FD channel, remote if the remote flag is set. A line without a
+    readable flags field (a shorter form from another tool) is an FD frame of length 0. docs/monitor.md
+    "CAN FD frames without data in .asc traces" reports the reader's behaviour."""
+    flags = _asc_fd_flags(line)
+    classic = flags is not None and not flags & _ASC_FD_FLAG_EDL
+    if classic and flags is not None and flags & _ASC_FD_FLAG_REMOTE:
+        return can.Message(timestamp=msg.timestamp, arbitration_id=msg.arbitration_id,
+                           is_extended_id=msg.is_extended_id, is_remote_frame=True, dlc=min(msg.dlc, 8),
+                           channel=msg.channel, is_rx=msg.is_rx)
+    fd = not classic
+    return can.Message(timestamp=msg.timestamp, arbitration_id=msg.arbitration_id,
+                       is_extended_id=msg.is_extended_id, data=b"", is_fd=fd,
+                       bitrate_switch=fd and msg.bitrate_switch, error_state_indicator=fd and msg.error_state_indicator,
+                       channel=msg.channel, is_rx=msg.is_rx)
+
+
+def _asc_fd_flags(line: str) -> int | None:
+    """The flags field (hex) of a ``CANFD`` line with data length 0: ``<time> CANFD <ch> <dir> <id>
+    [<symbolic name>] <brs> <esi> <dlc> 0 <duration> <length> <flags> ...`` (Vector ASC)."""
+    words = line.split()
+    try:
+        at = words.index("CANFD") + 4           # the first word after the id
+        if not words[at].isdigit():
+            at += 1                             # a symbolic name (python-can's reader decides the same way)
+        if int(words[at + 3]) != 0:
+            return None
+        return int(words[at + 6], 16)
+    except (ValueError, IndexError):
+        return None
 
 
 def _has_header_only(text: str, suffix: str) -> bool:
