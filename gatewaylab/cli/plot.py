@@ -11,7 +11,6 @@ figure as data (what matplotlib is handed); :func:`draw` only renders it.
 from __future__ import annotations
 
 import argparse
-import itertools
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,9 +29,11 @@ from gatewaylab.devices.canopen_drive.device import build_object_dictionary
 from gatewaylab.od import ObjectDictionary
 from gatewaylab.od.eds import import_eds
 
-#: statusword bits drawn as step lines (CiA 402 table of 0x6041)
 #: --db: at most this many signals get a panel (the first by name)
 MAX_SIGNAL_PANELS = 12
+#: seconds of position a derived velocity spans at least (:func:`derivative`)
+DERIVATIVE_WINDOW = 0.05
+#: statusword bits drawn as step lines (CiA 402 table of 0x6041)
 _BITS = (Sw.READY_TO_SWITCH_ON, Sw.SWITCHED_ON, Sw.OPERATION_ENABLED, Sw.FAULT, Sw.SWITCH_ON_DISABLED,
          Sw.WARNING, Sw.TARGET_REACHED)
 
@@ -128,9 +129,43 @@ def _line(label: str, points: list[tuple[float, int]], end: float) -> tuple[str,
     return label, tuple(xs), tuple(ys)
 
 
-def _derivative(points: list[tuple[float, int]]) -> list[tuple[float, float]]:
-    """Velocity from position samples (increments per second), where no 0x606C was carried."""
-    return [(t1, (p1 - p0) / (t1 - t0)) for (t0, p0), (t1, p1) in itertools.pairwise(points) if t1 > t0]
+def derivative(points: list[tuple[float, int]], window: float = DERIVATIVE_WINDOW) -> list[tuple[float, float]]:
+    """Velocity from position samples (increments per second), where no 0x606C was carried.
+
+    ``points`` are the instants the position changed (a TPDO with a new value, stamped when it left
+    the bus). TPDOs queued behind other frames leave back to back, ~115 us apart at 1 Mbit/s, with
+    positions sampled a control period (1 ms) apart: the change between neighbours divided by their
+    distance on the bus is up to ~9x too high. So each point's velocity is the least-squares slope of
+    the points of the last ``window`` seconds (three or more): the bus's delays are a small part of
+    that span and average out. With fewer points there (a slow move, or the first change after the
+    axis held still) it is the change since the latest point at least ``window`` before, over their
+    distance; a point after a gap longer than ``window`` gets that mean velocity from the gap's start
+    (a stop reads as 0 over the stop, not as a ramp)."""
+    out: list[tuple[float, float]] = []
+    first = anchor = 0
+    for i in range(1, len(points)):
+        t1, p1 = points[i]
+        while t1 - points[first][0] > window:
+            first += 1
+        if i - first >= 2:
+            span = points[first:i + 1]
+            mean_t = sum(t - t1 for t, _ in span) / len(span)
+            mean_p = sum(p - p1 for _, p in span) / len(span)
+            var = sum((t - t1 - mean_t) ** 2 for t, _ in span)
+            if var > 0:
+                out.append((t1, sum((t - t1 - mean_t) * (p - p1 - mean_p) for t, p in span) / var))
+                continue
+        while anchor + 1 < i and t1 - points[anchor + 1][0] >= window:
+            anchor += 1
+        t0, p0 = points[anchor]
+        if t1 <= t0:
+            continue
+        velocity = (p1 - p0) / (t1 - t0)
+        before = points[i - 1][0]
+        if t1 - before > window and out:
+            out.append((before, velocity))
+        out.append((t1, velocity))
+    return out
 
 
 @dataclass(frozen=True, slots=True)
@@ -153,7 +188,7 @@ def panels(picture: TracePicture, only: int | None = None) -> list[Panel]:
         if s.velocity:
             out.append(Panel("velocity", (_line("0x606C", s.velocity, end),)))
         else:
-            derived = _derivative(s.position)
+            derived = derivative(s.position)
             out.append(Panel("velocity\n(from position)",
                              (("d position / dt", tuple(t for t, _ in derived), tuple(v for _, v in derived)),)))
         bits = []
