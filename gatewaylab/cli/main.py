@@ -32,6 +32,7 @@ EXTRA_SUBCOMMANDS = (
     "gatewaylab.cli.send",
     "gatewaylab.cli.lesson",
     "gatewaylab.cli.plot",
+    "gatewaylab.cli.play",
     "gatewaylab.cli.net",
     "gatewaylab.cli.ec",
     "gatewaylab.cli.fault",

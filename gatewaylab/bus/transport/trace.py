@@ -296,8 +296,9 @@ def _socketcan_item(record: bytes, t: float, where: str) -> TraceItem:
         raise TraceError(f"{where}: {exc}") from None
 
 
-def parse_pcap(data: bytes, name: str = "trace") -> list[TraceItem]:
-    """The CAN frames of a classic pcap file (LINKTYPE_CAN_SOCKETCAN); pure, errors name the offset."""
+def parse_pcap(data: bytes, name: str = "trace", channels: list[str] | None = None) -> list[TraceItem]:
+    """The CAN frames of a classic pcap file (LINKTYPE_CAN_SOCKETCAN); pure, errors name the offset.
+    ``channels`` gets one channel name per item ("": a pcap names none)."""
     if len(data) < _PCAP_GLOBAL.size:
         raise TraceError(f"{name}: offset 0: {len(data)} bytes, too short for a pcap header (24)")
     magic = struct.unpack_from("<I", data)[0]
@@ -319,16 +320,19 @@ def parse_pcap(data: bytes, name: str = "trace") -> list[TraceItem]:
                              f"({'longer than a CAN FD frame' if incl > 72 else 'file ends'})")
         body = data[pos + record.size:pos + record.size + incl]
         out.append(_socketcan_item(body, sec + frac * unit, f"{name}: offset {pos}"))
+        if channels is not None:
+            channels.append("")
         pos += record.size + incl
     return out
 
 
-def parse_pcapng(data: bytes, name: str = "trace") -> list[TraceItem]:
-    """The CAN frames of a pcapng file (SocketCAN interfaces; enhanced and simple packet blocks)."""
+def parse_pcapng(data: bytes, name: str = "trace", channels: list[str] | None = None) -> list[TraceItem]:
+    """The CAN frames of a pcapng file (SocketCAN interfaces; enhanced and simple packet blocks).
+    ``channels`` gets the interface name (if_name) of each item ("" for an unnamed interface)."""
     out: list[TraceItem] = []
     pos = 0
     order = "<"
-    interfaces: list[tuple[int, float]] = []   # (link type, seconds per timestamp unit)
+    interfaces: list[tuple[int, float, str]] = []   # (link type, seconds per timestamp unit, if_name)
     while pos < len(data):
         if len(data) - pos < 12:
             raise TraceError(f"{name}: offset {pos}: truncated block ({len(data) - pos} bytes)")
@@ -352,6 +356,7 @@ def parse_pcapng(data: bytes, name: str = "trace") -> list[TraceItem]:
         if btype == 0x00000001:                          # interface description
             linktype = struct.unpack_from(order + "H", body)[0]
             unit = 1e-6
+            if_name = ""
             opt = 8
             while opt + 4 <= len(body):
                 code, olen = struct.unpack_from(order + "HH", body, opt)
@@ -360,8 +365,10 @@ def parse_pcapng(data: bytes, name: str = "trace") -> list[TraceItem]:
                 if code == 9 and olen >= 1:
                     r = body[opt + 4]
                     unit = 2.0 ** -(r & 0x7F) if r & 0x80 else 10.0 ** -r
+                elif code == 2:
+                    if_name = body[opt + 4:opt + 4 + olen].rstrip(b"\0").decode("utf-8", "replace")
                 opt += 4 + olen + (-olen % 4)
-            interfaces.append((linktype, unit))
+            interfaces.append((linktype, unit, if_name))
         elif btype in (0x00000006, 0x00000003):          # enhanced / simple packet
             if btype == 0x00000006:
                 if len(body) < 20:
@@ -374,9 +381,11 @@ def parse_pcapng(data: bytes, name: str = "trace") -> list[TraceItem]:
                 packet = body[4:4 + incl]
             if iface >= len(interfaces):
                 raise TraceError(f"{name}: offset {pos}: packet of interface {iface}, which was not described")
-            linktype, unit = interfaces[iface]
+            linktype, unit, if_name = interfaces[iface]
             if linktype == LINKTYPE_CAN_SOCKETCAN:
                 out.append(_socketcan_item(packet, stamp_at * unit, f"{name}: offset {pos}"))
+                if channels is not None:
+                    channels.append(if_name)
         pos += length
     return out
 
@@ -398,10 +407,10 @@ class _CountedLines(io.StringIO):
 
 _PRINTER_LINE = re.compile(
     r"Timestamp:\s*(?P<t>[-\d.]+)\s+ID:\s*(?P<id>[0-9a-fA-F]+)\s+(?P<x>[SX])\s+(?:Rx|Tx)\s+(?P<flags>.*?)"
-    r"DL:\s*(?P<dl>\d+)\s*(?P<data>(?:[0-9a-fA-F]{2}\s)*(?:[0-9a-fA-F]{2})?)\s*(?:Channel:.*)?$")
+    r"DL:\s*(?P<dl>\d+)\s*(?P<data>(?:[0-9a-fA-F]{2}\s)*(?:[0-9a-fA-F]{2})?)\s*(?:Channel:\s*(?P<ch>\S*).*)?$")
 
 
-def _printer_lines(text: str, name: str) -> list[TraceItem]:
+def _printer_lines(text: str, name: str, channels: list[str] | None = None) -> list[TraceItem]:
     """python-can's Printer (``.txt``): ``str(Message)`` per line."""
     out: list[TraceItem] = []
     for n, raw in enumerate(text.splitlines(), 1):
@@ -422,16 +431,23 @@ def _printer_lines(text: str, name: str) -> list[TraceItem]:
                                      brs=fd and "BS" in flags, esi=fd and "EI" in flags), float(m["t"])))
         except (FrameError, ValueError) as exc:
             raise TraceError(f"{name}: line {n}: {exc}") from None
+        if channels is not None:
+            channels.append(m["ch"] or "")
     return out
 
 
 _TEXT_READERS = {".asc": "ASCReader", ".log": "CanutilsLogReader", ".csv": "CSVReader", ".trc": "TRCReader"}
 
 
-def read_trace(path: str | Path) -> list[TraceItem]:
+def read_trace(path: str | Path, channels: list[str] | None = None) -> list[TraceItem]:
     """Every frame and error frame of a trace the rig writes (``--trace``: .asc .blf .csv .log .trc
     .txt .pcap .pcapng), with its Unix timestamp. Anything unreadable raises one :class:`TraceError`
-    naming the file and the line (text formats) or the byte offset (binary ones)."""
+    naming the file and the line (text formats) or the byte offset (binary ones).
+
+    ``channels`` (a list) gets the channel of every item, as the trace names it: candump .log and
+    python-can's .txt the interface name (``can0``), pcapng the interface's name, Vector .asc / .blf
+    and .trc their channel number (``1``, ``2``, ... as written in the file); "" when the format names
+    none (.pcap, .csv)."""
     path = Path(path)
     name = str(path)
     try:
@@ -441,11 +457,11 @@ def read_trace(path: str | Path) -> list[TraceItem]:
     suffix = path.suffix.lower()
     magic = struct.unpack_from("<I", data)[0] if len(data) >= 4 else None
     if suffix == ".pcapng" or magic == _PCAPNG_SHB:
-        return parse_pcapng(data, name)
+        return parse_pcapng(data, name, channels)
     if suffix == ".pcap" or magic in _PCAP_MAGICS:
-        return parse_pcap(data, name)
+        return parse_pcap(data, name, channels)
     if suffix == ".blf":
-        return _python_can_binary(path, name)
+        return _python_can_binary(path, name, channels)
     if suffix not in (*_TEXT_READERS, ".txt"):
         raise TraceError(f"{name}: format {suffix or '(no suffix)'!r} is not one the rig writes "
                          f"({', '.join(TRACE_FORMATS)})")
@@ -460,7 +476,7 @@ def read_trace(path: str | Path) -> list[TraceItem]:
         line = data.count(b"\n", 0, exc.start) + 1
         raise TraceError(f"{name}: line {line} (offset {exc.start}): not UTF-8 text") from None
     if suffix == ".txt":
-        return _printer_lines(text, name)
+        return _printer_lines(text, name, channels)
     lines = _CountedLines(text)
     reader = getattr(can, _TEXT_READERS[suffix])(lines)
     out: list[TraceItem] = []
@@ -469,6 +485,8 @@ def read_trace(path: str | Path) -> list[TraceItem]:
             if suffix == ".asc" and msg.is_fd and msg.is_remote_frame:
                 msg = asc_empty_fd_frame(msg, lines.last)
             out.append(_message_item(msg, f"{name}: line {lines.lineno}"))
+            if channels is not None:
+                channels.append(_channel_name(msg))
     except TraceError:
         raise
     except Exception as exc:    # python-can's readers raise anything on bad input
@@ -550,12 +568,23 @@ def _message_item(msg: can.Message, where: str) -> TraceItem:
         raise TraceError(f"{where}: {exc}") from None
 
 
-def _python_can_binary(path: Path, name: str) -> list[TraceItem]:
+def _channel_name(msg: can.Message) -> str:
+    """python-can's channel of a message read from a trace: a name as it is, a number (python-can's
+    readers count Vector's channels from 0) as the file writes it, from 1."""
+    channel = msg.channel
+    if channel is None:
+        return ""
+    return str(channel + 1) if isinstance(channel, int) else str(channel)
+
+
+def _python_can_binary(path: Path, name: str, channels: list[str] | None = None) -> list[TraceItem]:
     out: list[TraceItem] = []
     try:
         reader = can.BLFReader(str(path))
         for msg in reader:
             out.append(_message_item(msg, f"{name}: frame {len(out) + 1}"))
+            if channels is not None:
+                channels.append(_channel_name(msg))
     except TraceError:
         raise
     except Exception as exc:    # python-can's reader raises anything on bad input
