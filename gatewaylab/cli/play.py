@@ -223,7 +223,7 @@ def cmd_play(args: argparse.Namespace) -> int:
                   + ": is another node on the bus? (a lone client: run the rig with --acker)", file=sys.stderr)
             return 1
         loops = f" in {args.loop} loops" if args.loop > 1 else ""
-        print(f"{trace.name}: {sent} frames sent{loops} ({per_bus}){skipped}")
+        print(f"{trace.name}: {sent} frame{'' if sent == 1 else 's'} sent{loops} ({per_bus}){skipped}")
         return 0
     except KeyboardInterrupt:
         print(f"{trace.name}: interrupted after {sum(player.sent.values())} frames", file=sys.stderr)
