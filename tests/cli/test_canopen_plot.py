@@ -164,3 +164,18 @@ def test_velocity_from_position_is_the_profile_velocity(tmp_path: Path) -> None:
     out = subprocess.run([sys.executable, "-m", "gatewaylab", "plot", str(trace), "-o", str(tmp_path / "m.svg")],
                          capture_output=True, text=True, timeout=180, check=False)
     assert out.returncode == 0 and "node(s) 2" in out.stdout, out.stderr
+
+
+def test_derivative_over_a_stop_and_a_slow_move() -> None:
+    """The derived velocity of position changes: 1000 inc/s for 0.2 s (a change every ms), a 1 s stop, then
+    a slow move of 1 inc every 100 ms: the move reads 1000, the stop 0 from where it began (not a ramp from
+    1000 down), the slow move 10 inc/s (a change per 100 ms is a real speed, not a stop)."""
+    from gatewaylab.cli.plot import derivative
+    points = [(k * 0.001, k) for k in range(201)]
+    points += [(1.2 + k * 0.1, 200 + k) for k in range(1, 6)]
+    derived = derivative(points)
+    assert all(abs(v - 1000) < 1e-6 for t, v in derived if t < 0.1999)
+    at_stop = [v for t, v in derived if 0.2 <= t <= 1.3 and v < 5]
+    assert at_stop and all(abs(v - 1 / 1.1) < 1e-6 for v in at_stop)       # 1 inc over the 1.1 s gap
+    assert (0.2, at_stop[0]) in derived                                       # drawn from the stop's start
+    assert all(abs(v - 10) < 1e-6 for t, v in derived if t > 1.35)
