@@ -36,6 +36,7 @@ EXTRA_SUBCOMMANDS = (
     "gatewaylab.cli.eds",
     "gatewaylab.cli.lesson",
     "gatewaylab.cli.plot",
+    "gatewaylab.cli.play",
     "gatewaylab.cli.net",
     "gatewaylab.cli.ec",
     "gatewaylab.cli.fault",
