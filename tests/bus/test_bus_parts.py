@@ -37,10 +37,10 @@ def bus_uses(source: str, class_name: str) -> set[str]:
         if not isinstance(node, ast.Attribute):
             continue
         value = node.value
-        if isinstance(value, ast.Name) and value.id == "bus":
-            used.add(node.attr)
-        elif (isinstance(value, ast.Attribute) and value.attr == "bus"
-              and isinstance(value.value, ast.Name) and value.value.id == "self"):
+        local_bus = isinstance(value, ast.Name) and value.id == "bus"
+        self_bus = (isinstance(value, ast.Attribute) and value.attr == "bus"
+                    and isinstance(value.value, ast.Name) and value.value.id == "self")
+        if local_bus or self_bus:
             used.add(node.attr)
     return used
 

@@ -22,7 +22,6 @@ from typing import Any, Final, Protocol
 from gatewaylab.bus.bus import VirtualBus
 from gatewaylab.canopen.cia402 import CONTROLWORD_NEXT, STATE_BITS, Command, Cw, OpMode, PdsState, Sw
 from gatewaylab.canopen.emcy import ERR_GENERIC, ERR_PROFILE
-from gatewaylab.canopen.errors import VALUE_RANGE_EXCEEDED, SdoAbort
 from gatewaylab.canopen.lss import BIT_TIMING_TABLE, UNCONFIGURED, LssAddress, LssConfigStore, LssSlave
 from gatewaylab.canopen.nmt import NmtState
 from gatewaylab.canopen.node import Node
@@ -41,6 +40,7 @@ from gatewaylab.devices.canopen_drive.objects import (
 )
 from gatewaylab.devices.canopen_drive.plant import AxisParams, ControlMode, Plant, Trapezoid
 from gatewaylab.od import KeyObject, ObjectDictionary, WriteHook, key_object
+from gatewaylab.od.aborts import SdoAbort, SdoAbortCode
 
 #: The drive's own control period (s) when no host drives the cycle (IDX: 1 kHz position loop).
 CONTROL_PERIOD = 0.001
@@ -296,7 +296,7 @@ class Drive(OperationModes):
         try:
             op = OpMode(mode)
         except ValueError:
-            raise SdoAbort(VALUE_RANGE_EXCEEDED, f"mode {mode} not supported") from None
+            raise SdoAbort(SdoAbortCode.VALUE_RANGE_EXCEEDED, f"mode {mode} not supported") from None
         if op is not self.mode:
             self._set_mode(op)
             self._restart_motion()
@@ -329,7 +329,7 @@ class Drive(OperationModes):
     @staticmethod
     def _on_homing_method(index: int, sub: int, value: Any) -> None:
         if int(value) not in SUPPORTED_METHODS:
-            raise SdoAbort(VALUE_RANGE_EXCEEDED, f"homing method {value} not supported")
+            raise SdoAbort(SdoAbortCode.VALUE_RANGE_EXCEEDED, f"homing method {value} not supported")
 
     def _on_nmt_change(self, old: NmtState, new: NmtState) -> None:
         if new is NmtState.PRE_OPERATIONAL and old is NmtState.INITIALISING:
