@@ -1,5 +1,4 @@
-"""``gatewaylab migrate compare`` on the CiA 402 CSP example, simulated clock (issue 13 'Tests and
-benchmarks': "the compare run of the CiA 402 example on the simulated clock, wall time per simulated
+"""``gatewaylab migrate compare`` on the CiA 402 CSP example, simulated clock ("the compare run of the CiA 402 example on the simulated clock, wall time per simulated
 second for both gateways together").
 
 One run of ``examples/migrate_cia402_csp.py`` through the esd CAN-EtherCAT and one through the

@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any, Final, Protocol
 
 from gatewaylab.bus.bus import VirtualBus
-from gatewaylab.canopen.cia402 import CONTROLWORD_NEXT, STATE_BITS, Command, Cw, OpMode, PdsState, Sw
+from gatewaylab.canopen.cia402 import CONTROLWORD_NEXT, STATE_BITS, Cw, OpMode, PdsState, Sw
 from gatewaylab.canopen.emcy import ERR_GENERIC, ERR_PROFILE
 from gatewaylab.canopen.lss import BIT_TIMING_TABLE, UNCONFIGURED, LssAddress, LssConfigStore, LssSlave
 from gatewaylab.canopen.nmt import NmtState
@@ -29,15 +29,7 @@ from gatewaylab.common.clock import Clock, PeriodicTimer
 from gatewaylab.common.errors import ConfigError
 from gatewaylab.devices.canopen_drive.homing import SUPPORTED_METHODS, HomingStatus
 from gatewaylab.devices.canopen_drive.modes import POWER_OFF, Demand, OperationModes
-from gatewaylab.devices.canopen_drive.objects import (
-    DEVICE_NAME,
-    DEVICE_TYPE,
-    MAXON_VENDOR_ID,
-    PRODUCT_CODE,
-    REVISION,
-    add_profile_objects,
-    build_object_dictionary,
-)
+from gatewaylab.devices.canopen_drive.objects import MAXON_VENDOR_ID, PRODUCT_CODE, REVISION, build_object_dictionary
 from gatewaylab.devices.canopen_drive.plant import AxisParams, ControlMode, Plant, Trapezoid
 from gatewaylab.od import KeyObject, ObjectDictionary, WriteHook, key_object
 from gatewaylab.od.aborts import SdoAbort, SdoAbortCode
@@ -572,6 +564,4 @@ _FAULT_REACTION_ACTIVE: Final = PdsState.FAULT_REACTION_ACTIVE
 _POSITION: Final = ControlMode.POSITION
 
 
-#: the dictionary's names stay importable from here (objects.py holds them since issue 22)
-__all__ = ["DEVICE_NAME", "DEVICE_TYPE", "MAXON_VENDOR_ID", "PRODUCT_CODE", "REVISION", "Command", "Demand", "Drive",
-           "add_profile_objects", "build_object_dictionary"]
+__all__ = ["Drive"]

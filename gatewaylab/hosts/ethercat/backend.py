@@ -22,7 +22,7 @@ Rules both keep (docs/ethercat-host.md):
 
 FoE goes through the slave's mailbox SyncManagers with plain register reads and writes on both
 backends (:class:`_MailboxPort`), so both report the slave's FoE error code and progress; SOEM's
-own FoE functions drop the error code (shared notes ``soem-interop``).
+own FoE functions drop the error code (docs/ethercat-host.md).
 """
 
 from __future__ import annotations
