@@ -1,4 +1,4 @@
-"""Run every benchmark module, then the table of issue 23's targets (``make bench``).
+"""Run every benchmark module, then the table of the performance targets (``make bench``).
 
 ``python -m benchmarks [NAME ...]`` runs the modules named (exactly, with or without the ``bench_``
 prefix; a name that is no module's is matched as a substring), all of them without names.

@@ -1,7 +1,7 @@
 """Virtual bus throughput in process (vs python-can's `virtual` bus) and across processes (plugin).
 
 The in-process part runs pure and compiled side by side, each in its own child process
-(benchmarks/sides.py); target (issue 23): the core API >= 8x python-can's `virtual` bus.
+(benchmarks/sides.py); target: the core API >= 8x python-can's `virtual` bus.
 GATEWAYLAB_BENCH_QUICK=1 leaves out the cross-process part."""
 
 from __future__ import annotations

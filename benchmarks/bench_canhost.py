@@ -1,5 +1,5 @@
 """canopen SDO uploads/s through each EtherCAT gateway's python-can interface, next to the same
-uploads on the plain ``gatewaylab`` bus interface, in one run (issue 12 'Tests and benchmarks').
+uploads on the plain ``gatewaylab`` bus interface, in one run.
 
 One rig file: a 500 kbit/s bus with an esd CAN-EtherCAT (position 0), an ECAN-Lite (position 1,
 MCAN channel 0 on the bus) and a CiA 402 drive (node 2). The same canopen application reads

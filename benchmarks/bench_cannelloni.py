@@ -1,4 +1,4 @@
-"""What a cannelloni tunnel adds (issue 24): latency and loss between two rigs at 30 % and 80 % bus load.
+"""What a cannelloni tunnel adds: latency and loss between two rigs at 30 % and 80 % bus load.
 
 Rig A (this process) has a drive (node 3), a load node and a prober; rig B (`gatewaylab run`) has a
 drive (node 2); their can0 buses are joined by a tunnel on 127.0.0.1 (buffer timeout 200 us). The

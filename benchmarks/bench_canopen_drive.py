@@ -1,6 +1,6 @@
 """Simulated seconds per wall second: 8 IDX-like drives in CSP, SYNC + RPDO/TPDO at 1 kHz.
 
-Issue 3 benchmark; target (issue 23): >= 15x real time with one bus, pure and compiled side by
+Target: >= 15x real time with one bus, pure and compiled side by
 side, each in its own child process (benchmarks/sides.py). A sans-I/O master on each bus sends, every 1 ms,
 RPDO1 (controlword + target position, transmission type 1) to each drive and then SYNC; each
 drive answers TPDO1 (statusword + position actual, type 1) on every SYNC and runs its 1 kHz

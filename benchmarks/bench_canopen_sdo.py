@@ -1,6 +1,6 @@
 """The SDO server against python-canopen's LocalNode, same run: the servers alone, and whole uploads.
 
-Server only (the number of the issue 23 target "SDO server >= 2x canopen LocalNode (median)"):
+Server only (the number of the target "SDO server >= 2x canopen LocalNode (median)"):
 the same request frames -- an expedited upload, an expedited download, a segmented upload and a
 segmented download of 20 bytes -- are fed to each server directly, in one process, in alternating
 rounds: our :class:`Node`'s ``sdo.on_frame`` (answers queue on the node's controller, drained per
@@ -20,7 +20,7 @@ acceptance filter of a real controller: the controller's ``rx_table``, as for ou
 server pays for the other's traffic waking threads. Rates come from the median time per upload
 (robust against other load on the machine) and from the best round. Here the client, python-can's
 ``Message`` objects and the thread hand-offs take nearly all the time, the same for both servers,
-so this ratio cannot show a server's speed (docs/decisions.md, issue 23).
+so this ratio cannot show a server's speed (docs/decisions.md).
 
 Pure and compiled side by side, each in its own child process (benchmarks/sides.py).
 """

@@ -1,6 +1,6 @@
 """Simulated seconds per wall second: 10 CSP axes on 4 channels through one ECAN-Lite at 1 kHz.
 
-Issue 12 benchmark (target >= 2x real time), in process on the simulated clock: the host library
+Target >= 2x real time, in process on the simulated clock: the host library
 (adapter + MCAN Port + CiA 402 layer, ``gatewaylab.hosts.ecanlite``) on the in-process
 master, the ECAN-Lite device, four 1 Mbit/s buses with 3 + 3 + 2 + 2 IDX-like drives. Every 1 ms:
 one LRW, the TxPDO parsed, RPDO1 (controlword + target) per axis and a SYNC per bus written into

@@ -1,4 +1,4 @@
-"""ECAN-Lite frame stream: pack + parse of a full 3072-byte image per second (issue 10 benchmarks).
+"""ECAN-Lite frame stream: pack + parse of a full 3072-byte image per second.
 
 The image is N = 24 (3048-byte frame area), all four channels, classic 8-byte and CAN FD frames
 mixed (standard and extended ids, FD lengths 12..64), filled until the next packet no longer fits.
@@ -10,7 +10,7 @@ Measured in one run:
   into tuples, with the same CRC and zeroing but no validation and no objects.
 
 Rounds alternate between all measured functions; the fastest round of each counts (the machine
-is shared) and the median round is printed beside it. Targets (issue 23): <= 50 us per image
+is shared) and the median round is printed beside it. Targets: <= 50 us per image
 pack + parse compiled, pure Python <= 1.5x the struct loop; both run side by side in one run, each
 in its own child process (benchmarks/sides.py: GATEWAYLAB_PURE=1 and the default build). Printed,
 never asserted, together with the floors that explain the pure-Python time: the CRC-16 of the frame

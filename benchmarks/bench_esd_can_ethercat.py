@@ -236,7 +236,7 @@ def _run(ns: str, emu: str, mst: str, kind: str, seconds: float) -> tuple[dict[s
                                                                       list[Any]]:
     """One gateway on a fresh clock and 500 kbit/s bus, the master ``kind`` against it: (master result,
     CAN node, the gateway's counters: 0x2010 for the esd, {} for the ECAN-Lite, the wire's errors)."""
-    from gatewaylab.bus.bus import VirtualBus
+    from gatewaylab.bus import VirtualBus
     from gatewaylab.common.clock import RealTimeClock
     from gatewaylab.devices.ecanlite.device import EcanLiteDevice
     from gatewaylab.devices.esd_can_ethercat.device import create_esd_gateway
@@ -310,7 +310,7 @@ def main() -> None:
     for label, run, m in (("esd CAN-EtherCAT", r, esd), ("ECAN-Lite", ecan_r, ecan)):
         print(f"  {label:<17} {m['rx_lost']:>18}  {_lat(m['to_master']):<34} {m['tx_lost']:>18}  "
               f"{_lat(m['to_can']):<29} {run['late']:>11}")
-    print("targets: 0 frames lost each way (issue 11)")
+    print("targets: 0 frames lost each way")
 
 
 if __name__ == "__main__":

@@ -3,14 +3,14 @@ echoes on the same veth measured in the same run. Printed, never asserted.
 
 The echoes answer every frame unchanged, busy-polling a raw socket on CPU 1 like the emulator's wire
 thread: the C echo (benchmarks/echo.c, built here at run time with the C compiler the package build
-uses; issue 23's target compares paced SOEM with it) and the Python one (class Echo, the floor of a
+uses; a target compares paced SOEM with it) and the Python one (class Echo, the floor of a
 Python wire thread). Without a working C compiler the bench says so and compares with the Python echo.
 
-Targets (issue 5): >= 10,000 cycles/s back to back, p99 < 250 us and 0 lost frames paced at 1 kHz.
+Targets: >= 10,000 cycles/s back to back, p99 < 250 us and 0 lost frames paced at 1 kHz.
 Needs root (network namespace + veth); prints why and returns otherwise. GL_BENCH_SECONDS shortens
 the paced runs (default 60 s each), GL_BENCH_CYCLES the back-to-back ones (default 20,000). The master
 runs in a subprocess inside the namespace on CPU 0, the emulator's wire thread on CPU 1, in each of
-its modes (issue 21: the old busy poll, the blocking wait with a short spin after each frame, the
+its modes (the busy poll, the blocking wait with a short spin after each frame, the
 blocking wait alone), with the CPU the idle thread wants and the ratios against the busy poll, all
 measured in the same run.
 """
@@ -293,7 +293,7 @@ def _reference(floors: dict[str, dict[str, Any]]) -> tuple[str, dict[str, Any]]:
 
 
 def _record_echo(floors: dict[str, dict[str, Any]], results: dict[str, dict[str, Any]]) -> None:
-    """Issue 23: SOEM's paced p99 <= 2x the C echo's, same run; the wire thread busy polling its CPU as
+    """Target: SOEM's paced p99 <= 2x the C echo's, same run; the wire thread busy polling its CPU as
     the echo does (``busy_poll = true``), the default's p99 printed beside it."""
     label = MODES[0][0]
     echo_label, floor = _reference(floors)
@@ -314,7 +314,7 @@ def _record_echo(floors: dict[str, dict[str, Any]], results: dict[str, dict[str,
 
 
 def targets() -> None:
-    """The echoes, the busy-polling wire thread (the issue 23 echo target) and the default beside it."""
+    """The echoes, the busy-polling wire thread (the echo target) and the default beside it."""
     measured = measure(MODES[:2])
     if measured is not None:
         _record_echo(*measured)

@@ -101,7 +101,7 @@ def build(drives: int, ios: int = IO_WITH, clock: Any = None) -> tuple[Any, Any,
 
 def _process_deferred(segment: Any, buf: bytearray) -> bool:
     """``segment.process`` leaving the applications' work for ``after_frame`` (True), or all of it in the frame
-    path where the segment has no ``after_frame`` (False: the code before issue 23's second round)."""
+    path where the segment has no ``after_frame`` (False: an older segment without ``after_frame``)."""
     if hasattr(segment, "after_frame"):
         segment.process(buf, defer=True)
         return True
@@ -174,12 +174,12 @@ def _can_load(clock: Any, buses: int = 4, per_bus: int = 2) -> Callable[[], None
 
 
 def contention(drives: int = 8, seconds: float = 3.0, rounds: int = 3) -> None:
-    """Issue 23's own-process question, in one process: the frame path served by a 1 kHz 'wire' thread under
-    ``clock.lock`` (as WireTransport with a rig) while a 'rig loop' thread runs the clock's events (the EtherCAT
-    drives' control periods), alternating rounds without and with CAN work in that loop (8 CAN drives on 4
-    buses, SYNC + RPDO/TPDO at 1 kHz). Per frame: the round trip (lock wait + frame path) and the wire thread's
-    CPU time for it; the difference is the time the frame waited for clock.lock, the GIL or a CPU (other
-    processes), and how many frames found clock.lock taken by the loop."""
+    """Does the frame path need a process of its own? Answered in one process: the frame path served by a 1 kHz 'wire'
+    thread under ``clock.lock`` (as WireTransport with a rig) while a 'rig loop' thread runs the clock's events
+    (the EtherCAT drives' control periods), alternating rounds without and with CAN work in that loop (8 CAN
+    drives on 4 buses, SYNC + RPDO/TPDO at 1 kHz). Per frame: the round trip (lock wait + frame path) and the
+    wire thread's CPU time for it; the difference is the time the frame waited for clock.lock, the GIL or a CPU
+    (other processes), and how many frames found clock.lock taken by the loop."""
     import statistics
     import threading
 

@@ -4,7 +4,7 @@ For 1, 2, 4, 8, 16 drives: SOEM brings the line to OP, enables every drive (0x06
 and runs a CSP ramp paced at 1 kHz; then the same number of ``ethercat_io`` slaves in the same
 run. Reported: wrong working counters (a frame later than SOEM's 2 ms counts as one), median /
 p99 / max cycle round trip, and the largest number of drives with 0 wrong working counters and
-p99 < 500 us (issue 16). Then the segment search of issue 23: 8, 16, 24, 32, 40 drives, each with
+p99 < 500 us. Then the segment search: 8, 16, 24, 32, 40 drives, each with
 8 ethercat_io in the same segment, upward until the first segment that fails (wrong working counter,
 p99 >= 500 us, a drive fault, a failed bring-up); target: >= 32 drives + 8 io. ``--max-drives N``
 (GL_BENCH_MAX_DRIVES) ends it at N drives. Printed, never asserted.
@@ -12,7 +12,7 @@ p99 >= 500 us, a drive fault, a failed bring-up); target: >= 32 drives + 8 io. `
 Needs root (network namespace + veth); prints why and returns otherwise. GL_BENCH_SECONDS sets the
 paced run per line (default 30 s). The master runs in a subprocess inside the namespace on CPU 0,
 the emulator's wire thread on CPU 1, busy polling (the rig's ``busy_poll = true``, the setting for
-latency work on a dedicated CPU: docs/decisions.md issue 21); ``GL_BENCH_BUSY_POLL=0`` measures the
+latency work on a dedicated CPU: docs/decisions.md); ``GL_BENCH_BUSY_POLL=0`` measures the
 rig's default instead (blocking in select, 200 us spin after each frame).
 """
 
@@ -41,7 +41,7 @@ from benchmarks.wire import (
 )
 
 COUNTS = (1, 2, 4, 8, 16)
-#: the segment search of issue 23: these many drives, each time with IO_WITH ethercat_io
+#: the segment search: these many drives, each time with IO_WITH ethercat_io
 SEARCH = (8, 16, 24, 32, 40)
 IO_WITH = 8
 P99_LIMIT_US = 500.0
@@ -241,7 +241,7 @@ def _search_and_record(ns: str, emu: str, mst: str, seconds: float) -> None:
 
 
 def targets() -> None:
-    """The segment search alone (issue 23 target: >= 32 drives + 8 ethercat_io)."""
+    """The segment search alone (target: >= 32 drives + 8 ethercat_io)."""
     seconds = bench_seconds(30)
     if seconds is None:
         return

@@ -5,7 +5,7 @@ the host client in this thread talks pyserial to the pty. Measured: ReadObject o
 and of node 2 through the gateway (an SDO round trip on the bus), median and p99 latency. The
 baseline is a bare pty responder in the same loop that answers every request with the guide's
 fixed response bytes without decoding anything: what the pty and the loop alone cost.
-Targets (issue 4): >= 3,000/s local, >= 1,000/s through the gateway. Printed, never asserted.
+Targets: >= 3,000/s local, >= 1,000/s through the gateway. Printed, never asserted.
 """
 
 from __future__ import annotations

@@ -1,6 +1,5 @@
-"""``gatewaylab migrate compare`` on the CiA 402 CSP example, simulated clock (issue 13 'Tests and
-benchmarks': "the compare run of the CiA 402 example on the simulated clock, wall time per simulated
-second for both gateways together").
+"""``gatewaylab migrate compare`` on the CiA 402 CSP example, simulated clock: wall time per simulated
+second for both gateways together.
 
 One run of ``examples/migrate_cia402_csp.py`` through the esd CAN-EtherCAT and one through the
 ECAN-Lite, each on a fresh copy of ``examples/migrate_rig.toml`` (two drives, 500 kbit/s, 1 ms

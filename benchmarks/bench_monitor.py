@@ -1,4 +1,4 @@
-"""`gatewaylab monitor` at full load (issue 14: "keeps up with a bus at 100 % load at 1 Mbit/s, about
+"""`gatewaylab monitor` at full load (target: "keeps up with a bus at 100 % load at 1 Mbit/s, about
 8,000 frames/s, without falling behind or dropping frames").
 
 1. Decoder alone: frames/s of ``BusMonitor.feed`` over a recorded CANopen session (SDO of every kind,

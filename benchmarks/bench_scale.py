@@ -1,4 +1,4 @@
-"""Scale in real time (issue 24): a plant of 8 buses x 8 IDX-like drives (64 drives) at 1 Mbit/s and about
+"""Scale in real time: a plant of 8 buses x 8 IDX-like drives (64 drives) at 1 Mbit/s and about
 50 % bus load, in one rig, and the same plant split over two rigs joined by cannelloni tunnels.
 
 A master on each bus (a controller in this process's rig) sends, every 4 ms, RPDO1 (controlword +

@@ -1,4 +1,4 @@
-/* The C echo of benchmarks/bench_ethercat.py (issue 23: "paced SOEM p99 <= 2x the C echo's p99
+/* The C echo of benchmarks/bench_ethercat.py (target: "paced SOEM p99 <= 2x the C echo's p99
  * measured in the same run"): the floor of a round trip over the veth pair, with no interpreter.
  *
  * It does what the bench's Python Echo does, in C: an AF_PACKET raw socket bound to the given

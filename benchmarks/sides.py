@@ -1,4 +1,4 @@
-"""Pure and compiled side by side in one run (issue 23): one measurement in two child processes.
+"""Pure and compiled side by side in one run: one measurement in two child processes.
 
 An in-process benchmark module that offers ``measure() -> dict`` (it prints its details and returns
 the numbers) is run twice by :func:`run_sides`: once with ``GATEWAYLAB_PURE=1`` (pure Python forced at

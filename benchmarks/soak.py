@@ -1,4 +1,4 @@
-"""Soak: the default rig under load for minutes (issue 15 'Held under load and faults', ``make soak``).
+"""Soak: the default rig under load for minutes (held under load and faults, ``make soak``).
 
 ``gatewaylab run`` (the default rig: CAN FD bus ``can0``, IDX, three drives) in its own process; three
 client processes on the python-can ``gatewaylab`` interface send 2,000 frames/s together (each its

@@ -29,7 +29,7 @@ COMPILED_MODULES: tuple[str, ...] = (
     "gatewaylab.common.clock",
     "gatewaylab.od.types",
     "gatewaylab.od.dictionary",
-    # the ESC frame path (issue 23: "the ESC frame path (ethercat/esc.py, datagram handling, ...)")
+    # the ESC frame path: every datagram of every cycle runs through these (docs/performance.md)
     "gatewaylab.ethercat.datagram",
     "gatewaylab.ethercat.esc",
     "gatewaylab.ethercat.esc_memory",
@@ -41,7 +41,7 @@ COMPILED_MODULES: tuple[str, ...] = (
     "gatewaylab.ethercat.slave",
     "gatewaylab.ethercat.segment",
     # the applications behind the ESC in every cycle of a segment: the drives' outputs and control
-    # periods, the io box's loop-back (issue 23: 1 kHz segment, docs/performance.md)
+    # periods, the io box's loop-back (the 1 kHz segment of docs/performance.md)
     "gatewaylab.devices.ethercat_drive.device",
     "gatewaylab.devices.ethercat_io.device",
     "gatewaylab.od.sdo",

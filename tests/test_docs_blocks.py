@@ -1,4 +1,4 @@
-"""Every code block in README.md and docs/ runs as written (issue 15, "Errors a user can act on").
+"""Every code block in README.md and docs/ runs as written ("Errors a user can act on").
 
 How each fenced block is checked, by its language:
 
@@ -23,7 +23,9 @@ HTML comments right before a fence steer it:
 * ``<!-- background -->``: a shell block that keeps running (``gatewaylab run ... --ready-file F``):
   started, awaited until F exists, stopped with SIGTERM after the doc's last block.
 
-The blocks of one document run in order and share one work folder.
+The blocks of one document run in order and share one work folder: a block runs only after every
+block before it ran, and fails (naming them) when one of them failed -- it may depend on what they did.
+A skipped block (``skip`` marker) is not a failure.
 """
 
 from __future__ import annotations
@@ -61,7 +63,8 @@ class Block:
 
     @property
     def id(self) -> str:
-        return f"{self.doc.relative_to(ROOT)}:{self.line}-{self.lang}"
+        doc = self.doc.relative_to(ROOT) if self.doc.is_relative_to(ROOT) else self.doc.name
+        return f"{doc}:{self.line}-{self.lang}"
 
 
 def extract(doc: Path) -> list[Block]:
@@ -125,6 +128,8 @@ class DocSession:
     blocks: list[Block]
     done: int = 0
     background: list[subprocess.Popen[str]] = field(default_factory=list)
+    #: index -> why: the blocks that failed so far (as prerequisites or in their own test)
+    failed: dict[int, str] = field(default_factory=dict)
 
     def env(self) -> dict[str, str]:
         bin_dir = str(Path(sys.executable).parent)
@@ -132,15 +137,30 @@ class DocSession:
                 "PYTHONUNBUFFERED": "1", "PYTHONWARNINGS": "always::ResourceWarning"}
 
     def run(self, index: int) -> None:
-        """Run the blocks before ``index`` not run yet (quietly: they have their own tests), then it."""
+        """Run the blocks before ``index`` not run yet (they have their own tests too), then it; it fails
+        without running when a block before it failed (a skipped one does not count)."""
         while self.done < index:
-            try:
-                self._run(self.blocks[self.done])
-            except (AssertionError, pytest.skip.Exception, Exception):
-                pass
-            self.done += 1
+            self._attempt(self.done)
         self.done = index + 1
-        self._run(self.blocks[index])
+        before = {i: why for i, why in self.failed.items() if i < index}
+        if before:
+            self.failed[index] = "a block before it failed"
+            raise AssertionError(f"{self.blocks[index].id}: blocks before it failed, so it cannot run as written:\n"
+                                 + "\n".join(f"{self.blocks[i].id}: {why}" for i, why in sorted(before.items())))
+        self._attempt(index, reraise=True)
+
+    def _attempt(self, index: int, reraise: bool = False) -> None:
+        """Run one block; a failure is recorded for the blocks after it (and raised with ``reraise``)."""
+        self.done = max(self.done, index + 1)
+        try:
+            self._run(self.blocks[index])
+        except pytest.skip.Exception:
+            if reraise:
+                raise
+        except Exception as exc:
+            self.failed[index] = f"{type(exc).__name__}: {str(exc).strip()[:500]}"
+            if reraise:
+                raise
 
     def _run(self, block: Block) -> None:
         if "file" in block.markers:
@@ -238,7 +258,7 @@ def _close_sessions() -> Iterator[None]:
 
 @pytest.mark.parametrize("block", RUNNABLE, ids=[b.id for b in RUNNABLE])
 def test_doc_block_runs_as_written(block: Block, tmp_path_factory: pytest.TempPathFactory) -> None:
-    """Issue 15: "Every code block in README.md and docs/ runs as written"."""
+    """"Every code block in README.md and docs/ runs as written"."""
     session = _sessions.get(block.doc)
     if session is None:
         blocks = [b for b in RUNNABLE if b.doc == block.doc]
@@ -255,3 +275,19 @@ def test_the_extractor_sees_markers_and_prompts(tmp_path: Path) -> None:
     assert shell_commands(blocks[0].text) == ["echo hi"]
     assert shell_commands("# comment\nmake demo  # x\n") == ["make demo  # x"]
     assert expected_outputs("$ a\n1\n2\n$ b\n$ c  # x\n3\n") == [["1", "2"], [], ["3"]]
+
+
+def test_a_block_after_a_failed_one_fails(tmp_path: Path) -> None:
+    """A block that would pass on its own fails when a block before it (its prerequisite in the shared work
+    folder) failed: the later block names it, and a skipped block before it does not count."""
+    doc = tmp_path / "x.md"
+    doc.write_text("<!-- skip: not here -->\n```python\nraise SystemExit(3)\n```\n\n"
+                   "```python\nraise SystemExit(1)\n```\n\n```python\nprint('fine')\n```\n")
+    blocks = extract(doc)
+    session = DocSession(tmp_path, blocks)
+    with pytest.raises(AssertionError) as failed:
+        session.run(2)
+    assert blocks[1].id in str(failed.value) and blocks[0].id not in str(failed.value)
+    alone = DocSession(tmp_path, blocks[2:])
+    alone.run(0)                     # the same block with nothing before it passes
+

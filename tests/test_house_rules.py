@@ -15,6 +15,7 @@ import importlib
 import importlib.util
 import inspect
 import pkgutil
+import re
 from collections import defaultdict
 from pathlib import Path
 
@@ -133,3 +134,98 @@ def test_public_definitions_have_docstrings() -> None:
     assert coverage >= DOCSTRING_COVERAGE, (f"{coverage:.1%} of {len(defs)} public definitions have a docstring; "
                                             "per room:\n" + "\n".join(room_coverage(by_room))
                                             + "\nwithout:\n" + "\n".join(missing))
+
+
+REPO = ROOT.parent
+#: the history may name issues (docs/decisions.md); the product and what its users read may not
+ISSUE_NUMBER = re.compile(r"\bissues? #?[0-9]+", re.IGNORECASE)
+TEXT_SUFFIXES = frozenset({".py", ".toml", ".md", ".c", ".html", ".csv"})
+
+
+def product_texts() -> list[Path]:
+    """Every text file of the product and of what its users read: gatewaylab/, docs/ (without
+    docs/decisions.md), README.md, benchmarks/ (its printed tables and its README)."""
+    files = [p for folder in ("gatewaylab", "docs", "benchmarks") for p in (REPO / folder).rglob("*")
+             if p.is_file() and p.suffix in TEXT_SUFFIXES and "__pycache__" not in p.parts]
+    files.append(REPO / "README.md")
+    return sorted(p for p in files if p != REPO / "docs" / "decisions.md")
+
+
+def issue_numbers(path: Path, root: Path = REPO) -> list[str]:
+    """``file:line text`` (relative to ``root``) of every line that names an issue by number."""
+    return [f"{path.relative_to(root)}:{n} {line.strip()}"
+            for n, line in enumerate(path.read_text(errors="replace").splitlines(), 1) if ISSUE_NUMBER.search(line)]
+
+
+def test_no_issue_numbers_in_the_product_or_user_docs() -> None:
+    """Product code and user docs speak of the product, not of how it was built: no "issue 23" in
+    gatewaylab/, docs/ (docs/decisions.md keeps the history), README.md or benchmarks/."""
+    texts = product_texts()
+    assert REPO / "gatewaylab" / "bus" / "bus.py" in texts and REPO / "docs" / "architecture.md" in texts
+    found = [hit for path in texts for hit in issue_numbers(path)]
+    assert not found, "say what the product does instead:\n" + "\n".join(found)
+
+
+def test_the_issue_number_check_finds_one(tmp_path: Path) -> None:
+    """The pattern catches the forms the history used ("issue 23", "Issue 22's", "issues 9 + 15",
+    "issue #4") and leaves plain words alone."""
+    sample = tmp_path / "sample.md"
+    sample.write_text("issue 23\nIssue 22's split\nafter issues 9 + 15\nsee issue #4\nan issue of timing\n")
+    assert [hit.split(" ", 1)[0] for hit in issue_numbers(sample, tmp_path)] == [
+        "sample.md:1", "sample.md:2", "sample.md:3", "sample.md:4"]
+
+
+def files_block() -> str:
+    """The ``gatewaylab/`` part of the code block under "## Files" in docs/architecture.md."""
+    page = (REPO / "docs" / "architecture.md").read_text()
+    block = page.split("\n## Files\n", 1)[1].split("```", 2)[1]
+    return block.split("\ntests/", 1)[0]
+
+
+def folder_entry(block: str, folders: tuple[str, ...]) -> str:
+    """The text of the Files block that describes ``gatewaylab/<folders...>/``: a room's entry runs from its
+    line (``  bus/``) to the next room's; inside it, a folder's from ``name/`` to the next sibling folder's
+    ``name/``. The top-level files (no folders) are the lines before the first room."""
+    rooms = re.compile(r"^  [a-z_]+/", re.M)
+    if not folders:
+        first = rooms.search(block)
+        assert first is not None
+        return block[:first.start()]
+    room = re.search(rf"^  {folders[0]}/", block, re.M)
+    assert room is not None, f"no entry for gatewaylab/{folders[0]}/"
+    text = block[room.end():]
+    nxt = rooms.search(text)
+    text = text[:nxt.start()] if nxt else text
+    for depth in range(1, len(folders)):
+        name, parent = folders[depth], ROOT.joinpath(*folders[:depth])
+        start = re.search(rf"(?<![\w/]){name}/", text)
+        assert start is not None, f"no entry for gatewaylab/{'/'.join(folders[:depth + 1])}/"
+        text = text[start.end():]
+        siblings = [d.name for d in parent.iterdir() if d.is_dir() and d.name not in (name, "__pycache__")]
+        ends = [m.start() for s in siblings if (m := re.search(rf"(?<![\w/]){s}/", text))]
+        text = text[:min(ends)] if ends else text
+    return text
+
+
+def test_architecture_names_every_file() -> None:
+    """docs/architecture.md's Files block says what every module is for: each ``.py`` file under gatewaylab/
+    is named by its file name in its folder's entry (a package's ``__init__.py`` is the folder's line)."""
+    block = files_block()
+    unnamed = []
+    for path in SOURCES:
+        if path.name == "__init__.py":
+            continue
+        folders = path.relative_to(ROOT).parts[:-1]
+        if not re.search(rf"(?<![\w/.]){re.escape(path.name)}", folder_entry(block, folders)):
+            unnamed.append(_rel(path))
+    assert not unnamed, "name these in docs/architecture.md's Files block, in their folder's entry:\n" + "\n".join(
+        unnamed)
+
+
+def test_the_files_check_reads_one_folder_at_a_time() -> None:
+    """A file is found only in its own folder's entry: ``bus/timing.py`` is in bus/'s text, not in od/'s;
+    ``devices/ecanlite/bittiming.py`` is in ecanlite/'s text, not in esd_can_ethercat/'s."""
+    block = files_block()
+    assert "timing.py" in folder_entry(block, ("bus",)) and "timing.py" not in folder_entry(block, ("od",))
+    assert "bittiming.py" in folder_entry(block, ("devices", "ecanlite"))
+    assert "bittiming.py" not in folder_entry(block, ("devices", "esd_can_ethercat"))

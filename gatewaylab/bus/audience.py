@@ -1,7 +1,7 @@
 """Who takes part in the bus's frames while nothing changes: the controllers that may send,
 hear, acknowledge, or see only garbage (a foreign bit rate), and each kind of frame's receivers
 with their callbacks. The bus builds an :class:`Audience` on demand and drops it whenever
-something changes (``VirtualBus._invalidate``, the one invalidation point)."""
+something changes (``VirtualBus.audience_changed``, the one invalidation point)."""
 
 from __future__ import annotations
 
@@ -35,10 +35,10 @@ class Routes(dict[int, Route]):
         can_id = key - 0x800 if key >= 0x800 else key
         entries = []
         for c in self.hear:
-            if fd and not c._fd:
+            if fd and not c.fd:
                 continue
-            table = c._rx_table
-            cb = c._on_frame if table is None else table.get(can_id)   # no extended ids in tables
+            table = c.rx_table
+            cb = c.on_frame if table is None else table.get(can_id)   # no extended ids in tables
             if cb is not None or c.rec:
                 entries.append((c, cb))
         route = self[key] = tuple(entries)
@@ -47,7 +47,7 @@ class Routes(dict[int, Route]):
 
 class Audience:
     """Who takes part in frames while nothing changes on the bus, their callbacks per kind of
-    frame, and what they received. The bus builds it on demand; VirtualBus._invalidate (the one
+    frame, and what they received. The bus builds it on demand; VirtualBus.audience_changed (the one
     invalidation point) settles its receive counters and drops it."""
 
     __slots__ = ("acks", "fd_acks", "foreign", "hear", "routes", "rx", "senders")
@@ -55,16 +55,16 @@ class Audience:
     def __init__(self, controllers: list[Controller]) -> None:
         #: connected, not bus-off, matching bit timing: the controllers that may win arbitration
         self.senders = [c for c in controllers
-                        if c._connected and c.state is not _BUS_OFF and c.timing_matches]
-        live = [c for c in controllers if c._connected and c.state is not _BUS_OFF and not c.synthetic]
+                        if c.connected and c.state is not _BUS_OFF and c.timing_matches]
+        live = [c for c in controllers if c.connected and c.state is not _BUS_OFF and not c.synthetic]
         #: controllers that hear frames (in attachment order)
         self.hear = [c for c in live if c.timing_matches]
         #: controllers at a foreign bit rate: every frame is a form error to them
         self.foreign = [c for c in live if not c.timing_matches]
         #: hearing controllers that acknowledge (not listen-only)
-        self.acks = [c for c in self.hear if not c._listen_only]
+        self.acks = [c for c in self.hear if not c.listen_only]
         #: those of them that acknowledge FD frames
-        self.fd_acks = [c for c in self.acks if c._fd]
+        self.fd_acks = [c for c in self.acks if c.fd]
         self.routes = Routes(self.hear)
         self.rx = RxCounters()
 

@@ -5,21 +5,21 @@ and talks to its users through callbacks. The model is documented in ``docs/bus.
 around it: :mod:`~gatewaylab.bus.controller` (a controller, its fault confinement and events),
 :mod:`~gatewaylab.bus.transmission` (what arbitration puts on the wire), :mod:`~gatewaylab.bus.audience`
 (who hears, acknowledges and receives), :mod:`~gatewaylab.bus.stats` (counters) and
-:mod:`~gatewaylab.bus.faults` (fault injection). Their public names are importable from here too.
+:mod:`~gatewaylab.bus.faults` (fault injection). The bus implements what its controllers and its
+fault injector ask of it (``ControllerBus``, ``FaultedBus``: the methods under "the parts' side"
+below) and drives its controllers through their public methods. The package
+:mod:`gatewaylab.bus` re-exports the names users need.
 """
 
 from __future__ import annotations
 
 from gatewaylab.bus.audience import Audience
 from gatewaylab.bus.controller import (
-    BusEvent,
     Controller,
-    ErrorFrameEvent,
     ErrorKind,
     ErrorState,
     EventCallback,
     FrameCallback,
-    StateChangeEvent,
     TxAbortedEvent,
     TxDoneEvent,
 )
@@ -31,11 +31,7 @@ from gatewaylab.bus.transmission import Outcome, Step, Transmission
 from gatewaylab.common.clock import Clock, TimerHandle
 from gatewaylab.common.errors import ConfigError
 
-__all__ = [
-    "ZERO_TIME_BURST", "BusEvent", "BusStats", "Controller", "ControllerStats", "ErrorFrameEvent", "ErrorKind",
-    "ErrorState", "EventCallback", "FrameCallback", "Outcome", "StateChangeEvent", "Transmission",
-    "TxAbortedEvent", "TxDoneEvent", "VirtualBus",
-]
+__all__ = ["ZERO_TIME_BURST", "VirtualBus"]
 
 #: Enum members as module constants for the per-frame paths (attribute access on an Enum class
 #: costs about 80 ns in Python 3.11, a global about 10 ns).
@@ -68,18 +64,19 @@ class VirtualBus:
         #: False: frames take no time (ordering and arbitration still apply). For load tests.
         self.timing = timing
         self.controllers: list[Controller] = []
-        #: Cached audience (see _audience); None = build again. Dropped by _invalidate whenever
+        #: Cached audience (see _audience); None = build again. Dropped by audience_changed whenever
         #: something changes who hears, acknowledges or sends a frame, or through which callback.
         self._receivers: Audience | None = None
         self.stats = BusStats(since=clock.now())
         self._monitors: list[FrameCallback] = []
         #: The transmission on the wire, until its end of frame has been handled.
         self._on_wire: Step | None = None
-        #: The pending arbitration a queued frame asked for (see _kick).
+        #: The pending arbitration a queued frame asked for (see request_arbitration).
         self._arb_timer: TimerHandle | None = None
         self._idle_at = clock.now()
-        #: Faults planned for the next transmissions (docs/bus.md); None costs the hot path one test.
-        self._faults: FaultPlan | None = None
+        #: Faults planned for the next transmissions (docs/bus.md): the fault injector puts a plan
+        #: here, the bus drops it when spent; None costs the hot path one test.
+        self.fault_plan: FaultPlan | None = None
         #: One end of frame and one arbitration are pending at most: each has one handle that
         #: the bus queues again (clock.reschedule) instead of a new handle per frame.
         self._eof_handle = TimerHandle(0.0, 0, self._end_of_frame, ())
@@ -107,7 +104,7 @@ class VirtualBus:
         self._bitrate = value
         self._classic_times = classic_durations(value)
         for c in self.controllers:
-            c._check_timing()
+            c.check_timing()
 
     @property
     def data_bitrate(self) -> int | None:
@@ -118,7 +115,7 @@ class VirtualBus:
     def data_bitrate(self, value: int | None) -> None:
         self._data_bitrate = value
         for c in self.controllers:
-            c._check_timing()
+            c.check_timing()
 
     # -- attachment -------------------------------------------------------------------------
     def attach(self, name: str = "", *, bitrate: int | None = None, data_bitrate: int | None = None,
@@ -130,7 +127,7 @@ class VirtualBus:
                           data_bitrate or self.data_bitrate, listen_only, auto_retransmit,
                           receive_own, fd, auto_recover, on_frame, on_event)
         self.controllers.append(ctrl)
-        ctrl._check_timing()
+        ctrl.check_timing()
         return ctrl
 
     def detach(self, ctrl: Controller) -> None:
@@ -138,7 +135,7 @@ class VirtualBus:
         if ctrl in self.controllers:
             self.controllers.remove(ctrl)
             ctrl.connected = False
-            self._invalidate()
+            self.audience_changed()
             ctrl.tx_queue.clear()
 
     def add_monitor(self, callback: FrameCallback) -> None:
@@ -160,7 +157,7 @@ class VirtualBus:
         if self._on_wire is not None or self._arb_timer is not None:
             return True
         for c in self.controllers:
-            if (c.tx_queue and c._connected and c.state is not _BUS_OFF and c.timing_matches
+            if (c.tx_queue and c.connected and c.state is not _BUS_OFF and c.timing_matches
                     and not c.synthetic):
                 return True
         return False
@@ -207,25 +204,6 @@ class VirtualBus:
         """Synthetic bus load from a phantom node, 0 disables (:meth:`BusFaults.set_load`)."""
         self.faults.set_load(percent, can_id, length)
 
-    def _hold(self, wire: Step) -> None:
-        """Occupy the bus with ``wire`` (a bus held dominant): the frame on the wire and a pending
-        arbitration are cancelled, nothing arbitrates until :meth:`_release`."""
-        # a cancelled handle stays in the clock's queue: the bus takes fresh ones, so that a later
-        # reschedule of the same handle cannot revive the stale entry
-        if self._on_wire is not None:
-            self._eof_handle.cancel()
-            self._eof_handle = TimerHandle(0.0, 0, self._end_of_frame, ())
-        if self._arb_timer is not None:
-            self._arb_timer.cancel()
-            self._arb_timer = None
-            self._arb_handle = TimerHandle(0.0, 0, self._arbitrate, ())
-        self._on_wire = wire
-
-    def _release(self, now: float) -> None:
-        """The bus is idle again from ``now`` (the end of :meth:`_hold`)."""
-        self._idle_at = now
-        self._on_wire = None
-
     # -- statistics --------------------------------------------------------------------------
     def load_percent(self) -> float:
         """Share of time the bus was busy since the statistics were reset."""
@@ -235,34 +213,35 @@ class VirtualBus:
     def reset_stats(self) -> None:
         """Start the bus's and every controller's counters from zero, now."""
         self.stats = BusStats(since=self.clock.now())
-        self._settle_rx()
+        self.settle_rx()
         for c in self.controllers:
-            c._stats = ControllerStats()
+            c.counters = ControllerStats()
 
     # -- who takes part ----------------------------------------------------------------------
     def _audience(self) -> Audience:
-        """Who takes part in the next frames (see :class:`Audience`), cached until _invalidate."""
+        """Who takes part in the next frames (see :class:`Audience`), cached until :meth:`audience_changed`."""
         audience = self._receivers
         if audience is None:
             audience = self._receivers = Audience(self.controllers)
         return audience
 
-    def _invalidate(self) -> None:
-        """Who hears, acknowledges or sends frames, or through which callback, may change:
-        settle the receive counters of the present audience and forget it."""
+    # -- the parts' side (ControllerBus: the controllers; FaultedBus: the fault injector) ------
+    def audience_changed(self) -> None:
+        """Who hears, acknowledges or sends frames, or through which callback, may change (a
+        controller's settings or state, attachment): settle the receive counters of the present
+        audience and forget it; the next frame builds it again."""
         audience = self._receivers
         if audience is not None:
             audience.rx.settle(audience.hear)
             self._receivers = None
 
-    def _settle_rx(self) -> None:
+    def settle_rx(self) -> None:
         """Bring every controller's receive counters up to date (before they are read)."""
         audience = self._receivers
         if audience is not None:
             audience.rx.settle(audience.hear)
 
-    # -- the arbitration engine --------------------------------------------------------------
-    def _kick(self) -> None:
+    def request_arbitration(self) -> None:
         """A frame is waiting: arbitrate as soon as the bus is idle. While a frame is on the wire
         nothing is scheduled: its end of frame arbitrates the next one."""
         if self._on_wire is None and self._arb_timer is None:
@@ -270,6 +249,30 @@ class VirtualBus:
             self._arb_timer = handle = self._arb_handle
             clock.reschedule(handle, max(clock.now(), self._idle_at))
 
+    def hold(self, now: float) -> None:
+        """Occupy the bus from ``now`` (a bus held dominant): the frame on the wire and a pending
+        arbitration are cancelled, nothing arbitrates until :meth:`release`; meanwhile
+        :attr:`on_wire` names a placeholder sender that no controller is."""
+        # a cancelled handle stays in the clock's queue: the bus takes fresh ones, so that a later
+        # reschedule of the same handle cannot revive the stale entry
+        if self._on_wire is not None:
+            self._eof_handle.cancel()
+            self._eof_handle = TimerHandle(0.0, 0, self._end_of_frame, ())
+        if self._arb_timer is not None:
+            self._arb_timer.cancel()
+            self._arb_timer = None
+            self._arb_handle = TimerHandle(0.0, 0, self._arbitrate, ())
+        holder = Controller(self, "<stuck dominant>", self._bitrate, None, False, False, False, False,
+                            False, None, None)
+        self._on_wire = (holder, CanFrame(0), _ACK_ERROR, now, now)
+
+    def release(self, now: float) -> None:
+        """The bus is idle again from ``now`` (the end of :meth:`hold`); the caller asks for the
+        arbitration of the frames queued meanwhile."""
+        self._idle_at = now
+        self._on_wire = None
+
+    # -- the arbitration engine --------------------------------------------------------------
     @property
     def on_wire(self) -> Transmission | None:
         """The transmission on the wire now (None when idle): who sends which frame, so a device can
@@ -277,14 +280,14 @@ class VirtualBus:
         step = self._on_wire
         return None if step is None else Transmission(*step)
 
-    def _next_transmission(self, start: float) -> Transmission | None:
+    def next_transmission(self, start: float) -> Transmission | None:
         """The arbitration step: which queued frame wins at ``start`` (the lowest arbitration
         field), how its transmission ends and when. It reads the bus and changes nothing."""
         step = self._arbitration(start)
         return None if step is None else Transmission(*step)
 
     def _arbitration(self, start: float) -> Step | None:
-        """:meth:`_next_transmission` as the engine's tuple (the one implementation)."""
+        """:meth:`next_transmission` as the engine's tuple (the one implementation)."""
         audience = self._receivers or self._audience()
         sender: Controller | None = None
         best = 0
@@ -292,10 +295,10 @@ class VirtualBus:
             queue = c.tx_queue
             if queue:
                 head = queue[0]
-                if head is not c._head:
-                    c._head = head
-                    c._head_key = arbitration_key(head)
-                key = c._head_key
+                if head is not c.arb_head:
+                    c.arb_head = head
+                    c.arb_key = arbitration_key(head)
+                key = c.arb_key
                 if sender is None or key < best:
                     sender, best = c, key
         if sender is None:
@@ -305,7 +308,7 @@ class VirtualBus:
         acks = audience.fd_acks if frame.fd else audience.acks
         if sender.synthetic:
             outcome = _SENT
-        elif self._faults is not None and (planned := self._faults.outcome(frame, start)) is not None:
+        elif self.fault_plan is not None and (planned := self.fault_plan.outcome(frame, start)) is not None:
             outcome = planned
         elif acks and (acks[0] is not sender or len(acks) > 1):
             outcome = _SENT
@@ -341,8 +344,8 @@ class VirtualBus:
             if step is None:
                 return
             end = step[4]
-            if self._faults is not None and self._faults.commit(step):
-                self._faults = None
+            if self.fault_plan is not None and self.fault_plan.commit(step):
+                self.fault_plan = None
             self._on_wire = step
             if end != now:
                 self.clock.reschedule(self._eof_handle, end)
@@ -351,10 +354,10 @@ class VirtualBus:
             try:
                 self._end_of_frame(False)
             except BaseException:
-                self._kick()   # the frames still queued go on in a clock event of their own
+                self.request_arbitration()   # the frames still queued go on in a clock event of their own
                 raise
             if burst == ZERO_TIME_BURST:
-                self._kick()
+                self.request_arbitration()
                 return
 
     def _end_of_frame(self, arbitrate: bool = True) -> None:
@@ -375,13 +378,13 @@ class VirtualBus:
                     return  # the sender was detached mid-frame: the frame completes for nobody
                 queue.popleft()
                 n = len(frame.data)
-                st = sender._stats
+                st = sender.counters
                 st.tx_frames += 1
                 st.tx_bytes += n
                 if sender.tec:   # every success takes one off TEC (CAN 2.0 §8 rule 7)
                     sender.tec -= 1
                     if sender.state is not _ACTIVE:
-                        sender._update_state()
+                        sender.update_state()
                 if outcome is _SENT:
                     stats.frames += 1
                     stats.bytes += n
@@ -394,16 +397,16 @@ class VirtualBus:
                 return
             stats.error_frames += 1
             kind = ErrorKind.ACK if outcome is _ACK_ERROR else ErrorKind.CRC
-            sender._stats.tx_retransmissions += 1
-            sender._error(kind, True, frame, end)
+            sender.counters.tx_retransmissions += 1
+            sender.count_error(kind, True, frame, end)
             if kind is ErrorKind.CRC:
                 for c in self._audience().hear:
                     if c is not sender:
-                        c._error(kind, False, frame, end)
+                        c.count_error(kind, False, frame, end)
             if (not sender.auto_retransmit and sender.state is not _BUS_OFF
                     and queue and queue[0] is frame):
                 queue.popleft()
-                sender._emit(TxAbortedEvent(frame, end, "single-shot"))
+                sender.emit(TxAbortedEvent(frame, end, "single-shot"))
             self._foreign_errors(end)
         finally:
             self._on_wire = None
@@ -417,20 +420,20 @@ class VirtualBus:
         the monitors."""
         audience = self._receivers or self._audience()
         audience.rx.count(sender, frame)
-        if sender.receive_own and sender._on_frame is not None:
-            sender._on_frame(frame, now)
+        if sender.receive_own and (own := sender.on_frame) is not None:
+            own(frame, now)
         # the kind of frame (see _Routes): its receivers are looked up, built on first use
         fd = frame.fd
         kind = (-2 if fd else -1) if frame.extended else (frame.can_id + 0x800 if fd else frame.can_id)
         for c, cb in audience.routes[kind]:
             if c is not sender:
                 if c.rec:
-                    c._received()
+                    c.count_received()
                 if cb is not None:
                     cb(frame, now)
         if audience.foreign:     # (an empty loop still builds an iterator: once per frame)
             for c in audience.foreign:
-                c._error(ErrorKind.FORM, False, None, now)  # a foreign bit rate sees only garbage
+                c.count_error(ErrorKind.FORM, False, None, now)  # a foreign bit rate sees only garbage
         if self._monitors:
             for monitor in self._monitors:
                 monitor(frame, now)
@@ -438,4 +441,5 @@ class VirtualBus:
     def _foreign_errors(self, now: float) -> None:
         """Controllers at another bit rate see every frame as a form error (and nothing else)."""
         for c in self._audience().foreign:
-            c._error(ErrorKind.FORM, False, None, now)
+            c.count_error(ErrorKind.FORM, False, None, now)
+

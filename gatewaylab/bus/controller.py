@@ -1,6 +1,11 @@
 """One CAN controller on a :class:`~gatewaylab.bus.bus.VirtualBus`: its transmit queue, its
 ISO 11898-1 fault confinement (TEC/REC, error-active/passive, bus-off and recovery) and the
-events it reports (error frames, state changes, transmissions done or aborted)."""
+events it reports (error frames, state changes, transmissions done or aborted).
+
+What the controller needs of its bus is :class:`ControllerBus` (three notices and a few readings);
+what the bus and its fault injector do to a controller are the public methods under "the bus's
+side" below (counting errors and receptions, re-deriving the state, recovery, events).
+"""
 
 from __future__ import annotations
 
@@ -9,16 +14,22 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from enum import Enum
 from types import MappingProxyType
-from typing import TYPE_CHECKING, Final
+from typing import TYPE_CHECKING, Final, Protocol
 
 from gatewaylab.bus.frame import CanFrame
 from gatewaylab.bus.stats import ControllerStats
 from gatewaylab.bus.timing import BUS_OFF_RECOVERY_BITS, ERROR_FRAME_BITS, arbitration_key
-from gatewaylab.common.clock import TimerHandle
+from gatewaylab.common.clock import Clock, TimerHandle
 from gatewaylab.common.errors import FrameError, LocalError
 
 if TYPE_CHECKING:
     from gatewaylab.bus.bus import VirtualBus
+    from gatewaylab.bus.transmission import Transmission
+
+__all__ = [
+    "BusEvent", "Controller", "ControllerBus", "ErrorFrameEvent", "ErrorKind", "ErrorState", "EventCallback",
+    "FrameCallback", "StateChangeEvent", "TxAbortedEvent", "TxDoneEvent",
+]
 
 
 class ErrorState(Enum):
@@ -89,6 +100,41 @@ FrameCallback = Callable[[CanFrame, float], None]
 EventCallback = Callable[[BusEvent], None]
 
 
+class ControllerBus(Protocol):
+    """What a :class:`Controller` asks of the bus it is attached to (``VirtualBus`` implements it):
+    its clock, name and bit rates, the transmission on the wire, and three notices. A controller
+    calls nothing else on its bus."""
+
+    @property
+    def clock(self) -> Clock:
+        """The clock the bus runs on (the controller schedules recovery and retries on it)."""
+
+    @property
+    def name(self) -> str:
+        """The bus's name (for messages)."""
+
+    @property
+    def bitrate(self) -> int:
+        """The bus's nominal bit rate in bit/s."""
+
+    @property
+    def data_bitrate(self) -> int | None:
+        """The bus's CAN FD data bit rate in bit/s; None on a classic bus."""
+
+    @property
+    def on_wire(self) -> Transmission | None:
+        """The transmission on the wire now (None when idle)."""
+
+    def audience_changed(self) -> None:
+        """Who hears, acknowledges or sends frames, or through which callback, may change now."""
+
+    def settle_rx(self) -> None:
+        """Bring every controller's receive counters up to date (before they are read)."""
+
+    def request_arbitration(self) -> None:
+        """A frame is waiting: arbitrate as soon as the bus is idle."""
+
+
 class Controller:
     """One CAN controller attached to a :class:`VirtualBus`."""
 
@@ -96,6 +142,9 @@ class Controller:
                  listen_only: bool, auto_retransmit: bool, receive_own: bool, fd: bool,
                  auto_recover: bool, on_frame: FrameCallback | None,
                  on_event: EventCallback | None) -> None:
+        #: The bus it is attached to. Typed as the concrete bus for callers (``ctrl.bus.detach(ctrl)``)
+        #: and for direct calls in the compiled build; the controller itself uses only
+        #: :class:`ControllerBus` (tests/bus/test_bus_parts.py holds it to that).
         self.bus = bus
         self.name = name
         self._bitrate = bitrate
@@ -115,14 +164,18 @@ class Controller:
         self.rec = 0
         self.state = ErrorState.ERROR_ACTIVE
         self._connected = True
-        self._stats = ControllerStats()
+        #: The counters as kept: the bus and its fault injector count into them directly; the
+        #: receive counters lag until settled (read :attr:`stats`, which settles them first).
+        self.counters = ControllerStats()
+        #: A phantom sender (the synthetic load of ``BusFaults.set_load``): it sends, nobody hears it.
         self.synthetic = False
         self._recovery: TimerHandle | None = None
         self._mismatch_timer: TimerHandle | None = None
-        #: The frame at the head of tx_queue when the bus last arbitrated, and its arbitration
-        #: key: computed once per frame, not in every arbitration the frame waits through.
-        self._head: CanFrame | None = None
-        self._head_key = 0
+        #: The bus's arbitration cache: the frame at the head of tx_queue when the bus last
+        #: arbitrated, and its arbitration key (computed once per frame, not in every arbitration
+        #: the frame waits through).
+        self.arb_head: CanFrame | None = None
+        self.arb_key = 0
 
     def __repr__(self) -> str:
         return f"<Controller {self.bus.name}/{self.name} {self.state.value} TEC={self.tec} REC={self.rec}>"
@@ -133,15 +186,15 @@ class Controller:
         them here when they are read; under the clock's lock, as deliveries run)."""
         bus = self.bus
         with bus.clock.lock:
-            bus._settle_rx()
-        return self._stats
+            bus.settle_rx()
+        return self.counters
 
     @stats.setter
     def stats(self, value: ControllerStats) -> None:
         bus = self.bus
         with bus.clock.lock:
-            bus._settle_rx()
-            self._stats = value
+            bus.settle_rx()
+            self.counters = value
 
     @property
     def on_frame(self) -> FrameCallback | None:
@@ -150,7 +203,7 @@ class Controller:
 
     @on_frame.setter
     def on_frame(self, value: FrameCallback | None) -> None:
-        self.bus._invalidate()
+        self.bus.audience_changed()
         self._on_frame = value
 
     @property
@@ -164,7 +217,7 @@ class Controller:
 
     @rx_table.setter
     def rx_table(self, value: Mapping[int, FrameCallback] | None) -> None:
-        self.bus._invalidate()
+        self.bus.audience_changed()
         self._rx_table = None if value is None else dict(value)
 
     @property
@@ -174,9 +227,9 @@ class Controller:
 
     @fd.setter
     def fd(self, value: bool) -> None:
-        self.bus._invalidate()
+        self.bus.audience_changed()
         self._fd = value
-        self._check_timing()
+        self.check_timing()
 
     @property
     def connected(self) -> bool:
@@ -185,7 +238,7 @@ class Controller:
 
     @connected.setter
     def connected(self, value: bool) -> None:
-        self.bus._invalidate()
+        self.bus.audience_changed()
         self._connected = value
 
     @property
@@ -195,7 +248,7 @@ class Controller:
 
     @listen_only.setter
     def listen_only(self, value: bool) -> None:
-        self.bus._invalidate()
+        self.bus.audience_changed()
         self._listen_only = value
 
     @property
@@ -207,7 +260,7 @@ class Controller:
     def bitrate(self, rate: int) -> None:
         """Change the nominal bit rate (LSS activate bit timing); the bus re-checks the match."""
         self._bitrate = rate
-        self._check_timing()
+        self.check_timing()
 
     @property
     def data_bitrate(self) -> int | None:
@@ -217,17 +270,18 @@ class Controller:
     @data_bitrate.setter
     def data_bitrate(self, rate: int | None) -> None:
         self._data_bitrate = rate
-        self._check_timing()
+        self.check_timing()
 
-    def _check_timing(self) -> None:
-        """False when this controller's bit timing differs from the bus (it then sees only errors)."""
+    def check_timing(self) -> None:
+        """Compare this controller's bit timing with the bus's (after either changed): a mismatch
+        makes it see only errors (:attr:`timing_matches` False)."""
         bus = self.bus
-        bus._invalidate()
+        bus.audience_changed()
         self.timing_matches = self._bitrate == bus.bitrate and not (
             self._fd and bus.data_bitrate is not None and self._data_bitrate is not None
             and self._data_bitrate != bus.data_bitrate)
         if self.timing_matches and self.tx_queue and self.connected:
-            bus._kick()
+            bus.request_arbitration()
 
     @property
     def bus_off(self) -> bool:
@@ -249,7 +303,7 @@ class Controller:
         if not self._connected:
             return
         if self.timing_matches:
-            self.bus._kick()
+            self.bus.request_arbitration()
         elif self._mismatch_timer is None:
             self._mismatch_timer = self.bus.clock.call_soon(self._mismatch_attempt)
 
@@ -289,8 +343,10 @@ class Controller:
             queue.pop()
             queue.insert(pos, frame)
 
-    # -- fault confinement ------------------------------------------------------------------
-    def _update_state(self) -> None:
+    # -- the bus's side: fault confinement, reception, events (called by the bus and its faults) --
+    def update_state(self) -> None:
+        """Derive the fault-confinement state from TEC and REC (CAN 2.0 §8; bus-off
+        is left only by :meth:`recover`) and report a change."""
         old = self.state
         if old is ErrorState.BUS_OFF:
             return
@@ -305,40 +361,53 @@ class Controller:
 
     def _set_state(self, new: ErrorState) -> None:
         old = self.state
-        self.bus._invalidate()
+        self.bus.audience_changed()
         self.state = new
         clock = self.bus.clock
         if new is ErrorState.BUS_OFF:
-            self._stats.bus_offs += 1
+            self.counters.bus_offs += 1
             for frame in self.tx_queue:
-                self._emit(TxAbortedEvent(frame, clock.now(), "bus-off"))
+                self.emit(TxAbortedEvent(frame, clock.now(), "bus-off"))
             self.tx_queue.clear()
-            if self.auto_recover:
-                self._recovery = clock.call_later(BUS_OFF_RECOVERY_BITS / self.bus.bitrate, self.recover)
-        self._emit(StateChangeEvent(old, new, self.tec, self.rec, clock.now()))
+            self.start_recovery()
+        self.emit(StateChangeEvent(old, new, self.tec, self.rec, clock.now()))
 
-    def recover(self) -> None:
-        """Leave bus-off (after 128 x 11 recessive bits when ``auto_recover``; or on request)."""
+    def start_recovery(self) -> None:
+        """A bus-off controller with ``auto_recover`` recovers after 128 x 11 recessive bits from
+        now (CAN 2.0 §8), unless its recovery is already under way."""
+        if self.state is ErrorState.BUS_OFF and self.auto_recover and self._recovery is None:
+            bus = self.bus
+            self._recovery = bus.clock.call_later(BUS_OFF_RECOVERY_BITS / bus.bitrate, self.recover)
+
+    def cancel_recovery(self) -> None:
+        """Stop a recovery under way (the bus is not recessive: it is held dominant)."""
         if self._recovery is not None:
             self._recovery.cancel()
             self._recovery = None
+
+    def recover(self) -> None:
+        """Leave bus-off (after 128 x 11 recessive bits when ``auto_recover``; or on request)."""
+        self.cancel_recovery()
         if self.state is ErrorState.BUS_OFF:
             self.tec = self.rec = 0
             self._set_state(ErrorState.ERROR_ACTIVE)
 
-    def _emit(self, event: BusEvent) -> None:
+    def emit(self, event: BusEvent) -> None:
+        """Report ``event`` to :attr:`on_event` (if set)."""
         if self.on_event is not None:
             self.on_event(event)
 
-    def _received(self) -> None:
+    def count_received(self) -> None:
         """A frame received without error counts REC down (CAN 2.0 §8 rule 8: from above 127 to
-        a value between 119 and 127; 120 here)."""
+        a value between 119 and 127; 120 here). The bus calls it for receivers with REC > 0."""
         self.rec = self.rec - 1 if self.rec <= 127 else 120
         if self.state is not _ACTIVE:
-            self._update_state()
+            self.update_state()
 
-    def _error(self, kind: ErrorKind, transmitter: bool, frame: CanFrame | None, t: float) -> None:
-        self._stats.error_frames += 1
+    def count_error(self, kind: ErrorKind, transmitter: bool, frame: CanFrame | None, t: float) -> None:
+        """An error frame this controller took part in at ``t``, as transmitter or receiver: its
+        counters (CAN 2.0 §8 rules 1 and 3; a listen-only controller counts none), the event, the state."""
+        self.counters.error_frames += 1
         if not self.listen_only:
             if transmitter:
                 # CAN 2.0 §8 rule 3, exception 1: an error-passive transmitter that
@@ -350,9 +419,9 @@ class Controller:
                 if self.rec == 1 and self.timing_matches:
                     # from now on it counts REC down with every frame it receives: the routes
                     # of the bus's audience must name it for every frame
-                    self.bus._invalidate()
-        self._emit(ErrorFrameEvent(kind, t, transmitter, frame))
-        self._update_state()
+                    self.bus.audience_changed()
+        self.emit(ErrorFrameEvent(kind, t, transmitter, frame))
+        self.update_state()
 
     def _mismatch_attempt(self) -> None:
         """A controller at the wrong bit rate can never send: every attempt is a bit error."""
@@ -360,10 +429,10 @@ class Controller:
         if not self.tx_queue or not self.connected or self.state is ErrorState.BUS_OFF:
             return
         frame = self.tx_queue[0]
-        self._error(ErrorKind.BIT, True, frame, self.bus.clock.now())
+        self.count_error(ErrorKind.BIT, True, frame, self.bus.clock.now())
         if not self.auto_retransmit and self.tx_queue:
             self.tx_queue.popleft()
-            self._emit(TxAbortedEvent(frame, self.bus.clock.now(), "single-shot"))
+            self.emit(TxAbortedEvent(frame, self.bus.clock.now(), "single-shot"))
         if self.tx_queue and not self.bus_off:
             self._mismatch_timer = self.bus.clock.call_later(
                 ERROR_FRAME_BITS / self.bitrate, self._mismatch_attempt)

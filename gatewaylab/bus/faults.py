@@ -3,29 +3,69 @@ a bus held dominant, synthetic load, controllers unplugged or forced error-passi
 
 :class:`BusFaults` is the injector of one bus (``VirtualBus.faults``; the bus's methods of the same
 names call it). What the arbitration engine must consult per frame is the :class:`FaultPlan` it
-leaves in ``VirtualBus._faults`` while faults are planned: when there is none, the hot path pays
-one ``is None`` test.
+leaves in ``VirtualBus.fault_plan`` while faults are planned: when there is none, the hot path pays
+one ``is None`` test. What the injector needs of its bus is :class:`FaultedBus`; it changes a
+controller's counters and state through the controller's public methods.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 from gatewaylab.bus.controller import Controller, ErrorFrameEvent, ErrorKind, ErrorState
 from gatewaylab.bus.frame import CanFrame
-from gatewaylab.bus.timing import BUS_OFF_RECOVERY_BITS, frame_duration
-from gatewaylab.bus.transmission import Outcome, Step
-from gatewaylab.common.clock import TimerHandle
+from gatewaylab.bus.stats import BusStats
+from gatewaylab.bus.timing import frame_duration
+from gatewaylab.bus.transmission import Outcome, Step, Transmission
+from gatewaylab.common.clock import Clock, TimerHandle
 from gatewaylab.common.errors import ConfigError, LocalError
 
-if TYPE_CHECKING:
-    from gatewaylab.bus.bus import VirtualBus
+__all__ = ["BusFaults", "FaultPlan", "FaultedBus", "Jam", "Load"]
 
 _BUS_OFF = ErrorState.BUS_OFF
 _DROPPED = Outcome.DROPPED
-_ACK_ERROR = Outcome.ACK_ERROR
 _CRC_ERROR = Outcome.CRC_ERROR
+
+
+class FaultedBus(Protocol):
+    """What :class:`BusFaults` asks of its bus (``VirtualBus`` implements it): clock, bit rate,
+    controllers and counters, attaching the phantom load sender, the fault plan the arbitration
+    consults, and holding the wire. The injector calls nothing else on its bus."""
+
+    fault_plan: FaultPlan | None
+    controllers: list[Controller]
+    stats: BusStats
+
+    @property
+    def clock(self) -> Clock:
+        """The clock the bus runs on."""
+
+    @property
+    def bitrate(self) -> int:
+        """The bus's nominal bit rate in bit/s."""
+
+    @property
+    def on_wire(self) -> Transmission | None:
+        """The transmission on the wire now (None when idle)."""
+
+    def attach(self, name: str = "", *, auto_recover: bool = True) -> Controller:
+        """Attach a controller (the phantom sender of synthetic load)."""
+
+    def detach(self, ctrl: Controller) -> None:
+        """Remove a controller."""
+
+    def audience_changed(self) -> None:
+        """Who hears, acknowledges or sends frames may change now."""
+
+    def request_arbitration(self) -> None:
+        """A frame is waiting: arbitrate as soon as the bus is idle."""
+
+    def hold(self, now: float) -> None:
+        """Occupy the bus from ``now``: nothing arbitrates until :meth:`release`."""
+
+    def release(self, now: float) -> None:
+        """The bus is idle again from ``now``."""
 
 
 class FaultPlan:
@@ -95,12 +135,11 @@ class FaultPlan:
 class Jam:
     """A bus held dominant: until when, who counts as transmitter, the steps of rule 6."""
 
-    __slots__ = ("bus_off", "release", "start", "step", "transmitters", "until", "wire")
+    __slots__ = ("bus_off", "release", "start", "step", "transmitters", "until")
 
-    def __init__(self, start: float, until: float, wire: Step) -> None:
+    def __init__(self, start: float, until: float) -> None:
         self.start = start
         self.until = until
-        self.wire = wire
         self.transmitters: list[Controller] = []
         self.bus_off: list[Controller] = []
         self.release = TimerHandle(until, 0, lambda: None, ())
@@ -124,7 +163,7 @@ class BusFaults:
 
     __slots__ = ("_jam", "_load", "bus")
 
-    def __init__(self, bus: VirtualBus) -> None:
+    def __init__(self, bus: FaultedBus) -> None:
         self.bus = bus
         #: A bus held dominant (stuck_dominant), until it is released.
         self._jam: Jam | None = None
@@ -132,9 +171,9 @@ class BusFaults:
 
     def _plan(self) -> FaultPlan:
         bus = self.bus
-        plan = bus._faults
+        plan = bus.fault_plan
         if plan is None:
-            plan = bus._faults = FaultPlan()
+            plan = bus.fault_plan = FaultPlan()
         return plan
 
     # -- controllers ---------------------------------------------------------------------------
@@ -146,12 +185,12 @@ class BusFaults:
         """Plug a controller back in; the frames it queued meanwhile go out."""
         ctrl.connected = True
         if ctrl.tx_queue:
-            self.bus._kick()
+            self.bus.request_arbitration()
 
     def force_bus_off(self, ctrl: Controller) -> None:
         """Put a controller bus-off (TEC above 255, CAN 2.0 §8 rule 9); it recovers as configured."""
         ctrl.tec = 256
-        ctrl._update_state()
+        ctrl.update_state()
 
     def force_error_passive(self, ctrl: Controller) -> None:
         """Put a controller's TEC at 128 (error-passive, CAN 2.0 §8 rule 9); every successful
@@ -160,7 +199,7 @@ class BusFaults:
         if ctrl.state is _BUS_OFF:
             raise LocalError(f"{ctrl.name}: controller is bus-off")
         ctrl.tec = max(ctrl.tec, 128)
-        ctrl._update_state()
+        ctrl.update_state()
 
     # -- frames ----------------------------------------------------------------------------------
     def drop_next(self, n: int = 1, can_id: int | None = None) -> None:
@@ -205,14 +244,12 @@ class BusFaults:
             jam.release.cancel()
             jam.release = clock.call_at(jam.until, self._release_jam)
             return
-        tx = bus._on_wire
-        sentinel = Controller(bus, "<stuck dominant>", bus.bitrate, None, False, False, False, False,
-                              False, None, None)
-        jam = self._jam = Jam(now, now + duration, (sentinel, CanFrame(0), _ACK_ERROR, now, now))
+        tx = bus.on_wire
+        jam = self._jam = Jam(now, now + duration)
         if tx is not None:
-            jam.transmitters.append(tx[0])
-            bus.stats.busy_time += now - max(tx[3], bus.stats.since)
-        bus._hold(jam.wire)         # the bus is busy: nothing arbitrates until the release
+            jam.transmitters.append(tx.sender)
+            bus.stats.busy_time += now - max(tx.start, bus.stats.since)
+        bus.hold(now)         # the bus is busy: nothing arbitrates until the release
         jam.release = clock.call_at(jam.until, self._release_jam)
         # the first error: a bit error for the transmitter, a stuff error after 6 dominant bits
         jam.step = clock.call_later(6 / bus.bitrate, self._jam_step, True)
@@ -232,34 +269,32 @@ class BusFaults:
         counting = False
         bus.stats.error_frames += 1
         for c in list(bus.controllers):
-            if not c._connected or c.state is _BUS_OFF or c.synthetic:
+            if not c.connected or c.state is _BUS_OFF or c.synthetic:
                 continue
-            if c._listen_only:     # sees the error, never counts it (docs/bus.md)
+            if c.listen_only:     # sees the error, never counts it (docs/bus.md)
                 if first:
-                    c._stats.error_frames += 1
-                    c._emit(ErrorFrameEvent(ErrorKind.STUFF, now, False, None))
+                    c.counters.error_frames += 1
+                    c.emit(ErrorFrameEvent(ErrorKind.STUFF, now, False, None))
                 continue
             if c.tx_queue or c in jam.transmitters:
                 if c not in jam.transmitters:
                     jam.transmitters.append(c)
                 c.tec += 8
-                c._stats.error_frames += 1
-                c._emit(ErrorFrameEvent(ErrorKind.BIT, now, True, c.tx_queue[0] if c.tx_queue else None))
-                c._update_state()
+                c.counters.error_frames += 1
+                c.emit(ErrorFrameEvent(ErrorKind.BIT, now, True, c.tx_queue[0] if c.tx_queue else None))
+                c.update_state()
                 if c.state is _BUS_OFF:
-                    if c._recovery is not None:   # recovery needs recessive bits: after the release
-                        c._recovery.cancel()
-                        c._recovery = None
+                    c.cancel_recovery()   # recovery needs recessive bits: after the release
                     jam.bus_off.append(c)
                 else:
                     counting = True
             elif c.rec <= 127:
                 c.rec = min(255, c.rec + (1 if first else 8))
-                c._stats.error_frames += 1
-                c._emit(ErrorFrameEvent(ErrorKind.STUFF, now, False, None))
+                c.counters.error_frames += 1
+                c.emit(ErrorFrameEvent(ErrorKind.STUFF, now, False, None))
                 if c.rec == 1 and c.timing_matches:
-                    bus._invalidate()
-                c._update_state()
+                    bus.audience_changed()
+                c.update_state()
                 counting = counting or c.rec <= 127
         # after the first error flag (6 bits) the 14th dominant bit, then every 8 bits; once every
         # counter has settled only a node that queues a frame later can change: look each ms
@@ -275,13 +310,12 @@ class BusFaults:
         bus = self.bus
         now = bus.clock.now()
         bus.stats.busy_time += now - max(jam.start, bus.stats.since)
-        bus._release(now)
+        bus.release(now)
         for c in jam.bus_off:
-            if c.state is _BUS_OFF and c.auto_recover and c._recovery is None:
-                c._recovery = bus.clock.call_later(BUS_OFF_RECOVERY_BITS / bus.bitrate, c.recover)
+            c.start_recovery()
         for c in bus.controllers:
-            if c.tx_queue and c._connected:
-                bus._kick()
+            if c.tx_queue and c.connected:
+                bus.request_arbitration()
                 break
 
     # -- synthetic load ----------------------------------------------------------------------------
@@ -302,7 +336,7 @@ class BusFaults:
         load = Load(percent, frame)
         ctrl = bus.attach("<load>", auto_recover=True)
         ctrl.synthetic = True
-        bus._invalidate()
+        bus.audience_changed()
         load.controller = ctrl
         self._load = load
         self._load_tick()

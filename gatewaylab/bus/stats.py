@@ -71,8 +71,8 @@ class RxCounters:
         frames, nbytes, fd_frames, fd_bytes = (sum(column) for column in zip(*sent.values()))
         for c in receivers:
             own = sent.get(c, (0, 0, 0, 0))
-            st = c._stats
-            if c._fd:
+            st = c.counters
+            if c.fd:
                 st.rx_frames += frames - own[0]
                 st.rx_bytes += nbytes - own[1]
             else:   # its own frames are classic ones

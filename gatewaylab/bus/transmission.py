@@ -23,7 +23,7 @@ class Outcome(Enum):
 @dataclass(frozen=True, slots=True)
 class Transmission:
     """What one arbitration puts on the wire: the winning frame, how it ends, from when to when
-    (:meth:`VirtualBus._next_transmission`)."""
+    (:meth:`VirtualBus.next_transmission`)."""
 
     sender: Controller
     frame: CanFrame

@@ -1,22 +1,10 @@
-"""CANopen node stack (CiA 301): object dictionary, NMT, SDO server/client, PDO, SYNC, EMCY,
-heartbeat, store/restore; see docs/canopen.md."""
+"""CANopen node stack (CiA 301) on a virtual bus: the node, NMT, SDO server and client, PDO, SYNC,
+EMCY, heartbeat and guarding, store/restore, LSS, the CiA 402 state table and the bus monitor; see
+docs/canopen.md. A node keeps its objects in the object dictionary of :mod:`gatewaylab.od` (types,
+rows, SDO aborts live there)."""
 
-from gatewaylab.canopen.errors import SdoAbort
 from gatewaylab.canopen.nmt import NmtCommand, NmtMaster, NmtState
 from gatewaylab.canopen.node import Node
 from gatewaylab.canopen.sdo_client import SdoClient
-from gatewaylab.od import Access, DataType, Entry, ObjectCode, ObjectDictionary
 
-__all__ = [
-    "Access",
-    "DataType",
-    "Entry",
-    "NmtCommand",
-    "NmtMaster",
-    "NmtState",
-    "Node",
-    "ObjectCode",
-    "ObjectDictionary",
-    "SdoAbort",
-    "SdoClient",
-]
+__all__ = ["NmtCommand", "NmtMaster", "NmtState", "Node", "SdoClient"]

@@ -13,10 +13,10 @@ from collections import deque
 from typing import TYPE_CHECKING, Any
 
 from gatewaylab.bus.frame import CanFrame
-from gatewaylab.canopen.errors import VALUE_RANGE_EXCEEDED, SdoAbort
 from gatewaylab.canopen.nmt import NmtState
 from gatewaylab.common.clock import TimerHandle
 from gatewaylab.od import Entry
+from gatewaylab.od.aborts import SdoAbort, SdoAbortCode
 
 if TYPE_CHECKING:
     from gatewaylab.canopen.node import Node
@@ -132,11 +132,11 @@ class Emcy:
     @staticmethod
     def _validate_history(entry: Entry, value: Any) -> None:
         if entry.subindex == 0 and value != 0:
-            raise SdoAbort(VALUE_RANGE_EXCEEDED, "0x1003:00 accepts only 0 (clear the history)")
+            raise SdoAbort(SdoAbortCode.VALUE_RANGE_EXCEEDED, "0x1003:00 accepts only 0 (clear the history)")
 
     def _validate_cob_id(self, entry: Entry, value: Any) -> None:
         if value & 0x20000000 or ((value & 0x7FF) == 0 and not value & 0x80000000):
-            raise SdoAbort(VALUE_RANGE_EXCEEDED, "EMCY COB-ID: 11-bit, not 0")
+            raise SdoAbort(SdoAbortCode.VALUE_RANGE_EXCEEDED, "EMCY COB-ID: 11-bit, not 0")
 
     @property
     def register(self) -> int:

@@ -17,10 +17,10 @@ from typing import TYPE_CHECKING, Any
 
 from gatewaylab.bus.frame import CanFrame
 from gatewaylab.canopen.emcy import EMCY_LIFE_GUARD_HEARTBEAT, ERR_COMMUNICATION
-from gatewaylab.canopen.errors import GENERAL_PARAMETER_INCOMPATIBILITY, SdoAbort
 from gatewaylab.canopen.nmt import HEARTBEAT_BASE, encode_guard_response, encode_heartbeat
 from gatewaylab.common.clock import PeriodicTimer, TimerHandle
 from gatewaylab.od import Entry
+from gatewaylab.od.aborts import SdoAbort, SdoAbortCode
 
 if TYPE_CHECKING:
     from gatewaylab.canopen.node import Node
@@ -85,7 +85,7 @@ class Heartbeat:
         for sub in range(1, od.get(0x1016, 0) + 1):
             other = od.values.get((0x1016, sub), 0)
             if sub != entry.subindex and (other >> 16) & 0xFF == nid and other & 0xFFFF:
-                raise SdoAbort(GENERAL_PARAMETER_INCOMPATIBILITY, f"node {nid} already consumed")
+                raise SdoAbort(SdoAbortCode.GENERAL_PARAMETER_INCOMPATIBILITY, f"node {nid} already consumed")
 
     def register(self, add: AddHandler) -> None:
         """Add the COB-IDs this node consumes (heartbeats, guarding RTR) to the dispatch table."""

@@ -13,7 +13,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from gatewaylab.bus.bus import Controller, VirtualBus
+from gatewaylab.bus.bus import VirtualBus
+from gatewaylab.bus.controller import Controller
 from gatewaylab.bus.frame import CanFrame
 from gatewaylab.canopen.communication import add_communication_objects
 from gatewaylab.canopen.emcy import Emcy

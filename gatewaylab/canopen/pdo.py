@@ -17,18 +17,10 @@ from typing import TYPE_CHECKING, Any
 from gatewaylab.bus.frame import CanFrame
 from gatewaylab.canopen.communication import MAX_MAPPED, N_PDO
 from gatewaylab.canopen.emcy import EMCY_PDO_LENGTH, EMCY_PDO_LENGTH_EXCEEDED, ERR_COMMUNICATION
-from gatewaylab.canopen.errors import (
-    GENERAL_PARAMETER_INCOMPATIBILITY,
-    OBJECT_NOT_MAPPABLE,
-    PDO_LENGTH_EXCEEDED,
-    SUBINDEX_CANNOT_BE_WRITTEN,
-    UNSUPPORTED_ACCESS,
-    VALUE_RANGE_EXCEEDED,
-    SdoAbort,
-)
 from gatewaylab.canopen.nmt import NmtState
 from gatewaylab.common.clock import TimerHandle
 from gatewaylab.od import DataType, Entry, KeyObject, decode, encode, type_size
+from gatewaylab.od.aborts import SdoAbort, SdoAbortCode
 
 if TYPE_CHECKING:
     from gatewaylab.canopen.node import Node
@@ -443,33 +435,33 @@ class PdoManager:
             sub = entry.subindex
             if sub == 1:
                 if value & COB_EXTENDED:
-                    raise SdoAbort(VALUE_RANGE_EXCEEDED, "only 11-bit COB-IDs (IDX: standard frames only)")
+                    raise SdoAbort(SdoAbortCode.VALUE_RANGE_EXCEEDED, "only 11-bit COB-IDs (IDX: standard frames only)")
                 new_valid = not value & COB_INVALID
                 if new_valid and restricted_cob_id(value & 0x7FF):
-                    raise SdoAbort(VALUE_RANGE_EXCEEDED, f"COB-ID 0x{value & 0x7FF:03X} is reserved")
+                    raise SdoAbort(SdoAbortCode.VALUE_RANGE_EXCEEDED, f"COB-ID 0x{value & 0x7FF:03X} is reserved")
                 if valid_now and new_valid and (value & 0x7FF) != (od.get(comm, 1) & 0x7FF):
-                    raise SdoAbort(VALUE_RANGE_EXCEEDED, "set bit 31 before changing the COB-ID")
+                    raise SdoAbort(SdoAbortCode.VALUE_RANGE_EXCEEDED, "set bit 31 before changing the COB-ID")
                 if new_valid and not valid_now:
                     self._check_mapping(comm + 0x200, od.get(comm + 0x200, 0), receive)
             elif sub == 2:
                 if (receive and 240 < value < 254) or (not receive and 240 < value < 252):
-                    raise SdoAbort(VALUE_RANGE_EXCEEDED, f"transmission type {value} is reserved")
+                    raise SdoAbort(SdoAbortCode.VALUE_RANGE_EXCEEDED, f"transmission type {value} is reserved")
             elif sub in (3, 6) and valid_now:
-                raise SdoAbort(UNSUPPORTED_ACCESS, "inhibit time / SYNC start value only while not valid")
+                raise SdoAbort(SdoAbortCode.UNSUPPORTED_ACCESS, "inhibit time / SYNC start value only while not valid")
         return validate
 
     def _mapping_validator(self, comm: int, mapping: int, receive: bool) -> Callable[[Entry, Any], None]:
         def validate(entry: Entry, value: Any) -> None:
             od = self.node.od
             if not od.get(comm, 1) & COB_INVALID:
-                raise SdoAbort(UNSUPPORTED_ACCESS, "PDO is valid: set COB-ID bit 31 before re-mapping")
+                raise SdoAbort(SdoAbortCode.UNSUPPORTED_ACCESS, "PDO is valid: set COB-ID bit 31 before re-mapping")
             if entry.subindex == 0:
                 if value > MAX_MAPPED:
-                    raise SdoAbort(VALUE_RANGE_EXCEEDED)
+                    raise SdoAbort(SdoAbortCode.VALUE_RANGE_EXCEEDED)
                 self._check_mapping(mapping, value, receive)
                 return
             if od.get(mapping, 0) != 0:
-                raise SdoAbort(SUBINDEX_CANNOT_BE_WRITTEN, "write 0 to sub-index 0 first")
+                raise SdoAbort(SdoAbortCode.SUBINDEX_CANNOT_BE_WRITTEN, "write 0 to sub-index 0 first")
             if value:
                 self._check_entry(value, receive)
         return validate
@@ -480,7 +472,7 @@ class PdoManager:
         for sub in range(1, count + 1):
             bits += self._check_entry(od.get(mapping, sub), receive)
         if bits > 64:
-            raise SdoAbort(PDO_LENGTH_EXCEEDED, f"{bits} bits mapped")
+            raise SdoAbort(SdoAbortCode.PDO_LENGTH_EXCEEDED, f"{bits} bits mapped")
 
     def _check_entry(self, value: int, receive: bool) -> int:
         """Bits of a mapping entry; SdoAbort when the object cannot be mapped that way."""
@@ -488,14 +480,15 @@ class PdoManager:
         if 0x0001 <= index <= 0x0007 and sub == 0 and receive:
             size = type_size(DataType(index))          # dummy mapping (CiA 301 7.4.7.1)
             if size is None or bits != 8 * size:
-                raise SdoAbort(GENERAL_PARAMETER_INCOMPATIBILITY, "dummy entry length")
+                raise SdoAbort(SdoAbortCode.GENERAL_PARAMETER_INCOMPATIBILITY, "dummy entry length")
             return bits
         entry = self.node.od.entries.get((index, sub))
         if entry is None or not entry.pdo_mappable or entry.size is None:
-            raise SdoAbort(OBJECT_NOT_MAPPABLE, f"0x{index:04X}:{sub:02X} cannot be mapped")
+            raise SdoAbort(SdoAbortCode.OBJECT_NOT_MAPPABLE, f"0x{index:04X}:{sub:02X} cannot be mapped")
         if (receive and not entry.access.writable) or (not receive and not entry.access.readable):
-            raise SdoAbort(OBJECT_NOT_MAPPABLE, f"0x{index:04X}:{sub:02X} has the wrong access for this PDO")
+            raise SdoAbort(SdoAbortCode.OBJECT_NOT_MAPPABLE,
+                           f"0x{index:04X}:{sub:02X} has the wrong access for this PDO")
         if bits != entry.bit_length:
-            raise SdoAbort(GENERAL_PARAMETER_INCOMPATIBILITY,
+            raise SdoAbort(SdoAbortCode.GENERAL_PARAMETER_INCOMPATIBILITY,
                            f"0x{index:04X}:{sub:02X} is {entry.bit_length} bits, not {bits}")
         return bits

@@ -14,10 +14,10 @@ from typing import TYPE_CHECKING, Any, Final
 
 from gatewaylab.bus.frame import CanFrame
 from gatewaylab.canopen.emcy import EMCY_UNEXPECTED_SYNC_LENGTH, ERR_COMMUNICATION
-from gatewaylab.canopen.errors import DATA_CANNOT_BE_STORED_DEVICE_STATE, VALUE_RANGE_EXCEEDED, SdoAbort
 from gatewaylab.canopen.nmt import NmtState
 from gatewaylab.common.clock import PeriodicTimer
 from gatewaylab.od import Entry
+from gatewaylab.od.aborts import SdoAbort, SdoAbortCode
 
 if TYPE_CHECKING:
     from gatewaylab.canopen.node import Node
@@ -47,15 +47,15 @@ class Sync:
 
     def _validate_cob_id(self, entry: Entry, value: Any) -> None:
         if value & 0x20000000:
-            raise SdoAbort(VALUE_RANGE_EXCEEDED, "SYNC: only 11-bit identifiers")
+            raise SdoAbort(SdoAbortCode.VALUE_RANGE_EXCEEDED, "SYNC: only 11-bit identifiers")
         if value & 0x40000000 and self.producer and (value & 0x7FF) != self.cob_id:
-            raise SdoAbort(VALUE_RANGE_EXCEEDED, "SYNC: change the COB-ID of an active producer")
+            raise SdoAbort(SdoAbortCode.VALUE_RANGE_EXCEEDED, "SYNC: change the COB-ID of an active producer")
 
     def _validate_overflow(self, entry: Entry, value: Any) -> None:
         if value == 1 or value > 240:
-            raise SdoAbort(VALUE_RANGE_EXCEEDED, "SYNC counter overflow: 0 or 2..240")
+            raise SdoAbort(SdoAbortCode.VALUE_RANGE_EXCEEDED, "SYNC counter overflow: 0 or 2..240")
         if self.node.od.get(0x1006, 0) != 0:
-            raise SdoAbort(DATA_CANNOT_BE_STORED_DEVICE_STATE, "0x1006 is not 0 (CiA 301 7.5.2.22)")
+            raise SdoAbort(SdoAbortCode.DATA_CANNOT_BE_STORED_DEVICE_STATE, "0x1006 is not 0 (CiA 301 7.5.2.22)")
 
     def configure(self) -> None:
         """Read 0x1005 (COB-ID, producer bit), 0x1006 (period) and 0x1019 (counter overflow) again."""

@@ -177,7 +177,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.ready_file:
         _check_writable("--ready-file", args.ready_file)
     # Until the loop runs (and again while it shuts down), SIGTERM/SIGINT unwind at once: a rig stopped
-    # while it starts leaves no temporary folder, socket or thread behind either (issue 21).
+    # while it starts leaves no temporary folder, socket or thread behind either.
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, _stop_at_once)
     rig: Rig | None = None
@@ -245,7 +245,7 @@ def cmd_run(args: argparse.Namespace) -> int:
                         os.unlink(path)
         finally:
             # Exit within milliseconds: the collector's passes over every object the rig ever imported
-            # took 120-200 ms of the second SIGTERM promises (issue 21); nothing left needs them.
+            # would take 120-200 ms of the second SIGTERM promises; nothing left needs them.
             gc.freeze()
     print("gatewaylab rig stopped")
     return 0

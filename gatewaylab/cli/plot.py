@@ -26,7 +26,7 @@ from gatewaylab.bus.transport.trace import read_trace as trace_items
 from gatewaylab.canopen.cia402 import OpMode, Sw
 from gatewaylab.canopen.monitor import BusMonitor
 from gatewaylab.common.errors import ConfigError
-from gatewaylab.devices.canopen_drive.device import build_object_dictionary
+from gatewaylab.devices.canopen_drive.objects import build_object_dictionary
 from gatewaylab.od import ObjectDictionary
 from gatewaylab.od.eds import import_eds
 

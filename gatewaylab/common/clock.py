@@ -163,8 +163,8 @@ class Clock:
         earliest pending event (None: none). Until :meth:`end_wait`, scheduling an event before
         that time -- from another thread holding :attr:`lock` (a wire thread, a web server, an
         in-process master) -- calls :attr:`wakeup` once, so the loop never sleeps past an event
-        it did not know of when it went to sleep (issue 21: a Tx batch the EtherCAT wire thread
-        handed to the bus waited for the loop's next timeout, up to 250 ms)."""
+        it did not know of when it went to sleep (otherwise a Tx batch the EtherCAT wire thread
+        hands to the bus would wait for the loop's next timeout, up to 250 ms)."""
         with self.lock:
             deadline = self.next_deadline()
             self._wake_before = math.inf if deadline is None else deadline

@@ -1,7 +1,7 @@
 """A ``socketserver`` server served in a daemon thread that stops at once.
 
 ``serve_forever`` notices ``shutdown()`` only at its next poll (0.5 s by default), and a rig stops its
-web servers one after the other: with two of them SIGTERM took a second (issue 21, defect 5). Here
+web servers one after the other: with two of them SIGTERM would take a second. Here
 the thread waits in ``select`` on the listening socket and a wake-up socket, so :meth:`ServerThread.stop`
 ends it within the time one accept takes, and an idle server never wakes up.
 """

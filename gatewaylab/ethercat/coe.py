@@ -5,7 +5,7 @@ CANopen one from :mod:`gatewaylab.od.sdo`; this module adds the mailbox framing 
 longer segments, data in the initiate upload response) and the EtherCAT access rules
 (:class:`CoeAccess`). Codec constants are shared with the in-process master's client
 (``master.py``). Abort replies go out as CoE service 2 (SDO request) with command 0x80, which is
-what SOEM decodes as an abort (see shared notes 'soem-interop', pitfall 1); QEC appendix A.5
+what SOEM decodes as an abort (docs/decisions.md); QEC appendix A.5
 lists the codes.
 """
 

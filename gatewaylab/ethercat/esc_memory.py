@@ -373,7 +373,7 @@ class EscMemory:
         An enabled SyncManager is activated only when its buffer starts in process RAM and does not
         overlap a lower activated SyncManager: registers and process RAM are separate (ET1100 data
         sheet II: 0x0000-0x0FFF registers, process RAM from 0x1000), so a buffer over the registers
-        would let mailbox data overwrite AL status and friends (issue 21, defect 2). The master sees
+        would let mailbox data overwrite AL status and friends. The master sees
         the refusal through the firmware (the SM-change event :class:`SmChanged`: AL status code
         0x0016 for the mailbox, 0x001D/0x001E for process data, as SOES does on its SM-change
         event); its next normal configuration of the SyncManager activates it again. ``master``: the

@@ -81,7 +81,7 @@ def _category(kind: int, data: bytes) -> bytes:
 def _pdos(assigned: tuple[Pdo, ...], sm: int, strings: _Strings) -> bytes:
     """PDO category: the PDOs assigned at power-on, the default a master without CoE uses. The
     alternatives a CoE master may assign are in the ESI only: masters read the SII 4 bytes per
-    round trip (KickCAT), so every listed PDO lengthens their scan (docs/decisions.md, issue 10)."""
+    round trip (KickCAT), so every listed PDO lengthens their scan (docs/decisions.md)."""
     out = bytearray()
     for pdo in assigned:
         out += PDO_HEADER.pack(pdo.index, len(pdo.entries), sm, 0, strings.add(pdo.name), 0)

@@ -258,7 +258,7 @@ class Slave:
         """Start, length and direction as the SII says. The buffer type may differ from the SII's (KickCAT
         programs 3-buffer process data SyncManagers whatever the SII says) when the buffers then still
         fit: three times the length inside the process RAM, clear of every other SyncManager
-        (docs/decisions.md, issue 10: KickCAT interop)."""
+        (docs/decisions.md: KickCAT interop)."""
         sm = self.esc.sm_config(index)
         if length == 0:
             return not sm.enabled

@@ -3,8 +3,8 @@
 An AF_PACKET socket bound to EtherType 0x88A4 is served by its own thread. The thread keeps polling
 the socket for :data:`SPIN_AFTER_FRAME_S` after each frame (a master's mailbox exchange or
 back-to-back cycles answer within microseconds), and otherwise blocks in ``select`` on the socket
-and a wake-up socket, so an idle line costs no CPU (issue 21: the old busy poll burned a whole core
-of a 2-CPU machine; the numbers are in docs/decisions.md and ``benchmarks/bench_ethercat.py``).
+and a wake-up socket, so an idle line costs no CPU (a busy poll burns a whole core of a 2-CPU
+machine; the numbers are in docs/decisions.md and ``benchmarks/bench_ethercat.py``).
 ``busy_poll=True`` keeps the old behaviour (never block; for a pinned, dedicated CPU). Frames the
 socket itself sent (PACKET_OUTGOING) are ignored. Protocol state is touched only under
 ``clock.lock``; with ``drive_clock`` the thread also runs due clock events (standalone use without
@@ -46,13 +46,13 @@ DRIVE_MAX_WAIT_S = 0.001
 #: each compiled); passes follow each other for up to ``DRIVE_PASS_S``, then the thread looks at its
 #: socket again, so a frame waits for that much of the work the last frame left instead of all of it
 #: (~460 us at 32 drives), and the clock still gets whole slices of time: a look at the socket after
-#: every pass of 4 let a 4 kHz segment's CAN buses fall behind real time and lose frames (issue 23).
+#: every pass of 4 let a 4 kHz segment's CAN buses fall behind real time and lose frames.
 DRIVE_PASS_EVENTS = 4
 DRIVE_PASS_S = 0.0002
 #: With ``drive_clock``: frames come first, but never for longer than this without a clock slice. After a
 #: stall the socket holds a backlog a busy segment drains only slowly (a 4 kHz frame every 250 us, each
 #: taking most of that): frames first without a bound starved the clock for up to 28 ms, and the CAN
-#: controllers' TX FIFOs (32 frames, 1 frame/ms each) overflowed behind it (issue 23, 4 kHz row).
+#: controllers' TX FIFOs (32 frames, 1 frame/ms each) overflowed behind it (docs/performance.md, 4 kHz row).
 DRIVE_MAX_STARVE_S = 0.0005
 #: How often a thread waiting for ``clock.lock`` looks whether it was asked to stop.
 LOCK_POLL_S = 0.002

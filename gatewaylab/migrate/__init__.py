@@ -1,2 +1,2 @@
-"""esd CAN-EtherCAT -> ECAN-Lite migration kit (issue 13): configuration translation and the
+"""esd CAN-EtherCAT -> ECAN-Lite migration kit: configuration translation and the
 ``gatewaylab migrate`` command. Depends on the devices, never the reverse."""

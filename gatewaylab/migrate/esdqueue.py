@@ -1,4 +1,4 @@
-"""The esd queue API on an ECAN-Lite MCAN channel (issue 13 part 2).
+"""The esd queue API on an ECAN-Lite MCAN channel (docs/migration-esd-to-ecanlite.md).
 
 :class:`EsdQueueOnEcanLite` implements :class:`~gatewaylab.hosts.esd_can_ethercat.EsdQueueApi`
 (what code written against the esd host library's :class:`EsdHost` calls) over the ECAN-Lite host

@@ -1,4 +1,4 @@
-"""esd CAN-EtherCAT CoE startup writes -> ECAN-Lite CoE startup writes (issue 13 part 1).
+"""esd CAN-EtherCAT CoE startup writes -> ECAN-Lite CoE startup writes (``gatewaylab migrate config``).
 
 The esd side is read through the device's own decoders (``esd_can_ethercat.bitrate``: Table 6 for
 0xF800:02, Table 9 / UBR / UBRN / LOM for 0xF800:05), the ECAN-Lite side is checked with its bit

@@ -1,4 +1,4 @@
-"""The esd API's transaction numbers carried by ECAN-Lite TX_RESULTs, sans-I/O (issue 13 part 2).
+"""The esd API's transaction numbers carried by ECAN-Lite TX_RESULTs, sans-I/O.
 
 :class:`TxBook` is the Tx bookkeeping of :class:`~gatewaylab.migrate.esdqueue.EsdQueueOnEcanLite`
 without any I/O: frames wait in order with their transaction numbers (1..FFFFh, then 1 again, as

@@ -1,5 +1,5 @@
-"""What a participant may offer other participants, declared as Protocols (issue 22: faults and the segment
-find capabilities by these, never by probing attributes).
+"""What a participant may offer other participants, declared as Protocols (faults and the segment find
+capabilities by these, never by probing attributes).
 
 A device satisfies a capability by having its members (structural typing: no base class, no registration);
 ``isinstance(p, CanChannels)`` and friends (``runtime_checkable``) check that the members exist, and the

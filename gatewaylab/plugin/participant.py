@@ -23,7 +23,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
-from gatewaylab.bus.bus import Controller, VirtualBus
+from gatewaylab.bus.bus import VirtualBus
+from gatewaylab.bus.controller import Controller
 from gatewaylab.common.clock import Clock
 from gatewaylab.common.errors import ConfigError
 

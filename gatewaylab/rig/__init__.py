@@ -1,4 +1,6 @@
-"""Rig files, the runtime that runs them, the device plugin interface and the `gatewaylab` command line.
+"""Rig files and the runtime that runs them: buses, participants, the real-time loop, faults,
+endpoints, the ``[ethercat]`` segment, bridges, tunnels, RigProcess and the pytest plugin. The device
+plugin interface is :mod:`gatewaylab.plugin`, the command line :mod:`gatewaylab.cli`.
 
 ``from gatewaylab.rig import Rig, load_rig, parse_rig`` (imported on first use, so the command
 line starts without loading every device, and a device module that imports

@@ -24,7 +24,8 @@ import math
 from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, Any
 
-from gatewaylab.bus.bus import Controller, VirtualBus
+from gatewaylab.bus.bus import VirtualBus
+from gatewaylab.bus.controller import Controller
 from gatewaylab.canopen.emcy import ERR_CURRENT, ERR_PROFILE
 from gatewaylab.common.clock import TimerHandle
 from gatewaylab.common.errors import GatewaylabError

@@ -10,7 +10,7 @@ released on every exit path: a failed construction, :meth:`Rig.close` (or ``with
 and, for a rig nobody closed, its finaliser (which warns with ``ResourceWarning``). SIGINT and
 SIGTERM stop :meth:`Rig.run` within :data:`GRACE` whatever the loop is doing, and :meth:`Rig.close`
 takes milliseconds (every participant's ``stop()`` wakes its threads at once), so `gatewaylab run`
-exits within a second of SIGTERM in every state (issue 21).
+exits within a second of SIGTERM in every state (docs/rig.md).
 """
 
 from __future__ import annotations
@@ -55,7 +55,7 @@ log = logging.getLogger(__name__)
 #: Seconds a loop asked to stop by SIGINT/SIGTERM gets to return by itself before it is
 #: interrupted wherever it is (a callback that never returns, a clock that never runs dry). A pass
 #: under a CAN flood took up to ~0.2 s on a loaded 2-CPU machine; close() and the exit need the
-#: rest of the second SIGTERM promises (issue 21).
+#: rest of the second SIGTERM promises (docs/rig.md).
 GRACE = 0.3
 #: A participant whose stop() takes longer than this is named in a warning: the whole rig has one
 #: second to exit after SIGTERM (docs/rig.md), and every stop() should return within milliseconds.
@@ -95,7 +95,7 @@ class _Resources:
 
 def _make_state_dir(resources: _Resources) -> Path:
     """A new private ``gatewaylab-*`` folder in the temp directory, recorded in ``resources`` before it
-    exists: SIGTERM while `gatewaylab run` starts unwinds it (issue 21), and a signal between
+    exists: SIGTERM while `gatewaylab run` starts unwinds it, and a signal between
     ``mkdtemp``'s mkdir and its return would leave an empty folder nobody knows about."""
     base = Path(tempfile.gettempdir())
     while True:
@@ -369,7 +369,7 @@ class Rig:
                                         f"{exc.strerror or exc}{hint}") from None
 
     def ready_info(self) -> dict[str, Any]:
-        """What the --ready-file holds: pid, the modules that run compiled (issue 23: a master's test log
+        """What the --ready-file holds: pid, the modules that run compiled (so a master's test log
         says which build it ran against), buses and endpoints, then every participant's info."""
         info: dict[str, Any] = {"pid": os.getpid(), "compiled": build_info.compiled_modules(), "buses": {}}
         for name, bus in self.buses.items():

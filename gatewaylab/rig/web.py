@@ -19,7 +19,7 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import Any
 
 from gatewaylab.bus import CanFrame, VirtualBus
-from gatewaylab.bus.bus import BusEvent, Controller, ErrorFrameEvent, StateChangeEvent
+from gatewaylab.bus.controller import BusEvent, Controller, ErrorFrameEvent, StateChangeEvent
 from gatewaylab.bus.errorframe import bus_error, state_change
 from gatewaylab.canopen.monitor import BusMonitor, ControllerWatch, MonitorEvent, SignalSource
 from gatewaylab.common.server_thread import ServerThread

@@ -2,8 +2,7 @@ from collections.abc import Callable
 
 import pytest
 
-from gatewaylab.bus import CanFrame, VirtualBus
-from gatewaylab.bus.bus import BusEvent, Controller
+from gatewaylab.bus import BusEvent, CanFrame, Controller, VirtualBus
 from gatewaylab.common.clock import SimulatedClock
 
 

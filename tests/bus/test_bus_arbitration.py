@@ -115,15 +115,15 @@ def test_arbitration_step_names_the_winner_and_the_outcome_without_changing_anyt
     b, _ = attach("b")
     a.send(CanFrame(0x200, b"\x01"))
     b.send(CanFrame(0x100, b"\x02"))
-    step = bus._next_transmission(clock.now())
-    assert step == bus._next_transmission(clock.now())
+    step = bus.next_transmission(clock.now())
+    assert step == bus.next_transmission(clock.now())
     assert step is not None and step.sender is b and step.frame.can_id == 0x100 and step.outcome is Outcome.SENT
     assert step.end - step.start == pytest.approx(frame_duration(step.frame, 1_000_000, 5_000_000))
     clock.advance(0.01)
     assert bus.stats.frames == 2
     bus.detach(b)
     a.send(CanFrame(0x300))
-    lone = bus._next_transmission(clock.now())
+    lone = bus.next_transmission(clock.now())
     assert lone is not None and lone.outcome is Outcome.ACK_ERROR
 
 

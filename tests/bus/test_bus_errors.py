@@ -2,8 +2,7 @@
 
 import pytest
 
-from gatewaylab.bus import CanFrame, ErrorState
-from gatewaylab.bus.bus import ErrorFrameEvent, ErrorKind, StateChangeEvent, TxAbortedEvent
+from gatewaylab.bus import CanFrame, ErrorFrameEvent, ErrorKind, ErrorState, StateChangeEvent, TxAbortedEvent
 from gatewaylab.common.errors import LocalError
 
 

@@ -3,8 +3,7 @@ against the fault-confinement rules of CAN 2.0 §8 as carried into ISO 11898-1."
 
 import pytest
 
-from gatewaylab.bus import CanFrame, ErrorState
-from gatewaylab.bus.bus import ErrorFrameEvent, ErrorKind, StateChangeEvent, TxAbortedEvent
+from gatewaylab.bus import CanFrame, ErrorFrameEvent, ErrorKind, ErrorState, StateChangeEvent, TxAbortedEvent
 from gatewaylab.common.errors import LocalError
 
 
@@ -21,7 +20,7 @@ def test_drop_next_of_one_id_spares_the_others(clock, bus, attach) -> None:
     assert rx.ids == [0x281, 0x281, 0x181, 0x281]
     assert [f.data for f, _ in rx.frames if f.can_id == 0x181] == [b"\x02"]
     assert bus.stats.dropped_frames == 2 and a.tec == 0
-    assert bus._faults is None      # spent: the hot path is back to one test
+    assert bus.fault_plan is None      # spent: the hot path is back to one test
 
 
 def test_corrupt_next_of_one_id_is_a_crc_error_and_retransmitted(clock, bus, attach) -> None:

@@ -13,9 +13,9 @@ import pytest
 from canopen_testkit import RawClient, barrier, remote_for, sample_od
 
 from gatewaylab.bus import CanFrame
-from gatewaylab.canopen import errors as E
 from gatewaylab.canopen.emcy import ERR_CURRENT, ERR_TEMPERATURE
 from gatewaylab.canopen.node import Node
+from gatewaylab.od.aborts import SdoAbortCode
 
 
 def sdo_code(answer: bytes | None) -> int:
@@ -45,7 +45,7 @@ def test_emcy_frames_register_and_history(make_node, raw, clock) -> None:
     assert raw.take(0x85) == [CanFrame(0x85, bytes(8))]
     assert node.get(0x1001) == 0
     # 0x1003:00 = 0 clears the history, anything else is refused
-    assert sdo_code(raw.sdo(5, [0x2F, 0x03, 0x10, 0x00, 0x01])) == E.VALUE_RANGE_EXCEEDED
+    assert sdo_code(raw.sdo(5, [0x2F, 0x03, 0x10, 0x00, 0x01])) == SdoAbortCode.VALUE_RANGE_EXCEEDED
     assert sdo_code(raw.sdo(5, [0x2F, 0x03, 0x10, 0x00, 0x00])) == 0
     assert node.get(0x1003, 0) == 0
 
@@ -98,7 +98,7 @@ def test_store_survives_reset_and_power_cycle(make_node, raw, clock, vbus, tmp_p
     assert sdo_code(raw.sdo(5, [0x2F, 0x00, 0x60, 0x00, 0x2A])) == 0             # 0x6000 = 42
     assert sdo_code(raw.sdo(5, [0x40, 0x10, 0x10, 0x01])) == 0
     assert raw.sdo(5, [0x40, 0x10, 0x10, 0x01])[4:] == b"\x01\x00\x00\x00"       # device saves on command
-    assert _save(raw, 1, b"safe") == E.DATA_CANNOT_BE_STORED
+    assert _save(raw, 1, b"safe") == SdoAbortCode.DATA_CANNOT_BE_STORED
     assert not path.exists()
     assert _save(raw, 1) == 0
     stored = json.loads(path.read_text())["values"]
@@ -131,17 +131,17 @@ def test_restore_defaults_after_reset(make_node, network, tmp_path) -> None:
     assert json.loads(path.read_text())["values"] == {}
     with pytest.raises(canopen.SdoAbortedError) as info:
         remote.sdo.download(0x1011, 1, b"lead")
-    assert info.value.code == E.DATA_CANNOT_BE_STORED
+    assert info.value.code == SdoAbortCode.DATA_CANNOT_BE_STORED
 
 
 def test_sync_counter_rules(make_node, raw) -> None:
     """CiA 301 7.5.2.22: 0x1019 accepts 0 and 2..240, and only while 0x1006 is 0 (else 0x08000022)."""
     make_node()
-    assert sdo_code(raw.sdo(5, [0x2F, 0x19, 0x10, 0x00, 1])) == E.VALUE_RANGE_EXCEEDED
-    assert sdo_code(raw.sdo(5, [0x2F, 0x19, 0x10, 0x00, 241])) == E.VALUE_RANGE_EXCEEDED
+    assert sdo_code(raw.sdo(5, [0x2F, 0x19, 0x10, 0x00, 1])) == SdoAbortCode.VALUE_RANGE_EXCEEDED
+    assert sdo_code(raw.sdo(5, [0x2F, 0x19, 0x10, 0x00, 241])) == SdoAbortCode.VALUE_RANGE_EXCEEDED
     assert sdo_code(raw.sdo(5, [0x2F, 0x19, 0x10, 0x00, 2])) == 0
     assert sdo_code(raw.sdo(5, [0x23, 0x06, 0x10, 0x00, 0x10, 0x27, 0, 0])) == 0
-    assert sdo_code(raw.sdo(5, [0x2F, 0x19, 0x10, 0x00, 3])) == E.DATA_CANNOT_BE_STORED_DEVICE_STATE
+    assert sdo_code(raw.sdo(5, [0x2F, 0x19, 0x10, 0x00, 3])) == SdoAbortCode.DATA_CANNOT_BE_STORED_DEVICE_STATE
 
 
 def test_sync_producer(make_node, raw, sniffer, clock) -> None:

@@ -13,7 +13,6 @@ import pytest
 from canopen_testkit import barrier, remote_for, while_waiting
 
 from gatewaylab.bus import CanFrame
-from gatewaylab.canopen import errors as E
 from gatewaylab.canopen.nmt import (
     NmtCommand,
     NmtMaster,
@@ -24,6 +23,7 @@ from gatewaylab.canopen.nmt import (
     encode_heartbeat,
     encode_nmt,
 )
+from gatewaylab.od.aborts import SdoAbortCode
 
 
 @pytest.mark.parametrize(("command", "cs"), [
@@ -190,7 +190,7 @@ def test_consumer_duplicate_node_refused(make_node, raw) -> None:
     raw.sdo(5, [0x23, 0x16, 0x10, 0x01, 200, 0, 7, 0])
     answer = raw.sdo(5, [0x23, 0x16, 0x10, 0x02, 100, 0, 7, 0])
     assert answer is not None and answer[0] == 0x80
-    assert int.from_bytes(answer[4:], "little") == E.GENERAL_PARAMETER_INCOMPATIBILITY
+    assert int.from_bytes(answer[4:], "little") == SdoAbortCode.GENERAL_PARAMETER_INCOMPATIBILITY
 
 
 def test_nmt_master_sans_io(make_node, clock, vbus) -> None:

@@ -16,7 +16,6 @@ from canopen_testkit import remote_for, sample_od
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from gatewaylab.canopen import errors as E
 from gatewaylab.canopen.node import Node
 from gatewaylab.common.errors import ConfigError
 from gatewaylab.od import (
@@ -26,6 +25,7 @@ from gatewaylab.od import (
     ObjectCode,
     ObjectDictionary,
     SdoAbort,
+    SdoAbortCode,
     decode,
     encode,
     type_range,
@@ -71,13 +71,13 @@ def test_decode_length_and_range_errors() -> None:
     entry = Entry(0x2000, 0, "x", DataType.INTEGER16, low=-10, high=10)
     with pytest.raises(SdoAbort) as info:
         decode(entry, b"\x01")
-    assert info.value.code == E.LENGTH_TOO_LOW
+    assert info.value.code == SdoAbortCode.LENGTH_TOO_LOW
     with pytest.raises(SdoAbort) as info:
         decode(entry, b"\x01\x00\x00")
-    assert info.value.code == E.LENGTH_MISMATCH
+    assert info.value.code == SdoAbortCode.LENGTH_MISMATCH
     with pytest.raises(SdoAbort) as info:
         decode(entry, b"\x0B\x00")
-    assert info.value.code == E.VALUE_RANGE_EXCEEDED
+    assert info.value.code == SdoAbortCode.VALUE_RANGE_EXCEEDED
     assert decode(entry, b"\xF6\xFF") == -10
     real = Entry(0x2001, 0, "r", DataType.REAL32, low=0.0, high=1.0)
     with pytest.raises(SdoAbort):
@@ -94,10 +94,10 @@ def test_access_and_lookup() -> None:
     od = sample_od()
     with pytest.raises(SdoAbort) as info:
         od.entry(0x5555, 0)
-    assert info.value.code == E.OBJECT_DOES_NOT_EXIST
+    assert info.value.code == SdoAbortCode.OBJECT_DOES_NOT_EXIST
     with pytest.raises(SdoAbort) as info:
         od.entry(0x2200, 2)
-    assert info.value.code == E.SUBINDEX_DOES_NOT_EXIST
+    assert info.value.code == SdoAbortCode.SUBINDEX_DOES_NOT_EXIST
     assert od.get(0x2200, 0) == 3                      # highest sub-index supported
     assert od.objects[0x2100].object_code is ObjectCode.ARRAY
     with pytest.raises(ConfigError):
@@ -279,7 +279,8 @@ def test_decode_never_raises_anything_but_sdo_abort(wire: bytes, dt: DataType) -
     try:
         decode(entry, wire)
     except SdoAbort as exc:
-        assert exc.code in (E.LENGTH_TOO_LOW, E.LENGTH_MISMATCH, E.VALUE_RANGE_EXCEEDED)
+        assert exc.code in (SdoAbortCode.LENGTH_TOO_LOW, SdoAbortCode.LENGTH_MISMATCH,
+                            SdoAbortCode.VALUE_RANGE_EXCEEDED)
 
 
 def test_dcf_spellings_and_domain_without_data_type() -> None:

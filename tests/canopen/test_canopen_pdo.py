@@ -13,8 +13,8 @@ import pytest
 from canopen_testkit import RawClient, barrier, remote_for, while_waiting
 
 from gatewaylab.bus import CanFrame
-from gatewaylab.canopen import errors as E
 from gatewaylab.canopen.nmt import NmtState
+from gatewaylab.od.aborts import SdoAbort, SdoAbortCode
 
 
 def wr(raw: RawClient, index: int, sub: int, value: int, size: int = 4) -> int:
@@ -294,28 +294,28 @@ def test_no_pdo_outside_operational(make_node, raw, sniffer, clock) -> None:
 
 @pytest.mark.parametrize(("steps", "code"), [
     # mapping while the PDO is valid
-    ([(0x1A00, 0, 0, 1)], E.UNSUPPORTED_ACCESS),
-    ([(0x1A00, 1, 0x20000020, 4)], E.UNSUPPORTED_ACCESS),
+    ([(0x1A00, 0, 0, 1)], SdoAbortCode.UNSUPPORTED_ACCESS),
+    ([(0x1A00, 1, 0x20000020, 4)], SdoAbortCode.UNSUPPORTED_ACCESS),
     # entry while sub-index 0 is not 0
     ([(0x1800, 1, 0x80000185, 4), (0x1A00, 1, 0x20000020, 4), (0x1A00, 0, 1, 1), (0x1A00, 1, 0x20110010, 4)],
-     E.SUBINDEX_CANNOT_BE_WRITTEN),
+     SdoAbortCode.SUBINDEX_CANNOT_BE_WRITTEN),
     # not mappable / not existing / wrong direction / wrong length
-    ([(0x1800, 1, 0x80000185, 4), (0x1A00, 1, 0x20090040, 4)], E.OBJECT_NOT_MAPPABLE),
-    ([(0x1800, 1, 0x80000185, 4), (0x1A00, 1, 0x30000020, 4)], E.OBJECT_NOT_MAPPABLE),
-    ([(0x1800, 1, 0x80000185, 4), (0x1A00, 1, 0x20050020, 4)], E.OBJECT_NOT_MAPPABLE),
-    ([(0x1400, 1, 0x80000205, 4), (0x1600, 1, 0x20040008, 4)], E.OBJECT_NOT_MAPPABLE),
-    ([(0x1800, 1, 0x80000185, 4), (0x1A00, 1, 0x20000010, 4)], E.GENERAL_PARAMETER_INCOMPATIBILITY),
+    ([(0x1800, 1, 0x80000185, 4), (0x1A00, 1, 0x20090040, 4)], SdoAbortCode.OBJECT_NOT_MAPPABLE),
+    ([(0x1800, 1, 0x80000185, 4), (0x1A00, 1, 0x30000020, 4)], SdoAbortCode.OBJECT_NOT_MAPPABLE),
+    ([(0x1800, 1, 0x80000185, 4), (0x1A00, 1, 0x20050020, 4)], SdoAbortCode.OBJECT_NOT_MAPPABLE),
+    ([(0x1400, 1, 0x80000205, 4), (0x1600, 1, 0x20040008, 4)], SdoAbortCode.OBJECT_NOT_MAPPABLE),
+    ([(0x1800, 1, 0x80000185, 4), (0x1A00, 1, 0x20000010, 4)], SdoAbortCode.GENERAL_PARAMETER_INCOMPATIBILITY),
     # more than 64 bits
     ([(0x1800, 1, 0x80000185, 4), (0x1A00, 1, 0x200A0040, 4), (0x1A00, 2, 0x20110010, 4),
-      (0x1A00, 0, 2, 1)], E.PDO_LENGTH_EXCEEDED),
-    ([(0x1800, 1, 0x80000185, 4), (0x1A00, 0, 9, 1)], E.VALUE_RANGE_EXCEEDED),
+      (0x1A00, 0, 2, 1)], SdoAbortCode.PDO_LENGTH_EXCEEDED),
+    ([(0x1800, 1, 0x80000185, 4), (0x1A00, 0, 9, 1)], SdoAbortCode.VALUE_RANGE_EXCEEDED),
     # communication parameters
-    ([(0x1800, 1, 0x186, 4)], E.VALUE_RANGE_EXCEEDED),                 # new COB-ID while valid
-    ([(0x1800, 1, 0x80000185, 4), (0x1800, 1, 0x705, 4)], E.VALUE_RANGE_EXCEEDED),   # reserved
-    ([(0x1800, 1, 0xA0000185, 4)], E.VALUE_RANGE_EXCEEDED),            # 29-bit
-    ([(0x1800, 2, 245, 1)], E.VALUE_RANGE_EXCEEDED),
-    ([(0x1400, 2, 252, 1)], E.VALUE_RANGE_EXCEEDED),
-    ([(0x1800, 3, 10, 2)], E.UNSUPPORTED_ACCESS),                      # inhibit time while valid
+    ([(0x1800, 1, 0x186, 4)], SdoAbortCode.VALUE_RANGE_EXCEEDED),                 # new COB-ID while valid
+    ([(0x1800, 1, 0x80000185, 4), (0x1800, 1, 0x705, 4)], SdoAbortCode.VALUE_RANGE_EXCEEDED),   # reserved
+    ([(0x1800, 1, 0xA0000185, 4)], SdoAbortCode.VALUE_RANGE_EXCEEDED),            # 29-bit
+    ([(0x1800, 2, 245, 1)], SdoAbortCode.VALUE_RANGE_EXCEEDED),
+    ([(0x1400, 2, 252, 1)], SdoAbortCode.VALUE_RANGE_EXCEEDED),
+    ([(0x1800, 3, 10, 2)], SdoAbortCode.UNSUPPORTED_ACCESS),                      # inhibit time while valid
 ])
 def test_mapping_rules_abort_codes(make_node, raw, steps: list[tuple[int, int, int, int]], code: int) -> None:
     """CiA 301 7.5.2.36/38 with IDX table 6-20 codes: disable via COB-ID bit 31 before remapping,
@@ -372,7 +372,7 @@ def test_dictionary_put_notifies_subscribers_of_changes_only() -> None:
     assert od.put(0x2000, 0, 8) is True
     assert seen == [((0x2000, 0), 7)]
     unsubscribe()                                 # ending it twice is harmless
-    with pytest.raises(E.SdoAbort):
+    with pytest.raises(SdoAbort):
         od.put(0x3000, 0, 1)                      # no such object
 
 

@@ -12,8 +12,7 @@ import canopen
 import pytest
 from canopen_testkit import barrier, remote_for
 
-from gatewaylab.canopen import errors as E
-from gatewaylab.od import SdoAbort
+from gatewaylab.od import SdoAbort, SdoAbortCode
 from gatewaylab.od.crc import crc16_ccitt
 
 
@@ -95,9 +94,9 @@ def test_block_download_with_crc(make_node, network) -> None:
 
 
 @pytest.mark.parametrize(("index", "sub", "code"), [
-    (0x3000, 0, E.OBJECT_DOES_NOT_EXIST),
-    (0x2200, 2, E.SUBINDEX_DOES_NOT_EXIST),
-    (0x2005, 0, E.WRITE_ONLY),
+    (0x3000, 0, SdoAbortCode.OBJECT_DOES_NOT_EXIST),
+    (0x2200, 2, SdoAbortCode.SUBINDEX_DOES_NOT_EXIST),
+    (0x2005, 0, SdoAbortCode.WRITE_ONLY),
 ])
 def test_upload_aborts(make_node, network, index: int, sub: int, code: int) -> None:
     """IDX table 6-20: unknown object 0x06020000, unknown sub-index 0x06090011, write-only 0x06010001."""
@@ -109,18 +108,18 @@ def test_upload_aborts(make_node, network, index: int, sub: int, code: int) -> N
 
 
 @pytest.mark.parametrize(("index", "sub", "data", "code"), [
-    (0x3000, 0, b"\x01", E.OBJECT_DOES_NOT_EXIST),
-    (0x2200, 7, b"\x01", E.SUBINDEX_DOES_NOT_EXIST),
-    (0x2004, 0, b"\x01", E.READ_ONLY),
-    (0x2006, 0, b"\x01\x02", E.READ_ONLY),                 # CONST
-    (0x1018, 1, b"\x01\x02\x03\x04", E.READ_ONLY),
-    (0x2011, 0, b"\x01\x02\x03\x04", E.LENGTH_MISMATCH),   # too long: 0x06070010 (the IDX has no 0x06070012)
-    (0x2000, 0, b"\x01", E.LENGTH_TOO_LOW),
-    (0x2003, 0, struct.pack("<h", 101), E.VALUE_RANGE_EXCEEDED),
-    (0x2003, 0, struct.pack("<h", -101), E.VALUE_RANGE_EXCEEDED),
-    (0x200C, 0, b"\x02", E.VALUE_RANGE_EXCEEDED),
-    (0x1003, 0, b"\x01", E.VALUE_RANGE_EXCEEDED),          # 0x1003:00 only accepts 0
-    (0x200E, 0, b"\x01\x02", E.LENGTH_TOO_LOW),
+    (0x3000, 0, b"\x01", SdoAbortCode.OBJECT_DOES_NOT_EXIST),
+    (0x2200, 7, b"\x01", SdoAbortCode.SUBINDEX_DOES_NOT_EXIST),
+    (0x2004, 0, b"\x01", SdoAbortCode.READ_ONLY),
+    (0x2006, 0, b"\x01\x02", SdoAbortCode.READ_ONLY),                 # CONST
+    (0x1018, 1, b"\x01\x02\x03\x04", SdoAbortCode.READ_ONLY),
+    (0x2011, 0, b"\x01\x02\x03\x04", SdoAbortCode.LENGTH_MISMATCH),   # too long: 0x06070010 (the IDX has no 0x06070012)
+    (0x2000, 0, b"\x01", SdoAbortCode.LENGTH_TOO_LOW),
+    (0x2003, 0, struct.pack("<h", 101), SdoAbortCode.VALUE_RANGE_EXCEEDED),
+    (0x2003, 0, struct.pack("<h", -101), SdoAbortCode.VALUE_RANGE_EXCEEDED),
+    (0x200C, 0, b"\x02", SdoAbortCode.VALUE_RANGE_EXCEEDED),
+    (0x1003, 0, b"\x01", SdoAbortCode.VALUE_RANGE_EXCEEDED),          # 0x1003:00 only accepts 0
+    (0x200E, 0, b"\x01\x02", SdoAbortCode.LENGTH_TOO_LOW),
 ])
 def test_download_aborts(make_node, network, index: int, sub: int, data: bytes, code: int) -> None:
     """IDX table 6-20: object/sub-index unknown, read only, length too high/low, value range."""
@@ -139,10 +138,10 @@ def test_segmented_download_with_wrong_size_is_refused(make_node, network) -> No
     remote = remote_for(network, node)
     with pytest.raises(canopen.SdoAbortedError) as info:
         remote.sdo.download(0x2000, 0, b"\x00" * 9, force_segment=True)
-    assert info.value.code == E.LENGTH_MISMATCH
+    assert info.value.code == SdoAbortCode.LENGTH_MISMATCH
     with pytest.raises(canopen.SdoAbortedError) as info:
         remote.sdo.download(0x200A, 0, b"\x00" * 5, force_segment=True)
-    assert info.value.code == E.LENGTH_TOO_LOW
+    assert info.value.code == SdoAbortCode.LENGTH_TOO_LOW
 
 
 def test_wrong_nmt_state_abort(make_node, network) -> None:
@@ -154,7 +153,7 @@ def test_wrong_nmt_state_abort(make_node, network) -> None:
     barrier(remote)
     with pytest.raises(canopen.SdoAbortedError) as info:
         remote.sdo[0x2010].raw = 9
-    assert info.value.code == E.WRONG_NMT_STATE
+    assert info.value.code == SdoAbortCode.WRONG_NMT_STATE
     assert node.get(0x2010) == 8
 
 
@@ -165,18 +164,18 @@ def test_hook_abort_undoes_write_and_hook_crash_is_general_error(make_node, netw
 
     def refuse(index: int, sub: int, value: int) -> None:
         if value == 13:
-            raise SdoAbort(E.DATA_CANNOT_BE_STORED_DEVICE_STATE)
+            raise SdoAbort(SdoAbortCode.DATA_CANNOT_BE_STORED_DEVICE_STATE)
         if value == 14:
             raise RuntimeError("bug in device code")
 
     node.on_write(0x2000, refuse)
     with pytest.raises(canopen.SdoAbortedError) as info:
         remote.sdo[0x2000].raw = 13
-    assert info.value.code == E.DATA_CANNOT_BE_STORED_DEVICE_STATE
+    assert info.value.code == SdoAbortCode.DATA_CANNOT_BE_STORED_DEVICE_STATE
     assert node.get(0x2000) == 0x12345678
     with pytest.raises(canopen.SdoAbortedError) as info:
         remote.sdo[0x2000].raw = 14
-    assert info.value.code == E.GENERAL_ERROR
+    assert info.value.code == SdoAbortCode.GENERAL_ERROR
     assert node.stats["hook_errors"] == 1
     assert node.get(0x2000) == 0x12345678                 # undone as well
     remote.sdo[0x2000].raw = 15
@@ -203,9 +202,9 @@ def test_segmented_upload_toggle_error(make_node, raw) -> None:
     assert answer is not None and answer[0] == 0x41 and struct.unpack_from("<I", answer, 4)[0] == 23
     first = raw.sdo(5, [0x60])
     assert first == b"\x00" + b"gateway"
-    assert abort_code(raw.sdo(5, [0x60])) == E.TOGGLE_BIT_NOT_ALTERNATED   # toggle must be 1 now
+    assert abort_code(raw.sdo(5, [0x60])) == SdoAbortCode.TOGGLE_BIT_NOT_ALTERNATED   # toggle must be 1 now
     assert raw.sdo(5, [0x70]) is not None                                  # back to idle: unknown
-    assert abort_code(raw.sdo(5, [0x70])) == E.COMMAND_SPECIFIER_UNKNOWN
+    assert abort_code(raw.sdo(5, [0x70])) == SdoAbortCode.COMMAND_SPECIFIER_UNKNOWN
 
 
 def test_segmented_download_toggle_error(make_node, raw) -> None:
@@ -213,7 +212,7 @@ def test_segmented_download_toggle_error(make_node, raw) -> None:
     node = make_node()
     assert raw.sdo(5, [0x21, 0x01, 0x20, 0x00, 10, 0, 0, 0]) == bytes([0x60, 0x01, 0x20, 0, 0, 0, 0, 0])
     assert raw.sdo(5, [0x00, *b"abcdefg"]) == bytes([0x20, 0, 0, 0, 0, 0, 0, 0])
-    assert abort_code(raw.sdo(5, [0x00 | (4 << 1) | 1, *b"hij"])) == E.TOGGLE_BIT_NOT_ALTERNATED
+    assert abort_code(raw.sdo(5, [0x00 | (4 << 1) | 1, *b"hij"])) == SdoAbortCode.TOGGLE_BIT_NOT_ALTERNATED
     assert node.get(0x2001) == "gatewaylab CANopen node"
 
 
@@ -235,7 +234,7 @@ def test_sdo_server_timeout_on_the_clock(make_node, raw, clock) -> None:
     assert raw.take(0x585) == []
     clock.advance(node.sdo.timeout * 0.2)
     frames = raw.take(0x585)
-    assert len(frames) == 1 and abort_code(frames[0].data) == E.SDO_PROTOCOL_TIMED_OUT
+    assert len(frames) == 1 and abort_code(frames[0].data) == SdoAbortCode.SDO_PROTOCOL_TIMED_OUT
     assert frames[0].data[1:4] == bytes([0x02, 0x20, 0x00])
 
 
@@ -243,14 +242,14 @@ def test_sdo_server_timeout_on_the_clock(make_node, raw, clock) -> None:
 def test_unknown_command_specifier(make_node, raw, cs: int) -> None:
     """IDX table 6-20 0x05040001: ccs 7 does not exist."""
     make_node()
-    assert abort_code(raw.sdo(5, [cs, 0x00, 0x20, 0x00])) == E.COMMAND_SPECIFIER_UNKNOWN
+    assert abort_code(raw.sdo(5, [cs, 0x00, 0x20, 0x00])) == SdoAbortCode.COMMAND_SPECIFIER_UNKNOWN
 
 
 def test_segment_without_transfer_is_unknown_command(make_node, raw) -> None:
     """CiA 301: a segment request outside a segmented transfer is 0x05040001."""
     make_node()
-    assert abort_code(raw.sdo(5, [0x60])) == E.COMMAND_SPECIFIER_UNKNOWN
-    assert abort_code(raw.sdo(5, [0x00, 1, 2, 3, 4, 5, 6, 7])) == E.COMMAND_SPECIFIER_UNKNOWN
+    assert abort_code(raw.sdo(5, [0x60])) == SdoAbortCode.COMMAND_SPECIFIER_UNKNOWN
+    assert abort_code(raw.sdo(5, [0x00, 1, 2, 3, 4, 5, 6, 7])) == SdoAbortCode.COMMAND_SPECIFIER_UNKNOWN
 
 
 def test_client_abort_is_not_answered(make_node, raw) -> None:
@@ -282,7 +281,7 @@ def test_block_download_crc_error(make_node, raw) -> None:
     ack = raw.take(0x585)
     assert [f.data for f in ack] == [bytes([0xA2, 2, 127, 0, 0, 0, 0, 0])]
     bad_crc = crc16_ccitt(b"abcdefghij") ^ 0x1
-    assert abort_code(raw.sdo(5, struct.pack("<BH5x", 0xC1 | (4 << 2), bad_crc))) == E.CRC_ERROR
+    assert abort_code(raw.sdo(5, struct.pack("<BH5x", 0xC1 | (4 << 2), bad_crc))) == SdoAbortCode.CRC_ERROR
     assert node.get(0x2001) == "gatewaylab CANopen node"
 
 
@@ -308,9 +307,9 @@ def test_block_invalid_sequence_and_block_size(make_node, raw) -> None:
     """IDX/CiA 301: sequence number 0 is 0x05040003; a block size of 0 or >127 is 0x05040002."""
     make_node()
     assert raw.sdo(5, [0xC6, 0x01, 0x20, 0x00, 10, 0, 0, 0]) is not None
-    assert abort_code(raw.sdo(5, [0x00, 1, 2, 3, 4, 5, 6, 7])) == E.INVALID_SEQUENCE_NUMBER
-    assert abort_code(raw.sdo(5, [0xA4, 0x02, 0x20, 0x00, 0, 0, 0, 0])) == E.INVALID_BLOCK_SIZE
-    assert abort_code(raw.sdo(5, [0xA4, 0x02, 0x20, 0x00, 128, 0, 0, 0])) == E.INVALID_BLOCK_SIZE
+    assert abort_code(raw.sdo(5, [0x00, 1, 2, 3, 4, 5, 6, 7])) == SdoAbortCode.INVALID_SEQUENCE_NUMBER
+    assert abort_code(raw.sdo(5, [0xA4, 0x02, 0x20, 0x00, 0, 0, 0, 0])) == SdoAbortCode.INVALID_BLOCK_SIZE
+    assert abort_code(raw.sdo(5, [0xA4, 0x02, 0x20, 0x00, 128, 0, 0, 0])) == SdoAbortCode.INVALID_BLOCK_SIZE
 
 
 def test_block_upload_golden_frames_and_protocol_switch(make_node, raw) -> None:
@@ -372,7 +371,7 @@ def test_sdo_server_timeout_restarts_with_each_request(make_node, raw, clock) ->
     clock.advance(timeout * 0.9)                # past the first transfer's deadlines, not this one's
     assert raw.take(0x585) == []
     clock.advance(timeout * 0.2)
-    assert [abort_code(f.data) for f in raw.take(0x585)] == [E.SDO_PROTOCOL_TIMED_OUT]
+    assert [abort_code(f.data) for f in raw.take(0x585)] == [SdoAbortCode.SDO_PROTOCOL_TIMED_OUT]
 
 
 def test_block_transfer_timeouts(make_node, raw, clock) -> None:
@@ -383,12 +382,12 @@ def test_block_transfer_timeouts(make_node, raw, clock) -> None:
     raw.push(5, [0xA3])
     raw.received.clear()
     clock.advance(node.sdo.timeout + 0.01)
-    assert [abort_code(f.data) for f in raw.take(0x585)] == [E.SDO_PROTOCOL_TIMED_OUT]
+    assert [abort_code(f.data) for f in raw.take(0x585)] == [SdoAbortCode.SDO_PROTOCOL_TIMED_OUT]
     raw.sdo(5, [0xC6, 0x01, 0x20, 0x00, 30, 0, 0, 0])
     raw.push(5, [0x01, *b"abcdefg"])
     raw.received.clear()
     clock.advance(node.sdo.timeout + 0.01)
-    assert [abort_code(f.data) for f in raw.take(0x585)] == [E.SDO_PROTOCOL_TIMED_OUT]
+    assert [abort_code(f.data) for f in raw.take(0x585)] == [SdoAbortCode.SDO_PROTOCOL_TIMED_OUT]
     assert node.sdo.state.name == "IDLE"
 
 
@@ -399,11 +398,11 @@ def test_node_read_write_api_is_the_sdo_view(make_node) -> None:
     assert node.read(0x2011, 0) == b"\x11\x11"
     node.write(0x2011, 0, b"\x34\x12")
     assert node.get(0x2011) == 0x1234
-    for call, code in [(lambda: node.read(0x2005, 0), E.WRITE_ONLY),
-                       (lambda: node.write(0x2004, 0, b"\x01"), E.READ_ONLY),
-                       (lambda: node.write(0x2003, 0, b"\x65\x00"), E.VALUE_RANGE_EXCEEDED),
-                       (lambda: node.write(0x2011, 0, b"\x01"), E.LENGTH_TOO_LOW),
-                       (lambda: node.read(0x4000, 0), E.OBJECT_DOES_NOT_EXIST)]:
+    for call, code in [(lambda: node.read(0x2005, 0), SdoAbortCode.WRITE_ONLY),
+                       (lambda: node.write(0x2004, 0, b"\x01"), SdoAbortCode.READ_ONLY),
+                       (lambda: node.write(0x2003, 0, b"\x65\x00"), SdoAbortCode.VALUE_RANGE_EXCEEDED),
+                       (lambda: node.write(0x2011, 0, b"\x01"), SdoAbortCode.LENGTH_TOO_LOW),
+                       (lambda: node.read(0x4000, 0), SdoAbortCode.OBJECT_DOES_NOT_EXIST)]:
         with pytest.raises(SdoAbort) as info:
             call()
         assert info.value.code == code

@@ -11,9 +11,8 @@ from typing import Any
 import canopen
 
 from gatewaylab.bus import CanFrame
-from gatewaylab.canopen import errors as E
 from gatewaylab.canopen.sdo_client import SdoClient
-from gatewaylab.od import SdoAbort
+from gatewaylab.od import SdoAbort, SdoAbortCode
 
 
 class Harness:
@@ -65,10 +64,10 @@ def test_client_reports_server_aborts(clock, vbus, make_node) -> None:
     """IDX table 6-20: the server's abort code reaches the callback unchanged."""
     make_node()
     h = Harness(clock, vbus)
-    assert h.upload(5, 0x3000, 0) == SdoAbort(E.OBJECT_DOES_NOT_EXIST)
-    assert h.download(5, 0x2004, 0, b"\x01") == SdoAbort(E.READ_ONLY)
+    assert h.upload(5, 0x3000, 0) == SdoAbort(SdoAbortCode.OBJECT_DOES_NOT_EXIST)
+    assert h.download(5, 0x2004, 0, b"\x01") == SdoAbort(SdoAbortCode.READ_ONLY)
     assert h.download(5, 0x2002, 0, b"x" * 20, block=True) is None
-    assert h.upload(5, 0x2005, 0, block=True) == SdoAbort(E.WRITE_ONLY)
+    assert h.upload(5, 0x2005, 0, block=True) == SdoAbort(SdoAbortCode.WRITE_ONLY)
 
 
 def test_client_timeout_sends_abort(clock, vbus, make_node) -> None:
@@ -81,7 +80,7 @@ def test_client_timeout_sends_abort(clock, vbus, make_node) -> None:
     clock.advance(0.49)
     assert h.results == []
     clock.advance(0.02)
-    assert h.results == [SdoAbort(E.SDO_PROTOCOL_TIMED_OUT)]
+    assert h.results == [SdoAbort(SdoAbortCode.SDO_PROTOCOL_TIMED_OUT)]
     assert seen[-1].can_id == 0x609 and seen[-1].data == bytes([0x80, 0x00, 0x10, 0x00, 0, 0, 4, 5])
 
 

@@ -11,7 +11,7 @@ import can
 from canopen_monitor_kit import record_session
 
 from gatewaylab.cli.plot import read_trace
-from gatewaylab.devices.canopen_drive.device import build_object_dictionary
+from gatewaylab.devices.canopen_drive.objects import build_object_dictionary
 
 
 def write_trace(path: Path) -> None:

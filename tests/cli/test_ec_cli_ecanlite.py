@@ -12,7 +12,7 @@ from typing import Any
 import pytest
 from test_ec_cli import Ec, InProcessEc, PysoemEc, Result, _fails, _ok
 
-from gatewaylab.bus.bus import VirtualBus
+from gatewaylab.bus import VirtualBus
 from gatewaylab.common.clock import RealTimeClock
 from gatewaylab.devices.ecanlite import image as ecan_image
 from gatewaylab.devices.ecanlite.device import EcanLiteDevice

@@ -38,7 +38,7 @@ interface = "gl-none"
 @pytest.fixture(scope="module")
 def esd_wire_segment(veth_ns: Any) -> Iterator[Segment]:
     """An ethercat_io slave and the esd gateway (ESD_RIG's line) on the emulator end of the veth."""
-    from gatewaylab.bus.bus import VirtualBus
+    from gatewaylab.bus import VirtualBus
     from gatewaylab.devices.esd_can_ethercat.device import EsdGateway
 
     clock = RealTimeClock()

@@ -96,7 +96,10 @@ def test_random_mailbox_messages_never_break_the_mailbox(mtype: int, data: bytes
 @given(st.binary(max_size=40), st.sampled_from([0x02, 0x08, 0x01, 0x03, 0x0F]))
 def test_coe_server_answers_only_spec_messages(body: bytes, service: int) -> None:
     """Any CoE request yields either a mailbox error (FrameFormatError, too short) or well-formed CoE
-    replies: SDO responses, aborts with a QEC A.5 code, or SDO Information replies/errors."""
+    replies: SDO responses, aborts with a QEC A.5 code, or SDO Information replies/errors. Every SDO
+    request is answered by exactly one reply, except the client's abort transfer (CiA 301 7.2.4.3:
+    unconfirmed); every SDO Information request by at least one (a response or an error, ETG.1000.6
+    SDO Information)."""
     from gatewaylab.devices.ethercat_io.device import io_description
     from gatewaylab.ethercat.coe import CoeServer, coe_header
     from gatewaylab.ethercat.errors import SdoAbortCode
@@ -108,6 +111,11 @@ def test_coe_server_answers_only_spec_messages(body: bytes, service: int) -> Non
         replies = server.handle(coe_header(service) + body)
     except FrameFormatError:
         return
+    if service == 0x02:
+        client_abort = body[0] >> 5 == 4
+        assert len(replies) == (0 if client_abort else 1)
+    else:
+        assert service == 0x08 and replies      # other services are not served (FrameFormatError above)
     for reply in replies:
         kind = reply[1] >> 4
         assert kind in (2, 3, 8) and len(reply) <= 128 - 6

@@ -20,8 +20,7 @@ from typing import Any
 import can
 import pytest
 
-from gatewaylab.bus import python_can_bus
-from gatewaylab.bus.bus import Controller, VirtualBus
+from gatewaylab.bus import Controller, VirtualBus, python_can_bus
 from gatewaylab.bus.frame import CanFrame
 from gatewaylab.common.clock import SimulatedClock
 from gatewaylab.common.errors import ConfigError, FrameError, LocalError

@@ -15,7 +15,7 @@ from typing import Any
 import pytest
 from wire_kit import net_capable, veth_namespace
 
-from gatewaylab.bus.bus import VirtualBus
+from gatewaylab.bus import VirtualBus
 from gatewaylab.bus.frame import CanFrame
 from gatewaylab.common.clock import RealTimeClock
 from gatewaylab.devices.ecanlite.device import EcanLiteDevice

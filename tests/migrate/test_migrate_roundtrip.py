@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from gatewaylab.bus.bus import VirtualBus
+from gatewaylab.bus import VirtualBus
 from gatewaylab.bus.frame import CanFrame
 from gatewaylab.cli.main import main
 from gatewaylab.common.clock import SimulatedClock

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 from wire_kit import net_capable, veth_namespace
 
-from gatewaylab.bus.bus import VirtualBus
+from gatewaylab.bus import VirtualBus
 from gatewaylab.common.clock import RealTimeClock
 from gatewaylab.devices.esd_can_ethercat.device import EsdGateway
 from gatewaylab.ethercat.segment import Segment

@@ -16,8 +16,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from gatewaylab.bus import CanFrame
-from gatewaylab.bus.bus import ErrorState
+from gatewaylab.bus import CanFrame, ErrorState
 from gatewaylab.canopen.cia402 import PdsState
 from gatewaylab.canopen.nmt import NmtState
 from gatewaylab.common.clock import RealTimeClock

@@ -6,7 +6,7 @@ import can
 import canopen
 import pytest
 
-from gatewaylab.devices.canopen_drive.device import DEVICE_NAME
+from gatewaylab.devices.canopen_drive.objects import DEVICE_NAME
 
 RIG = """
 clock = "realtime"

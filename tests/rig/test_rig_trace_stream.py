@@ -13,8 +13,7 @@ from pathlib import Path
 import can
 import pytest
 
-from gatewaylab.bus import CanFrame
-from gatewaylab.bus.bus import VirtualBus
+from gatewaylab.bus import CanFrame, VirtualBus
 from gatewaylab.bus.transport.trace import Trace, socketcan_record
 from gatewaylab.common.clock import SimulatedClock
 

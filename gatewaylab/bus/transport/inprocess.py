@@ -18,7 +18,8 @@ from typing import Any
 import can
 from can.bus import BusState, CanProtocol
 
-from gatewaylab.bus.bus import Controller, ErrorState, VirtualBus
+from gatewaylab.bus.bus import VirtualBus
+from gatewaylab.bus.controller import Controller, ErrorState
 from gatewaylab.bus.frame import CanFrame
 from gatewaylab.common.clock import SimulatedClock
 from gatewaylab.common.errors import GatewaylabError

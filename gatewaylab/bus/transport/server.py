@@ -15,7 +15,8 @@ from typing import Protocol
 
 from gatewaylab.bus import controller as events
 from gatewaylab.bus import wire
-from gatewaylab.bus.bus import BusEvent, Controller, VirtualBus
+from gatewaylab.bus.bus import VirtualBus
+from gatewaylab.bus.controller import BusEvent, Controller
 from gatewaylab.bus.frame import CanFrame
 from gatewaylab.bus.transport.outbox import Outbox, accept_client, receive
 from gatewaylab.common.clock import TimerHandle

@@ -20,9 +20,8 @@ from pathlib import Path
 from typing import Any, Final, Protocol
 
 from gatewaylab.bus.bus import VirtualBus
-from gatewaylab.canopen.cia402 import CONTROLWORD_NEXT, STATE_BITS, Command, Cw, OpMode, PdsState, Sw
+from gatewaylab.canopen.cia402 import CONTROLWORD_NEXT, STATE_BITS, Cw, OpMode, PdsState, Sw
 from gatewaylab.canopen.emcy import ERR_GENERIC, ERR_PROFILE
-from gatewaylab.canopen.errors import VALUE_RANGE_EXCEEDED, SdoAbort
 from gatewaylab.canopen.lss import BIT_TIMING_TABLE, UNCONFIGURED, LssAddress, LssConfigStore, LssSlave
 from gatewaylab.canopen.nmt import NmtState
 from gatewaylab.canopen.node import Node
@@ -30,17 +29,10 @@ from gatewaylab.common.clock import Clock, PeriodicTimer
 from gatewaylab.common.errors import ConfigError
 from gatewaylab.devices.canopen_drive.homing import SUPPORTED_METHODS, HomingStatus
 from gatewaylab.devices.canopen_drive.modes import POWER_OFF, Demand, OperationModes
-from gatewaylab.devices.canopen_drive.objects import (
-    DEVICE_NAME,
-    DEVICE_TYPE,
-    MAXON_VENDOR_ID,
-    PRODUCT_CODE,
-    REVISION,
-    add_profile_objects,
-    build_object_dictionary,
-)
+from gatewaylab.devices.canopen_drive.objects import MAXON_VENDOR_ID, PRODUCT_CODE, REVISION, build_object_dictionary
 from gatewaylab.devices.canopen_drive.plant import AxisParams, ControlMode, Plant, Trapezoid
 from gatewaylab.od import KeyObject, ObjectDictionary, WriteHook, key_object
+from gatewaylab.od.aborts import SdoAbort, SdoAbortCode
 
 #: The drive's own control period (s) when no host drives the cycle (IDX: 1 kHz position loop).
 CONTROL_PERIOD = 0.001
@@ -296,7 +288,7 @@ class Drive(OperationModes):
         try:
             op = OpMode(mode)
         except ValueError:
-            raise SdoAbort(VALUE_RANGE_EXCEEDED, f"mode {mode} not supported") from None
+            raise SdoAbort(SdoAbortCode.VALUE_RANGE_EXCEEDED, f"mode {mode} not supported") from None
         if op is not self.mode:
             self._set_mode(op)
             self._restart_motion()
@@ -329,7 +321,7 @@ class Drive(OperationModes):
     @staticmethod
     def _on_homing_method(index: int, sub: int, value: Any) -> None:
         if int(value) not in SUPPORTED_METHODS:
-            raise SdoAbort(VALUE_RANGE_EXCEEDED, f"homing method {value} not supported")
+            raise SdoAbort(SdoAbortCode.VALUE_RANGE_EXCEEDED, f"homing method {value} not supported")
 
     def _on_nmt_change(self, old: NmtState, new: NmtState) -> None:
         if new is NmtState.PRE_OPERATIONAL and old is NmtState.INITIALISING:
@@ -578,6 +570,4 @@ _FAULT_REACTION_ACTIVE: Final = PdsState.FAULT_REACTION_ACTIVE
 _POSITION: Final = ControlMode.POSITION
 
 
-#: the dictionary's names stay importable from here (objects.py holds them since issue 22)
-__all__ = ["DEVICE_NAME", "DEVICE_TYPE", "MAXON_VENDOR_ID", "PRODUCT_CODE", "REVISION", "Command", "Demand", "Drive",
-           "add_profile_objects", "build_object_dictionary"]
+__all__ = ["Drive"]

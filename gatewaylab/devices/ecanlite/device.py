@@ -10,7 +10,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from gatewaylab.bus.bus import Controller
+from gatewaylab.bus.controller import Controller
 from gatewaylab.common.clock import Clock
 from gatewaylab.devices.ecanlite.application import EcanLiteApplication
 from gatewaylab.devices.ecanlite.image import DEVICE_NAME, ecanlite_description

@@ -14,7 +14,7 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from gatewaylab.bus.bus import Controller
+from gatewaylab.bus.controller import Controller
 from gatewaylab.common.clock import Clock
 from gatewaylab.common.errors import ConfigError
 from gatewaylab.devices.ecanlite.flash import FileFlash, FlashMedium, MemoryFlash

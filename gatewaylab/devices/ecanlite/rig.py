@@ -18,7 +18,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from gatewaylab.bus.bus import Controller
+from gatewaylab.bus.controller import Controller
 from gatewaylab.devices.ecanlite.device import EcanLiteDevice
 from gatewaylab.plugin.participant import DeviceKind, Key, RigContext, section_error
 

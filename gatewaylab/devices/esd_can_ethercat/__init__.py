@@ -1,4 +1,4 @@
-"""esd CAN-EtherCAT gateway (esd manual C.2922.21 chapter 5; issue 11): EtherCAT slave of the
+"""esd CAN-EtherCAT gateway (esd manual C.2922.21 chapter 5): EtherCAT slave of the
 Modular Device Profile 5000 with one CAN controller on a virtual bus.
 
 ``objects`` (description and dictionary), ``codec`` (process image layouts), ``bitrate`` (0xF800),

@@ -14,7 +14,8 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
-from gatewaylab.bus.bus import Controller, ErrorState, VirtualBus
+from gatewaylab.bus.bus import VirtualBus
+from gatewaylab.bus.controller import Controller, ErrorState
 from gatewaylab.bus.frame import CanFrame
 from gatewaylab.common.clock import Clock, TimerHandle
 from gatewaylab.common.errors import LocalError

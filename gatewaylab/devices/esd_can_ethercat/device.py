@@ -50,18 +50,7 @@ from gatewaylab.devices.esd_can_ethercat.codec import (
     encode_rx29,
     input_size,
 )
-from gatewaylab.devices.esd_can_ethercat.controller import (
-    FIRMWARE_FILE,
-    FIRMWARE_HEADER,
-    FIRMWARE_PASSWORD,
-    UPDATE_LINES,
-    WARNING_LIMIT,
-    EsdController,
-    FirmwareFiles,
-    FrameKinds,
-    GatewayStats,
-    UpdateRefused,
-)
+from gatewaylab.devices.esd_can_ethercat.controller import EsdController, FirmwareFiles
 from gatewaylab.devices.esd_can_ethercat.objects import (
     DEFAULT_LOCAL_QUEUE,
     DEFAULT_QUEUE,
@@ -81,9 +70,7 @@ from gatewaylab.ethercat.esc import AlState
 from gatewaylab.ethercat.slave import Slave
 from gatewaylab.od import Entry, ObjectDictionary, SdoAbort, SdoAbortCode
 
-#: names that moved to controller.py (issue 22) stay importable from here
-__all__ = ["FIRMWARE_FILE", "FIRMWARE_HEADER", "FIRMWARE_PASSWORD", "UPDATE_LINES", "WARNING_LIMIT", "EsdGateway",
-           "FrameKinds", "GatewayStats", "UpdateRefused", "create_esd_gateway"]
+__all__ = ["EsdGateway", "create_esd_gateway"]
 
 
 class EsdGateway(EsdController):

@@ -4,7 +4,7 @@ lock, so it reads protocol state directly."""
 
 from __future__ import annotations
 
-from gatewaylab.bus.bus import ErrorState
+from gatewaylab.bus.controller import ErrorState
 from gatewaylab.devices.esd_can_ethercat.device import EsdGateway
 from gatewaylab.devices.esd_can_ethercat.objects import BOOTLOADER_VERSION, HARDWARE_VERSION, PRODUCT_NAME
 from gatewaylab.devices.esd_can_ethercat.web import CanStatusView, DeviceInfoView

@@ -40,7 +40,8 @@ from gatewaylab.canopen.emcy import ERR_CURRENT, ERR_GENERIC
 from gatewaylab.canopen.nmt import NmtState
 from gatewaylab.common.clock import Clock, PeriodicTimer
 from gatewaylab.common.errors import ConfigError
-from gatewaylab.devices.canopen_drive.device import DEVICE_TYPE, Drive, add_profile_objects
+from gatewaylab.devices.canopen_drive.device import Drive
+from gatewaylab.devices.canopen_drive.objects import DEVICE_TYPE, add_profile_objects
 from gatewaylab.devices.canopen_drive.plant import AxisParams
 from gatewaylab.devices.ethercat_io.device import VENDOR_ID
 from gatewaylab.ethercat.description import DeviceDescription, Pdo, PdoEntry

@@ -13,7 +13,8 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 
-from gatewaylab.bus.bus import Controller, VirtualBus
+from gatewaylab.bus.bus import VirtualBus
+from gatewaylab.bus.controller import Controller
 from gatewaylab.bus.frame import CanFrame
 from gatewaylab.canopen.sdo_client import SdoClient
 from gatewaylab.common.clock import Clock

@@ -1,4 +1,4 @@
-"""python-can over the EtherCAT gateways (issue 12): :class:`EthercatHost` hands out a ``can.BusABC``
+"""python-can over the EtherCAT gateways: :class:`EthercatHost` hands out a ``can.BusABC``
 per gateway CAN channel; ``interfaces`` registers the ``esd_can_ethercat`` python-can interface."""
 
 from gatewaylab.hosts.canhost.channels import EsdChannel

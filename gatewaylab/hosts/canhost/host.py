@@ -1,4 +1,4 @@
-"""python-can over the EtherCAT gateways (issue 12 'python-can on top'): one master, one bus per channel.
+"""python-can over the EtherCAT gateways: one master, one bus per channel.
 
 :class:`EthercatHost` owns one :class:`~gatewaylab.hosts.ethercat.backend.MasterBackend` (SOEM on a NIC
 or the in-process master on a rig) and the gateways of its segment. Each gateway CAN channel is

@@ -1,4 +1,4 @@
-"""ECAN-Lite host library (issue 12): the three layers of the IgH sample package in Python (15.1).
+"""ECAN-Lite host library: the three layers of the IgH sample package in Python (15.1).
 
 - :mod:`.adapter` -- slaves, PDO multiplier, startup SDOs, DC SYNC0, OP, raw PDO buffers, WKC;
 - :mod:`.port` -- the MCAN Port: channel setup, send / schedule / receive, PDO writer and parser;

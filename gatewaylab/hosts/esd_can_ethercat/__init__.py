@@ -1,4 +1,4 @@
-"""Master-side library for the esd CAN-EtherCAT (issue 12 'esd host library'): the MDP 5000 counter
+"""Master-side library for the esd CAN-EtherCAT: the MDP 5000 counter
 handshake of manual 5.1.5 written once, on any :class:`~gatewaylab.hosts.ethercat.backend.MasterBackend`.
 
 ``config`` (what a master writes in PREOP: 0xF800, 0x8000, 0x8001, 0x1C13; the layout it reads

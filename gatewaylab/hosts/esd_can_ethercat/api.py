@@ -1,4 +1,4 @@
-"""The esd queue API as a contract (issue 13 part 2): what code written against the esd CAN-EtherCAT
+"""The esd queue API as a contract: what code written against the esd CAN-EtherCAT
 host library calls, and the value types it gets back.
 
 :class:`EsdQueueApi` names the user-facing calls of :class:`~.gateway.EsdHost` (which satisfies it

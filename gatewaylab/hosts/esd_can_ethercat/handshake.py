@@ -1,5 +1,5 @@
-"""The master's side of the MDP 5000 counter handshake, sans-I/O (manual 5.1.5.1-5.1.5.4, shared
-note 'esd-mdp5000-queues').
+"""The master's side of the MDP 5000 counter handshake, sans-I/O (manual 5.1.5.1-5.1.5.4,
+docs/devices/esd_can_ethercat-host.md).
 
 :class:`Handshake` works on the bytes of one gateway's outputs and inputs and nothing else; the
 caller (:class:`~.gateway.EsdHost`, or any master loop) calls :meth:`Handshake.write_outputs`

@@ -211,7 +211,7 @@ class PysoemBackend:
                 raise MasterTimeout(f"slave {position} does not answer")
             status = U16.unpack_from(raw, 0)[0]
             # SOEM matches a reply by its index byte only: a very late frame of an earlier request
-            # can stand in for the answer (shared notes soem-interop pitfall 2); read again.
+            # can stand in for the answer (SOEM's read of a mailbox that is not full yet); read again.
             if not status & 0xFFE0 and status & 0x0F in STATES:
                 return status, U16.unpack_from(raw, 4)[0]
         raise ProtocolError(f"slave {position}: implausible AL status 0x{status:04X}")

@@ -1,1 +1,2 @@
-"""Host side of the maxon USB protocol: ``IdxClient`` over pyserial or pyusb, and the ``idx`` CLI."""
+"""Host side of the maxon USB protocol: ``IdxClient`` over pyserial or pyusb (the ``gatewaylab idx``
+command is :mod:`gatewaylab.cli.idx`)."""

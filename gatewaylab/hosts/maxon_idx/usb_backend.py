@@ -1,4 +1,4 @@
-"""A pyusb backend that presents an emulated IDX as a USB device (issue 14 "Other faces").
+"""A pyusb backend that presents an emulated IDX as a USB device (docs/devices/maxon_idx.md).
 
 pyusb programs reach USB devices through a *backend* (``usb.backend.IBackend``: libusb1, libusb0,
 openusb). :class:`IdxUsbBackend` is one more: it enumerates one device per emulated IDX, with

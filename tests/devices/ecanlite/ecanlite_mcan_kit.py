@@ -9,8 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from gatewaylab.bus import CanFrame, VirtualBus
-from gatewaylab.bus.bus import BusEvent, Controller
+from gatewaylab.bus import BusEvent, CanFrame, Controller, VirtualBus
 from gatewaylab.common.clock import SimulatedClock
 from gatewaylab.devices.ecanlite.model import McanModel
 from gatewaylab.ethercat.description import DeviceDescription, build_od

@@ -5,8 +5,7 @@ from __future__ import annotations
 import pytest
 from ecanlite_mcan_kit import make_rig
 
-from gatewaylab.bus import CanFrame, ErrorFrameEvent
-from gatewaylab.bus.bus import ErrorKind
+from gatewaylab.bus import CanFrame, ErrorFrameEvent, ErrorKind
 from gatewaylab.devices.ecanlite.mcan import NodeMode
 
 

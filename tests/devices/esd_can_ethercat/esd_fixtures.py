@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 from wire_kit import net_capable, veth_namespace
 
-from gatewaylab.bus.bus import Controller, VirtualBus
+from gatewaylab.bus import Controller, VirtualBus
 from gatewaylab.bus.frame import CanFrame
 from gatewaylab.common.clock import SimulatedClock
 from gatewaylab.devices.esd_can_ethercat.codec import (

@@ -10,7 +10,7 @@ from typing import Any
 
 import pytest
 
-from gatewaylab.bus.bus import VirtualBus
+from gatewaylab.bus import VirtualBus
 from gatewaylab.bus.frame import CanFrame
 from gatewaylab.common.clock import RealTimeClock
 from gatewaylab.devices.esd_can_ethercat.device import create_esd_gateway

@@ -41,9 +41,9 @@ def test_soem_finds_two_drives_with_the_default_mapping(run: dict[str, Any]) -> 
 def test_soem_controlword_sequence_reaches_operation_enabled(run: dict[str, Any]) -> None:
     """CiA 402 transitions 2, 3, 4 (controlword 0x06, 0x07, 0x0F) read back in the statusword of
     the TxPDO: 0x21, 0x23, 0x27 under mask 0x6F, with bit 9 'remote' in OP."""
-    for seen in run["enable"]:
-        assert [sw & STATE_MASK for sw in seen] == [0x21, 0x23, 0x27]
-        assert all(sw & 0x0200 for sw in seen)
+    enable = run["enable"]
+    assert [[sw & STATE_MASK for sw in seen] for seen in enable] == [[0x21, 0x23, 0x27]] * 2   # both drives
+    assert [[bool(sw & 0x0200) for sw in seen] for seen in enable] == [[True] * 3] * 2
 
 
 def test_soem_csp_ramp_for_2s_follows_within_the_window(run: dict[str, Any]) -> None:

@@ -13,7 +13,7 @@ import can
 import canopen
 import pytest
 
-from gatewaylab.bus.bus import VirtualBus
+from gatewaylab.bus import VirtualBus
 from gatewaylab.common.clock import SimulatedClock
 from gatewaylab.devices.canopen_drive.device import Drive
 from gatewaylab.devices.ecanlite.device import EcanLiteDevice

@@ -6,7 +6,7 @@ from __future__ import annotations
 import can
 import pytest
 
-from gatewaylab.bus.bus import VirtualBus
+from gatewaylab.bus import VirtualBus
 from gatewaylab.bus.frame import CanFrame
 from gatewaylab.common.clock import SimulatedClock
 from gatewaylab.devices.ecanlite.device import EcanLiteDevice

@@ -11,8 +11,7 @@ from collections.abc import Iterator
 import can
 import pytest
 
-from gatewaylab.bus import CanFrame
-from gatewaylab.bus.bus import VirtualBus
+from gatewaylab.bus import CanFrame, VirtualBus
 from gatewaylab.common.clock import SimulatedClock
 from gatewaylab.devices.ecanlite.device import EcanLiteDevice
 from gatewaylab.devices.esd_can_ethercat.device import EsdGateway, create_esd_gateway

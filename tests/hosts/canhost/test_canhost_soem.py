@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 
 import pytest
 
-from gatewaylab.bus.bus import VirtualBus
+from gatewaylab.bus import VirtualBus
 from gatewaylab.common.clock import RealTimeClock
 from gatewaylab.devices.canopen_drive.device import Drive
 from gatewaylab.devices.ecanlite.device import EcanLiteDevice

@@ -15,7 +15,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from gatewaylab.bus.bus import VirtualBus
+from gatewaylab.bus import VirtualBus
 from gatewaylab.bus.frame import CanFrame
 from gatewaylab.common.clock import Clock, SimulatedClock
 from gatewaylab.common.errors import FrameError, LocalError

@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 from esd_host_scenarios import echo_of, make_can_side, receive_n, run_inprocess
 
-from gatewaylab.bus.bus import VirtualBus
+from gatewaylab.bus import VirtualBus
 from gatewaylab.bus.frame import CanFrame
 from gatewaylab.common.clock import SimulatedClock
 from gatewaylab.common.errors import ConfigError, LocalError

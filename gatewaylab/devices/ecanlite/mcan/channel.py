@@ -9,7 +9,7 @@ import enum
 from collections.abc import Mapping, Sequence
 from types import MappingProxyType
 
-from gatewaylab.bus.bus import (
+from gatewaylab.bus.controller import (
     BusEvent,
     Controller,
     ErrorFrameEvent,

@@ -15,7 +15,7 @@ from collections import deque
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 
-from gatewaylab.bus.bus import Controller, ErrorState
+from gatewaylab.bus.controller import Controller, ErrorState
 from gatewaylab.bus.frame import CanFrame
 from gatewaylab.common.clock import Clock
 from gatewaylab.common.errors import ConfigError, GatewaylabError

@@ -10,7 +10,7 @@ from dataclasses import replace
 from types import MappingProxyType
 from typing import TYPE_CHECKING
 
-from gatewaylab.bus.bus import ErrorKind, ErrorState
+from gatewaylab.bus.controller import ErrorKind, ErrorState
 from gatewaylab.common.errors import GatewaylabError
 from gatewaylab.devices.ecanlite import bittiming
 from gatewaylab.devices.ecanlite.bittiming import BitTimingError, Tdc

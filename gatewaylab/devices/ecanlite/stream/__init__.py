@@ -7,7 +7,7 @@ TxPDO with this package; the host library does the opposite with the same functi
 per module: :mod:`.format` (constants, enums, shared functions, errors), :mod:`.layout` (a
 direction's active profile and what it allows), :mod:`.packets` (header and packet records),
 :mod:`.encode` and :mod:`.decode`. Choices the manual leaves open are listed in docs/decisions.md
-under "ECAN-Lite frame stream (issue 10)".
+under "ECAN-Lite frame stream".
 """
 
 from gatewaylab.devices.ecanlite.stream.decode import commit_state, decode_stream

@@ -8,7 +8,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from gatewaylab.bus.bus import Controller, ErrorState, VirtualBus
+from gatewaylab.bus import Controller, ErrorState, VirtualBus
 from gatewaylab.plugin import CheckedSection, DeviceKind, Key, ParticipantBase, RigContext
 from gatewaylab.plugin import capabilities as cap
 from gatewaylab.rig import kinds
