@@ -7,6 +7,7 @@ Rig file::
     pcap = "ecat.pcap"     # optional capture
     cpu = 1                # optional: pin the wire thread
     busy_poll = false      # optional: true polls the socket without ever blocking (burns a CPU)
+    max_residence_ms = 2.0 # optional: frames older than this are dropped, never answered late (0: no limit)
 
 Every device participant with ``is_ethercat = True`` and a ``slave`` attribute (an
 :class:`~gatewaylab.ethercat.slave.Slave`) joins the segment, in rig-file order (position 0 first).
@@ -18,6 +19,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
+from gatewaylab.ethercat.residence import DEFAULT_MAX_RESIDENCE_MS
 from gatewaylab.ethercat.segment import Segment
 from gatewaylab.ethercat.wire import WireTransport
 from gatewaylab.ethercat.wire_pcap import PcapWriter
@@ -29,6 +31,9 @@ SEGMENT_KEYS: dict[str, Key] = {
     "pcap": Key(str),
     "cpu": Key(int, min=0, help="pin the wire thread to this CPU"),
     "busy_poll": Key(bool, False, help="poll the socket without ever blocking (one CPU at 100 per cent)"),
+    "max_residence_ms": Key(float, DEFAULT_MAX_RESIDENCE_MS, min=0.0,
+                            help="drop a frame older than this (kernel receive time to reply) instead of "
+                                 "answering it late; 0: no limit"),
 }
 
 
@@ -46,6 +51,7 @@ class SegmentParticipant:
         self.pcap_path: str | None = cfg["pcap"]
         self.cpu: int | None = cfg["cpu"]
         self.busy_poll: bool = cfg["busy_poll"]
+        self.max_residence_ms = float(cfg["max_residence_ms"])
         self.pcap: PcapWriter | None = None
         self.wire: WireTransport | None = None
 
@@ -56,7 +62,7 @@ class SegmentParticipant:
         if self.pcap_path:
             self.pcap = PcapWriter(str(self.pcap_path))
         self.wire = WireTransport(self.segment, self.interface, self.rig.clock, busy_poll=self.busy_poll,
-                                  pcap=self.pcap, cpu=self.cpu)
+                                  pcap=self.pcap, cpu=self.cpu, max_residence_ms=self.max_residence_ms)
         self.wire.start()
 
     def stop(self) -> None:
@@ -67,6 +73,10 @@ class SegmentParticipant:
         if self.pcap is not None:
             self.pcap.close()
             self.pcap = None
+
+    def wire_stats(self) -> dict[str, int] | None:
+        """The wire's counters (frames in, out, dropped late, errors) while it runs, else None."""
+        return None if self.wire is None else self.wire.stats()
 
     def ready_info(self) -> dict[str, Any]:
         """The interface and the slaves in position order, for the --ready-file."""
