@@ -74,6 +74,30 @@ DRIVE_MAX_STARVE_S = 0.0005
 LOCK_POLL_S = 0.002
 #: How long :meth:`WireTransport.stop` waits for the thread (it ends within ``LOCK_POLL_S``).
 STOP_JOIN_S = 1.0
+#: ``realtime=True``: the wire thread's SCHED_FIFO priority -- above every ordinary thread (and the rig's loop
+#: thread, ``rig/segment.py``), far below the kernel's own real-time threads (up to 99); the kernel's real-time
+#: throttling still leaves ordinary threads 5 % of each CPU, so nothing becomes unkillable.
+REALTIME_PRIORITY = 10
+
+
+def make_realtime(priority: int) -> str | None:
+    """Give the calling thread SCHED_FIFO ``priority`` (threads it starts later do not inherit it:
+    SCHED_RESET_ON_FORK); None when granted, else why not (it needs root or CAP_SYS_NICE)."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO | os.SCHED_RESET_ON_FORK, os.sched_param(priority))
+    except (OSError, AttributeError) as exc:
+        return str(exc)
+    return None
+
+
+def make_ordinary(tid: int) -> None:
+    """Put thread ``tid`` back to ordinary scheduling (SCHED_OTHER); nothing if it is gone."""
+    try:
+        os.sched_setscheduler(tid, os.SCHED_OTHER, os.sched_param(0))
+    except (OSError, AttributeError):
+        pass
+
+
 #: Room for the receive timestamp (one cmsg holding a struct timespec) in ``recvmsg``.
 ANCILLARY_BYTES = 64
 
@@ -85,7 +109,7 @@ class WireTransport:
                  drive_clock: bool = False, pcap: PcapWriter | None = None, cpu: int | None = None,
                  spin_s: float = SPIN_AFTER_FRAME_S,
                  max_residence_ms: float = DEFAULT_MAX_RESIDENCE_MS,
-                 now_ns: Callable[[], int] = time.time_ns) -> None:
+                 now_ns: Callable[[], int] = time.time_ns, realtime: bool = False) -> None:
         self.segment = segment
         self.interface = interface
         self.clock = clock
@@ -94,6 +118,9 @@ class WireTransport:
         self.drive_clock = drive_clock
         self.pcap = pcap
         self.cpu = cpu
+        #: Ask for SCHED_FIFO (``REALTIME_PRIORITY``) for the wire thread; ``realtime_granted`` says if it got it.
+        self.realtime = realtime
+        self.realtime_granted = False
         self._sock: socket.socket | None = None
         self._wake_r: socket.socket | None = None
         self._wake_w: socket.socket | None = None
@@ -233,12 +260,32 @@ class WireTransport:
             except OSError:
                 pass
 
-    def _run(self) -> None:
+    def _schedule(self) -> None:
+        """Pin the wire thread (``cpu``) and give it real-time priority (``realtime``), as far as allowed."""
         if self.cpu is not None and hasattr(os, "sched_setaffinity"):
             try:
                 os.sched_setaffinity(0, {self.cpu})
-            except OSError:
-                pass
+            except OSError as exc:
+                _log.warning("ethercat-wire %s: cannot pin the wire thread to CPU %d: %s", self.interface, self.cpu,
+                             exc)
+        if not self.realtime:
+            return
+        if self.busy_poll:
+            _log.warning("ethercat-wire %s: realtime = true is not applied with busy_poll = true (a real-time thread "
+                         "that never blocks would take its CPU from every other thread)", self.interface)
+            return
+        why = make_realtime(REALTIME_PRIORITY)
+        if why is not None:
+            _log.warning("ethercat-wire %s: realtime = true, but the wire thread may not have SCHED_FIFO (%s; it "
+                         "needs root or CAP_SYS_NICE): it runs with ordinary priority, and its replies may come "
+                         "late on a loaded machine", self.interface, why)
+        else:
+            self.realtime_granted = True
+            _log.info("ethercat-wire %s: the wire thread runs SCHED_FIFO priority %d", self.interface,
+                      REALTIME_PRIORITY)
+
+    def _run(self) -> None:
+        self._schedule()
         sock, wake = self._sock, self._wake_r
         assert sock is not None and wake is not None
         buf = bytearray(2048)
