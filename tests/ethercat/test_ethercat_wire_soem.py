@@ -24,7 +24,7 @@ def _serve(veth: Any, args: list[str], pcap: PcapWriter | None = None, segment: 
     if segment is None:
         segment = Segment([create_io_slave(clock, f"GL-IO #{i}", serial=1000 + i, revision=i + 1)
                            for i in range(3)])
-    wire = WireTransport(segment, veth.emulator_iface, clock, drive_clock=True, pcap=pcap)
+    wire = WireTransport(segment, veth.emulator_iface, clock, drive_clock=True, pcap=pcap, realtime=True)
     wire.start()
     try:
         proc = veth.run_master(*args)
