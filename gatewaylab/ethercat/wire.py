@@ -14,6 +14,12 @@ The frame loop outlives any exception raised while a frame is processed (or a cl
 the frame is dropped, one log line is written and ``frame_errors`` counts it, and the next frame is
 served, as a real ESC keeps forwarding whatever one frame held.
 
+Replies on time or not at all: a frame older than ``max_residence_ms`` -- its age counted from the
+kernel's receive timestamp (``SO_TIMESTAMPNS``) to the moment its reply would be sent, checked before it
+is processed and again just before the send -- is dropped, counted (``frames_dropped_late``) and logged
+once per burst (ethercat/residence.py), so after a stall of this process the master sees lost frames,
+never replies no real line would deliver.
+
 :meth:`WireTransport.stop` wakes the thread wherever it waits (``select``, or ``clock.lock``, which
 the rig holds while it stops its participants) and returns within milliseconds.
 """
@@ -26,11 +32,21 @@ import select
 import socket
 import threading
 import time
+from collections.abc import Callable
 from typing import Any, cast
 
 from gatewaylab.common.clock import Clock, RealTimeClock
 from gatewaylab.common.errors import ConfigError
 from gatewaylab.ethercat.datagram import ETHERTYPE_ETHERCAT
+from gatewaylab.ethercat.residence import (
+    DEFAULT_MAX_RESIDENCE_MS,
+    SCM_TIMESTAMPNS,
+    SOL_SOCKET,
+    LateDrops,
+    is_late,
+    kernel_timestamp_ns,
+    residence_limit_ns,
+)
 from gatewaylab.ethercat.segment import Segment
 from gatewaylab.ethercat.wire_pcap import PcapWriter
 
@@ -58,6 +74,32 @@ DRIVE_MAX_STARVE_S = 0.0005
 LOCK_POLL_S = 0.002
 #: How long :meth:`WireTransport.stop` waits for the thread (it ends within ``LOCK_POLL_S``).
 STOP_JOIN_S = 1.0
+#: ``realtime=True``: the wire thread's SCHED_FIFO priority -- above every ordinary thread (and the rig's loop
+#: thread, ``rig/segment.py``), far below the kernel's own real-time threads (up to 99); the kernel's real-time
+#: throttling still leaves ordinary threads 5 % of each CPU, so nothing becomes unkillable.
+REALTIME_PRIORITY = 10
+
+
+def make_realtime(priority: int) -> str | None:
+    """Give the calling thread SCHED_FIFO ``priority`` (threads it starts later do not inherit it:
+    SCHED_RESET_ON_FORK); None when granted, else why not (it needs root or CAP_SYS_NICE)."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO | os.SCHED_RESET_ON_FORK, os.sched_param(priority))
+    except (OSError, AttributeError) as exc:
+        return str(exc)
+    return None
+
+
+def make_ordinary(tid: int) -> None:
+    """Put thread ``tid`` back to ordinary scheduling (SCHED_OTHER); nothing if it is gone."""
+    try:
+        os.sched_setscheduler(tid, os.SCHED_OTHER, os.sched_param(0))
+    except (OSError, AttributeError):
+        pass
+
+
+#: Room for the receive timestamp (one cmsg holding a struct timespec) in ``recvmsg``.
+ANCILLARY_BYTES = 64
 
 
 class WireTransport:
@@ -65,7 +107,9 @@ class WireTransport:
 
     def __init__(self, segment: Segment, interface: str, clock: Clock, *, busy_poll: bool = False,
                  drive_clock: bool = False, pcap: PcapWriter | None = None, cpu: int | None = None,
-                 spin_s: float = SPIN_AFTER_FRAME_S) -> None:
+                 spin_s: float = SPIN_AFTER_FRAME_S,
+                 max_residence_ms: float = DEFAULT_MAX_RESIDENCE_MS,
+                 now_ns: Callable[[], int] = time.time_ns, realtime: bool = False) -> None:
         self.segment = segment
         self.interface = interface
         self.clock = clock
@@ -74,6 +118,9 @@ class WireTransport:
         self.drive_clock = drive_clock
         self.pcap = pcap
         self.cpu = cpu
+        #: Ask for SCHED_FIFO (``REALTIME_PRIORITY``) for the wire thread; ``realtime_granted`` says if it got it.
+        self.realtime = realtime
+        self.realtime_granted = False
         self._sock: socket.socket | None = None
         self._wake_r: socket.socket | None = None
         self._wake_w: socket.socket | None = None
@@ -85,6 +132,24 @@ class WireTransport:
         #: logged on one line, counted.
         self.frame_errors = 0
         self.errors: list[str] = []
+        #: The longest a frame may stay here, from its receive timestamp to its reply (0: no limit);
+        #: older frames are dropped (ethercat/residence.py), counted in ``late.total``.
+        self.max_residence_ns = residence_limit_ns(max_residence_ms)
+        self.late = LateDrops()
+        #: Unix time in nanoseconds, the time base of the kernel's receive timestamps (injected by tests)
+        self.now_ns = now_ns
+        #: False when the kernel gives no receive timestamps: ages then count from the ``recvmsg`` call.
+        self.kernel_timestamps = False
+
+    @property
+    def frames_dropped_late(self) -> int:
+        """Frames not answered because they were older than ``max_residence_ms`` (the master lost them)."""
+        return self.late.total
+
+    def stats(self) -> dict[str, int]:
+        """The wire's counters (what the control request ``ethercat-states`` shows under ``wire``)."""
+        return {"frames_in": self.frames_in, "frames_out": self.frames_out,
+                "frames_dropped_late": self.frames_dropped_late, "frame_errors": self.frame_errors}
 
     def start(self) -> None:
         """Open the raw socket on the interface and start the wire thread serving the segment."""
@@ -98,6 +163,11 @@ class WireTransport:
             sock.close()
             raise ConfigError(f"cannot bind to interface {self.interface!r}: {exc}") from exc
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
+        try:    # the kernel's receive time of each frame, the start of its age
+            sock.setsockopt(SOL_SOCKET, SCM_TIMESTAMPNS, 1)
+            self.kernel_timestamps = True
+        except OSError:
+            self.kernel_timestamps = False
         sock.setblocking(False)
         self.clock.ensure_lock()  # this thread and the clock's owner share the state
         self._wake_r, self._wake_w = socket.socketpair()
@@ -123,11 +193,19 @@ class WireTransport:
             if thread.is_alive():
                 _log.warning("ethercat-wire %s: the wire thread did not end within %.1f s", self.interface,
                              STOP_JOIN_S)
+        self._report_late(self.now_ns(), final=True)
         for name in ("_sock", "_wake_r", "_wake_w"):
             sock = getattr(self, name)
             if sock is not None:
                 sock.close()
                 setattr(self, name, None)
+
+    def _report_late(self, now_ns: int, final: bool = False) -> None:
+        """Log the late drops of the burst that just ended (one line per burst, at most one a second)."""
+        burst = self.late.flush(now_ns) if final else self.late.settle(now_ns)
+        if burst is not None:
+            _log.warning("ethercat-wire %s: %s (%d so far)", self.interface, burst.describe(self.max_residence_ns),
+                         self.late.total)
 
     def _fault(self, what: str, exc: BaseException) -> None:
         self.frame_errors += 1
@@ -182,12 +260,32 @@ class WireTransport:
             except OSError:
                 pass
 
-    def _run(self) -> None:
+    def _schedule(self) -> None:
+        """Pin the wire thread (``cpu``) and give it real-time priority (``realtime``), as far as allowed."""
         if self.cpu is not None and hasattr(os, "sched_setaffinity"):
             try:
                 os.sched_setaffinity(0, {self.cpu})
-            except OSError:
-                pass
+            except OSError as exc:
+                _log.warning("ethercat-wire %s: cannot pin the wire thread to CPU %d: %s", self.interface, self.cpu,
+                             exc)
+        if not self.realtime:
+            return
+        if self.busy_poll:
+            _log.warning("ethercat-wire %s: realtime = true is not applied with busy_poll = true (a real-time thread "
+                         "that never blocks would take its CPU from every other thread)", self.interface)
+            return
+        why = make_realtime(REALTIME_PRIORITY)
+        if why is not None:
+            _log.warning("ethercat-wire %s: realtime = true, but the wire thread may not have SCHED_FIFO (%s; it "
+                         "needs root or CAP_SYS_NICE): it runs with ordinary priority, and its replies may come "
+                         "late on a loaded machine", self.interface, why)
+        else:
+            self.realtime_granted = True
+            _log.info("ethercat-wire %s: the wire thread runs SCHED_FIFO priority %d", self.interface,
+                      REALTIME_PRIORITY)
+
+    def _run(self) -> None:
+        self._schedule()
         sock, wake = self._sock, self._wake_r
         assert sock is not None and wake is not None
         buf = bytearray(2048)
@@ -201,6 +299,9 @@ class WireTransport:
         spin_until = 0.0
         next_clock = 0.0
         last_slice = time.monotonic()
+        limit = self.max_residence_ns
+        late = self.late
+        now_ns = self.now_ns
         while self._running:
             if drive and time.monotonic() - last_slice >= DRIVE_MAX_STARVE_S:
                 # no clock slice for that long: when an event is overdue by as much (frames back to back,
@@ -210,8 +311,14 @@ class WireTransport:
                     return
                 last_slice = time.monotonic()
             try:
-                n, addr = sock.recvfrom_into(buf)
+                n, anc, _flags, addr = sock.recvmsg_into([buf], ANCILLARY_BYTES)
             except BlockingIOError:
+                if late.pending:    # the line is idle: the burst of late frames is over
+                    t_ns = now_ns()
+                    self._report_late(t_ns)
+                    report_in = late.report_due_in_ns(t_ns)
+                else:
+                    report_in = None
                 now = time.monotonic()
                 timeout: float | None = None
                 if drive:
@@ -230,6 +337,8 @@ class WireTransport:
                         timeout = next_clock - now
                 if busy or now < spin_until:
                     continue
+                if report_in is not None:   # merged into a report due later: wake up for it
+                    timeout = report_in / 1e9 if timeout is None else min(timeout, report_in / 1e9)
                 self._wait(sock, wake, timeout)
                 continue
             except OSError as exc:
@@ -244,11 +353,18 @@ class WireTransport:
                 continue
             if addr[2] == PACKET_OUTGOING:
                 continue
+            received = kernel_timestamp_ns(anc) if anc else None
+            if received is None:
+                received = now_ns()
             frame = buf[:n]
             self.frames_in += 1
             try:
                 if pcap is not None:
-                    pcap.write(time.time(), frame)
+                    pcap.write(received / 1e9, frame)
+                t_ns = now_ns()
+                if is_late(received, t_ns, limit):   # lost on its way in: not even processed
+                    late.drop(t_ns - received)
+                    continue
                 if not self._acquire(lock):
                     return
                 try:
@@ -257,15 +373,21 @@ class WireTransport:
                     lock.release()
                 if not ok:
                     continue
-                try:
-                    sock.send(frame)
-                except OSError as exc:
-                    if len(self.errors) < MAX_ERRORS_KEPT:  # a storm must not grow the list without end
-                        self.errors.append(str(exc))
+                t_ns = now_ns()
+                if is_late(received, t_ns, limit):   # processed, lost on its way back
+                    late.drop(t_ns - received)
                 else:
-                    self.frames_out += 1
-                    if pcap is not None:
-                        pcap.write(time.time(), frame)
+                    if late.pending:
+                        self._report_late(t_ns)
+                    try:
+                        sock.send(frame)
+                    except OSError as exc:
+                        if len(self.errors) < MAX_ERRORS_KEPT:  # a storm must not grow the list without end
+                            self.errors.append(str(exc))
+                    else:
+                        self.frames_out += 1
+                        if pcap is not None:
+                            pcap.write(time.time(), frame)
                 # the applications' work (outputs to the drives) once the frame is on its way back
                 if not self._acquire(lock):
                     return

@@ -40,6 +40,7 @@ from gatewaylab.plugin.capabilities import (
     node_of,
     segment_of,
 )
+from gatewaylab.rig.segment import SegmentParticipant
 
 if TYPE_CHECKING:
     from gatewaylab.rig.runtime import Rig
@@ -320,7 +321,11 @@ class Faults:
                 except ValueError:
                     state = f"0x{status & 0x0F:X}"
                 states[p.name] = {"state": state, "error": bool(status & 0x10), "code": esc.al_status_code}
-            return {"fault": "ethercat-states", "devices": states}
+            out: dict[str, Any] = {"fault": "ethercat-states", "devices": states}
+            for q in self._rig.participants:       # the [ethercat] wire's counters while it runs
+                if isinstance(q, SegmentParticipant) and (wire := q.wire_stats()) is not None:
+                    out["wire"] = wire
+            return out
         return self._locked(act)
 
     def can_states(self) -> dict[str, Any]:

@@ -7,6 +7,9 @@ Rig file::
     pcap = "ecat.pcap"     # optional capture
     cpu = 1                # optional: pin the wire thread
     busy_poll = false      # optional: true polls the socket without ever blocking (burns a CPU)
+    max_residence_ms = 2.0 # optional: frames older than this are dropped, never answered late (0: no limit)
+    realtime = true        # optional: SCHED_FIFO for the wire thread and the rig's loop (root or CAP_SYS_NICE)
+    switch_interval_us = 200  # the interpreter's thread switch interval while the wire runs (0: leave it)
 
 Every device participant with ``is_ethercat = True`` and a ``slave`` attribute (an
 :class:`~gatewaylab.ethercat.slave.Slave`) joins the segment, in rig-file order (position 0 first).
@@ -15,20 +18,40 @@ A simulated-clock rig builds the segment without a wire: drive it with the in-pr
 
 from __future__ import annotations
 
+import logging
+import sys
+import threading
 from collections.abc import Sequence
 from typing import Any
 
+from gatewaylab.ethercat.residence import DEFAULT_MAX_RESIDENCE_MS
 from gatewaylab.ethercat.segment import Segment
-from gatewaylab.ethercat.wire import WireTransport
+from gatewaylab.ethercat.wire import REALTIME_PRIORITY, WireTransport, make_ordinary, make_realtime
 from gatewaylab.ethercat.wire_pcap import PcapWriter
 from gatewaylab.plugin.capabilities import EthercatDevice, ethercat_devices
 from gatewaylab.plugin.participant import DeviceKind, Key, RigContext
+
+_log = logging.getLogger(__name__)
+#: The interpreter's thread switch interval while a wire runs (docs/decisions.md: the latency tail).
+SWITCH_INTERVAL_US = 200.0
+#: ``realtime``: the SCHED_FIFO priority of the rig's loop thread (the thread that starts the participants
+#: and runs the clock: CAN buses, drives), below the wire thread's: the wire waits for the interpreter lock
+#: and ``clock.lock`` whenever the loop holds them, and an ordinary loop thread preempted by other processes
+#: while holding them made the wire's replies late (docs/decisions.md: the numbers).
+LOOP_PRIORITY = 5
 
 SEGMENT_KEYS: dict[str, Key] = {
     "interface": Key(str, required=True, help='one end of `gatewaylab net up NAME`, e.g. interface = "gl-ecat"'),
     "pcap": Key(str),
     "cpu": Key(int, min=0, help="pin the wire thread to this CPU"),
     "busy_poll": Key(bool, False, help="poll the socket without ever blocking (one CPU at 100 per cent)"),
+    "max_residence_ms": Key(float, DEFAULT_MAX_RESIDENCE_MS, min=0.0,
+                            help="drop a frame older than this (kernel receive time to reply) instead of "
+                                 "answering it late; 0: no limit"),
+    "realtime": Key(bool, True, help="run the wire thread and the rig's loop SCHED_FIFO (root or CAP_SYS_NICE; "
+                                     "one log line when not allowed)"),
+    "switch_interval_us": Key(float, SWITCH_INTERVAL_US, min=0.0, max=5000.0,
+                              help="the interpreter's thread switch interval while the wire runs; 0 leaves it"),
 }
 
 
@@ -46,6 +69,11 @@ class SegmentParticipant:
         self.pcap_path: str | None = cfg["pcap"]
         self.cpu: int | None = cfg["cpu"]
         self.busy_poll: bool = cfg["busy_poll"]
+        self.max_residence_ms = float(cfg["max_residence_ms"])
+        self.realtime: bool = cfg["realtime"]
+        self.switch_interval_s = float(cfg["switch_interval_us"]) / 1e6
+        self._switch_restore: tuple[float, float] | None = None   # (ours, the one before)
+        self._loop_tid: int | None = None                          # the loop thread made real-time
         self.pcap: PcapWriter | None = None
         self.wire: WireTransport | None = None
 
@@ -56,17 +84,53 @@ class SegmentParticipant:
         if self.pcap_path:
             self.pcap = PcapWriter(str(self.pcap_path))
         self.wire = WireTransport(self.segment, self.interface, self.rig.clock, busy_poll=self.busy_poll,
-                                  pcap=self.pcap, cpu=self.cpu)
+                                  pcap=self.pcap, cpu=self.cpu, max_residence_ms=self.max_residence_ms,
+                                  realtime=self.realtime)
+        if self.switch_interval_s > 0:
+            # the wire thread waits for the interpreter lock while the rig's loop runs Python (CAN buses,
+            # drives): at most one switch interval (5 ms by default) each time
+            before = sys.getswitchinterval()
+            sys.setswitchinterval(self.switch_interval_s)
+            self._switch_restore = (sys.getswitchinterval(), before)
+        if self.realtime and not self.busy_poll:
+            self.rig.clock.call_soon(self._loop_realtime)   # the first event the rig's loop thread runs
         self.wire.start()
+
+    def _loop_realtime(self) -> None:
+        """SCHED_FIFO ``LOOP_PRIORITY`` for the calling thread (the rig's loop, which runs the clock's events),
+        or one line saying why not."""
+        if self.wire is None or self._loop_tid is not None:     # stopped meanwhile, or done
+            return
+        why = make_realtime(LOOP_PRIORITY)
+        if why is None:
+            self._loop_tid = threading.get_native_id()
+            _log.info("[ethercat] realtime: the rig's loop thread runs SCHED_FIFO priority %d (the wire thread %d)",
+                      LOOP_PRIORITY, REALTIME_PRIORITY)
+        else:
+            _log.warning("[ethercat] realtime = true, but this process may not use SCHED_FIFO (%s; it needs root or "
+                         "CAP_SYS_NICE): the rig runs with ordinary priority, and EtherCAT replies may come late on "
+                         "a loaded machine", why)
 
     def stop(self) -> None:
         """Stop the wire thread and close the capture."""
         if self.wire is not None:
             self.wire.stop()
             self.wire = None
+        if self._loop_tid is not None:
+            make_ordinary(self._loop_tid)
+            self._loop_tid = None
+        if self._switch_restore is not None:
+            ours, before = self._switch_restore
+            if sys.getswitchinterval() == ours:     # nobody changed it since
+                sys.setswitchinterval(before)
+            self._switch_restore = None
         if self.pcap is not None:
             self.pcap.close()
             self.pcap = None
+
+    def wire_stats(self) -> dict[str, int] | None:
+        """The wire's counters (frames in, out, dropped late, errors) while it runs, else None."""
+        return None if self.wire is None else self.wire.stats()
 
     def ready_info(self) -> dict[str, Any]:
         """The interface and the slaves in position order, for the --ready-file."""

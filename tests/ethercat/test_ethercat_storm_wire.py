@@ -34,7 +34,7 @@ def test_soem_reaches_op_after_a_storm(veth_ns: Any) -> None:
     clock = RealTimeClock()
     segment = _segment(clock)
     eeproms = [bytes(s.esc.eeprom) for s in segment.slaves]
-    wire = WireTransport(segment, veth_ns.emulator_iface, clock, drive_clock=True)
+    wire = WireTransport(segment, veth_ns.emulator_iface, clock, drive_clock=True, realtime=True)
     wire.start()
     try:
         proc = subprocess.run(["ip", "netns", "exec", veth_ns.namespace, sys.executable, str(STORM_DRIVER),
@@ -80,7 +80,7 @@ def test_frame_loop_survives_exceptions_with_one_log_line_each(veth_ns: Any,
     raised are dropped (SOEM retries), the rest are served, and config_init finds the slaves."""
     clock = RealTimeClock()
     segment = _segment(clock)
-    wire = WireTransport(segment, veth_ns.emulator_iface, clock, drive_clock=True)
+    wire = WireTransport(segment, veth_ns.emulator_iface, clock, drive_clock=True, realtime=True)
     wire.segment = _Flaky(segment, 3)  # type: ignore[assignment]
     caplog.set_level(logging.ERROR, logger="gatewaylab.ethercat.wire")
     wire.start()

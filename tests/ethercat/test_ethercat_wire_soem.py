@@ -24,15 +24,17 @@ def _serve(veth: Any, args: list[str], pcap: PcapWriter | None = None, segment: 
     if segment is None:
         segment = Segment([create_io_slave(clock, f"GL-IO #{i}", serial=1000 + i, revision=i + 1)
                            for i in range(3)])
-    wire = WireTransport(segment, veth.emulator_iface, clock, drive_clock=True, pcap=pcap)
+    wire = WireTransport(segment, veth.emulator_iface, clock, drive_clock=True, pcap=pcap, realtime=True)
     wire.start()
     try:
         proc = veth.run_master(*args)
     finally:
         wire.stop()
-    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.returncode == 0, (wire.stats(), proc.stderr[-2000:])
     assert not wire.errors
-    return json.loads(proc.stdout.strip().splitlines()[-1]), segment
+    result: dict[str, Any] = json.loads(proc.stdout.strip().splitlines()[-1])
+    result["wire"] = wire.stats()
+    return result, segment
 
 
 @pytest.fixture(scope="module")
@@ -63,13 +65,25 @@ def test_soem_config_init_finds_three_slaves_with_names_and_ids(config_run: tupl
 
 
 def test_pcap_capture_holds_both_directions_as_ethernet(config_run: tuple[dict[str, Any], bytes]) -> None:
-    """Captures use Ethernet link type 1 so Wireshark's EtherCAT dissector decodes EtherType 0x88A4."""
-    _, data = config_run
-    frames = read_pcap(data)
-    assert len(frames) >= 20 and len(frames) % 2 == 0
-    assert all(f[12:14] == b"\x88\xa4" for _t, f in frames)
-    # Every request is followed by its answer, whose source MAC has the locally-administered bit set.
-    assert all(frames[i + 1][1][6] & 0x02 for i in range(0, len(frames), 2))
+    """Captures use Ethernet link type 1 so Wireshark's EtherCAT dissector decodes EtherType 0x88A4. Every
+    request is followed by its answer (the same datagram index; the source MAC has the locally-administered
+    bit set), or by nothing when the wire dropped it as too old (docs/rig.md ``max_residence_ms``): as many
+    unanswered requests as the wire counted."""
+    result, data = config_run
+    frames = [f for _t, f in read_pcap(data)]
+    assert len(frames) >= 20
+    assert all(f[12:14] == b"\x88\xa4" for f in frames)
+    unanswered = 0
+    i = 0
+    while i < len(frames):
+        assert not frames[i][6] & 0x02, f"frame {i}: an answer without its request"
+        if i + 1 < len(frames) and frames[i + 1][6] & 0x02:
+            assert frames[i + 1][17] == frames[i][17]       # the same datagram index
+            i += 2
+        else:
+            unanswered += 1
+            i += 1
+    assert unanswered == result["wire"]["frames_dropped_late"]
 
 
 def test_soem_sdo_strings_records_and_complete_access(full_run: tuple[dict[str, Any], Segment]) -> None:

@@ -117,7 +117,8 @@ def serve_raw(veth: DriveVeth, script: Path, *args: str,
     """``n`` drives on the emulator end while ``script`` runs as the master in the namespace."""
     clock = RealTimeClock()
     drives = [EthercatDrive(clock, f"GL-Drive #{i}", serial=0x3001 + i) for i in range(n)]
-    wire = WireTransport(Segment([d.slave for d in drives]), veth.emulator_iface, clock, drive_clock=True)
+    wire = WireTransport(Segment([d.slave for d in drives]), veth.emulator_iface, clock, drive_clock=True,
+                         realtime=True)
     # The test process holds the whole suite's objects: a full garbage collection of them, which the
     # control periods' allocations trigger now and then, would stall the wire thread for longer than
     # SOEM's 2 ms register timeout. Frozen, they are not scanned (a `gatewaylab run` heap is small).
