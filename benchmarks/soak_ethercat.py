@@ -169,44 +169,49 @@ def wire_counters(ready_file: str | Path) -> dict[str, int]:
 def can_peer(endpoints: list[str], plan: Plan, stop: Event, results: Any) -> None:
     """The python-can client(s) on the rig's buses: on ``can0`` NMT start + RPDO1 to the CAN drive at
     ``plan.can_rate``; on every ECAN-Lite bus ``plan.peer_rate`` frames/s towards the master. Counts what it
-    sent and what it heard from the master (the ECAN-Lite's frames: SYNC and ids 0x100..)."""
+    sent, what the bus refused (a full transmit queue), what it heard from the master (the ECAN-Lite's
+    frames: SYNC and ids 0x100..) and other frames (the CAN drive's)."""
     import can
 
     buses = [can.Bus(interface="gatewaylab", channel=e, name=f"soak-peer-{k}") for k, e in enumerate(endpoints)]
-    sent = heard = other = 0
+    counts = {"sent": 0, "refused": 0, "heard": 0, "other": 0}
+
+    def send(bus: Any, msg: Any) -> None:
+        try:
+            bus.send(msg, timeout=0)
+            counts["sent"] += 1
+        except can.CanOperationError:
+            counts["refused"] += 1
+    results.put({"ready": True})
     try:
         if plan.can_drive:
-            buses[0].send(can.Message(arbitration_id=0x000, is_extended_id=False, data=[0x01, CAN_NODE]))
+            send(buses[0], can.Message(arbitration_id=0x000, is_extended_id=False, data=[0x01, CAN_NODE]))
         t0 = time.perf_counter()
         rpdo = peer = 0
         while not stop.is_set():
             now = time.perf_counter() - t0
             while plan.can_drive and rpdo < now * plan.can_rate:
-                buses[0].send(can.Message(arbitration_id=0x200 + CAN_NODE, is_extended_id=False,
-                                          data=struct.pack("<Hi", 0x0F, rpdo)))
+                send(buses[0], can.Message(arbitration_id=0x200 + CAN_NODE, is_extended_id=False,
+                                           data=struct.pack("<Hi", 0x0F, rpdo)))
                 rpdo += 1
-                sent += 1
             while plan.peer_rate and peer < now * plan.peer_rate:
                 for k, bus in enumerate(buses):
-                    bus.send(can.Message(arbitration_id=0x300 + k, is_extended_id=False,
-                                         data=struct.pack("<I", peer)))
-                    sent += 1
+                    send(bus, can.Message(arbitration_id=0x300 + k, is_extended_id=False, data=struct.pack("<I", peer)))
                 peer += 1
             for bus in buses:
                 while (msg := bus.recv(0)) is not None:
-                    if msg.arbitration_id == SYNC_ID or 0x100 <= msg.arbitration_id < 0x100 + len(buses):
-                        heard += 1
-                    else:
-                        other += 1
+                    master_frame = msg.arbitration_id == SYNC_ID or 0x100 <= msg.arbitration_id < 0x100 + len(buses)
+                    counts["heard" if master_frame else "other"] += 1
             time.sleep(0.0005)
     finally:
-        results.put({"sent": sent, "heard": heard, "other": other})
+        results.put(counts)
         for bus in buses:
             bus.shutdown()
 
 
 class CanLoad:
-    """:func:`can_peer` in a child process for the plan's buses (nothing when the plan has no CAN side)."""
+    """:func:`can_peer` in a child process for the plan's buses, returned once its buses are open (nothing
+    when the plan has no CAN side)."""
 
     def __init__(self, plan: Plan, endpoints: list[str]) -> None:
         ctx = mp.get_context("spawn")
@@ -217,9 +222,10 @@ class CanLoad:
             self.proc = ctx.Process(target=can_peer, args=(endpoints, plan, self.stop_event, self.results),
                                     name="soak-ethercat-can")
             self.proc.start()
+            self.results.get(timeout=120)
 
     def stop(self) -> dict[str, int]:
-        """End the client; what it sent and heard ({} without one)."""
+        """End the client; its counts ({} without one)."""
         if self.proc is None:
             return {}
         self.stop_event.set()
@@ -286,6 +292,15 @@ class EcanStream:
             self.parse_errors += 1
 
 
+def soem_errors() -> tuple[type[BaseException], ...]:
+    """What a bring-up raises when an answer came too late (a stall of the machine): pysoem's exceptions,
+    the benchmarks' own RuntimeError / SystemExit."""
+    import pysoem
+
+    return (RuntimeError, SystemExit, pysoem.ConfigMapError, pysoem.MailboxError, pysoem.WkcError,
+            pysoem.PacketError, pysoem.SdoError)
+
+
 def _bring_up(iface: str, kinds: Sequence[str], plan: Plan) -> tuple[Any, EcanStream | None, int]:
     """SOEM to OP with the ECAN-Lite configured and the drives enabled; (master, stream, scans it took).
     The bring-up is the master's own (its mailbox timeouts); a scan or mailbox answer lost to a stall of the
@@ -296,7 +311,7 @@ def _bring_up(iface: str, kinds: Sequence[str], plan: Plan) -> tuple[Any, EcanSt
     from benchmarks.bench_ethercat_drive import enable_drives
     from benchmarks.wire import request_op
 
-    errors = (pysoem.ConfigMapError, pysoem.MailboxError, pysoem.WkcError, pysoem.PacketError, pysoem.SdoError)
+    errors = soem_errors()
     for attempt in range(1, BRING_UP_ATTEMPTS + 1):
         master = pysoem.Master()
         master.sdo_read_timeout = master.sdo_write_timeout = 3_000_000
@@ -321,7 +336,7 @@ def _bring_up(iface: str, kinds: Sequence[str], plan: Plan) -> tuple[Any, EcanSt
             if enabled != len(drives):
                 raise RuntimeError(f"{enabled}/{len(drives)} drives enabled")
             return master, stream, attempt
-        except (RuntimeError, *errors) as exc:
+        except errors as exc:
             master.close()
             emit("retry", attempt=attempt, error=f"{type(exc).__name__}: {exc}")
             if attempt == BRING_UP_ATTEMPTS:
@@ -343,9 +358,15 @@ def master_main(iface: str, plan: Plan, cycles: int) -> dict[str, Any]:
     ios = [s for s, k in zip(master.slaves, kinds, strict=True) if k == "io"]
     expected = master.expected_wkc
     emit("op", expected_wkc=expected, scans=scans)
-    go = threading.Event()      # the parent's 'go' (its captures are up); the line keeps cycling meanwhile,
-    threading.Thread(target=lambda: (sys.stdin.readline(), go.set()), daemon=True).start()  # or the SM
-    wrong = 0                                                                         # watchdogs expire
+    # the parent's 'go' (its captures are up) is read aside: the line keeps cycling meanwhile, or the slaves'
+    # SM watchdogs expire before the counted cycles start
+    go = threading.Event()
+
+    def wait_go() -> None:
+        sys.stdin.readline()
+        go.set()
+    threading.Thread(target=wait_go, daemon=True).start()
+    wrong = 0
     first_wrong: list[int] = []
     rtts: list[float] = []
     t_start = 0
@@ -386,7 +407,10 @@ def master_main(iface: str, plan: Plan, cycles: int) -> dict[str, Any]:
                                            "parse_errors": stream.parse_errors}}
     go_init(master)
     if stream is not None:
-        out["ecan"].update(ecan_counters(iface, kinds))
+        try:
+            out["ecan"].update(ecan_counters(iface, kinds))
+        except soem_errors() as exc:     # a scan lost to a stall: the counts stay out
+            out["ecan"]["counters_error"] = f"{type(exc).__name__}: {exc}"
     return out
 
 
@@ -426,7 +450,10 @@ class LineResult:
     residence: Tail | None = None
     counters: dict[str, int] = field(default_factory=dict)
     can: dict[str, int] = field(default_factory=dict)
+    #: with a stall: its kernel-time window, and the master's round trips of the frames sent from its start
+    #: to one second after its end (the backlog the rig met when it ran again)
     stall: tuple[int, int] | None = None
+    stall_tail: Tail | None = None
     errors: list[str] = field(default_factory=list)
 
     @property
@@ -504,10 +531,12 @@ def run_line(plan: Plan, cycles: int, load: str = "quiet", *, residence: bool = 
         path = Path(tmp) / "rig.toml"
         path.write_text(rig_toml(plan, emu, limit))
         with RigProcess(path, workdir=tmp, timeout=120) as rig:
-            can = CanLoad(plan, [rig.endpoint(f"can{k}") for k in range(plan.ecan_channels)])
             master = MasterProcess(ns, mst, plan, cycles)
+            can: CanLoad | None = None
             try:
                 master.wait("op", BRING_UP_S)
+                # the peers start once the ECAN-Lite's channels run: before, no node on can1.. acknowledges
+                can = CanLoad(plan, [rig.endpoint(f"can{k}") for k in range(plan.ecan_channels)])
                 result.errors += [f"bring-up again after: {r}" for r in master.retries]
                 caps = [Capture(mst, Path(tmp) / "master.cap", ("ip", "netns", "exec", ns))]
                 if residence:
@@ -528,12 +557,16 @@ def run_line(plan: Plan, cycles: int, load: str = "quiet", *, residence: bool = 
                     files = [c.stop() for c in caps]
                 t0_ns, t1_ns = result.master["t_start_ns"], result.master["t_end_ns"]
                 result.master_tail = tail_of(files[0], True, limits, keep, t0_ns, t1_ns)
+                if result.stall is not None:
+                    result.stall_tail = tail_of(files[0], True, limits, False, result.stall[0],
+                                                result.stall[1] + 1_000_000_000)
                 if residence:
                     result.residence = tail_of(files[1], False, limits, keep, t0_ns, t1_ns)
                 result.counters = wire_counters(rig.ready_file)
             finally:
                 master.kill()
-                result.can = can.stop()
+                if can is not None:
+                    result.can = can.stop()
             if rig.proc.poll() is not None:
                 result.errors.append(f"the rig exited with {rig.proc.returncode}: {rig.log_text()[-500:]}")
             logged = [line for line in rig.log_text().splitlines() if line.startswith(("WARNING", "ERROR"))]
@@ -578,8 +611,8 @@ def report(r: LineResult) -> str:
                      f"{ecan.get('received', 0)} (parse errors {ecan.get('parse_errors', 0)}, RxPDO errors "
                      f"{ecan.get('pdo_errors', '?')}, TX FIFO drops {ecan.get('tx_fifo_drops', '?')}, RX cache drops "
                      f"{ecan.get('rx_cache_drops', '?')}); python-can client "
-                     f"sent {r.can.get('sent', '?')}, heard {r.can.get('heard', '?')} from the master and "
-                     f"{r.can.get('other', '?')} other frames (the CAN drive's)")
+                     f"sent {r.can.get('sent', '?')} (refused: queue full {r.can.get('refused', '?')}), heard "
+                     f"{r.can.get('heard', '?')} from the master and {r.can.get('other', '?')} other frames")
     lines += [f"  note: {e}" for e in r.errors]
     return "\n".join(lines)
 
