@@ -275,8 +275,7 @@ def stall_run(load: str) -> LineResult:
 def print_stall(r: LineResult) -> bool:
     """The stall's lines: replies older than the limit sent during the stall or the second after it (the
     backlog), and in the whole run; True when none reached the master in the stall's window."""
-    limit = f"max_residence_ms {r.limit_ms:g}" if r.limit_configurable else \
-        f"{r.limit_ms:g} ms (this rig has no max_residence_ms)"
+    limit = r.limit_text()
     w = r.stall_tail
     stale = w.over.get(r.limit_ms * 1000.0, 0) if w is not None else -1
     print(f"[{r.load}] {STALL_S * 1000:.0f} ms stall (SIGSTOP) under SOEM at 1 kHz, {SOAK_PLAN.describe()}: "

@@ -33,11 +33,15 @@ ETH_P_ALL = 0x0003
 ETHERCAT_TYPE = b"\x88\xa4"
 PACKET_OUTGOING = 4
 SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)
-#: time (ns), sent by this interface (1) or received (0), the datagram header key
-RECORD = struct.Struct("<qB8s")
+#: time (ns), sent by this interface (1) or received (0), the frame's key (:func:`frame_key`)
+RECORD = struct.Struct("<qB16s")
+#: the bytes of a key that no slave changes (the datagram header's); the rest is a sample of the data
+HEADER = 8
 _TIMESPEC = struct.Struct("@qq")
-#: how many waiting requests a reply is looked for in (a frame of another party matches none)
+#: how many requests wait for a reply at most (older ones count as never answered)
 MAX_SKIP = 1024
+#: how far past the first request with its header a reply looks for one whose data matches too
+MAX_LOOK = 512
 
 
 @dataclass(frozen=True)
@@ -58,16 +62,22 @@ Record = tuple[int, bool, bytes]
 
 
 def frame_key(frame: bytes | bytearray | memoryview) -> bytes:
-    """The fields of the first datagram no slave changes: EtherCAT header (2), command, index (the
-    frame index masters match on), offset address (2), length (2); the position address (ADP) is left
-    out, auto-increment commands count it up on the way."""
-    return bytes(frame[14:18]) + bytes(frame[20:24])
+    """16 bytes of the first datagram: the fields no slave changes -- EtherCAT header (2), command, index
+    (the frame index masters match on), offset address (2), length (2); the position address (ADP) is left
+    out, auto-increment commands count it up on the way -- then its first 8 data bytes. Those come back
+    unchanged in a write, and in an LRW whose image starts with outputs (a master's cyclic frame: new
+    outputs every cycle), which tells apart requests that reuse one frame index (SOEM has 16)."""
+    return (bytes(frame[14:18]) + bytes(frame[20:24]) + bytes(frame[26:34])).ljust(16, b"\0")
 
 
 def pairs(records: Iterable[Record], requests_outgoing: bool) -> Iterator[Pair]:
     """Requests (frames in the ``requests_outgoing`` direction) paired with their replies, in request order,
-    streamed (a capture of hours never sits in memory); a reply matching no waiting request (a frame of
-    another party) is ignored."""
+    streamed (a capture of hours never sits in memory).
+
+    A segment and a veth pair answer in order, so a reply belongs to a waiting request with its datagram
+    header, every request before that one was never answered: the one whose data sample matches too (a
+    write, a cyclic LRW: exact even when the frame index was reused), else the first with the header (a
+    read: its data changes on the way). A reply matching no waiting request (another party's) is ignored."""
     waiting: deque[tuple[int, bytes]] = deque()
     for t, outgoing, key in records:
         if outgoing == requests_outgoing:
@@ -76,14 +86,24 @@ def pairs(records: Iterable[Record], requests_outgoing: bool) -> Iterator[Pair]:
                 t0, k0 = waiting.popleft()
                 yield Pair(t0, None, k0)
             continue
-        for i, (t_req, k_req) in enumerate(waiting):
+        header = key[:HEADER]
+        first = exact = -1
+        for i, (_t_req, k_req) in enumerate(waiting):
             if k_req == key:
-                for _ in range(i):
-                    t0, k0 = waiting.popleft()
-                    yield Pair(t0, None, k0)
-                waiting.popleft()
-                yield Pair(t_req, t, key)
+                exact = i
                 break
+            if first < 0 and k_req[:HEADER] == header:
+                first = i
+            elif first >= 0 and i - first > MAX_LOOK:
+                break
+        found = exact if exact >= 0 else first
+        if found < 0:
+            continue
+        for _ in range(found):
+            t0, k0 = waiting.popleft()
+            yield Pair(t0, None, k0)
+        t_req, k_req = waiting.popleft()
+        yield Pair(t_req, t, k_req)
     for t0, k0 in waiting:
         yield Pair(t0, None, k0)
 
@@ -117,7 +137,7 @@ class Tail:
             self.unanswered += 1
             return
         self.worst_us = max(self.worst_us, d)
-        for limit in self.limits_us:
+        for limit in set(self.limits_us):     # one count per limit, however often it is given
             if d > limit:
                 self.over[limit] = self.over.get(limit, 0) + 1
         if self.keep:

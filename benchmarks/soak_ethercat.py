@@ -33,10 +33,11 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from multiprocessing.synchronize import Event
 from pathlib import Path
+from types import MappingProxyType
 from typing import IO, Any
 
 from benchmarks.capture import Capture, Tail, tail_of
@@ -102,8 +103,10 @@ def residence_limit_ms() -> float | None:
     return None if key is None else float(key.default) if key.default is not None else None
 
 
-def rig_toml(plan: Plan, interface: str, max_residence_ms: float | None = None) -> str:
-    """The rig file of ``plan`` on ``interface`` (``max_residence_ms`` written only when given)."""
+def rig_toml(plan: Plan, interface: str, max_residence_ms: float | None = None,
+             ethercat: Mapping[str, str] = MappingProxyType({})) -> str:
+    """The rig file of ``plan`` on ``interface`` (``max_residence_ms`` written only when given; ``ethercat``:
+    more ``[ethercat]`` keys, values as TOML text)."""
     lines = ['clock = "realtime"', ""]
     buses = [f"can{k}" for k in range(plan.ecan_channels)]
     for name in buses:
@@ -121,8 +124,9 @@ def rig_toml(plan: Plan, interface: str, max_residence_ms: float | None = None) 
     if plan.can_drive and plan.ecan_channels:
         lines += ["[[drive]]", 'bus = "can0"', f"node_id = {CAN_NODE}", "serial = 0x1002", 'name = "candrive"', ""]
     lines += ["[ethercat]", f'interface = "{interface}"']
-    if max_residence_ms is not None:
+    if max_residence_ms is not None and "max_residence_ms" not in ethercat:
         lines.append(f"max_residence_ms = {max_residence_ms:g}")
+    lines += [f"{key} = {value}" for key, value in ethercat.items()]
     return "\n".join(lines) + "\n"
 
 
@@ -442,7 +446,10 @@ class LineResult:
     load: str
     cycles: int
     limit_ms: float
+    #: whether the rig has ``max_residence_ms`` (else replies are counted against FALLBACK_RESIDENCE_MS)
     limit_configurable: bool
+    #: ``max_residence_ms = 0``: the rig's limit is off (counted against FALLBACK_RESIDENCE_MS)
+    limit_off: bool = False
     master: dict[str, Any] = field(default_factory=dict)
     #: round trips on the master's interface (replies later than SOEM's timeout and than the limit counted)
     master_tail: Tail | None = None
@@ -455,6 +462,14 @@ class LineResult:
     stall: tuple[int, int] | None = None
     stall_tail: Tail | None = None
     errors: list[str] = field(default_factory=list)
+
+    def limit_text(self) -> str:
+        """The limit the stale replies are counted against, and where it comes from."""
+        if not self.limit_configurable:
+            return f"{self.limit_ms:g} ms (this rig has no max_residence_ms)"
+        if self.limit_off:
+            return f"{self.limit_ms:g} ms (max_residence_ms = 0: the rig's limit is off)"
+        return f"max_residence_ms {self.limit_ms:g}"
 
     @property
     def late(self) -> int:
@@ -514,22 +529,26 @@ class MasterProcess:
 
 def run_line(plan: Plan, cycles: int, load: str = "quiet", *, residence: bool = True, keep: bool = True,
              stall_after_s: float | None = None, stall_s: float = 0.2,
-             before_rig: Callable[[str, str, str], None] | None = None) -> LineResult:
+             before_rig: Callable[[str, str, str], None] | None = None,
+             ethercat: Mapping[str, str] = MappingProxyType({})) -> LineResult:
     """``plan`` through ``gatewaylab run`` on a fresh veth pair, SOEM cycling ``cycles`` times under ``load``
     (:class:`CpuHog`), captures on the master's end (and with ``residence`` on the emulator's); with
     ``stall_after_s`` the rig is stopped (SIGSTOP) for ``stall_s`` that long after the cycles started.
-    ``before_rig(ns, emu, mst)`` runs first on the same pair under the same load (the C echo)."""
+    ``before_rig(ns, emu, mst)`` runs first on the same pair under the same load (the C echo); ``ethercat``:
+    more ``[ethercat]`` keys of the rig (TOML values), e.g. ``{"busy_poll": "true"}``."""
     from gatewaylab.rig.process import RigProcess
 
     limit = residence_limit_ms()
-    result = LineResult(plan, load, cycles, FALLBACK_RESIDENCE_MS if limit is None else limit, limit is not None)
+    if "max_residence_ms" in ethercat:
+        limit = float(ethercat["max_residence_ms"])
+    result = LineResult(plan, load, cycles, limit or FALLBACK_RESIDENCE_MS, limit is not None, limit == 0)
     limits = (float(SOEM_TIMEOUT_US), result.limit_ms * 1000.0)
     with tempfile.TemporaryDirectory(prefix="gl-soak-ecat-") as tmp, \
             veth_namespace("gl-sk-", "gls") as (ns, emu, mst), CpuHog(load):
         if before_rig is not None:
             before_rig(ns, emu, mst)
         path = Path(tmp) / "rig.toml"
-        path.write_text(rig_toml(plan, emu, limit))
+        path.write_text(rig_toml(plan, emu, limit, ethercat))
         with RigProcess(path, workdir=tmp, timeout=120) as rig:
             master = MasterProcess(ns, mst, plan, cycles)
             can: CanLoad | None = None
@@ -600,8 +619,8 @@ def report(r: LineResult) -> str:
                      f"{SOEM_TIMEOUT_US / 1000:g} ms {e.over.get(float(SOEM_TIMEOUT_US), 0)}, over {r.limit_ms:g} ms "
                      f"{e.over.get(r.limit_ms * 1000.0, 0)}; not answered {e.unanswered}")
     dropped = r.counters.get("frames_dropped_late")
-    limit = f"max_residence_ms {r.limit_ms:g}" if r.limit_configurable else "no max_residence_ms in this rig"
-    lines.append(f"  dropped late by the rig: {'not reported by this rig' if dropped is None else dropped} ({limit})")
+    lines.append(f"  dropped late by the rig: {'not reported by this rig' if dropped is None else dropped} "
+                 f"(limit {r.limit_text()})")
     lines.append(f"  master round trip: p50 {fmt_us(m.get('rtt_p50_us', float('nan')))} "
                  f"p99 {fmt_us(m.get('rtt_p99_us', float('nan')))} max {fmt_us(m.get('rtt_max_us', float('nan')))}; "
                  f"drive faults {m.get('drive_faults', '?')}")
@@ -631,12 +650,18 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
                         help="loaded: one more process busy on a CPU meanwhile (default quiet)")
     parser.add_argument("--can-rate", type=float, default=SOAK_PLAN.can_rate,
                         help="RPDO1 frames/s the python-can client sends the CAN drive")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="ethercat",
+                        help="an [ethercat] key of the rig, value as TOML (e.g. busy_poll=true, max_residence_ms=0)")
     parser.add_argument("--master", metavar="IFACE", help=argparse.SUPPRESS)
     parser.add_argument("--plan", help=argparse.SUPPRESS)
     parser.add_argument("--cycles", type=int, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.minutes <= 0:
         parser.error(f"--minutes must be > 0, got {args.minutes:g}")
+    bad = [item for item in args.ethercat if "=" not in item or not item.partition("=")[0].strip()]
+    if bad:
+        parser.error(f"--set takes KEY=VALUE, got {bad[0]!r}")
+    args.ethercat = {k.strip(): v.strip() for k, _, v in (item.partition("=") for item in args.ethercat)}
     return args
 
 
@@ -653,8 +678,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0
     plan = Plan(can_rate=args.can_rate)
     cycles = int(args.minutes * 60_000)
-    print(f"soak-ethercat: {plan.describe()}, {args.minutes:g} min ({cycles} cycles), {args.load}", flush=True)
-    result = run_line(plan, cycles, args.load, residence=True, keep=False)
+    keys = "".join(f", {k} = {v}" for k, v in args.ethercat.items())
+    print(f"soak-ethercat: {plan.describe()}, {args.minutes:g} min ({cycles} cycles), {args.load}{keys}", flush=True)
+    result = run_line(plan, cycles, args.load, residence=True, keep=False, ethercat=args.ethercat)
     print(report(result))
     ok = soak_ok(result)
     print("  OK" if ok else "  NOT clean: a master's test run on this line would see failures it did not cause")
