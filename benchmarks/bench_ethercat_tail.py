@@ -156,7 +156,8 @@ def print_residence(run: TailRun) -> tuple[bool, bool]:
     ecan = line.master.get("ecan") or {}
     print(f"  CAN: master -> ECAN-Lite {ecan.get('sent', 0)}, ECAN-Lite -> master {ecan.get('received', 0)}; "
           f"peers sent {line.can.get('sent', '?')}, heard {line.can.get('heard', '?')} of the master's; TX FIFO "
-          f"drops {ecan.get('tx_fifo_drops', '?')}, RX cache drops {ecan.get('rx_cache_drops', '?')}")
+          f"drops {ecan.get('tx_fifo_drops', '?')}, RX cache drops {ecan.get('rx_cache_drops', '?')}"
+          + (f" (not read: {ecan['counters_error'][:100]})" if "counters_error" in ecan else ""))
     for note in line.errors:
         print(f"  note: {note}")
     met_res, met_soem = p999 < limit, 0 <= wrong <= echo.lost
@@ -199,7 +200,9 @@ def classify(t0: int, t1: int, master: Sequence[Pair], emulator: Sequence[Pair],
     bad = next((p for p in master if t0 <= p.t_request < t1
                 and (p.t_reply is None or (p.delay_us or 0.0) > timeout_us)), None)
     if bad is None:
-        return "no frame lost or late on the wire (an error answer, or the master's own timing)"
+        slowest = max((p.delay_us or 0.0 for p in master if t0 <= p.t_request < t1), default=0.0)
+        return (f"no frame lost or late on the wire (slowest reply {fmt_us(slowest)}): the master process read it "
+                f"late, or gave up a longer wait (an EEPROM or state poll)")
     seen = next((e for e in emulator if e.key == bad.key and bad.t_request <= e.t_request < bad.t_request + 50_000_000),
                 None)
     if seen is None:
@@ -315,7 +318,7 @@ def main() -> None:
             residence[load] = (f"p99.9 {fmt_us(p['p999_us'])} (C echo {fmt_us(echo_p['p999_us'])})", met_res)
             soem[load] = (f"{run.line.master.get('wrong_wkc')} wrong WKC, C echo lost {run.echo.lost}", met_soem)
         except RuntimeError as exc:
-            print(f"[{load}] residence run failed: {str(exc).strip().splitlines()[-1:]}")
+            print(f"[{load}] residence run failed: {' '.join(str(exc).split())[-600:]}")
             residence[load] = soem[load] = ("the run failed", False)
         results = [kickcat_run(kind, load, tries) for kind in KICKCAT_KINDS]
         met = [print_kickcat(r) for r in results]
@@ -326,7 +329,7 @@ def main() -> None:
             stall[load] = (f"{s.stall_tail.over.get(s.limit_ms * 1000.0, 0) if s.stall_tail else '?'} stale replies "
                            f"after the stall", ok)
         except RuntimeError as exc:
-            print(f"[{load}] stall run failed: {str(exc).strip().splitlines()[-1:]}")
+            print(f"[{load}] stall run failed: {' '.join(str(exc).split())[-600:]}")
             stall[load] = ("the run failed", False)
     _record("residence", residence)
     _record("wkc_echo", soem)

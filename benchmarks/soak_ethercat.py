@@ -54,6 +54,8 @@ SYNC_ID = 0x080
 BRING_UP_S = 180.0
 #: whole bring-ups tried before the run gives up (each after a scan or mailbox answer lost to a stall)
 BRING_UP_ATTEMPTS = 10
+#: how long the master may take to read the ECAN-Lite's counters after the run
+COUNTERS_S = 60.0
 
 
 # ------------------------------------------------------------------------------------------------ the plan
@@ -424,10 +426,13 @@ def ecan_counters(iface: str, kinds: Sequence[str]) -> dict[str, int]:
     from benchmarks.bench_ecanlite import preop_session
     from benchmarks.wire import retry
 
+    deadline = time.monotonic() + COUNTERS_S
     master = preop_session(iface, len(kinds))
     s0 = master.slaves[kinds.index("ecanlite")]
 
     def u(index: int, sub: int) -> int:
+        if time.monotonic() > deadline:
+            raise RuntimeError(f"the counters took longer than {COUNTERS_S:g} s to read (a loaded machine)")
         return int.from_bytes(retry(s0.sdo_read, index, sub), "little")
     try:
         return {"pdo_errors": u(0x8011, 15), "last_pdo_error": u(0x8011, 16),
@@ -498,12 +503,14 @@ class MasterProcess:
         out: IO[str] | None = self.proc.stdout
         assert out is not None
         deadline = time.monotonic() + timeout
+        last = ""
         while time.monotonic() < deadline:
             if not select.select([out], [], [], 1.0)[0]:
                 continue
             line = out.readline()
             if not line:
                 break
+            last = line.strip()
             try:
                 ev: dict[str, Any] = json.loads(line)
             except ValueError:
@@ -514,7 +521,8 @@ class MasterProcess:
                 return ev
         self.kill()
         err = self.proc.stderr.read() if self.proc.stderr is not None else ""
-        raise RuntimeError(f"the master gave no '{event}': {err.strip()[-1500:]}")
+        why = err.strip()[-1500:] or f"no error; its last line: {last[:300] or 'none'}"
+        raise RuntimeError(f"the master gave no '{event}' within {timeout:.0f} s (exit {self.proc.returncode}): {why}")
 
     def go(self) -> None:
         assert self.proc.stdin is not None
@@ -571,7 +579,7 @@ def run_line(plan: Plan, cycles: int, load: str = "quiet", *, residence: bool = 
                         finally:
                             os.kill(rig.pid, signal.SIGCONT)
                         result.stall = (t0, time.time_ns())
-                    result.master = master.wait("done", cycles / 1000.0 * 3 + 120)
+                    result.master = master.wait("done", cycles / 1000.0 * 3 + COUNTERS_S + 240)
                 finally:
                     files = [c.stop() for c in caps]
                 t0_ns, t1_ns = result.master["t_start_ns"], result.master["t_end_ns"]
