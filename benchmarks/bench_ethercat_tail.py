@@ -153,6 +153,8 @@ def print_residence(run: TailRun) -> tuple[bool, bool]:
           f"replies after 2 ms on the master's wire {line.late}, never answered "
           f"{line.master_tail.unanswered if line.master_tail else '?'}; dropped late by the rig "
           f"{line.counters.get('frames_dropped_late', 'not reported')}")
+    print("  slaves that left OP while SOEM cycled: "
+          + (", ".join(f"{n} {st}" for n, st in line.left_op.items()) if line.left_op else "none"))
     ecan = line.master.get("ecan") or {}
     print(f"  CAN: master -> ECAN-Lite {ecan.get('sent', 0)}, ECAN-Lite -> master {ecan.get('received', 0)}; "
           f"peers sent {line.can.get('sent', '?')}, heard {line.can.get('heard', '?')} of the master's; TX FIFO "
@@ -288,7 +290,8 @@ def print_stall(r: LineResult) -> bool:
     m = r.master_tail
     print(f"    SOEM wrong working counters {r.master.get('wrong_wkc', '?')}; never answered "
           f"{m.unanswered if m else '?'}; oldest reply {fmt_us(m.worst_us) if m else '?'}; dropped late by the rig "
-          f"{r.counters.get('frames_dropped_late', 'not reported')}")
+          f"{r.counters.get('frames_dropped_late', 'not reported')}; left OP: "
+          + (", ".join(f"{n} {st}" for n, st in r.left_op.items()) if r.left_op else "none"))
     return stale == 0
 
 

@@ -56,6 +56,8 @@ BRING_UP_S = 180.0
 BRING_UP_ATTEMPTS = 10
 #: how long the master may take to read the ECAN-Lite's counters after the run
 COUNTERS_S = 60.0
+#: how long the CAN client keeps listening after the run (frames still on their way to it)
+DRAIN_S = 0.5
 
 
 # ------------------------------------------------------------------------------------------------ the plan
@@ -188,6 +190,11 @@ def can_peer(endpoints: list[str], plan: Plan, stop: Event, results: Any) -> Non
             counts["sent"] += 1
         except can.CanOperationError:
             counts["refused"] += 1
+    def take() -> None:
+        for bus in buses:
+            while (msg := bus.recv(0)) is not None:
+                master_frame = msg.arbitration_id == SYNC_ID or 0x100 <= msg.arbitration_id < 0x100 + len(buses)
+                counts["heard" if master_frame else "other"] += 1
     results.put({"ready": True})
     try:
         if plan.can_drive:
@@ -204,11 +211,12 @@ def can_peer(endpoints: list[str], plan: Plan, stop: Event, results: Any) -> Non
                 for k, bus in enumerate(buses):
                     send(bus, can.Message(arbitration_id=0x300 + k, is_extended_id=False, data=struct.pack("<I", peer)))
                 peer += 1
-            for bus in buses:
-                while (msg := bus.recv(0)) is not None:
-                    master_frame = msg.arbitration_id == SYNC_ID or 0x100 <= msg.arbitration_id < 0x100 + len(buses)
-                    counts["heard" if master_frame else "other"] += 1
+            take()
             time.sleep(0.0005)
+        drain_end = time.monotonic() + DRAIN_S      # what the master's last cycles put on the buses
+        while time.monotonic() < drain_end:
+            take()
+            time.sleep(0.001)
     finally:
         results.put(counts)
         for bus in buses:
@@ -375,13 +383,8 @@ def master_main(iface: str, plan: Plan, cycles: int) -> dict[str, Any]:
     wrong = 0
     first_wrong: list[int] = []
     rtts: list[float] = []
-    t_start = 0
-    counted = -1
-    for i in ticks(1 << 62):
-        if counted < 0 and go.is_set():
-            counted, t_start = i, time.time_ns()
-        if counted >= 0 and i - counted >= cycles:
-            break
+
+    def exchange(i: int) -> bool:
         if stream is not None:
             stream.outputs(i)
         data = csp_output(i)
@@ -389,21 +392,28 @@ def master_main(iface: str, plan: Plan, cycles: int) -> dict[str, Any]:
             s.output = data
         for s in ios:
             s.output = bytes([i & 0xFF]) * len(s.output)
-        t0 = time.perf_counter()
         master.send_processdata()
-        ok = master.receive_processdata(SOEM_TIMEOUT_US) == expected
-        if counted < 0:
-            if stream is not None:
-                stream.inputs(ok)
-            continue
+        ok = bool(master.receive_processdata(SOEM_TIMEOUT_US) == expected)
+        if stream is not None:
+            stream.inputs(ok)
+        return ok
+
+    warm = 0
+    for warm in ticks(1 << 62):
+        if go.is_set():
+            break
+        exchange(warm)
+    t_start = time.time_ns()
+    for i in ticks(cycles):      # a fresh schedule: cycles the warm-up fell behind are not made up for
+        t0 = time.perf_counter()
+        ok = exchange(warm + i)
         rtts.append(time.perf_counter() - t0)
         if not ok:
             wrong += 1
             if len(first_wrong) < 20:
-                first_wrong.append(i - counted)
-        if stream is not None:
-            stream.inputs(ok)
+                first_wrong.append(i)
     t_end = time.time_ns()
+    emit("cycled")
     rtts.sort()
     out: dict[str, Any] = {
         "cycles": cycles, "wrong_wkc": wrong, "first_wrong": first_wrong, "t_start_ns": t_start, "t_end_ns": t_end,
@@ -466,6 +476,8 @@ class LineResult:
     #: to one second after its end (the backlog the rig met when it ran again)
     stall: tuple[int, int] | None = None
     stall_tail: Tail | None = None
+    #: slaves the rig reported out of OP while the master cycled: name -> state and when
+    left_op: dict[str, str] = field(default_factory=dict)
     errors: list[str] = field(default_factory=list)
 
     def limit_text(self) -> str:
@@ -485,6 +497,40 @@ class LineResult:
     def stale(self) -> int:
         """Replies older than the residence limit that reached the master."""
         return 0 if self.master_tail is None else self.master_tail.over.get(self.limit_ms * 1000.0, 0)
+
+
+class StateWatch:
+    """The rig's AL states polled (``ethercat-states``, every ``period`` s) while the master cycles: every slave
+    seen out of OP, first time and state -- a slave that left OP by itself (SM watchdog after a stall) and
+    whose outputs no longer count shows here even where the working counter stays full."""
+
+    def __init__(self, ready_file: str | Path, period: float = 0.5) -> None:
+        self.ready_file = str(ready_file)
+        self.period = period
+        self.t0 = time.monotonic()
+        self.left_op: dict[str, str] = {}
+        self.stop_event = threading.Event()
+        self.thread = threading.Thread(target=self._run, name="soak-ethercat-states", daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        from gatewaylab.cli.fault import send_request
+
+        while not self.stop_event.wait(self.period):
+            try:
+                devices = send_request(self.ready_file, {"fault": "ethercat-states"}).get("devices", {})
+            except Exception:
+                continue
+            for name, st in devices.items():
+                if name not in self.left_op and st.get("state") != "OP":
+                    error = f" + error 0x{int(st.get('code', 0)):04X}" if st.get("error") else ""
+                    self.left_op[name] = f"{st.get('state')}{error} at {time.monotonic() - self.t0:.1f} s"
+
+    def stop(self) -> dict[str, str]:
+        """End the polling; slave name -> its first state out of OP and when."""
+        self.stop_event.set()
+        self.thread.join(5)
+        return dict(self.left_op)
 
 
 class MasterProcess:
@@ -570,6 +616,7 @@ def run_line(plan: Plan, cycles: int, load: str = "quiet", *, residence: bool = 
                     caps.append(Capture(emu, Path(tmp) / "emulator.cap"))
                 try:
                     master.go()
+                    watch = StateWatch(rig.ready_file)
                     if stall_after_s is not None:
                         time.sleep(stall_after_s)
                         t0 = time.time_ns()
@@ -579,7 +626,9 @@ def run_line(plan: Plan, cycles: int, load: str = "quiet", *, residence: bool = 
                         finally:
                             os.kill(rig.pid, signal.SIGCONT)
                         result.stall = (t0, time.time_ns())
-                    result.master = master.wait("done", cycles / 1000.0 * 3 + COUNTERS_S + 240)
+                    result.master = master.wait("cycled", cycles / 1000.0 * 3 + 240)
+                    result.left_op = watch.stop()
+                    result.master = master.wait("done", COUNTERS_S + 120)
                 finally:
                     files = [c.stop() for c in caps]
                 t0_ns, t1_ns = result.master["t_start_ns"], result.master["t_end_ns"]
@@ -614,6 +663,8 @@ def report(r: LineResult) -> str:
              f"{m.get('cycles', r.cycles)} cycles"]
     lines.append(f"  wrong working counters: {m.get('wrong_wkc', '?')}"
                  + (f" (first at cycles {m['first_wrong'][:5]})" if m.get("first_wrong") else ""))
+    lines.append("  slaves that left OP while the master cycled (the rig's AL states): "
+                 + (", ".join(f"{n} {s}" for n, s in r.left_op.items()) if r.left_op else "none"))
     if r.master_tail is not None:
         t = r.master_tail
         lines.append(f"  late replies (master's capture): {r.late} after {SOEM_TIMEOUT_US / 1000:g} ms, "
@@ -645,8 +696,8 @@ def report(r: LineResult) -> str:
 
 
 def soak_ok(r: LineResult) -> bool:
-    """No wrong working counter and no late reply."""
-    return r.master.get("wrong_wkc", 1) == 0 and r.late == 0 and r.stale == 0
+    """No wrong working counter, no late reply, no slave out of OP."""
+    return r.master.get("wrong_wkc", 1) == 0 and r.late == 0 and r.stale == 0 and not r.left_op
 
 
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
