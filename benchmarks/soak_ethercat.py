@@ -404,8 +404,13 @@ def master_main(iface: str, plan: Plan, cycles: int) -> dict[str, Any]:
             break
         exchange(warm)
     t_start = time.time_ns()
+    gaps = {"max_s": 0.0, "over_100ms": 0}    # the master's own pauses between two cycles
+    previous = time.perf_counter()
     for i in ticks(cycles):      # a fresh schedule: cycles the warm-up fell behind are not made up for
         t0 = time.perf_counter()
+        gap, previous = t0 - previous, t0
+        gaps["max_s"] = max(gaps["max_s"], gap)
+        gaps["over_100ms"] += gap > 0.1
         ok = exchange(warm + i)
         rtts.append(time.perf_counter() - t0)
         if not ok:
@@ -419,6 +424,7 @@ def master_main(iface: str, plan: Plan, cycles: int) -> dict[str, Any]:
         "cycles": cycles, "wrong_wkc": wrong, "first_wrong": first_wrong, "t_start_ns": t_start, "t_end_ns": t_end,
         "rtt_p50_us": 1e6 * rtts[len(rtts) // 2], "rtt_p99_us": 1e6 * rtts[int(0.99 * len(rtts))],
         "rtt_max_us": 1e6 * rtts[-1], "drive_faults": drive_faults(drives), "scans": scans,
+        "gap_max_us": 1e6 * gaps["max_s"], "gaps_over_100ms": gaps["over_100ms"],
         "ecan": {} if stream is None else {"sent": stream.sent, "received": stream.received,
                                            "parse_errors": stream.parse_errors}}
     go_init(master)
@@ -667,22 +673,26 @@ def report(r: LineResult) -> str:
                  + (", ".join(f"{n} {s}" for n, s in r.left_op.items()) if r.left_op else "none"))
     if r.master_tail is not None:
         t = r.master_tail
-        lines.append(f"  late replies (master's capture): {r.late} after {SOEM_TIMEOUT_US / 1000:g} ms, "
-                     f"{r.stale} after {r.limit_ms:g} ms; never answered {t.unanswered} of {t.requests} frames; "
-                     f"worst {fmt_us(t.worst_us)}")
+        stale = "" if r.limit_ms * 1000.0 == SOEM_TIMEOUT_US else f", {r.stale} after {r.limit_ms:g} ms"
+        lines.append(f"  late replies (master's capture): {r.late} after {SOEM_TIMEOUT_US / 1000:g} ms{stale}; "
+                     f"never answered {t.unanswered} of {t.requests} frames; worst {fmt_us(t.worst_us)}")
     if r.residence is not None:
         e = r.residence
         spread = "" if not e.delays_us else "p50 {p50} p99 {p99} p99.9 {p999} ".format(
             **{k[:-3]: fmt_us(v) for k, v in e.percentiles().items()})
+        over = "" if r.limit_ms * 1000.0 == SOEM_TIMEOUT_US else \
+            f", over {r.limit_ms:g} ms {e.over.get(r.limit_ms * 1000.0, 0)}"
         lines.append(f"  emulator residence (its capture): {spread}max {fmt_us(e.worst_us)}; over "
-                     f"{SOEM_TIMEOUT_US / 1000:g} ms {e.over.get(float(SOEM_TIMEOUT_US), 0)}, over {r.limit_ms:g} ms "
-                     f"{e.over.get(r.limit_ms * 1000.0, 0)}; not answered {e.unanswered}")
+                     f"{SOEM_TIMEOUT_US / 1000:g} ms {e.over.get(float(SOEM_TIMEOUT_US), 0)}{over}; not answered "
+                     f"{e.unanswered}")
     dropped = r.counters.get("frames_dropped_late")
     lines.append(f"  dropped late by the rig: {'not reported by this rig' if dropped is None else dropped} "
                  f"(limit {r.limit_text()})")
     lines.append(f"  master round trip: p50 {fmt_us(m.get('rtt_p50_us', float('nan')))} "
                  f"p99 {fmt_us(m.get('rtt_p99_us', float('nan')))} max {fmt_us(m.get('rtt_max_us', float('nan')))}; "
-                 f"drive faults {m.get('drive_faults', '?')}")
+                 f"its longest pause between two cycles {fmt_us(m.get('gap_max_us', float('nan')))} "
+                 f"({m.get('gaps_over_100ms', '?')} over 100 ms, an SM watchdog's time); drive faults "
+                 f"{m.get('drive_faults', '?')}")
     ecan = m.get("ecan") or {}
     if ecan or r.can:
         lines.append(f"  CAN: master -> ECAN-Lite {ecan.get('sent', 0)} frames, ECAN-Lite -> master "
