@@ -749,7 +749,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     cycles = int(args.minutes * 60_000)
     keys = "".join(f", {k} = {v}" for k, v in args.ethercat.items())
     print(f"soak-ethercat: {plan.describe()}, {args.minutes:g} min ({cycles} cycles), {args.load}{keys}", flush=True)
-    result = run_line(plan, cycles, args.load, residence=True, keep=False, ethercat=args.ethercat)
+    result = run_line(plan, cycles, args.load, residence=True, keep=True, ethercat=args.ethercat)
     print(report(result))
     ok = soak_ok(result)
     print("  OK" if ok else "  NOT clean: a master's test run on this line would see failures it did not cause")
