@@ -205,8 +205,9 @@ def classify(t0: int, t1: int, master: Sequence[Pair], emulator: Sequence[Pair],
                 and (p.t_reply is None or (p.delay_us or 0.0) > timeout_us)), None)
     if bad is None:
         slowest = max((p.delay_us or 0.0 for p in master if t0 <= p.t_request < t1), default=0.0)
-        return (f"no frame lost or late on the wire (slowest reply {fmt_us(slowest)}): the master process read it "
-                f"late, or gave up a longer wait (an EEPROM or state poll)")
+        return (f"no frame lost or late on the wire (slowest reply {fmt_us(slowest)}): the master's own timing (its "
+                f"process not scheduled in time) or an answer it refused (a working counter, an EEPROM or state poll "
+                f"that ran out)")
     seen = next((e for e in emulator if e.key == bad.key and bad.t_request <= e.t_request < bad.t_request + 50_000_000),
                 None)
     if seen is None:
