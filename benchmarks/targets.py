@@ -1,4 +1,4 @@
-"""The targets of issues 23 and 31 and the summary that ends `make bench` (``python -m benchmarks targets``).
+"""The targets of issue 23 and the summary that ends `make bench` (``python -m benchmarks targets``).
 
 The benchmarks :func:`record` what they measured under one key per target; :func:`summary` prints the
 table (target, measured, met / not met / not measured) and which modules ran compiled;
@@ -24,7 +24,7 @@ TARGETS: dict[str, str] = {
                ">= 32 drives + 8 ethercat_io",
     "echo": "Paced SOEM p99 (1 kHz, wire thread busy polling like the echo) <= 2x the C echo's p99, same run",
     "4khz": "4 kHz segment (ECAN-Lite N=3 + 4 drives CSP): 0 CAN frames lost, 0 wrong WKC",
-    # issue 31: the wire under load, stalls and bring-ups (bench_ethercat_tail), quiet and with a busy process
+    # the wire under load, stalls and bring-ups (bench_ethercat_tail), quiet and with a CPU-busy process
     "residence": "EtherCAT residence (mixed segment: ECAN-Lite N=3 + esd + 8 drives + 8 io, 1 kHz, default "
                  "settings): p99.9 < 500 us quiet, < 1 ms loaded",
     "wkc_echo": "SOEM on that segment, 2 ms timeout: wrong WKC <= frames the C echo lost, same run and load",
@@ -65,7 +65,7 @@ def _verdict(key: str) -> str:
 
 def summary() -> str:
     """The table as plain text, one line per target, and the compiled modules."""
-    lines = ["", "### targets (issues 23 and 31) -- printed, never asserted"]
+    lines = ["", "### targets (issue 23) -- printed, never asserted"]
     for key, text in TARGETS.items():
         r = _results.get(key)
         lines.append(f"  {_verdict(key):<12} {text}")
