@@ -73,7 +73,8 @@ def test_a_read_reply_pairs_with_the_first_request_of_its_header() -> None:
 
 
 def test_classify_says_where_a_failed_bring_up_lost_its_frame() -> None:
-    """Issue 31: each failure explained -- lost by the VM, or late from the emulator."""
+    """Each failed bring-up explained (docs/performance.md): lost by the VM, dropped or late from the
+    emulator, late in the VM, or neither (the master's own timing)."""
     k = key(1, cmd=4)
     master = [Pair(10 * MS, None, k)]
     assert classify(0, 20 * MS, master, []).startswith("lost by the VM")
