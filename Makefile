@@ -6,7 +6,7 @@ STAMP   := $(VENV)/.stamp-install
 EXT_STAMP := $(VENV)/.stamp-compiled
 APT_STAMP := $(VENV)/.stamp-apt
 
-.PHONY: demo test test-pure conformance bench soak lint typecheck install apt clean
+.PHONY: demo test test-pure conformance bench soak soak-ethercat lint typecheck install apt clean
 
 $(BIN)/python:
 	$(PY) -m venv $(VENV)
@@ -76,6 +76,14 @@ bench: install
 SOAK_MINUTES ?= 10
 soak: install
 	$(BIN)/python -m benchmarks.soak --minutes $(SOAK_MINUTES)
+
+# SOEM at 1 kHz (2 ms timeout, no retries) against a mixed EtherCAT segment with CAN load, through
+# `gatewaylab run` on a veth pair (root); prints wrong working counters, late replies and dropped-late
+# frames (docs/performance.md). Not part of `make test`; SOAK_MINUTES=60 make soak-ethercat for an hour,
+# SOAK_LOAD=loaded adds a CPU-busy background process.
+SOAK_LOAD ?= quiet
+soak-ethercat: install
+	$(BIN)/python -m benchmarks.soak_ethercat --minutes $(SOAK_MINUTES) --load $(SOAK_LOAD)
 
 lint: install
 	$(BIN)/ruff check gatewaylab tests benchmarks examples conformance setup.py

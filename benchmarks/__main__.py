@@ -23,7 +23,7 @@ from benchmarks.sides import compiled_modules
 
 #: the modules whose ``targets()`` measure the table, in order
 TARGET_MODULES = ("bench_ecanlite_stream", "bench_bus", "bench_canopen_sdo", "bench_canopen_drive",
-                  "bench_ethercat", "bench_ethercat_drive", "bench_ethercat_4khz")
+                  "bench_ethercat", "bench_ethercat_drive", "bench_ethercat_4khz", "bench_ethercat_tail")
 
 
 def select(wanted: Sequence[str], names: Sequence[str]) -> list[str]:

@@ -24,6 +24,13 @@ TARGETS: dict[str, str] = {
                ">= 32 drives + 8 ethercat_io",
     "echo": "Paced SOEM p99 (1 kHz, wire thread busy polling like the echo) <= 2x the C echo's p99, same run",
     "4khz": "4 kHz segment (ECAN-Lite N=3 + 4 drives CSP): 0 CAN frames lost, 0 wrong WKC",
+    # the wire under load, stalls and bring-ups (bench_ethercat_tail), quiet and with a CPU-busy process
+    "residence": "EtherCAT residence (mixed segment: ECAN-Lite N=3 + esd + 8 drives + 8 io, 1 kHz, default "
+                 "settings): p99.9 < 500 us quiet, < 1 ms loaded",
+    "wkc_echo": "SOEM on that segment, 2 ms timeout: wrong WKC <= frames the C echo lost, same run and load",
+    "kickcat": "KickCAT bring-up, default timeouts, no retries (ECAN-Lite, esd, ethercat_io): >= 99/100 quiet, "
+               ">= 97/100 loaded",
+    "stall": "After a 200 ms stall of the rig: 0 replies older than max_residence_ms reach the master",
 }
 
 

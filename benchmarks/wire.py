@@ -158,3 +158,42 @@ def go_init(master: Any) -> None:
     master.state = pysoem.INIT_STATE
     master.write_state()
     master.close()
+
+
+#: the two conditions every tail figure is measured under: the machine as it is, and with one more process
+#: busy on a CPU (a CI runner's ordinary background load)
+LOADS = ("quiet", "loaded")
+
+
+def loads() -> tuple[str, ...]:
+    """The conditions to run (GL_BENCH_LOADS, comma-separated, default both of :data:`LOADS`)."""
+    wanted = tuple(w.strip() for w in os.environ.get("GL_BENCH_LOADS", ",".join(LOADS)).split(",") if w.strip())
+    unknown = [w for w in wanted if w not in LOADS]
+    if unknown:
+        raise ValueError(f"GL_BENCH_LOADS: unknown condition(s) {', '.join(unknown)} (known: {', '.join(LOADS)})")
+    return wanted
+
+
+class CpuHog:
+    """``loaded``: one process spinning on whatever CPU the scheduler gives it, unpinned, as another job of
+    a CI runner; ``quiet``: nothing. A context manager; the process is ended by its own id."""
+
+    def __init__(self, load: str) -> None:
+        self.load = load
+        self.proc: subprocess.Popen[bytes] | None = None
+
+    def __enter__(self) -> CpuHog:
+        if self.load == "loaded":
+            self.proc = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self.proc is not None:
+            self.proc.kill()
+            self.proc.wait()
+            self.proc = None
+
+
+def env_int(name: str, default: int) -> int:
+    """An integer setting of a benchmark (GL_BENCH_*), else ``default``."""
+    return int(os.environ.get(name, str(default)))

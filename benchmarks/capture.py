@@ -1,0 +1,239 @@
+"""Kernel-timestamped captures of EtherCAT frames on one interface, and the request/reply pairs they hold.
+
+Where a frame waited is measured where it happens: a capture on the emulator's veth end sees each request
+when the kernel delivered it (before it queued for the wire thread: the interpreter lock, a CPU, a stall
+all count) and each reply when the emulator sent it, so reply - request is the emulator's residence
+time; a capture on the master's end gives the round trip as the master lives it (replies after its
+timeout are its late replies). Timestamps are the kernel's (``SO_TIMESTAMPNS``, CLOCK_REALTIME, the same
+in every namespace), so how late the capturing process reads a frame does not matter.
+
+:class:`Capture` runs ``python -m benchmarks.capture IFACE FILE`` (inside a namespace with ``prefix``)
+until stopped; the file holds one :data:`RECORD` per frame. :func:`pairs` matches replies to requests:
+a segment and a veth pair answer in order (one wire thread, FIFO queues), so each reply is the first
+still-unanswered request before it with the same datagram header (EtherCAT header, command, index,
+offset address, length: the fields no slave changes); the requests it skips were never answered.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import struct
+import subprocess
+import sys
+from array import array
+from collections import deque
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+__all__ = ["RECORD", "Capture", "Pair", "Record", "Tail", "frame_key", "pairs", "read_records", "tail_of"]
+
+ETH_P_ALL = 0x0003
+ETHERCAT_TYPE = b"\x88\xa4"
+PACKET_OUTGOING = 4
+SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)
+#: time (ns), sent by this interface (1) or received (0), the frame's key (:func:`frame_key`)
+RECORD = struct.Struct("<qB16s")
+#: the bytes of a key that no slave changes (the datagram header's); the rest is a sample of the data
+HEADER = 8
+_TIMESPEC = struct.Struct("@qq")
+#: how many requests wait for a reply at most (older ones count as never answered)
+MAX_SKIP = 1024
+#: how far past the first request with its header a reply looks for one whose data matches too
+MAX_LOOK = 512
+
+
+@dataclass(frozen=True)
+class Pair:
+    """A request and its reply (None: never answered), kernel times in ns."""
+
+    t_request: int
+    t_reply: int | None
+    key: bytes
+
+    @property
+    def delay_us(self) -> float | None:
+        return None if self.t_reply is None else (self.t_reply - self.t_request) / 1000.0
+
+
+#: one captured frame: kernel time (ns), whether this interface sent it, its datagram header key
+Record = tuple[int, bool, bytes]
+
+
+def frame_key(frame: bytes | bytearray | memoryview) -> bytes:
+    """16 bytes of the first datagram: the fields no slave changes -- EtherCAT header (2), command, index
+    (the frame index masters match on), offset address (2), length (2); the position address (ADP) is left
+    out, auto-increment commands count it up on the way -- then its first 8 data bytes. Those come back
+    unchanged in a write, and in an LRW whose image starts with outputs (a master's cyclic frame: new
+    outputs every cycle), which tells apart requests that reuse one frame index (SOEM has 16)."""
+    return (bytes(frame[14:18]) + bytes(frame[20:24]) + bytes(frame[26:34])).ljust(16, b"\0")
+
+
+def pairs(records: Iterable[Record], requests_outgoing: bool) -> Iterator[Pair]:
+    """Requests (frames in the ``requests_outgoing`` direction) paired with their replies, in request order,
+    streamed (a capture of hours never sits in memory).
+
+    A segment and a veth pair answer in order, so a reply belongs to a waiting request with its datagram
+    header, every request before that one was never answered: the one whose data sample matches too (a
+    write, a cyclic LRW: exact even when the frame index was reused), else the first with the header (a
+    read: its data changes on the way). A reply matching no waiting request (another party's) is ignored."""
+    waiting: deque[tuple[int, bytes]] = deque()
+    for t, outgoing, key in records:
+        if outgoing == requests_outgoing:
+            waiting.append((t, key))
+            if len(waiting) > MAX_SKIP:     # nothing answers that far back any more
+                t0, k0 = waiting.popleft()
+                yield Pair(t0, None, k0)
+            continue
+        header = key[:HEADER]
+        first = exact = -1
+        for i, (_t_req, k_req) in enumerate(waiting):
+            if k_req == key:
+                exact = i
+                break
+            if first < 0 and k_req[:HEADER] == header:
+                first = i
+            elif first >= 0 and i - first > MAX_LOOK:
+                break
+        found = exact if exact >= 0 else first
+        if found < 0:
+            continue
+        for _ in range(found):
+            t0, k0 = waiting.popleft()
+            yield Pair(t0, None, k0)
+        t_req, k_req = waiting.popleft()
+        yield Pair(t_req, t, k_req)
+    for t0, k0 in waiting:
+        yield Pair(t0, None, k0)
+
+
+def read_records(path: str | Path) -> Iterator[Record]:
+    """The records of a capture file, streamed."""
+    with open(path, "rb") as f:
+        while chunk := f.read(RECORD.size * 4096):
+            usable = len(chunk) - len(chunk) % RECORD.size
+            for t, o, k in RECORD.iter_unpack(chunk[:usable]):
+                yield t, bool(o), k
+
+
+@dataclass
+class Tail:
+    """What a run of pairs showed: requests, unanswered ones, delays over each limit, and (``keep``) every
+    delay for percentiles."""
+
+    limits_us: tuple[float, ...] = ()
+    keep: bool = True
+    requests: int = 0
+    unanswered: int = 0
+    over: dict[float, int] = field(default_factory=dict)
+    worst_us: float = 0.0
+    #: 8 bytes a delay: an hour at 1 kHz is 29 MB
+    delays_us: array[float] = field(default_factory=lambda: array("d"))
+
+    def add(self, p: Pair) -> None:
+        self.requests += 1
+        d = p.delay_us
+        if d is None:
+            self.unanswered += 1
+            return
+        self.worst_us = max(self.worst_us, d)
+        for limit in set(self.limits_us):     # one count per limit, however often it is given
+            if d > limit:
+                self.over[limit] = self.over.get(limit, 0) + 1
+        if self.keep:
+            self.delays_us.append(d)
+
+    def percentiles(self) -> dict[str, float]:
+        """p50 / p99 / p99.9 / max in us (NaN without kept delays)."""
+        s = sorted(self.delays_us)
+        nan = float("nan")
+
+        def q(x: float) -> float:
+            return s[min(len(s) - 1, int(x * len(s)))] if s else nan
+        return {"p50_us": q(0.5), "p99_us": q(0.99), "p999_us": q(0.999), "max_us": s[-1] if s else nan}
+
+
+def tail_of(path: str | Path, requests_outgoing: bool, limits_us: tuple[float, ...] = (), keep: bool = True,
+            t0_ns: int = 0, t1_ns: int | None = None) -> Tail:
+    """The :class:`Tail` of a capture file's pairs whose request lies in [t0_ns, t1_ns)."""
+    tail = Tail(limits_us, keep)
+    for p in pairs(read_records(path), requests_outgoing):
+        if p.t_request >= t0_ns and (t1_ns is None or p.t_request < t1_ns):
+            tail.add(p)
+    return tail
+
+
+def _stamp(ancdata: list[tuple[int, int, bytes]]) -> int:
+    for level, kind, payload in ancdata:
+        if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(payload) >= _TIMESPEC.size:
+            sec, nsec = _TIMESPEC.unpack_from(payload)
+            return int(sec * 1_000_000_000 + nsec)
+    return 0
+
+
+def record_frames(iface: str, path: str) -> None:
+    """Capture until SIGTERM/SIGINT, one record per EtherCAT frame of ``iface`` (prints 'ready' once bound)."""
+    stop = [False]
+
+    def finish(signum: int, frame: object) -> None:
+        stop[0] = True
+
+    signal.signal(signal.SIGTERM, finish)
+    signal.signal(signal.SIGINT, finish)
+    # every protocol: the kernel shows a packet socket the frames its interface sends only then
+    sock = socket.socket(socket.AF_PACKET, socket.SOCK_RAW, socket.htons(ETH_P_ALL))
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 8 << 20)
+    sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
+    sock.bind((iface, ETH_P_ALL))
+    sock.settimeout(0.2)
+    with open(path, "wb") as out:
+        print("ready", flush=True)
+        while not stop[0]:
+            try:
+                frame, ancdata, _flags, addr = sock.recvmsg(64, 64)
+            except (TimeoutError, InterruptedError):
+                continue
+            if len(frame) < 24 or frame[12:14] != ETHERCAT_TYPE:
+                continue
+            out.write(RECORD.pack(_stamp(ancdata), int(addr[2] == PACKET_OUTGOING), frame_key(frame)))
+    sock.close()
+
+
+class Capture:
+    """``record_frames`` in a child process (inside a namespace with ``prefix``), started once bound."""
+
+    def __init__(self, iface: str, path: str | Path, prefix: Sequence[str] = ()) -> None:
+        self.path = Path(path)
+        root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+        env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in (root, os.environ.get("PYTHONPATH", "")) if p)}
+        self.proc = subprocess.Popen([*prefix, sys.executable, "-m", "benchmarks.capture", iface, str(path)],
+                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=root, env=env)
+        assert self.proc.stdout is not None
+        if self.proc.stdout.readline().strip() != "ready":
+            _, err = self.proc.communicate(timeout=5)
+            raise RuntimeError(f"the capture on {iface} did not start: {err.strip()[-500:]}")
+
+    def stop(self) -> Path:
+        """End the capture; its file (:func:`read_records`, :func:`tail_of`)."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+        try:
+            self.proc.communicate(timeout=10)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.communicate()
+        return self.path
+
+    def __enter__(self) -> Capture:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.communicate()
+
+
+if __name__ == "__main__":
+    record_frames(sys.argv[1], sys.argv[2])
