@@ -201,9 +201,13 @@ class CanWatcher(_ControlPoller):
     def poll(self, now: float) -> list[MonitorEvent]:
         """The controllers' news: what the rig answered, and the held events now dated."""
         events = super().poll(now)
+        return self.release(now) + events
+
+    def release(self, now: float) -> list[MonitorEvent]:
+        """The held events every frame before which has been read (or that waited two periods)."""
         ready = [h for h in self._held if h[0].t <= self._latest or h[0].t + 2 * self.period <= now]
         self._held = [h for h in self._held if h not in ready]
-        return [h[0] for h in ready] + events
+        return [h[0] for h in ready]
 
     def changes(self, answer: dict[str, Any], now: float) -> list[MonitorEvent]:
         """What changed on the watched bus since the last answer, as monitor events. A controller that
