@@ -220,8 +220,8 @@ class CanWatcher(_ControlPoller):
         for event in events:
             name = str(event.fields.get("controller"))
             old = before.get(name)
-            back = old is None or (not old.get("connected", True) and event.fields.get("connected", True)) or \
-                (old.get("state") == "bus-off" and event.fields.get("state") != "bus-off")
+            now_on = event.fields.get("connected", True) and event.fields.get("state") != "bus-off"
+            back = now_on and (old is None or not old.get("connected", True) or old.get("state") == "bus-off")
             node = self.nodes.get(name)
             if not back or node is None:
                 out.append(event)
