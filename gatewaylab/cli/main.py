@@ -393,8 +393,8 @@ def _main(argv: list[str] | None) -> int:
         parser.print_help()
         return 2
     try:
-        result: int = args.func(args)
-        return result
+        result: int | None = args.func(args)
+        return result if isinstance(result, int) else 0     # None: done (sys.exit(None) is 0 too)
     except (UsageError, ConfigError) as exc:
         print(f"gatewaylab: {_one_line(exc)}", file=sys.stderr)
         return 2
