@@ -182,6 +182,7 @@ class CanWatcher(_ControlPoller):
         self._asked = 0.0                       # when the last answer was asked for
         self._first: dict[int, float] = {}      # node-ID -> its first frame after that
         self._latest = 0.0                      # the newest frame seen
+        self._looked = False                    # an answer came before
         #: events of controllers that came back, with their node and the time they were still away:
         #: held until every frame before them has been read (frames come in time order)
         self._held: list[tuple[MonitorEvent, int, float]] = []
@@ -213,7 +214,8 @@ class CanWatcher(_ControlPoller):
         """What changed on the watched bus since the last answer, as monitor events. A controller that
         came back (plugged in again, recovered from bus-off, joined) sent nothing before it did: its
         event is dated just before the first frame its node sent since the last answer, if one came."""
-        before = dict(self.watch.states)
+        before, looked = dict(self.watch.states), self._looked
+        self._looked = True
         events = self.watch.update((answer.get("buses") or {}).get(self.bus) or {}, now)
         first, away, self._first, self._asked = self._first, self._asked, {}, now
         out = []
@@ -221,7 +223,8 @@ class CanWatcher(_ControlPoller):
             name = str(event.fields.get("controller"))
             old = before.get(name)
             now_on = event.fields.get("connected", True) and event.fields.get("state") != "bus-off"
-            back = now_on and (old is None or not old.get("connected", True) or old.get("state") == "bus-off")
+            back = now_on and (not old.get("connected", True) or old.get("state") == "bus-off") if old is not None \
+                else now_on and looked            # joined the bus (the first answer only says how things are)
             node = self.nodes.get(name)
             if not back or node is None:
                 out.append(event)

@@ -104,3 +104,16 @@ def test_an_unknown_controller_keeps_the_poll_time() -> None:
     w.changes(_answer(gw=DOWN), 1.0)
     (back,) = w.changes(_answer(gw=UP), 2.0)
     assert back.t == 2.0 and back.text == "CAN gw: plugged in again"
+
+
+def test_the_first_answer_only_says_how_things_are() -> None:
+    """The first answer tells states, not changes: an error-passive controller at the monitor's start
+    keeps the time of that answer; one that joins later is a controller that came back."""
+    w = CanWatcher("unix:/nonexistent", "can0", nodes={"axis2": 2, "axis3": 3})
+    w.saw(CanFrame(0x702, b"\x00"), 0.5)
+    (passive,) = w.changes(_answer(axis2={**UP, "state": "error-passive", "tec": 128}), 1.0)
+    assert passive.t == 1.0 and "error-passive" in passive.text
+    w.saw(CanFrame(0x703, b"\x00"), 1.2)
+    assert w.changes(_answer(axis2={**UP, "state": "error-passive", "tec": 128}, axis3=UP), 1.5) == []
+    (joined,) = w.release(1.5)
+    assert joined.text == "CAN axis3: joined the bus" and 1.19 < joined.t < 1.2
