@@ -663,7 +663,8 @@ def add_subcommand(subparsers: Any) -> None:
     p.set_defaults(func=cmd_monitor)
     d = subparsers.add_parser("dump", help="candump of a rig's bus (= monitor --raw)",
                               description="One line per frame as can-utils' candump prints it (listen-only). "
-                                          "The same as `gatewaylab monitor --raw`.\n\nexamples:\n"
+                                          "The same as `gatewaylab monitor --raw`; q (on a terminal) or Ctrl-C "
+                                          "leaves.\n\nexamples:\n"
                                           "  gatewaylab dump ready.json -t z -e\n"
                                           "  gatewaylab dump unix:/tmp/gl/can0.sock -f 700:780\n"
                                           "  gatewaylab dump --replay run.pcapng -t a",
