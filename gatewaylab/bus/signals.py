@@ -21,13 +21,19 @@ DB_SUFFIXES = (".dbc", ".kcd", ".arxml", ".sym", ".xml")
 
 @dataclass(frozen=True, slots=True)
 class DecodedMessage:
-    """One frame decoded by the database: the message's name and its signals (name -> value, unit)."""
+    """One frame decoded by the database: the message's name and its signals (name -> value, unit);
+    or, when the frame does not fit the message (too short, a value outside the layout), no signals
+    and ``error`` saying why (cantools' reason)."""
 
     name: str
     signals: tuple[tuple[str, Any, str], ...]
+    error: str = ""
 
     def text(self) -> str:
-        """``EngineData: EngineSpeed=2000 rpm, Temperature=-56 degC`` (cantools decode's content)."""
+        """``EngineData: EngineSpeed=2000 rpm, Temperature=-56 degC`` (cantools decode's content);
+        ``EngineData: not decodable (REASON)`` for a frame that does not fit its message."""
+        if self.error:
+            return f"{self.name}: not decodable ({self.error})"
         parts = []
         for name, value, unit in self.signals:
             shown = f"{value:g}" if isinstance(value, float) else str(value)
@@ -64,7 +70,7 @@ class SignalDecoder:
         try:
             values = message.decode(frame.data, decode_choices=True, scaling=True)
         except Exception as exc:  # cantools raises its own errors and struct/bitstruct ones on short frames
-            return DecodedMessage(message.name, (("(not decodable)", " ".join(str(exc).split()), ""),))
+            return DecodedMessage(message.name, (), error=" ".join(str(exc).split()) or type(exc).__name__)
         units = {s.name: s.unit or "" for s in message.signals}
         return DecodedMessage(message.name, tuple(
             (name, value if isinstance(value, (int, float)) else str(value), units.get(name, ""))

@@ -65,7 +65,8 @@ class MonitorEvent:
 
     t: float
     #: sdo, sdo-abort, pdo, nmt, sync, time, heartbeat, boot-up, emcy, lss, frame (raw), bus (error
-    #: frames, controller states), node (a node left), ethercat, can (rig controllers), signal (--db)
+    #: frames, controller states), node (a node left), ethercat, can (rig controllers), signal (--db),
+    #: undecodable (--db: a frame of a database id that does not fit its message); docs/monitor.md
     kind: str
     text: str
     node: int | None = None
@@ -285,9 +286,13 @@ class BusMonitor:
         self._count(frame, t)
         if self.signals is not None:
             message = self.signals.decode(frame)
+            if message is not None and message.error:     # the database's id, not its layout
+                return [MonitorEvent(t, "undecodable", f"{long_frame(frame)}   ({message.text()})", None,
+                                     {"id": frame.can_id, "extended": frame.extended, "data": frame.data.hex(),
+                                      "message": message.name, "reason": message.error})]
             if message is not None:
                 return [MonitorEvent(t, "signal", message.text(), None,
-                                     {"id": frame.can_id, "message": message.name,
+                                     {"id": frame.can_id, "extended": frame.extended, "message": message.name,
                                       "signals": {n: v for n, v, _ in message.signals}})]
         cid, d = frame.can_id, frame.data
         if frame.extended or frame.fd or frame.rtr:

@@ -17,7 +17,6 @@ from types import FrameType
 from typing import TYPE_CHECKING, Any
 
 from gatewaylab import __version__, build_info
-from gatewaylab.bus.transport.trace import TRACE_FORMATS, check_trace_path
 from gatewaylab.common.errors import ConfigError, GatewaylabError
 
 if TYPE_CHECKING:
@@ -151,13 +150,63 @@ def _start_web(rig: Rig, port: int, db: str | None = None) -> RigWeb:
     return web
 
 
-class _Stopped(BaseException):
-    """SIGTERM/SIGINT while `gatewaylab run` builds, starts or closes its rig: unwind at once (what was
-    made is released on the way out). Not an Exception, so no participant's ``except`` swallows it."""
+class Interrupted(KeyboardInterrupt):
+    """SIGINT or SIGTERM, raised where the program is (docs/cli.md "Signals"): both signals end a command
+    the same way. A KeyboardInterrupt, so whatever handles Ctrl-C handles SIGTERM alike; not an
+    Exception, so no participant's ``except Exception`` swallows it while a rig is built or closed."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signum)
+        self.signum = signum
 
 
 def _stop_at_once(signum: int, frame: FrameType | None) -> None:
-    raise _Stopped(signum)
+    raise Interrupted(signum)
+
+
+#: The commands that run until they are stopped: a signal is their ordinary end, exit 0 at every moment.
+RUN_UNTIL_STOPPED = frozenset({"run", "monitor", "dump"})
+#: The signals that stop every command alike (docs/cli.md "Signals").
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+def interrupted_exit(command: str | None, signum: int) -> int:
+    """The exit code of a command a signal ended: 0 for those that run until stopped, otherwise
+    128 + the signal's number (130 SIGINT, 143 SIGTERM), as a shell reports a process the signal ended."""
+    return 0 if command in RUN_UNTIL_STOPPED else 128 + signum
+
+
+def _command_of(argv: list[str]) -> str | None:
+    """The sub-command a command line names (its first word that is not an option), before parsing."""
+    return next((word for word in argv if not word.startswith("-")), None)
+
+
+class _Signals:
+    """SIGINT and SIGTERM for the time of :func:`main`: raise :class:`Interrupted` where the program is
+    (from the first line of ``main``, so also while the command's modules load); once ``main`` has its
+    exit code (``leave``), a further signal ends the process at once with that code."""
+
+    def __init__(self) -> None:
+        self.code: int | None = None
+        self.previous: dict[int, Any] = {}
+        try:
+            for signum in STOP_SIGNALS:
+                self.previous[signum] = signal.signal(signum, self._on_signal)
+        except ValueError:          # not the main thread (main() called from a test's thread): leave them
+            self.previous.clear()
+
+    def _on_signal(self, signum: int, frame: FrameType | None) -> None:
+        if self.code is not None:
+            os._exit(self.code)
+        raise Interrupted(signum)
+
+    def leave(self, code: int, restore: bool) -> None:
+        """``main`` returns ``code``: put the previous handlers back (``restore``: main() was called by
+        other Python code), or make a further signal end the process with ``code`` (the command line;
+        the command may have set handlers of its own meanwhile)."""
+        self.code = code
+        for signum, handler in self.previous.items():
+            signal.signal(signum, handler if restore else self._on_signal)
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -171,6 +220,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         raise UsageError(f"--db {args.db} decodes signals on the --web page: give --web too "
                          f"(or decode them live with `gatewaylab monitor READY.json --db {args.db}`)")
     _check_rig_file(args.rig)
+    from gatewaylab.bus.transport.trace import check_trace_path
+
     for _bus_name, path in args.trace or []:
         check_trace_path(path)
         _check_writable("--trace", path)
@@ -229,7 +280,7 @@ def cmd_run(args: argparse.Namespace) -> int:
                 print(f"  {key}: {json.dumps(value)}")
         sys.stdout.flush()
         rig.run()      # its own handlers: the loop returns at its next pass (docs/rig.md)
-    except _Stopped:
+    except Interrupted:
         pass
     finally:
         for signum in (signal.SIGINT, signal.SIGTERM):
@@ -281,6 +332,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action=build_info.version_action(f"gatewaylab {__version__}"))
     parser.add_argument("-v", "--verbose", dest="verbose_log", action="store_true", help="log debug messages to stderr")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    from gatewaylab.bus.transport.trace import TRACE_FORMATS
 
     run = sub.add_parser(
         "run", help="start a rig in real time and serve its buses to other processes",
@@ -329,7 +381,30 @@ def _one_line(exc: BaseException) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """The ``gatewaylab`` command: parse ``argv`` and run the sub-command; its exit code."""
+    """The ``gatewaylab`` command: parse ``argv`` and run the sub-command; its exit code.
+
+    SIGINT and SIGTERM are taken first, before the sub-commands' modules load: from here on a signal
+    ends every command the same way, with the code of :func:`interrupted_exit`, never a traceback
+    (docs/cli.md "Signals")."""
+    signals = _Signals()
+    words = sys.argv[1:] if argv is None else argv
+    code = 1
+    try:
+        try:
+            code = _main(argv)
+        except SystemExit as exc:          # argparse: --help, --version, a usage error
+            code = exc.code if isinstance(exc.code, int) else 0 if exc.code is None else 2
+            raise
+        except KeyboardInterrupt as exc:
+            code = interrupted_exit(_command_of(words), exc.signum if isinstance(exc, Interrupted) else signal.SIGINT)
+    except KeyboardInterrupt as exc:       # a second signal while the first was being handled
+        code = interrupted_exit(_command_of(words), exc.signum if isinstance(exc, Interrupted) else signal.SIGINT)
+    finally:
+        signals.leave(code, restore=argv is not None)
+    return code
+
+
+def _main(argv: list[str] | None) -> int:
     try:
         parser = build_parser()
     except SubcommandError as exc:
@@ -342,8 +417,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
-        result: int = args.func(args)
-        return result
+        result: int | None = args.func(args)
+        return result if isinstance(result, int) else 0     # None: done (sys.exit(None) is 0 too)
     except (UsageError, ConfigError) as exc:
         print(f"gatewaylab: {_one_line(exc)}", file=sys.stderr)
         return 2
@@ -353,10 +428,6 @@ def main(argv: list[str] | None = None) -> int:
     except OSError as exc:                 # e.g. a rig's TCP port already in use
         where = f" ({exc.filename})" if exc.filename else ""
         print(f"gatewaylab: {exc.strerror or exc}{where}", file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        return 130
-    except _Stopped:                       # a second signal cut `gatewaylab run`'s clean-up short
         return 1
 
 

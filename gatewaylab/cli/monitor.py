@@ -12,10 +12,12 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
+import math
 import sys
 import time
 from collections import deque
 from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -37,6 +39,8 @@ from gatewaylab.bus.frame import CanFrame
 from gatewaylab.bus.signals import SignalDecoder, load_database
 from gatewaylab.bus.transport.trace import TimeWindow, TraceError, read_trace
 from gatewaylab.canopen.monitor import BusMonitor, ControllerWatch, MonitorEvent
+from gatewaylab.cli.monitor_order import TimeOrder, sender_node
+from gatewaylab.cli.terminal import QuitKey
 from gatewaylab.common.endpoint import EndpointError, bus_endpoint
 from gatewaylab.common.errors import ConfigError, GatewaylabError
 from gatewaylab.od import ObjectDictionary
@@ -133,6 +137,9 @@ class _ControlPoller:
         """What changed since the last answer, as monitor events (each watcher reads its part of the answer)."""
         raise NotImplementedError
 
+    def saw(self, frame: CanFrame, t: float) -> None:
+        """A frame of the bus at ``t`` (what a watcher may date its events by)."""
+
 
 class EthercatWatcher(_ControlPoller):
     """The EtherCAT side of a rig as the monitor shows it: the AL state of each EtherCAT device, asked
@@ -166,14 +173,67 @@ class CanWatcher(_ControlPoller):
 
     request = "can-states"
 
-    def __init__(self, endpoint: str, bus: str, period: float = 0.5) -> None:
+    def __init__(self, endpoint: str, bus: str, period: float = 0.5, nodes: dict[str, int] | None = None) -> None:
         super().__init__(endpoint, period)
         self.bus = bus
         self.watch = ControllerWatch()
+        #: controller (participant) name -> its CANopen node-ID (the ready file's "canopen" list)
+        self.nodes = dict(nodes or {})
+        self._asked = 0.0                       # when the last answer was asked for
+        self._first: dict[int, float] = {}      # node-ID -> its first frame after that
+        self._latest = 0.0                      # the newest frame seen
+        self._looked = False                    # an answer came before
+        #: events of controllers that came back, with their node and the time they were still away:
+        #: held until every frame before them has been read (frames come in time order)
+        self._held: list[tuple[MonitorEvent, int, float]] = []
+
+    def saw(self, frame: CanFrame, t: float) -> None:
+        """Date the held events of a node that came back by the first frame it sent."""
+        self._latest = max(self._latest, t)
+        node = sender_node(frame)
+        if node is None:
+            return
+        if t > self._asked:
+            self._first.setdefault(node, t)
+        for k, (event, held_node, away) in enumerate(self._held):
+            if held_node == node and away < t < event.t:
+                self._held[k] = (replace(event, t=t - 1e-6), held_node, away)
+
+    def poll(self, now: float) -> list[MonitorEvent]:
+        """The controllers' news: what the rig answered, and the held events now dated."""
+        events = super().poll(now)
+        return self.release(now) + events
+
+    def release(self, now: float) -> list[MonitorEvent]:
+        """The held events every frame before which has been read (or that waited two periods)."""
+        ready = [h for h in self._held if h[0].t <= self._latest or h[0].t + 2 * self.period <= now]
+        self._held = [h for h in self._held if h not in ready]
+        return [h[0] for h in ready]
 
     def changes(self, answer: dict[str, Any], now: float) -> list[MonitorEvent]:
-        """What changed on the watched bus since the last answer, as monitor events."""
-        return self.watch.update((answer.get("buses") or {}).get(self.bus) or {}, now)
+        """What changed on the watched bus since the last answer, as monitor events. A controller that
+        came back (plugged in again, recovered from bus-off, joined) sent nothing before it did: its
+        event is dated just before the first frame its node sent since the last answer, if one came."""
+        before, looked = dict(self.watch.states), self._looked
+        self._looked = True
+        events = self.watch.update((answer.get("buses") or {}).get(self.bus) or {}, now)
+        first, away, self._first, self._asked = self._first, self._asked, {}, now
+        out = []
+        for event in events:
+            name = str(event.fields.get("controller"))
+            old = before.get(name)
+            now_on = event.fields.get("connected", True) and event.fields.get("state") != "bus-off"
+            back = now_on and (not old.get("connected", True) or old.get("state") == "bus-off") if old is not None \
+                else now_on and looked            # joined the bus (the first answer only says how things are)
+            node = self.nodes.get(name)
+            if not back or node is None:
+                out.append(event)
+                continue
+            seen = first.get(node)
+            if seen is not None and seen < event.t:
+                event = replace(event, t=seen - 1e-6)
+            self._held.append((event, node, away))
+        return out
 
 
 def _error_of(msg: can.Message) -> ErrorFrame:
@@ -183,9 +243,18 @@ def _error_of(msg: can.Message) -> ErrorFrame:
 Item = tuple[CanFrame | ErrorFrame, float] | None
 
 
-def _frames_live(bus: can.BusABC, until: float | None) -> Iterator[Item]:
-    """Frames and error frames as they come (None every 0.2 s without one, so the view can redraw)."""
-    while until is None or time.monotonic() < until:
+def _frames_live(bus: can.BusABC, until: float | None, keys: QuitKey | None = None) -> Iterator[Item]:
+    """Frames and error frames as they come (None every 0.2 s without one, so the view can redraw),
+    until ``until`` (monotonic) or ``q`` on the terminal (looked at every 0.1 s at most)."""
+    look = 0.0
+    while True:
+        now = time.monotonic()
+        if until is not None and now >= until:
+            return
+        if keys is not None and now >= look:
+            look = now + 0.1
+            if keys.poll():
+                return
         msg = bus.recv(0.2)
         if msg is None:
             yield None
@@ -264,20 +333,26 @@ def _control(args: argparse.Namespace) -> str | None:
 def _watchers(args: argparse.Namespace) -> list[_ControlPoller]:
     """The EtherCAT and CAN controller watchers when TARGET is the ready file of a rig."""
     control = _control(args)
-    return [] if control is None else [EthercatWatcher(control), CanWatcher(control, args.bus)]
+    return [] if control is None else [EthercatWatcher(control), CanWatcher(control, args.bus, nodes=_node_names(args))]
+
+
+def _node_names(args: argparse.Namespace) -> dict[str, int]:
+    """The rig's CANopen devices on the bus (ready file "canopen"): name -> node-ID."""
+    target = Path(args.target)
+    if args.replay or not target.is_file():
+        return {}
+    try:
+        info = json.loads(target.read_text())
+    except (OSError, ValueError):
+        return {}
+    nodes = ((info.get("canopen", {}) or {}).get(args.bus, {}) or {})
+    return {name: n["node_id"] for name, n in nodes.items()
+            if isinstance(n, dict) and isinstance(n.get("node_id"), int)}
 
 
 def _known_nodes(args: argparse.Namespace) -> list[int]:
     """The node-IDs of the rig's CANopen devices on the bus (ready file), listed before they speak."""
-    target = Path(args.target)
-    if args.replay or not target.is_file():
-        return []
-    try:
-        info = json.loads(target.read_text())
-    except (OSError, ValueError):
-        return []
-    nodes = ((info.get("canopen", {}) or {}).get(args.bus, {}) or {}).values()
-    return [n["node_id"] for n in nodes if isinstance(n, dict) and isinstance(n.get("node_id"), int)]
+    return list(_node_names(args).values())
 
 
 def _filters(args: argparse.Namespace) -> FilterSet:
@@ -288,8 +363,13 @@ def _filters(args: argparse.Namespace) -> FilterSet:
 
 
 def cmd_monitor(args: argparse.Namespace) -> int:
-    """``gatewaylab monitor TARGET`` / ``gatewaylab dump TARGET``: until Ctrl-C, ``--duration``,
-    ``-n`` frames or the trace's end."""
+    """``gatewaylab monitor TARGET`` / ``gatewaylab dump TARGET``: until Ctrl-C (or SIGTERM), ``q`` on
+    the terminal, ``--duration``, ``-n`` frames or the trace's end."""
+    with QuitKey(enabled=not args.replay) as keys:
+        return _monitor(args, keys)
+
+
+def _monitor(args: argparse.Namespace, keys: QuitKey) -> int:
     bus: can.BusABC | None = None
     try:
         filters = _filters(args)
@@ -314,7 +394,7 @@ def cmd_monitor(args: argparse.Namespace) -> int:
                 print(f"gatewaylab: cannot open bus {endpoint}: {exc}", file=sys.stderr)
                 return 1
             until = time.monotonic() + args.duration if args.duration is not None else None
-            frames = _frames_live(bus, until)
+            frames = _frames_live(bus, until, keys)
             bitrate, data_bitrate = getattr(bus, "bitrate", args.bitrate), getattr(bus, "data_bitrate", None)
             title = f"{args.bus} ({endpoint})"
             epoch = getattr(bus, "wall_epoch", None)
@@ -334,18 +414,25 @@ def cmd_monitor(args: argparse.Namespace) -> int:
         watchers = _watchers(args)
         if args.json or args.plain:
             if not args.replay:
-                print(f"monitoring {title}, listen-only; times: {base[1]}", file=sys.stderr, flush=True)
+                leave = "; q or Ctrl-C leaves" if keys.active else ""
+                print(f"monitoring {title}, listen-only; times: {base[1]}{leave}", file=sys.stderr, flush=True)
             else:
                 print(f"replaying {title}; times: {base[1]}", file=sys.stderr, flush=True)
             _print_events(monitor, frames, filters, args.json, watchers, stamps if args.timestamp else None,
-                          base[0])
+                          base[0], live=not args.replay)
         else:
+            order = TimeOrder(_hold(not args.replay, watchers))
             with _Screen(monitor, title) as screen:
-                for item in frames:
-                    for event in _decode(monitor, item, filters, watchers, live=not args.replay):
+                try:
+                    for item in frames:
+                        order.add(_decode(monitor, item, filters, watchers, live=not args.replay))
+                        for event in order.due(time.time() if not args.replay else math.inf):
+                            screen.add(event)
+                        screen.draw(time.time() if not args.replay else (item[1] if item else 0.0))
+                finally:
+                    for event in order.flush():
                         screen.add(event)
-                    screen.draw(time.time() if not args.replay else (item[1] if item else 0.0))
-                screen.draw(time.time(), force=True)
+                    screen.draw(time.time(), force=True)
     except KeyboardInterrupt:
         return 0
     except BrokenPipeError:
@@ -389,19 +476,21 @@ def _decode(monitor: BusMonitor, item: Item, filters: FilterSet, watchers: list[
     """The events one item of the bus brings: the watchers' news, the frame's decoding (shown when it
     passes the filters; decoded anyway, so transfers stay whole), error frames, silent nodes."""
     events: list[MonitorEvent] = []
-    for w in watchers:
-        events += w.poll(time.time())
     if item is not None:
         obj, t = item
         if isinstance(obj, ErrorFrame):
             events += monitor.feed_error(obj, t)
         else:
             decoded = monitor.feed(obj, t)
+            for w in watchers:
+                w.saw(obj, t)
             if filters.accepts(obj):
                 events += decoded
         events += monitor.tick(t)
     elif live:
         events += monitor.tick(time.time())
+    for w in watchers:          # after the frame: a controller's news is dated by the frames before it
+        events += w.poll(time.time())
     return events
 
 
@@ -416,15 +505,30 @@ def _replay_base(frames: Iterator[Item], absolute: bool) -> tuple[Iterator[Item]
                             "Unix time)")
 
 
+#: How long the live decoded log holds an event back, to give out the frames and the rig's news in time
+#: order (cli/monitor_order.py): a frame still on its way when the rig answered a poll ...
+HOLD = 0.1
+#: ... and, with the rig's controllers watched, a whole poll period more: a controller that came back is
+#: dated before the first frame it sent since the last poll (its boot-up follows "plugged in again").
+HOLD_WATCHED = 0.75
+
+
+def _hold(live: bool, watchers: list[_ControlPoller]) -> float:
+    """The reorder horizon: none for a replay (one source, in order), HOLD or HOLD_WATCHED live."""
+    if not live:
+        return 0.0
+    return HOLD_WATCHED if watchers else HOLD
+
+
 def _print_events(monitor: BusMonitor, frames: Iterator[Item], filters: FilterSet, as_json: bool,
-                  watchers: list[_ControlPoller], stamps: Timestamps | None, base: float = 0.0) -> None:
-    """One line (or JSON object) per event; times count from ``base`` (see the stderr header)."""
+                  watchers: list[_ControlPoller], stamps: Timestamps | None, base: float = 0.0,
+                  live: bool = True) -> None:
+    """One line (or JSON object) per event, in time order; times count from ``base`` (see the stderr
+    header). Ended by a signal, it still prints what it held back."""
     out = sys.stdout
-    for item in frames:
-        events = _decode(monitor, item, filters, watchers, live=True)
-        if not events:
-            out.flush()
-            continue
+    order = TimeOrder(_hold(live, watchers))
+
+    def write(events: list[MonitorEvent]) -> None:
         for event in events:
             if as_json:
                 text = json.dumps({**event.to_json(), "t": round(event.t - base, 6)})
@@ -433,6 +537,22 @@ def _print_events(monitor: BusMonitor, frames: Iterator[Item], filters: FilterSe
             else:
                 text = f"{event.t - base:.6f}  {event.text}"
             out.write(text + "\n")
+
+    try:
+        for item in frames:
+            order.add(_decode(monitor, item, filters, watchers, live=True))
+            events = order.due(time.time() if live else math.inf)
+            if not events:
+                out.flush()
+                continue
+            write(events)
+    except BrokenPipeError:
+        raise
+    except BaseException:           # Ctrl-C, SIGTERM: what was held back still comes out
+        write(order.flush())
+        out.flush()
+        raise
+    write(order.flush())
     out.flush()
 
 
@@ -460,7 +580,9 @@ def _print_raw(frames: Iterator[Item], filters: FilterSet, stamps: Timestamps, c
             indent = indent or obj.extended     # candump indents 11-bit ids once it saw a 29-bit one
             body = long_frame(obj, indent_sff=indent)
             message = signals.decode(obj) if signals is not None else None
-            if message is not None:
+            if message is not None and message.error:
+                body += f" :: {message.error}"          # what cantools decode prints for it
+            elif message is not None:
                 body += f" :: {message.name}(" + ", ".join(
                     f"{n}: {repr(v) if isinstance(v, str) else v}" + (f" {u}" if u else "")
                     for n, v, u in message.signals) + ")"
@@ -550,7 +672,8 @@ def add_subcommand(subparsers: Any) -> None:
     p.set_defaults(func=cmd_monitor)
     d = subparsers.add_parser("dump", help="candump of a rig's bus (= monitor --raw)",
                               description="One line per frame as can-utils' candump prints it (listen-only). "
-                                          "The same as `gatewaylab monitor --raw`.\n\nexamples:\n"
+                                          "The same as `gatewaylab monitor --raw`; q (on a terminal) or Ctrl-C "
+                                          "leaves.\n\nexamples:\n"
                                           "  gatewaylab dump ready.json -t z -e\n"
                                           "  gatewaylab dump unix:/tmp/gl/can0.sock -f 700:780\n"
                                           "  gatewaylab dump --replay run.pcapng -t a",

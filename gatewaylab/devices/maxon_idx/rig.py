@@ -55,6 +55,12 @@ class IdxParticipant:
         store = rig.state_dir / f"{self.name}.store" if cfg["store"] else None
         self.device = IdxDevice(rig.clock, rig.bus(cfg["bus"]), cfg["node_id"], cfg["serial"], self.name,
                                 store_path=store, sdo_timeout=cfg["sdo_timeout"], segment_size=cfg["segment_size"])
+        self.bus_name: str = cfg["bus"]
+        self.serial: int = cfg["serial"]
+        # the IDX is a CANopen node on its bus like a drive: the ready file lists it with its EDS, so
+        # `gatewaylab monitor` shows it in the node table and decodes its PDOs
+        self.eds = rig.state_dir / f"{self.name}.eds"
+        self.eds.write_text(self.device.node.to_eds())
         self.pty: PtyPort | None = None
         self.tcp: TcpServer | None = None
         self.unplugged = False
@@ -112,13 +118,15 @@ class IdxParticipant:
         self.device.stop()
 
     def ready_info(self) -> dict[str, Any]:
-        """Where hosts reach this IDX (pty path, TCP address) for the ready file."""
+        """Where hosts reach this IDX (pty path, TCP address) and its CANopen node (node-ID, serial, EDS),
+        for the ready file."""
         entry: dict[str, Any] = {}
         if self.pty is not None:
             entry["pty"] = self.pty.path
         if self.tcp is not None:
             entry["tcp"] = format_tcp(self.tcp.host, self.tcp.port)   # docs/endpoints.md
-        return {"usb": {self.name: entry}}
+        node = {"node_id": self.device.node.node_id, "serial": self.serial, "eds": str(self.eds)}
+        return {"usb": {self.name: entry}, "canopen": {self.bus_name: {self.name: node}}}
 
 
 def create_device(rig: RigContext, cfg: dict[str, Any]) -> IdxParticipant:
