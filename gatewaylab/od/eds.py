@@ -89,7 +89,10 @@ def export_eds(od: ObjectDictionary, *, dcf: bool = False, node_id: int | None =
     if dcf:
         lines += ["[DeviceComissioning]", f"NodeID={node_id if node_id is not None else 0xFF}",
                   f"NodeName={info.get('NodeName', '')}", "Baudrate=1000", ""]
-    lines += ["[DummyUsage]"] + [f"Dummy{i:04X}={1 if i >= 2 else 0}" for i in range(1, 8)] + [""]
+    # the data type objects the dictionary has (read from a file's [DummyUsage]: readable, CiA 301 7.4.7.1),
+    # so that export -> import gives the same dictionary
+    dummies = {i for i in range(1, 8) if i in od.objects}
+    lines += ["[DummyUsage]"] + [f"Dummy{i:04X}={1 if i in dummies else 0}" for i in range(1, 8)] + [""]
     mandatory = [i for i in (0x1000, 0x1001, 0x1018) if i in od.objects]
     # data type objects (PDO dummies) are declared by [DummyUsage] above, not listed as objects
     optional = [i for i in sorted(od.objects) if i not in mandatory and i >= 0x1000 and not 0x2000 <= i < 0x6000]
@@ -143,9 +146,9 @@ def import_eds(text: str, node_id: int | None = None) -> ObjectDictionary:
 def read_eds(text: str, node_id: int | None = None, *,
              parameter_values: bool = True) -> tuple[ObjectDictionary, list[str]]:
     """:func:`import_eds` and what it had to read leniently, one line each, as python canopen does: a
-    DataType that names no basic type (a complex or manufacturer type, CiA 301 7.4.7.1 0x0040-0x025F,
-    defined nowhere in the file) becomes DOMAIN; a DefaultValue that does not parse is left out. A
-    DataType that is no number at all, or missing, is a ConfigError. ``parameter_values=False`` reads an
+    DataType that names no basic type but a complex one of a manufacturer or a profile (CiA 301 7.4.7.1,
+    0x0040-0x025F) defined nowhere in the file becomes DOMAIN; a DefaultValue that does not parse is left
+    out. A DataType that is missing, no number or no CiA 301 type at all is a ConfigError. ``parameter_values=False`` reads an
     EDS: its ParameterValues (configured values, CiA 306 DCF) are not the device's power-on values.
     [DummyUsage] entries set to 1 become readable data type objects 0x0001..0x0007 (their length in
     bits, CiA 301 7.4.7.1), mappable as PDO dummy entries."""
@@ -182,6 +185,8 @@ def read_eds(text: str, node_id: int | None = None, *,
                 return DataType(int(cp.get(definition, "DefaultValue"), 0))
             except (configparser.Error, ValueError):
                 pass
+        if not 0x0040 <= code <= 0x025F:    # CiA 301 7.4.7.1: complex types of a manufacturer or a profile
+            raise ConfigError(f"[{section}]: DataType 0x{code:04X} is no CiA 301 data type")
         warnings.append(f"[{section}]: DataType 0x{code:04X} is no basic type and is defined nowhere in the file: "
                         "read as DOMAIN (bytes)")
         return DataType.DOMAIN

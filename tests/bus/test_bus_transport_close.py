@@ -150,7 +150,7 @@ def test_a_notifier_whose_bus_is_shut_down_first_ends_without_an_exception(rig: 
     CanOperationError: an unhandled-exception traceback in the thread before the fix)."""
     bus = can.Bus(interface="gatewaylab", channel=rig.endpoint)
     got: list[can.Message] = []
-    notifier = can.Notifier(bus, [got.append], timeout=5.0)
+    notifier = can.Notifier(bus, [got.append], timeout=5.0)   # the recv in flight lingers 1 s at most
     with can.Bus(interface="gatewaylab", channel=rig.endpoint) as sender:
         sender.send(can.Message(arbitration_id=0x321, data=b"\x01", is_extended_id=False))
         deadline = time.monotonic() + 10

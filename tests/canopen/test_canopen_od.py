@@ -30,7 +30,7 @@ from gatewaylab.od import (
     encode,
     type_range,
 )
-from gatewaylab.od.eds import export_eds, import_eds
+from gatewaylab.od.eds import export_eds, import_eds, read_eds
 
 
 @pytest.mark.parametrize(("dt", "value", "wire"), [
@@ -252,8 +252,11 @@ HighLimit=0x7FFFFFFF
     assert od.entries[(0x6064, 0)].low == -(2**31)
     assert od.objects[0x6064].object_code is ObjectCode.VAR
     assert od.device_info["VendorName"] == "maxon"
-    with pytest.raises(ConfigError):
-        import_eds("[2000]\nParameterName=x\nDataType=0x0099\nAccessType=rw\n")
+    with pytest.raises(ConfigError, match="no CiA 301 data type"):
+        import_eds("[2000]\nParameterName=x\nDataType=0x0399\nAccessType=rw\n")
+    # a profile's complex type (CiA 301 7.4.7.1, 0x0060-0x025F) defined nowhere: bytes, said once
+    od, warnings = read_eds("[2000]\nParameterName=x\nDataType=0x0099\nAccessType=rw\n")
+    assert od.entries[(0x2000, 0)].data_type is DataType.DOMAIN and len(warnings) == 1
 
 
 _INT_DTS = [dt for dt in DataType if type_range(dt) is not None and dt is not DataType.BOOLEAN]

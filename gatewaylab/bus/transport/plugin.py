@@ -14,7 +14,7 @@ What a SocketCAN user expects holds here too (docs/bus-wire.md):
 * ``shutdown()`` waits (at most ``shutdown_timeout``) until the rig has put every accepted frame
   on the bus; frames still queued after that stay queued in the rig, as in a SocketCAN device;
 * a ``recv()`` in another thread (a ``can.Notifier``) overtaken by ``shutdown()`` returns None when
-  its timeout ends (at once for ``recv(None)``), as python-can's ``virtual`` and ``socketcan`` do;
+  its timeout ends, 1 s at most, as python-can's ``virtual`` and ``socketcan`` do;
   any call after ``shutdown()`` raises ``can.CanOperationError``; ``recv(0)`` returns what
   the socket already holds (the poll loop of a cyclic task);
 * ``Message.timestamp`` is Unix time (the rig's bus time + the rig clock's ``wall_epoch``),
@@ -45,6 +45,10 @@ from gatewaylab.common.endpoint import EndpointError, EndpointKind, parse_endpoi
 from gatewaylab.common.errors import GatewaylabError
 
 log = logging.getLogger("can.gatewaylab")
+
+#: how long a recv() that shutdown() overtook may still wait for its timeout (python-can's Notifier and
+#: canopen's Network read with a 1 s timeout)
+SHUTDOWN_LINGER = 1.0
 
 _STATE_NAMES = {wire.ControllerStateCode.ERROR_ACTIVE: "error-active",
                 wire.ControllerStateCode.ERROR_PASSIVE: "error-passive",
@@ -417,19 +421,23 @@ class GatewaylabBus(can.BusABC):
         if not self._wait(self._has_rx, timeout):
             if self._lost is not None and not self._closing and not self._rx:
                 raise can.CanOperationError(self._lost)
-            if self._closing and deadline is not None:
+            if self._closing:
                 self._linger(deadline)
             return None, False
         with self._cond:
             return self._rx.popleft(), not self._soft_filters
 
-    def _linger(self, deadline: float) -> None:
+    def _linger(self, deadline: float | None) -> None:
         """A recv() that shutdown() overtook returns None when its own timeout ends, as a recv() of
-        python-can's ``virtual`` and ``socketcan`` buses does: a ``can.Notifier`` whose bus is shut down
-        before ``notifier.stop()`` then finds itself stopped instead of calling recv() again on a closed
-        bus (which raises). The socket is not touched meanwhile."""
+        python-can's ``virtual`` and ``socketcan`` buses does, but after :data:`SHUTDOWN_LINGER` at most: a
+        ``can.Notifier`` whose bus is shut down before ``notifier.stop()`` then finds itself stopped instead
+        of calling recv() again on a closed bus (which raises), and a closer that stops the Notifier first
+        waits no longer than python-can's own Notifier cycle. The socket is not touched meanwhile."""
+        end = time.monotonic() + SHUTDOWN_LINGER
+        if deadline is not None:
+            end = min(end, deadline)
         with self._cond:
-            while (left := deadline - time.monotonic()) > 0:
+            while (left := end - time.monotonic()) > 0:
                 self._cond.wait(left)
 
     def _has_rx(self) -> bool:
