@@ -10,6 +10,9 @@ from types import ModuleType
 
 from gatewaylab import build_info
 
+__all__ = ["build_info"]
+
+
 __version__ = "0.1.0"
 
 

@@ -19,6 +19,21 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     import argparse
 
+__all__ = [
+    "COMPILED_MODULES",
+    "PACKAGE_DIR",
+    "PURE_ENV",
+    "compiled_modules",
+    "extension_paths",
+    "pure_forced",
+    "source_path",
+    "stale_extensions",
+    "summary",
+    "version_action",
+    "warn_if_stale",
+]
+
+
 #: Modules (files, not packages) compiled by ``pip install .`` / ``make install`` when a C compiler is usable.
 COMPILED_MODULES: tuple[str, ...] = (
     "gatewaylab.bus.frame",

@@ -229,3 +229,52 @@ def test_the_files_check_reads_one_folder_at_a_time() -> None:
     assert "timing.py" in folder_entry(block, ("bus",)) and "timing.py" not in folder_entry(block, ("od",))
     assert "bittiming.py" in folder_entry(block, ("devices", "ecanlite"))
     assert "bittiming.py" not in folder_entry(block, ("devices", "esd_can_ethercat"))
+
+
+def _module_names(tree: ast.Module) -> tuple[list[str] | None, set[str]]:
+    """(the names of ``__all__`` or None, every name the module binds at top level)."""
+    declared: list[str] | None = None
+    bound: set[str] = set()
+    for node in tree.body:
+        targets: list[ast.expr] = []
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            bound.add(node.name)
+        elif isinstance(node, ast.Assign):
+            targets = node.targets
+        elif isinstance(node, ast.AnnAssign):
+            targets = [node.target]
+        elif isinstance(node, (ast.Import, ast.ImportFrom)):
+            bound.update((a.asname or a.name).split(".")[0] for a in node.names)
+        elif isinstance(node, ast.If):   # TYPE_CHECKING blocks and guarded definitions
+            for child in ast.walk(node):
+                if isinstance(child, (ast.FunctionDef, ast.ClassDef)):
+                    bound.add(child.name)
+                elif isinstance(child, (ast.Import, ast.ImportFrom)):
+                    bound.update((a.asname or a.name).split(".")[0] for a in child.names)
+                elif isinstance(child, ast.Assign):
+                    bound.update(t.id for t in child.targets if isinstance(t, ast.Name))
+        for target in targets:
+            if isinstance(target, ast.Tuple):
+                bound.update(e.id for e in target.elts if isinstance(e, ast.Name))
+            if isinstance(target, ast.Name):
+                bound.add(target.id)
+                if target.id == "__all__" and isinstance(node.value, (ast.List, ast.Tuple)):
+                    declared = [e.value for e in node.value.elts if isinstance(e, ast.Constant)]
+    return declared, bound
+
+
+def test_every_public_module_declares_all() -> None:
+    """One public path per name: every public module of gatewaylab/ (no part of its path starts with ``_``)
+    says what it exports in ``__all__``, and each name listed is one the module binds."""
+    missing, unbound = [], []
+    for path in SOURCES:
+        parts = path.relative_to(ROOT).with_suffix("").parts
+        if any(p.startswith("_") and p != "__init__" for p in parts):
+            continue
+        declared, bound = _module_names(ast.parse(path.read_text()))
+        if declared is None:
+            missing.append(_rel(path))
+        else:
+            unbound += [f"{_rel(path)}: {name}" for name in declared if name not in bound]
+    assert not missing, "modules without __all__:\n" + "\n".join(missing)
+    assert not unbound, "__all__ names nothing of that name:\n" + "\n".join(unbound)

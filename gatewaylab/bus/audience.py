@@ -8,6 +8,9 @@ from __future__ import annotations
 from gatewaylab.bus.controller import Controller, ErrorState, FrameCallback
 from gatewaylab.bus.stats import RxCounters
 
+__all__ = ["Audience", "Route", "Routes"]
+
+
 _BUS_OFF = ErrorState.BUS_OFF
 
 

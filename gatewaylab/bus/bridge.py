@@ -15,6 +15,18 @@ from enum import Enum
 
 from gatewaylab.bus.frame import CanFrame
 
+__all__ = [
+    "CAN_ERR_BUSOFF",
+    "CAN_ERR_RESTARTED",
+    "Backoff",
+    "BridgeStats",
+    "EchoFilter",
+    "LinkState",
+    "Verdict",
+    "classify",
+]
+
+
 #: linux/can/error.h: the controller went bus-off / was restarted
 CAN_ERR_BUSOFF = 0x040
 CAN_ERR_RESTARTED = 0x100

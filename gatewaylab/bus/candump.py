@@ -17,6 +17,28 @@ from gatewaylab.bus.errorframe import CAN_ERR_FLAG, CAN_ERR_MASK, ErrorFrame
 from gatewaylab.bus.frame import FD_DLC_TO_LEN, CanFrame
 from gatewaylab.common.errors import FrameError, LocalError
 
+__all__ = [
+    "CAN_EFF_FLAG",
+    "CAN_EFF_MASK",
+    "CAN_INV_FILTER",
+    "CAN_RTR_FLAG",
+    "CAN_SFF_MASK",
+    "TIMESTAMP_MODES",
+    "CandumpSyntaxError",
+    "FilterSet",
+    "IdFilter",
+    "IdRow",
+    "IdTable",
+    "Timestamps",
+    "line",
+    "long_error_frame",
+    "long_frame",
+    "parse_cansend",
+    "parse_filters",
+    "socketcan_id",
+]
+
+
 #: SocketCAN can_id flags (linux/can.h): extended frame, remote frame, inverted filter.
 CAN_EFF_FLAG = 0x80000000
 CAN_RTR_FLAG = 0x40000000

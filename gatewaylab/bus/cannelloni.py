@@ -21,6 +21,33 @@ from dataclasses import dataclass, field
 from gatewaylab.bus.frame import FD_LEN_TO_DLC, CanFrame
 from gatewaylab.common.errors import FrameError
 
+__all__ = [
+    "CANFD_BRS",
+    "CANFD_ESI",
+    "CANFD_FRAME",
+    "CANFD_MAX_DLEN",
+    "CAN_EFF_FLAG",
+    "CAN_EFF_MASK",
+    "CAN_ERR_FLAG",
+    "CAN_RTR_FLAG",
+    "CAN_SFF_MASK",
+    "FRAME_HEAD",
+    "HEADER",
+    "IPV4_HEADER_SIZE",
+    "IPV6_HEADER_SIZE",
+    "OP_DATA",
+    "UDP_HEADER_SIZE",
+    "VERSION",
+    "Packet",
+    "Sender",
+    "SeqTracker",
+    "decode_packet",
+    "encode_frame",
+    "encode_packet",
+    "frame_size",
+]
+
+
 HEADER = struct.Struct(">BBBH")
 FRAME_HEAD = struct.Struct(">IB")
 #: cannelloni.h CANNELLONI_FRAME_VERSION and op_codes

@@ -11,6 +11,40 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+__all__ = [
+    "CAN_ERR_ACK",
+    "CAN_ERR_BUSERROR",
+    "CAN_ERR_BUSOFF",
+    "CAN_ERR_CNT",
+    "CAN_ERR_CRTL",
+    "CAN_ERR_CRTL_ACTIVE",
+    "CAN_ERR_CRTL_RX_OVERFLOW",
+    "CAN_ERR_CRTL_RX_PASSIVE",
+    "CAN_ERR_CRTL_RX_WARNING",
+    "CAN_ERR_CRTL_TX_PASSIVE",
+    "CAN_ERR_CRTL_TX_WARNING",
+    "CAN_ERR_FLAG",
+    "CAN_ERR_LOSTARB",
+    "CAN_ERR_MASK",
+    "CAN_ERR_PROT",
+    "CAN_ERR_PROT_BIT",
+    "CAN_ERR_PROT_FORM",
+    "CAN_ERR_PROT_LOC_ACK",
+    "CAN_ERR_PROT_LOC_CRC_SEQ",
+    "CAN_ERR_PROT_STUFF",
+    "CAN_ERR_PROT_TX",
+    "CAN_ERR_RESTARTED",
+    "CAN_ERR_TRX",
+    "CAN_ERR_TX_TIMEOUT",
+    "KIND_LAYOUT",
+    "ErrorFrame",
+    "bus_error",
+    "describe",
+    "state_change",
+    "summary",
+]
+
+
 #: can_id flag of an error frame (struct can_frame.can_id) and the mask of its class bits.
 CAN_ERR_FLAG = 0x20000000
 CAN_ERR_MASK = 0x1FFFFFFF

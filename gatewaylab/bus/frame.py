@@ -10,6 +10,9 @@ from gatewaylab.common.errors import FrameError
 if TYPE_CHECKING:
     import can
 
+__all__ = ["FD_DLC_TO_LEN", "FD_LEN_TO_DLC", "MAX_EXT_ID", "MAX_STD_ID", "CanFrame", "len_to_dlc"]
+
+
 #: CAN FD DLC -> payload length (ISO 11898-1:2015); DLC 0..8 mean 0..8 bytes.
 #: (Final: compiled, mypyc reads a Final module constant natively instead of from the module's dict.)
 FD_DLC_TO_LEN: Final[tuple[int, ...]] = (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64)

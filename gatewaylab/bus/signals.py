@@ -15,6 +15,9 @@ from typing import Any
 from gatewaylab.bus.frame import CanFrame
 from gatewaylab.common.errors import ConfigError
 
+__all__ = ["DB_SUFFIXES", "DecodedMessage", "SignalDecoder", "load_database"]
+
+
 #: The database formats cantools reads, by suffix.
 DB_SUFFIXES = (".dbc", ".kcd", ".arxml", ".sym", ".xml")
 

@@ -34,6 +34,41 @@ from enum import Enum
 
 from gatewaylab.bus.frame import FD_LEN_TO_DLC, MAX_EXT_ID, MAX_STD_ID, CanFrame
 
+__all__ = [
+    "CANFD_BRS",
+    "CANFD_ESI",
+    "CAN_ERR_ACK",
+    "CAN_ERR_BUSERROR",
+    "CAN_ERR_BUSOFF",
+    "CAN_ERR_CRTL",
+    "CAN_ERR_PROT",
+    "CAN_ERR_RESTARTED",
+    "COULD_NOT_OPEN",
+    "ECHO",
+    "HI",
+    "MAX_ELEMENT",
+    "OK",
+    "UNKNOWN_COMMAND",
+    "AddJob",
+    "Close",
+    "DeleteJob",
+    "Event",
+    "Mode",
+    "ModeChanged",
+    "Opened",
+    "Reply",
+    "SendFrame",
+    "Session",
+    "Subscribe",
+    "SyntaxErrorEvent",
+    "Unsubscribe",
+    "UpdateJob",
+    "bcm_frame",
+    "error_frame",
+    "raw_frame",
+]
+
+
 #: upstream's command buffer (socketcand.h MAXLEN = 2 * ISOTPLEN + 100): an element that does not
 #: end within it ends the connection
 MAX_ELEMENT = 2 * 4095 + 100

@@ -13,6 +13,8 @@ from gatewaylab.bus.frame import CanFrame
 if TYPE_CHECKING:
     from gatewaylab.bus.controller import Controller
 
+__all__ = ["BusStats", "ControllerStats", "RxCounters"]
+
 
 @dataclass(slots=True)
 class ControllerStats:

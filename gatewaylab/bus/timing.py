@@ -28,6 +28,20 @@ from functools import lru_cache
 
 from gatewaylab.bus.frame import CanFrame
 
+__all__ = [
+    "BUS_OFF_RECOVERY_BITS",
+    "ERROR_FRAME_BITS",
+    "SUSPEND_TRANSMISSION_BITS",
+    "arbitration_key",
+    "classic_bits",
+    "classic_durations",
+    "error_duration",
+    "fd_bits",
+    "frame_bits_until_ack",
+    "frame_duration",
+]
+
+
 #: Bits of the error frame sent after an error is detected: 6-bit error flag, up to 6 more from
 #: other nodes' flags (counted as 6), 8-bit delimiter and 3 intermission bits.
 ERROR_FRAME_BITS = 6 + 6 + 8 + 3

@@ -9,6 +9,8 @@ from enum import Enum
 from gatewaylab.bus.controller import Controller
 from gatewaylab.bus.frame import CanFrame
 
+__all__ = ["Outcome", "Step", "Transmission"]
+
 
 class Outcome(Enum):
     """How a transmission ends: what its sender and its receivers see."""

@@ -13,6 +13,49 @@ from enum import IntEnum
 from gatewaylab.bus.frame import CanFrame
 from gatewaylab.common.errors import FrameError, LocalError, ProtocolError
 
+__all__ = [
+    "FILTER",
+    "FRAME",
+    "HELLO",
+    "LENGTH",
+    "MAX_FILTERS",
+    "MAX_RECORD",
+    "STATUS",
+    "STATUS_DETAIL",
+    "TIMEBASE",
+    "TXDONE",
+    "VERSION",
+    "WELCOME",
+    "AcceptanceFilter",
+    "Bye",
+    "ControllerStateCode",
+    "ErrorCode",
+    "FilterMatch",
+    "Filters",
+    "FrameFlags",
+    "FrameRecord",
+    "Hello",
+    "Record",
+    "RecordDecoder",
+    "RecordType",
+    "Status",
+    "StatusKind",
+    "TimeBase",
+    "TxDone",
+    "TxOutcome",
+    "Welcome",
+    "decode_body",
+    "encode_bye",
+    "encode_filters",
+    "encode_frame",
+    "encode_hello",
+    "encode_status",
+    "encode_timebase",
+    "encode_txdone",
+    "encode_welcome",
+]
+
+
 VERSION = 1
 MAX_RECORD = 1 + 14 + 64 + 256  # the longest legal record body (a HELLO with a long name)
 

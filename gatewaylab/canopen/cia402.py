@@ -9,6 +9,22 @@ from __future__ import annotations
 
 from enum import Enum, IntEnum, IntFlag
 
+__all__ = [
+    "CONTROLWORD_NEXT",
+    "STATE_BITS",
+    "STATE_MASK",
+    "SUPPORTED_MODES",
+    "TRANSITIONS",
+    "Command",
+    "Cw",
+    "OpMode",
+    "PdsState",
+    "Sw",
+    "decode_command",
+    "next_state",
+    "state_from_statusword",
+]
+
 
 class PdsState(Enum):
     """The eight states of the CiA 402 power drive system FSA."""

@@ -8,6 +8,17 @@ from __future__ import annotations
 
 from gatewaylab.od import Access, DataType, ObjectCode, ObjectDictionary
 
+__all__ = [
+    "LOAD_SIGNATURE",
+    "MAX_MAPPED",
+    "N_PDO",
+    "SAVE_SIGNATURE",
+    "STORE_CAPABILITY",
+    "add_communication_objects",
+    "add_mapping",
+]
+
+
 N_PDO = 4
 MAX_MAPPED = 8
 #: Value of 0x1010/0x1011 sub-indices when read: bit 0 = the device saves on command (CiA 301 7.5.2.13).

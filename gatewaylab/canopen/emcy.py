@@ -21,6 +21,28 @@ from gatewaylab.od.aborts import SdoAbort, SdoAbortCode
 if TYPE_CHECKING:
     from gatewaylab.canopen.node import Node
 
+__all__ = [
+    "EMCY_CAN_OVERRUN",
+    "EMCY_FRAME",
+    "EMCY_LIFE_GUARD_HEARTBEAT",
+    "EMCY_NO_ERROR",
+    "EMCY_PDO_LENGTH",
+    "EMCY_PDO_LENGTH_EXCEEDED",
+    "EMCY_UNEXPECTED_SYNC_LENGTH",
+    "ERROR_CODE_NAMES",
+    "ERR_COMMUNICATION",
+    "ERR_CURRENT",
+    "ERR_GENERIC",
+    "ERR_MANUFACTURER",
+    "ERR_PROFILE",
+    "ERR_TEMPERATURE",
+    "ERR_VOLTAGE",
+    "Emcy",
+    "encode_emcy",
+    "error_code_name",
+]
+
+
 EMCY_FRAME = struct.Struct("<HB5s")
 
 # Error register bits (CiA 301 table 48)

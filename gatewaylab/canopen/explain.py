@@ -18,6 +18,9 @@ from gatewaylab.canopen.nmt import NmtCommand, NmtState
 from gatewaylab.od.aborts import abort_text
 from gatewaylab.od.sdo import ClientCommand, ServerCommand
 
+__all__ = ["explain", "time_of_day"]
+
+
 _U16 = struct.Struct("<H")
 _U32 = struct.Struct("<I")
 _TIME = struct.Struct("<IH")

@@ -25,6 +25,9 @@ from gatewaylab.od.aborts import SdoAbort, SdoAbortCode
 if TYPE_CHECKING:
     from gatewaylab.canopen.node import Node
 
+__all__ = ["AddHandler", "Heartbeat"]
+
+
 AddHandler = Callable[[int, Callable[[CanFrame, float], None]], None]
 
 

@@ -41,6 +41,17 @@ from gatewaylab.od import ObjectDictionary
 from gatewaylab.od.aborts import SdoAbort, abort_text
 from gatewaylab.od.types import Entry, decode
 
+__all__ = [
+    "BusMonitor",
+    "ControllerWatch",
+    "FastscanNarrator",
+    "MonitorEvent",
+    "NodeView",
+    "SignalSource",
+    "hex_at_width",
+]
+
+
 _U16 = struct.Struct("<H")
 _U32 = struct.Struct("<I")
 _LSS_PARTS = ("vendor", "product", "revision", "serial")

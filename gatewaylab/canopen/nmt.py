@@ -16,6 +16,22 @@ from gatewaylab.bus.frame import CanFrame
 from gatewaylab.common.clock import Clock, TimerHandle
 from gatewaylab.common.errors import LocalError
 
+__all__ = [
+    "HEARTBEAT_BASE",
+    "NMT_COB_ID",
+    "NMT_TRANSITIONS",
+    "NmtCommand",
+    "NmtMaster",
+    "NmtMessage",
+    "NmtState",
+    "decode_error_control",
+    "decode_nmt",
+    "encode_guard_response",
+    "encode_heartbeat",
+    "encode_nmt",
+]
+
+
 NMT_COB_ID = 0x000
 HEARTBEAT_BASE = 0x700
 

@@ -40,6 +40,9 @@ from gatewaylab.od import (
 )
 from gatewaylab.od.eds import export_eds, import_eds
 
+__all__ = ["ALL_PARAMETERS", "COMMUNICATION_AREA", "CanopenAccess", "FrameHandler", "NmtHook", "Node"]
+
+
 FrameHandler = Callable[[CanFrame, float], None]
 NmtHook = Callable[[NmtState, NmtState], None]
 

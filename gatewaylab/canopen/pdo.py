@@ -25,6 +25,19 @@ from gatewaylab.od.aborts import SdoAbort, SdoAbortCode
 if TYPE_CHECKING:
     from gatewaylab.canopen.node import Node
 
+__all__ = [
+    "COB_EXTENDED",
+    "COB_INVALID",
+    "COB_NO_RTR",
+    "AddHandler",
+    "Key",
+    "PdoManager",
+    "Rpdo",
+    "Tpdo",
+    "restricted_cob_id",
+]
+
+
 AddHandler = Callable[[int, Callable[[CanFrame, float], None]], None]
 Key = tuple[int, int]
 

@@ -23,6 +23,9 @@ from gatewaylab.od import SdoAbort, SdoAbortCode
 from gatewaylab.od import sdo as codec
 from gatewaylab.od.sdo import SDO_HEADER, SDO_HEADER_U32, ServerCommand
 
+__all__ = ["DownloadCallback", "SdoClient", "UploadCallback"]
+
+
 UploadCallback = Callable[[bytes | SdoAbort], None]
 DownloadCallback = Callable[[SdoAbort | None], None]
 

@@ -32,6 +32,9 @@ if TYPE_CHECKING:
     from gatewaylab.canopen.node import Node
     from gatewaylab.od import Entry
 
+__all__ = ["MAX_TRANSFER", "SdoServer", "SdoServerState"]
+
+
 #: Initiate upload response command byte for an expedited answer of n bytes, and its padding.
 _EXPEDITED_CS: Final = (b"", b"\x4F", b"\x4B", b"\x47", b"\x43")
 _PAD: Final = (b"", b"\x00\x00\x00", b"\x00\x00", b"\x00", b"")

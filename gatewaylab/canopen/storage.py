@@ -21,6 +21,9 @@ from gatewaylab.od import Entry, SdoAbort, SdoAbortCode, decode, encode
 if TYPE_CHECKING:
     from gatewaylab.canopen.node import Node
 
+__all__ = ["AREAS", "NOT_STORED", "Storage"]
+
+
 #: 0x1010/0x1011 sub-index -> index ranges it covers.
 AREAS: dict[int, tuple[range, ...]] = {
     1: (range(0x1000, 0x10000),),

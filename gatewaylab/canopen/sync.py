@@ -22,6 +22,9 @@ from gatewaylab.od.aborts import SdoAbort, SdoAbortCode
 if TYPE_CHECKING:
     from gatewaylab.canopen.node import Node
 
+__all__ = ["AddHandler", "Sync"]
+
+
 AddHandler = Callable[[int, Callable[[CanFrame, float], None]], None]
 _OPERATIONAL: Final = NmtState.OPERATIONAL
 

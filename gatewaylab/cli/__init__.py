@@ -1,1 +1,3 @@
 """Every `gatewaylab` subcommand: argument parsing and printing around the library (docs/cli.md)."""
+
+__all__ = []

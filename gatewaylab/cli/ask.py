@@ -9,6 +9,9 @@ from typing import Any
 
 from gatewaylab.common.endpoint import Endpoint, EndpointKind
 
+__all__ = ["Address", "ask", "endpoint_address"]
+
+
 #: A Unix socket path, or a (host, port) of a TCP endpoint.
 Address = str | tuple[str, int]
 

@@ -26,6 +26,17 @@ from gatewaylab.canopen.explain import explain
 from gatewaylab.common.errors import LocalError
 from gatewaylab.rig.config import load_rig
 
+__all__ = [
+    "DemoRigDown",
+    "Narrator",
+    "demo_canopen",
+    "demo_ethercat",
+    "demo_ethercat_drive",
+    "demo_idx",
+    "main",
+    "step",
+]
+
 
 class DemoRigDown(LocalError, RuntimeError):
     """The demo's rig exited or wrote no ready file in time."""

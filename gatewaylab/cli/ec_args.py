@@ -14,6 +14,30 @@ from gatewaylab.common.errors import GatewaylabError
 from gatewaylab.ethercat.esc import AlState
 from gatewaylab.hosts.ethercat.backend import MasterBackend
 
+__all__ = [
+    "BIT_TYPES",
+    "PROG",
+    "STATES",
+    "TYPES",
+    "TYPE_BY_CODE",
+    "CoeType",
+    "EcRefused",
+    "EcUsage",
+    "access_text",
+    "binary_out",
+    "bytes_out",
+    "format_value",
+    "one_slave",
+    "parse_number",
+    "parse_value",
+    "read_input",
+    "selected_slaves",
+    "slave_header",
+    "state_name",
+    "type_name",
+]
+
+
 PROG = "gatewaylab ec"
 
 

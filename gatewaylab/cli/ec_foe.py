@@ -15,6 +15,8 @@ from gatewaylab.ethercat.esc import AlState
 from gatewaylab.hosts.ethercat.backend import MasterBackend, ProgressFn
 from gatewaylab.hosts.ethercat.states import state_path
 
+__all__ = ["cmd_foe_read", "cmd_foe_write"]
+
 
 @contextmanager
 def _progress(args: argparse.Namespace, clock: Clock, what: str, total: int | None) -> Iterator[ProgressFn | None]:

@@ -15,6 +15,25 @@ from gatewaylab.ethercat.esc import FMMU_REG, REG_FMMU
 from gatewaylab.ethercat.sii import CATEGORY_HEADER, PDO_ENTRY, PDO_HEADER, Category, SmType
 from gatewaylab.hosts.ethercat.backend import MasterBackend
 
+__all__ = [
+    "MAX_FMMUS",
+    "Domain",
+    "DomainFmmu",
+    "LiveMaster",
+    "SiiPdo",
+    "SyncLayout",
+    "cmd_config",
+    "cmd_cstruct",
+    "cmd_data",
+    "cmd_domains",
+    "cmd_pdos",
+    "cmd_xml",
+    "read_domain",
+    "sii_pdos",
+    "slave_fmmus",
+    "sync_layout",
+]
+
 
 # ------------------------------------------------------------------------------- SII PDOs
 @dataclass(frozen=True, slots=True)

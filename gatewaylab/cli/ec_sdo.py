@@ -22,6 +22,8 @@ from gatewaylab.common.errors import GatewaylabError
 from gatewaylab.hosts.ethercat.backend import EntryInfo, MasterBackend
 from gatewaylab.od.aborts import SdoAbort
 
+__all__ = ["cmd_download", "cmd_sdos", "cmd_upload"]
+
 
 def _entry(backend: MasterBackend, pos: int, index: int, sub: int) -> EntryInfo | None:
     try:

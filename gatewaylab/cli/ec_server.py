@@ -27,6 +27,9 @@ from gatewaylab.cli.ask import ask
 from gatewaylab.common.errors import GatewaylabError
 from gatewaylab.hosts.ethercat.backend import MasterBackend
 
+__all__ = ["MAX_REQUEST", "EcMasterServer", "VerbRunner", "request"]
+
+
 #: Runs one verb on the backend: (verb, JSON arguments) -> (exit code, stdout, stderr).
 VerbRunner = Callable[[MasterBackend, str, dict[str, Any]], tuple[int, str, str]]
 MAX_REQUEST = 16 * 1024 * 1024     # a foe-write carries its file (base64)

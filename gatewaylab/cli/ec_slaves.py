@@ -23,6 +23,8 @@ from gatewaylab.hosts.ethercat.backend import MasterBackend
 from gatewaylab.hosts.ethercat.shared import al_status_name
 from gatewaylab.hosts.ethercat.states import state_path
 
+__all__ = ["cmd_reg_read", "cmd_reg_write", "cmd_sii_read", "cmd_slaves", "cmd_states"]
+
 
 def cmd_slaves(backend: MasterBackend, args: argparse.Namespace, out: IO[str]) -> None:
     """IgH ``ethercat slaves``: ``POS  ALIAS:RELPOS  STATE  FLAG  NAME``, one line per slave."""

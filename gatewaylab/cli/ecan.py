@@ -12,6 +12,9 @@ from typing import Any
 from gatewaylab.cli.ecan_programs import add_host_commands
 from gatewaylab.devices.ecanlite.ota import APP_FILE_NAME, HEADER_SIZE, FirmwareVersion, OtaError, pack
 
+__all__ = ["add_subcommand", "cmd_pack"]
+
+
 _PACK_EPILOG = f"""\
 example:
   gatewaylab ecan pack APP.bin --version 1.4 --build 0x2291 -o ecan_lite_v140.bin

@@ -18,6 +18,9 @@ from gatewaylab.common.endpoint import EndpointKind, parse_endpoint
 from gatewaylab.common.errors import ConfigError, GatewaylabError
 from gatewaylab.rig.faults import DRIVE_FAULTS
 
+__all__ = ["FaultCliError", "add_subcommand", "build_request", "cmd_fault", "send_request"]
+
+
 _DESCRIPTION = """\
 Inject a fault into a running rig through its control endpoint (listed in the ready file of
 `gatewaylab run --ready-file`). Targets are device names (as in the rig file, or the default

@@ -19,6 +19,9 @@ from gatewaylab.devices.maxon_idx.commands import NmtCommand
 from gatewaylab.devices.maxon_idx.errors import SdoAbortCode
 from gatewaylab.hosts.maxon_idx.client import IdxClient, IdxError, IdxTimeout
 
+__all__ = ["IdxValueError", "add_subcommand", "cmd_lss_scan", "cmd_nmt", "cmd_read", "cmd_write", "main"]
+
+
 _NMT = {
     "start": NmtCommand.START_REMOTE_NODE,
     "stop": NmtCommand.STOP_REMOTE_NODE,

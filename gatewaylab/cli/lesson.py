@@ -7,6 +7,9 @@ from typing import Any
 
 from gatewaylab.cli.lessons import LESSONS, run_lesson
 
+__all__ = ["add_subcommand", "cmd_lesson"]
+
+
 _DESCRIPTION = """\
 Run a short CANopen scenario on a simulated bus and tell, step by step, what is sent, by whom, why,
 and what changed in the receiving node; it ends with a sequence diagram. The output is the same on

@@ -27,6 +27,9 @@ from gatewaylab.canopen.sdo_client import SdoClient
 from gatewaylab.common.clock import SimulatedClock
 from gatewaylab.devices.canopen_drive.device import Drive
 
+__all__ = ["LESSONS", "Arrow", "Classroom", "Say", "run_lesson"]
+
+
 Say = Callable[[str], None]
 #: The master's own COB-IDs (CiA 301 predefined connection set, CiA 305): what it sends.
 _LSS_PARTS = ("vendor", "product", "revision", "serial")

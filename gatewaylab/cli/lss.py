@@ -42,6 +42,9 @@ from gatewaylab.common.clock import RealTimeClock
 from gatewaylab.common.endpoint import EndpointError, bus_endpoint
 from gatewaylab.common.errors import ConfigError, GatewaylabError
 
+__all__ = ["LssSession", "add_subcommand", "cmd_lss"]
+
+
 _PARTS = ("vendor", "product", "revision", "serial")
 _INQUIRE = {"vendor": Cs.INQUIRE_VENDOR, "product": Cs.INQUIRE_PRODUCT, "revision": Cs.INQUIRE_REVISION,
             "serial": Cs.INQUIRE_SERIAL, "node-id": Cs.INQUIRE_NODE_ID}

@@ -23,6 +23,23 @@ if TYPE_CHECKING:
     from gatewaylab.rig.runtime import Rig
     from gatewaylab.rig.web import RigWeb
 
+__all__ = [
+    "EXTRA_SUBCOMMANDS",
+    "RIG_HELP",
+    "RUN_UNTIL_STOPPED",
+    "STOP_SIGNALS",
+    "Interrupted",
+    "SubcommandError",
+    "UsageError",
+    "build_parser",
+    "cmd_demo",
+    "cmd_rig_show",
+    "cmd_run",
+    "interrupted_exit",
+    "main",
+]
+
+
 #: Sub-commands contributed by other parts of the package: module with ``add_subcommand(subparsers)``.
 #: Each must load: a module that fails to import (or lacks the function) stops ``gatewaylab`` with
 #: :class:`SubcommandError` naming it, rather than leaving its command out of the parser.

@@ -18,6 +18,9 @@ from gatewaylab.migrate.compare_wire import RealtimeOpener, WireLine, wire_runne
 from gatewaylab.rig.config import RigConfig, load_rig
 from gatewaylab.rig.runtime import Rig
 
+__all__ = ["GATEWAY_KINDS", "compare_config", "line_opener", "open_compare", "realtime_opener", "with_gateway"]
+
+
 #: device kinds compare adds itself; a rig for compare must not hold them
 GATEWAY_KINDS = tuple(g[0] for g in GATEWAYS)
 

@@ -46,6 +46,9 @@ from gatewaylab.common.errors import ConfigError, GatewaylabError
 from gatewaylab.od import ObjectDictionary
 from gatewaylab.od.eds import import_eds
 
+__all__ = ["HOLD", "HOLD_WATCHED", "CanWatcher", "EthercatWatcher", "Item", "add_subcommand", "cmd_monitor"]
+
+
 _DESCRIPTION = """\
 Watch a bus of a running rig, decoded: a node table (NMT state, heartbeat age, CiA 402 state,
 mode, position/velocity from TPDOs, last EMCY) and a log with SDO transfers reassembled into one

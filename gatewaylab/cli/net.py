@@ -12,6 +12,21 @@ from typing import Any
 
 from gatewaylab.common.errors import ConfigError, LocalError
 
+__all__ = [
+    "CAP_NET_ADMIN",
+    "DEFAULT_NAME",
+    "DESCRIPTION",
+    "MAX_IFNAME",
+    "NetFailed",
+    "NetUsage",
+    "add_subcommand",
+    "has_net_admin",
+    "net_down",
+    "net_up",
+    "peer_name",
+]
+
+
 DEFAULT_NAME = "gl-ecat"
 MAX_IFNAME = 15
 

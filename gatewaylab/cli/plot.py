@@ -30,6 +30,21 @@ from gatewaylab.devices.canopen_drive.objects import build_object_dictionary
 from gatewaylab.od import ObjectDictionary
 from gatewaylab.od.eds import import_eds
 
+__all__ = [
+    "DERIVATIVE_WINDOW",
+    "MAX_SIGNAL_PANELS",
+    "Panel",
+    "Series",
+    "TracePicture",
+    "add_subcommand",
+    "cmd_plot",
+    "derivative",
+    "draw",
+    "panels",
+    "read_trace",
+]
+
+
 #: --db: at most this many signals get a panel (the first by name)
 MAX_SIGNAL_PANELS = 12
 #: seconds of position a derived velocity spans at least (:func:`derivative`)

@@ -19,6 +19,9 @@ import can
 from gatewaylab.bus.candump import CandumpSyntaxError, parse_cansend
 from gatewaylab.common.endpoint import EndpointError, bus_endpoint
 
+__all__ = ["add_subcommand", "cmd_send"]
+
+
 _DESCRIPTION = """\
 Send one frame to a bus of a running rig, written as for can-utils' cansend:
 

@@ -30,6 +30,9 @@ from typing import Any
 
 from gatewaylab.common.errors import LocalError
 
+__all__ = ["Callback", "Clock", "PeriodicTimer", "RealTimeClock", "SimulatedClock", "TimerHandle"]
+
+
 Callback = Callable[..., Any]
 
 

@@ -22,6 +22,8 @@ from pathlib import Path
 
 from gatewaylab.common.errors import ConfigError
 
+__all__ = ["Endpoint", "EndpointError", "EndpointKind", "bus_endpoint", "format_tcp", "format_unix", "parse_endpoint"]
+
 
 class EndpointKind(Enum):
     """Which transport an :class:`Endpoint` names, so each client knows how to open it (docs/endpoints.md)."""

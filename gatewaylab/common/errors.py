@@ -8,6 +8,10 @@ misbehaviour is answered on the wire with the spec's code and counted, never cra
 
 from __future__ import annotations
 
+__all__ = [
+    "ConfigError", "FrameError", "GatewaylabError", "LocalError", "ProtocolError", "RemoteError", "TimeoutError_",
+]
+
 
 class GatewaylabError(Exception):
     """Base of every error raised by gatewaylab."""

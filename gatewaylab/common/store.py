@@ -15,6 +15,8 @@ from typing import Any, Protocol
 
 from gatewaylab.common.errors import ConfigError
 
+__all__ = ["JsonFileStore", "MemoryStore", "ParameterStore", "StoreError"]
+
 
 class StoreError(ConfigError, ValueError):
     """A store file that holds something else than what a device stored (its callers also catch ValueError)."""

@@ -20,6 +20,23 @@ from gatewaylab.od import Entry, ObjectCode, ObjectDictionary, SdoAbort, SdoAbor
 from gatewaylab.od import sdo as codec
 from gatewaylab.od.sdo import ClientCommand, SegmentedDownload, SegmentedUpload
 
+__all__ = [
+    "COE_HEADER",
+    "EMCY",
+    "SDO",
+    "SDO_INFO_HEADER",
+    "CoeAccess",
+    "CoeAccessBits",
+    "CoeServer",
+    "CoeService",
+    "InfoOpcode",
+    "abort_message",
+    "access_word",
+    "coe_header",
+    "emergency_message",
+]
+
+
 COE_HEADER = struct.Struct("<H")
 SDO = codec.SDO_HEADER_U32  # command, index, subindex, data/size
 SDO_INFO_HEADER = struct.Struct("<BBH")  # opcode, reserved, fragments left

@@ -15,6 +15,33 @@ from typing import Final
 
 from gatewaylab.ethercat.errors import FrameFormatError
 
+__all__ = [
+    "ADP_ADO",
+    "BROADCAST_MAC",
+    "CIRCULATING",
+    "DATAGRAM_HEADER",
+    "DATAGRAM_OVERHEAD",
+    "ECAT_HEADER",
+    "ECAT_HEADER_LEN",
+    "ECAT_TYPE_DATAGRAMS",
+    "ETHERTYPE_ETHERCAT",
+    "ETH_HEADER",
+    "ETH_HEADER_LEN",
+    "LEN_MASK",
+    "MAX_DATAGRAM_DATA",
+    "MIN_ETH_PAYLOAD",
+    "MORE",
+    "WKC",
+    "Command",
+    "Datagram",
+    "Frame",
+    "decode_datagrams",
+    "decode_frame",
+    "encode_datagrams",
+    "encode_frame",
+]
+
+
 ETHERTYPE_ETHERCAT: Final = 0x88A4
 ETH_HEADER: Final = struct.Struct("!6s6sH")
 ECAT_HEADER: Final = struct.Struct("<H")

@@ -15,6 +15,8 @@ from typing import Any
 from gatewaylab.ethercat.errors import EtherCATConfigError
 from gatewaylab.od import Access, DataType, Entry, ObjectCode, ObjectDictionary, SdoAbort, SdoAbortCode
 
+__all__ = ["DeviceDescription", "ObjectDef", "Pdo", "PdoEntry", "build_od"]
+
 
 @dataclass(frozen=True, slots=True)
 class PdoEntry:

@@ -12,6 +12,11 @@ from gatewaylab.common.errors import ConfigError, LocalError, ProtocolError, Rem
 from gatewaylab.od.aborts import SdoAbort as SdoAbort
 from gatewaylab.od.aborts import SdoAbortCode as SdoAbortCode
 
+__all__ = [
+    "AlStatusCode", "AlStatusError", "EtherCATConfigError", "FoeBusy", "FoeError", "FoeErrorCode", "FrameFormatError",
+    "MailboxError", "MailboxErrorCode", "MasterError", "PcapFormatError", "SlavePositionError", "WorkingCounterError",
+]
+
 
 class AlStatusCode(enum.IntEnum):
     """AL status codes (register 0x0134), ETG.1000.6 table 'AL Status Codes'."""

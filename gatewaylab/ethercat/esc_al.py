@@ -33,6 +33,9 @@ from gatewaylab.ethercat.esc_registers import (
     AlState,
 )
 
+__all__ = ["AlFirmware", "AlStateMachine"]
+
+
 _RANK = {AlState.INIT: 0, AlState.PREOP: 1, AlState.BOOT: 1, AlState.SAFEOP: 2, AlState.OP: 3}
 
 

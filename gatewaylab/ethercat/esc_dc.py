@@ -18,6 +18,9 @@ from gatewaylab.common.clock import Clock, TimerHandle
 from gatewaylab.ethercat import esc_registers as reg
 from gatewaylab.ethercat.esc_registers import SYNC0_MIN_CYCLE_NS, U32, U64
 
+__all__ = ["DC_ACT_CYCLIC", "DC_ACT_SYNC0", "DC_ACT_SYNC1", "DistributedClocks"]
+
+
 #: 0x0981 bits: cyclic unit enabled, SYNC0 generated, SYNC1 generated.
 DC_ACT_CYCLIC: Final = 0x01
 DC_ACT_SYNC0: Final = 0x02

@@ -14,6 +14,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Final, TypeAlias
 
+__all__ = ["SM_CHANGED", "AlControlRequested", "EscEvent", "SmChanged", "SmRead", "SmWritten"]
+
 
 @dataclass(frozen=True, slots=True)
 class SmWritten:

@@ -42,6 +42,9 @@ from gatewaylab.ethercat.esc_registers import (
 )
 from gatewaylab.ethercat.esc_sii import SiiInterface
 
+__all__ = ["READ_ONLY", "EscMemory", "Fmmu"]
+
+
 #: ECAT-side read-only registers (ET1100 data sheet section II, "ECAT r/-"): information, DL status,
 #: AL status and code, PDI control/configuration, AL event mask and request, EEPROM PDI access state,
 #: watchdog status, DC receive time of the processing unit, SYNC status.

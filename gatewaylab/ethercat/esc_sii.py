@@ -27,6 +27,8 @@ from gatewaylab.ethercat.esc_registers import (
     EscStats,
 )
 
+__all__ = ["SiiInterface", "sii_checksum"]
+
 
 def sii_checksum(config_area: bytes) -> int:
     """CRC-8 (poly 0x07, init 0xFF) over SII words 0..6, stored in word 7 (ET1100 data sheet)."""

@@ -15,6 +15,8 @@ from gatewaylab.ethercat.sii import build_sii
 from gatewaylab.od import ESI_TYPE_NAMES, ObjectDictionary
 from gatewaylab.od.esi import esi_dictionary
 
+__all__ = ["export_esi"]
+
 
 def _hex(value: int, digits: int = 8) -> str:
     return f"#x{value:0{digits}X}"

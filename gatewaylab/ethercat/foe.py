@@ -15,6 +15,9 @@ from typing import Protocol
 
 from gatewaylab.ethercat.errors import FoeBusy, FoeError, FoeErrorCode, FrameFormatError
 
+__all__ = ["FOE_BUSY", "FOE_HEADER", "FoeFiles", "FoeHandler", "FoeOpcode", "FoeServer", "foe_packet"]
+
+
 FOE_HEADER = struct.Struct("<BBI")
 FOE_BUSY = struct.Struct("<BBHH")
 

@@ -16,6 +16,22 @@ from dataclasses import dataclass
 
 from gatewaylab.ethercat.errors import FrameFormatError, MailboxErrorCode
 
+__all__ = [
+    "MAX_QUEUED",
+    "MBX_ERROR",
+    "MBX_HEADER",
+    "MBX_HEADER_LEN",
+    "Handler",
+    "MailboxEndpoint",
+    "MailboxMessage",
+    "MailboxStats",
+    "MailboxType",
+    "decode_mailbox",
+    "encode_mailbox",
+    "error_reply",
+]
+
+
 MBX_HEADER = struct.Struct("<HHBB")
 MBX_HEADER_LEN = 6
 MBX_ERROR = struct.Struct("<HH")

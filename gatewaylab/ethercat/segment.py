@@ -31,6 +31,9 @@ from gatewaylab.ethercat.errors import SlavePositionError
 from gatewaylab.ethercat.esc import REG_RX_ERROR, Esc
 from gatewaylab.ethercat.slave import Slave
 
+__all__ = ["LOG_EVERY", "LOG_FIRST", "Segment", "SegmentStats"]
+
+
 _U16: Final = struct.Struct("<H")
 _BE16: Final = struct.Struct("!H")
 _DG_HDR: Final = struct.Struct("<B5xH")  # cmd, (idx + address skipped), len/flags

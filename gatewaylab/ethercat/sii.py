@@ -15,6 +15,24 @@ from gatewaylab.ethercat.description import DeviceDescription, Pdo
 from gatewaylab.ethercat.errors import FrameFormatError
 from gatewaylab.ethercat.esc import sii_checksum
 
+__all__ = [
+    "CATEGORY_HEADER",
+    "EEPROM_BYTES",
+    "GENERAL",
+    "MAX_EEPROM_BYTES",
+    "PDO_ENTRY",
+    "PDO_HEADER",
+    "SM_ENTRY",
+    "U16",
+    "U32",
+    "Category",
+    "SiiInfo",
+    "SmType",
+    "build_sii",
+    "parse_sii",
+]
+
+
 U16 = struct.Struct("<H")
 U32 = struct.Struct("<I")
 CATEGORY_HEADER = struct.Struct("<HH")

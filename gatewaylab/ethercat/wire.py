@@ -50,6 +50,24 @@ from gatewaylab.ethercat.residence import (
 from gatewaylab.ethercat.segment import Segment
 from gatewaylab.ethercat.wire_pcap import PcapWriter
 
+__all__ = [
+    "ANCILLARY_BYTES",
+    "DRIVE_MAX_STARVE_S",
+    "DRIVE_MAX_WAIT_S",
+    "DRIVE_PASS_EVENTS",
+    "DRIVE_PASS_S",
+    "LOCK_POLL_S",
+    "MAX_ERRORS_KEPT",
+    "PACKET_OUTGOING",
+    "REALTIME_PRIORITY",
+    "SPIN_AFTER_FRAME_S",
+    "STOP_JOIN_S",
+    "WireTransport",
+    "make_ordinary",
+    "make_realtime",
+]
+
+
 PACKET_OUTGOING = 4
 _log = logging.getLogger(__name__)
 MAX_ERRORS_KEPT = 100

@@ -16,6 +16,9 @@ from gatewaylab.ethercat.errors import PcapFormatError
 if TYPE_CHECKING:
     from gatewaylab.common.clock import Clock
 
+__all__ = ["LINKTYPE_ETHERNET", "PCAP_GLOBAL", "PCAP_MAGIC", "PCAP_RECORD", "PcapWriter", "read_pcap"]
+
+
 PCAP_GLOBAL = struct.Struct("<IHHiIII")
 PCAP_RECORD = struct.Struct("<IIII")
 LINKTYPE_ETHERNET = 1

@@ -43,6 +43,22 @@ from gatewaylab.migrate.compare_run import (
     to_frame,
 )
 
+__all__ = [
+    "OPEN_ATTEMPTS",
+    "PD_TIMEOUT_US",
+    "RUN_TIMEOUT",
+    "MasterProcessError",
+    "RealtimeOpener",
+    "WireLine",
+    "event_rows",
+    "events_from_rows",
+    "main",
+    "run",
+    "wire_runner",
+    "wire_unavailable",
+]
+
+
 #: SOEM waits this long for the process data frame (a loaded machine; never asserted)
 PD_TIMEOUT_US = 50_000
 #: attempts to bring the line up (a veth link just brought up may lose the first frames)

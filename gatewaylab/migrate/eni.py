@@ -13,6 +13,19 @@ from dataclasses import dataclass, field
 
 from gatewaylab.common.errors import ConfigError
 
+__all__ = [
+    "WRITE_TYPES",
+    "EniError",
+    "InitCmd",
+    "SlaveConfig",
+    "SyncManager",
+    "format_writes",
+    "parse_eni",
+    "parse_int",
+    "parse_writes",
+    "write_eni",
+]
+
 
 class EniError(ConfigError):
     """An ENI file or a startup-write list the reader cannot use."""

@@ -19,6 +19,9 @@ from gatewaylab.devices.esd_can_ethercat import bitrate as esd_rate
 from gatewaylab.devices.esd_can_ethercat import objects as esd_obj
 from gatewaylab.migrate.eni import InitCmd
 
+__all__ = ["DEFAULT_FALLBACK_RATE", "EsdSettings", "Note", "Translation", "decode_area", "read_esd", "translate"]
+
+
 #: Packet sizes in the ECAN-Lite frame stream (chapter 8 / 10, profile 0, no ALIGN4): a classic
 #: 8-byte frame with a standard identifier 4 + 8, with an extended one 6 + 8; TX_RESULT 6.
 STD_PACKET, EXT_PACKET, TX_RESULT_PACKET = 12, 14, 6

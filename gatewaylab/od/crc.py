@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+__all__ = ["CRC16_TABLE", "crc16_ccitt"]
+
 
 def _table() -> tuple[int, ...]:
     out = []

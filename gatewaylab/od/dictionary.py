@@ -20,6 +20,9 @@ from gatewaylab.common.errors import ConfigError
 from gatewaylab.od.aborts import SdoAbort, SdoAbortCode
 from gatewaylab.od.types import Access, DataType, Entry, KeyObject, ObjectCode, OdObject, coerce, decode, encode
 
+__all__ = ["AccessPolicy", "Key", "Listener", "ObjectDictionary", "ReadHook", "Validator", "Where", "WriteHook"]
+
+
 Key = tuple[int, int]
 #: ``listener((index, subindex), value)`` after a value changed.
 Listener = Callable[[Key, Any], None]

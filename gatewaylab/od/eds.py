@@ -29,6 +29,9 @@ from gatewaylab.od.types import (
     type_range,
 )
 
+__all__ = ["export_eds", "import_eds", "read_eds"]
+
+
 _NODEID = re.compile(r"\$NODEID", re.IGNORECASE)
 
 
@@ -148,8 +151,9 @@ def read_eds(text: str, node_id: int | None = None, *,
     """:func:`import_eds` and what it had to read leniently, one line each, as python canopen does: a
     DataType that names no basic type but a complex one of a manufacturer or a profile (CiA 301 7.4.7.1,
     0x0040-0x025F) defined nowhere in the file becomes DOMAIN; a DefaultValue that does not parse is left
-    out. A DataType that is missing, no number or no CiA 301 type at all is a ConfigError. ``parameter_values=False`` reads an
-    EDS: its ParameterValues (configured values, CiA 306 DCF) are not the device's power-on values.
+    out. A DataType that is missing, no number or no CiA 301 type at all is a ConfigError.
+    ``parameter_values=False`` reads an EDS: its ParameterValues (configured values, CiA 306 DCF) are not
+    the device's power-on values.
     [DummyUsage] entries set to 1 become readable data type objects 0x0001..0x0007 (their length in
     bits, CiA 301 7.4.7.1), mappable as PDO dummy entries."""
     warnings: list[str] = []

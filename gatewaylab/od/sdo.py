@@ -21,6 +21,44 @@ from typing import Final
 from gatewaylab.od.aborts import SdoAbort, SdoAbortCode
 from gatewaylab.od.crc import crc16_ccitt
 
+__all__ = [
+    "BLOCK_END",
+    "CS_ABORT",
+    "CS_BLOCK_ACK",
+    "CS_BLOCK_DOWNLOAD_INITIATE_RESPONSE",
+    "CS_BLOCK_END_RESPONSE",
+    "CS_BLOCK_UPLOAD_START",
+    "CS_DOWNLOAD_RESPONSE",
+    "CS_UPLOAD_REQUEST",
+    "CS_UPLOAD_SEGMENTED_RESPONSE",
+    "SDO_HEADER",
+    "SDO_HEADER_U32",
+    "SEGMENT_DATA",
+    "BlockReceiver",
+    "BlockSender",
+    "BlockUploadSub",
+    "ClientCommand",
+    "ClientSegmentedDownload",
+    "ClientSegmentedUpload",
+    "SegmentedDownload",
+    "SegmentedUpload",
+    "ServerCommand",
+    "abort",
+    "block_ack",
+    "block_end",
+    "block_segment",
+    "check_size",
+    "command",
+    "download_response",
+    "expedited_download_request",
+    "expedited_size",
+    "expedited_upload_response",
+    "segment",
+    "segment_ack",
+    "segment_data",
+]
+
+
 #: command byte, index, subindex (CiA 301 figure 20 ff.)
 SDO_HEADER: Final = struct.Struct("<BHB")
 #: command byte, index, subindex, data word / size

@@ -18,6 +18,31 @@ from typing import Any
 from gatewaylab.common.errors import ConfigError
 from gatewaylab.od.aborts import SdoAbort, SdoAbortCode
 
+__all__ = [
+    "BYTES_TYPES",
+    "ESI_TYPE_NAMES",
+    "FLOAT_TYPES",
+    "INT_TYPES",
+    "SIZED_TYPES",
+    "STRING_TYPES",
+    "UNDECLARED_STRING_LENGTH",
+    "Access",
+    "DataType",
+    "Entry",
+    "KeyObject",
+    "ObjectCode",
+    "OdObject",
+    "check_length",
+    "check_limits",
+    "coerce",
+    "decode",
+    "encode",
+    "key_object",
+    "type_default",
+    "type_range",
+    "type_size",
+]
+
 
 class DataType(IntEnum):
     """Static data types of CiA 301 table 44 (their index in the OD is the code)."""

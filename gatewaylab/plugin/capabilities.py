@@ -25,6 +25,21 @@ from gatewaylab.canopen.node import Node
 from gatewaylab.ethercat.segment import Segment
 from gatewaylab.ethercat.slave import Slave
 
+__all__ = [
+    "CanChannels",
+    "CanopenDrive",
+    "EthercatDevice",
+    "HasDrive",
+    "HasNode",
+    "HasSegment",
+    "UsbPluggable",
+    "can_channels",
+    "drive_of",
+    "ethercat_devices",
+    "node_of",
+    "segment_of",
+]
+
 
 @runtime_checkable
 class EthercatDevice(Protocol):

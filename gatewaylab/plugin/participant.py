@@ -28,6 +28,11 @@ from gatewaylab.bus.controller import Controller
 from gatewaylab.common.clock import Clock
 from gatewaylab.common.errors import ConfigError
 
+__all__ = [
+    "CheckedSection", "DeviceKind", "Factory", "Key", "Participant", "ParticipantBase", "RigContext", "section_error",
+    "validate_table",
+]
+
 
 class Participant(Protocol):
     """Anything a rig-file section creates: drives, gateways, EtherCAT segments, plugin devices."""

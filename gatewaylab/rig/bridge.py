@@ -31,6 +31,9 @@ from gatewaylab.bus.frame import CanFrame
 from gatewaylab.common.errors import ConfigError, FrameError, LocalError
 from gatewaylab.plugin.participant import DeviceKind, Key, ParticipantBase, RigContext
 
+__all__ = ["KEYS", "KIND", "LOOPING_INTERFACES", "MAX_QUEUE", "POLL", "SEND_TIMEOUT", "PythonCanBridge", "create"]
+
+
 log = logging.getLogger(__name__)
 
 #: seconds one recv() waits, so a stopping bridge notices within this

@@ -15,6 +15,8 @@ from gatewaylab.hosts.ethercat.backend import MasterBackend
 from gatewaylab.hosts.ethercat.inprocess import InProcessBackend
 from gatewaylab.rig.runtime import Rig
 
+__all__ = ["EcanliteBus", "EsdCanEthercatBus", "open_rig"]
+
 
 def open_rig(path: str) -> tuple[MasterBackend, Callable[[], None] | None, float]:
     """The rig of ``path`` on a simulated clock, without bus endpoints or wires, started; a master

@@ -12,6 +12,9 @@ from gatewaylab.common.errors import ConfigError
 from gatewaylab.plugin import Key, section_error, validate_table
 from gatewaylab.rig import kinds
 
+__all__ = ["BUS_KEYS", "CLOCK_MODES", "BusConfig", "RigConfig", "load_rig", "parse_rig"]
+
+
 CLOCK_MODES = ("realtime", "simulated")
 
 

@@ -22,6 +22,9 @@ from gatewaylab.bus.transport.outbox import receive
 from gatewaylab.common.endpoint import format_tcp, format_unix
 from gatewaylab.common.errors import GatewaylabError
 
+__all__ = ["MAX_LINE", "ControlServer", "Handler", "Reactor", "answer_line"]
+
+
 log = logging.getLogger(__name__)
 
 #: A request line longer than this is refused and skipped to its end (a request is tiny).

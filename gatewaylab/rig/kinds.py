@@ -19,6 +19,9 @@ from gatewaylab.plugin import DeviceKind, section_error
 if TYPE_CHECKING:
     from gatewaylab.rig.config import RigConfig
 
+__all__ = ["BUILTIN", "GROUP", "Section", "default_names", "known_kinds", "load", "plan", "registered"]
+
+
 #: The entry-point group a device package registers its :class:`DeviceKind` objects in.
 GROUP = "gatewaylab.devices"
 #: Sections of gatewaylab's own that are not devices (``[[bridge]]``, ``[[tunnel]]``): known without an

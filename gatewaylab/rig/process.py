@@ -24,6 +24,8 @@ from typing import IO, Any
 
 from gatewaylab.common.errors import ConfigError, GatewaylabError
 
+__all__ = ["RigFileValueError", "RigProcess", "RigStartTimeout", "free_udp_ports", "rig_toml"]
+
 
 def _value(value: Any) -> str:
     if isinstance(value, bool):

@@ -31,6 +31,16 @@ from gatewaylab.ethercat.wire_pcap import PcapWriter
 from gatewaylab.plugin.capabilities import EthercatDevice, ethercat_devices
 from gatewaylab.plugin.participant import DeviceKind, Key, RigContext
 
+__all__ = [
+    "LOOP_PRIORITY",
+    "SEGMENT_KEYS",
+    "SEGMENT_KIND",
+    "SWITCH_INTERVAL_US",
+    "SegmentParticipant",
+    "create_segment",
+]
+
+
 _log = logging.getLogger(__name__)
 #: The interpreter's thread switch interval while a wire runs (docs/decisions.md: the latency tail).
 SWITCH_INTERVAL_US = 200.0

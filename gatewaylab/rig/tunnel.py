@@ -22,6 +22,9 @@ from gatewaylab.common.clock import TimerHandle
 from gatewaylab.common.errors import ConfigError, LocalError
 from gatewaylab.plugin.participant import DeviceKind, Key, ParticipantBase, RigContext, section_error
 
+__all__ = ["KEYS", "KIND", "CannelloniTunnel", "TunnelKind", "TunnelStats", "create"]
+
+
 log = logging.getLogger(__name__)
 
 

@@ -26,6 +26,9 @@ from gatewaylab.common.server_thread import ServerThread
 from gatewaylab.devices.canopen_drive.device import Drive
 from gatewaylab.od.eds import import_eds
 
+__all__ = ["PAGE", "WATCH_PERIOD", "RigWeb"]
+
+
 #: log lines kept for a page that connects later
 _KEEP = 500
 #: how often the page looks at the controllers of each bus and at silent nodes (seconds)

@@ -104,7 +104,8 @@ def test_example_package_in_a_gatewaylab_run_process(example_device: None, start
      "[[device]] #1 (e): request_id must be 0..0x7FF (an 11-bit CAN-ID), got 0x800"),
     ('[[device]]\nkind = "example_echo"', "[[device]] #1: name is required"),
     ('[[device]]\nkind = "example_echo"\nname = "e"\nbus = "can7"', "bus = 'can7' names an unknown bus"),
-    ('[[device]]\nkind = "sundial"', "[[device]] #1: kind = 'sundial' is not installed (known kinds: bridge, canopen_node, drive, "),
+    ('[[device]]\nkind = "sundial"',
+     "[[device]] #1: kind = 'sundial' is not installed (known kinds: bridge, canopen_node, drive, "),
     ('[[bus]]\nname = "can1"\ntcp_port = "x"', "[[bus]] #2 (can1): tcp_port must be 0..65535"),
     ('[[bus]]\nname = "can1"\ntiming = "no"', "[[bus]] #2 (can1): timing must be true or false, got 'no'"),
 ])

@@ -1,1 +1,3 @@
 """Thin I/O adapters around the sans-I/O bus: python-can in process, socket server, plugin."""
+
+__all__ = []

@@ -24,6 +24,8 @@ from gatewaylab.bus.frame import CanFrame
 from gatewaylab.common.clock import SimulatedClock
 from gatewaylab.common.errors import GatewaylabError
 
+__all__ = ["InProcessBus", "python_can_bus"]
+
 
 class InProcessBus(can.BusABC):
     """A python-can bus attached to a gatewaylab virtual bus as one more controller."""

@@ -12,6 +12,8 @@ import socket
 from collections.abc import Callable
 from typing import Protocol, TypeVar
 
+__all__ = ["Client", "ClientReactor", "Outbox", "WriterReactor", "accept", "accept_client", "receive"]
+
 
 def accept(listener: socket.socket, index: int) -> tuple[socket.socket, str] | None:
     """The next waiting connection, non-blocking (TCP_NODELAY on TCP), with a name for logs

@@ -44,6 +44,9 @@ from gatewaylab.bus.frame import FD_DLC_TO_LEN, CanFrame
 from gatewaylab.common.endpoint import EndpointError, EndpointKind, parse_endpoint
 from gatewaylab.common.errors import GatewaylabError
 
+__all__ = ["DEFAULT_TX_QUEUE_LEN", "SHUTDOWN_LINGER", "GatewaylabBus"]
+
+
 log = logging.getLogger("can.gatewaylab")
 
 #: how long a recv() that shutdown() overtook may still wait for its timeout (python-can's Notifier and

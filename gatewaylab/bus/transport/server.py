@@ -22,6 +22,9 @@ from gatewaylab.bus.transport.outbox import Outbox, accept_client, receive
 from gatewaylab.common.clock import TimerHandle
 from gatewaylab.common.errors import ConfigError, GatewaylabError, LocalError, ProtocolError
 
+__all__ = ["CONTROL_BACKLOG", "MAX_BACKLOG", "ORPHAN_PATIENCE", "BusServer", "Reactor"]
+
+
 log = logging.getLogger(__name__)
 
 #: Unsent bytes a client may let pile up before the frames it receives are dropped (and counted) until

@@ -20,6 +20,9 @@ from gatewaylab.bus.transport.server import Reactor
 from gatewaylab.common.clock import PeriodicTimer, TimerHandle
 from gatewaylab.common.errors import LocalError
 
+__all__ = ["MAX_BACKLOG", "RAW_SETTLE", "SocketcandServer", "error_class"]
+
+
 log = logging.getLogger(__name__)
 
 #: unread output a client may pile up before it is disconnected (about 30 000 frames)

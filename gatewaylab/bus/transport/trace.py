@@ -27,6 +27,30 @@ from gatewaylab.bus.frame import CanFrame
 from gatewaylab.common.clock import TimerHandle
 from gatewaylab.common.errors import ConfigError, FrameError
 
+__all__ = [
+    "FLUSH_PERIOD",
+    "LINKTYPE_CAN_SOCKETCAN",
+    "TRACE_FORMATS",
+    "UNIX_TIME_FROM",
+    "PcapSink",
+    "PcapngSink",
+    "PythonCanSink",
+    "TimeBound",
+    "TimeWindow",
+    "Trace",
+    "TraceError",
+    "TraceItem",
+    "asc_empty_fd_frame",
+    "check_trace_path",
+    "lock_trace_file",
+    "parse_pcap",
+    "parse_pcapng",
+    "read_trace",
+    "socketcan_record",
+    "trace_origin",
+]
+
+
 #: The longest a written frame stays in a buffer (seconds of bus time).
 FLUSH_PERIOD = 0.1
 

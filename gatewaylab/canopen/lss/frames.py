@@ -14,6 +14,31 @@ from enum import Enum, IntEnum
 
 from gatewaylab.common.errors import LocalError
 
+__all__ = [
+    "ACTIVATE_FRAME",
+    "BIT_TIMING_TABLE",
+    "FASTSCAN_CONFIRM",
+    "FASTSCAN_FRAME",
+    "LSS_MASTER_COB_ID",
+    "LSS_SLAVE_COB_ID",
+    "TWO_BYTE_FRAME",
+    "U32_FRAME",
+    "UNCONFIGURED",
+    "Cs",
+    "LssAddress",
+    "LssState",
+    "bit_timing_index",
+    "encode_activate_bit_timing",
+    "encode_configure_bit_timing",
+    "encode_configure_node_id",
+    "encode_cs",
+    "encode_fastscan",
+    "encode_result",
+    "encode_switch_global",
+    "encode_u32",
+]
+
+
 #: COB-ID of LSS master requests (IDX guide 3.5).
 LSS_MASTER_COB_ID = 0x7E5
 #: COB-ID of LSS slave responses (IDX guide 3.5).

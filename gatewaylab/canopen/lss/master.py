@@ -31,6 +31,8 @@ from gatewaylab.canopen.lss.frames import (
 from gatewaylab.common.clock import Clock, TimerHandle
 from gatewaylab.common.errors import LocalError, RemoteError, TimeoutError_
 
+__all__ = ["LssError", "LssMaster", "LssTimeout", "ResultCallback"]
+
 
 class LssError(RemoteError):
     """An LSS slave answered with an error code (``.code``), or nobody answered."""

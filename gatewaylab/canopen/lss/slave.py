@@ -39,6 +39,19 @@ from gatewaylab.common.store import JsonFileStore, ParameterStore
 if TYPE_CHECKING:
     from gatewaylab.canopen.node import Node
 
+__all__ = [
+    "ALLOWED",
+    "ActivateBitTiming",
+    "AdoptNodeId",
+    "LssAction",
+    "LssConfigStore",
+    "LssSlave",
+    "LssSlaveMachine",
+    "LssSlaveStats",
+    "Reply",
+    "StoreFunction",
+]
+
 
 #: Which state accepts which service (IDX guide table 3-14); commands absent here are ignored.
 ALLOWED: dict[int, frozenset[LssState]] = {

@@ -20,6 +20,9 @@ from enum import Enum
 
 from gatewaylab.devices.canopen_drive.plant import Trapezoid
 
+__all__ = ["NEGATIVE_LIMIT", "POSITIVE_LIMIT", "SUPPORTED_METHODS", "HomingRun", "HomingStatus"]
+
+
 NEGATIVE_LIMIT = 1 << 0   # 0x60FD bits
 POSITIVE_LIMIT = 1 << 1
 

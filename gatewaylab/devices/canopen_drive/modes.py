@@ -17,6 +17,8 @@ from gatewaylab.devices.canopen_drive.homing import HomingRun, HomingStatus
 from gatewaylab.devices.canopen_drive.plant import ControlMode, Plant, Trapezoid
 from gatewaylab.od import key_object
 
+__all__ = ["POWER_OFF", "Demand", "OperationModes"]
+
 
 def _clamp(value: float, low: float, high: float) -> float:
     return low if value < low else high if value > high else value

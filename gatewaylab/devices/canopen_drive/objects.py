@@ -16,6 +16,20 @@ from gatewaylab.canopen.communication import add_communication_objects, add_mapp
 from gatewaylab.devices.canopen_drive.plant import AxisParams
 from gatewaylab.od import Access, DataType, ObjectDictionary
 
+__all__ = [
+    "DEVICE_NAME",
+    "DEVICE_TYPE",
+    "MAXON_VENDOR_ID",
+    "PRODUCT_CODE",
+    "REVISION",
+    "RPDO_DEFAULTS",
+    "TPDO_DEFAULTS",
+    "PdoDefault",
+    "add_profile_objects",
+    "build_object_dictionary",
+]
+
+
 #: Vendor-ID 0x1018:01 of maxon motor ag (CiA vendor list; the IDX answers it in LSS too).
 MAXON_VENDOR_ID = 0x000000FB
 #: Product code of the emulated drive (the IDX guide gives none; see the decisions file).

@@ -22,6 +22,8 @@ from dataclasses import dataclass, field
 from enum import Enum
 from typing import Final
 
+__all__ = ["AxisParams", "AxisState", "ControlMode", "Plant", "Trapezoid"]
+
 
 @dataclass(frozen=True, slots=True)
 class AxisParams:

@@ -21,6 +21,9 @@ from gatewaylab.devices.canopen_drive.device import Drive
 from gatewaylab.devices.canopen_drive.plant import AxisParams
 from gatewaylab.plugin.participant import DeviceKind, Key, RigContext
 
+__all__ = ["KEYS", "KIND", "PLANT_KEYS", "axis_params", "create_drive", "default_name"]
+
+
 _P = AxisParams()
 #: The motion plant's parameters (``plant = {...}``), shared by every kind that carries a drive
 #: (``[[drive]]``, ``ethercat_drive``); defaults are :class:`AxisParams`'.

@@ -5,3 +5,5 @@ kind; ``stream`` / ``budget`` the frame-stream codec; ``mcan`` / ``system`` the 
 maintenance objects; ``flash`` / ``ota`` the firmware update. The master's side of the device (the
 host library) is :mod:`gatewaylab.hosts.ecanlite`.
 """
+
+__all__ = []

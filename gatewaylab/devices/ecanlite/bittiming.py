@@ -16,6 +16,22 @@ from dataclasses import dataclass
 
 from gatewaylab.common.errors import ConfigError
 
+__all__ = [
+    "DATA",
+    "MCAN_CLOCK_HZ",
+    "NOMINAL",
+    "TDC_FORCED_BITRATE",
+    "BitTiming",
+    "BitTimingError",
+    "Limits",
+    "Tdc",
+    "manual",
+    "solve",
+    "solve_data",
+    "tdc",
+]
+
+
 #: 0x8000:06..09 MCANk clock hz.
 MCAN_CLOCK_HZ = 80_000_000
 #: TDC is forced on at and above this data bit rate (13.4 TDC strategy, 14.3).

@@ -29,6 +29,27 @@ from typing import Protocol
 
 from gatewaylab.common.errors import LocalError
 
+__all__ = [
+    "EXT_FILTER_SUB",
+    "HEADER_SIZE",
+    "IMAGE_FORMAT",
+    "IMAGE_MAGIC",
+    "STD_FILTER_SUB",
+    "FileFlash",
+    "FlashMedium",
+    "ImageError",
+    "ImageStatus",
+    "MemoryFlash",
+    "Record",
+    "decode_image",
+    "encode_image",
+    "encode_payload",
+    "image_crc",
+    "pack_filter",
+    "unpack_filter",
+]
+
+
 IMAGE_MAGIC = b"ECFG"
 IMAGE_FORMAT = 1
 _HEADER = struct.Struct("<4sHHII")

@@ -14,6 +14,36 @@ from collections.abc import Sequence
 from gatewaylab.ethercat.description import DeviceDescription, ObjectDef, Pdo, PdoEntry
 from gatewaylab.od import Access, DataType
 
+__all__ = [
+    "CHUNKS",
+    "CHUNK_BYTES",
+    "CYCLE_DIAG",
+    "DEFAULT_CHUNKS",
+    "DEVICE_NAME",
+    "INPUTS_CONTROL",
+    "INPUTS_START",
+    "OUTPUTS_CONTROL",
+    "OUTPUTS_START",
+    "PRODUCT_CODE",
+    "REVISION",
+    "RX_MAP",
+    "RX_PROFILE",
+    "RX_UNIT",
+    "SI_CYCLE_CLEAR",
+    "SM_SIZE",
+    "TX_MAP",
+    "TX_PROFILE",
+    "TX_UNIT",
+    "UNITS_PER_CHUNK",
+    "UNIT_BYTES",
+    "VENDOR_ID",
+    "cycle_object",
+    "ecanlite_description",
+    "profile_object",
+    "unit_index",
+]
+
+
 #: 'GWLB', the gatewaylab vendor id of the emulated devices (not ETG-assigned, see docs/decisions.md).
 VENDOR_ID = 0x47574C42
 #: 'ECLT'.

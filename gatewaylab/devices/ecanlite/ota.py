@@ -32,6 +32,24 @@ from dataclasses import dataclass
 from gatewaylab.common.errors import LocalError
 from gatewaylab.ethercat.errors import FoeError, FoeErrorCode
 
+__all__ = [
+    "APP_FILE_NAME",
+    "APP_PASSWORD",
+    "DEVICE_FAMILY",
+    "HEADER_SIZE",
+    "HEADER_VERSION",
+    "MAX_APP_BYTES",
+    "PACKAGE_MAGIC",
+    "FirmwareVersion",
+    "OtaError",
+    "OtaHandler",
+    "OtaStatus",
+    "Package",
+    "pack",
+    "unpack",
+]
+
+
 APP_FILE_NAME = "ecan_lite_app"
 APP_PASSWORD = 0
 PACKAGE_MAGIC = b"ECLA"

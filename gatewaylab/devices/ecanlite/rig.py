@@ -22,6 +22,9 @@ from gatewaylab.bus.controller import Controller
 from gatewaylab.devices.ecanlite.device import EcanLiteDevice
 from gatewaylab.plugin.participant import DeviceKind, Key, RigContext, section_error
 
+__all__ = ["KEYS", "KIND", "EcanLiteParticipant", "create_device"]
+
+
 KEYS: dict[str, Key] = {
     "name": Key(str, "ecan"),
     "channels": Key(list, [], help='bus names, position k = MCAN k, e.g. ["can0", "can1"]'),

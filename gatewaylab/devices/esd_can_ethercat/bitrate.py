@@ -13,6 +13,31 @@ from dataclasses import dataclass
 
 from gatewaylab.common.errors import LocalError
 
+__all__ = [
+    "AUTOBAUD_ORDER",
+    "CONTROLLER_CLOCK",
+    "INDEX_USE_API",
+    "NTCAN_AUTOBAUD",
+    "NTCAN_LISTEN_ONLY_MODE",
+    "NTCAN_NO_BAUDRATE",
+    "NTCAN_USER_BAUDRATE",
+    "NTCAN_USER_BAUDRATE_NUM",
+    "TABLE6",
+    "TABLE6_TO_API",
+    "TABLE9",
+    "BitRateError",
+    "BitRateSetting",
+    "BitTiming",
+    "Mode",
+    "from_api",
+    "from_index",
+    "no_baudrate",
+    "table_rate",
+    "timing_for",
+    "timing_from_register",
+]
+
+
 #: 7.3 / 5.1.5.9: the CAN controller's clock ("CPU Master Clock: 120 MHz").
 CONTROLLER_CLOCK = 120_000_000
 NTCAN_NO_BAUDRATE = 0x7FFFFFFF

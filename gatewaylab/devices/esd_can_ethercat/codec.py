@@ -21,6 +21,36 @@ from dataclasses import dataclass
 from gatewaylab.bus.frame import CanFrame
 from gatewaylab.common.errors import RemoteError
 
+__all__ = [
+    "FLAG_29BIT",
+    "FLAG_RTR29",
+    "ID29_MASK",
+    "IN_HEADER",
+    "OUT_HEADER",
+    "RX11",
+    "RX29",
+    "RX_SIZE",
+    "STATUS_PDO",
+    "TX11",
+    "TX29",
+    "TX_SIZE",
+    "CanStatus",
+    "MessageError",
+    "TxMessage",
+    "decode_rx11",
+    "decode_rx29",
+    "decode_status_pdo",
+    "decode_tx11",
+    "decode_tx29",
+    "encode_rx11",
+    "encode_rx29",
+    "encode_tx11",
+    "encode_tx29",
+    "input_size",
+    "output_size",
+]
+
+
 OUT_HEADER = struct.Struct("<HHH")     # Tx counter, Rx counter, number of Tx messages
 IN_HEADER = struct.Struct("<HHHH")     # Tx counter, Rx counter, number of Rx messages, Tx transaction no.
 RX11 = struct.Struct("<H8s")

@@ -26,6 +26,20 @@ from gatewaylab.ethercat.esc import AlState
 from gatewaylab.ethercat.slave import Slave, SlaveApplication
 from gatewaylab.od import Entry, SdoAbort, SdoAbortCode
 
+__all__ = [
+    "FIRMWARE_FILE",
+    "FIRMWARE_HEADER",
+    "FIRMWARE_PASSWORD",
+    "UPDATE_LINES",
+    "WARNING_LIMIT",
+    "EsdController",
+    "FirmwareFiles",
+    "FrameKinds",
+    "GatewayStats",
+    "UpdateRefused",
+]
+
+
 #: 5.3: the file name a firmware update is written to by FoE, and its password.
 FIRMWARE_FILE = "firmwareUpdate"
 FIRMWARE_PASSWORD = 0

@@ -16,6 +16,40 @@ from gatewaylab.devices.esd_can_ethercat.codec import RX_SIZE, TX_SIZE, input_si
 from gatewaylab.ethercat.description import DeviceDescription, Pdo, PdoEntry
 from gatewaylab.od import Access, DataType, ObjectDictionary
 
+__all__ = [
+    "BOOTLOADER_VERSION",
+    "DEFAULT_LOCAL_QUEUE",
+    "DEFAULT_QUEUE",
+    "DEVICE_NAME",
+    "DEVICE_TYPE",
+    "F108",
+    "F800_SUB0",
+    "FLAG_29BIT",
+    "HARDWARE_VERSION",
+    "INPUTS_START",
+    "MAILBOX_IN",
+    "MAILBOX_OUT",
+    "ORDER_CODE",
+    "OUTPUTS_START",
+    "PRODUCT_CODE",
+    "PRODUCT_NAME",
+    "RAM_END",
+    "REVISION",
+    "SOFTWARE_VERSION",
+    "STATISTICS",
+    "STATISTICS_SUB0",
+    "STATUS_PDO",
+    "STATUS_PDO_BYTES",
+    "VENDOR_ID",
+    "add_esd_objects",
+    "esd_description",
+    "max_rx_queue",
+    "max_tx_queue",
+    "resize_queues",
+    "status_pdo",
+]
+
+
 VENDOR_ID = 0x00000017          # 5.1.3.5: esd
 PRODUCT_CODE = 0x00000002       # 5.1.3.5: CAN-EtherCAT
 REVISION = 0x00000001           # 5.1.3.5: ESI revision (= the SII's)

@@ -22,6 +22,9 @@ from gatewaylab.devices.esd_can_ethercat.device import EsdGateway
 from gatewaylab.devices.esd_can_ethercat.webmodel import EsdWebModel
 from gatewaylab.plugin.participant import DeviceKind, Key, RigContext
 
+__all__ = ["KEYS", "KIND", "EsdParticipant", "create"]
+
+
 KEYS: dict[str, Key] = {
     "name": Key(str, "esd"),
     "bus": Key(str, "can0", bus=True, help="the name of a [[bus]]"),

@@ -9,6 +9,9 @@ from gatewaylab.devices.esd_can_ethercat.device import EsdGateway
 from gatewaylab.devices.esd_can_ethercat.objects import BOOTLOADER_VERSION, HARDWARE_VERSION, PRODUCT_NAME
 from gatewaylab.devices.esd_can_ethercat.web import CanStatusView, DeviceInfoView
 
+__all__ = ["EsdWebModel"]
+
+
 #: esd NTCAN bus states as the status byte shows them (Figure 41 "Status: 00").
 _STATUS = {ErrorState.ERROR_ACTIVE: 0x00, ErrorState.ERROR_PASSIVE: 0x80, ErrorState.BUS_OFF: 0xC0}
 _WARN = 0x40

@@ -23,6 +23,9 @@ from gatewaylab.devices.ethercat_drive.device import MAX_AXES, EthercatDrive
 from gatewaylab.ethercat.slave import Slave
 from gatewaylab.plugin.participant import DeviceKind, Key, RigContext
 
+__all__ = ["KEYS", "KIND", "DriveParticipant", "create_drive_device"]
+
+
 KEYS: dict[str, Key] = {
     "name": Key(str, "ethercat_drive"),
     "serial": Key(int, 0, min=0, max=0xFFFFFFFF, hex=True, help="the identity object's serial number"),

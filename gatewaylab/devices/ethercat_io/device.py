@@ -25,6 +25,9 @@ from gatewaylab.ethercat.foe import FoeHandler
 from gatewaylab.ethercat.slave import Slave, SlaveApplication
 from gatewaylab.od import Access, DataType, Entry, ObjectDictionary, key_object
 
+__all__ = ["DESCRIPTION_LENGTH", "PRODUCT_CODE", "VENDOR_ID", "IoApplication", "create_io_slave", "io_description"]
+
+
 VENDOR_ID = 0x47574C42  # 'GWLB', not an ETG-assigned id (see docs/decisions.md)
 PRODUCT_CODE = 0x00010001
 #: The default outputs image (RxPDO 0x1600): digital outputs, analog outputs 1 and 2.

@@ -14,6 +14,9 @@ from typing import Any
 from gatewaylab.devices.ethercat_io.device import create_io_slave
 from gatewaylab.plugin import DeviceKind, Key, RigContext
 
+__all__ = ["KEYS", "KIND", "IoDevice", "create_io_device"]
+
+
 KEYS: dict[str, Key] = {
     "name": Key(str, "ethercat_io"),
     "serial": Key(int, 0, min=0, max=0xFFFFFFFF, hex=True, help="the identity object's serial number"),

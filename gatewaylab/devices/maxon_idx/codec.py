@@ -20,6 +20,27 @@ from enum import Enum
 from gatewaylab.common.clock import Clock, TimerHandle
 from gatewaylab.common.errors import LocalError
 
+__all__ = [
+    "DEFAULT_FRAME_TIMEOUT",
+    "DLE",
+    "MAX_LEN_WORDS",
+    "STX",
+    "CrcFailed",
+    "DecoderEvent",
+    "DecoderStats",
+    "DiscardReason",
+    "Frame",
+    "FrameDecoder",
+    "FrameDiscarded",
+    "FrameReceived",
+    "RxState",
+    "crc_ccitt",
+    "encode_frame",
+    "frame_body",
+    "stuff",
+]
+
+
 DLE = 0x90
 STX = 0x02
 MAX_LEN_WORDS = 143

@@ -16,6 +16,37 @@ from gatewaylab.common.errors import LocalError
 from gatewaylab.devices.maxon_idx.codec import Frame
 from gatewaylab.devices.maxon_idx.errors import IdxRemoteError, SdoAbortCode
 
+__all__ = [
+    "CONTROL_LAST",
+    "CONTROL_TOGGLE",
+    "MAX_SEGMENT",
+    "REPLY_TYPE",
+    "RESPONSE_OPCODE",
+    "InitiateSegmentedRead",
+    "InitiateSegmentedReadReply",
+    "InitiateSegmentedWrite",
+    "NmtCommand",
+    "OpCode",
+    "ReadLss",
+    "ReadLssReply",
+    "ReadObject",
+    "ReadObjectReply",
+    "Reply",
+    "Request",
+    "SegmentRead",
+    "SegmentReadReply",
+    "SegmentWrite",
+    "SegmentWriteReply",
+    "SendLss",
+    "SendNmtService",
+    "StatusReply",
+    "WriteObject",
+    "decode_reply",
+    "decode_request",
+    "error_reply",
+]
+
+
 RESPONSE_OPCODE = 0x00
 #: Largest data block of one segment (guide 2.1.1.2/2.1.1.3/2.1.2.3: "Length (max. 255 bytes)").
 MAX_SEGMENT = 255

@@ -21,6 +21,9 @@ from gatewaylab.devices.maxon_idx.errors import IdxRemoteError, SdoAbortCode
 from gatewaylab.devices.maxon_idx.gateway import CanGateway, SdoClientLike
 from gatewaylab.devices.maxon_idx.protocol import IdxSlave
 
+__all__ = ["USB_FRAME_TIMEOUT", "IdxDevice", "NodeObjects"]
+
+
 #: USB frame timeout object (guide 2.2.6, table 2-4), UNSIGNED16 in ms.
 USB_FRAME_TIMEOUT = 0x2006
 

@@ -20,6 +20,25 @@ from gatewaylab.common.clock import Clock, TimerHandle
 from gatewaylab.common.errors import GatewaylabError
 from gatewaylab.devices.maxon_idx.errors import IdxRemoteError, SdoAbortCode
 
+__all__ = [
+    "LSS_BACKLOG",
+    "LSS_MASTER_COB_ID",
+    "LSS_SLAVE_COB_ID",
+    "NMT_COB_ID",
+    "SDO_ABORT",
+    "SDO_DOWNLOAD_EXPEDITED_NO_SIZE",
+    "SDO_DOWNLOAD_RESPONSE",
+    "SDO_REQUEST_BASE",
+    "SDO_RESPONSE_BASE",
+    "SDO_UPLOAD_REQUEST",
+    "SDO_UPLOAD_RESPONSE",
+    "CanGateway",
+    "DownloadCallback",
+    "SdoClientLike",
+    "UploadCallback",
+]
+
+
 LSS_MASTER_COB_ID = 0x7E5
 LSS_SLAVE_COB_ID = 0x7E4
 NMT_COB_ID = 0x000

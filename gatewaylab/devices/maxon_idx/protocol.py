@@ -54,6 +54,19 @@ from gatewaylab.devices.maxon_idx.commands import (
 )
 from gatewaylab.devices.maxon_idx.errors import IdxRemoteError, SdoAbortCode
 
+__all__ = [
+    "MAX_QUEUED",
+    "DownloadCallback",
+    "Gateway",
+    "IdxSlave",
+    "ObjectAccess",
+    "SlaveState",
+    "SlaveStats",
+    "Transfer",
+    "UploadCallback",
+]
+
+
 #: Requests held while one executes (a host should wait for each answer, guide 2.2.8 D).
 MAX_QUEUED = 64
 

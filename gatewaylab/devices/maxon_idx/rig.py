@@ -24,6 +24,9 @@ from gatewaylab.devices.maxon_idx.transport.pty import PtyPort
 from gatewaylab.devices.maxon_idx.transport.tcp import TcpServer
 from gatewaylab.plugin.participant import DeviceKind, Key, RigContext
 
+__all__ = ["KEYS", "KIND", "USB_KEYS", "IdxParticipant", "create_device"]
+
+
 USB_KEYS: dict[str, Key] = {
     "pty": Key(bool, True),
     "tcp_port": Key(int, min=0, max=65535, false_is_none=True, help="0 = a free port"),

@@ -4,3 +4,5 @@
 requests become SDO transfers, sans-I/O), ``server`` (pymodbus's TCP server in its own thread),
 ``rig`` (the ``modbus_gateway`` rig kind).
 """
+
+__all__ = []

@@ -29,6 +29,9 @@ from gatewaylab.devices.modbus_gateway.mapping import (
 )
 from gatewaylab.od import SdoAbort
 
+__all__ = ["ModbusGateway", "ReadDone", "WriteDone"]
+
+
 ReadDone = Callable[[list[int] | ModbusException], None]
 WriteDone = Callable[[ModbusException | None], None]
 

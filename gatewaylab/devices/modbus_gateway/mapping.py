@@ -19,6 +19,22 @@ from typing import Any
 from gatewaylab.common.errors import ConfigError, RemoteError
 from gatewaylab.od import SdoAbortCode
 
+__all__ = [
+    "ABORT_EXCEPTIONS",
+    "MAP_ROW_KEYS",
+    "TYPES",
+    "MappedObject",
+    "ModbusError",
+    "ModbusException",
+    "RegisterKind",
+    "RegisterMap",
+    "default_cia402_map",
+    "exception_for_abort",
+    "from_registers",
+    "parse_map",
+    "to_registers",
+]
+
 
 class ModbusException(IntEnum):
     """Modbus Application Protocol V1.1b3 section 7 exception codes the gateway answers with."""

@@ -26,6 +26,9 @@ from gatewaylab.devices.modbus_gateway.mapping import RegisterMap, default_cia40
 from gatewaylab.devices.modbus_gateway.server import ModbusTcpFace
 from gatewaylab.plugin.participant import DeviceKind, Key, RigContext
 
+__all__ = ["KEYS", "KIND", "ModbusGatewayParticipant", "create_device"]
+
+
 KEYS: dict[str, Key] = {
     "name": Key(str, "modbus"),
     "bus": Key(str, "can0", bus=True, help="the name of a [[bus]]"),

@@ -42,6 +42,20 @@ from gatewaylab.common.errors import LocalError
 from gatewaylab.devices.modbus_gateway.device import ModbusGateway
 from gatewaylab.devices.modbus_gateway.mapping import ModbusException, RegisterKind
 
+__all__ = [
+    "LOG_BURST",
+    "LOG_WINDOW",
+    "PYMODBUS_LOGGER",
+    "START_TIMEOUT",
+    "BadRequestLog",
+    "LogLimiter",
+    "ModbusServerError",
+    "ModbusTcpFace",
+    "one_line",
+    "quiet_pymodbus",
+]
+
+
 log = logging.getLogger(__name__)
 
 #: Function codes of coils and discrete inputs: the gateway has neither (0x01 illegal function).

@@ -36,6 +36,18 @@ from gatewaylab.hosts.ecanlite.port import McanPort, PortConfig
 from gatewaylab.hosts.esd_can_ethercat import RxOverflowError
 from gatewaylab.hosts.ethercat.backend import MasterBackend
 
+__all__ = [
+    "MAX_SEND_CYCLES",
+    "SETTLE_CYCLES",
+    "SHUTDOWN_TIMEOUT",
+    "STATE_CHECK_PERIOD",
+    "TIMESTAMP_PROFILE",
+    "WKC_RECOVER",
+    "EthercatHost",
+    "GatewayBus",
+]
+
+
 log = logging.getLogger("can.gatewaylab.ethercat")
 
 #: Seconds a shutdown waits for frames already handed to a gateway to reach the bus.

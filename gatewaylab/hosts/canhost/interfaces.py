@@ -23,6 +23,9 @@ from gatewaylab.common.errors import GatewaylabError
 from gatewaylab.hosts.canhost.host import EthercatHost, GatewayBus
 from gatewaylab.hosts.ethercat.backend import MasterBackend
 
+__all__ = ["RIG_PREFIX", "EcanliteBus", "EsdCanEthercatBus", "RigOpener", "open_line"]
+
+
 RIG_PREFIX = "rig:"
 
 

@@ -4,3 +4,5 @@
 - :mod:`.port` -- the MCAN Port: channel setup, send / schedule / receive, PDO writer and parser;
 - :mod:`.cia402` -- CANopen CiA 402 axes in CSP through the Port.
 """
+
+__all__ = []

@@ -38,6 +38,9 @@ from gatewaylab.hosts.esd_can_ethercat.loop import DEFAULT_TIMEOUT, HostLoop
 from gatewaylab.hosts.ethercat.backend import MasterBackend, MasterTimeout
 from gatewaylab.hosts.ethercat.states import walk_to
 
+__all__ = ["MAP_ATTEMPTS", "SDO_ATTEMPTS", "SDO_RETRY_WAIT", "SM_CONFIG_CODES", "EsdHost", "ReadbackError"]
+
+
 #: DEFAULT_TIMEOUT (5 s: a full local Tx queue of 1000 frames at 125 kbit/s takes about a second to
 #: drain), WKC_RECOVER and STATE_CHECK_PERIOD live in loop.py with the waiting they govern.
 #: 0x8000 subindexes (5.1.5.5).

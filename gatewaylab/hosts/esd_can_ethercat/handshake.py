@@ -42,6 +42,18 @@ from gatewaylab.devices.esd_can_ethercat.codec import (
 )
 from gatewaylab.hosts.esd_can_ethercat.config import QueueLayout
 
+__all__ = [
+    "DEFAULT_RX_LIMIT",
+    "DEFAULT_TX_LIMIT",
+    "TN_MODULO",
+    "Handshake",
+    "RxFrame",
+    "RxOverflowError",
+    "TransactionNumbers",
+    "TxQueueFull",
+]
+
+
 #: Transaction numbers are u16 (5.1.5.3 bits 0-15); 0 is never handed out, so the input Tx
 #: Transaction Number 0 after PREOP -> SAFEOP ('nothing sent yet') completes nothing.
 TN_MODULO = 0x10000

@@ -15,6 +15,9 @@ from gatewaylab.ethercat.datagram import Command, Datagram, Frame, decode_frame,
 from gatewaylab.ethercat.errors import MasterError, WorkingCounterError
 from gatewaylab.ethercat.segment import Segment
 
+__all__ = ["U8", "U16", "U32", "U64", "Port"]
+
+
 U8 = struct.Struct("<B")
 U16 = struct.Struct("<H")
 U32 = struct.Struct("<I")

@@ -17,6 +17,8 @@ from gatewaylab.hosts.ethercat.config import Configuration
 from gatewaylab.hosts.ethercat.mailbox import Mailboxes
 from gatewaylab.od import sdo as sdo_codec
 
+__all__ = ["Coe", "EntryDescription", "ObjectDescription"]
+
 
 @dataclass(frozen=True, slots=True)
 class ObjectDescription:

@@ -30,6 +30,9 @@ if TYPE_CHECKING:
     from gatewaylab.hosts.ethercat.coe import Coe
     from gatewaylab.hosts.ethercat.process_data import ProcessImage
 
+__all__ = ["FIRST_STATION", "FMMU_REG", "SM_REG", "Configuration", "SlaveInfo"]
+
+
 FMMU_REG = struct.Struct("<IHBBHBBB3x")
 SM_REG = struct.Struct("<HHBBBB")
 FIRST_STATION = 0x1001

@@ -6,6 +6,8 @@ from gatewaylab.ethercat.esc import REG_DC_ACTIVATION, REG_DC_START_TIME, REG_DC
 from gatewaylab.hosts.ethercat.base import U32, U64, Port
 from gatewaylab.hosts.ethercat.config import Configuration
 
+__all__ = ["Dc"]
+
 
 class Dc:
     """Programs the DC registers of configured slaves, for slaves that run synchronous cycles."""

@@ -9,6 +9,9 @@ from gatewaylab.ethercat.mailbox import MailboxType
 from gatewaylab.hosts.ethercat.config import Configuration
 from gatewaylab.hosts.ethercat.mailbox import Mailboxes
 
+__all__ = ["FOE_BUSY_RETRY", "Foe"]
+
+
 #: Seconds before an FoE data packet that the slave answered with BUSY is sent again.
 FOE_BUSY_RETRY = 0.01
 

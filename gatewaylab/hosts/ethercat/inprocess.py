@@ -35,6 +35,8 @@ from gatewaylab.hosts.ethercat.shared import (
 if TYPE_CHECKING:
     from gatewaylab.ethercat.segment import Segment
 
+__all__ = ["InProcessBackend", "RigLike"]
+
 
 
 # ---------------------------------------------------------------------------------------- in process

@@ -14,6 +14,9 @@ from gatewaylab.ethercat.mailbox import MailboxMessage, MailboxType, decode_mail
 from gatewaylab.hosts.ethercat.base import Port
 from gatewaylab.hosts.ethercat.config import Configuration
 
+__all__ = ["MAILBOX_POLL", "Mailboxes"]
+
+
 #: Seconds between two polls of a mailbox that is not ready yet (SM1 empty, SM0 still full).
 MAILBOX_POLL = 0.0005
 

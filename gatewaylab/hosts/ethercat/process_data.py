@@ -12,6 +12,8 @@ from gatewaylab.ethercat.errors import MasterError
 from gatewaylab.hosts.ethercat.base import Port
 from gatewaylab.hosts.ethercat.config import Configuration
 
+__all__ = ["ProcessImage"]
+
 
 class ProcessImage:
     """The process image (outputs first, then inputs) and its exchange: one LRW frame per image chunk."""

@@ -6,6 +6,9 @@ from __future__ import annotations
 from gatewaylab.ethercat.esc import AlState
 from gatewaylab.hosts.ethercat.backend import MasterBackend
 
+__all__ = ["state_path", "walk_to"]
+
+
 _ORDER = (AlState.INIT, AlState.PREOP, AlState.SAFEOP, AlState.OP)
 
 

@@ -20,6 +20,25 @@ from gatewaylab.devices.maxon_idx.codec import DecoderEvent, FrameDecoder, Frame
 from gatewaylab.devices.maxon_idx.errors import SdoAbortCode, error_cause, error_name
 from gatewaylab.hosts.maxon_idx.link import Link, open_link
 
+__all__ = [
+    "LSS_CONFIGURE_NODE_ID",
+    "LSS_FASTSCAN",
+    "LSS_IDENTIFY_NON_CONFIGURED",
+    "LSS_IDENTIFY_REMOTE",
+    "LSS_IDENTIFY_RESPONSE",
+    "LSS_INQUIRE",
+    "LSS_NON_CONFIGURED_RESPONSE",
+    "LSS_STORE",
+    "LSS_SWITCH_GLOBAL",
+    "LSS_SWITCH_SELECTIVE",
+    "LSS_SWITCH_SELECTIVE_RESPONSE",
+    "IdxClient",
+    "IdxError",
+    "IdxTimeout",
+    "IdxValueError",
+]
+
+
 _TYPES: dict[str, struct.Struct] = {
     "u8": struct.Struct("<B"), "u16": struct.Struct("<H"), "u32": struct.Struct("<I"),
     "i8": struct.Struct("<b"), "i16": struct.Struct("<h"), "i32": struct.Struct("<i"),

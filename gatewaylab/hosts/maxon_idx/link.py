@@ -7,6 +7,9 @@ from typing import Any, Protocol
 from gatewaylab.common.endpoint import EndpointKind, parse_endpoint
 from gatewaylab.common.errors import ConfigError
 
+__all__ = ["USB_IDS", "Link", "SerialLink", "UsbLink", "open_link"]
+
+
 #: USB identities seen in public udev rules (not a maxon document; untested without hardware):
 #: EPOS2 enumerates as an FTDI chip 0403:A8B0; EPOS4/IDX as 24E7:3B01 (maxon's vendor id 0x24E7).
 USB_IDS: tuple[tuple[int, int], ...] = ((0x24E7, 0x3B01), (0x0403, 0xA8B0))

@@ -44,6 +44,27 @@ from gatewaylab.common.endpoint import EndpointKind, parse_endpoint
 from gatewaylab.common.errors import ConfigError, LocalError
 from gatewaylab.hosts.maxon_idx.link import USB_IDS
 
+__all__ = [
+    "CONFIGURATION_VALUE",
+    "EP_IN",
+    "EP_OUT",
+    "LANGID_EN_US",
+    "MAX_PACKET",
+    "ChannelOwner",
+    "ConfigurationDescriptor",
+    "DeviceDescriptor",
+    "DevicePipe",
+    "EmulatedDevice",
+    "EndpointDescriptor",
+    "IdxUsbBackend",
+    "InterfaceDescriptor",
+    "NoSuchDescriptor",
+    "Pipe",
+    "TcpPipe",
+    "string_descriptor",
+]
+
+
 #: The identity of a real EPOS4/IDX in public udev rules (maxon's vendor id 0x24E7).
 IDX_VENDOR_ID, IDX_PRODUCT_ID = USB_IDS[0]
 #: Bulk endpoint addresses (USB 2.0 9.6.6: bit 7 = direction IN).

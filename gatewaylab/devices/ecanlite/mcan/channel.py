@@ -44,6 +44,8 @@ from gatewaylab.devices.ecanlite.mcan.objects import EXT_LIST_MAX, STD_LIST_MAX
 from gatewaylab.devices.ecanlite.mcan.registers import IR_BO, IR_EP, IR_HPM, IR_PEA, IR_TC, LEC
 from gatewaylab.devices.ecanlite.stream import TxResultCode
 
+__all__ = ["ChannelState", "McanChannel"]
+
 
 class ChannelState(enum.IntEnum):
     """Chapter 7 status word bits 0..2."""

@@ -25,6 +25,18 @@ from gatewaylab.devices.ecanlite.mcan.objects import POLICY_DEFAULTS, RX_CACHE_M
 from gatewaylab.devices.ecanlite.mcan.registers import IR_FULL, IR_LOST, IR_NEW, IR_RF0F, IR_TC
 from gatewaylab.devices.ecanlite.stream import TxResultCode
 
+__all__ = [
+    "ChannelCounters",
+    "DataPath",
+    "DataPathPolicy",
+    "Degraded",
+    "EventFlag",
+    "PolicyError",
+    "ReceivedFrame",
+    "TxEntry",
+    "is_critical",
+]
+
 
 class EventFlag(enum.IntFlag):
     """0x900x:12 latched channel event flags (gatewaylab's bit layout, docs/devices/ecanlite-mcan.md)."""

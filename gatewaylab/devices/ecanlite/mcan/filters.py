@@ -16,6 +16,8 @@ from gatewaylab.bus.frame import CanFrame
 if TYPE_CHECKING:
     from gatewaylab.devices.ecanlite.mcan.layout import ChannelRuntime
 
+__all__ = ["EMPTY_FILTER", "RX_STORES", "STORE_OF_ACTION", "EntryStatus", "FilterElement", "accept", "filter_match"]
+
 
 class EntryStatus(enum.IntEnum):
     """0x800x:47/48 filter entry status (13.4)."""

@@ -16,6 +16,20 @@ from gatewaylab.devices.ecanlite.bittiming import BitTiming, BitTimingError, Tdc
 from gatewaylab.devices.ecanlite.mcan.filters import EMPTY_FILTER, FilterElement
 from gatewaylab.devices.ecanlite.mcan.objects import CONFIG_DEFAULTS, EXT_LIST_MAX, STD_LIST_MAX
 
+__all__ = [
+    "DATA_SIZE_BYTES",
+    "MESSAGE_RAM_WORDS",
+    "TX_PAD",
+    "ApplyStatus",
+    "BuildError",
+    "ChannelRuntime",
+    "ChannelSettings",
+    "NodeMode",
+    "build",
+    "ram_words",
+]
+
+
 #: Message RAM per channel, in 32-bit words (8 KiB): the manual's general CAN FD default layout
 #: (RXF0 48, RXF1 12, RXB 12, TX 32, TXE 32, 64 B elements, 64 + 24 filters) fills it exactly.
 MESSAGE_RAM_WORDS = 2048

@@ -13,6 +13,29 @@ from types import MappingProxyType
 from gatewaylab.ethercat.description import ObjectDef
 from gatewaylab.od import Access, DataType
 
+__all__ = [
+    "CHANNELS",
+    "CONFIG_BASE",
+    "CONFIG_DEFAULTS",
+    "CONFIG_PERSISTED",
+    "CONFIG_ROWS",
+    "DIAG_BASE",
+    "DIAG_ROWS",
+    "EXT_LIST_MAX",
+    "INFO_BASE",
+    "INFO_ROWS",
+    "POLICY_BASE",
+    "POLICY_DEFAULTS",
+    "POLICY_PERSISTED",
+    "POLICY_ROWS",
+    "RX_CACHE_MAX",
+    "STD_LIST_MAX",
+    "TX_CACHE_MAX",
+    "Row",
+    "rows_object",
+]
+
+
 U8, U16, U32 = DataType.UNSIGNED8, DataType.UNSIGNED16, DataType.UNSIGNED32
 RO, RW, WO = Access.RO, Access.RW, Access.WO
 

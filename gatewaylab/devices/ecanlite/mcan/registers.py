@@ -19,6 +19,9 @@ from gatewaylab.devices.ecanlite.mcan.layout import ChannelRuntime, NodeMode
 if TYPE_CHECKING:
     from gatewaylab.devices.ecanlite.mcan.channel import McanChannel
 
+__all__ = ["LEC", "PROGRAMMING", "REG", "WRITE_WHITELIST", "read_register", "reprogram", "write_register"]
+
+
 # M_CAN register offsets (HPM MCAN = Bosch M_CAN 3.x) the register service knows.
 REG = MappingProxyType({
     "ENDN": 0x0004, "DBTP": 0x000C, "TEST": 0x0010, "RWD": 0x0014, "CCCR": 0x0018, "NBTP": 0x001C,

@@ -42,6 +42,9 @@ from gatewaylab.devices.ecanlite.stream.packets import (
 if TYPE_CHECKING:
     from mypy_extensions import i64  # compiled: a machine integer; pure Python never evaluates it
 
+__all__ = ["commit_state", "decode_stream"]
+
+
 #: Appended to the decoder's copy of an image, so a packet head can be read before the check
 #: that it ends inside payload_len (a full64 head is 2 + 4 + 8 bytes).
 _DECODE_TAIL: Final = bytes(16)

@@ -32,6 +32,9 @@ from gatewaylab.devices.ecanlite.stream.packets import CanPacket, Packet, TxResu
 if TYPE_CHECKING:
     from mypy_extensions import i64  # compiled: a machine integer; pure Python never evaluates it
 
+__all__ = ["encode_into", "encode_stream", "judge", "packet_size"]
+
+
 #: Control-word TSF bits 11-12 both set: TSF_FULL64 (a TX_RESULT leaves them 0).
 _TSF_FULL64: Final = 0x1800
 #: (an int: compiled, ``int & Option.X`` goes through the enum's Python-level ``__rand__``)

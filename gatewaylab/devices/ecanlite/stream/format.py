@@ -15,6 +15,51 @@ from typing import Final
 from gatewaylab.bus.frame import FD_DLC_TO_LEN
 from gatewaylab.common.errors import LocalError, ProtocolError
 
+__all__ = [
+    "COMMIT",
+    "CRC_ALG_CCITT_FALSE",
+    "DEFAULT_FEATURES",
+    "HEADER",
+    "HEADER_SEQ_END",
+    "HEADER_SIZE",
+    "MAX_CHANNELS",
+    "MAX_FRAME_COUNT",
+    "NO_FLAGS",
+    "OPTION_MASK",
+    "PACKET_HEADS",
+    "PROFILE_MASK",
+    "TIMESTAMP_UNIT_S",
+    "TSFS",
+    "TSF_BYTES",
+    "TX_RESULT",
+    "U16",
+    "VER_IHL",
+    "ZERO_PAD",
+    "Commit",
+    "Direction",
+    "Feature",
+    "HeaderFlags",
+    "Option",
+    "PacketKind",
+    "ParseDiag",
+    "PdoError",
+    "ProfileStatus",
+    "StreamEncodeError",
+    "StreamError",
+    "Tsf",
+    "TxResultCode",
+    "check_layout",
+    "check_options",
+    "crc16",
+    "dlc_to_len",
+    "fold_layout_id",
+    "next_seq",
+    "profile_word",
+    "saturate_u8",
+    "timestamp_ticks",
+]
+
+
 # (Constants are Final: compiled, mypyc reads them natively, not from the module's dict.)
 #: ver_ihl: version 1 in the high nibble, 6 four-byte words in the low nibble (chapter 6).
 VER_IHL: Final = 0x16

@@ -28,6 +28,9 @@ from gatewaylab.devices.ecanlite.stream.format import (
     profile_word,
 )
 
+__all__ = ["StreamLayout", "ctrl_error"]
+
+
 _LAYOUT_CRC: Final = struct.Struct("<IHH")
 
 

@@ -34,6 +34,8 @@ from gatewaylab.devices.ecanlite.stream.format import (
     TxResultCode,
 )
 
+__all__ = ["RESULT_VALUES", "CanPacket", "DecodedStream", "Packet", "StreamHeader", "TxResultPacket", "refuse"]
+
 
 def refuse(code: PdoError, message: str) -> StreamEncodeError:
     """The error for a packet no receiver would take, with the LastPDOError it would report."""

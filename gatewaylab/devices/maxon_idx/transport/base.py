@@ -7,6 +7,9 @@ from typing import Protocol
 
 from gatewaylab.common.clock import Clock
 
+__all__ = ["MAX_BACKLOG", "Channel", "ChannelFactory", "Reactor", "ReplyWriter"]
+
+
 #: Reply bytes kept for a host that does not read them before new ones are dropped.
 MAX_BACKLOG = 1 << 16
 

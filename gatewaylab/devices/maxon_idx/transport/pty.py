@@ -15,6 +15,8 @@ import tty
 from gatewaylab.common.clock import Clock
 from gatewaylab.devices.maxon_idx.transport.base import Channel, ChannelFactory, Reactor, ReplyWriter
 
+__all__ = ["PtyPort"]
+
 
 class PtyPort(ReplyWriter):
     """One virtual serial port carrying one IDX USB command channel.

@@ -11,6 +11,8 @@ import socket
 from gatewaylab.common.clock import Clock
 from gatewaylab.devices.maxon_idx.transport.base import Channel, ChannelFactory, Reactor, ReplyWriter
 
+__all__ = ["TcpServer"]
+
 
 class _Connection(ReplyWriter):
     def __init__(self, server: TcpServer, sock: socket.socket) -> None:
