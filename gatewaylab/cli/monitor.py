@@ -37,7 +37,8 @@ from gatewaylab.bus.candump import (
 from gatewaylab.bus.errorframe import CAN_ERR_MASK, ErrorFrame, describe
 from gatewaylab.bus.frame import CanFrame
 from gatewaylab.bus.signals import SignalDecoder, load_database
-from gatewaylab.bus.transport.trace import TimeWindow, TraceError, read_trace
+from gatewaylab.bus.transport.trace import TraceError, read_trace
+from gatewaylab.bus.transport.trace_window import TimeWindow
 from gatewaylab.canopen.monitor import BusMonitor, ControllerWatch, MonitorEvent
 from gatewaylab.cli.monitor_order import TimeOrder, sender_node
 from gatewaylab.cli.terminal import QuitKey

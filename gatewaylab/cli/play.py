@@ -25,7 +25,8 @@ import can
 from gatewaylab.bus.candump import CandumpSyntaxError, FilterSet, parse_filters
 from gatewaylab.bus.errorframe import ErrorFrame
 from gatewaylab.bus.frame import CanFrame
-from gatewaylab.bus.transport.trace import TimeWindow, TraceError, read_trace
+from gatewaylab.bus.transport.trace import TraceError, read_trace
+from gatewaylab.bus.transport.trace_window import TimeWindow
 from gatewaylab.common.endpoint import EndpointError, bus_endpoint
 from gatewaylab.common.errors import ConfigError
 

@@ -21,8 +21,9 @@ from gatewaylab.bus.errorframe import ErrorFrame
 from gatewaylab.bus.frame import CanFrame
 from gatewaylab.bus.signals import SignalDecoder, load_database
 from gatewaylab.bus.timing import frame_duration
-from gatewaylab.bus.transport.trace import TimeWindow, TraceError, trace_origin
+from gatewaylab.bus.transport.trace import TraceError
 from gatewaylab.bus.transport.trace import read_trace as trace_items
+from gatewaylab.bus.transport.trace_window import TimeWindow, trace_origin
 from gatewaylab.canopen.cia402 import OpMode, Sw
 from gatewaylab.canopen.monitor import BusMonitor
 from gatewaylab.common.errors import ConfigError

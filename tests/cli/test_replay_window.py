@@ -16,7 +16,8 @@ from pathlib import Path
 import pytest
 
 from gatewaylab.bus import CanFrame, VirtualBus
-from gatewaylab.bus.transport.trace import TimeWindow, Trace, read_trace
+from gatewaylab.bus.transport.trace import Trace, read_trace
+from gatewaylab.bus.transport.trace_window import TimeWindow
 from gatewaylab.common.clock import SimulatedClock
 from gatewaylab.common.errors import ConfigError
 
