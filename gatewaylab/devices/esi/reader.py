@@ -24,7 +24,8 @@ from gatewaylab.ethercat.description import DeviceDescription, Pdo, PdoEntry
 from gatewaylab.od import Access, DataType, Entry, ObjectCode, ObjectDictionary, SdoAbort, decode
 from gatewaylab.od.types import ESI_TYPE_NAMES
 
-__all__ = ["EsiDevice", "EsiError", "EsiObject", "EsiSub", "apply_dictionary", "esi_types", "identity_overrides", "read_esi",
+__all__ = ["EsiDevice", "EsiError", "EsiObject", "EsiSub", "apply_dictionary", "esi_types", "identity_overrides",
+           "read_esi",
            "read_esi_file"]
 
 
@@ -116,6 +117,8 @@ class EsiDevice:
     #: Max size of the process data SyncManagers (``Sm MaxSize``), None when not given.
     outputs_max: int | None = None
     inputs_max: int | None = None
+    #: What the slave does differently from the file (said once in the log).
+    notes: tuple[str, ...] = ()
 
 
 class _Ctx:
@@ -260,6 +263,22 @@ def _device(ctx: _Ctx, dev: ET.Element, vendor_id: int, vendor_name: str) -> Esi
             kwargs[key] = (start, size or max_size or 0)
     out_start, out_size, out_ctrl, out_max, _ = sm_row("Outputs", 0x1100, 0x64)
     in_start, in_size, in_ctrl, in_max, _ = sm_row("Inputs", 0x1400, 0x20)
+    notes: list[str] = []
+    # A SyncManager on the ESC's digital I/O registers (an EL2008's outputs at 0x0F00) moves into the
+    # process RAM, behind every other SyncManager's buffers: the emulated ESC has no I/O pins.
+    taken = [(a, a + 3 * max(n, 1)) for a, n in (kwargs.get("mailbox_out", (0, 0)), kwargs.get("mailbox_in", (0, 0)),
+                                                 (out_start, out_size), (in_start, in_size)) if a >= 0x1000 and n]
+    for label in ("Outputs", "Inputs"):
+        start = out_start if label == "Outputs" else in_start
+        size = out_size if label == "Outputs" else in_size
+        if label in sms and start < 0x1000:
+            new = (max([0x1000, *(end for _a, end in taken)]) + 0x0F) & ~0x0F
+            taken.append((new, new + 3 * max(size, 1)))
+            notes.append(f"Sm {label} at 0x{start:04X} (ESC registers, no process RAM) runs at 0x{new:04X}")
+            if label == "Outputs":
+                out_start = new
+            else:
+                in_start = new
     rx = tuple(_pdo(ctx, p, here, DataType.UNSIGNED8) for p in dev.findall("RxPdo"))
     tx = tuple(_pdo(ctx, p, here, DataType.UNSIGNED8) for p in dev.findall("TxPdo"))
     rx_assign = tuple(p.index for p, el in zip(rx, dev.findall("RxPdo"), strict=True) if el.get("Sm") is not None)
@@ -336,7 +355,7 @@ def _device(ctx: _Ctx, dev: ET.Element, vendor_id: int, vendor_name: str) -> Esi
             other_protocols=other, dc=dc_el is not None, device_type=device_type, **kwargs)
     except ConfigError as exc:
         raise ctx.fail(here, str(exc)) from None
-    return EsiDevice(ctx.source, type_name, desc, objects, sii, protocols, timeouts, out_max, in_max)
+    return EsiDevice(ctx.source, type_name, desc, objects, sii, protocols, timeouts, out_max, in_max, tuple(notes))
 
 
 def _pdo(ctx: _Ctx, el: ET.Element, here: str, default: DataType) -> Pdo:

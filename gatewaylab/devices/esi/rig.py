@@ -77,6 +77,8 @@ class EsiParticipant:
             app = self.slave.app
             assert isinstance(app, EsiApplication)
             app.behaviour = Behaviour(rules, self.slave.od, hook)
+        for note in self.device.notes:
+            log.warning("%s: %s: %s", self.name, self.source.name, note)
         d = self.device.desc
         log.info("%s: %s from %s (vendor 0x%X product 0x%X revision 0x%X)%s", self.name, self.device.type_name,
                  self.source, d.vendor_id, d.product_code, d.revision,
