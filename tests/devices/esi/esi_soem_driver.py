@@ -64,7 +64,7 @@ def _flush(slave: Any) -> None:
         try:
             if not slave.mbx_receive():
                 return
-        except Exception:   # noqa: BLE001 -- whatever the stale message was, it is gone
+        except Exception:   # whatever the stale message was, it is gone
             continue
 
 
@@ -164,8 +164,9 @@ def main(iface: str, cycles: int) -> dict[str, Any]:
         echo.append([pattern, dio.input[0], wkc])
         values.append(struct.unpack_from("<h", ai.input, 2)[0])
         time.sleep(0.001)
-    result.update(foreign=len(FOREIGN), sdo_info_retries=len(RETRIES), bad_wkc=bad_wkc, echo=echo, values=values, sizes=[[len(s.output), len(s.input)]
-                                                                   for s in master.slaves])
+    sizes = [[len(s.output), len(s.input)] for s in master.slaves]
+    result.update(foreign=len(FOREIGN), sdo_info_retries=len(RETRIES), bad_wkc=bad_wkc, echo=echo, values=values,
+                  sizes=sizes)
     master.state = pysoem.INIT_STATE
     master.write_state()
     master.close()
