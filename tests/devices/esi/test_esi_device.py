@@ -291,3 +291,41 @@ def test_state_machine_refuses_wrong_sync_managers(rig: tuple[Rig, SimulatedCloc
     m.fpwr(m.slave(3).station, 0x0120, b"\x02\x00")
     status, code = m.al_status(3)
     assert status & 0x10 and code == 0x0016
+
+
+def test_rules_run_once_per_cycle_and_the_hook_after_them(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A slave with outputs runs its rules on the outputs event only: a BOOL counter (+1 wraps 0/1) flips at
+    every cycle (twice per cycle would keep it still); the hook runs after the rules with the values and the
+    rig's time."""
+    (tmp_path / "esi_test_hook.py").write_text(
+        "def run(values, t):\n"
+        "    values.set(0x6010, 1, 1 - int(values.get(0x6000, 1)))\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    (tmp_path / "rig.toml").write_text(f'''clock = "simulated"
+[[device]]
+kind = "esi"
+esi = "{DIGITAL}"
+type = "EL1859"
+hook = "esi_test_hook:run"
+[device.behaviour]
+"0x6000:01" = "counter"
+[ethercat]
+interface = "gl-none"
+''')
+    r = Rig.from_file(tmp_path / "rig.toml")
+    r.start()
+    try:
+        segment = next(p for p in r.participants if getattr(p, "name", "") == "ethercat").segment  # type: ignore[attr-defined]
+        clock = r.clock
+        assert isinstance(clock, SimulatedClock)
+        m = Master(clock, segment)
+        m.bring_up()
+        seen = []
+        for _ in range(10):
+            clock.advance(0.001)
+            assert m.exchange_process_data() == m.expected_wkc
+            seen.append(m.image[1] & 0x03)
+        assert all(a != b for a, b in itertools.pairwise(seen)), seen
+        assert all(v in (0b01, 0b10) for v in seen), seen    # channel 2 = not channel 1 (the hook)
+    finally:
+        r.close()
