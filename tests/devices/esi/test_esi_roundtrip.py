@@ -80,3 +80,28 @@ def test_exported_esi_runs_as_the_original(tmp_path: Path, kind: str) -> None:
     assert views[0]["pdo_map"] == views[1]["pdo_map"]
     assert views[0].get("dictionary") == views[1].get("dictionary")
     assert m.od_list(0) == m.od_list(1)
+
+
+def test_configurable_mapping_of_the_copy_is_checked(tmp_path: Path) -> None:
+    """ETG.1000.6 PDO mapping in PREOP on the ESI copy of ``ethercat_io`` (configurable RxPDO 0x1600): entries
+    change only while subindex 0 is 0 (else 0x06010003 'subindex cannot be written'), an
+    object that cannot be mapped aborts 0x06040041; the master's new mapping is what SAFEOP runs."""
+    esi = tmp_path / "io.xml"
+    subprocess.run([sys.executable, "-m", "gatewaylab", "esi", "ethercat_io", "-o", str(esi)], check=True,
+                   capture_output=True, timeout=120)
+    clock = SimulatedClock()
+    m = Master(clock, Segment([esi_slave(clock, read_esi_file(esi), "io")]))
+    m.scan()
+    m.request_state(0, AlState.PREOP)
+    with pytest.raises(SdoAbort) as exc:
+        m.sdo_download32(0, 0x1600, 1, 0x70000108)
+    assert exc.value.code == 0x06010003
+    m.sdo_download8(0, 0x1600, 0, 0)
+    with pytest.raises(SdoAbort) as exc:
+        m.sdo_download32(0, 0x1600, 1, 0x60000108)      # an input: not an RxPDO object
+    assert exc.value.code == 0x06040041
+    m.sdo_download32(0, 0x1600, 1, 0x70000108)
+    m.sdo_download8(0, 0x1600, 0, 1)
+    m.config_map()
+    m.set_state(AlState.SAFEOP)
+    assert m.slave(0).output_bytes == 1
