@@ -249,7 +249,7 @@ def _device(ctx: _Ctx, dev: ET.Element, vendor_id: int, vendor_name: str) -> Esi
         if el is None:
             return default_start, 0, default_control, None, False
         w = f"{here} Sm {label}"
-        size = ctx.number(el.get("DefaultSize"), f"{w}@DefaultSize", 0)
+        size = ctx.number(el.get("DefaultSize"), f"{w}@DefaultSize", -1)
         max_size = ctx.number(el.get("MaxSize"), f"{w}@MaxSize", 0) or None
         return (ctx.number(el.get("StartAddress"), f"{w}@StartAddress"), size,
                 ctx.number(el.get("ControlByte"), f"{w}@ControlByte", default_control), max_size,
@@ -260,7 +260,7 @@ def _device(ctx: _Ctx, dev: ET.Element, vendor_id: int, vendor_name: str) -> Esi
             start, size, _c, max_size, _en = sm_row(label, 0, 0)
             if label not in sms:
                 raise ctx.fail(here, f"declares a mailbox but has no <Sm>{label}</Sm>")
-            kwargs[key] = (start, size or max_size or 0)
+            kwargs[key] = (start, size if size > 0 else max_size or 0)
     out_start, out_size, out_ctrl, out_max, _ = sm_row("Outputs", 0x1100, 0x64)
     in_start, in_size, in_ctrl, in_max, _ = sm_row("Inputs", 0x1400, 0x20)
     notes: list[str] = []
@@ -283,14 +283,19 @@ def _device(ctx: _Ctx, dev: ET.Element, vendor_id: int, vendor_name: str) -> Esi
     tx = tuple(_pdo(ctx, p, here, DataType.UNSIGNED8) for p in dev.findall("TxPdo"))
     rx_assign = tuple(p.index for p, el in zip(rx, dev.findall("RxPdo"), strict=True) if el.get("Sm") is not None)
     tx_assign = tuple(p.index for p, el in zip(tx, dev.findall("TxPdo"), strict=True) if el.get("Sm") is not None)
+    sizes = []
     for pdos, assign, size, max_size, label in ((rx, rx_assign, out_size, out_max, "Outputs"),
                                                (tx, tx_assign, in_size, in_max, "Inputs")):
         bits = sum(p.bit_length for p in pdos if p.index in assign)
+        if size < 0:    # no DefaultSize (SOES's files): the default assignment's size
+            size = (bits + 7) // 8
+        sizes.append(size)
         limit = max(size, max_size or 0)
         if bits and (label not in sms or (bits + 7) // 8 > limit):
             raise ctx.fail(f"{here} {'RxPdo' if label == 'Outputs' else 'TxPdo'}",
                            f"the assigned PDOs map {bits} bits, more than <Sm>{label}</Sm> holds "
                            f"({8 * limit} bits)")
+    out_size, in_size = sizes
     # DC op modes
     dc_el = dev.find("Dc")
     op_modes = []
@@ -479,6 +484,10 @@ def _object(ctx: _Ctx, types: dict[str, _Type], obj: ET.Element, index: int, w: 
     info_by_name = {_text(s, "Name"): s.find("Info") for s in infos}
 
     def sub_info(k: int, sname: str) -> ET.Element | None:
+        """The ``Info`` of sub-item ``k``: by position when the names agree there (names may repeat, as
+        SOES's 'PDO Mapping' rows do), else by name, else by position."""
+        if k < len(infos) and _text(infos[k], "Name") == sname:
+            return infos[k].find("Info")
         if sname in info_by_name:
             return info_by_name[sname]
         return infos[k].find("Info") if k < len(infos) else None
@@ -559,6 +568,23 @@ def apply_dictionary(od: ObjectDictionary, device: EsiDevice) -> None:
         if zero is not None and zero.default is not None:
             od.values[(obj.index, 0)] = zero.default
             od.replace_entry(replace(od.objects[obj.index].entries[0], default=zero.default))
+    # an assignment counts the PDOs it assigns: entries of PDO 0 after the assigned ones (SOES's files give
+    # subindex 0 the array's length) are not counted
+    for index in (0x1C12, 0x1C13):
+        if index in od.objects and (index, 0) in od.values:
+            n = int(od.values[(index, 0)])
+            assigned = 0
+            while assigned < n and int(od.values.get((index, assigned + 1), 0)):
+                assigned += 1
+            if assigned < n:
+                od.values[(index, 0)] = assigned
+                od.replace_entry(replace(od.entries[(index, 0)], default=assigned))
+    # an entry the file's PDOs map is mappable, flagged or not (SOES's files give no PdoMapping flags)
+    for pdo in (*desc.rx_pdos, *desc.tx_pdos):
+        for e in pdo.entries:
+            entry = od.entries.get((e.index, e.subindex))
+            if e.index and entry is not None and not entry.pdo_mappable:
+                od.replace_entry(replace(entry, pdo_mappable=True))
 
 
 def identity_overrides(serial: int | None) -> Callable[[ObjectDictionary], None]:
