@@ -58,6 +58,7 @@ EXTRA_SUBCOMMANDS = (
     "gatewaylab.cli.fault",
     "gatewaylab.cli.ecan",
     "gatewaylab.cli.migrate",
+    "gatewaylab.cli.esi",
 )
 
 RIG_HELP = """\

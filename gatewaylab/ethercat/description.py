@@ -124,6 +124,19 @@ class DeviceDescription:
     objects: tuple[ObjectDef, ...] = ()
     #: Further device-specific dictionary setup (hooks on entries, arrays...).
     extend_od: Callable[[ObjectDictionary], None] | None = field(default=None, compare=False)
+    #: Mailbox protocols declared besides CoE/FoE, SII word 0x1C bits (0x01 AoE, 0x02 EoE, 0x10 SoE,
+    #: 0x20 VoE): not emulated, a request answers with the mailbox error "unsupported protocol".
+    other_protocols: int = 0
+    #: SII General category CoE details; None = SDO, SDO info, PDO assign/config, complete access.
+    coe_details: int | None = None
+    #: SII words 0..6 (ESI ``<Eeprom><ConfigData>``); None = gatewaylab's default PDI configuration.
+    sii_config: bytes | None = None
+    #: EEPROM size in bytes (ESI ``<Eeprom><ByteSize>``); None = the smallest that holds the categories.
+    eeprom_bytes: int | None = None
+    #: Further SII categories (type, data) written after the PDO categories (ESI ``<Eeprom><Category>``).
+    sii_categories: tuple[tuple[int, bytes], ...] = ()
+    #: The SII byte for byte (ESI ``<Eeprom><Data>`` or a dump); None = built from the description.
+    sii_image: bytes | None = None
 
     def __post_init__(self) -> None:
         for start, size in (self.mailbox_out, self.mailbox_in):
@@ -168,8 +181,13 @@ class DeviceDescription:
 
     @property
     def mailbox_protocols(self) -> int:
-        """SII word 0x1C: bit 2 CoE, bit 3 FoE."""
-        return (0x04 if self.coe else 0) | (0x08 if self.foe else 0)
+        """SII word 0x1C: bit 2 CoE, bit 3 FoE (and ``other_protocols``)."""
+        return (0x04 if self.coe else 0) | (0x08 if self.foe else 0) | self.other_protocols
+
+    @property
+    def has_mailbox(self) -> bool:
+        """SM0/SM1 are mailboxes: some mailbox protocol is declared."""
+        return self.coe or self.foe or bool(self.other_protocols)
 
     # SyncManager control bytes the master must program (ET1100 0x0804).
     SM0_CONTROL = 0x26  # mailbox, ECAT writes, PDI interrupt
@@ -190,7 +208,10 @@ def _mapping_validators(od: ObjectDictionary, index: int, rx: bool, assignment: 
         except SdoAbort:
             raise SdoAbort(SdoAbortCode.OBJECT_NOT_MAPPABLE, f"0x{target:04X}:{sub} does not exist") from None
         mappable = entry.rx_pdo if rx else entry.tx_pdo
-        if not mappable or od.bit_length(target, sub) != bits:
+        length = od.bit_length(target, sub)
+        if entry.data_type is DataType.BOOLEAN and bits == 1:
+            length = 1  # a BOOL maps as one bit (ETG.2000 BOOL BitSize 1)
+        if not mappable or length != bits:
             raise SdoAbort(SdoAbortCode.OBJECT_NOT_MAPPABLE, f"0x{target:04X}:{sub} cannot be mapped as {bits} bits")
 
     def check_assignment(value: int) -> None:
@@ -234,7 +255,7 @@ def build_od(desc: DeviceDescription) -> ObjectDictionary:
     _record(od, 0x1018, "Identity", [
         (1, "Vendor ID", u32, desc.vendor_id, ro), (2, "Product code", u32, desc.product_code, ro),
         (3, "Revision", u32, desc.revision, ro), (4, "Serial number", u32, desc.serial, ro)])
-    types = [1, 2, 3, 4] if desc.coe or desc.foe else [3, 4]
+    types = [1, 2, 3, 4] if desc.has_mailbox else [3, 4]
     od.add_array(0x1C00, "Sync manager type", u8, len(types), ro, defaults=types, sub0_name="SubIndex 000",
                  sub_names=[f"SubIndex {i:03d}" for i in range(1, len(types) + 1)])
     for pdos, assigned, assign in ((desc.rx_pdos, desc.assigned_rx_pdos, 0x1C12),

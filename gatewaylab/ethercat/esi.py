@@ -12,8 +12,8 @@ import xml.etree.ElementTree as ET
 
 from gatewaylab.ethercat.description import DeviceDescription, Pdo, build_od
 from gatewaylab.ethercat.sii import build_sii
-from gatewaylab.od import ESI_TYPE_NAMES, ObjectDictionary
-from gatewaylab.od.esi import esi_dictionary
+from gatewaylab.od import ObjectDictionary
+from gatewaylab.od.esi import esi_dictionary, esi_type_name
 
 __all__ = ["export_esi"]
 
@@ -47,9 +47,8 @@ def _pdo(parent: ET.Element, tag: str, pdo: Pdo, sm: int | None) -> None:
         _sub(entry, "BitLen", str(e.bit_length))
         if e.index:
             _sub(entry, "Name", e.name)
-            name = ESI_TYPE_NAMES.get(e.data_type, "USINT")
             # a string entry names its length, as the dictionary part does (ETG.2000: STRING(n))
-            _sub(entry, "DataType", f"STRING({e.bit_length // 8})" if name == "STRING" else name)
+            _sub(entry, "DataType", esi_type_name(e.data_type, e.bit_length // 8))
 
 
 def export_esi(desc: DeviceDescription, od: ObjectDictionary | None = None) -> str:
@@ -75,7 +74,7 @@ def export_esi(desc: DeviceDescription, od: ObjectDictionary | None = None) -> s
         _sub(profile, "ProfileNo", str(desc.device_type & 0xFFFF))
         _sub(profile, "AddInfo", str(desc.device_type >> 16))
         esi_dictionary(profile, od)
-    has_mbx = desc.coe or desc.foe
+    has_mbx = desc.has_mailbox
     _sub(device, "Fmmu", "Outputs")
     _sub(device, "Fmmu", "Inputs")
     if has_mbx:
@@ -95,10 +94,19 @@ def export_esi(desc: DeviceDescription, od: ObjectDictionary | None = None) -> s
         _pdo(device, "TxPdo", pdo, sm_out + 1 if pdo in desc.assigned_tx_pdos else None)
     if has_mbx:
         mailbox = _sub(device, "Mailbox", DataLinkLayer="1")
+        for bit, tag in ((0x01, "AoE"), (0x02, "EoE")):
+            if desc.other_protocols & bit:
+                _sub(mailbox, tag)
         if desc.coe:
-            _sub(mailbox, "CoE", SdoInfo="1", PdoAssign="1", PdoConfig="1", CompleteAccess="1")
+            details = 0x2F if desc.coe_details is None else desc.coe_details
+            flags = {name: "1" for bit, name in ((0x02, "SdoInfo"), (0x04, "PdoAssign"), (0x08, "PdoConfig"),
+                                                 (0x10, "PdoUpload"), (0x20, "CompleteAccess")) if details & bit}
+            _sub(mailbox, "CoE", **flags)
         if desc.foe:
             _sub(mailbox, "FoE")
+        for bit, tag in ((0x10, "SoE"), (0x20, "VoE")):
+            if desc.other_protocols & bit:
+                _sub(mailbox, tag)
     if desc.dc:
         dc = _sub(device, "Dc")
         for name, text, assign in desc.dc_op_modes:
@@ -115,5 +123,9 @@ def export_esi(desc: DeviceDescription, od: ObjectDictionary | None = None) -> s
     _sub(eeprom, "ConfigData", sii[:14].hex().upper())
     if desc.bootstrap:
         _sub(eeprom, "BootStrap", struct.pack("<4H", *desc.bootstrap_mailbox).hex().upper())
+    for kind, data in desc.sii_categories:
+        category = _sub(eeprom, "Category")
+        _sub(category, "CatNo", str(kind))
+        _sub(category, "Data", data.hex().upper())
     ET.indent(root)
     return '<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(root, encoding="unicode") + "\n"

@@ -109,15 +109,30 @@ def _pdos(assigned: tuple[Pdo, ...], sm: int, strings: _Strings) -> bytes:
     return bytes(out)
 
 
+def _given_image(desc: DeviceDescription, alias: int) -> bytes:
+    """``desc.sii_image`` as given, with the alias (word 4, checksum again) and a serial set by the rig."""
+    assert desc.sii_image is not None
+    img = bytearray(desc.sii_image)
+    if alias:
+        U16.pack_into(img, 8, alias)
+        img[14] = sii_checksum(bytes(img[:14]))
+    if desc.serial:
+        U32.pack_into(img, 0x1C, desc.serial)
+    return bytes(img)
+
+
 def build_sii(desc: DeviceDescription, alias: int = 0) -> bytes:
     """The EEPROM content a real slave of this description would carry."""
+    if desc.sii_image is not None:
+        return _given_image(desc, alias)
     img = bytearray(b"\xff" * 0x80)
     cfg = bytearray(16)
-    U16.pack_into(cfg, 0, 0x0C08)  # PDI control: 16-bit uC async PDI, ESC config 0x0C (enhanced link)
-    U16.pack_into(cfg, 2, 0x0000)
-    U16.pack_into(cfg, 4, 0x0000)
-    U16.pack_into(cfg, 6, 0x0000)
-    U16.pack_into(cfg, 8, alias)
+    if desc.sii_config is not None:
+        cfg[:14] = desc.sii_config[:14].ljust(14, b"\0")
+    else:
+        U16.pack_into(cfg, 0, 0x0C08)  # PDI control: 16-bit uC async PDI, ESC config 0x0C (enhanced link)
+    if desc.sii_config is None or alias:
+        U16.pack_into(cfg, 8, alias)
     cfg[14] = sii_checksum(bytes(cfg[:14]))
     img[0:16] = cfg
     body = bytearray(0x80 - 0x10)
@@ -128,7 +143,7 @@ def build_sii(desc: DeviceDescription, alias: int = 0) -> bytes:
     if desc.bootstrap:
         bo, bos, bi, bis = desc.bootstrap_mailbox
         struct.pack_into("<HHHH", body, 0x28 - 0x10, bo, bos, bi, bis)
-    if desc.coe or desc.foe:
+    if desc.has_mailbox:
         struct.pack_into("<HHHHH", body, 0x30 - 0x10,
                          desc.mailbox_out[0], desc.mailbox_out[1],
                          desc.mailbox_in[0], desc.mailbox_in[1], desc.mailbox_protocols)
@@ -140,10 +155,12 @@ def build_sii(desc: DeviceDescription, alias: int = 0) -> bytes:
     name_idx = strings.add(desc.name)
     group_idx = strings.add(desc.group)
     order_idx = strings.add(desc.order_code or desc.name)
-    coe_details = (0x01 | 0x02 | 0x04 | 0x08 | 0x20) if desc.coe else 0  # SDO, SDO info, PDO assign/config, CA
+    coe_details = 0
+    if desc.coe:  # SDO, SDO info, PDO assign/config, CA unless the description says otherwise
+        coe_details = (0x01 | 0x02 | 0x04 | 0x08 | 0x20) if desc.coe_details is None else desc.coe_details
     general = GENERAL.pack(group_idx, 0, order_idx, name_idx, 0, coe_details, 1 if desc.foe else 0,
                            0, 0, 0, 0, 0, 0, group_idx, 0, 0x0011, 0)
-    has_mbx = desc.coe or desc.foe
+    has_mbx = desc.has_mailbox
     fmmu = bytes([1, 2, 3 if has_mbx else 0, 0])
     sms = bytearray()
     if has_mbx:
@@ -167,8 +184,10 @@ def build_sii(desc: DeviceDescription, alias: int = 0) -> bytes:
         cats += _category(Category.TXPDO, txpdo)
     if rxpdo:
         cats += _category(Category.RXPDO, rxpdo)
+    for kind, data in desc.sii_categories:
+        cats += _category(kind, data)
     cats += U16.pack(Category.END)
-    size = EEPROM_BYTES
+    size = EEPROM_BYTES if desc.eeprom_bytes is None else max(128, desc.eeprom_bytes)
     while size < 0x80 + len(cats):
         size *= 2  # the smallest EEPROM (2 KB = 16 kbit and up) that holds the categories
     if size > MAX_EEPROM_BYTES:

@@ -149,7 +149,7 @@ class Slave:
         self.od = build_od(desc)
         self.sii = build_sii(desc, alias)
         #: Process data SyncManagers: 2/3 behind the mailbox SMs, 0/1 on a slave without mailbox.
-        self.has_mailbox = desc.coe or desc.foe
+        self.has_mailbox = desc.has_mailbox
         self.sm_outputs = 2 if self.has_mailbox else 0
         self.sm_inputs = self.sm_outputs + 1
         self.esc = Esc(clock, self.sii, self, dc=desc.dc, output_sm=self.sm_outputs)
@@ -223,7 +223,7 @@ class Slave:
             bo, bos, bi, bis = d.bootstrap_mailbox
             if not self._sm_ok(0, bo, bos, 0x06) or not self._sm_ok(1, bi, bis, 0x02):
                 return AlStatusCode.INVALID_MAILBOX_CONFIG_BOOT
-        if old == AlState.INIT and new == AlState.PREOP and (d.coe or d.foe) and (
+        if old == AlState.INIT and new == AlState.PREOP and d.has_mailbox and (
                 not self._sm_ok(0, *d.mailbox_out, 0x06) or not self._sm_ok(1, *d.mailbox_in, 0x02)):
             return AlStatusCode.INVALID_MAILBOX_CONFIG
         if old == AlState.PREOP and new == AlState.SAFEOP:

@@ -11,7 +11,24 @@ import xml.etree.ElementTree as ET
 from gatewaylab.od.dictionary import ObjectDictionary
 from gatewaylab.od.types import ESI_TYPE_NAMES, DataType, Entry, ObjectCode, OdObject
 
-__all__ = ["esi_dictionary"]
+__all__ = ["esi_dictionary", "esi_type_name"]
+
+#: ETG.2000 names of the types ``ESI_TYPE_NAMES`` leaves out (so every type reads back as itself).
+_MORE_NAMES: dict[DataType, str] = {
+    DataType.INTEGER24: "INT24", DataType.UNSIGNED24: "UINT24", DataType.INTEGER40: "INT40",
+    DataType.UNSIGNED40: "UINT40", DataType.INTEGER48: "INT48", DataType.UNSIGNED48: "UINT48",
+    DataType.INTEGER56: "INT56", DataType.UNSIGNED56: "UINT56", DataType.TIME_OF_DAY: "TIME_OF_DAY",
+    DataType.TIME_DIFFERENCE: "TIME_DIFFERENCE",
+}
+
+
+def esi_type_name(data_type: DataType, size: int = 1) -> str:
+    """The ETG.2000 name of a type; strings carry their length in bytes (``STRING(n)``, ``OCTET_STRING(n)``)."""
+    if data_type is DataType.VISIBLE_STRING:
+        return f"STRING({max(1, size)})"
+    if data_type in (DataType.OCTET_STRING, DataType.UNICODE_STRING):
+        return f"{ESI_TYPE_NAMES[data_type]}({max(1, size)})"
+    return ESI_TYPE_NAMES.get(data_type) or _MORE_NAMES.get(data_type, "USINT")
 
 
 def _sub(parent: ET.Element, tag: str, text: str | None = None, **attrs: str) -> ET.Element:
@@ -28,9 +45,8 @@ def _access(e: Entry) -> str:
 
 
 def _type_name(od: ObjectDictionary, e: Entry) -> str:
-    if e.data_type in (DataType.VISIBLE_STRING, DataType.OCTET_STRING, DataType.UNICODE_STRING):
-        return f"STRING({_bits(od, e) // 8})"
-    return ESI_TYPE_NAMES.get(e.data_type, "USINT")
+    # strings by their declared maximum length (what a write may store), as the BitSize says
+    return esi_type_name(e.data_type, _bits(od, e) // 8)
 
 
 def _bits(od: ObjectDictionary, e: Entry) -> int:
@@ -40,11 +56,11 @@ def _bits(od: ObjectDictionary, e: Entry) -> int:
 
 def _flags(parent: ET.Element, e: Entry) -> None:
     flags = _sub(parent, "Flags")
-    _sub(flags, "Access", _access(e))
-    if e.rx_pdo:
-        _sub(flags, "PdoMapping", "R")
-    elif e.tx_pdo:
-        _sub(flags, "PdoMapping", "T")
+    access = _sub(flags, "Access", _access(e))
+    if e.preop_only and e.access.writable:
+        access.set("WriteRestrictions", "PreOP")   # ETG.2000 AccessType: writable in PREOP only
+    if e.rx_pdo or e.tx_pdo:
+        _sub(flags, "PdoMapping", ("R" if e.rx_pdo else "") + ("T" if e.tx_pdo else ""))
 
 
 def _default(parent: ET.Element, od: ObjectDictionary, e: Entry) -> None:
@@ -86,6 +102,9 @@ def _object(od: ObjectDictionary, types: ET.Element, objects: ET.Element, obj: O
         _flags(el, e)
         return
     type_name = f"DT{obj.index:04X}"
+    if _uniform_array(obj):
+        _array(od, types, el, obj, type_name)
+        return
     dt = _sub(types, "DataType")
     _sub(dt, "Name", type_name)
     offset = 0
@@ -111,3 +130,56 @@ def _object(od: ObjectDictionary, types: ET.Element, objects: ET.Element, obj: O
         _sub(si, "Name", e.name)
         _default(_sub(si, "Info"), od, e)
     _flags(el, obj.entries[0])
+
+
+def _uniform_array(obj: OdObject) -> bool:
+    """An ARRAY whose elements 1..n share one type and access (ETG.2000 writes it with ``ArrayInfo``)."""
+    if obj.object_code is not ObjectCode.ARRAY or 0 not in obj.entries:
+        return False
+    subs = sorted(s for s in obj.entries if s)
+    if not subs or subs != list(range(1, len(subs) + 1)):
+        return False
+    first = obj.entries[1]
+    return all((e.data_type, e.access, e.pdo_mappable, e.preop_only) ==
+               (first.data_type, first.access, first.pdo_mappable, first.preop_only)
+               for e in (obj.entries[s] for s in subs)) and first.bit_length > 0
+
+
+def _array(od: ObjectDictionary, types: ET.Element, el: ET.Element, obj: OdObject, type_name: str) -> None:
+    """An ARRAY as ETG.2000 gives it: an ``ArrayInfo`` type for the elements, subindex 0 and the
+    elements as the object type's two sub-items, the names and defaults of every subindex in ``Info``."""
+    zero, first = obj.entries[0], obj.entries[1]
+    n = len(obj.entries) - 1
+    bits = first.bit_length
+    arr = _sub(types, "DataType")
+    _sub(arr, "Name", f"{type_name}ARR")
+    _sub(arr, "BaseType", _type_name(od, first))
+    _sub(arr, "BitSize", str(n * bits))
+    info_el = _sub(arr, "ArrayInfo")
+    _sub(info_el, "LBound", "1")
+    _sub(info_el, "Elements", str(n))
+    dt = _sub(types, "DataType")
+    _sub(dt, "Name", type_name)
+    _sub(dt, "BitSize", str(16 + n * bits))
+    si = _sub(dt, "SubItem")
+    _sub(si, "SubIdx", "0")
+    _sub(si, "Name", zero.name)
+    _sub(si, "Type", "USINT")
+    _sub(si, "BitSize", "8")
+    _sub(si, "BitOffs", "0")
+    _flags(si, zero)
+    si = _sub(dt, "SubItem")
+    _sub(si, "Name", "Elements")
+    _sub(si, "Type", f"{type_name}ARR")
+    _sub(si, "BitSize", str(n * bits))
+    _sub(si, "BitOffs", "16")
+    _flags(si, first)
+    _sub(el, "Type", type_name)
+    _sub(el, "BitSize", str(16 + n * bits))
+    info = _sub(el, "Info")
+    for sub in sorted(obj.entries):
+        e = obj.entries[sub]
+        item = _sub(info, "SubItem")
+        _sub(item, "Name", e.name)
+        _default(_sub(item, "Info"), od, e)
+    _flags(el, zero)

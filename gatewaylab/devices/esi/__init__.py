@@ -1,0 +1,1 @@
+"""``kind = "esi"``: an EtherCAT slave from its ESI file (docs/bring-your-own-network.md)."""
