@@ -235,11 +235,14 @@ def test_viewer_ends_on_sigterm_as_on_ctrl_c(rig: RigProcess) -> None:
         while b"DE AD BE EF" not in screen:
             assert time.monotonic() < deadline, screen[-2000:]
             subprocess.run([*GL, "send", str(rig.ready_file), "322#DEADBEEF"], capture_output=True, timeout=WAIT)
-            while select.select([master], [], [], 0.5)[0]:
+            # the viewer redraws its table all the time: read what came within 2 s, then look at it
+            until = time.monotonic() + 2.0
+            while time.monotonic() < until and select.select([master], [], [], 0.5)[0]:
                 screen += os.read(master, 65536)
         proc.send_signal(signum)
         code, _, err = _finish(proc)
-        while select.select([master], [], [], 0.2)[0]:
+        until = time.monotonic() + 5.0
+        while time.monotonic() < until and select.select([master], [], [], 0.2)[0]:
             try:
                 screen += os.read(master, 65536)
             except OSError:          # EIO: the viewer closed its end
