@@ -23,6 +23,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from gatewaylab.bus.transport.unix_file import bind_unix, remove_unix
 from gatewaylab.cli.ask import ask
 from gatewaylab.common.errors import GatewaylabError
 from gatewaylab.hosts.ethercat.backend import MasterBackend
@@ -78,13 +79,11 @@ class EcMasterServer:
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._proxy: Any = _Mapped(backend, self)
-        if self.path.exists() or self.path.is_symlink():
-            if _alive(self.path):
-                raise GatewaylabError(f"{self.path}: a master is already serving there")
-            self.path.unlink()
+        if (self.path.exists() or self.path.is_symlink()) and _alive(self.path):
+            raise GatewaylabError(f"{self.path}: a master is already serving there")
         self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         try:
-            self._sock.bind(str(self.path))
+            self._bound = bind_unix(self._sock, self.path)   # a stale socket is replaced, another file never
         except OSError as exc:
             self._sock.close()
             raise GatewaylabError(f"{self.path}: {exc.strerror or exc}") from None
@@ -167,10 +166,7 @@ class EcMasterServer:
             self._stop.set()
             cycler.join(2)
             self._sock.close()
-            try:
-                self.path.unlink()
-            except FileNotFoundError:
-                pass
+            remove_unix(self.path, self._bound)
 
 
 def _alive(path: Path) -> bool:
