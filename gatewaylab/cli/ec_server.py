@@ -25,6 +25,7 @@ from typing import Any
 
 from gatewaylab.bus.transport.unix_file import bind_unix, remove_unix
 from gatewaylab.cli.ask import ask
+from gatewaylab.cli.ec_args import EcUsage
 from gatewaylab.common.errors import GatewaylabError
 from gatewaylab.hosts.ethercat.backend import MasterBackend
 
@@ -186,9 +187,9 @@ def request(path: str, message: dict[str, Any], timeout: float = 600.0) -> dict[
     """Send one request to the master at ``path``; its answer (GatewaylabError when it is not there)."""
     try:
         line = ask(path, message, timeout)
-    except FileNotFoundError:
-        raise GatewaylabError(f"{path}: no master serving there (start one: gatewaylab ec master --serve {path} "
-                              "-i IFNAME)") from None
+    except FileNotFoundError:          # a path that does not exist is the user's to fix (docs/cli.md: exit 2)
+        raise EcUsage(f"{path}: no master serving there (start one: gatewaylab ec master --serve {path} "
+                      "-i IFNAME)") from None
     except OSError as exc:
         raise GatewaylabError(f"{path}: cannot reach the master: {exc.strerror or exc}") from None
     if not line:

@@ -37,7 +37,8 @@ from gatewaylab.bus.frame import CanFrame
 from gatewaylab.bus.signals import SignalDecoder, load_database
 from gatewaylab.bus.transport.trace import TraceError, read_trace
 from gatewaylab.canopen.monitor import BusMonitor, ControllerWatch, MonitorEvent
-from gatewaylab.common.endpoint import EndpointError, bus_endpoint
+from gatewaylab.cli.target import USAGE, bus_target, exit_code, open_endpoint
+from gatewaylab.common.endpoint import EndpointError
 from gatewaylab.common.errors import ConfigError, GatewaylabError
 from gatewaylab.od import ObjectDictionary
 from gatewaylab.od.eds import import_eds
@@ -303,12 +304,8 @@ def cmd_monitor(args: argparse.Namespace) -> int:
             title = str(path)
             frames, base = _replay_base(frames, args.absolute)
         else:
-            endpoint = bus_endpoint(args.target, args.bus)
-            try:
-                bus = can.Bus(interface="gatewaylab", channel=endpoint, listen_only=True, name="gatewaylab-monitor")
-            except (can.CanError, OSError) as exc:
-                print(f"gatewaylab: cannot open bus {endpoint}: {exc}", file=sys.stderr)
-                return 1
+            endpoint = bus_target(args.target, args.bus)      # exit 2: malformed, no such file (docs/cli.md)
+            bus = open_endpoint(endpoint, listen_only=True, name="gatewaylab-monitor")   # exit 1: not reachable
             until = time.monotonic() + args.duration if args.duration is not None else None
             frames = _frames_live(bus, until)
             bitrate, data_bitrate = getattr(bus, "bitrate", args.bitrate), getattr(bus, "data_bitrate", None)
@@ -352,7 +349,7 @@ def cmd_monitor(args: argparse.Namespace) -> int:
         return 2
     except (EndpointError, GatewaylabError, can.CanError, ValueError) as exc:
         print(f"gatewaylab: {exc}", file=sys.stderr)
-        return 2 if isinstance(exc, (EndpointError, TraceError)) else 1
+        return USAGE if isinstance(exc, TraceError) else exit_code(exc)
     finally:
         if bus is not None:
             bus.shutdown()
