@@ -114,12 +114,13 @@ def _make_state_dir(resources: _Resources) -> Path:
         return path
 
 
-def _too_long_hint(exc: OSError) -> str:
-    """What to do about a Unix socket path too long for AF_UNIX: the rig's folder is under TMPDIR."""
+def _too_long_hint(exc: OSError, own_folder: bool) -> str:
+    """What to do about a Unix socket path too long for AF_UNIX: the rig's own folder is under TMPDIR."""
     if exc.errno != errno.ENAMETOOLONG:
         return ""
-    return (f" ({exc.filename}; the rig's folder is in TMPDIR {tempfile.gettempdir()}: point TMPDIR at a "
-            f"folder of at most {_TMPDIR_MAX} characters, or use endpoint = \"tcp\")")
+    where = (f"the rig's folder is in TMPDIR {tempfile.gettempdir()}: point TMPDIR at a folder of at most "
+             f"{_TMPDIR_MAX} characters" if own_folder else "give the rig a state folder with a shorter path")
+    return f" ({exc.filename}; {where}, or use endpoint = \"tcp\")"
 
 
 def _release_unclosed(resources: _Resources, what: str) -> None:
@@ -237,7 +238,7 @@ class Rig:
                     raise RigStartError(f"{where}: tcp_port = {bc.tcp_port} cannot be used on 127.0.0.1 "
                                         f"({exc.strerror or exc})") from None
                 raise RigStartError(f"{where}: cannot open the endpoint of bus {bc.name!r}: "
-                                    f"{exc.strerror or exc}{_too_long_hint(exc)}") from None
+                                    f"{exc.strerror or exc}{_too_long_hint(exc, self._own_state_dir)}") from None
             self.servers[bc.name] = server
             self._resources.sockets.append(server.listener)
         self._open_socketcand()
@@ -247,7 +248,7 @@ class Rig:
             self.control = ControlServer(self, self.faults.request, tcp_port=0 if tcp else None, unix_path=control_path)
         except OSError as exc:
             raise RigStartError(f"{self.config.source}: cannot open the control endpoint: "
-                                f"{exc.strerror or exc}{_too_long_hint(exc)}") from None
+                                f"{exc.strerror or exc}{_too_long_hint(exc, self._own_state_dir)}") from None
         self._resources.sockets.append(self.control.listener)
 
     def _open_socketcand(self) -> None:
