@@ -37,7 +37,7 @@ from gatewaylab.hosts.ecanlite.adapter import AdapterConfig, EcanAdapter
 from gatewaylab.hosts.ecanlite.cia402 import Cia402
 from gatewaylab.hosts.ecanlite.demo import rig_axes, rig_toml
 from gatewaylab.hosts.ecanlite.port import ChannelConfig, McanPort, PortConfig
-from gatewaylab.hosts.ethercat.backend import InProcessBackend
+from gatewaylab.hosts.ethercat.inprocess import InProcessBackend
 from gatewaylab.rig.runtime import Rig
 
 LAYOUT = ((1, 2, 3), (4, 5, 6), (7, 8), (9, 10))

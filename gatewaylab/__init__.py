@@ -8,7 +8,7 @@ from importlib.abc import MetaPathFinder
 from importlib.machinery import SOURCE_SUFFIXES, FileFinder, ModuleSpec, SourceFileLoader
 from types import ModuleType
 
-from gatewaylab import _moved, build_info
+from gatewaylab import build_info
 
 __version__ = "0.1.0"
 
@@ -31,4 +31,3 @@ if build_info.pure_forced():
     sys.meta_path.insert(0, _SourceOnlyFinder())
 else:
     build_info.warn_if_stale()
-_moved.install()  # first on sys.meta_path: an old path is an alias, never a second copy of a module

@@ -22,7 +22,7 @@ PACKAGE_DIR = Path(gatewaylab.__file__).resolve().parent
 PROBE = """
 import json, sys
 from importlib.machinery import ExtensionFileLoader
-import gatewaylab.rig.cli
+import gatewaylab.cli.main
 from gatewaylab import build_info
 compiled = build_info.compiled_modules()
 loaded = sorted(name for name, module in list(sys.modules.items())

@@ -5,9 +5,7 @@
   code raises no bare ValueError/RuntimeError/Exception/OSError/AssertionError (a subclass of
   GatewaylabError may also derive from the built-in a caller expects, as ``FrameError(LocalError, ValueError)``);
 - public definitions (modules' functions and classes, public classes' methods) carry a docstring: at least
-  95 % of them overall (DEVELOPERS.md principle 7: short docstrings that say why);
-- the old import paths of modules that moved to their room (gatewaylab/_moved.py) still import, as the
-  module at the new path, with a DeprecationWarning.
+  95 % of them overall (DEVELOPERS.md principle 7: short docstrings that say why).
 """
 
 from __future__ import annotations
@@ -17,15 +15,12 @@ import importlib
 import importlib.util
 import inspect
 import pkgutil
-import sys
-import warnings
 from collections import defaultdict
 from pathlib import Path
 
 import pytest
 
 import gatewaylab
-from gatewaylab._moved import MOVED
 from gatewaylab.common.errors import GatewaylabError
 
 ROOT = Path(gatewaylab.__file__).resolve().parent
@@ -138,34 +133,3 @@ def test_public_definitions_have_docstrings() -> None:
     assert coverage >= DOCSTRING_COVERAGE, (f"{coverage:.1%} of {len(defs)} public definitions have a docstring; "
                                             "per room:\n" + "\n".join(room_coverage(by_room))
                                             + "\nwithout:\n" + "\n".join(missing))
-
-
-@pytest.mark.parametrize(("old", "new"), sorted(MOVED.items()), ids=sorted(MOVED))
-def test_old_import_paths_still_import(old: str, new: str) -> None:
-    """Issue 22: 'Public import paths that docs, examples and users use keep working (re-exports with a
-    deprecation note are fine for a release)': each old path of gatewaylab/_moved.py gives the very module
-    object at its new path (classes and isinstance checks agree), with a DeprecationWarning that names both
-    paths and points at the importing line; the module keeps its own spec (name, package or not)."""
-    parent, _, child = old.rpartition(".")
-    saved = sys.modules.pop(old, None)
-    had_attr = hasattr(sys.modules.get(parent), child)
-    try:
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            __import__(old)
-        module = sys.modules[old]
-        assert module is importlib.import_module(new)
-        deprecations = [w for w in caught if issubclass(w.category, DeprecationWarning) and old in str(w.message)]
-        assert len(deprecations) == 1, [str(w.message) for w in caught]
-        assert new in str(deprecations[0].message)
-        assert deprecations[0].filename == __file__
-        assert module.__spec__ is not None and module.__spec__.name == new
-        own = importlib.util.find_spec(new)
-        assert own is not None and hasattr(module, "__path__") == (own.submodule_search_locations is not None)
-    finally:
-        if saved is not None:
-            sys.modules[old] = saved
-        else:
-            sys.modules.pop(old, None)
-            if not had_attr and hasattr(sys.modules.get(parent), child):
-                delattr(sys.modules[parent], child)

@@ -5,6 +5,10 @@ connection in ASCII elements ``< word word ... >``. This module is its server ha
 behaves, so python-can's ``interface="socketcand"`` and other socketcand clients reach a rig bus
 unchanged:
 
+* CAN FD is sent as ``< fdframe >`` only to a client that asked for it (``< rawmode fd >``, this
+  server's extension, or an ``fdsend``/``sendfd`` of its own): python-can's client, like every client
+  written for upstream's classic protocol, cannot parse it; it sends FD messages as ``send`` with a hex
+  length over 8, taken here as an FD frame (docs/endpoints.md);
 * framing (``receive_command``): bytes before a ``<`` are dropped, an element ends at the first
   ``>``; an unterminated element longer than upstream's buffer (MAXLEN) ends the connection;
 * NO_BUS: greeted with ``< hi >``; ``< open BUS >`` -> ``< ok >`` and BCM mode, an unknown bus ->
@@ -195,6 +199,23 @@ def _classic(args: list[bytes]) -> CanFrame:
     return CanFrame(can_id, _payload(args[2:], length), extended)
 
 
+def _send(args: list[bytes]) -> CanFrame:
+    """``send ID LEN b ...``: classic up to 8 bytes; more is taken as a CAN FD frame (no bit rate
+    switch), the form python-can's socketcand client writes an FD message in (LEN in hex). Upstream
+    knows only classic frames here; an FD frame on a classic bus is refused by the bus."""
+    if len(args) < 2 or len(args) - 2 <= 8:
+        return _classic(args)
+    length = len(args) - 2
+    token = args[1]
+    announced = {int(token)} if set(token) <= _DEC else set()
+    if set(token) <= _HEX and len(token) <= 2:
+        announced.add(int(token, 16))
+    if length not in announced or length not in FD_LEN_TO_DLC:
+        raise _Bad(f"can_dlc {token.decode(errors='replace')!r} with {length} data bytes: not a frame")
+    can_id, extended = _ident(args[0])
+    return CanFrame(can_id, _payload(args[2:], length), extended, fd=True)
+
+
 def _interval(sec: bytes, usec: bytes) -> float:
     return _dec(sec, "seconds", 2**32) + _dec(usec, "microseconds", 2**32) / 1e6
 
@@ -207,6 +228,9 @@ class Session:
         self.buses = buses
         self.mode = Mode.NO_BUS
         self.bus: str | None = None
+        #: the client asked for CAN FD (``< rawmode fd >``, or it sent ``fdsend``/``sendfd``): only then
+        #: are FD frames sent to it as ``< fdframe >``, which a classic client cannot parse
+        self.fd = False
         self.closed = False
         self._buf = bytearray()
         #: commands answered or refused, for the server's statistics
@@ -262,11 +286,19 @@ class Session:
         if words == [b"echo"]:
             events.append(Reply(ECHO))
             return
+        if words == [b"rawmode", b"fd"]:
+            self.fd = True
+            if self.mode is not Mode.RAW:
+                self.mode = Mode.RAW
+                events.append(ModeChanged(self.mode))
+            events.append(Reply(OK))
+            return
         args = words[1:]
         try:
             if head == b"send":
-                events.append(SendFrame(_classic(args)))
+                events.append(SendFrame(_send(args)))
             elif head in (b"fdsend", b"sendfd") and self.mode is Mode.RAW:
+                self.fd = True
                 events.append(SendFrame(self._fd(head, args)))
             elif self.mode is Mode.BCM and head in (b"add", b"subscribe"):
                 if len(args) < 3:

@@ -37,6 +37,7 @@ from gatewaylab.od import (
     WriteHook,
     coerce,
 )
+from gatewaylab.od.eds import export_eds, import_eds
 
 FrameHandler = Callable[[CanFrame, float], None]
 NmtHook = Callable[[NmtState, NmtState], None]
@@ -399,11 +400,11 @@ class Node:
 
     def to_eds(self, *, dcf: bool = False) -> str:
         """EDS (or DCF) text of this node's dictionary."""
-        return self.od.to_eds(dcf=dcf, node_id=self._node_id)
+        return export_eds(self.od, dcf=dcf, node_id=self._node_id)
 
     @classmethod
     def from_eds(cls, clock: Clock, bus: VirtualBus, node_id: int | None, source: str | Path,
                  name: str = "", **kwargs: Any) -> Node:
         """A node whose dictionary is built from EDS/DCF text, or from the file at a Path."""
         text = source.read_text(encoding="latin-1") if isinstance(source, Path) else source
-        return cls(clock, bus, node_id, ObjectDictionary.from_eds(text, node_id), name, **kwargs)
+        return cls(clock, bus, node_id, import_eds(text, node_id), name, **kwargs)

@@ -223,9 +223,11 @@ class Tpdo(_Pdo):
         """Read 0x1800+n / 0x1A00+n again (COB-ID, transmission type, inhibit time, event timer, mapping)."""
         super().configure()
         od = self.node.od
-        self.inhibit = od.get(self.comm, 3) * 100e-6
-        self.event_time = od.get(self.comm, 5) / 1000.0
-        self.sync_start = od.get(self.comm, 6)
+        # sub-indices 3, 5 and 6 are optional (CiA 301 7.5.2.37): a device without them has none
+        entries = od.entries
+        self.inhibit = (od.get(self.comm, 3) if (self.comm, 3) in entries else 0) * 100e-6
+        self.event_time = (od.get(self.comm, 5) if (self.comm, 5) in entries else 0) / 1000.0
+        self.sync_start = od.get(self.comm, 6) if (self.comm, 6) in entries else 0
         self._sync_count = 0
         self._started = False
         self._pending_event = False

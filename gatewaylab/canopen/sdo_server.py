@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Final
 
 from gatewaylab.bus.frame import CanFrame
 from gatewaylab.common.clock import Clock, TimerHandle
-from gatewaylab.od import SdoAbort, SdoAbortCode, decode
+from gatewaylab.od import SdoAbort, SdoAbortCode, check_length, decode
 from gatewaylab.od import sdo as codec
 from gatewaylab.od.sdo import (
     SDO_HEADER,
@@ -41,13 +41,23 @@ MAX_TRANSFER: Final = 1 << 20
 
 def _announced_size(data: bytes, entry: Entry) -> int:
     """The size a segmented or block download announces, checked against the object (CiA 301
-    7.2.4.3.3 / 7.2.4.3.9: too large for the server, or not the size of a fixed-size object)."""
+    7.2.4.3.3 / 7.2.4.3.9: too large for the server, or not the size of a fixed-size object, or
+    longer than a string object holds: 0x06070012)."""
     size = data[4] | (data[5] << 8) | (data[6] << 16) | (data[7] << 24)
+    check_length(entry, size)
     if size > MAX_TRANSFER:
         raise SdoAbort(SdoAbortCode.OUT_OF_MEMORY)
     if entry.size is not None:
         codec.check_size(size, entry.size)
     return size
+
+
+def _limit(entry: Entry) -> tuple[int, SdoAbortCode]:
+    """Most bytes a download may bring without announcing its size, and the abort past them."""
+    limit = entry.max_length
+    if limit is not None and limit < MAX_TRANSFER:
+        return limit, SdoAbortCode.LENGTH_TOO_HIGH
+    return MAX_TRANSFER, SdoAbortCode.OUT_OF_MEMORY
 
 
 class SdoServerState(Enum):
@@ -102,6 +112,8 @@ class SdoServer:
         self._receiver: BlockReceiver | None = None
         self._sender: BlockSender | None = None
         self._size: int | None = None
+        #: Most bytes the block download in progress may bring, and the abort past them.
+        self._block_limit: tuple[int, SdoAbortCode] = (MAX_TRANSFER, SdoAbortCode.OUT_OF_MEMORY)
         self._crc = False
         #: Answers by payload: frames are immutable, and polling, acknowledges and initiate
         #: responses repeat them (a dictionary lookup instead of a new frame; data segments never).
@@ -258,7 +270,8 @@ class SdoServer:
             self._send(codec.download_response(index, sub))
             return
         size = _announced_size(data, entry) if cs & 0x01 else None
-        self._download = SegmentedDownload(index, sub, size, MAX_TRANSFER)
+        limit, over = _limit(entry)
+        self._download = SegmentedDownload(index, sub, size, limit, over)
         self.state = _DOWNLOAD_SEGMENTED
         self._send(codec.download_response(index, sub))
         self._arm()
@@ -318,6 +331,7 @@ class SdoServer:
         entry = self._writable(index, sub)
         self._crc = bool(cs & 0x04)
         self._size = _announced_size(data, entry) if cs & 0x02 else None
+        self._block_limit = _limit(entry)
         self.state = SdoServerState.BLOCK_DOWNLOAD
         self._receiver = BlockReceiver(self.block_size)
         self._send(SDO_HEADER.pack(codec.CS_BLOCK_DOWNLOAD_INITIATE_RESPONSE, index, sub)
@@ -329,8 +343,9 @@ class SdoServer:
         assert receiver is not None
         ack = receiver.segment(data)
         if ack is not None:
-            if len(receiver.buf) > MAX_TRANSFER:
-                raise SdoAbort(SdoAbortCode.OUT_OF_MEMORY)
+            limit, over = self._block_limit
+            if len(receiver.buf) > limit:
+                raise SdoAbort(over)
             if receiver.last:
                 self.state = SdoServerState.BLOCK_DOWNLOAD_END
             self._send(ack)

@@ -37,7 +37,8 @@ from gatewaylab.cli.ec_slaves import cmd_reg_read, cmd_reg_write, cmd_sii_read, 
 from gatewaylab.common.clock import SimulatedClock
 from gatewaylab.common.errors import ConfigError, GatewaylabError
 from gatewaylab.ethercat.errors import AlStatusError, FoeError, FoeErrorCode
-from gatewaylab.hosts.ethercat.backend import FOE_CODE_SUFFIX, MasterBackend, MasterTimeout, al_status_name
+from gatewaylab.hosts.ethercat.backend import MasterBackend, MasterTimeout
+from gatewaylab.hosts.ethercat.shared import FOE_CODE_SUFFIX, al_status_name
 from gatewaylab.hosts.ethercat.states import state_path
 from gatewaylab.od.aborts import SdoAbort, abort_text
 

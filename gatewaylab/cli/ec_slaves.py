@@ -19,7 +19,8 @@ from gatewaylab.cli.ec_args import (
     state_name,
 )
 from gatewaylab.ethercat.esc import AlState
-from gatewaylab.hosts.ethercat.backend import MasterBackend, al_status_name
+from gatewaylab.hosts.ethercat.backend import MasterBackend
+from gatewaylab.hosts.ethercat.shared import al_status_name
 from gatewaylab.hosts.ethercat.states import state_path
 
 

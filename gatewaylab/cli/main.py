@@ -26,13 +26,18 @@ if TYPE_CHECKING:
     from gatewaylab.rig.web import RigWeb
 
 #: Sub-commands contributed by other parts of the package: module with ``add_subcommand(subparsers)``.
+#: Each must load: a module that fails to import (or lacks the function) stops ``gatewaylab`` with
+#: :class:`SubcommandError` naming it, rather than leaving its command out of the parser.
 EXTRA_SUBCOMMANDS = (
     "gatewaylab.cli.idx",
     "gatewaylab.cli.lss",
     "gatewaylab.cli.monitor",
     "gatewaylab.cli.send",
+    "gatewaylab.cli.sdo",
+    "gatewaylab.cli.eds",
     "gatewaylab.cli.lesson",
     "gatewaylab.cli.plot",
+    "gatewaylab.cli.play",
     "gatewaylab.cli.net",
     "gatewaylab.cli.ec",
     "gatewaylab.cli.fault",
@@ -60,6 +65,24 @@ See docs/rig.md for every section.
 
 class UsageError(GatewaylabError):
     """The command line asks for something impossible (exit code 2, like argparse's own errors)."""
+
+
+class SubcommandError(GatewaylabError):
+    """A module of :data:`EXTRA_SUBCOMMANDS` does not load: a broken install or a defect (exit code 1),
+    never a command quietly missing from ``gatewaylab --help``."""
+
+
+def _subcommand_adder(module_name: str) -> Callable[[Any], None]:
+    """The ``add_subcommand`` of one EXTRA_SUBCOMMANDS module; SubcommandError saying why it is not there."""
+    try:
+        module = import_module(module_name)
+    except ImportError as exc:
+        raise SubcommandError(f"the sub-command module {module_name} does not import: {exc}") from exc
+    add = getattr(module, "add_subcommand", None)
+    if not callable(add):
+        raise SubcommandError(f"the sub-command module {module_name} has no add_subcommand(subparsers)")
+    adder: Callable[[Any], None] = add
+    return adder
 
 
 def _parse_trace(value: str) -> tuple[str, str]:
@@ -254,7 +277,8 @@ def cmd_rig_show(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The ``gatewaylab`` parser with every sub-command (those of EXTRA_SUBCOMMANDS included)."""
+    """The ``gatewaylab`` parser with every sub-command (those of EXTRA_SUBCOMMANDS included);
+    SubcommandError when one of those modules does not load."""
     parser = argparse.ArgumentParser(
         prog="gatewaylab",
         description="Emulated industrial CAN gateways (ECAN-Lite, esd CAN-EtherCAT, maxon IDX) on virtual "
@@ -302,11 +326,7 @@ def build_parser() -> argparse.ArgumentParser:
     show.set_defaults(func=cmd_rig_show)
 
     for module_name in EXTRA_SUBCOMMANDS:
-        try:
-            add: Callable[[Any], None] = import_module(module_name).add_subcommand
-        except (ImportError, AttributeError):
-            continue
-        add(sub)
+        _subcommand_adder(module_name)(sub)
     return parser
 
 
@@ -316,7 +336,11 @@ def _one_line(exc: BaseException) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     """The ``gatewaylab`` command: parse ``argv`` and run the sub-command; its exit code."""
-    parser = build_parser()
+    try:
+        parser = build_parser()
+    except SubcommandError as exc:
+        print(f"gatewaylab: {_one_line(exc)}", file=sys.stderr)
+        return 1
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose_log else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")

@@ -35,7 +35,7 @@ from gatewaylab.bus.candump import (
 from gatewaylab.bus.errorframe import CAN_ERR_MASK, ErrorFrame, describe
 from gatewaylab.bus.frame import CanFrame
 from gatewaylab.bus.signals import SignalDecoder, load_database
-from gatewaylab.bus.transport.trace import TraceError, read_trace
+from gatewaylab.bus.transport.trace import TimeWindow, TraceError, read_trace
 from gatewaylab.canopen.monitor import BusMonitor, ControllerWatch, MonitorEvent
 from gatewaylab.cli.target import USAGE, bus_target, exit_code, open_endpoint
 from gatewaylab.common.endpoint import EndpointError
@@ -295,6 +295,9 @@ def cmd_monitor(args: argparse.Namespace) -> int:
     try:
         filters = _filters(args)
         stamps = Timestamps(args.timestamp)
+        window = TimeWindow.parse(args.window_from, args.window_to)
+        if window and not args.replay:
+            raise ConfigError("--from / --to select a time window of a trace: they need --replay")
         if args.replay:
             path = Path(args.target)
             if not path.is_file():
@@ -303,6 +306,7 @@ def cmd_monitor(args: argparse.Namespace) -> int:
             bitrate, data_bitrate = args.bitrate, args.data_bitrate
             title = str(path)
             frames, base = _replay_base(frames, args.absolute)
+            frames = window.select(frames)          # after the time base: it is the whole trace's
         else:
             endpoint = bus_target(args.target, args.bus)      # exit 2: malformed, no such file (docs/cli.md)
             bus = open_endpoint(endpoint, listen_only=True, name="gatewaylab-monitor")   # exit 1: not reachable
@@ -514,6 +518,11 @@ def _add_common(p: argparse.ArgumentParser) -> None:
                    help="decoded view: Unix times instead of seconds since the rig started (stderr says which)")
     p.add_argument("--replay", action="store_true",
                    help="TARGET is a trace file the rig wrote (.asc .blf .csv .log .trc .txt .pcap .pcapng)")
+    p.add_argument("--from", dest="window_from", metavar="T|+S", default=None,
+                   help="--replay: from T seconds of trace time (the decoded view's times), or +S seconds after "
+                        "the first frame (docs/cli.md)")
+    p.add_argument("--to", dest="window_to", metavar="T|+D", default=None,
+                   help="--replay: up to T seconds of trace time, or +D seconds after --from")
     p.add_argument("--bitrate", type=int, default=1_000_000, help="bit rate for the load figure of a replay")
     p.add_argument("--data-bitrate", type=int, default=None, help="CAN FD data bit rate of a replay")
     p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds")

@@ -16,7 +16,7 @@ import struct
 from collections.abc import Callable
 
 from gatewaylab.ethercat.errors import FrameFormatError
-from gatewaylab.od import Entry, ObjectCode, ObjectDictionary, SdoAbort, SdoAbortCode, type_size
+from gatewaylab.od import Entry, ObjectCode, ObjectDictionary, SdoAbort, SdoAbortCode, check_length, type_size
 from gatewaylab.od import sdo as codec
 from gatewaylab.od.sdo import ClientCommand, SegmentedDownload, SegmentedUpload
 
@@ -200,6 +200,11 @@ class CoeServer:
                 self._store(index, sub, complete, bytes(payload[:size]))
             else:
                 self.od.object(index)  # fail early on an unknown object
+                if not complete:
+                    entry = self.od.entry(index, sub)
+                    if entry.size is None:  # a string longer than it holds: 0x06070012 before its data
+                        self.access.check_write(entry, b"")
+                        check_length(entry, size)
                 self._download = SegmentedDownload(index, sub, size, size, SdoAbortCode.LENGTH_TOO_HIGH,
                                                    buf=bytearray(payload[:size]))
                 self._download_complete = complete
@@ -289,16 +294,18 @@ class CoeServer:
 
     # -- SDO Information ----------------------------------------------------------------------
     def _info(self, req: bytes) -> list[bytes]:
+        """One SDO information request, its answer in as many fragments as the mailbox needs, or
+        an SDO information error (ETG.1000.6 5.6.3): every request gets one of the two."""
         opcode = req[0] & 0x7F
         body = req[4:]
         try:
             if opcode == InfoOpcode.OD_LIST_REQ and len(body) >= 2:
                 return self._od_list(int.from_bytes(body[:2], "little"))
             if opcode == InfoOpcode.OD_REQ and len(body) >= 2:
-                return [self._info_reply(InfoOpcode.OD_RESP, self._od_desc(int.from_bytes(body[:2], "little")))]
+                return self._fragments(InfoOpcode.OD_RESP, self._od_desc(int.from_bytes(body[:2], "little")))
             if opcode == InfoOpcode.ED_REQ and len(body) >= 4:
                 index = int.from_bytes(body[:2], "little")
-                return [self._info_reply(InfoOpcode.ED_RESP, self._entry_desc(index, body[2], body[3]))]
+                return self._fragments(InfoOpcode.ED_RESP, self._entry_desc(index, body[2], body[3]))
             raise SdoAbort(SdoAbortCode.COMMAND_SPECIFIER_UNKNOWN, "SDO information service")
         except SdoAbort as exc:
             self.aborts_sent += 1
@@ -309,6 +316,16 @@ class CoeServer:
     def _info_reply(opcode: int, data: bytes, fragments_left: int = 0, incomplete: bool = False) -> bytes:
         return coe_header(CoeService.SDO_INFO) + SDO_INFO_HEADER.pack(
             opcode | (0x80 if incomplete else 0), 0, fragments_left) + data
+
+    def _fragments(self, opcode: int, payload: bytes, step: int = 0) -> list[bytes]:
+        """An SDO information answer cut to the mailbox: every fragment but the last has the
+        Incomplete flag, each counts the fragments left (ETG.1000.6 5.6.3.2)."""
+        step = step or self.max_info
+        chunks = [payload[i:i + step] for i in range(0, len(payload), step)] or [b""]
+        if len(chunks) > 0xFFFF:
+            raise SdoAbort(SdoAbortCode.OBJECT_TOO_LONG, "more fragments than the header counts")
+        return [self._info_reply(opcode, c, len(chunks) - 1 - i, i < len(chunks) - 1)
+                for i, c in enumerate(chunks)]
 
     def _od_list(self, list_type: int) -> list[bytes]:
         objs = list(self.od)
@@ -322,10 +339,7 @@ class CoeServer:
             payload = struct.pack("<H", list_type) + b"".join(struct.pack("<H", i) for i in lists[list_type])
         else:
             raise SdoAbort(SdoAbortCode.VALUE_RANGE_EXCEEDED, "unknown list type")
-        step = self.max_info - self.max_info % 2
-        chunks = [payload[i:i + step] for i in range(0, len(payload), step)] or [b""]
-        return [self._info_reply(InfoOpcode.OD_LIST_RESP, c, len(chunks) - 1 - i, i < len(chunks) - 1)
-                for i, c in enumerate(chunks)]
+        return self._fragments(InfoOpcode.OD_LIST_RESP, payload, self.max_info - self.max_info % 2)
 
     def _od_desc(self, index: int) -> bytes:
         obj = self.od.object(index)
@@ -335,12 +349,23 @@ class CoeServer:
             dtype = int(obj.entries[1].data_type)
         else:
             dtype = 0x002A  # RECORD: no single data type
-        return struct.pack("<HHBB", index, dtype, obj.max_subindex, int(obj.object_code)) + obj.name.encode("latin-1")
+        return struct.pack("<HHBB", index, dtype, obj.max_subindex, int(obj.object_code)) + _name(obj.name)
 
     def _entry_desc(self, index: int, sub: int, value_info: int) -> bytes:
+        """Entry description: BitLength is UNSIGNED16 (ETG.1000.6 5.6.3.6), so an object of more than
+        65,535 bits (a string of 8,192 bytes or more) cannot be described: SDO information error
+        0x06040047 (general internal incompatibility), never a truncated or wrapped length."""
         e = self.od.entry(index, sub)
         bits = self.od.bit_length(index, sub)
-        return struct.pack("<HBBHHH", index, sub, 0, int(e.data_type), bits, access_word(e)) + e.name.encode("latin-1")
+        if bits > 0xFFFF:
+            raise SdoAbort(SdoAbortCode.GENERAL_INTERNAL_INCOMPATIBILITY,
+                           f"0x{index:04X}:{sub:02X}: {bits} bits do not fit the 16-bit BitLength")
+        return struct.pack("<HBBHHH", index, sub, 0, int(e.data_type), bits, access_word(e)) + _name(e.name)
+
+
+def _name(text: str) -> bytes:
+    """A name as SDO information carries it (VISIBLE_STRING: one byte per character)."""
+    return text.encode("latin-1", "replace")
 
 
 _SdoHandler = Callable[[CoeServer, int, int, int, int, bytes], "bytes | None"]

@@ -187,7 +187,7 @@ class Esc:
 
     def __init__(self, clock: Clock, eeprom: bytes, app: EscApplication, *, ram_size: int = 0x2000,
                  fmmus: int = 16, sms: int = 16, dc: bool = True, eeprom_size: int | None = None,
-                 firmware_sms: int = 4) -> None:
+                 firmware_sms: int = 4, output_sm: int = 2) -> None:
         self.clock = clock
         self.app = app
         self.stats = EscStats()
@@ -198,7 +198,7 @@ class Esc:
         self.sii = SiiInterface(self.mem, self.stats, eeprom, eeprom_size)
         self.clocks = DistributedClocks(clock, self.mem, app.sync0)
         self.memory = EscMemory(clock, self.mem, self.stats, self.sii, self.clocks, fmmus=fmmus, sms=sms,
-                                firmware_sms=firmware_sms)
+                                firmware_sms=firmware_sms, output_sm=output_sm)
         self.al = AlStateMachine(clock, self.memory, app)
         self.n_fmmu = fmmus
         self.n_sm = sms
@@ -279,6 +279,12 @@ class Esc:
         """The ESC runs this SyncManager: enabled by the master, not deactivated by the PDI, its
         buffer in process RAM and clear of every lower SyncManager (``EscMemory.rebuild_sms``)."""
         return index in self.memory.active_sms
+
+    @property
+    def outputs_stopped(self) -> bool:
+        """The firmware deactivated the output SyncManager on leaving OP by itself (SM watchdog, a
+        device error); the master's next state change activates it again."""
+        return self.memory.outputs_stopped
 
     def sm_status(self, index: int) -> int:
         """SyncManager status register (0x0805 + 8n): buffer full, write / read events."""

@@ -5,7 +5,8 @@ The master requests a state in AL control; the firmware answers in AL status and
 is over (the ESC raises :class:`~gatewaylab.ethercat.esc_events.AlControlRequested`), as SOES's
 ESC_ALevent does: the legal transitions are checked here, the firmware (:class:`AlFirmware`) may
 refuse one with an AL status code, and hears of every change. The SM watchdog (0x0400/0x0420) drops
-an OP slave whose outputs stop arriving to SAFEOP with 0x001B.
+an OP slave whose outputs stop arriving to SAFEOP with 0x001B; that and every other exit from OP the
+firmware makes by itself deactivate the output SyncManager until the master changes the state again.
 """
 
 from __future__ import annotations
@@ -113,6 +114,7 @@ class AlStateMachine:
             return
         U16.pack_into(self.mem, REG_AL_STATUS, int(target))
         U16.pack_into(self.mem, REG_AL_STATUS_CODE, 0)
+        self.memory.start_outputs()  # the master took the slave through a state change
         if target == AlState.OP:
             self._start_watchdog()
         else:
@@ -123,12 +125,17 @@ class AlStateMachine:
         self.firmware.state_changed(current, target, 0)
 
     def force(self, state: AlState, code: int = 0) -> None:
-        """The firmware changes state by itself (error: ``state`` + error flag + ``code``)."""
+        """The firmware changes state by itself (error: ``state`` + error flag + ``code``). Leaving OP
+        with an error (SM watchdog, a device error) deactivates the output SyncManager until the
+        master's next state change (:meth:`EscMemory.stop_outputs`); an OP -> SAFEOP the master
+        requests keeps it running, as the slave stacks do."""
         old = self.state
         U16.pack_into(self.mem, REG_AL_STATUS, int(state) | (AL_ERROR if code else 0))
         U16.pack_into(self.mem, REG_AL_STATUS_CODE, code)
         if state != AlState.OP:
             self.stop_watchdog()
+            if old == AlState.OP and code:
+                self.memory.stop_outputs()  # a local exit from OP: outputs stop counting
         if old != state:
             self.firmware.state_changed(old, state, code)
 

@@ -90,10 +90,11 @@ class EscMemory:
     """Registers + process RAM of one ESC, with its SyncManagers and FMMUs."""
 
     __slots__ = ("_memlen", "_sms", "active_sms", "clock", "dc", "events", "firmware_sms",
-                 "fmmus", "mbx_last", "mem", "n_fmmu", "n_sm", "pdi_outputs", "ro", "sii", "stats", "wd_last")
+                 "fmmus", "locked", "mbx_last", "mem", "n_fmmu", "n_sm", "output_sm", "outputs_stopped",
+                 "pdi_outputs", "ro", "sii", "stats", "wd_last")
 
     def __init__(self, clock: Clock, mem: bytearray, stats: EscStats, sii: SiiInterface, dc: DistributedClocks,
-                 *, fmmus: int, sms: int, firmware_sms: int) -> None:
+                 *, fmmus: int, sms: int, firmware_sms: int, output_sm: int = 2) -> None:
         self.clock = clock
         self.mem = mem
         self._memlen = len(mem)
@@ -105,6 +106,15 @@ class EscMemory:
         #: SyncManagers the slave firmware serves (mailbox 0/1, process data 2/3); the others are
         #: deactivated from the PDI side on every INIT request (see ``release_unused_sms``).
         self.firmware_sms = min(firmware_sms, sms)
+        #: The process data SyncManager the master writes (outputs; -1: none): the one the firmware
+        #: deactivates when it leaves OP by itself (see :meth:`stop_outputs`).
+        self.output_sm = output_sm
+        #: The firmware deactivated the output SyncManager (a local exit from OP) and has not yet
+        #: activated it again.
+        self.outputs_stopped = False
+        #: Buffers of SyncManagers the master enabled and the PDI deactivated: [start, end) pairs whose
+        #: memory the ESC locks (see :meth:`rebuild_sms`); empty on the usual path.
+        self.locked: tuple[tuple[int, int], ...] = ()
         #: 1: the master may not write this register byte (ECAT r/-).
         self.ro = bytearray(RAM_START)
         #: The active FMMUs, in register order (a logical datagram runs them one access each).
@@ -128,6 +138,8 @@ class EscMemory:
         self.fmmus = ()
         self._sms = ()
         self.active_sms = frozenset()
+        self.locked = ()
+        self.outputs_stopped = False
         self.pdi_outputs.clear()
         self.mbx_last = b""
         self.events.clear()
@@ -208,6 +220,8 @@ class EscMemory:
                 if hit is None:
                     hit = []
                 hit.append(sm)
+        if hit is None and self.locked and self._locked(address, end):
+            return None
         data = bytes(mem[address:end]) if end <= self._memlen else \
             bytes(mem[address:self._memlen]).ljust(length, b"\x00")
         if hit is not None:
@@ -238,6 +252,8 @@ class EscMemory:
                 if hit is None:
                     hit = []
                 hit.append(sm)
+        if hit is None and self.locked and self._locked(address, end):
+            return False
         if end > self._memlen:
             data = bytes(data[:max(0, self._memlen - address)])
             end = self._memlen
@@ -254,6 +270,15 @@ class EscMemory:
                         mem[REG_WD_STATUS_SM] = 1
                     self.events.append(sm.write_event)
         return True
+
+    def _locked(self, address: int, end: int) -> bool:
+        """The access [address, end) touches no running SyncManager but the buffer of one the PDI
+        deactivated: the ESC refuses it (no working counter), counted."""
+        for start, stop in self.locked:
+            if start < end and address < stop:
+                self.stats.refused_accesses += 1
+                return True
+        return False
 
     def _register_write(self, address: int, end: int, data: bytes | bytearray | memoryview) -> None:
         mem = self.mem
@@ -355,11 +380,14 @@ class EscMemory:
         write came from the master (the firmware gets the event); False for the PDI's own deactivation.
         """
         out: list[_Sm] = []
+        locked: list[tuple[int, int]] = []
         mem = self.mem
         refused = 0
         for i in range(self.n_sm):
             base = REG_SM + 8 * i
             cfg = self.sm_config(i)
+            if cfg.enabled and mem[base + 7] & SM_PDI_DISABLE and cfg.start >= RAM_START:
+                locked.append((cfg.start, cfg.start + cfg.length))
             o = base + 6 - address
             old_act = old[o] if 0 <= o < len(old) else mem[base + 6]
             runs = cfg.enabled and not mem[base + 7] & SM_PDI_DISABLE
@@ -376,6 +404,7 @@ class EscMemory:
         self.stats.refused_sms += refused
         self._sms = tuple(out)
         self.active_sms = frozenset(s.index for s in out)
+        self.locked = tuple(locked)
         if master:
             self.events.append(SM_CHANGED)
 
@@ -386,6 +415,28 @@ class EscMemory:
             self.store(cfg.start, self.mbx_last[:cfg.length].ljust(cfg.length, b"\0"))
             self.mem[base + 5] |= SM_STATUS_FULL
         self.mem[base + 7] = (self.mem[base + 7] & ~SM_PDI_REPEAT_ACK) | (cfg.activate & SM_ACT_REPEAT)
+
+    def stop_outputs(self) -> bool:
+        """The firmware left OP by itself (SM watchdog, a device error): it deactivates the output
+        SyncManager from the PDI side (0x0807 + 8n bit 0), as SOES's ESC_stopoutput and Beckhoff's
+        slave stack do, so the master's output writes are refused and no longer count in the working
+        counter (ET1100 data sheet II 0x0807: "SyncManager deactivated and reset. SyncManager locks
+        access to Memory area") until :meth:`start_outputs`. True when it was running."""
+        if self.outputs_stopped or not 0 <= self.output_sm < self.n_sm:
+            return False
+        self.outputs_stopped = True
+        self.mem[REG_SM + 8 * self.output_sm + 7] |= SM_PDI_DISABLE
+        self.rebuild_sms(bytes(self.mem[REG_SM:REG_SM + 8 * self.n_sm]), REG_SM, master=False)
+        return True
+
+    def start_outputs(self) -> None:
+        """The master took the slave through a state change: the firmware activates the output
+        SyncManager it stopped (SOES's ESC_startoutput on SAFEOP -> OP); nothing when it runs."""
+        if not self.outputs_stopped:
+            return
+        self.outputs_stopped = False
+        self.mem[REG_SM + 8 * self.output_sm + 7] &= ~SM_PDI_DISABLE & 0xFF
+        self.rebuild_sms(bytes(self.mem[REG_SM:REG_SM + 8 * self.n_sm]), REG_SM, master=False)
 
     def release_unused_sms(self) -> None:
         """An INIT request: the firmware deactivates (PDI side) every SyncManager it does not serve.

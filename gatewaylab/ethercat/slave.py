@@ -148,7 +148,11 @@ class Slave:
         self.app = app or SlaveApplication()
         self.od = build_od(desc)
         self.sii = build_sii(desc, alias)
-        self.esc = Esc(clock, self.sii, self, dc=desc.dc)
+        #: Process data SyncManagers: 2/3 behind the mailbox SMs, 0/1 on a slave without mailbox.
+        self.has_mailbox = desc.coe or desc.foe
+        self.sm_outputs = 2 if self.has_mailbox else 0
+        self.sm_inputs = self.sm_outputs + 1
+        self.esc = Esc(clock, self.sii, self, dc=desc.dc, output_sm=self.sm_outputs)
         self.mailbox = MailboxEndpoint(lambda raw: self.esc.mailbox_put(1, raw))
         mbx_size = desc.mailbox_in[1]
         self.coe = CoeServer(self.od, mbx_size, lambda: self.esc.al_state)
@@ -158,10 +162,6 @@ class Slave:
             self.mailbox.handlers[MailboxType.COE] = self._coe
         if desc.foe:
             self.mailbox.handlers[MailboxType.FOE] = self._foe
-        #: Process data SyncManagers: 2/3 behind the mailbox SMs, 0/1 on a slave without mailbox.
-        self.has_mailbox = desc.coe or desc.foe
-        self.sm_outputs = 2 if self.has_mailbox else 0
-        self.sm_inputs = self.sm_outputs + 1
         self.outputs_map: list[MappedEntry] = _desc_entries(desc.assigned_rx_pdos)
         self.inputs_map: list[MappedEntry] = _desc_entries(desc.assigned_tx_pdos)
         self.output_bytes = desc.output_bytes
@@ -325,8 +325,11 @@ class Slave:
             self.esc.force_state(AlState.PREOP, AlStatusCode.INVALID_INPUT_CONFIG)
 
     def _pd_sm_runs(self, index: int, start: int, length: int, control: int) -> bool:
-        """A process data SyncManager as PREOP->SAFEOP accepted it, and running in the ESC."""
-        return self._pd_sm_ok(index, start, length, control & 0x0F) and (length == 0 or self.esc.sm_active(index))
+        """A process data SyncManager as PREOP->SAFEOP accepted it, and running in the ESC (or the output
+        SyncManager the firmware itself deactivated on leaving OP)."""
+        esc = self.esc
+        return self._pd_sm_ok(index, start, length, control & 0x0F) and (
+            length == 0 or esc.sm_active(index) or (index == self.sm_outputs and esc.outputs_stopped))
 
     def sm_read(self, sm: int) -> None:
         """PDI event: the master read a SyncManager buffer (mailbox or inputs)."""

@@ -29,7 +29,7 @@ from gatewaylab.bus.frame import CanFrame
 from gatewaylab.common.errors import GatewaylabError
 from gatewaylab.ethercat.wire_netns import net_unavailable, veth_namespace
 from gatewaylab.hosts.canhost.host import EthercatHost
-from gatewaylab.hosts.ethercat.backend import PysoemBackend
+from gatewaylab.hosts.ethercat.pysoem_backend import PysoemBackend
 from gatewaylab.migrate.compare import AppEvent, AppEventKind, Frame, Recording
 from gatewaylab.migrate.compare_run import (
     PDO_N,

@@ -12,13 +12,16 @@ from gatewaylab.od.types import (
     ESI_TYPE_NAMES,
     FLOAT_TYPES,
     INT_TYPES,
+    SIZED_TYPES,
     STRING_TYPES,
+    UNDECLARED_STRING_LENGTH,
     Access,
     DataType,
     Entry,
     KeyObject,
     ObjectCode,
     OdObject,
+    check_length,
     check_limits,
     coerce,
     decode,
@@ -30,8 +33,9 @@ from gatewaylab.od.types import (
 )
 
 __all__ = [
-    "BYTES_TYPES", "ESI_TYPE_NAMES", "FLOAT_TYPES", "INT_TYPES", "STRING_TYPES", "Access", "AccessPolicy",
-    "DataType", "Entry", "Key", "KeyObject", "Listener", "ObjectCode", "ObjectDictionary", "OdObject", "ReadHook",
-    "SdoAbort", "SdoAbortCode", "Validator", "WriteHook", "abort_text", "check_limits", "coerce", "decode",
-    "encode", "key_object", "type_default", "type_range", "type_size",
+    "BYTES_TYPES", "ESI_TYPE_NAMES", "FLOAT_TYPES", "INT_TYPES", "SIZED_TYPES", "STRING_TYPES",
+    "UNDECLARED_STRING_LENGTH", "Access", "AccessPolicy", "DataType", "Entry", "Key", "KeyObject", "Listener",
+    "ObjectCode", "ObjectDictionary", "OdObject", "ReadHook", "SdoAbort", "SdoAbortCode", "Validator", "WriteHook",
+    "abort_text", "check_length", "check_limits", "coerce", "decode", "encode", "key_object", "type_default",
+    "type_range", "type_size",
 ]

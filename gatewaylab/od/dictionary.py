@@ -6,7 +6,8 @@ present NMT / EtherCAT state?) is a small :class:`AccessPolicy` the caller passe
 typed Python values in ``values`` keyed by (index, subindex); :meth:`put` is the device's own
 write and the one change notification (:meth:`subscribe`); :meth:`write` is the remote write with
 the device's validators, commands, write hooks and reactions; :meth:`read` the remote read with
-its read hooks. EDS/DCF import and export live in :mod:`.eds`, the ESI dictionary in :mod:`.esi`.
+its read hooks. EDS/DCF import and export live in :mod:`.eds` (``export_eds(od)``, ``import_eds(text)``:
+the format knows the dictionary, not the other way round), the ESI dictionary in :mod:`.esi`.
 """
 
 from __future__ import annotations
@@ -97,11 +98,11 @@ class ObjectDictionary:
     def add_variable(self, index: int, name: str, data_type: DataType, access: Access = Access.RW,
                      default: Any = None, *, pdo_mappable: bool = False, low: float | None = None,
                      high: float | None = None, nodeid_offset: bool = False,
-                     preop_only: bool = False) -> Entry:
-        """Add a VAR object (subindex 0)."""
+                     preop_only: bool = False, max_length: int | None = None) -> Entry:
+        """Add a VAR object (subindex 0). ``max_length``: a string's size in bytes (see :class:`Entry`)."""
         obj = self._new_object(index, name, ObjectCode.VAR)
         return self._add_entry(obj, Entry(index, 0, name, DataType(data_type), access, pdo_mappable,
-                                          default, low, high, nodeid_offset, preop_only))
+                                          default, low, high, nodeid_offset, preop_only, max_length))
 
     def add_record(self, index: int, name: str, code: ObjectCode = ObjectCode.RECORD) -> OdObject:
         """Add an empty RECORD (or ARRAY); fill it with :meth:`add_sub`. Subindex 0 is added for you."""
@@ -110,11 +111,13 @@ class ObjectDictionary:
     def add_sub(self, index: int, subindex: int, name: str, data_type: DataType,
                 access: Access = Access.RW, default: Any = None, *, pdo_mappable: bool = False,
                 low: float | None = None, high: float | None = None, nodeid_offset: bool = False,
-                preop_only: bool = False, sub0_name: str = "Highest sub-index supported") -> Entry:
-        """Add a subindex to a RECORD/ARRAY; subindex 0 'highest sub-index supported' follows."""
+                preop_only: bool = False, sub0_name: str = "Highest sub-index supported",
+                max_length: int | None = None) -> Entry:
+        """Add a subindex to a RECORD/ARRAY; subindex 0 'highest sub-index supported' follows.
+        ``max_length``: a string's size in bytes (see :class:`Entry`)."""
         obj = self.objects[index]
         entry = self._add_entry(obj, Entry(index, subindex, name, DataType(data_type), access, pdo_mappable,
-                                           default, low, high, nodeid_offset, preop_only))
+                                           default, low, high, nodeid_offset, preop_only, max_length))
         if subindex != 0:
             sub0 = obj.entries.get(0)
             highest = max(s for s in obj.entries if s != 0)
@@ -281,10 +284,15 @@ class ObjectDictionary:
         return encode(entry, self.values[(index, subindex)])
 
     def bit_length(self, index: int, subindex: int) -> int:
-        """Bits the entry takes in a PDO: its type's size, or the present length of a string."""
+        """Bits of the entry as its description declares them (ESI BitSize, SDO information): its
+        type's size, a string's maximum length (or its present length when the device stored a
+        longer value itself), the present length of a DOMAIN."""
         entry = self.entry(index, subindex)
         bits = entry.bit_length
-        return bits if bits else 8 * len(encode(entry, self.values[(index, subindex)]))
+        if bits:
+            return bits
+        present = 8 * len(encode(entry, self.values[(index, subindex)]))
+        return max(entry.declared_bits, present)
 
     def reset_values(self, indices: range | None = None) -> None:
         """Put the defaults back (all, or the objects whose index is in ``indices``)."""
@@ -410,17 +418,3 @@ class ObjectDictionary:
                 reaction(entry, value)
         if old != value:
             self._changed(key, value)
-
-    # -- EDS / ESI -------------------------------------------------------------------------------
-    def to_eds(self, *, dcf: bool = False, node_id: int | None = None) -> str:
-        """CiA 306 EDS text (or DCF with ``ParameterValue`` lines when ``dcf``)."""
-        from gatewaylab.od.eds import export_eds
-
-        return export_eds(self, dcf=dcf, node_id=node_id)
-
-    @classmethod
-    def from_eds(cls, text: str, node_id: int | None = None) -> ObjectDictionary:
-        """Build a dictionary from EDS or DCF text (DCF ``ParameterValue`` become the values)."""
-        from gatewaylab.od.eds import import_eds
-
-        return import_eds(text, node_id)

@@ -18,7 +18,9 @@ from gatewaylab.od.dictionary import ObjectDictionary
 from gatewaylab.od.types import (
     BYTES_TYPES,
     FLOAT_TYPES,
+    SIZED_TYPES,
     STRING_TYPES,
+    UNDECLARED_STRING_LENGTH,
     Access,
     DataType,
     Entry,
@@ -89,7 +91,8 @@ def export_eds(od: ObjectDictionary, *, dcf: bool = False, node_id: int | None =
                   f"NodeName={info.get('NodeName', '')}", "Baudrate=1000", ""]
     lines += ["[DummyUsage]"] + [f"Dummy{i:04X}={1 if i >= 2 else 0}" for i in range(1, 8)] + [""]
     mandatory = [i for i in (0x1000, 0x1001, 0x1018) if i in od.objects]
-    optional = [i for i in sorted(od.objects) if i not in mandatory and not 0x2000 <= i < 0x6000]
+    # data type objects (PDO dummies) are declared by [DummyUsage] above, not listed as objects
+    optional = [i for i in sorted(od.objects) if i not in mandatory and i >= 0x1000 and not 0x2000 <= i < 0x6000]
     manufacturer = [i for i in sorted(od.objects) if 0x2000 <= i < 0x6000]
     for title, group in (("MandatoryObjects", mandatory), ("OptionalObjects", optional),
                          ("ManufacturerObjects", manufacturer)):
@@ -98,6 +101,8 @@ def export_eds(od: ObjectDictionary, *, dcf: bool = False, node_id: int | None =
         lines += [f"{n}=0x{index:04X}" for n, index in enumerate(group, 1)]
         lines.append("")
     for obj in od:
+        if obj.index < 0x1000:
+            continue
         if obj.object_code is ObjectCode.VAR or obj.object_code is ObjectCode.DOMAIN:
             _export_entry(lines, f"{obj.index:04X}", obj.entries[0], od, dcf)
             continue
@@ -132,12 +137,25 @@ def _parse_value(dt: DataType, text: str) -> tuple[Any, bool]:
 
 def import_eds(text: str, node_id: int | None = None) -> ObjectDictionary:
     """An ObjectDictionary from EDS/DCF text; ConfigError when the text is not a usable EDS."""
+    return read_eds(text, node_id)[0]
+
+
+def read_eds(text: str, node_id: int | None = None, *,
+             parameter_values: bool = True) -> tuple[ObjectDictionary, list[str]]:
+    """:func:`import_eds` and what it had to read leniently, one line each, as python canopen does: a
+    DataType that names no basic type (a complex or manufacturer type, CiA 301 7.4.7.1 0x0040-0x025F,
+    defined nowhere in the file) becomes DOMAIN; a DefaultValue that does not parse is left out. A
+    DataType that is no number at all, or missing, is a ConfigError. ``parameter_values=False`` reads an
+    EDS: its ParameterValues (configured values, CiA 306 DCF) are not the device's power-on values.
+    [DummyUsage] entries set to 1 become readable data type objects 0x0001..0x0007 (their length in
+    bits, CiA 301 7.4.7.1), mappable as PDO dummy entries."""
+    warnings: list[str] = []
     cp = configparser.RawConfigParser(inline_comment_prefixes=(";",), strict=False)
     cp.optionxform = str  # type: ignore[assignment,method-assign]
     try:
         cp.read_string(text)
     except configparser.Error as exc:
-        raise ConfigError(f"not an EDS/DCF: {exc}") from exc
+        raise ConfigError(f"not an EDS/DCF: {' '.join(str(exc).split())}") from exc
     commissioning = next((sec for sec in ("DeviceComissioning", "DeviceCommissioning") if cp.has_section(sec)), None)
     if node_id is None and commissioning is not None:
         raw = cp.get(commissioning, "NodeID", fallback="")
@@ -150,7 +168,23 @@ def import_eds(text: str, node_id: int | None = None) -> ObjectDictionary:
             if cp.has_option("DeviceInfo", key):
                 od.device_info[key] = cp.get("DeviceInfo", key)
     sections = {s.upper(): s for s in cp.sections()}
-    parameter_values: list[tuple[int, int, str]] = []
+    configured: list[tuple[int, int, str]] = []
+
+    def _data_type(section: str, code: int) -> DataType:
+        try:
+            return DataType(code)
+        except ValueError:
+            pass
+        # CANFestival writes a type with limits as a definition object [00A0] whose sub 1 names the type
+        definition = sections.get(f"{code:X}SUB1") or sections.get(f"{code:04X}SUB1")
+        if definition is not None:
+            try:
+                return DataType(int(cp.get(definition, "DefaultValue"), 0))
+            except (configparser.Error, ValueError):
+                pass
+        warnings.append(f"[{section}]: DataType 0x{code:04X} is no basic type and is defined nowhere in the file: "
+                        "read as DOMAIN (bytes)")
+        return DataType.DOMAIN
 
     def entry_args(section: str) -> tuple[dict[str, Any], str | None]:
         get = cp.get
@@ -158,20 +192,32 @@ def import_eds(text: str, node_id: int | None = None) -> ObjectDictionary:
                 int(get(section, "ObjectType", fallback="0x7") or "0x7", 0) == ObjectCode.DOMAIN:
             cp.set(section, "DataType", "0x000F")       # CiA 306: a DOMAIN object may omit it
         try:
-            dt = DataType(int(get(section, "DataType"), 0))
+            code = int(get(section, "DataType"), 0)
         except (configparser.Error, ValueError) as exc:
             raise ConfigError(f"[{section}]: bad or missing DataType") from exc
+        dt = _data_type(section, code)
         access_text = get(section, "AccessType", fallback="rw").strip().lower()
         try:
             access = Access(access_text)
         except ValueError:
             raise ConfigError(f"[{section}]: unknown AccessType {access_text!r}") from None
-        default, relative = _parse_value(dt, get(section, "DefaultValue", fallback=""))
+        try:
+            default, relative = _parse_value(dt, get(section, "DefaultValue", fallback=""))
+        except ValueError:
+            warnings.append(f"[{section}]: DefaultValue {get(section, 'DefaultValue')!r} is no "
+                            f"{dt.name} value: left out")
+            default, relative = None, False
         low = high = None
         if dt not in STRING_TYPES and dt not in BYTES_TYPES:
             low = _parse_value(dt, get(section, "LowLimit", fallback=""))[0]
             high = _parse_value(dt, get(section, "HighLimit", fallback=""))[0]
-        args = {"data_type": dt, "access": access, "default": default,
+        max_length = None
+        if dt in SIZED_TYPES:
+            # CiA 306 has no key for a string's size: a default's length is no limit a device would have
+            size = len(default.encode("utf-16-le") if dt is DataType.UNICODE_STRING else default.encode()) \
+                if isinstance(default, str) else len(default or b"")
+            max_length = max(size, UNDECLARED_STRING_LENGTH)
+        args = {"data_type": dt, "access": access, "default": default, "max_length": max_length,
                 "pdo_mappable": bool(int(get(section, "PDOMapping", fallback="0") or "0", 0)),
                 "low": low, "high": high, "nodeid_offset": relative,
                 "preop_only": get(section, "GatewaylabPreOpOnly", fallback="0").strip() == "1"}
@@ -189,8 +235,8 @@ def import_eds(text: str, node_id: int | None = None) -> ObjectDictionary:
             if code in (ObjectCode.VAR, ObjectCode.DOMAIN):
                 args, pv = entry_args(section)
                 od.add_variable(index, name, **args)
-                if pv is not None:
-                    parameter_values.append((index, 0, pv))
+                if pv is not None and parameter_values:
+                    configured.append((index, 0, pv))
             elif code in (ObjectCode.ARRAY, ObjectCode.RECORD):
                 compact = int(cp.get(section, "CompactSubObj", fallback="0") or "0", 0)
                 od.add_record(index, name, code)
@@ -208,13 +254,24 @@ def import_eds(text: str, node_id: int | None = None) -> ObjectDictionary:
                 for sub, subsection in subs:
                     args, pv = entry_args(subsection)
                     od.add_sub(index, sub, cp.get(subsection, "ParameterName", fallback=f"Sub {sub}"), **args)
-                    if pv is not None:
-                        parameter_values.append((index, sub, pv))
+                    if pv is not None and parameter_values:
+                        configured.append((index, sub, pv))
         except (ValueError, KeyError, TypeError) as exc:
             raise ConfigError(f"[{section}]: {exc}") from exc
-    for index, sub, raw in parameter_values:
+    if cp.has_section("DummyUsage"):
+        for index in range(1, 8):
+            raw_flag = cp.get("DummyUsage", f"Dummy{index:04X}", fallback="0").strip()
+            if raw_flag == "1" and index not in od:
+                bits = 1 if index == 1 else 8 * (1 << ((index - 2) % 3))
+                od.add_variable(index, f"Dummy{index:04X}", DataType.UNSIGNED32, Access.CONST, bits)
+    for index, sub, raw in configured:
         entry = od.entries[(index, sub)]
-        value, relative = _parse_value(entry.data_type, raw)
+        try:
+            value, relative = _parse_value(entry.data_type, raw)
+        except ValueError:
+            warnings.append(f"0x{index:04X}:{sub:02X}: ParameterValue {raw!r} is no {entry.data_type.name} value: "
+                            "the default stays")
+            continue
         if value is None:
             continue
         if relative and node_id is not None:
@@ -223,4 +280,4 @@ def import_eds(text: str, node_id: int | None = None) -> ObjectDictionary:
             od.values[(index, sub)] = coerce(entry, value)
         except ConfigError:
             pass
-    return od
+    return od, warnings

@@ -29,12 +29,13 @@ def _access(e: Entry) -> str:
 
 def _type_name(od: ObjectDictionary, e: Entry) -> str:
     if e.data_type in (DataType.VISIBLE_STRING, DataType.OCTET_STRING, DataType.UNICODE_STRING):
-        return f"STRING({max(1, len(od.get_bytes(e.index, e.subindex)))})"
+        return f"STRING({_bits(od, e) // 8})"
     return ESI_TYPE_NAMES.get(e.data_type, "USINT")
 
 
 def _bits(od: ObjectDictionary, e: Entry) -> int:
-    return e.bit_length or 8 * max(1, len(od.get_bytes(e.index, e.subindex)))
+    """BitSize: the type's size, a string's maximum length (the most a write may store)."""
+    return max(8, od.bit_length(e.index, e.subindex))
 
 
 def _flags(parent: ET.Element, e: Entry) -> None:

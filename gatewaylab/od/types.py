@@ -118,6 +118,12 @@ BYTES_TYPES = frozenset({DataType.OCTET_STRING, DataType.DOMAIN, DataType.TIME_O
                          DataType.TIME_DIFFERENCE})
 FLOAT_TYPES = frozenset({DataType.REAL32, DataType.REAL64})
 INT_TYPES = frozenset(_INT_TYPES)
+#: Types whose objects have a maximum length in bytes (:attr:`Entry.max_length`): the strings.
+#: DOMAIN stays unbounded (files, programs); TIME_OF_DAY / TIME_DIFFERENCE have a fixed size.
+SIZED_TYPES = frozenset({DataType.VISIBLE_STRING, DataType.OCTET_STRING, DataType.UNICODE_STRING})
+#: The maximum length of a string object that declares none and whose default is empty (an EDS
+#: declares no string sizes): a device's usual name / text buffer.
+UNDECLARED_STRING_LENGTH = 255
 
 #: ETG.2000 (ESI) names of the data types.
 ESI_TYPE_NAMES: dict[DataType, str] = {
@@ -183,6 +189,9 @@ class Entry:
     ``nodeid_offset``: the default is ``default + node_id`` (EDS ``$NODEID+...``), e.g. COB-IDs.
     ``preop_only``: writable via SDO only in the protocol's configuration state: outside NMT
     Operational on CANopen (abort 0x0F00FFC0), in PREOP only on CoE (abort 0x08000022).
+    ``max_length``: the most bytes a string object (:data:`SIZED_TYPES`) holds, as its ESI
+    ``STRING(n)`` / BitSize declares it; None derives it from the default (its length, or
+    :data:`UNDECLARED_STRING_LENGTH` for an empty one). A longer write aborts 0x06070012.
     """
 
     index: int
@@ -196,6 +205,8 @@ class Entry:
     high: int | float | None = None
     nodeid_offset: bool = False
     preop_only: bool = False
+    #: Not compared: an EDS (CiA 306) has no key for it, so a row read back from one is the same row.
+    max_length: int | None = field(default=None, compare=False)
     #: Derived once (hashing an IntEnum runs Python code, too slow for the 1 kHz paths).
     size: int | None = field(init=False, compare=False, repr=False)
     codec: struct.Struct | None = field(init=False, compare=False, repr=False)
@@ -221,6 +232,20 @@ class Entry:
         object.__setattr__(self, "kind", kind)
         object.__setattr__(self, "int_range", type_range(dt) if kind == 1 else None)
         object.__setattr__(self, "key", key_object(self.index, self.subindex))
+        if dt in SIZED_TYPES:
+            if self.max_length is None:
+                object.__setattr__(self, "max_length", _declared_length(self))
+        elif self.max_length is not None:
+            object.__setattr__(self, "max_length", None)   # only strings have one
+
+    @property
+    def declared_bits(self) -> int:
+        """Bits of the object as its description declares them (ESI BitSize, SDO information):
+        the type's size, a string's maximum length, 0 for a DOMAIN."""
+        size = self.size
+        if size is not None:
+            return 8 * size
+        return 8 * self.max_length if self.max_length is not None else 0
 
     @property
     def bit_length(self) -> int:
@@ -244,6 +269,25 @@ class Entry:
         if self.nodeid_offset and node_id is not None:
             value = value + node_id
         return value
+
+
+def _declared_length(entry: Entry) -> int:
+    """A string's maximum length when it declares none: its default's, else the undeclared one."""
+    default = entry.default
+    if default is None:
+        return UNDECLARED_STRING_LENGTH
+    if entry.data_type is DataType.UNICODE_STRING:
+        n = 2 * len(str(default))
+    elif entry.data_type is DataType.VISIBLE_STRING:
+        n = len(str(default))
+    else:
+        n = len(default) if isinstance(default, (bytes, bytearray)) else 0
+    return n if n else UNDECLARED_STRING_LENGTH
+
+
+def _too_long(entry: Entry, n: int) -> SdoAbort:
+    return SdoAbort(SdoAbortCode.LENGTH_TOO_HIGH,
+                    f"0x{entry.index:04X}:{entry.subindex:02X} holds at most {entry.max_length} bytes, got {n}")
 
 
 @dataclass(slots=True)
@@ -302,16 +346,27 @@ def decode(entry: Entry, data: bytes) -> Any:
         return bool(data[0])
     elif dt in _INT_TYPES:
         value = int.from_bytes(data, "little", signed=_INT_TYPES[dt][1])
-    elif dt is DataType.VISIBLE_STRING:
-        return data.decode("latin-1")
-    elif dt is DataType.UNICODE_STRING:
-        if len(data) % 2:
-            raise SdoAbort(SdoAbortCode.LENGTH_MISMATCH, "UNICODE_STRING has an even length")
-        return data.decode("utf-16-le", "replace")
     else:
+        limit = entry.max_length
+        if limit is not None and len(data) > limit:
+            raise _too_long(entry, len(data))
+        if dt is DataType.VISIBLE_STRING:
+            return data.decode("latin-1")
+        if dt is DataType.UNICODE_STRING:
+            if len(data) % 2:
+                raise SdoAbort(SdoAbortCode.LENGTH_MISMATCH, "UNICODE_STRING has an even length")
+            return data.decode("utf-16-le", "replace")
         return bytes(data)
     check_limits(entry, value)
     return value
+
+
+def check_length(entry: Entry, size: int) -> None:
+    """Raise SdoAbortCode.LENGTH_TOO_HIGH when ``size`` bytes exceed a string's maximum length (a
+    transfer announcing its size is refused before its data arrives, CiA 301 7.2.4.3.3)."""
+    limit = entry.max_length
+    if limit is not None and size > limit:
+        raise _too_long(entry, size)
 
 
 def check_limits(entry: Entry, value: Any) -> None:

@@ -104,6 +104,10 @@ class RigContext(Protocol):
         """The run's own folder: sockets, stored parameters."""
 
     @property
+    def base_dir(self) -> Path:
+        """Where relative paths of the rig file start: its folder (the working folder for a rig from a dict)."""
+
+    @property
     def participants(self) -> Sequence[Participant]:
         """The participants built so far, in rig-file order."""
 

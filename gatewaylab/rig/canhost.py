@@ -11,7 +11,8 @@ from collections.abc import Callable
 
 from gatewaylab.common.clock import SimulatedClock
 from gatewaylab.hosts.canhost import interfaces
-from gatewaylab.hosts.ethercat.backend import InProcessBackend, MasterBackend
+from gatewaylab.hosts.ethercat.backend import MasterBackend
+from gatewaylab.hosts.ethercat.inprocess import InProcessBackend
 from gatewaylab.rig.runtime import Rig
 
 

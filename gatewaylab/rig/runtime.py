@@ -150,6 +150,9 @@ class Rig:
             clock = SimulatedClock() if config.clock == "simulated" else RealTimeClock()
         self.clock = clock
         self.realtime = not clock.is_simulated
+        #: where relative paths in the rig file start: the rig file's folder (the working folder for a
+        #: rig built from a dict or the default rig)
+        self.base_dir = Path(config.source).resolve().parent if Path(config.source).is_file() else Path.cwd()
         self.buses: dict[str, VirtualBus] = {}
         self.participants: list[Participant] = []
         self.servers: dict[str, BusServer] = {}

@@ -50,11 +50,12 @@ class RawClient:
             self.buf += chunk
         return False
 
-    def open_raw(self, bus: str = "can0") -> None:
+    def open_raw(self, bus: str = "can0", *, fd: bool = False) -> None:
+        """Open ``bus`` in RAW mode; ``fd``: ask for CAN FD frames (``< rawmode fd >``)."""
         self.expect(b"< hi >")
         self.send(f"< open {bus} >".encode())
         self.expect(b"< ok >")
-        self.send(b"< rawmode >")
+        self.send(b"< rawmode fd >" if fd else b"< rawmode >")
         self.expect(b"< ok >")
 
     def close(self) -> None:

@@ -119,11 +119,11 @@ def test_canopen_reads_1008_and_runs_a_pdo_loop(rig: RigProcess) -> None:
 
 def test_can_fd_frames_both_ways(rig: RigProcess) -> None:
     """CAN FD in RAW mode: '< fdsend ID FLAGS LEN b ... >' in, '< fdframe ID FLAGS sec.usec DATA >' out
-    (socketcand PR 33); python-can's socketcand client does not parse fdframe (it skips it)."""
+    (socketcand PR 33) to a client that asked for CAN FD ('< rawmode fd >')."""
     sender, listener = RawClient(port(rig)), RawClient(port(rig))
     try:
         sender.open_raw()
-        listener.open_raw()
+        listener.open_raw(fd=True)
         data = bytes(range(64))
         sender.send(b"< fdsend 0000ABCD 1 64 " + " ".join(f"{x:x}" for x in data).encode() + b" >")
         line = listener.expect(b" >").split(b"< fdframe ", 1)[1]
@@ -220,3 +220,31 @@ def test_cli_option_serves_every_bus(tmp_path: Path) -> None:
             c.expect(b"< error could not open bus >")
         finally:
             c.close()
+
+
+def test_python_can_client_on_a_can_fd_bus(rig: RigProcess, caplog: pytest.LogCaptureFixture) -> None:
+    """python-can's socketcand client cannot parse '< fdframe >' (it logged "Could not parse ascii message"
+    for each): it gets none, only the classic frames between them; its FD message (12 bytes, sent as
+    '< send ID C ... >') reaches the bus as a CAN FD frame. A raw client that did not ask gets no fdframe."""
+    client = socketcand_bus(rig)
+    raw = RawClient(port(rig))
+    native = can.Bus(interface="gatewaylab", channel=rig.endpoint("can0"))
+    try:
+        raw.open_raw()
+        with caplog.at_level(logging.WARNING, logger="can"):
+            for i in range(20):
+                native.send(can.Message(arbitration_id=0x210, data=bytes(range(i, i + 16)), is_fd=True,
+                                        is_extended_id=False))
+            native.send(can.Message(arbitration_id=0x211, data=b"\x11", is_extended_id=False))
+            got = recv_id(client, 0x211)
+            assert bytes(got.data) == b"\x11"
+            client.send(can.Message(arbitration_id=0x212, data=bytes(range(12)), is_fd=True, is_extended_id=False))
+            fd = recv_id(native, 0x212)
+            assert fd.is_fd and bytes(fd.data) == bytes(range(12))
+        assert not [r for r in caplog.records if "Could not parse" in r.getMessage()]
+        seen = raw.expect(b"< frame 211 ")
+        assert b"fdframe" not in seen and b"< frame 211 " in seen
+    finally:
+        raw.close()
+        client.shutdown()
+        native.shutdown()

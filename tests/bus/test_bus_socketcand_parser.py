@@ -178,3 +178,36 @@ def test_any_input_gives_only_protocol_events(parts: list[bytes], chunk: int) ->
     closes = [i for i, ev in enumerate(events) if isinstance(ev, sc.Close)]
     assert closes in ([], [len(events) - 1])
     assert events == sc.Session(("can0",)).feed(data)
+
+
+def test_python_can_fd_messages_come_as_send_with_a_hex_length() -> None:
+    """python-can's client (socketcand.py convert_can_message_to_ascii_message) writes every message as
+    '< send ID LEN b ... >' with LEN = the DLC field in hex: over 8 bytes that is a CAN FD frame
+    (no bit rate switch: the client cannot say it), LEN read as hex or decimal when the bytes agree."""
+    s = opened(sc.Mode.RAW)
+    data = bytes(range(12))
+    text = " ".join(f"{b:x}" for b in data).encode()
+    assert s.feed(b"< send 123 C " + text + b" >") == [sc.SendFrame(CanFrame(0x123, data, fd=True))]
+    assert s.feed(b"< send 123 12 " + text + b" >") == [sc.SendFrame(CanFrame(0x123, data, fd=True))]
+    big = bytes(64)
+    assert s.feed(b"< send 1FFFFFFF 40 " + b"0 " * 64 + b">") == [
+        sc.SendFrame(CanFrame(0x1FFFFFFF, big, extended=True, fd=True))]
+    for bad in (b"< send 123 C " + text[:-2] + b" >",          # 11 bytes: no CAN FD length
+                b"< send 123 8 " + text + b" >"):              # LEN says 8, 12 bytes follow
+        [ev] = s.feed(bad)
+        assert isinstance(ev, sc.SyntaxErrorEvent), bad
+
+
+def test_a_client_asks_for_can_fd_with_rawmode_fd_or_by_sending_fd() -> None:
+    """'< fdframe >' only for a client that asked: '< rawmode fd >' (this server's extension; upstream
+    answers '< error unknown command >', so a client can probe) switches to RAW and asks; an fdsend/sendfd
+    of the client's own says it speaks FD too. '< rawmode >' alone (python-can's handshake) does not."""
+    s = opened(sc.Mode.RAW)
+    assert not s.fd
+    s = opened()
+    assert s.feed(b"< rawmode fd >") == [sc.ModeChanged(sc.Mode.RAW), sc.Reply(b"< ok >")]
+    assert s.fd and s.mode is sc.Mode.RAW
+    assert s.feed(b"< rawmode fd >") == [sc.Reply(b"< ok >")]
+    s = opened(sc.Mode.RAW)
+    s.feed(b"< sendfd 123 12 " + b"0 " * 12 + b">")
+    assert s.fd

@@ -6,6 +6,7 @@ import socket
 import subprocess
 import sys
 import threading
+import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -140,3 +141,23 @@ def test_lone_node_with_full_queue_raises_instead_of_hanging(rig_factory) -> Non
          pytest.raises(can.CanOperationError, match=r"error_passive.*--acker"):
         for i in range(1000):
             lone.send(can.Message(arbitration_id=0x500 + i % 16, is_extended_id=False), timeout=None)
+
+
+def test_a_notifier_whose_bus_is_shut_down_first_ends_without_an_exception(rig: Rig) -> None:
+    """python-can's usual closing order, ``bus.shutdown()`` then ``notifier.stop()``: the recv() in flight in
+    the Notifier's thread returns None when its timeout ends (as python-can's ``virtual`` and ``socketcan``
+    buses do), so the thread sees it was stopped and never calls recv() on the closed bus (which raises
+    CanOperationError: an unhandled-exception traceback in the thread before the fix)."""
+    bus = can.Bus(interface="gatewaylab", channel=rig.endpoint)
+    got: list[can.Message] = []
+    notifier = can.Notifier(bus, [got.append], timeout=5.0)
+    with can.Bus(interface="gatewaylab", channel=rig.endpoint) as sender:
+        sender.send(can.Message(arbitration_id=0x321, data=b"\x01", is_extended_id=False))
+        deadline = time.monotonic() + 10
+        while not got and time.monotonic() < deadline:
+            time.sleep(0.01)
+    assert [m.arbitration_id for m in got] == [0x321]   # the Notifier was receiving
+    bus.shutdown()
+    notifier.stop(timeout=15.0)
+    assert notifier.exception is None
+    assert not [t for t in threading.enumerate() if t.name.startswith("Notifier") and bus.channel_info in t.name]

@@ -19,7 +19,8 @@ def sample_od() -> ObjectDictionary:
     """A small application dictionary covering the data types and access rights of CiA 301."""
     od = ObjectDictionary()
     od.add_variable(0x2000, "U32 rw", DataType.UNSIGNED32, Access.RW, 0x12345678, pdo_mappable=True)
-    od.add_variable(0x2001, "String rw", DataType.VISIBLE_STRING, Access.RW, "gatewaylab CANopen node")
+    od.add_variable(0x2001, "String rw", DataType.VISIBLE_STRING, Access.RW, "gatewaylab CANopen node",
+                    max_length=64)
     od.add_variable(0x2002, "Domain rw", DataType.DOMAIN, Access.RW, bytes(range(256)) * 4)
     od.add_variable(0x2003, "I16 limited", DataType.INTEGER16, Access.RW, 0, low=-100, high=100,
                     pdo_mappable=True)

@@ -30,6 +30,7 @@ from gatewaylab.od import (
     encode,
     type_range,
 )
+from gatewaylab.od.eds import export_eds, import_eds
 
 
 @pytest.mark.parametrize(("dt", "value", "wire"), [
@@ -124,7 +125,7 @@ def test_eds_export_loads_in_python_canopen() -> None:
     """CiA 306: our EDS is read by python-canopen's import_od with the same types, access, PDO
     mapping flags, limits and defaults ($NODEID resolved)."""
     od = _node_with_comm(5)
-    text = od.to_eds()
+    text = export_eds(od)
     stream = io.StringIO(text)
     stream.name = "node.eds"
     theirs = canopen.objectdictionary.import_od(stream, node_id=5)
@@ -148,7 +149,7 @@ def test_eds_export_loads_in_python_canopen() -> None:
 def test_eds_round_trip_through_our_importer() -> None:
     """CiA 306: export -> import gives the same rows and defaults."""
     od = _node_with_comm(5)
-    again = ObjectDictionary.from_eds(od.to_eds(), node_id=5)
+    again = import_eds(export_eds(od), node_id=5)
     assert again.entries == od.entries
     assert again.values == od.values
     assert {i: o.object_code for i, o in again.objects.items()} == {i: o.object_code for i, o in od.objects.items()}
@@ -156,12 +157,12 @@ def test_eds_round_trip_through_our_importer() -> None:
 
 def test_python_canopen_export_imports_in_ours() -> None:
     """CiA 306 interop the other way: an EDS written by python-canopen builds our dictionary."""
-    stream = io.StringIO(_node_with_comm(5).to_eds())
+    stream = io.StringIO(export_eds(_node_with_comm(5)))
     stream.name = "node.eds"
     theirs = canopen.objectdictionary.import_od(stream, node_id=5)
     out = io.StringIO()
     canopen.objectdictionary.export_od(theirs, out, doc_type="eds")
-    ours = ObjectDictionary.from_eds(out.getvalue(), node_id=5)
+    ours = import_eds(out.getvalue(), node_id=5)
     for key, entry in _node_with_comm(5).entries.items():
         got = ours.entries[key]
         assert (got.data_type, got.access, got.pdo_mappable, got.low, got.high) == \
@@ -174,9 +175,9 @@ def test_dcf_carries_values_and_node_id() -> None:
     od = _node_with_comm(7)
     od.set(0x2000, 0, 99)
     od.set(0x1017, 0, 250)
-    text = od.to_eds(dcf=True, node_id=7)
+    text = export_eds(od, dcf=True, node_id=7)
     assert "[DeviceComissioning]" in text and "NodeID=7" in text
-    again = ObjectDictionary.from_eds(text)
+    again = import_eds(text)
     assert again.node_id == 7
     assert again.get(0x2000) == 99 and again.get(0x1017) == 250
     assert again.entries[(0x2000, 0)].default == 0x12345678
@@ -185,13 +186,13 @@ def test_dcf_carries_values_and_node_id() -> None:
 
 def test_node_built_from_eds(clock, vbus, network) -> None:
     """Issue: a Node is constructible from an EDS file; python-canopen reads it by SDO."""
-    text = _node_with_comm(5).to_eds()
+    text = export_eds(_node_with_comm(5))
     node = Node.from_eds(clock, vbus, 12, text, name="from-eds")
     node.start()
     remote = remote_for(network, node)
     assert remote.sdo[0x2001].raw == "gatewaylab CANopen node"
     assert remote.sdo[0x1200][1].raw == 0x60C
-    assert node.to_eds() == node.od.to_eds(node_id=12)
+    assert node.to_eds() == export_eds(node.od, node_id=12)
 
 
 def test_node_built_from_eds_file(clock, vbus, tmp_path) -> None:
@@ -199,7 +200,7 @@ def test_node_built_from_eds_file(clock, vbus, tmp_path) -> None:
     path = tmp_path / "drive.dcf"
     od = _node_with_comm(9)
     od.set(0x2000, 0, 4711)
-    path.write_text(od.to_eds(dcf=True, node_id=9), encoding="latin-1")
+    path.write_text(export_eds(od, dcf=True, node_id=9), encoding="latin-1")
     node = Node.from_eds(clock, vbus, 9, path)
     node.start()
     assert node.get(0x2000) == 4711 and node.get(0x1400, 1) == 0x209
@@ -245,14 +246,14 @@ PDOMapping=1
 LowLimit=0x80000000
 HighLimit=0x7FFFFFFF
 """
-    od = ObjectDictionary.from_eds(text, node_id=3)
+    od = import_eds(text, node_id=3)
     assert od.get(0x1016, 0) == 3 and od.entries[(0x1016, 1)].name == "Consumer 1"
     assert od.get(0x1800, 1) == 0x183 and od.entries[(0x1800, 1)].nodeid_offset
     assert od.entries[(0x6064, 0)].low == -(2**31)
     assert od.objects[0x6064].object_code is ObjectCode.VAR
     assert od.device_info["VendorName"] == "maxon"
     with pytest.raises(ConfigError):
-        ObjectDictionary.from_eds("[2000]\nParameterName=x\nDataType=0x0099\nAccessType=rw\n")
+        import_eds("[2000]\nParameterName=x\nDataType=0x0099\nAccessType=rw\n")
 
 
 _INT_DTS = [dt for dt in DataType if type_range(dt) is not None and dt is not DataType.BOOLEAN]
@@ -285,7 +286,7 @@ def test_dcf_spellings_and_domain_without_data_type() -> None:
     """CiA 306: [DeviceComissioning] (the standard's spelling, also accepted corrected) and a
     DOMAIN object (ObjectType 0x2) that omits DataType."""
     for section in ("DeviceComissioning", "DeviceCommissioning"):
-        od = ObjectDictionary.from_eds(f"[{section}]\nNodeID=0x21\n[1F50]\nParameterName=Program\n"
+        od = import_eds(f"[{section}]\nNodeID=0x21\n[1F50]\nParameterName=Program\n"
                                        "ObjectType=0x2\nAccessType=wo\n")
         assert od.node_id == 0x21
         assert od.entries[(0x1F50, 0)].data_type is DataType.DOMAIN

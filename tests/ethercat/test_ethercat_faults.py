@@ -68,9 +68,9 @@ def test_unplugged_device_lowers_the_working_counter_and_returns_in_init(tmp_pat
         # (auto-increment) it answers with AL status INIT; io-c behind it kept its state
         with pytest.raises(WorkingCounterError):
             m.al_status(1)
-        d = m._phys(Command.APRD, -1, REG_AL_STATUS, b"\0\0")
+        d = m.port.phys(Command.APRD, -1, REG_AL_STATUS, b"\0\0")
         assert d.wkc == 1 and int.from_bytes(d.data, "little") == AlState.INIT
-        assert m._phys(Command.BRD, 0, REG_AL_STATUS, b"\0\0").wkc == 3
+        assert m.port.phys(Command.BRD, 0, REG_AL_STATUS, b"\0\0").wkc == 3
         assert m.al_status(2)[0] == AlState.OP
         assert m.exchange_process_data() < full          # io-b takes no process data in INIT
 
@@ -86,6 +86,6 @@ def test_unplugging_the_first_device_loses_every_frame(tmp_path: Path) -> None:
         assert m.exchange_process_data() == 0
         assert m.lost_frames >= 1
         rig.faults.ethercat_replug("io-a")
-        assert m._phys(Command.BRD, 0, REG_AL_STATUS, b"\0\0").wkc == 3
+        assert m.port.phys(Command.BRD, 0, REG_AL_STATUS, b"\0\0").wkc == 3
         with pytest.raises(FaultRefused):
             rig.faults.ethercat_unplug("nope")

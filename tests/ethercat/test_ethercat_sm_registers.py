@@ -20,9 +20,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from gatewaylab.common.clock import SimulatedClock
+from gatewaylab.common.errors import TimeoutError_
 from gatewaylab.devices.ethercat_io.device import IoApplication, io_description
 from gatewaylab.ethercat.datagram import Command, Datagram, Frame, decode_frame, encode_frame
-from gatewaylab.ethercat.errors import AlStatusCode
+from gatewaylab.ethercat.errors import AlStatusCode, MasterError
 from gatewaylab.ethercat.esc import (
     AL_ERROR,
     REG_AL_CONTROL,
@@ -33,7 +34,7 @@ from gatewaylab.ethercat.esc import (
 )
 from gatewaylab.ethercat.segment import Segment
 from gatewaylab.ethercat.slave import Slave
-from gatewaylab.hosts.ethercat.master import Master, MasterError, TimeoutError_
+from gatewaylab.hosts.ethercat.master import Master
 
 BROKEN = 1  # the esd gateway: the slave whose SM1 the test moves
 

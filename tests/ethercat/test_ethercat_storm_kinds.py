@@ -13,7 +13,8 @@ from ethercat_storm import MasterTemplates, mutated_storm
 
 from gatewaylab.ethercat.errors import AlStatusCode
 from gatewaylab.ethercat.esc import AlState
-from gatewaylab.hosts.ethercat.master import FIRST_STATION, Master
+from gatewaylab.hosts.ethercat.config import FIRST_STATION
+from gatewaylab.hosts.ethercat.master import Master
 
 FRAMES = 1500
 VALID_STATES = {int(s) for s in AlState}

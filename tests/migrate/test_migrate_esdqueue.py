@@ -41,7 +41,8 @@ from gatewaylab.hosts.esd_can_ethercat import (
     TxQueueFull,
     api_table,
 )
-from gatewaylab.hosts.ethercat.backend import InProcessBackend, MasterTimeout
+from gatewaylab.hosts.ethercat.backend import MasterTimeout
+from gatewaylab.hosts.ethercat.inprocess import InProcessBackend
 from gatewaylab.hosts.ethercat.master import Master
 from gatewaylab.migrate.esdqueue import NO_SOURCE, EsdQueueOnEcanLite
 from gatewaylab.rig.runtime import Rig

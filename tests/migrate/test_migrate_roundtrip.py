@@ -16,7 +16,7 @@ from gatewaylab.devices.ecanlite.device import EcanLiteDevice
 from gatewaylab.devices.esd_can_ethercat import create_esd_gateway
 from gatewaylab.ethercat.esc import AlState
 from gatewaylab.ethercat.segment import Segment
-from gatewaylab.hosts.ethercat.backend import InProcessBackend
+from gatewaylab.hosts.ethercat.inprocess import InProcessBackend
 from gatewaylab.hosts.ethercat.master import Master
 from gatewaylab.migrate.config import ecanlite_slave, find_esd, read_live
 from gatewaylab.migrate.eni import InitCmd, SlaveConfig, parse_eni, write_eni

@@ -13,8 +13,9 @@ What a SocketCAN user expects holds here too (docs/bus-wire.md):
   acknowledges); nothing is dropped silently;
 * ``shutdown()`` waits (at most ``shutdown_timeout``) until the rig has put every accepted frame
   on the bus; frames still queued after that stay queued in the rig, as in a SocketCAN device;
-* a ``recv()`` in another thread (a ``can.Notifier``) interrupted by ``shutdown()`` returns
-  None; any call after ``shutdown()`` raises ``can.CanOperationError``; ``recv(0)`` returns what
+* a ``recv()`` in another thread (a ``can.Notifier``) overtaken by ``shutdown()`` returns None when
+  its timeout ends (at once for ``recv(None)``), as python-can's ``virtual`` and ``socketcan`` do;
+  any call after ``shutdown()`` raises ``can.CanOperationError``; ``recv(0)`` returns what
   the socket already holds (the poll loop of a cyclic task);
 * ``Message.timestamp`` is Unix time (the rig's bus time + the rig clock's ``wall_epoch``),
   ``Message.channel`` the channel given to ``can.Bus``, own echoes have ``is_rx=False``;
@@ -412,12 +413,24 @@ class GatewaylabBus(can.BusABC):
                 return None
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        deadline = None if timeout is None else time.monotonic() + timeout
         if not self._wait(self._has_rx, timeout):
             if self._lost is not None and not self._closing and not self._rx:
                 raise can.CanOperationError(self._lost)
+            if self._closing and deadline is not None:
+                self._linger(deadline)
             return None, False
         with self._cond:
             return self._rx.popleft(), not self._soft_filters
+
+    def _linger(self, deadline: float) -> None:
+        """A recv() that shutdown() overtook returns None when its own timeout ends, as a recv() of
+        python-can's ``virtual`` and ``socketcan`` buses does: a ``can.Notifier`` whose bus is shut down
+        before ``notifier.stop()`` then finds itself stopped instead of calling recv() again on a closed
+        bus (which raises). The socket is not touched meanwhile."""
+        with self._cond:
+            while (left := deadline - time.monotonic()) > 0:
+                self._cond.wait(left)
 
     def _has_rx(self) -> bool:
         return bool(self._rx)

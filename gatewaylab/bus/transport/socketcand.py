@@ -59,6 +59,8 @@ class _Client:
         self.subs: dict[tuple[int, bool], float] = {}
         self.last_sent: dict[tuple[int, bool], float] = {}
         self.pending: dict[tuple[int, bool], TimerHandle] = {}
+        #: FD frames not sent because the client did not ask for CAN FD
+        self.fd_withheld = 0
 
     # -- bus -> client -----------------------------------------------------------------------
     def on_frame(self, frame: CanFrame, t: float) -> None:
@@ -66,6 +68,9 @@ class _Client:
         if self.session.mode is sc.Mode.RAW:
             if frame.rtr:
                 self.server.rtr_skipped += 1   # upstream state_raw.c: "TODO implement"
+                return
+            if frame.fd and not self.session.fd:
+                self._withhold()
                 return
             self.emit(sc.raw_frame(frame, epoch + t))
             return
@@ -83,6 +88,15 @@ class _Client:
             return
         self.last_sent[key] = t
         self.emit(sc.bcm_frame(frame, epoch + t))
+
+    def _withhold(self) -> None:
+        """An FD frame for a client that did not ask for CAN FD: counted, said once per client."""
+        self.fd_withheld += 1
+        self.server.fd_withheld += 1
+        if self.fd_withheld == 1:
+            log.warning("bus %s: socketcand %s did not ask for CAN FD: FD frames are not sent to it (a client "
+                        "that parses '< fdframe >' sends '< rawmode fd >'; python-can's client cannot)",
+                        self.server.bus.name, self.peer)
 
     def _throttled(self, key: tuple[int, bool], frame: CanFrame, t: float) -> None:
         self.pending.pop(key, None)
@@ -224,6 +238,8 @@ class SocketcandServer:
         self.syntax_errors = 0
         self.refused = 0
         self.rtr_skipped = 0
+        #: FD frames not sent to clients that did not ask for CAN FD (all clients)
+        self.fd_withheld = 0
         self.listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
         try:
             self.listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -247,6 +263,9 @@ class SocketcandServer:
         if client.closed:
             return
         log.log(level, "bus %s: socketcand: disconnecting %s: %s", self.bus.name, client.peer, reason)
+        if client.fd_withheld:
+            log.info("bus %s: socketcand %s: %d CAN FD frame(s) were not sent to it (it did not ask for CAN FD)",
+                     self.bus.name, client.peer, client.fd_withheld)
         client.held = None
         client.stop_timers()
         if client.outbox.out:   # a last answer (an error before the end) goes out if it fits

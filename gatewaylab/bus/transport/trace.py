@@ -14,6 +14,8 @@ import io
 import os
 import re
 import struct
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO, Protocol
 
@@ -294,8 +296,9 @@ def _socketcan_item(record: bytes, t: float, where: str) -> TraceItem:
         raise TraceError(f"{where}: {exc}") from None
 
 
-def parse_pcap(data: bytes, name: str = "trace") -> list[TraceItem]:
-    """The CAN frames of a classic pcap file (LINKTYPE_CAN_SOCKETCAN); pure, errors name the offset."""
+def parse_pcap(data: bytes, name: str = "trace", channels: list[str] | None = None) -> list[TraceItem]:
+    """The CAN frames of a classic pcap file (LINKTYPE_CAN_SOCKETCAN); pure, errors name the offset.
+    ``channels`` gets one channel name per item ("": a pcap names none)."""
     if len(data) < _PCAP_GLOBAL.size:
         raise TraceError(f"{name}: offset 0: {len(data)} bytes, too short for a pcap header (24)")
     magic = struct.unpack_from("<I", data)[0]
@@ -317,16 +320,19 @@ def parse_pcap(data: bytes, name: str = "trace") -> list[TraceItem]:
                              f"({'longer than a CAN FD frame' if incl > 72 else 'file ends'})")
         body = data[pos + record.size:pos + record.size + incl]
         out.append(_socketcan_item(body, sec + frac * unit, f"{name}: offset {pos}"))
+        if channels is not None:
+            channels.append("")
         pos += record.size + incl
     return out
 
 
-def parse_pcapng(data: bytes, name: str = "trace") -> list[TraceItem]:
-    """The CAN frames of a pcapng file (SocketCAN interfaces; enhanced and simple packet blocks)."""
+def parse_pcapng(data: bytes, name: str = "trace", channels: list[str] | None = None) -> list[TraceItem]:
+    """The CAN frames of a pcapng file (SocketCAN interfaces; enhanced and simple packet blocks).
+    ``channels`` gets the interface name (if_name) of each item ("" for an unnamed interface)."""
     out: list[TraceItem] = []
     pos = 0
     order = "<"
-    interfaces: list[tuple[int, float]] = []   # (link type, seconds per timestamp unit)
+    interfaces: list[tuple[int, float, str]] = []   # (link type, seconds per timestamp unit, if_name)
     while pos < len(data):
         if len(data) - pos < 12:
             raise TraceError(f"{name}: offset {pos}: truncated block ({len(data) - pos} bytes)")
@@ -350,6 +356,7 @@ def parse_pcapng(data: bytes, name: str = "trace") -> list[TraceItem]:
         if btype == 0x00000001:                          # interface description
             linktype = struct.unpack_from(order + "H", body)[0]
             unit = 1e-6
+            if_name = ""
             opt = 8
             while opt + 4 <= len(body):
                 code, olen = struct.unpack_from(order + "HH", body, opt)
@@ -358,8 +365,10 @@ def parse_pcapng(data: bytes, name: str = "trace") -> list[TraceItem]:
                 if code == 9 and olen >= 1:
                     r = body[opt + 4]
                     unit = 2.0 ** -(r & 0x7F) if r & 0x80 else 10.0 ** -r
+                elif code == 2:
+                    if_name = body[opt + 4:opt + 4 + olen].rstrip(b"\0").decode("utf-8", "replace")
                 opt += 4 + olen + (-olen % 4)
-            interfaces.append((linktype, unit))
+            interfaces.append((linktype, unit, if_name))
         elif btype in (0x00000006, 0x00000003):          # enhanced / simple packet
             if btype == 0x00000006:
                 if len(body) < 20:
@@ -372,9 +381,11 @@ def parse_pcapng(data: bytes, name: str = "trace") -> list[TraceItem]:
                 packet = body[4:4 + incl]
             if iface >= len(interfaces):
                 raise TraceError(f"{name}: offset {pos}: packet of interface {iface}, which was not described")
-            linktype, unit = interfaces[iface]
+            linktype, unit, if_name = interfaces[iface]
             if linktype == LINKTYPE_CAN_SOCKETCAN:
                 out.append(_socketcan_item(packet, stamp_at * unit, f"{name}: offset {pos}"))
+                if channels is not None:
+                    channels.append(if_name)
         pos += length
     return out
 
@@ -383,20 +394,23 @@ class _CountedLines(io.StringIO):
     """A text file for python-can's readers that knows which line they are on (for error messages)."""
 
     lineno = 0
+    #: the line the reader read last (the one its message comes from)
+    last = ""
 
     def readline(self, size: int | None = -1, /) -> str:  # type: ignore[override]
         line = super().readline(-1 if size is None else size)
         if line:
             self.lineno += 1
+            self.last = line
         return line
 
 
 _PRINTER_LINE = re.compile(
     r"Timestamp:\s*(?P<t>[-\d.]+)\s+ID:\s*(?P<id>[0-9a-fA-F]+)\s+(?P<x>[SX])\s+(?:Rx|Tx)\s+(?P<flags>.*?)"
-    r"DL:\s*(?P<dl>\d+)\s*(?P<data>(?:[0-9a-fA-F]{2}\s)*(?:[0-9a-fA-F]{2})?)\s*(?:Channel:.*)?$")
+    r"DL:\s*(?P<dl>\d+)\s*(?P<data>(?:[0-9a-fA-F]{2}\s)*(?:[0-9a-fA-F]{2})?)\s*(?:Channel:\s*(?P<ch>\S*).*)?$")
 
 
-def _printer_lines(text: str, name: str) -> list[TraceItem]:
+def _printer_lines(text: str, name: str, channels: list[str] | None = None) -> list[TraceItem]:
     """python-can's Printer (``.txt``): ``str(Message)`` per line."""
     out: list[TraceItem] = []
     for n, raw in enumerate(text.splitlines(), 1):
@@ -417,16 +431,23 @@ def _printer_lines(text: str, name: str) -> list[TraceItem]:
                                      brs=fd and "BS" in flags, esi=fd and "EI" in flags), float(m["t"])))
         except (FrameError, ValueError) as exc:
             raise TraceError(f"{name}: line {n}: {exc}") from None
+        if channels is not None:
+            channels.append(m["ch"] or "")
     return out
 
 
 _TEXT_READERS = {".asc": "ASCReader", ".log": "CanutilsLogReader", ".csv": "CSVReader", ".trc": "TRCReader"}
 
 
-def read_trace(path: str | Path) -> list[TraceItem]:
+def read_trace(path: str | Path, channels: list[str] | None = None) -> list[TraceItem]:
     """Every frame and error frame of a trace the rig writes (``--trace``: .asc .blf .csv .log .trc
     .txt .pcap .pcapng), with its Unix timestamp. Anything unreadable raises one :class:`TraceError`
-    naming the file and the line (text formats) or the byte offset (binary ones)."""
+    naming the file and the line (text formats) or the byte offset (binary ones).
+
+    ``channels`` (a list) gets the channel of every item, as the trace names it: candump .log and
+    python-can's .txt the interface name (``can0``), pcapng the interface's name, Vector .asc / .blf
+    and .trc their channel number (``1``, ``2``, ... as written in the file); "" when the format names
+    none (.pcap, .csv)."""
     path = Path(path)
     name = str(path)
     try:
@@ -436,11 +457,11 @@ def read_trace(path: str | Path) -> list[TraceItem]:
     suffix = path.suffix.lower()
     magic = struct.unpack_from("<I", data)[0] if len(data) >= 4 else None
     if suffix == ".pcapng" or magic == _PCAPNG_SHB:
-        return parse_pcapng(data, name)
+        return parse_pcapng(data, name, channels)
     if suffix == ".pcap" or magic in _PCAP_MAGICS:
-        return parse_pcap(data, name)
+        return parse_pcap(data, name, channels)
     if suffix == ".blf":
-        return _python_can_binary(path, name)
+        return _python_can_binary(path, name, channels)
     if suffix not in (*_TEXT_READERS, ".txt"):
         raise TraceError(f"{name}: format {suffix or '(no suffix)'!r} is not one the rig writes "
                          f"({', '.join(TRACE_FORMATS)})")
@@ -455,13 +476,17 @@ def read_trace(path: str | Path) -> list[TraceItem]:
         line = data.count(b"\n", 0, exc.start) + 1
         raise TraceError(f"{name}: line {line} (offset {exc.start}): not UTF-8 text") from None
     if suffix == ".txt":
-        return _printer_lines(text, name)
+        return _printer_lines(text, name, channels)
     lines = _CountedLines(text)
     reader = getattr(can, _TEXT_READERS[suffix])(lines)
     out: list[TraceItem] = []
     try:
         for msg in reader:
+            if suffix == ".asc" and msg.is_fd and msg.is_remote_frame:
+                msg = asc_empty_fd_frame(msg, lines.last)
             out.append(_message_item(msg, f"{name}: line {lines.lineno}"))
+            if channels is not None:
+                channels.append(_channel_name(msg))
     except TraceError:
         raise
     except Exception as exc:    # python-can's readers raise anything on bad input
@@ -472,6 +497,50 @@ def read_trace(path: str | Path) -> list[TraceItem]:
             raise TraceError(f"{name}: line {first}: no CAN frame in this {suffix} file "
                              f"({text.splitlines()[first - 1].strip()[:60]!r})")
     return out
+
+
+#: Vector ASC ``CANFD`` event flags (the same bits as BLF's CAN_FD_MESSAGE_64): remote frame, EDL (a
+#: CAN FD frame; without it the line is a classic frame on an FD channel)
+_ASC_FD_FLAG_REMOTE = 0x0010
+_ASC_FD_FLAG_EDL = 0x1000
+
+
+def asc_empty_fd_frame(msg: can.Message, line: str) -> can.Message:
+    """The frame of an ``.asc`` ``CANFD`` line that python-can's ASCReader took for a remote frame.
+
+    The reader (python-can 4.x ``ASCReader._process_fd_can_frame``) decides "remote" from a data length of
+    0 alone, so every CAN FD frame without data (``123##0`` in candump's notation) comes back as an FD
+    remote frame, which CAN FD does not have (ISO 11898-1:2015: an FD frame's RRS bit is always
+    dominant). The line's flags field says what it is: EDL set -> a CAN FD data frame of length 0; EDL
+    clear -> a classic frame on an FD channel, remote if the remote flag is set. A line without a
+    readable flags field (a shorter form from another tool) is an FD frame of length 0. docs/monitor.md
+    "CAN FD frames without data in .asc traces" reports the reader's behaviour."""
+    flags = _asc_fd_flags(line)
+    classic = flags is not None and not flags & _ASC_FD_FLAG_EDL
+    if classic and flags is not None and flags & _ASC_FD_FLAG_REMOTE:
+        return can.Message(timestamp=msg.timestamp, arbitration_id=msg.arbitration_id,
+                           is_extended_id=msg.is_extended_id, is_remote_frame=True, dlc=min(msg.dlc, 8),
+                           channel=msg.channel, is_rx=msg.is_rx)
+    fd = not classic
+    return can.Message(timestamp=msg.timestamp, arbitration_id=msg.arbitration_id,
+                       is_extended_id=msg.is_extended_id, data=b"", is_fd=fd,
+                       bitrate_switch=fd and msg.bitrate_switch, error_state_indicator=fd and msg.error_state_indicator,
+                       channel=msg.channel, is_rx=msg.is_rx)
+
+
+def _asc_fd_flags(line: str) -> int | None:
+    """The flags field (hex) of a ``CANFD`` line with data length 0: ``<time> CANFD <ch> <dir> <id>
+    [<symbolic name>] <brs> <esi> <dlc> 0 <duration> <length> <flags> ...`` (Vector ASC)."""
+    words = line.split()
+    try:
+        at = words.index("CANFD") + 4           # the first word after the id
+        if not words[at].isdigit():
+            at += 1                             # a symbolic name (python-can's reader decides the same way)
+        if int(words[at + 3]) != 0:
+            return None
+        return int(words[at + 6], 16)
+    except (ValueError, IndexError):
+        return None
 
 
 def _has_header_only(text: str, suffix: str) -> bool:
@@ -499,14 +568,120 @@ def _message_item(msg: can.Message, where: str) -> TraceItem:
         raise TraceError(f"{where}: {exc}") from None
 
 
-def _python_can_binary(path: Path, name: str) -> list[TraceItem]:
+def _channel_name(msg: can.Message) -> str:
+    """python-can's channel of a message read from a trace: a name as it is, a number (python-can's
+    readers count Vector's channels from 0) as the file writes it, from 1."""
+    channel = msg.channel
+    if channel is None:
+        return ""
+    return str(channel + 1) if isinstance(channel, int) else str(channel)
+
+
+def _python_can_binary(path: Path, name: str, channels: list[str] | None = None) -> list[TraceItem]:
     out: list[TraceItem] = []
     try:
         reader = can.BLFReader(str(path))
         for msg in reader:
             out.append(_message_item(msg, f"{name}: frame {len(out) + 1}"))
+            if channels is not None:
+                channels.append(_channel_name(msg))
     except TraceError:
         raise
     except Exception as exc:    # python-can's reader raises anything on bad input
         raise TraceError(f"{name}: after frame {len(out)}: not a readable BLF file ({_first_line(exc)})") from None
     return out
+
+
+# -- a time window of a trace (gatewaylab plot / dump / monitor --replay --from --to) -------------------
+#: A timestamp at or above this is Unix time; below it, time since the rig started (a rig's .asc trace).
+UNIX_TIME_FROM = 1e8
+
+
+def trace_origin(first_stamp: float) -> float:
+    """Time 0 of trace time, from the trace's first timestamp: a trace in Unix time (.log, .blf, .pcap,
+    ...) counts from its first frame (the rig's start is not in the file); one already relative to the
+    rig's start (.asc) counts from there. The times ``monitor --replay`` prints and ``plot`` draws."""
+    return first_stamp if first_stamp >= UNIX_TIME_FROM else 0.0
+
+
+@dataclass(frozen=True, slots=True)
+class TimeBound:
+    """One end of a :class:`TimeWindow`: ``seconds`` of trace time (a Unix time when at least
+    :data:`UNIX_TIME_FROM`), or with ``relative`` (written ``+S``) seconds after a reference: for
+    ``--from`` the trace's first frame, for ``--to`` the window's start."""
+
+    seconds: float
+    relative: bool = False
+
+    @classmethod
+    def parse(cls, text: str, option: str) -> TimeBound:
+        """``T`` or ``+S`` (seconds, >= 0); anything else is a :class:`ConfigError` naming ``option``."""
+        body = text.strip()
+        relative = body.startswith("+")
+        try:
+            seconds = float(body[1:] if relative else body)
+        except ValueError:
+            seconds = float("nan")
+        if not seconds >= 0 or seconds == float("inf"):
+            raise ConfigError(f"{option} wants seconds of trace time (T) or seconds after a reference (+S), "
+                              f"0 or more, got {text!r}")
+        return cls(seconds, relative)
+
+
+@dataclass(frozen=True, slots=True)
+class TimeWindow:
+    """The frames of a trace from ``start`` (included) to ``end`` (excluded), in trace time.
+
+    ``--from T``: T s of trace time (see :func:`trace_origin`; a Unix time if T >= 1e8); ``--from +S``:
+    S s after the trace's first frame. ``--to T``: up to trace time T; ``--to +D``: D s after the
+    window's start (``--from``, else the first frame). No bound: the trace's start / end."""
+
+    start: TimeBound | None = None
+    end: TimeBound | None = None
+
+    @classmethod
+    def parse(cls, start: str | None, end: str | None) -> TimeWindow:
+        """``--from`` / ``--to`` as given (None: not given); an empty window is refused here when the
+        two forms can be compared without the trace (otherwise by :meth:`bounds`)."""
+        window = cls(None if start is None else TimeBound.parse(start, "--from"),
+                     None if end is None else TimeBound.parse(end, "--to"))
+        low, high = window.start, window.end
+        if high is not None and (
+                (high.relative and high.seconds == 0)
+                or (low is not None and not low.relative and not high.relative
+                    and (low.seconds >= UNIX_TIME_FROM) == (high.seconds >= UNIX_TIME_FROM)
+                    and high.seconds <= low.seconds)):
+            raise ConfigError(f"--to {end} is not after --from {start or '(the first frame)'}: the window is empty")
+        return window
+
+    def __bool__(self) -> bool:
+        return self.start is not None or self.end is not None
+
+    def bounds(self, first_stamp: float) -> tuple[float, float]:
+        """``(low, high)`` in the trace's own timestamps, for a trace whose first timestamp is
+        ``first_stamp``; a :class:`ConfigError` when ``--to`` is not after ``--from``."""
+        origin = trace_origin(first_stamp)
+
+        def at(bound: TimeBound, reference: float) -> float:
+            if bound.relative:
+                return reference + bound.seconds
+            return bound.seconds if bound.seconds >= UNIX_TIME_FROM else origin + bound.seconds
+        low = -float("inf") if self.start is None else at(self.start, first_stamp)
+        high = float("inf") if self.end is None else at(
+            self.end, first_stamp if self.start is None else low)
+        if high <= low:
+            raise ConfigError(f"--to ({high - origin:.6f} s of trace time) is not after --from "
+                              f"({low - origin:.6f} s)")
+        return low, high
+
+    def select(self, items: Iterable[TraceItem | None]) -> Iterator[TraceItem]:
+        """The items of ``items`` (a whole trace, first item first; None, a live view's idle tick, is
+        skipped) inside the window."""
+        bounds: tuple[float, float] | None = None
+        for item in items:
+            if item is None:
+                continue
+            if bounds is None:
+                bounds = self.bounds(item[1])
+            if bounds[0] <= item[1] < bounds[1]:
+                yield item

@@ -362,6 +362,7 @@ class Drive(OperationModes):
         # CiA 402: transition 16 only with the quick stop option codes 5..8
         if hit is not None and not (hit[1] == 16 and int(self._v[_K_QUICK_STOP_OPTION]) < 5):
             self._transition(hit[0], hit[1])
+        self._setpoint_handshake(cw)
         if self.state is _OPERATION_ENABLED:
             self.halted = bool(cw & _CW_HALT)
             mode = self.mode
@@ -378,6 +379,10 @@ class Drive(OperationModes):
         """
         old = self.state
         self._enter(new)
+        if new is not _OPERATION_ENABLED and new is not _QUICK_STOP_ACTIVE:
+            # the trajectory generator drops its set-points (enabling again starts from the actual
+            # position): none is acknowledged; quick stop active keeps them for transition 16
+            self.setpoint_ack = False
         if new is _OPERATION_ENABLED:
             if old is not PdsState.QUICK_STOP_ACTIVE:   # 16 resumes the running motion
                 self._restart_motion()
@@ -404,6 +409,7 @@ class Drive(OperationModes):
         self.target = None
         self.pending_target = None
         self.target_reached = True
+        self.setpoint_ack = False
         self.prev_csp_target = None
         self.fe_time = 0.0
         self.halted = False

@@ -72,14 +72,13 @@ class OperationModes:
 
     def _mode_control(self, cw: int, prev: int) -> None:
         """The new-set-point bit (4) of PP and HM in Operation enabled (halt, bit 8, is set by
-        _on_controlword for every mode)."""
+        _on_controlword for every mode; the drive clears the set-point acknowledge of a cleared
+        bit 4 in every state, :meth:`_setpoint_handshake`)."""
         rising = cw & ~prev
         mode = self.mode
         if mode is _PP:
             if rising & _CW_NEW_SETPOINT:
                 self._new_setpoint(cw)
-            elif not cw & _CW_NEW_SETPOINT:
-                self.setpoint_ack = False
         elif mode is _HOMING:
             if rising & _CW_NEW_SETPOINT:
                 self._start_homing()
@@ -89,6 +88,13 @@ class OperationModes:
                 self.homing_status = HomingStatus.INTERRUPTED
                 # ramp down from where the homing profile is, in user coordinates
                 self.profile.reset(run.profile.position + self.offset, run.profile.velocity)
+
+    def _setpoint_handshake(self, cw: int) -> None:
+        """PP set-point acknowledge (statusword bit 12) follows the new-set-point bit (controlword
+        bit 4) down in every state: CiA 402-2 profile position mode, set-point transmission -- once
+        the host releases bit 4 the drive signals with bit 12 = 0 that it accepts new data."""
+        if not cw & _CW_NEW_SETPOINT:
+            self.setpoint_ack = False
 
     def _soft_limits(self, x: float) -> float:
         v = self._v     # typed values: integer objects hold ints

@@ -5,7 +5,7 @@ OTA reset) is :class:`~gatewaylab.devices.ecanlite.device.EcanLiteDevice`.
 
 Sans-I/O: everything runs from the slave's callbacks (outputs written, inputs read, SYNC0, state
 changes) and the injected clock. The CAN side (controllers, filters, caches, queues, the maintenance
-objects) is :class:`~gatewaylab.devices.ecanlite.mcan.McanModel`; the byte format is
+objects) is :class:`~gatewaylab.devices.ecanlite.model.McanModel`; the byte format is
 :mod:`~gatewaylab.devices.ecanlite.stream`; the budget split :mod:`~gatewaylab.devices.ecanlite.budget`.
 
 Per cycle, RxPDO: an image equal to the last one is a no-op; an all-zero image (nothing published

@@ -14,7 +14,7 @@ from gatewaylab.bus.bus import Controller
 from gatewaylab.common.clock import Clock
 from gatewaylab.devices.ecanlite.application import EcanLiteApplication
 from gatewaylab.devices.ecanlite.image import DEVICE_NAME, ecanlite_description
-from gatewaylab.devices.ecanlite.mcan import McanModel
+from gatewaylab.devices.ecanlite.model import McanModel
 from gatewaylab.ethercat.description import DeviceDescription
 from gatewaylab.ethercat.slave import Slave
 

@@ -33,12 +33,12 @@ from gatewaylab.devices.ecanlite.mcan.objects import (
     rows_object,
 )
 from gatewaylab.devices.ecanlite.mcan.registers import WRITE_WHITELIST
+from gatewaylab.devices.ecanlite.model_port import ModelPort
 from gatewaylab.devices.ecanlite.ota import OtaHandler, OtaStatus, Package
 from gatewaylab.ethercat.description import ObjectDef
 from gatewaylab.od import Access, DataType, Entry, ObjectDictionary, SdoAbort, SdoAbortCode
 
 if TYPE_CHECKING:
-    from gatewaylab.devices.ecanlite.mcan.model import McanModel
     from gatewaylab.ethercat.foe import FoeHandler
 
 U8, U16, U32 = DataType.UNSIGNED8, DataType.UNSIGNED16, DataType.UNSIGNED32
@@ -205,9 +205,9 @@ def _defaults(rows: tuple[Row, ...]) -> dict[int, int]:
 
 
 class SystemModel:
-    """0x8000, 0x8020, 0x8030, 0xA000..0xA003, 0xB000, 0xF000 of one device, flash and FoE."""
+    """0x8000, 0x8020, 0x8030, 0xA000..0xA003, 0xB000, 0xF000 of one device, flash and FoE (model: ModelPort)."""
 
-    def __init__(self, model: McanModel, *, serial: int = 0, hardware_revision: int = 0) -> None:
+    def __init__(self, model: ModelPort, *, serial: int = 0, hardware_revision: int = 0) -> None:
         self.model = model
         self.clock = model.clock
         self.serial = serial

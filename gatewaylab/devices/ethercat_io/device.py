@@ -2,7 +2,8 @@
 
 Outputs (RxPDO 0x1600): 0x7000:01 digital outputs (U8), 0x7010:01/02 analog outputs (INT16).
 Inputs (TxPDO 0x1A00): 0x6000:01 digital inputs, 0x6010:01/02 analog inputs, 0x6020:01 cycle counter.
-Settings: 0x8000:01 description string (RW), 0x8000:02 scale (RW), 0x8001 emergency trigger (RW).
+Settings: 0x8000:01 description string (RW, at most 512 bytes: STRING(512)), 0x8000:02 scale (RW),
+0x8001 emergency trigger (RW).
 The inputs echo the outputs (a wired loop-back test box): the application runs on the SM2 write
 event, before the same LRW reads SM3, so one LRW returns its own outputs. The counter counts output
 cycles, so a master can check both directions of process data.
@@ -11,6 +12,7 @@ cycles, so a master can check both directions of process data.
 from __future__ import annotations
 
 import struct
+from dataclasses import replace
 from typing import Any, Final
 
 from mypy_extensions import mypyc_attr
@@ -33,6 +35,14 @@ _ECHO: Final = (((0x7000, 1), (0x6000, 1)), ((0x7010, 1), (0x6010, 1)), ((0x7010
 #: The inputs the default echo writes each cycle, in order: the echoed outputs, then the counter.
 _COUNTER: Final = (0x6020, 1)
 _ECHO_INPUTS: Final = tuple(key_object(*k) for k in (*(inp for _, inp in _ECHO), _COUNTER))
+#: Bytes the description string 0x8000:01 holds (its ESI STRING(n)): longer than a mailbox, so it
+#: carries segmented transfers; a longer write aborts 0x06070012.
+DESCRIPTION_LENGTH: Final = 512
+
+
+def _declare_sizes(od: ObjectDictionary) -> None:
+    """The description string's buffer (its default is shorter than what it holds)."""
+    od.replace_entry(replace(od.entry(0x8000, 1), max_length=DESCRIPTION_LENGTH))
 
 
 def io_description(name: str = "GL-IO 8DIO 2AIO", serial: int = 0, revision: int = 1) -> DeviceDescription:
@@ -52,7 +62,7 @@ def io_description(name: str = "GL-IO 8DIO 2AIO", serial: int = 0, revision: int
     ro_in = Access.RO     # mappable into the TxPDO
     return DeviceDescription(
         name=name, vendor_id=VENDOR_ID, product_code=PRODUCT_CODE, revision=revision, serial=serial,
-        order_code="GL-IO-8D2A", rx_pdos=(rx,), tx_pdos=(tx,), device_type=0x00001389,
+        order_code="GL-IO-8D2A", rx_pdos=(rx,), tx_pdos=(tx,), device_type=0x00001389, extend_od=_declare_sizes,
         objects=(
             ObjectDef(0x6000, "Digital inputs", subs=(("Digital inputs", DataType.UNSIGNED8, 0, ro_in),),
                       pdo_mappable=True),

@@ -148,13 +148,13 @@ class Coe:
 
     def object_description(self, position: int, index: int) -> ObjectDescription:
         """Name, type and size of one object by SDO information, to browse a dictionary without an ESI."""
-        data = self._info(position, InfoOpcode.OD_REQ, U16.pack(index))[0]
+        data = b"".join(self._info(position, InfoOpcode.OD_REQ, U16.pack(index)))
         idx, dtype, max_sub, code = struct.unpack_from("<HHBB", data, 0)
         return ObjectDescription(idx, dtype, max_sub, code, data[6:].decode("latin-1"))
 
     def entry_description(self, position: int, index: int, subindex: int) -> EntryDescription:
         """Type, bit length, access and name of one subindex by SDO information."""
-        data = self._info(position, InfoOpcode.ED_REQ, struct.pack("<HBB", index, subindex, 0))[0]
+        data = b"".join(self._info(position, InfoOpcode.ED_REQ, struct.pack("<HBB", index, subindex, 0)))
         idx, sub, _vi, dtype, bits, access = struct.unpack_from("<HBBHHH", data, 0)
         return EntryDescription(idx, sub, dtype, bits, access, data[10:].decode("latin-1"))
 

@@ -23,8 +23,8 @@ from gatewaylab.ethercat.esc import (
     AlState,
 )
 from gatewaylab.ethercat.sii import SiiInfo, parse_sii
-from gatewaylab.hosts.ethercat.backend import sii_complete
 from gatewaylab.hosts.ethercat.base import U16, U32, Port
+from gatewaylab.hosts.ethercat.shared import sii_complete
 
 if TYPE_CHECKING:
     from gatewaylab.hosts.ethercat.coe import Coe

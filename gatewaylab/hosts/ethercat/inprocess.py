@@ -1,6 +1,6 @@
 """The in-process :class:`~gatewaylab.hosts.ethercat.backend.MasterBackend`: the in-process
 :class:`~gatewaylab.hosts.ethercat.master.Master` on a rig's segment (no root, simulated or real clock;
-``InProcessBackend.from_rig(rig)``). ``gatewaylab.hosts.ethercat.backend`` still finds it."""
+``InProcessBackend.from_rig(rig)``)."""
 
 from __future__ import annotations
 
@@ -18,19 +18,19 @@ from gatewaylab.ethercat.esc import (
     AlState,
 )
 from gatewaylab.ethercat.sii import SiiInfo
-from gatewaylab.hosts.ethercat import backend as contract  # the helpers both backends share
-from gatewaylab.hosts.ethercat.backend import (
+from gatewaylab.hosts.ethercat.backend import EntryInfo, MasterTimeout, ObjectInfo, ProgressFn, SlaveIdentity
+from gatewaylab.hosts.ethercat.master import Master
+from gatewaylab.hosts.ethercat.shared import (
     AL_ERROR,
     DC_START_DELAY,
     U32,
     U64,
-    EntryInfo,
-    MasterTimeout,
-    ObjectInfo,
-    ProgressFn,
-    SlaveIdentity,
+    MailboxPort,
+    await_state,
+    register_read,
+    register_write,
+    state_of,
 )
-from gatewaylab.hosts.ethercat.master import Master
 
 if TYPE_CHECKING:
     from gatewaylab.ethercat.segment import Segment
@@ -53,7 +53,7 @@ class RigLike(Protocol):
 
 
 class _MasterRegisters:
-    """:class:`_Registers` over the in-process master (configured addresses of its scan)."""
+    """:class:`~.shared.Registers` over the in-process master (configured addresses of its scan)."""
 
     def __init__(self, master: Master) -> None:
         self.master = master
@@ -94,7 +94,7 @@ class InProcessBackend:
         self.last_wkc = 0
         self._sii: dict[int, SiiInfo] = {}
         self._mapped = False
-        self._mbx = contract._MailboxPort(self.clock, _MasterRegisters(master), master.timeout, self._next_counter)
+        self._mbx = MailboxPort(self.clock, _MasterRegisters(master), master.timeout, self._next_counter)
         if not master.slaves:
             self._call(master.scan)
         if preop:
@@ -154,7 +154,7 @@ class InProcessBackend:
     def state(self, position: int) -> tuple[AlState, int]:
         """(AL state, AL status code) of one slave."""
         status, code = self.al_status(position)
-        return contract._state_of(status), code
+        return state_of(status), code
 
     def request_state(self, state: AlState, position: int | None = None, timeout: float = 5.0) -> AlState:
         """Request ``state`` (all slaves, or one) and wait until reached; an error flag acknowledges
@@ -166,7 +166,7 @@ class InProcessBackend:
                 self._call(m.request_state, pos, state, ack=bool(status & AL_ERROR))
             except AlStatusError:
                 pass  # checked below: the slave may still be on its way
-            contract.await_state(self, pos, state, timeout, exchanging=self._mapped)
+            await_state(self, pos, state, timeout, exchanging=self._mapped)
             m.slave(pos).boot = state == AlState.BOOT
         return state
 
@@ -212,12 +212,12 @@ class InProcessBackend:
     def reg_read(self, position: int, address: int, length: int) -> bytes:
         """ESC registers by configured-address read (FPRD), IgH's ``reg_read``; MasterTimeout unanswered."""
         self.master.slave(position)
-        return contract.register_read(_MasterRegisters(self.master), position, address, length)
+        return register_read(_MasterRegisters(self.master), position, address, length)
 
     def reg_write(self, position: int, address: int, data: bytes) -> None:
         """ESC registers by configured-address write (FPWR), IgH's ``reg_write``."""
         self.master.slave(position)
-        contract.register_write(_MasterRegisters(self.master), position, address, data)
+        register_write(_MasterRegisters(self.master), position, address, data)
 
     def sii_info(self, position: int) -> SiiInfo:
         """The parsed SII the scan read (identity, mailboxes, SyncManagers)."""

@@ -19,28 +19,32 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from gatewaylab.common.clock import Clock
-from gatewaylab.common.errors import TimeoutError_
-from gatewaylab.ethercat.datagram import Command, Datagram
-from gatewaylab.ethercat.errors import MasterError
+from gatewaylab.ethercat.datagram import Datagram
 from gatewaylab.ethercat.esc import AlState
 from gatewaylab.ethercat.mailbox import MailboxMessage
 from gatewaylab.ethercat.segment import Segment
 from gatewaylab.hosts.ethercat.base import U8, U16, U32, U64, Port
 from gatewaylab.hosts.ethercat.coe import Coe, EntryDescription, ObjectDescription
-from gatewaylab.hosts.ethercat.config import FIRST_STATION, FMMU_REG, SM_REG, Configuration, SlaveInfo
+from gatewaylab.hosts.ethercat.config import Configuration, SlaveInfo
 from gatewaylab.hosts.ethercat.dc import Dc
-from gatewaylab.hosts.ethercat.foe import FOE_BUSY_RETRY, Foe
-from gatewaylab.hosts.ethercat.mailbox import MAILBOX_POLL, Mailboxes
+from gatewaylab.hosts.ethercat.foe import Foe
+from gatewaylab.hosts.ethercat.mailbox import Mailboxes
 from gatewaylab.hosts.ethercat.process_data import ProcessImage
 
-__all__ = [
-    "FIRST_STATION", "FMMU_REG", "FOE_BUSY_RETRY", "MAILBOX_POLL", "SM_REG", "U16", "U32", "U64",
-    "EntryDescription", "Master", "MasterError", "ObjectDescription", "SlaveInfo", "TimeoutError_",
-]
+__all__ = ["Master"]
 
 
 class Master:
-    """A small EtherCAT master with real frames, so tests and teaching scripts drive slaves without a network."""
+    """A small EtherCAT master with real frames, so tests and teaching scripts drive slaves without a network.
+
+    Most methods hand the call to one of the parts (``port``, ``config``, ``mailbox``, ``coe``, ``foe``,
+    ``dc``, ``process``), and that is deliberate: this class is the users' API -- the QEC master
+    manual's calls (``sdo_upload8/16/32``, ``pdo_read``/``pdo_write``, state changes, a cyclic
+    callback) that docs/ethercat.md, the device pages and the migration guide show on one object --
+    while the parts are the implementation, split along SOEM's modules so each reads alone and can be
+    used directly (``master.coe.sdo_upload``, ``master.port.phys``). New behaviour goes into a part;
+    a method is added here only when users get a call they would look for on a master.
+    """
 
     def __init__(self, clock: Clock, segment: Segment | None = None,
                  link: Callable[[bytes], bytes | None] | None = None, *, timeout: float = 0.1,
@@ -128,9 +132,6 @@ class Master:
     def exchange(self, datagrams: list[Datagram]) -> tuple[Datagram, ...]:
         """Send one frame and return its datagrams as they came back: the one path every command takes."""
         return self.port.exchange(datagrams)
-
-    def _phys(self, command: Command, adp: int, ado: int, data: bytes) -> Datagram:
-        return self.port.phys(command, adp, ado, data)
 
     def fprd(self, station: int, ado: int, length: int) -> bytes:
         """Read a register of one configured slave (FPRD), raising unless exactly that slave answered."""

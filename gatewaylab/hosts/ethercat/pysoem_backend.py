@@ -1,7 +1,7 @@
 """SOEM through pysoem on a network interface: the I/O adapter of :class:`~.backend.MasterBackend`.
 
-The contract, the rules both backends keep and the in-process backend are in ``backend.py``
-(docs/ethercat-host.md); this file holds the part that touches a NIC (pysoem, a lock), as the
+The contract and the rules both backends keep are in ``backend.py`` (docs/ethercat-host.md), what
+both share in ``shared.py``; this file holds the part that touches a NIC (pysoem, a lock), as the
 architecture's naming rule wants for I/O adapters (``wire*`` files).
 """
 
@@ -24,8 +24,8 @@ from gatewaylab.ethercat.esc import (
     AlState,
 )
 from gatewaylab.ethercat.sii import SiiInfo, parse_sii
-from gatewaylab.hosts.ethercat.backend import (
-    _STATES,
+from gatewaylab.hosts.ethercat.backend import EntryInfo, MasterTimeout, ObjectInfo, ProgressFn, SlaveIdentity
+from gatewaylab.hosts.ethercat.shared import (
     AL_ERROR,
     INFO_ATTEMPTS,
     POLL,
@@ -33,26 +33,22 @@ from gatewaylab.hosts.ethercat.backend import (
     RETRY_SETTLE,
     SCAN_ATTEMPTS,
     SCAN_RETRY,
+    STATES,
     U16,
     U32,
-    EntryInfo,
-    MasterTimeout,
-    ObjectInfo,
-    ProgressFn,
-    SlaveIdentity,
-    _MailboxPort,
-    _state_of,
+    MailboxPort,
     await_state,
     register_read,
     register_write,
     sii_complete,
+    state_of,
 )
 
 __all__ = ["PysoemBackend"]
 
 
 class _PysoemRegisters:
-    """:class:`_Registers` over pysoem's FPRD/FPWR of one slave."""
+    """:class:`~gatewaylab.hosts.ethercat.shared.Registers` over pysoem's FPRD/FPWR of one slave."""
 
     def __init__(self, backend: PysoemBackend) -> None:
         self.backend = backend
@@ -107,7 +103,7 @@ class PysoemBackend:
         self._slaves: list[Any] = []
         #: the mailbox counter of this backend's own requests per slave (FoE); see _mbx_counter
         self._mbx_counts: dict[int, int] = {}
-        self._mbx = _MailboxPort(self.clock, _PysoemRegisters(self), timeout, self._mbx_counter)
+        self._mbx = MailboxPort(self.clock, _PysoemRegisters(self), timeout, self._mbx_counter)
         master = pysoem.Master()
         master.sdo_read_timeout = round(timeout * 1e6)
         master.sdo_write_timeout = round(timeout * 1e6)
@@ -161,7 +157,7 @@ class PysoemBackend:
     def _mbx_counter(self, position: int) -> int:
         """ETG.1000.4 mailbox counter of the next own request: 0 ('not used', never taken for a repeat)
         first and after SOEM's own mailbox calls (whose counters SOEM keeps), then 1..7 in turn, so a
-        request written again after a lost answer (:meth:`_MailboxPort.send`) is dropped by the slave as
+        request written again after a lost answer (:meth:`MailboxPort.send`) is dropped by the slave as
         a repeat instead of being served twice (an FoE DATA packet twice: PACKET_NUMBER_WRONG)."""
         last = self._mbx_counts.get(position)
         self._mbx_counts[position] = nxt = 0 if last is None else last % 7 + 1
@@ -216,14 +212,14 @@ class PysoemBackend:
             status = U16.unpack_from(raw, 0)[0]
             # SOEM matches a reply by its index byte only: a very late frame of an earlier request
             # can stand in for the answer (shared notes soem-interop pitfall 2); read again.
-            if not status & 0xFFE0 and status & 0x0F in _STATES:
+            if not status & 0xFFE0 and status & 0x0F in STATES:
                 return status, U16.unpack_from(raw, 4)[0]
         raise ProtocolError(f"slave {position}: implausible AL status 0x{status:04X}")
 
     def state(self, position: int) -> tuple[AlState, int]:
         """(AL state, AL status code) of one slave."""
         status, code = self.al_status(position)
-        return _state_of(status), code
+        return state_of(status), code
 
     def _set_boot_mailbox(self, position: int, boot: bool) -> None:
         """BOOT uses the bootstrap mailbox of SII words 0x14..0x17 (pysoem amend_mbx, slave in INIT)."""

@@ -12,7 +12,7 @@ from pathlib import Path
 from gatewaylab.bus import CanFrame, VirtualBus
 from gatewaylab.bus.bus import BusEvent, Controller
 from gatewaylab.common.clock import SimulatedClock
-from gatewaylab.devices.ecanlite.mcan import McanModel
+from gatewaylab.devices.ecanlite.model import McanModel
 from gatewaylab.ethercat.description import DeviceDescription, build_od
 from gatewaylab.od import ObjectDictionary
 

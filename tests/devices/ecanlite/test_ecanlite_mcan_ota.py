@@ -192,7 +192,7 @@ def test_new_firmware_survives_the_reset(tmp_path: Path) -> None:
     assert (major, minor, build) == (1, 4, 0x2291)
     mem = make_rig()
     _write(mem, APP_FILE_NAME, 0, pack(APP, FirmwareVersion(1, 5, 7)))
-    from gatewaylab.devices.ecanlite.mcan import McanModel
+    from gatewaylab.devices.ecanlite.model import McanModel
     fresh = McanModel(mem.clock, [], mem.model.flash)
     assert fresh.version == FirmwareVersion(1, 5, 7)
     assert McanModel(mem.clock, [], None).version == FirmwareVersion(1, 3, 0x2100)

@@ -23,7 +23,7 @@ import pytest
 
 from gatewaylab.bus.frame import CanFrame
 from gatewaylab.hosts.esd_can_ethercat import BitRate, EsdHost, EsdQueueApi
-from gatewaylab.hosts.ethercat.backend import InProcessBackend
+from gatewaylab.hosts.ethercat.inprocess import InProcessBackend
 from gatewaylab.migrate.esdqueue import EsdQueueOnEcanLite
 from gatewaylab.rig.runtime import Rig
 

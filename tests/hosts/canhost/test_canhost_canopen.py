@@ -21,7 +21,7 @@ from gatewaylab.devices.esd_can_ethercat.device import EsdGateway, create_esd_ga
 from gatewaylab.ethercat.esc import AlState
 from gatewaylab.ethercat.segment import Segment
 from gatewaylab.hosts.canhost import EthercatHost
-from gatewaylab.hosts.ethercat.backend import InProcessBackend
+from gatewaylab.hosts.ethercat.inprocess import InProcessBackend
 from gatewaylab.hosts.ethercat.master import Master
 
 RIG = """

@@ -12,7 +12,7 @@ from gatewaylab.common.clock import SimulatedClock
 from gatewaylab.devices.ecanlite.device import EcanLiteDevice
 from gatewaylab.ethercat.segment import Segment
 from gatewaylab.hosts.canhost import EthercatHost
-from gatewaylab.hosts.ethercat.backend import InProcessBackend
+from gatewaylab.hosts.ethercat.inprocess import InProcessBackend
 from gatewaylab.hosts.ethercat.master import Master
 
 

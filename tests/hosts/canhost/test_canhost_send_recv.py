@@ -18,7 +18,7 @@ from gatewaylab.devices.ecanlite.device import EcanLiteDevice
 from gatewaylab.devices.esd_can_ethercat.device import EsdGateway, create_esd_gateway
 from gatewaylab.ethercat.segment import Segment
 from gatewaylab.hosts.canhost import EthercatHost
-from gatewaylab.hosts.ethercat.backend import InProcessBackend
+from gatewaylab.hosts.ethercat.inprocess import InProcessBackend
 from gatewaylab.hosts.ethercat.master import Master
 
 EPOCH = 1_700_000_000.0

@@ -13,7 +13,7 @@ from gatewaylab.common.clock import SimulatedClock
 from gatewaylab.hosts.ecanlite.adapter import AdapterConfig, EcanAdapter
 from gatewaylab.hosts.ecanlite.demo import rig_toml
 from gatewaylab.hosts.ecanlite.port import ChannelConfig, McanPort, PortConfig
-from gatewaylab.hosts.ethercat.backend import InProcessBackend
+from gatewaylab.hosts.ethercat.inprocess import InProcessBackend
 from gatewaylab.rig.runtime import Rig
 
 

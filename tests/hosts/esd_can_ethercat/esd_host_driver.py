@@ -15,7 +15,7 @@ from esd_host_scenarios import SCENARIOS
 
 from gatewaylab.common.clock import RealTimeClock
 from gatewaylab.common.errors import GatewaylabError
-from gatewaylab.hosts.ethercat.backend import PysoemBackend
+from gatewaylab.hosts.ethercat.pysoem_backend import PysoemBackend
 
 #: Opening the line (config_init, mailbox SMs, INIT -> PREOP) on a loaded machine may lose a frame
 #: (AL 0x0016 from a mailbox SM write that never arrived); a fresh open repairs it.

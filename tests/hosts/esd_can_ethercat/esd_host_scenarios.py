@@ -33,7 +33,8 @@ from gatewaylab.hosts.esd_can_ethercat import (
     api_table,
 )
 from gatewaylab.hosts.esd_can_ethercat.config import NTCAN_USER_BAUDRATE, NTCAN_USER_BAUDRATE_NUM
-from gatewaylab.hosts.ethercat.backend import InProcessBackend, MasterBackend, MasterTimeout
+from gatewaylab.hosts.ethercat.backend import MasterBackend, MasterTimeout
+from gatewaylab.hosts.ethercat.inprocess import InProcessBackend
 from gatewaylab.hosts.ethercat.master import Master
 from gatewaylab.od import SdoAbort
 

@@ -16,7 +16,8 @@ from gatewaylab.devices.ethercat_io.device import create_io_slave
 from gatewaylab.ethercat.esc import AlState
 from gatewaylab.ethercat.segment import Segment
 from gatewaylab.hosts.esd_can_ethercat import BitRate, CanStatus, EsdHost, ReadbackError, TxQueueFull
-from gatewaylab.hosts.ethercat.backend import InProcessBackend, MasterTimeout
+from gatewaylab.hosts.ethercat.backend import MasterTimeout
+from gatewaylab.hosts.ethercat.inprocess import InProcessBackend
 from gatewaylab.hosts.ethercat.master import Master
 
 

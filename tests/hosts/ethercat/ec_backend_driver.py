@@ -13,7 +13,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 
 from ec_contract import CHECKS
 
-from gatewaylab.hosts.ethercat.backend import PysoemBackend
+from gatewaylab.hosts.ethercat.pysoem_backend import PysoemBackend
 
 if __name__ == "__main__":
     iface, check = sys.argv[1], sys.argv[2]

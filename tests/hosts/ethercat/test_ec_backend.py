@@ -24,8 +24,10 @@ from gatewaylab.ethercat.errors import AlStatusCode, MasterError
 from gatewaylab.ethercat.esc import AlState
 from gatewaylab.ethercat.segment import Segment
 from gatewaylab.ethercat.wire import WireTransport
-from gatewaylab.hosts.ethercat.backend import InProcessBackend, MasterBackend, MasterTimeout, al_status_name
+from gatewaylab.hosts.ethercat.backend import MasterBackend, MasterTimeout
+from gatewaylab.hosts.ethercat.inprocess import InProcessBackend
 from gatewaylab.hosts.ethercat.master import Master
+from gatewaylab.hosts.ethercat.shared import al_status_name
 from gatewaylab.rig.runtime import Rig
 
 DRIVER = Path(__file__).with_name("ec_backend_driver.py")

@@ -1,9 +1,11 @@
-"""The ECAN-Lite's CAN side bound into a slave's dictionary: :class:`McanModel` holds the four MCAN
-channels (:mod:`.channel`) plus the system objects (``system.py``), the flash image
+"""The ECAN-Lite's device model bound into a slave's dictionary: :class:`McanModel` holds the four MCAN
+channels (:mod:`.mcan.channel`) plus the system objects (``system.py``), the flash image
 (``flash.py``) and the FoE update (``ota.py``), lists every object it owns
 (:meth:`McanModel.object_defs`) and wires their hooks -- validators, reactions to the apply /
 flash / filter-window commands, read hooks of 0x9000 / 0x9020 -- into a slave's dictionary
-(:meth:`McanModel.install`). Sans-I/O: the bus calls in on the injected clock; nothing sleeps.
+(:meth:`McanModel.install`). The system objects call back only through the narrow
+:class:`~.model_port.ModelPort`, so ``system.py`` never imports this file.
+Sans-I/O: the bus calls in on the injected clock; nothing sleeps.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ from typing import TYPE_CHECKING, Any
 from gatewaylab.bus.bus import Controller
 from gatewaylab.common.clock import Clock
 from gatewaylab.common.errors import ConfigError
+from gatewaylab.devices.ecanlite.flash import FileFlash, FlashMedium, MemoryFlash
 from gatewaylab.devices.ecanlite.mcan.channel import McanChannel
 from gatewaylab.devices.ecanlite.mcan.datapath import DataPathPolicy, PolicyError
 from gatewaylab.devices.ecanlite.mcan.filters import EMPTY_FILTER, EntryStatus, FilterElement
@@ -37,15 +40,16 @@ from gatewaylab.devices.ecanlite.mcan.objects import (
     STD_LIST_MAX,
     rows_object,
 )
-from gatewaylab.devices.ecanlite.ota import FirmwareVersion
+from gatewaylab.devices.ecanlite.ota import FirmwareVersion, OtaError, unpack
+from gatewaylab.devices.ecanlite.system import SystemModel
 from gatewaylab.ethercat.description import ObjectDef
 from gatewaylab.od import Entry, ObjectDictionary, SdoAbort, SdoAbortCode
 
 if TYPE_CHECKING:
-    from gatewaylab.devices.ecanlite.flash import FlashMedium
-    from gatewaylab.devices.ecanlite.system import SystemModel
     from gatewaylab.ethercat.foe import FoeHandler
     from gatewaylab.ethercat.slave import Slave
+
+__all__ = ["FACTORY_VERSION", "McanModel"]
 
 #: The firmware a device runs before any OTA update (0xF000:05 = 0x0103, :06 = 0x2100).
 FACTORY_VERSION = FirmwareVersion(1, 3, 0x2100)
@@ -69,10 +73,6 @@ class McanModel:
         """``flash_path``: the configuration flash file (the APP partition is ``PATH.app`` next to
         it), None for flash in memory, or a :class:`~.flash.FlashMedium` (e.g. the previous
         model's ``flash``, so a reset keeps an in-memory flash and firmware)."""
-        from gatewaylab.devices.ecanlite.flash import FileFlash, MemoryFlash
-        from gatewaylab.devices.ecanlite.ota import OtaError, unpack
-        from gatewaylab.devices.ecanlite.system import SystemModel
-
         if len(controllers) > CHANNELS:
             raise ConfigError(f"the ECAN-Lite has {CHANNELS} MCAN channels, got {len(controllers)} controllers")
         self.clock = clock
