@@ -97,6 +97,10 @@ def _setup(tmp_path: Path) -> dict[str, str]:
     (("send", BAD_ENDPOINT, "123#00"), "endpoint 'tcp:localhost:xx': port 'xx' is not a number"),
     (("lss", BAD_ENDPOINT, "inquire", "all"), "endpoint 'tcp:localhost:xx': port 'xx' is not a number"),
     (("idx", "read", BAD_ENDPOINT, "0", "0x1000", "0"), "endpoint 'tcp:localhost:xx': port 'xx' is not a number"),
+    (("play", BAD_ENDPOINT, "t.log"), "endpoint 'tcp:localhost:xx': port 'xx' is not a number"),
+    (("sdo", BAD_ENDPOINT, "2", "upload", "0x1000", "0"), "endpoint 'tcp:localhost:xx': port 'xx' is not a number"),
+    (("play", "unix:NOSOCK", "t.log"), "unix:NOSOCK: no such socket"),
+    (("sdo", "unix:NOSOCK", "2", "upload", "0x1000", "0"), "unix:NOSOCK: no such socket"),
     (("dump", "unix:NOSOCK"), "unix:NOSOCK: no such socket"),
     (("monitor", "unix:NOSOCK", "--plain"), "unix:NOSOCK: no such socket"),
     (("send", "unix:NOSOCK", "123#00"), "unix:NOSOCK: no such socket"),
@@ -143,10 +147,13 @@ def refusing_port() -> Iterator[int]:
     ("send", "tcp:127.0.0.1:PORT", "123#00"),
     ("lss", "tcp:127.0.0.1:PORT", "inquire", "all"),
     ("idx", "read", "tcp:127.0.0.1:PORT", "0", "0x1000", "0"),
+    ("play", "tcp:127.0.0.1:PORT", "t.log"),
+    ("sdo", "tcp:127.0.0.1:PORT", "2", "upload", "0x1000", "0"),
 ])
 def test_every_client_exits_1_when_nobody_answers_at_an_endpoint(tmp_path: Path, refusing_port: int,
                                                                  args: tuple[str, ...]) -> None:
     """docs/cli.md: a well-formed endpoint where nobody accepts the connection failed at run time: 1."""
+    _setup(tmp_path)
     out = gl(*(a.replace("PORT", str(refusing_port)) for a in args), cwd=tmp_path)
     assert out.returncode == 1, out.stderr
     assert "Connection refused" in out.stderr and "Traceback" not in out.stderr
