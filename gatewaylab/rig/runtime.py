@@ -38,7 +38,7 @@ from gatewaylab.bus.bus import VirtualBus
 from gatewaylab.bus.transport.server import BusServer
 from gatewaylab.bus.transport.socketcand import SocketcandServer
 from gatewaylab.bus.transport.trace import Trace
-from gatewaylab.bus.transport.unix_file import UNIX_PATH_MAX
+from gatewaylab.bus.transport.unix_file import UNIX_PATH_MAX, SocketPathError
 from gatewaylab.common.clock import Clock, RealTimeClock, SimulatedClock
 from gatewaylab.common.errors import ConfigError, GatewaylabError
 from gatewaylab.plugin import Participant
@@ -116,11 +116,11 @@ def _make_state_dir(resources: _Resources) -> Path:
 
 def _too_long_hint(exc: OSError, own_folder: bool) -> str:
     """What to do about a Unix socket path too long for AF_UNIX: the rig's own folder is under TMPDIR."""
-    if exc.errno != errno.ENAMETOOLONG:
+    if not (isinstance(exc, SocketPathError) and exc.too_long):
         return ""
     where = (f"the rig's folder is in TMPDIR {tempfile.gettempdir()}: point TMPDIR at a folder of at most "
              f"{_TMPDIR_MAX} characters" if own_folder else "give the rig a state folder with a shorter path")
-    return f" ({exc.filename}; {where}, or use endpoint = \"tcp\")"
+    return f" ({where}, or use endpoint = \"tcp\")"
 
 
 def _release_unclosed(resources: _Resources, what: str) -> None:

@@ -16,7 +16,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from gatewaylab.bus.transport.unix_file import UNIX_PATH_MAX, bind_unix, remove_unix
+from gatewaylab.bus.transport.unix_file import UNIX_PATH_MAX, SocketPathError, bind_unix, remove_unix
 from gatewaylab.common.errors import ConfigError
 from gatewaylab.plugin import NAME_MAX, DeviceKind, Key, name_problem, state_file
 from gatewaylab.rig.config import parse_rig
@@ -148,7 +148,8 @@ def test_a_unix_endpoint_never_replaces_or_removes_a_file_that_is_not_its_socket
     """bind_unix replaces only a stale socket file; remove_unix removes only the socket it bound."""
     path = tmp_path / "can0.sock"
     path.write_text("data")
-    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock, pytest.raises(FileExistsError):
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock, \
+            pytest.raises(SocketPathError, match="not a socket"):
         bind_unix(sock, path)
     assert path.read_text() == "data"
     path.unlink()
