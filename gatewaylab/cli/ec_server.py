@@ -23,7 +23,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from gatewaylab.bus.transport.unix_file import bind_unix, remove_unix
 from gatewaylab.cli.ask import ask
+from gatewaylab.cli.ec_args import EcUsage
 from gatewaylab.common.errors import GatewaylabError
 from gatewaylab.hosts.ethercat.backend import MasterBackend
 
@@ -81,13 +83,11 @@ class EcMasterServer:
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._proxy: Any = _Mapped(backend, self)
-        if self.path.exists() or self.path.is_symlink():
-            if _alive(self.path):
-                raise GatewaylabError(f"{self.path}: a master is already serving there")
-            self.path.unlink()
+        if (self.path.exists() or self.path.is_symlink()) and _alive(self.path):
+            raise GatewaylabError(f"{self.path}: a master is already serving there")
         self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         try:
-            self._sock.bind(str(self.path))
+            self._bound = bind_unix(self._sock, self.path)   # a stale socket is replaced, another file never
         except OSError as exc:
             self._sock.close()
             raise GatewaylabError(f"{self.path}: {exc.strerror or exc}") from None
@@ -170,10 +170,7 @@ class EcMasterServer:
             self._stop.set()
             cycler.join(2)
             self._sock.close()
-            try:
-                self.path.unlink()
-            except FileNotFoundError:
-                pass
+            remove_unix(self.path, self._bound)
 
 
 def _alive(path: Path) -> bool:
@@ -193,9 +190,9 @@ def request(path: str, message: dict[str, Any], timeout: float = 600.0) -> dict[
     """Send one request to the master at ``path``; its answer (GatewaylabError when it is not there)."""
     try:
         line = ask(path, message, timeout)
-    except FileNotFoundError:
-        raise GatewaylabError(f"{path}: no master serving there (start one: gatewaylab ec master --serve {path} "
-                              "-i IFNAME)") from None
+    except FileNotFoundError:          # a path that does not exist is the user's to fix (docs/cli.md: exit 2)
+        raise EcUsage(f"{path}: no master serving there (start one: gatewaylab ec master --serve {path} "
+                      "-i IFNAME)") from None
     except OSError as exc:
         raise GatewaylabError(f"{path}: cannot reach the master: {exc.strerror or exc}") from None
     if not line:

@@ -123,10 +123,10 @@ def send_request(ready_file: str, req: dict[str, Any], timeout: float = 10.0) ->
     except FileNotFoundError:
         raise ConfigError(f"{ready_file}: no such ready file (is the rig running? `gatewaylab run --ready-file "
                           f"{ready_file}` writes it)") from None
-    except OSError as exc:
-        raise FaultCliError(f"cannot read ready file {ready_file}: {exc.strerror or exc}") from None
+    except OSError as exc:              # docs/cli.md: a file named that cannot be used is exit 2
+        raise ConfigError(f"cannot read ready file {ready_file}: {exc.strerror or exc}") from None
     except (ValueError, KeyError, TypeError):
-        raise FaultCliError(f"{ready_file}: not the ready file of a rig with a control endpoint") from None
+        raise ConfigError(f"{ready_file}: not the ready file of a rig with a control endpoint") from None
     try:
         buf = ask(endpoint_address(endpoint), req, timeout)
     except OSError as exc:

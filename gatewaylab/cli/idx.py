@@ -8,6 +8,7 @@ PORT is an endpoint (docs/endpoints.md): a serial device (``/dev/pts/N``, ``/dev
 from __future__ import annotations
 
 import argparse
+import errno
 import struct
 import sys
 from collections.abc import Callable
@@ -194,7 +195,9 @@ def _run(func: Any) -> Any:
             if "Inappropriate ioctl" in reason:
                 reason = "not a serial port (so not an IDX)"
             print(f"error: cannot open port {args.port}: {reason}", file=sys.stderr)
-            return 1
+            # docs/cli.md: a port that is not one (no such device, a Unix socket) is the user's to fix (2)
+            missing = isinstance(exc, OSError) and exc.errno == errno.ENOENT
+            return 2 if missing or isinstance(exc, ConfigError) else 1
         except (ValueError, struct.error, LocalError) as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2

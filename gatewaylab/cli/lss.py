@@ -38,8 +38,9 @@ from gatewaylab.canopen.lss import (
     LssTimeout,
 )
 from gatewaylab.canopen.monitor import FastscanNarrator
+from gatewaylab.cli.target import USAGE, Unreachable, bus_target, open_endpoint
 from gatewaylab.common.clock import RealTimeClock
-from gatewaylab.common.endpoint import EndpointError, bus_endpoint
+from gatewaylab.common.endpoint import EndpointError
 from gatewaylab.common.errors import ConfigError, GatewaylabError
 
 __all__ = ["LssSession", "add_subcommand", "cmd_lss"]
@@ -200,15 +201,15 @@ def _service(args: argparse.Namespace, session: LssSession) -> tuple[str, Any]:
 def cmd_lss(args: argparse.Namespace) -> int:
     """``gatewaylab lss TARGET SERVICE ...``: one LSS service, its result on stdout."""
     try:
-        endpoint = bus_endpoint(args.target, args.bus)
+        endpoint = bus_target(args.target, args.bus)
     except EndpointError as exc:
         print(f"error: {exc}", file=sys.stderr)
-        return 2
+        return USAGE
     say = print if args.explain else None
     try:
-        bus = can.Bus(interface="gatewaylab", channel=endpoint, name="gatewaylab-lss")
-    except (can.CanError, OSError) as exc:
-        print(f"error: cannot open bus {endpoint}: {exc}", file=sys.stderr)
+        bus = open_endpoint(endpoint, name="gatewaylab-lss")
+    except Unreachable as exc:
+        print(f"error: {exc}", file=sys.stderr)
         return 1
     try:
         session = LssSession(bus, args.timeout / 1000, say)

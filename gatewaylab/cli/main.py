@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import errno
 import gc
 import json
 import logging
@@ -136,7 +137,10 @@ def _check_rig_file(path: str | None) -> None:
 
 
 def _check_writable(option: str, path: str) -> None:
-    """The folder of an output file must exist before the rig starts (exit 2 otherwise)."""
+    """The folder of an output file must exist before the rig starts, and the file must not be a folder
+    (exit 2 otherwise)."""
+    if Path(path).is_dir():
+        raise UsageError(f"{option} {path}: is a folder; give the name of a file (in it, or elsewhere)")
     folder = Path(path).resolve().parent
     if not folder.is_dir():
         raise UsageError(f"{option} {path}: folder {folder} does not exist")
@@ -157,13 +161,15 @@ def _start_web(rig: Rig, port: int, db: str | None = None) -> RigWeb:
     """The --web page: monitors on every bus, the drives' dictionaries for PDO values, --db's signals."""
     from gatewaylab.bus.signals import load_database
     from gatewaylab.devices.canopen_drive.device import Drive
+    from gatewaylab.rig.runtime import RigStartError
     from gatewaylab.rig.web import RigWeb
 
     signals = load_database(db) if db else None
     try:
         web = RigWeb(dict(rig.buses), [p for p in rig.participants if isinstance(p, Drive)], port, signals=signals)
-    except OSError as exc:
-        raise UsageError(f"--web {port}: {exc.strerror or exc}") from None
+    except OSError as exc:      # a port in use is a run-time failure (exit 1), like a rig file's tcp_port
+        raise RigStartError(f"--web {port} cannot be used on 127.0.0.1 ({exc.strerror or exc}; choose another "
+                            f"port, or --web alone for any free one)") from None
     web.start()
     return web
 
@@ -310,7 +316,7 @@ def cmd_run(args: argparse.Namespace) -> int:
                 rig.close()
             if ready_written:
                 for path in (args.ready_file, args.ready_file + ".tmp"):
-                    with contextlib.suppress(FileNotFoundError):
+                    with contextlib.suppress(FileNotFoundError, IsADirectoryError):   # only the file it wrote
                         os.unlink(path)
         finally:
             # Exit within milliseconds: the collector's passes over every object the rig ever imported
@@ -446,7 +452,8 @@ def _main(argv: list[str] | None) -> int:
     except OSError as exc:                 # e.g. a rig's TCP port already in use
         where = f" ({exc.filename})" if exc.filename else ""
         print(f"gatewaylab: {exc.strerror or exc}{where}", file=sys.stderr)
-        return 1
+        # docs/cli.md: a path the command names that does not exist (an output folder) is the user's to fix
+        return 2 if exc.filename and exc.errno in (errno.ENOENT, errno.ENOTDIR, errno.EISDIR) else 1
 
 
 if __name__ == "__main__":

@@ -41,8 +41,9 @@ from gatewaylab.bus.transport.trace import TraceError, read_trace
 from gatewaylab.bus.transport.trace_window import TimeWindow
 from gatewaylab.canopen.monitor import BusMonitor, ControllerWatch, MonitorEvent
 from gatewaylab.cli.monitor_order import TimeOrder, sender_node
+from gatewaylab.cli.target import USAGE, bus_target, exit_code, open_endpoint
 from gatewaylab.cli.terminal import QuitKey
-from gatewaylab.common.endpoint import EndpointError, bus_endpoint
+from gatewaylab.common.endpoint import EndpointError
 from gatewaylab.common.errors import ConfigError, GatewaylabError
 from gatewaylab.od import ObjectDictionary
 from gatewaylab.od.eds import import_eds
@@ -391,12 +392,8 @@ def _monitor(args: argparse.Namespace, keys: QuitKey) -> int:
             frames, base = _replay_base(frames, args.absolute)
             frames = window.select(frames)          # after the time base: it is the whole trace's
         else:
-            endpoint = bus_endpoint(args.target, args.bus)
-            try:
-                bus = can.Bus(interface="gatewaylab", channel=endpoint, listen_only=True, name="gatewaylab-monitor")
-            except (can.CanError, OSError) as exc:
-                print(f"gatewaylab: cannot open bus {endpoint}: {exc}", file=sys.stderr)
-                return 1
+            endpoint = bus_target(args.target, args.bus)      # exit 2: malformed, no such file (docs/cli.md)
+            bus = open_endpoint(endpoint, listen_only=True, name="gatewaylab-monitor")   # exit 1: not reachable
             until = time.monotonic() + args.duration if args.duration is not None else None
             frames = _frames_live(bus, until, keys)
             bitrate, data_bitrate = getattr(bus, "bitrate", args.bitrate), getattr(bus, "data_bitrate", None)
@@ -447,7 +444,7 @@ def _monitor(args: argparse.Namespace, keys: QuitKey) -> int:
         return 2
     except (EndpointError, GatewaylabError, can.CanError, ValueError) as exc:
         print(f"gatewaylab: {exc}", file=sys.stderr)
-        return 2 if isinstance(exc, (EndpointError, TraceError)) else 1
+        return USAGE if isinstance(exc, TraceError) else exit_code(exc)
     finally:
         if bus is not None:
             bus.shutdown()

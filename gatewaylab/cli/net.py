@@ -100,7 +100,9 @@ def net_up(name: str) -> tuple[str, str]:
 
 
 def net_down(name: str) -> None:
-    """Delete the veth pair (deleting one end removes both)."""
+    """Delete the veth pair (deleting one end removes both); NetUsage when there is no such interface."""
+    if not Path("/sys/class/net", name).exists():
+        raise NetUsage(f"no such network interface {name!r} (`ip link` lists them)")
     r = _ip("link", "del", name)
     if r.returncode != 0:
         raise NetFailed(r.stderr.strip() or f"ip link del {name} failed")

@@ -27,7 +27,8 @@ from gatewaylab.bus.errorframe import ErrorFrame
 from gatewaylab.bus.frame import CanFrame
 from gatewaylab.bus.transport.trace import TraceError, read_trace
 from gatewaylab.bus.transport.trace_window import TimeWindow
-from gatewaylab.common.endpoint import EndpointError, bus_endpoint
+from gatewaylab.cli.target import bus_target
+from gatewaylab.common.endpoint import EndpointError
 from gatewaylab.common.errors import ConfigError
 
 __all__ = ["Playlist", "add_subcommand", "cmd_play", "playlist"]
@@ -196,7 +197,7 @@ def cmd_play(args: argparse.Namespace) -> int:
         if not trace.is_file():
             raise TraceError(f"{trace}: no such trace file")
         plays = playlist(trace, args.bus, mapping, filters, window)
-        endpoints = {name: bus_endpoint(args.target, name) for name in sorted({n for _, n, _ in plays.frames})}
+        endpoints = {name: bus_target(args.target, name) for name in sorted({n for _, n, _ in plays.frames})}
     except (CandumpSyntaxError, ConfigError, EndpointError) as exc:
         print(f"gatewaylab: {exc}", file=sys.stderr)
         return 2

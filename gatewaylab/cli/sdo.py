@@ -18,7 +18,8 @@ from typing import Any
 
 import can
 
-from gatewaylab.common.endpoint import EndpointError, bus_endpoint
+from gatewaylab.cli.target import bus_target
+from gatewaylab.common.endpoint import EndpointError
 from gatewaylab.common.errors import ConfigError
 
 __all__ = ["TYPES", "SdoType", "add_subcommand", "cmd_sdo", "format_value", "parse_value"]
@@ -186,7 +187,7 @@ def cmd_sdo(args: argparse.Namespace) -> int:
             payload = parse_value(args.value, kind)
         elif args.value is not None:
             raise UsageError(f"upload takes no VALUE (got {args.value!r})")
-        endpoint = bus_endpoint(args.target, args.bus)
+        endpoint = bus_target(args.target, args.bus)      # docs/cli.md: malformed or not there: exit 2
     except (UsageError, EndpointError) as exc:
         print(f"gatewaylab sdo: {exc}", file=sys.stderr)
         return 2

@@ -17,7 +17,8 @@ from typing import Any
 import can
 
 from gatewaylab.bus.candump import CandumpSyntaxError, parse_cansend
-from gatewaylab.common.endpoint import EndpointError, bus_endpoint
+from gatewaylab.cli.target import USAGE, Unreachable, bus_target, open_endpoint
+from gatewaylab.common.endpoint import EndpointError
 
 __all__ = ["add_subcommand", "cmd_send"]
 
@@ -45,15 +46,14 @@ def cmd_send(args: argparse.Namespace) -> int:
     """Send the frame; wait for its echo (it left the transmit queue acknowledged)."""
     try:
         frame = parse_cansend(args.frame)
-        endpoint = bus_endpoint(args.endpoint, args.bus)
+        endpoint = bus_target(args.endpoint, args.bus)
     except (CandumpSyntaxError, EndpointError) as exc:
         print(f"gatewaylab: {exc}", file=sys.stderr)
-        return 2
+        return USAGE
     try:
-        bus = can.Bus(interface="gatewaylab", channel=endpoint, receive_own_messages=True, name="gatewaylab-send",
-                      shutdown_timeout=0.5)
-    except (can.CanError, OSError) as exc:
-        print(f"gatewaylab: cannot open bus {endpoint}: {exc}", file=sys.stderr)
+        bus = open_endpoint(endpoint, receive_own_messages=True, name="gatewaylab-send", shutdown_timeout=0.5)
+    except Unreachable as exc:
+        print(f"gatewaylab: {exc}", file=sys.stderr)
         return 1
     try:
         bus.send(frame.to_message(), timeout=args.timeout)

@@ -18,8 +18,9 @@ the public name for device packages outside gatewaylab.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -159,6 +160,10 @@ class Key:
     keys: Mapping[str, Key] | None = None
     #: Appended to a range or type error in parentheses: what the value means.
     help: str = ""
+    #: The value names something of the rig and may become a file name in its folder (a socket, stored
+    #: parameters): it must follow the name rule (:func:`name_problem`). Every kind's ``name`` key is
+    #: checked so whether or not it says so.
+    name: bool = False
 
 
 @dataclass(frozen=True, slots=True)
@@ -194,8 +199,12 @@ class DeviceKind:
         given, to be usable without a rig, does not check it again)."""
         if isinstance(cfg, CheckedSection) and cfg.kind == self.kind:
             return cfg
+        keys = self.keys
+        own = keys.get("name")
+        if own is not None and own.type is str and not own.name:   # names become file names: checked for every kind
+            keys = {**keys, "name": replace(own, name=True)}
         return CheckedSection(self.kind, validate_table({k: v for k, v in cfg.items() if k != "kind"},
-                                                        self.keys, where, buses))
+                                                        keys, where, buses))
 
 
 class CheckedSection(dict[str, Any]):
@@ -207,6 +216,43 @@ class CheckedSection(dict[str, Any]):
     def __init__(self, kind: str, items: Mapping[str, Any]) -> None:
         super().__init__(items)
         self.kind = kind
+
+
+#: The longest name (docs/rig.md "Names"): a bus's socket ``TMPDIR/gatewaylab-XXXXXXXX/NAME.sock`` must fit
+#: AF_UNIX's 107-byte path, which leaves 49 characters for TMPDIR (macOS's per-user TMPDIR is 49 long).
+NAME_MAX = 32
+NAME_RULE = (f"1..{NAME_MAX} characters of A-Z a-z 0-9 _ . @ -, not starting with . @ or - "
+             f"(a name becomes a file name in the rig's folder)")
+_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.@-]*")
+
+
+def name_problem(name: str) -> str | None:
+    """What is wrong with a name that may become a file name in the rig's folder (None: nothing): the
+    name rule is :data:`NAME_RULE`, so a name can never climb out of the folder (no ``/``, no ``..``, no
+    leading ``.``), hide there, or make a socket path longer than AF_UNIX allows."""
+    if not name:
+        return "is empty"
+    if len(name) > NAME_MAX:
+        return f"is {len(name)} characters long (at most {NAME_MAX})"
+    if _NAME.fullmatch(name) is None:
+        bad = sorted({c for c in name if not (c.isascii() and (c.isalnum() or c in "_.@-"))})
+        if bad:
+            return "has " + " ".join(repr(c) for c in bad) + " in it"
+        return f"starts with {name[0]!r}"
+    return None
+
+
+def state_file(folder: Path, name: str, suffix: str = "") -> Path:
+    """``folder/NAMEsuffix``: a file a participant creates (or removes) in the rig's folder for a name;
+    a ConfigError when ``name`` breaks the name rule or the path (symbolic links resolved) is not a file
+    directly inside ``folder``, so no name ever writes or removes a file anywhere else."""
+    problem = name_problem(name)
+    if problem is not None:
+        raise ConfigError(f"name = {name!r} {problem}: names must be {NAME_RULE}")
+    path = folder / f"{name}{suffix}"
+    if path.resolve().parent != folder.resolve():
+        raise ConfigError(f"{path} is not a file inside the rig's folder {folder}; refusing to use it")
+    return path
 
 
 def _num(value: float) -> str:
@@ -275,6 +321,10 @@ def _check(value: Any, key: Key, path: str, where: str, buses: Sequence[str] | N
         hexa = key.hex and isinstance(value, int) and not isinstance(value, bool) and value >= 0
         shown = f"0x{value:X}" if hexa else repr(value)
         raise section_error(where, f"{path} {_describe(key)}, got {shown}")
+    if key.name:
+        problem = name_problem(value)
+        if problem is not None:
+            raise section_error(where, f"{path} = {value!r} {problem}: names must be {NAME_RULE}")
     if key.bus and buses is not None and value not in buses:
         raise section_error(where, f"{path} = {value!r} names an unknown bus (declared: "
                                    f"{', '.join(buses) or 'none'})")

@@ -9,13 +9,18 @@ from pathlib import Path
 from typing import Any
 
 from gatewaylab.common.errors import ConfigError
-from gatewaylab.plugin import Key, section_error, validate_table
+from gatewaylab.plugin import Key, name_problem, section_error, validate_table
 from gatewaylab.rig import kinds
 
 __all__ = ["BUS_KEYS", "CLOCK_MODES", "BusConfig", "RigConfig", "load_rig", "parse_rig"]
 
 
 CLOCK_MODES = ("realtime", "simulated")
+#: The name of the rig's control socket in its folder (``gatewaylab-control.sock``): no bus may have it.
+CONTROL_SOCKET = "gatewaylab-control"
+#: What an empty rig file is told (docs/rig.md "A minimal rig").
+MINIMAL_RIG = ('a minimal rig is one bus, the two lines [[bus]] and name = "can0" '
+               '(`gatewaylab rig` prints a whole rig with drives to start from)')
 
 
 @dataclass(frozen=True, slots=True)
@@ -52,7 +57,7 @@ class RigConfig:
 
 #: The keys of a ``[[bus]]`` section, checked by the same validator as every device section.
 BUS_KEYS: dict[str, Key] = {
-    "name": Key(str, required=True),
+    "name": Key(str, required=True, name=True, help="its socket is NAME.sock in the rig's folder"),
     "bitrate": Key(int, 1_000_000, min=10_000, max=1_000_000, help="nominal bit rate in bit/s"),
     "data_bitrate": Key(int, min=10_000, max=12_000_000, help="CAN FD data phase bit rate in bit/s"),
     "timing": Key(bool, True),
@@ -68,6 +73,8 @@ _TOP_KEYS = {"clock", "bus", "device", "rig"}
 
 def _bus(raw: Any, where: str) -> BusConfig:
     values = validate_table(raw, BUS_KEYS, where)
+    if values["name"] == CONTROL_SOCKET:
+        raise section_error(where, f"name = {CONTROL_SOCKET!r} is taken by the rig's control socket; choose another")
     bitrate, data_bitrate = values["bitrate"], values["data_bitrate"]
     if data_bitrate is not None and data_bitrate < bitrate:
         raise section_error(where, f"data_bitrate {data_bitrate} must be between bitrate ({bitrate}) and 12 Mbit/s")
@@ -77,7 +84,8 @@ def _bus(raw: Any, where: str) -> BusConfig:
 
 def _where(source: str, section: str, index: int, raw: Any) -> str:
     name = raw.get("name") if isinstance(raw, dict) else None
-    return f"{source} [[{section}]] #{index + 1}" + (f" ({name})" if isinstance(name, str) and name else "")
+    shown = isinstance(name, str) and name_problem(name) is None   # a bad name is quoted by the error itself
+    return f"{source} [[{section}]] #{index + 1}" + (f" ({name})" if shown else "")
 
 
 def parse_rig(data: dict[str, Any], source: str = "<memory>") -> RigConfig:
@@ -123,6 +131,8 @@ def parse_rig(data: dict[str, Any], source: str = "<memory>") -> RigConfig:
                 raise section_error(where, "needs a kind (kind = \"...\", the device type)")
     config = RigConfig(clock, buses, tuple(data.get("drive", [])), tuple(data.get("device", [])),
                        data.get("ethercat"), source, extra)
+    if not (buses or config.drives or config.devices or config.ethercat is not None or extra):
+        raise ConfigError(f"{source}: the rig declares nothing to run (no [[bus]], no device); {MINIMAL_RIG}")
     kinds.plan(config)
     return config
 

@@ -12,13 +12,13 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
-import os
 import socket
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any, Protocol
 
 from gatewaylab.bus.transport.outbox import receive
+from gatewaylab.bus.transport.unix_file import Identity, bind_unix, remove_unix
 from gatewaylab.common.endpoint import format_tcp, format_unix
 from gatewaylab.common.errors import GatewaylabError
 
@@ -141,12 +141,12 @@ class ControlServer:
         self.connections: set[_Connection] = set()
         self.requests = 0
         self.unix_path = unix_path
+        #: the socket file bound (device, inode): removed at close only while it is still that file
+        self._bound: Identity = (0, 0)
         if unix_path is not None:
-            with contextlib.suppress(FileNotFoundError):
-                unix_path.unlink()
             sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
             try:
-                sock.bind(str(unix_path))
+                self._bound = bind_unix(sock, unix_path)
             except OSError:
                 sock.close()
                 raise
@@ -182,5 +182,4 @@ class ControlServer:
         for conn in list(self.connections):
             conn.close()
         if self.unix_path is not None:
-            with contextlib.suppress(OSError):
-                os.unlink(self.unix_path)
+            remove_unix(self.unix_path, self._bound)

@@ -14,7 +14,7 @@ from importlib.metadata import EntryPoint, entry_points
 from typing import TYPE_CHECKING, Any
 
 from gatewaylab.common.errors import ConfigError
-from gatewaylab.plugin import DeviceKind, section_error
+from gatewaylab.plugin import NAME_RULE, DeviceKind, name_problem, section_error
 
 if TYPE_CHECKING:
     from gatewaylab.rig.config import RigConfig
@@ -80,7 +80,8 @@ class Section:
 def _where(source: str, section: str, index: int | None, raw: Any) -> str:
     text = f"{source} [{section}]" if index is None else f"{source} [[{section}]] #{index + 1}"
     name = raw.get("name") if isinstance(raw, Mapping) else None
-    return f"{text} ({name})" if isinstance(name, str) and name else text
+    shown = isinstance(name, str) and name_problem(name) is None   # a bad name is quoted by the error itself
+    return f"{text} ({name})" if shown else text
 
 
 def _short(where: str, source: str) -> str:
@@ -159,6 +160,10 @@ def plan(config: RigConfig) -> list[Section]:
             cfg["name"] = default       # the factory builds the participant under its rig-wide name
         section = Section(kind, where, cfg)
         name = section.name
+        problem = None if name is None else name_problem(name)
+        if problem is not None:         # a default made of other names: a kind's default, a bus name
+            raise section_error(where, f"its default name {name!r} {problem}: give it a name = \"...\" "
+                                       f"({NAME_RULE})")
         if name is not None and not kind.single:
             if name in names:
                 given = "" if isinstance(raw.get("name"), str) else " (the default name)"

@@ -80,7 +80,16 @@ class RigFileValueError(ConfigError, TypeError):
 
 
 class RigStartTimeout(GatewaylabError, RuntimeError):
-    """The child did not write its ready file in time, or exited before it did."""
+    """The child did not write its ready file in time, or exited before it did (a failure at run time)."""
+
+
+class RigConfigError(ConfigError):
+    """The child refused its rig file or options (``gatewaylab run`` exit 2): the message is its one line,
+    the same ConfigError an in-process rig raises for the same mistake."""
+
+
+#: ``gatewaylab run``'s exit code for a rig file or command line that is wrong (docs/cli.md).
+USAGE_EXIT = 2
 
 
 class RigProcess:
@@ -135,8 +144,12 @@ class RigProcess:
                 chunk = os.read(fd, 65536)
                 seen += chunk
         err = self.log_file.read_bytes()[-2000:] if self.log_file is not None else b""
-        raise RigStartTimeout(f"gatewaylab run did not start (exit {self.proc.poll()}): "
-                              f"{(seen + err).decode(errors='replace').strip()}")
+        code = self.proc.poll()
+        text = (seen + err).decode(errors="replace").strip()
+        if code == USAGE_EXIT:         # the rig file or the options are wrong: nothing timed out
+            lines = [line.removeprefix("gatewaylab: ") for line in text.splitlines() if line.strip()]
+            raise RigConfigError(lines[-1] if lines else f"gatewaylab run refused its rig file (exit {code})")
+        raise RigStartTimeout(f"gatewaylab run did not start (exit {code}): {text}")
 
     @property
     def pid(self) -> int:

@@ -16,6 +16,7 @@ their master software (docs/testing-your-master.md).
 from __future__ import annotations
 
 import os
+import tomllib
 from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -33,6 +34,9 @@ from gatewaylab.common.errors import ConfigError
 from gatewaylab.rig.process import free_udp_ports, rig_toml
 
 __all__ = ["RigHandle", "free_udp_ports", "rig_toml"]
+
+#: How errors name a rig given as a dict: "rig dict [[bus]] #1 (can0): unknown keys ['bitrat'] ...".
+DICT_SOURCE = "rig dict"
 
 MARKERS = {
     "gatewaylab_root": "the test needs root (skipped otherwise)",
@@ -107,13 +111,22 @@ def _start(workdir: Path, rig: str | Path | Mapping[str, Any] | None, clock: str
            args: tuple[str, ...], timeout: float) -> RigHandle:
     if clock not in ("realtime", "simulated"):
         raise ConfigError(f"clock must be 'realtime' or 'simulated', not {clock!r}")
-    path: Path | None
+    from gatewaylab.rig.config import load_rig, parse_rig
+
+    child = clock == "realtime" and not in_process
+    # Checked here, in the test's process, whatever the clock: a mistake is the same ConfigError naming the
+    # user's key (and the user's file, or "rig dict"), never a start that "timed out" in a child.
+    path: Path | None = None
     if isinstance(rig, Mapping):
-        path = workdir / "rig.toml"
-        path.write_text(rig_toml({**rig, "clock": "realtime"} if not in_process and clock == "realtime" else rig))
+        text = rig_toml({**rig, "clock": "realtime"} if child else rig)
+        config = parse_rig(tomllib.loads(text), DICT_SOURCE)    # what the child reads, named as the user wrote it
+        if child:
+            path = workdir / "rig.toml"
+            path.write_text(text)
     else:
         path = None if rig is None else Path(rig)
-    if clock == "realtime" and not in_process:
+        config = load_rig(path)
+    if child:
         from gatewaylab.rig.process import RigProcess
 
         process = RigProcess(path, *args, workdir=workdir, timeout=timeout)
@@ -121,10 +134,9 @@ def _start(workdir: Path, rig: str | Path | Mapping[str, Any] | None, clock: str
     if args:
         raise ConfigError("args are `gatewaylab run` options: only for a rig in a child process")
     from gatewaylab.common.clock import RealTimeClock, SimulatedClock
-    from gatewaylab.rig.config import load_rig
     from gatewaylab.rig.runtime import Rig
 
-    instance = Rig(load_rig(path), clock=SimulatedClock() if clock == "simulated" else RealTimeClock())
+    instance = Rig(config, clock=SimulatedClock() if clock == "simulated" else RealTimeClock())
     handle = RigHandle(workdir, {}, rig=instance)
     try:
         instance.start()

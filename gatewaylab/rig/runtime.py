@@ -38,12 +38,13 @@ from gatewaylab.bus.bus import VirtualBus
 from gatewaylab.bus.transport.server import BusServer
 from gatewaylab.bus.transport.socketcand import SocketcandServer
 from gatewaylab.bus.transport.trace import Trace
+from gatewaylab.bus.transport.unix_file import UNIX_PATH_MAX, SocketPathError
 from gatewaylab.common.clock import Clock, RealTimeClock, SimulatedClock
 from gatewaylab.common.errors import ConfigError, GatewaylabError
 from gatewaylab.plugin import Participant
-from gatewaylab.plugin.participant import CheckedSection
+from gatewaylab.plugin.participant import NAME_MAX, CheckedSection, state_file
 from gatewaylab.rig import kinds
-from gatewaylab.rig.config import RigConfig, load_rig
+from gatewaylab.rig.config import CONTROL_SOCKET, RigConfig, load_rig
 from gatewaylab.rig.control import ControlServer
 from gatewaylab.rig.faults import Faults
 
@@ -57,6 +58,9 @@ log = logging.getLogger(__name__)
 #: under a CAN flood took up to ~0.2 s on a loaded 2-CPU machine; close() and the exit need the
 #: rest of the second SIGTERM promises (docs/rig.md).
 GRACE = 0.3
+#: The longest TMPDIR with which every bus's socket ``TMPDIR/gatewaylab-XXXXXXXX/NAME.sock`` fits AF_UNIX's
+#: path, names being at most NAME_MAX characters (docs/rig.md "Names").
+_TMPDIR_MAX = UNIX_PATH_MAX - len("/gatewaylab-XXXXXXXX/") - NAME_MAX - len(".sock")
 #: A participant whose stop() takes longer than this is named in a warning: the whole rig has one
 #: second to exit after SIGTERM (docs/rig.md), and every stop() should return within milliseconds.
 SLOW_STOP = 0.1
@@ -108,6 +112,15 @@ def _make_state_dir(resources: _Resources) -> Path:
             resources.state_dir = None
             continue
         return path
+
+
+def _too_long_hint(exc: OSError, own_folder: bool) -> str:
+    """What to do about a Unix socket path too long for AF_UNIX: the rig's own folder is under TMPDIR."""
+    if not (isinstance(exc, SocketPathError) and exc.too_long):
+        return ""
+    where = (f"the rig's folder is in TMPDIR {tempfile.gettempdir()}: point TMPDIR at a folder of at most "
+             f"{_TMPDIR_MAX} characters" if own_folder else "give the rig a state folder with a shorter path")
+    return f" ({where}, or use endpoint = \"tcp\")"
 
 
 def _release_unclosed(resources: _Resources, what: str) -> None:
@@ -217,7 +230,8 @@ class Rig:
             where = f"{self.config.source} [[bus]] #{i + 1} ({bc.name})"
             try:
                 if bc.endpoint == "unix":
-                    server = BusServer(self.buses[bc.name], self, unix_path=self.state_dir / f"{bc.name}.sock")
+                    path = state_file(self.state_dir, bc.name, ".sock")     # refuses a path outside the folder
+                    server = BusServer(self.buses[bc.name], self, unix_path=path)
                 elif bc.endpoint == "tcp":
                     server = BusServer(self.buses[bc.name], self, tcp_port=bc.tcp_port)
                 else:
@@ -227,17 +241,17 @@ class Rig:
                     raise RigStartError(f"{where}: tcp_port = {bc.tcp_port} cannot be used on 127.0.0.1 "
                                         f"({exc.strerror or exc})") from None
                 raise RigStartError(f"{where}: cannot open the endpoint of bus {bc.name!r}: "
-                                    f"{exc.strerror or exc}") from None
+                                    f"{exc.strerror or exc}{_too_long_hint(exc, self._own_state_dir)}") from None
             self.servers[bc.name] = server
             self._resources.sockets.append(server.listener)
         self._open_socketcand()
         tcp = any(bc.endpoint == "tcp" for bc in self.config.buses)
         try:
-            self.control = ControlServer(self, self.faults.request, tcp_port=0 if tcp else None,
-                                         unix_path=None if tcp else self.state_dir / "gatewaylab-control.sock")
+            control_path = None if tcp else state_file(self.state_dir, CONTROL_SOCKET, ".sock")
+            self.control = ControlServer(self, self.faults.request, tcp_port=0 if tcp else None, unix_path=control_path)
         except OSError as exc:
             raise RigStartError(f"{self.config.source}: cannot open the control endpoint: "
-                                f"{exc.strerror or exc}") from None
+                                f"{exc.strerror or exc}{_too_long_hint(exc, self._own_state_dir)}") from None
         self._resources.sockets.append(self.control.listener)
 
     def _open_socketcand(self) -> None:

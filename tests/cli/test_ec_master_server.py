@@ -84,7 +84,7 @@ def test_slaves_stay_in_op_between_calls_of_a_persistent_master(tmp_path: Path) 
 
 def test_no_master_at_the_socket_is_one_line(tmp_path: Path) -> None:
     out = ec("slaves", "--master", str(tmp_path / "none.sock"))
-    assert out.returncode == 1 and "no master serving there (start one: gatewaylab ec master --serve" in out.stderr
+    assert out.returncode == 2 and "no master serving there (start one: gatewaylab ec master --serve" in out.stderr
     assert "Traceback" not in out.stderr
 
 

@@ -9,6 +9,7 @@ from pathlib import Path
 import can
 import pytest
 
+from gatewaylab.common.errors import ConfigError
 from gatewaylab.rig.process import RigProcess, RigStartTimeout
 
 
@@ -28,8 +29,10 @@ def test_started_rig_serves_its_endpoint_and_stops_on_sigterm(tmp_path: Path) ->
 
 
 def test_a_rig_that_cannot_start_raises_with_its_one_line_reason(tmp_path: Path) -> None:
-    """A rig file error exits 2 with one line naming the file and key; RigProcess reports that line."""
+    """A rig file error exits 2 with one line naming the file and key; RigProcess reports that line as a
+    ConfigError (docs/testing-your-master.md: a wrong rig is a ConfigError, not a start that timed out)."""
     rig_file = tmp_path / "bad.toml"
     rig_file.write_text('[[bus]]\nname = "can0"\nbitrate = "fast"\n')
-    with pytest.raises(RigStartTimeout, match=r"exit 2\).*bad\.toml.*bitrate"):
+    with pytest.raises(ConfigError, match=r"^\S*bad\.toml \[\[bus\]\] #1 \(can0\): bitrate must be") as caught:
         RigProcess(rig_file, workdir=tmp_path, timeout=30)
+    assert not isinstance(caught.value, RigStartTimeout)

@@ -7,7 +7,6 @@ Each connected client becomes one controller on the bus. Runs inside the rig run
 from __future__ import annotations
 
 import logging
-import os
 import socket
 from collections.abc import Callable
 from pathlib import Path
@@ -19,6 +18,7 @@ from gatewaylab.bus.bus import VirtualBus
 from gatewaylab.bus.controller import BusEvent, Controller
 from gatewaylab.bus.frame import CanFrame
 from gatewaylab.bus.transport.outbox import Outbox, accept_client, receive
+from gatewaylab.bus.transport.unix_file import Identity, bind_unix, remove_unix
 from gatewaylab.common.clock import TimerHandle
 from gatewaylab.common.errors import ConfigError, GatewaylabError, LocalError, ProtocolError
 
@@ -231,11 +231,15 @@ class BusServer:
         self.max_backlog = MAX_BACKLOG
         self.rx_dropped = 0
         self.unix_path = unix_path
+        #: the socket file bound (device, inode): removed at close only while it is still that file
+        self._bound: Identity = (0, 0)
         if unix_path is not None:
             self.listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-            if unix_path.exists():
-                unix_path.unlink()
-            self.listener.bind(str(unix_path))
+            try:
+                self._bound = bind_unix(self.listener, unix_path)
+            except OSError:
+                self.listener.close()
+                raise
             self.endpoint = f"unix:{unix_path}"
         else:
             self.listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
@@ -319,7 +323,4 @@ class BusServer:
         self.reactor.remove_reader(self.listener.fileno())
         self.listener.close()
         if self.unix_path is not None:
-            try:
-                os.unlink(self.unix_path)
-            except FileNotFoundError:
-                pass
+            remove_unix(self.unix_path, self._bound)

@@ -19,7 +19,7 @@ from typing import Any
 
 from gatewaylab.devices.canopen_drive.device import Drive
 from gatewaylab.devices.canopen_drive.plant import AxisParams
-from gatewaylab.plugin.participant import DeviceKind, Key, RigContext
+from gatewaylab.plugin.participant import DeviceKind, Key, RigContext, state_file
 
 __all__ = ["KEYS", "KIND", "PLANT_KEYS", "axis_params", "create_drive", "default_name"]
 
@@ -65,12 +65,12 @@ def create_drive(rig: RigContext, cfg: dict[str, Any]) -> Drive:
     """Build a :class:`Drive` on ``rig.buses[cfg["bus"]]``; stored parameters go to ``rig.state_dir``."""
     cfg = KIND.validate(cfg, "[[drive]]", list(rig.buses))
     name = KIND.name_of(cfg) or default_name(cfg)
-    store_path = rig.state_dir / f"{name}.params.json"
+    store_path = state_file(rig.state_dir, name, ".params.json")
     drive = Drive(rig.clock, rig.buses[cfg["bus"]], cfg["node_id"], cfg["serial"], name=name, store_path=store_path,
                   params=axis_params(cfg["plant"]))
     drive.period = cfg["control_period"]
     # the ready file lists each drive with its EDS, so `gatewaylab monitor` decodes its PDOs
-    eds = rig.state_dir / f"{name}.eds"
+    eds = state_file(rig.state_dir, name, ".eds")
     eds.write_text(drive.node.to_eds())
     drive.ready_extra = {"canopen": {cfg["bus"]: {name: {"node_id": cfg["node_id"], "serial": cfg["serial"],
                                                          "eds": str(eds)}}}}

@@ -20,7 +20,7 @@ from typing import Any
 
 from gatewaylab.bus.controller import Controller
 from gatewaylab.devices.ecanlite.device import EcanLiteDevice
-from gatewaylab.plugin.participant import DeviceKind, Key, RigContext, section_error
+from gatewaylab.plugin.participant import DeviceKind, Key, RigContext, section_error, state_file
 
 __all__ = ["KEYS", "KIND", "EcanLiteParticipant", "create_device"]
 
@@ -53,7 +53,7 @@ class EcanLiteParticipant:
             controllers.append(rig.bus(bus_name).attach(f"{self.name}.mcan{k}"))
         self.channels = list(channels)
         self._controllers = controllers
-        flash = Path(cfg["flash"]) if cfg["flash"] else rig.state_dir / f"{self.name}.flash"
+        flash = Path(cfg["flash"]) if cfg["flash"] else state_file(rig.state_dir, self.name, ".flash")
         self.flash_path = flash
         self.device = EcanLiteDevice(rig.clock, controllers, flash_path=flash, name=self.name, serial=cfg["serial"])
 

@@ -22,7 +22,7 @@ from gatewaylab.devices.maxon_idx.commands import MAX_SEGMENT
 from gatewaylab.devices.maxon_idx.device import IdxDevice
 from gatewaylab.devices.maxon_idx.transport.pty import PtyPort
 from gatewaylab.devices.maxon_idx.transport.tcp import TcpServer
-from gatewaylab.plugin.participant import DeviceKind, Key, RigContext
+from gatewaylab.plugin.participant import DeviceKind, Key, RigContext, state_file
 
 __all__ = ["KEYS", "KIND", "USB_KEYS", "IdxParticipant", "create_device"]
 
@@ -55,7 +55,7 @@ class IdxParticipant:
         self.want_pty: bool = usb["pty"]
         self.tcp_port: int | None = usb["tcp_port"]
         self.latency = usb["latency_ms"] / 1000.0
-        store = rig.state_dir / f"{self.name}.store" if cfg["store"] else None
+        store = state_file(rig.state_dir, self.name, ".store") if cfg["store"] else None
         self.device = IdxDevice(rig.clock, rig.bus(cfg["bus"]), cfg["node_id"], cfg["serial"], self.name,
                                 store_path=store, sdo_timeout=cfg["sdo_timeout"], segment_size=cfg["segment_size"])
         self.bus_name: str = cfg["bus"]
