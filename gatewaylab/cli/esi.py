@@ -8,6 +8,7 @@ whole CoE dictionary), so a configuration tool imports what the master finds onl
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -62,8 +63,8 @@ def cmd_esi(args: argparse.Namespace) -> int:
     out = Path(args.output)
     if not out.parent.is_dir():
         raise ConfigError(f"-o {args.output}: folder {out.parent} does not exist")
-    out.write_text(export_esi(slave.desc, slave.od), encoding="utf-8")
-    d = slave.desc
+    d = slave.desc if args.name is None else replace(slave.desc, name=args.name)
+    out.write_text(export_esi(d, slave.od), encoding="utf-8")
     print(f"{out}: ESI of {args.kind} ({d.name}, vendor 0x{d.vendor_id:X} product 0x{d.product_code:X} "
           f"revision 0x{d.revision:X}, {len(slave.od)} objects)")
     return 0
@@ -76,4 +77,6 @@ def add_subcommand(sub: Any) -> None:
                                    '`kind = "esi"` in a rig file runs a slave from it.')
     p.add_argument("kind", metavar="KIND", choices=sorted(ESI_KINDS), help=", ".join(sorted(ESI_KINDS)))
     p.add_argument("-o", "--output", required=True, metavar="FILE", help="the ESI file to write")
+    p.add_argument("--name", help="the device name the ESI and its SII carry (default: the kind's); a rig "
+                                  "names its ethercat_io / ethercat_drive slaves' SII after the device")
     p.set_defaults(func=cmd_esi)

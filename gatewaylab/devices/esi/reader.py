@@ -22,7 +22,7 @@ from typing import Any
 from gatewaylab.common.errors import ConfigError
 from gatewaylab.ethercat.description import DeviceDescription, Pdo, PdoEntry
 from gatewaylab.od import Access, DataType, Entry, ObjectCode, ObjectDictionary, SdoAbort, decode
-from gatewaylab.od.types import ESI_TYPE_NAMES
+from gatewaylab.od.types import ESI_TYPE_NAMES, SIZED_TYPES
 
 __all__ = ["EsiDevice", "EsiError", "EsiObject", "EsiSub", "apply_dictionary", "esi_types", "identity_overrides",
            "read_esi",
@@ -87,6 +87,8 @@ class EsiSub:
     pdo_mappable: bool
     preop_only: bool
     default: Any
+    #: a string's size in bytes as the ESI declares it (``STRING(n)`` or BitSize); None for other types
+    max_length: int | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -470,6 +472,17 @@ def _resolve(ctx: _Ctx, types: dict[str, _Type], name: str, where: str) -> DataT
     raise ctx.fail(f"{where}/Type", f"unknown data type {name!r}")
 
 
+def _string_size(dtype: DataType, tname: str, el: ET.Element) -> int | None:
+    """A string's declared size in bytes: ``STRING(n)``, else the element's BitSize / 8 (None: not a string)."""
+    if dtype not in SIZED_TYPES:
+        return None
+    m = _SIZED.match(tname)
+    if m is not None:
+        return int(m.group(2))
+    bits = _text(el, "BitSize")
+    return int(bits, 0) // 8 if bits.isdigit() and int(bits) >= 8 else None
+
+
 def _object(ctx: _Ctx, types: dict[str, _Type], obj: ET.Element, index: int, w: str) -> EsiObject:
     name = _name(obj)
     tname = _text(obj, "Type")
@@ -479,7 +492,8 @@ def _object(ctx: _Ctx, types: dict[str, _Type], obj: ET.Element, index: int, w: 
     if t is None or (not t.subitems and not t.array):
         dtype = _resolve(ctx, types, tname, w)
         return EsiObject(index, name, ObjectCode.VAR,
-                         (EsiSub(0, name, dtype, flags[0], flags[1], flags[2], _default(ctx, info, dtype, w)),))
+                         (EsiSub(0, name, dtype, flags[0], flags[1], flags[2], _default(ctx, info, dtype, w),
+                                 _string_size(dtype, tname, obj)),))
     infos = info.findall("SubItem") if info is not None else []
     info_by_name = {_text(s, "Name"): s.find("Info") for s in infos}
 
@@ -516,7 +530,8 @@ def _object(ctx: _Ctx, types: dict[str, _Type], obj: ET.Element, index: int, w: 
         sub = ctx.number(_text(item, "SubIdx"), f"{w} SubItem {sname!r}/SubIdx", k)
         stype = _resolve(ctx, types, _text(item, "Type"), f"{w}:{sub}")
         f = _flags(ctx, item.find("Flags"), f"{w}:{sub}") or flags
-        subs.append(EsiSub(sub, sname, stype, f[0], f[1], f[2], _default(ctx, sub_info(k, sname), stype, f"{w}:{sub}")))
+        subs.append(EsiSub(sub, sname, stype, f[0], f[1], f[2], _default(ctx, sub_info(k, sname), stype, f"{w}:{sub}"),
+                           _string_size(stype, _text(item, "Type"), item)))
     code = ObjectCode.ARRAY if obj.get("ObjectCode", "") == "ARRAY" else ObjectCode.RECORD
     return EsiObject(index, name, code, tuple(subs))
 
@@ -556,13 +571,13 @@ def apply_dictionary(od: ObjectDictionary, device: EsiDevice) -> None:
         if obj.code is ObjectCode.VAR:
             s = obj.subs[0]
             od.add_variable(obj.index, obj.name, s.data_type, s.access, s.default, pdo_mappable=s.pdo_mappable,
-                            preop_only=s.preop_only or (preop and s.access.writable))
+                            preop_only=s.preop_only or (preop and s.access.writable), max_length=s.max_length)
             continue
         od.add_record(obj.index, obj.name, obj.code)
         for s in sorted(obj.subs, key=lambda s: s.subindex):
             od.add_sub(obj.index, s.subindex, s.name, s.data_type, s.access, s.default,
                        pdo_mappable=s.pdo_mappable, preop_only=s.preop_only or (preop and s.access.writable),
-                       sub0_name="SubIndex 000")
+                       sub0_name="SubIndex 000", max_length=s.max_length)
         # subindex 0 as the ESI gives it (add_sub keeps a read-only one at the highest subindex)
         zero = next((s for s in obj.subs if s.subindex == 0), None)
         if zero is not None and zero.default is not None:

@@ -32,7 +32,7 @@ clock = "realtime"
 
 [[device]]
 kind = "ethercat_io"
-name = "GL-IO 8DIO 2AIO"      # the kind's default: its name is the SII's device name
+name = "io-orig"              # its SII device name; the ESI is exported with --name io-orig
 
 [[device]]
 kind = "esi"
@@ -41,7 +41,7 @@ name = "io-esi"
 
 [[device]]
 kind = "ethercat_drive"
-name = "GL-Drive CiA402"
+name = "axis-orig"
 
 [[device]]
 kind = "esi"
@@ -83,9 +83,9 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
     if reason is not None:
         pytest.skip(reason)
     work = tmp_path_factory.mktemp("esi-wire")
-    for kind in ("ethercat_io", "ethercat_drive"):
-        subprocess.run([sys.executable, "-m", "gatewaylab", "esi", kind, "-o", str(work / f"{kind}.xml")],
-                       check=True, capture_output=True, timeout=120)
+    for kind, name in (("ethercat_io", "io-orig"), ("ethercat_drive", "axis-orig")):
+        subprocess.run([sys.executable, "-m", "gatewaylab", "esi", kind, "--name", name,
+                        "-o", str(work / f"{kind}.xml")], check=True, capture_output=True, timeout=120)
     echo = "\n".join(f'"0x{0x6000 + 0x10 * i:04X}:01" = {{ echo = "0x{0x7000 + 0x10 * i:04X}:01" }}'
                      for i in range(8))
     with veth_namespace("gl-esi-", "gle") as (ns, emu, mst):
