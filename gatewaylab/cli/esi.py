@@ -8,8 +8,8 @@ whole CoE dictionary), so a configuration tool imports what the master finds onl
 from __future__ import annotations
 
 import argparse
-from dataclasses import replace
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
