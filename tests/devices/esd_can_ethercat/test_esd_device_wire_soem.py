@@ -39,7 +39,7 @@ def _serve(veth: Any, *args: str, update_duration: float = 1.0, chatter: bool = 
         talker = bus.attach("talker")
         bus.attach("listener")
         clock.call_every(0.01, lambda: talker.send(CanFrame(CHATTER_ID, b"chat")))
-    wire = WireTransport(Segment([gw.slave]), veth.emulator_iface, clock, drive_clock=True, realtime=True)
+    wire = WireTransport(Segment([gw.slave]), veth.emulator_iface, clock, drive_clock=True)
     wire.start()
     try:
         proc = veth.run_master(*args)

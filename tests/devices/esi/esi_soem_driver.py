@@ -136,6 +136,10 @@ def main(iface: str, cycles: int) -> dict[str, Any]:
     for s, info in zip(master.slaves, result["slaves"], strict=True):
         info["sii"] = _sii(s)
     master.config_map()
+    # a long SM watchdog (1 s), as the other SOEM drivers set: a stall of this shared VM longer than the default
+    # 100 ms would take the slaves to SAFEOP + 0x001B with their outputs off (a lower working counter) mid-run
+    for s in master.slaves:
+        s.set_watchdog("processdata", 1000)
     result["safeop"] = master.state_check(pysoem.SAFEOP_STATE, 3_000_000)
     master.state = pysoem.OP_STATE
     master.send_processdata()
