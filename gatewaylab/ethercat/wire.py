@@ -15,10 +15,10 @@ the frame is dropped, one log line is written and ``frame_errors`` counts it, an
 served, as a real ESC keeps forwarding whatever one frame held.
 
 Replies on time or not at all: a frame older than ``max_residence_ms`` -- its age counted from the
-kernel's receive timestamp (``SO_TIMESTAMPNS``) to the moment its reply would be sent, checked before it
-is processed and again just before the send -- is dropped, counted (``frames_dropped_late``) and logged
-once per burst (ethercat/residence.py), so after a stall of this process the master sees lost frames,
-never replies no real line would deliver.
+kernel's receive timestamp (``SO_TIMESTAMPNS``) to the moment the segment can take it (the kernel's
+queue, a backlog, the wait for ``clock.lock``; the segment's own work on the frame is not counted) -- is
+dropped, counted (``frames_dropped_late``) and logged once per burst (ethercat/residence.py), so after a
+stall of this process the master sees lost frames, never replies no real line would deliver.
 
 :meth:`WireTransport.stop` wakes the thread wherever it waits (``select``, or ``clock.lock``, which
 the rig holds while it stops its participants) and returns within milliseconds.
@@ -379,33 +379,33 @@ class WireTransport:
             try:
                 if pcap is not None:
                     pcap.write(received / 1e9, frame)
-                t_ns = now_ns()
-                if is_late(received, t_ns, limit):   # lost on its way in: not even processed
-                    late.drop(t_ns - received)
-                    continue
                 if not self._acquire(lock):
                     return
                 try:
+                    # its age when the segment could take it: the kernel's queue, our backlog and the wait
+                    # for the lock (a stall of this process); the segment's own work on it is not counted
+                    # (a state change done inside the frame may take longer in pure Python than a line
+                    # holds a frame, and a master with a longer timeout must still get its answer)
+                    t_ns = now_ns()
+                    if is_late(received, t_ns, limit):   # lost on its way in: not processed
+                        late.drop(t_ns - received)
+                        continue
                     ok = segment.process(frame, defer=True)
                 finally:
                     lock.release()
                 if not ok:
                     continue
-                t_ns = now_ns()
-                if is_late(received, t_ns, limit):   # processed, lost on its way back
-                    late.drop(t_ns - received)
+                if late.pending:
+                    self._report_late(now_ns())
+                try:
+                    sock.send(frame)
+                except OSError as exc:
+                    if len(self.errors) < MAX_ERRORS_KEPT:  # a storm must not grow the list without end
+                        self.errors.append(str(exc))
                 else:
-                    if late.pending:
-                        self._report_late(t_ns)
-                    try:
-                        sock.send(frame)
-                    except OSError as exc:
-                        if len(self.errors) < MAX_ERRORS_KEPT:  # a storm must not grow the list without end
-                            self.errors.append(str(exc))
-                    else:
-                        self.frames_out += 1
-                        if pcap is not None:
-                            pcap.write(time.time(), frame)
+                    self.frames_out += 1
+                    if pcap is not None:
+                        pcap.write(time.time(), frame)
                 # the applications' work (outputs to the drives) once the frame is on its way back
                 if not self._acquire(lock):
                     return
