@@ -21,6 +21,7 @@ from gatewaylab import __version__, build_info
 from gatewaylab.common.errors import ConfigError, GatewaylabError
 
 if TYPE_CHECKING:
+    from gatewaylab.rig.config import RigConfig
     from gatewaylab.rig.runtime import Rig
     from gatewaylab.rig.web import RigWeb
 
@@ -233,6 +234,37 @@ class _Signals:
             signal.signal(signum, handler if restore else self._on_signal)
 
 
+def _eni_rig(args: argparse.Namespace) -> RigConfig:
+    """The rig of ``run --eni``: the rig file's (its ``[ethercat]`` taking the ENI, the ESI list and the
+    interface), or, without one, a rig of that segment alone. Paths given here are relative to the
+    current folder."""
+    from gatewaylab.rig.config import load_rig, parse_rig
+
+    eni = str(Path(args.eni).resolve())
+    if not Path(eni).is_file():
+        raise UsageError(f"--eni {args.eni}: {'is a folder' if Path(eni).is_dir() else 'no such file'}")
+    esi = []
+    for path in args.esi or []:
+        if not Path(path).exists():
+            raise UsageError(f"--esi {path}: no such ESI file or folder")
+        esi.append(str(Path(path).resolve()))
+    if args.rig is None:
+        section: dict[str, Any] = {"interface": args.interface or "gl-ecat", "eni": eni}
+        if esi:
+            section["esi"] = esi
+        return parse_rig({"ethercat": section}, f"--eni {args.eni}")
+    config = load_rig(args.rig)
+    section = dict(config.ethercat or {"interface": "gl-ecat"})
+    section["eni"] = eni
+    if esi:
+        section["esi"] = esi
+    if args.interface:
+        section["interface"] = args.interface
+    from dataclasses import replace
+
+    return replace(config, ethercat=section)
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     """``gatewaylab run RIG.toml``: start the rig (ready file, trace, web page on request) and run it until stopped."""
     from dataclasses import replace
@@ -251,6 +283,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         _check_writable("--trace", path)
     if args.ready_file:
         _check_writable("--ready-file", args.ready_file)
+    if (args.esi or args.interface) and not args.eni:
+        raise UsageError("--esi and --interface go with --eni (the segment an ENI describes)")
     # Until the loop runs (and again while it shuts down), SIGTERM/SIGINT unwind at once: a rig stopped
     # while it starts leaves no temporary folder, socket or thread behind either.
     for signum in (signal.SIGINT, signal.SIGTERM):
@@ -259,7 +293,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     ready_written = False
     web: RigWeb | None = None
     try:
-        config = load_rig(args.rig)
+        config = _eni_rig(args) if args.eni else load_rig(args.rig)
         if args.socketcand:
             config = replace(config, buses=tuple(replace(b, socketcand=True) for b in config.buses))
         rig = Rig(config)
@@ -300,6 +334,11 @@ def cmd_run(args: argparse.Namespace) -> int:
         for key, value in info.items():
             if key == "compiled":
                 print(f"  {len(value)} modules compiled" if value else "  pure Python")
+            elif key == "eni":
+                for row in value["slaves"]:
+                    source = f"{row['file']} {row['type']} ({row['match']})" if row["file"] else (
+                        f"[[device]] {row['name']}" if row["match"] == "device" else row["match"])
+                    print(f"  eni slave {row['position']} {row['name']}: {source}")
             elif key not in ("pid", "buses"):
                 print(f"  {key}: {json.dumps(value)}")
         sys.stdout.flush()
@@ -383,6 +422,12 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--acker", action="store_true",
                      help="attach to every bus a passive node that only acknowledges frames, so a lone "
                           "client's frames are not ACK errors (see docs/bus.md)")
+    run.add_argument("--eni", metavar="PATH", help="an ENI file: the [ethercat] segment in its <Slave> order "
+                     "(without a rig file: a rig of that segment alone)")
+    run.add_argument("--esi", metavar="DIR", action="append", help="with --eni: an ESI file or folder for the ENI's "
+                     "slaves (repeatable); slaves without one are built from the ENI alone")
+    run.add_argument("--interface", metavar="NAME", help="with --eni: the segment's network interface (default: the "
+                     "rig file's [ethercat] interface, else gl-ecat)")
     run.set_defaults(func=cmd_run)
 
     demo = sub.add_parser("demo", help="run the scripted demo (what `make demo` does)",

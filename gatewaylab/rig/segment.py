@@ -10,6 +10,8 @@ Rig file::
     max_residence_ms = 2.0 # optional: frames older than this are dropped, never answered late (0: no limit)
     realtime = true        # optional: SCHED_FIFO for the wire thread and the rig's loop (root or CAP_SYS_NICE)
     switch_interval_us = 200  # the interpreter's thread switch interval while the wire runs (0: leave it)
+    eni = "machine.xml"    # optional: the segment an ENI describes, in its <Slave> order
+    esi = ["esi/"]         # optional: ESI files or folders for the ENI's slaves (else built from the ENI alone)
 
 Every device participant with ``is_ethercat = True`` and a ``slave`` attribute (an
 :class:`~gatewaylab.ethercat.slave.Slave`) joins the segment, in rig-file order (position 0 first).
@@ -24,12 +26,14 @@ import threading
 from collections.abc import Sequence
 from typing import Any
 
+from gatewaylab.common.errors import ConfigError
 from gatewaylab.ethercat.residence import DEFAULT_MAX_RESIDENCE_MS
 from gatewaylab.ethercat.segment import Segment
 from gatewaylab.ethercat.wire import REALTIME_PRIORITY, WireTransport, make_ordinary, make_realtime
 from gatewaylab.ethercat.wire_pcap import PcapWriter
 from gatewaylab.plugin.capabilities import EthercatDevice, ethercat_devices
 from gatewaylab.plugin.participant import DeviceKind, Key, RigContext
+from gatewaylab.rig.eni import EniSegment, build_eni_segment
 
 __all__ = [
     "LOOP_PRIORITY",
@@ -62,6 +66,8 @@ SEGMENT_KEYS: dict[str, Key] = {
                                      "one log line when not allowed)"),
     "switch_interval_us": Key(float, SWITCH_INTERVAL_US, min=0.0, max=5000.0,
                               help="the interpreter's thread switch interval while the wire runs; 0 leaves it"),
+    "eni": Key(str, help="an ENI file (relative to the rig file's folder): the segment in its <Slave> order"),
+    "esi": Key(list, help='ESI files or folders for the ENI\'s slaves, e.g. esi = ["esi/"]'),
 }
 
 
@@ -75,7 +81,14 @@ class SegmentParticipant:
         self.interface: str = cfg["interface"]
         self.rig = rig
         self.devices = list(devices)
-        self.segment = Segment([d.slave for d in self.devices])
+        self.eni: EniSegment | None = None
+        if cfg["eni"] is not None:
+            self.eni = build_eni_segment(rig, cfg["eni"], cfg["esi"], self.devices)
+            self.devices = self.eni.devices
+        elif cfg["esi"] is not None:
+            raise ConfigError("[ethercat] esi = [...] names the ESI files of an ENI's slaves: give eni = \"PATH\" "
+                              "too (a single ESI device is a [[device]] kind = \"esi\")")
+        self.segment = Segment(self.eni.slaves if self.eni is not None else [d.slave for d in self.devices])
         self.pcap_path: str | None = cfg["pcap"]
         self.cpu: int | None = cfg["cpu"]
         self.busy_poll: bool = cfg["busy_poll"]
@@ -144,9 +157,12 @@ class SegmentParticipant:
 
     def ready_info(self) -> dict[str, Any]:
         """The interface and the slaves in position order, for the --ready-file."""
-        return {"ethercat": {"interface": self.interface, "slaves": [
+        info: dict[str, Any] = {"ethercat": {"interface": self.interface, "slaves": [
             {"name": s.name, "position": i, "vendor_id": s.desc.vendor_id, "product_code": s.desc.product_code}
             for i, s in enumerate(self.segment.slaves)]}}
+        if self.eni is not None:
+            info["eni"] = self.eni.info()
+        return info
 
 
 def create_segment(rig: RigContext, cfg: dict[str, Any],
