@@ -137,6 +137,9 @@ class DeviceDescription:
     sii_categories: tuple[tuple[int, bytes], ...] = ()
     #: The SII byte for byte (ESI ``<Eeprom><Data>`` or a dump); None = built from the description.
     sii_image: bytes | None = None
+    #: A device without mailbox and outputs whose inputs SyncManager is SM0 (the ESI's ``<Sm>`` order, an
+    #: EL1008's); the SII then lists that one SyncManager.
+    inputs_first: bool = False
 
     def __post_init__(self) -> None:
         for start, size in (self.mailbox_out, self.mailbox_in):
@@ -188,6 +191,14 @@ class DeviceDescription:
     def has_mailbox(self) -> bool:
         """SM0/SM1 are mailboxes: some mailbox protocol is declared."""
         return self.coe or self.foe or bool(self.other_protocols)
+
+    @property
+    def sm_numbers(self) -> tuple[int, int]:
+        """(outputs, inputs) process data SyncManager numbers: 2/3 behind a mailbox, else 0/1, or 1/0 for an
+        inputs-only device whose inputs are SM0 (``inputs_first``)."""
+        if self.has_mailbox:
+            return 2, 3
+        return (1, 0) if self.inputs_first else (0, 1)
 
     # SyncManager control bytes the master must program (ET1100 0x0804).
     SM0_CONTROL = 0x26  # mailbox, ECAT writes, PDI interrupt
@@ -255,7 +266,7 @@ def build_od(desc: DeviceDescription) -> ObjectDictionary:
     _record(od, 0x1018, "Identity", [
         (1, "Vendor ID", u32, desc.vendor_id, ro), (2, "Product code", u32, desc.product_code, ro),
         (3, "Revision", u32, desc.revision, ro), (4, "Serial number", u32, desc.serial, ro)])
-    types = [1, 2, 3, 4] if desc.has_mailbox else [3, 4]
+    types = [1, 2, 3, 4] if desc.has_mailbox else [4] if desc.inputs_first else [3, 4]
     od.add_array(0x1C00, "Sync manager type", u8, len(types), ro, defaults=types, sub0_name="SubIndex 000",
                  sub_names=[f"SubIndex {i:03d}" for i in range(1, len(types) + 1)])
     for pdos, assigned, assign in ((desc.rx_pdos, desc.assigned_rx_pdos, 0x1C12),

@@ -83,15 +83,17 @@ def export_esi(desc: DeviceDescription, od: ObjectDictionary | None = None) -> s
                                           (desc.mailbox_in, DeviceDescription.SM1_CONTROL, "MBoxIn")):
             _sub(device, "Sm", name, MinSize="34", MaxSize=str(size), DefaultSize=str(size),
                  StartAddress=_hex(start, 4), ControlByte=_hex(ctrl, 2), Enable="1")
-    _sub(device, "Sm", "Outputs", DefaultSize=str(desc.outputs_sii_size), StartAddress=_hex(desc.outputs_start, 4),
-         ControlByte=_hex(desc.outputs_control, 2), Enable="1" if desc.outputs_sii_size else "0")
+    if not desc.inputs_first or has_mbx:
+        _sub(device, "Sm", "Outputs", DefaultSize=str(desc.outputs_sii_size),
+             StartAddress=_hex(desc.outputs_start, 4), ControlByte=_hex(desc.outputs_control, 2),
+             Enable="1" if desc.outputs_sii_size else "0")
     _sub(device, "Sm", "Inputs", DefaultSize=str(desc.inputs_sii_size), StartAddress=_hex(desc.inputs_start, 4),
          ControlByte=_hex(desc.inputs_control, 2), Enable="1" if desc.inputs_sii_size else "0")
-    sm_out = 2 if has_mbx else 0
+    sm_out, sm_in = desc.sm_numbers
     for pdo in desc.rx_pdos:
         _pdo(device, "RxPdo", pdo, sm_out if pdo in desc.assigned_rx_pdos else None)
     for pdo in desc.tx_pdos:
-        _pdo(device, "TxPdo", pdo, sm_out + 1 if pdo in desc.assigned_tx_pdos else None)
+        _pdo(device, "TxPdo", pdo, sm_in if pdo in desc.assigned_tx_pdos else None)
     if has_mbx:
         mailbox = _sub(device, "Mailbox", DataLinkLayer="1")
         for bit, tag in ((0x01, "AoE"), (0x02, "EoE")):

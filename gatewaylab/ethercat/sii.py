@@ -168,12 +168,13 @@ def build_sii(desc: DeviceDescription, alias: int = 0) -> bytes:
                              SmType.MAILBOX_OUT)
         sms += SM_ENTRY.pack(desc.mailbox_in[0], desc.mailbox_in[1], DeviceDescription.SM1_CONTROL, 0, 1,
                              SmType.MAILBOX_IN)
-    sms += SM_ENTRY.pack(desc.outputs_start, desc.outputs_sii_size, desc.outputs_control, 0,
-                         1 if desc.outputs_sii_size else 0, SmType.OUTPUTS)
+    if not desc.inputs_first or has_mbx:
+        sms += SM_ENTRY.pack(desc.outputs_start, desc.outputs_sii_size, desc.outputs_control, 0,
+                             1 if desc.outputs_sii_size else 0, SmType.OUTPUTS)
     sms += SM_ENTRY.pack(desc.inputs_start, desc.inputs_sii_size, desc.inputs_control, 0,
                          1 if desc.inputs_sii_size else 0, SmType.INPUTS)
-    sm_out = 2 if has_mbx else 0
-    txpdo = _pdos(desc.assigned_tx_pdos, sm_out + 1, strings)
+    sm_out, sm_in = desc.sm_numbers
+    txpdo = _pdos(desc.assigned_tx_pdos, sm_in, strings)
     rxpdo = _pdos(desc.assigned_rx_pdos, sm_out, strings)
     cats = bytearray()
     cats += _category(Category.STRINGS, strings.encode())

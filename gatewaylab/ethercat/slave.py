@@ -150,8 +150,7 @@ class Slave:
         self.sii = build_sii(desc, alias)
         #: Process data SyncManagers: 2/3 behind the mailbox SMs, 0/1 on a slave without mailbox.
         self.has_mailbox = desc.has_mailbox
-        self.sm_outputs = 2 if self.has_mailbox else 0
-        self.sm_inputs = self.sm_outputs + 1
+        self.sm_outputs, self.sm_inputs = desc.sm_numbers
         self.esc = Esc(clock, self.sii, self, dc=desc.dc, output_sm=self.sm_outputs)
         self.mailbox = MailboxEndpoint(lambda raw: self.esc.mailbox_put(1, raw))
         mbx_size = desc.mailbox_in[1]

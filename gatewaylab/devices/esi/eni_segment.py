@@ -166,6 +166,7 @@ def eni_only_device(s: EniSlave, source: str) -> EsiDevice:
             inputs_sm_size=max((in_bits + 7) // 8, (inputs.length or 0) if inputs else 0),
             rx_pdos=rx, tx_pdos=tx, rx_assign=s.rx_assign, tx_assign=s.tx_assign, coe=coe,
             foe=has_mailbox and "FoE" in protocols, other_protocols=other if has_mailbox else 0, dc=s.dc,
+            inputs_first=not has_mailbox and outputs is None and inputs is not None and inputs.number == 0,
             mailbox_out=mailbox_out, mailbox_in=mailbox_in)
     except EtherCATConfigError as exc:
         raise EniError(f"{source}: line {s.line}: Slave #{s.position + 1} ({s.name}): {exc}") from None

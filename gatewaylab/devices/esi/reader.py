@@ -263,6 +263,8 @@ def _device(ctx: _Ctx, dev: ET.Element, vendor_id: int, vendor_name: str) -> Esi
             if label not in sms:
                 raise ctx.fail(here, f"declares a mailbox but has no <Sm>{label}</Sm>")
             kwargs[key] = (start, size if size > 0 else max_size or 0)
+    order = [(sm.text or "").strip() for sm in dev.findall("Sm")]
+    kwargs["inputs_first"] = not (coe or foe or other) and order[:1] == ["Inputs"] and "Outputs" not in sms
     out_start, out_size, out_ctrl, out_max, _ = sm_row("Outputs", 0x1100, 0x64)
     in_start, in_size, in_ctrl, in_max, _ = sm_row("Inputs", 0x1400, 0x20)
     notes: list[str] = []

@@ -90,13 +90,14 @@ class SlaveInfo:
         return self.sii.serial
 
 
-def _pd_sms(s: SlaveInfo) -> tuple[tuple[int, int], tuple[int, int]]:
-    """(start, SM index) of the outputs and inputs SyncManagers from the SII (types 3 and 4)."""
+def _pd_sms(s: SlaveInfo) -> tuple[tuple[int, int] | None, tuple[int, int] | None]:
+    """(start, SM index) of the outputs and inputs SyncManagers from the SII (types 3 and 4); None for one the
+    SII does not list (an inputs-only terminal such as an EL1008 has only its inputs SyncManager, SM0)."""
     outs = [(sm[0], i) for i, sm in enumerate(s.sii.sync_managers) if sm[4] == 3]
     ins = [(sm[0], i) for i, sm in enumerate(s.sii.sync_managers) if sm[4] == 4]
-    if not outs or not ins:
+    if not outs and not ins:
         raise MasterError(f"slave {s.position} has no process data SyncManagers in its SII")
-    return outs[0], ins[0]
+    return (outs[0] if outs else None), (ins[0] if ins else None)
 
 
 class Configuration:
@@ -201,14 +202,15 @@ class Configuration:
             in_off += s.input_bytes
         for s in self.slaves:
             o_sm, i_sm = _pd_sms(s)
-            o_ctrl = s.sii.sync_managers[o_sm[1]][2]
-            i_ctrl = s.sii.sync_managers[i_sm[1]][2]
-            sms = SM_REG.pack(o_sm[0], s.output_bytes, o_ctrl, 0, 1 if s.output_bytes else 0, 0) + \
-                SM_REG.pack(i_sm[0], s.input_bytes, i_ctrl, 0, 1 if s.input_bytes else 0, 0)
-            self.port.fpwr(s.station, REG_SM + 8 * o_sm[1], sms)
-            fmmus = FMMU_REG.pack(s.output_offset, s.output_bytes, 0, 7, o_sm[0], 0, 2,
-                                  1 if s.output_bytes else 0) + \
-                FMMU_REG.pack(s.input_offset, s.input_bytes, 0, 7, i_sm[0], 0, 1, 1 if s.input_bytes else 0)
+            fmmus = b""
+            for sm, size, offset, direction in ((o_sm, s.output_bytes, s.output_offset, 2),
+                                                (i_sm, s.input_bytes, s.input_offset, 1)):
+                start = sm[0] if sm is not None else 0
+                if sm is not None:
+                    ctrl = s.sii.sync_managers[sm[1]][2]
+                    self.port.fpwr(s.station, REG_SM + 8 * sm[1],
+                                   SM_REG.pack(start, size, ctrl, 0, 1 if size else 0, 0))
+                fmmus += FMMU_REG.pack(offset, size, 0, 7, start, 0, direction, 1 if size and sm is not None else 0)
             self.port.fpwr(s.station, REG_FMMU, fmmus)
         image.lay_out(out_off, in_off)
         return in_off

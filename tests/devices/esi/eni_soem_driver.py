@@ -10,8 +10,8 @@ the AL control request and the AL status check), for SAFEOP->OP the same after o
 Register InitCmds go out as the datagram pysoem offers for one slave (FPWR for APWR/FPWR, FPRD for
 APRD/FPRD: the station address the ENI names, or the slave at the auto-increment position) with SOEM's default
 timeout and no retry; each must return the ENI's ``Cnt`` (1); a ``Validate`` reads until the masked data
-match or its timeout passes. Then CYCLES process data cycles 1 ms apart against the ENI's cyclic working
-counter.
+match or its timeout passes (a poll without reply counts as one more poll, as the loop polls anyway).
+Then CYCLES process data cycles 1 ms apart against the ENI's cyclic working counter.
 """
 
 from __future__ import annotations
@@ -42,6 +42,7 @@ class Replay:
         self.sent = 0
         self.failures: list[str] = []
         self.per_slave: dict[int, int] = {}
+        self.lost_polls = 0
 
     def _slave(self, cmd: RegisterInitCmd, position: int) -> Any:
         if cmd.cmd in (1, 2):                      # auto-increment: 0, -1, -2 ... (the ENI's Adp)
@@ -60,16 +61,25 @@ class Replay:
             if cmd.cmd in WRITES:
                 slave._fpwr(cmd.ado, cmd.data, TIMEOUT_US)
                 return
+            if cmd.validate is None:
+                slave._fprd(cmd.ado, len(cmd.data), TIMEOUT_US)
+                return
             deadline = time.monotonic() + cmd.timeout_ms / 1000
             while True:
-                data = slave._fprd(cmd.ado, len(cmd.data), TIMEOUT_US)
-                if cmd.validate is None:
-                    return
+                try:
+                    data = slave._fprd(cmd.ado, len(cmd.data), TIMEOUT_US)
+                except pysoem.WkcError:     # a poll of the Validate loop without reply: the next poll follows
+                    self.lost_polls += 1
+                    if time.monotonic() > deadline:
+                        raise
+                    continue
                 mask = cmd.validate_mask or bytes([0xFF] * len(cmd.validate))
                 if all((a & m) == (b & m) for a, b, m in zip(data, cmd.validate, mask)):
                     return
                 if time.monotonic() > deadline:
-                    self.failures.append(f"{what}: read {data.hex()}, expected {cmd.validate.hex()} mask {mask.hex()}")
+                    code = int.from_bytes(slave._fprd(0x0134, 2, TIMEOUT_US), "little")
+                    self.failures.append(f"{what}: read {data.hex()}, expected {cmd.validate.hex()} mask {mask.hex()} "
+                                         f"(AL status code 0x{code:04X})")
                     return
                 time.sleep(0.001)
         except pysoem.WkcError:
@@ -113,6 +123,7 @@ def main() -> None:
         result["preop"] = sum(s.state == pysoem.PREOP_STATE for s in master.slaves)
         result["coe"] = replay.coe("PS")
         master.config_map()
+        result["soem_sms"] = [master.slaves[i]._fprd(0x0800, 32, TIMEOUT_US).hex() for i in range(len(master.slaves))]
         replay.registers("PS", state=False)
         replay.registers("PS", state=True)
         master.read_state()
@@ -127,7 +138,12 @@ def main() -> None:
         result["expected_wkc"] = master.expected_wkc
         wkcs: dict[int, int] = {}
         lost = 0
+        gaps: list[float] = []
+        last = time.monotonic()
         for _ in range(cycles):
+            now = time.monotonic()
+            gaps.append(now - last)
+            last = now
             master.send_processdata()
             wkc = master.receive_processdata(TIMEOUT_US)
             if wkc <= 0:
@@ -135,9 +151,13 @@ def main() -> None:
             else:
                 wkcs[wkc] = wkcs.get(wkc, 0) + 1
             time.sleep(0.001)
-        result.update(wkcs={str(k): v for k, v in wkcs.items()}, lost=lost, sent=replay.sent,
+        result.update(lost_polls=replay.lost_polls, wkcs={str(k): v for k, v in wkcs.items()}, lost=lost,
+                      sent=replay.sent,
                       per_slave={str(k): v for k, v in replay.per_slave.items()}, failures=replay.failures,
                       sizes=[[len(s.output), len(s.input)] for s in master.slaves])
+        master.read_state()
+        result["final"] = [[s.state, s.al_status] for s in master.slaves]
+        result["max_gap_ms"] = max(gaps) * 1000
         master.state = pysoem.INIT_STATE
         master.write_state()
     finally:

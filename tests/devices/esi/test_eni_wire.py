@@ -1,0 +1,128 @@
+"""A segment from an ENI on the user's path: ``gatewaylab run --eni ... --esi ...`` (and a rig file with the
+rig's own ECAN-Lite) on one end of a veth pair, pysoem (SOEM) in a network namespace on the other replaying
+the ENI's InitCmds (tests/devices/esi/eni_soem_driver.py).
+
+The ENI (data/GL-test-line.eni.xml, laid out as TwinCAT 3 exports one: Config/Master, Slave with Info,
+ProcessData, Mailbox/CoE/InitCmds, InitCmds, Cyclic, ProcessImage) holds 11 slaves: ESI-backed terminals
+(EL1008 twice, EL3102 twice and EL3102 of a revision the ESI lacks), the rig's ECAN-Lite,
+and ENI-only terminals (EK1100, EL4132, EL5101, EL1018, EL9011). The proof that the network matches what
+the master was configured for (issue text, ETG.2100 InitCmds): every InitCmd returns the ENI's working
+counter, every CoE InitCmd is accepted, all slaves reach OP, and the cyclic LRW returns the ENI's ``Cnt``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import select
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from wire_kit import net_capable, veth_namespace
+
+from gatewaylab.ethercat.eni import parse_eni_xml
+from gatewaylab.rig.process import RigProcess
+
+pytestmark = [pytest.mark.net, pytest.mark.slow]
+
+DATA = Path(__file__).with_name("data")
+ENI = DATA / "GL-test-line.eni.xml"
+DRIVER = Path(__file__).with_name("eni_soem_driver.py")
+CYCLES = 500
+RIG = """
+clock = "realtime"
+
+[[device]]
+kind = "ecanlite"
+name = "ecan1"
+
+[ethercat]
+interface = "{interface}"
+"""
+
+
+def _stdout(rig: RigProcess) -> str:
+    """What ``gatewaylab run`` printed after its ready file (the lines of the running rig)."""
+    assert rig.proc.stdout is not None
+    fd = rig.proc.stdout.fileno()
+    out = b""
+    while select.select([fd], [], [], 0.5)[0]:
+        chunk = os.read(fd, 65536)
+        if not chunk:
+            break
+        out += chunk
+    return out.decode(errors="replace")
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
+    reason = net_capable("pysoem")
+    if reason is not None:
+        pytest.skip(reason)
+    work = tmp_path_factory.mktemp("eni-wire")
+    with veth_namespace("gl-eni-", "gln") as (ns, emu, mst):
+        path = work / "rig.toml"
+        path.write_text(RIG.format(interface=emu))
+        with RigProcess(path, "--eni", str(ENI), "--esi", str(DATA), workdir=work, timeout=60) as rig:
+            done = subprocess.run(["ip", "netns", "exec", ns, sys.executable, str(DRIVER), mst, str(ENI),
+                                   str(CYCLES)], capture_output=True, text=True, timeout=600, check=False)
+            assert rig.proc.poll() is None, rig.log_text()[-2000:]
+            log = rig.log_text() + _stdout(rig)
+            ready = rig.info
+        assert done.returncode == 0, done.stderr[-3000:]
+        result = json.loads(done.stdout.strip().splitlines()[-1])
+        result["log"] = log
+        result["ready"] = ready
+        yield result
+
+
+def test_soem_finds_the_enis_slaves_in_its_order(run: dict[str, Any]) -> None:
+    """ETG.2100 / QEC A.7 'Info': the master checks the number of slaves and each one's vendor id and product
+    code at its position; a slave built from a lower revision's ESI shows the ENI's revision."""
+    eni = parse_eni_xml(ENI.read_bytes())
+    assert run["count"] == len(eni.slaves) == 11
+    assert run["identities"] == [[s.vendor_id, s.product_code, s.revision] for s in eni.slaves]
+
+
+def test_every_initcmd_answers_with_the_enis_working_counter(run: dict[str, Any]) -> None:
+    """Every register InitCmd (ETG.2100 InitCmd Cnt) and every CoE InitCmd (an SDO download, no abort) of
+    every slave succeeds -- the ENI-only slaves' included -- and the slaves reach PREOP, SAFEOP and OP by
+    the ENI's own AL control writes and status checks."""
+    eni = parse_eni_xml(ENI.read_bytes())
+    assert run["failures"] == [], "\n".join(run["failures"] + run["soem_sms"])
+    assert run["sent"] == sum(len(s.init_cmds) for s in eni.slaves)
+    assert run["coe"] == sum(len(s.coe_cmds) for s in eni.slaves)
+    eni_only = [row["position"] for row in run["ready"]["eni"]["slaves"] if row["match"] == "ENI only"]
+    assert eni_only == [0, 5, 6, 7, 10]
+    assert all(run["per_slave"][str(p)] == len(eni.slaves[p].init_cmds) for p in eni_only)
+    assert run["preop"] == run["safeop"] == run["op"] == 11
+
+
+def test_cyclic_process_data_has_the_enis_working_counter(run: dict[str, Any]) -> None:
+    """ETG.2100 Cyclic/Frame/Cmd Cnt: the LRW's working counter the master expects (2 per slave with outputs,
+    1 per slave with inputs: 14 here). A wrong counter always fails; a lost cycle (no reply on this loaded
+    machine) is counted and tolerated up to 2 %."""
+    eni = parse_eni_xml(ENI.read_bytes())
+    assert eni.cyclic_wkc == 14 == run["expected_wkc"]
+    print(f"cycles: {run['wkcs']}, lost {run['lost']} of {CYCLES}; final states {run['final']}, longest gap "
+          f"between cycles {run['max_gap_ms']:.1f} ms")
+    assert set(run["wkcs"]) == {"14"}
+    assert run["lost"] <= CYCLES * 0.02
+
+
+def test_each_slave_says_where_it_came_from(run: dict[str, Any]) -> None:
+    """One line per slave at start (the ESI file and match, the rig device, or 'ENI only'), also in the
+    ready file; the revision fallback is said once in the log."""
+    rows = run["ready"]["eni"]["slaves"]
+    assert [r["match"] for r in rows] == ["ENI only", "exact", "device", "exact",
+                                          "revision 0x00140000, the highest below the ENI's 0x00150000",
+                                          "ENI only", "ENI only", "ENI only", "exact", "exact", "ENI only"]
+    assert rows[2]["name"] == "ecan1"
+    assert rows[1]["file"].endswith("GL-test-EL1xxx-EL2xxx.xml") and rows[1]["type"] == "EL1008"
+    lines = run["log"].splitlines()
+    assert sum("eni slave" in line for line in lines) == 11
+    assert sum("highest below" in line and "WARNING" in line for line in lines) == 1
