@@ -124,9 +124,8 @@ class EsiCatalogue:
 
 
 def _number(text: str | None) -> int:
-    if text is None or not text.strip():
-        raise ValueError("missing number")
-    t = text.strip().lower()
+    """Decimal, ``0x`` or ``#x`` (ValueError from int() for anything else, a missing number included)."""
+    t = (text or "").strip().lower()
     return int(t[2:], 16) if t.startswith("#x") else int(t, 0) if t.startswith("0x") else int(t)
 
 
