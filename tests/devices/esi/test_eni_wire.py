@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import json
 import os
-import select
+import signal
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -25,7 +25,6 @@ import pytest
 from wire_kit import net_capable, veth_namespace
 
 from gatewaylab.ethercat.eni import parse_eni_xml
-from gatewaylab.rig.process import RigProcess
 
 pytestmark = [pytest.mark.net, pytest.mark.slow]
 
@@ -45,17 +44,26 @@ interface = "{interface}"
 """
 
 
-def _stdout(rig: RigProcess) -> str:
-    """What ``gatewaylab run`` printed after its ready file (the lines of the running rig)."""
-    assert rig.proc.stdout is not None
-    fd = rig.proc.stdout.fileno()
-    out = b""
-    while select.select([fd], [], [], 0.5)[0]:
-        chunk = os.read(fd, 65536)
-        if not chunk:
-            break
-        out += chunk
-    return out.decode(errors="replace")
+def _start(work: Path, rig_file: Path, *extra: str) -> tuple[subprocess.Popen[bytes], dict[str, Any]]:
+    """``gatewaylab run`` as a user starts it, its stdout and stderr in files (the lines it prints after its
+    ready file are read whole once it stopped); the ready file's contents."""
+    ready = work / "ready.json"
+    with (work / "stdout.txt").open("wb") as out, (work / "stderr.txt").open("wb") as err:
+        proc = subprocess.Popen([sys.executable, "-m", "gatewaylab", "run", str(rig_file), *extra, "--ready-file",
+                                 str(ready)], stdout=out, stderr=err, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    for _ in range(600):
+        try:
+            code = proc.wait(timeout=0.1)       # the poll's pause: the rig exits early only on an error
+        except subprocess.TimeoutExpired:
+            if ready.exists():
+                try:
+                    return proc, json.loads(ready.read_text())
+                except ValueError:              # being written
+                    continue
+            continue
+        pytest.fail(f"gatewaylab run exited {code}: {(work / 'stderr.txt').read_text()[-2000:]}")
+    proc.kill()
+    pytest.fail("gatewaylab run did not write its ready file within 60 s")
 
 
 @pytest.fixture(scope="module")
@@ -67,12 +75,15 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
     with veth_namespace("gl-eni-", "gln") as (ns, emu, mst):
         path = work / "rig.toml"
         path.write_text(RIG.format(interface=emu))
-        with RigProcess(path, "--eni", str(ENI), "--esi", str(DATA), workdir=work, timeout=60) as rig:
+        proc, ready = _start(work, path, "--eni", str(ENI), "--esi", str(DATA))
+        try:
             done = subprocess.run(["ip", "netns", "exec", ns, sys.executable, str(DRIVER), mst, str(ENI),
                                    str(CYCLES)], capture_output=True, text=True, timeout=600, check=False)
-            assert rig.proc.poll() is None, rig.log_text()[-2000:]
-            log = rig.log_text() + _stdout(rig)
-            ready = rig.info
+            assert proc.poll() is None, (work / "stderr.txt").read_text()[-2000:]
+        finally:
+            proc.send_signal(signal.SIGTERM)
+            proc.wait(timeout=30)
+        log = (work / "stderr.txt").read_text() + (work / "stdout.txt").read_text()
         assert done.returncode == 0, done.stderr[-3000:]
         result = json.loads(done.stdout.strip().splitlines()[-1])
         result["log"] = log
