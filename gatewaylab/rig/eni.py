@@ -48,6 +48,20 @@ class EniSegment:
         #: the rig's devices placed in the segment, in position order
         self.devices = devices
 
+    def states(self) -> dict[str, Any]:
+        """AL state, error flag, AL status code and origin of the slaves built from the ENI (the rig's own
+        devices are listed by their participants): the control request ``ethercat-states``."""
+        placed = {id(d.slave) for d in self.devices}
+        out: dict[str, Any] = {}
+        for slave, origin in zip(self.slaves, self.origins, strict=True):
+            if id(slave) in placed:
+                continue
+            status = slave.esc.al_status
+            state = {1: "INIT", 2: "PREOP", 3: "BOOT", 4: "SAFEOP", 8: "OP"}.get(status & 0x0F, f"0x{status & 0x0F:X}")
+            out[slave.name] = {"state": state, "error": bool(status & 0x10), "code": slave.esc.al_status_code,
+                               "from": origin.file or origin.match}
+        return out
+
     def info(self) -> dict[str, Any]:
         """The ready file's ``eni`` table: the file and one row per slave."""
         return {"file": self.eni.source, "expected_wkc": self.eni.cyclic_wkc, "slaves": [

@@ -325,6 +325,8 @@ class Faults:
             for q in self._rig.participants:       # the [ethercat] wire's counters while it runs
                 if isinstance(q, SegmentParticipant) and (wire := q.wire_stats()) is not None:
                     out["wire"] = wire
+                if isinstance(q, SegmentParticipant) and q.eni is not None:     # the slaves an ENI built
+                    states.update(q.eni.states())
             return out
         return self._locked(act)
 

@@ -77,6 +77,18 @@ def test_initcmds_of_eni_only_slaves_are_accepted(tmp_path: Path) -> None:
         assert master.sdo_upload16(5, 0x8000, 0x11) == 100
 
 
+def test_ethercat_states_lists_the_eni_slaves_with_their_origin(tmp_path: Path) -> None:
+    """The control request ``ethercat-states`` (docs/faults.md) shows every slave of the segment: the rig's
+    own devices and the slaves the ENI built, each of those with the file (or 'ENI only') it came from."""
+    from gatewaylab.rig.faults import Faults
+
+    with _rig(tmp_path, ENI, [str(DATA)], '[[device]]\nkind = "ecanlite"\nname = "ecan1"\n') as rig:
+        states = Faults(rig).ethercat_states()["devices"]
+    assert len(states) == 11 and states["ecan1"]["state"] == "INIT"
+    assert states["Term_1_EK1100"] == {"state": "INIT", "error": False, "code": 0, "from": "ENI only"}
+    assert states["Term_2_EL1008"]["from"].endswith("GL-test-EL1xxx-EL2xxx.xml")
+
+
 def test_a_missing_esi_falls_back_and_is_said_once(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     """Two EL3102 (and two EL1008) with no ESI given: both from the ENI alone, one warning per identity."""
     with caplog.at_level(logging.WARNING), _rig(tmp_path, ENI, None,
