@@ -3,7 +3,8 @@ mailbox, CoE InitCmds (index, subindex, data, complete access), process data Syn
 lengths, DC cycle/shift; and a plain list of CoE startup writes (docs/migration-esd-to-ecanlite.md).
 
 Reading is defensive: numbers may be decimal, ``0x..`` or ``#x..`` (TwinCAT), unknown elements are
-ignored, a missing or malformed required element is an :class:`EniError`.
+ignored, a missing or malformed required element is an :class:`EniError` (the one of the general ENI reader,
+gatewaylab/ethercat/eni.py, which reads the whole segment for ``[ethercat] eni``).
 """
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ from __future__ import annotations
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 
-from gatewaylab.common.errors import ConfigError
+from gatewaylab.ethercat.eni import EniError
 
 __all__ = [
     "WRITE_TYPES",
@@ -25,10 +26,6 @@ __all__ = [
     "parse_writes",
     "write_eni",
 ]
-
-
-class EniError(ConfigError):
-    """An ENI file or a startup-write list the reader cannot use."""
 
 
 @dataclass(frozen=True, slots=True)

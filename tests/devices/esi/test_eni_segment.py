@@ -77,6 +77,32 @@ def test_initcmds_of_eni_only_slaves_are_accepted(tmp_path: Path) -> None:
         assert master.sdo_upload16(5, 0x8000, 0x11) == 100
 
 
+def test_an_inputs_only_terminal_has_its_inputs_on_sm0(tmp_path: Path) -> None:
+    """ETG.2000: SyncManagers are numbered in the ESI's ``<Sm>`` order; an EL1008 (no mailbox, one
+    ``<Sm>Inputs</Sm>``) has its inputs on SM0, its SII lists that one SyncManager, and the ENI's register
+    InitCmds programming SM0 and FMMU0 as inputs (TwinCAT's layout) take it to SAFEOP and OP (before, its
+    inputs were SM1 and SAFEOP was refused with AL status 0x0017, invalid SyncManager configuration)."""
+    with _rig(tmp_path, ENI, [str(DATA)], '[[device]]\nkind = "ecanlite"\nname = "ecan1"\n') as rig:
+        seg = rig.participants[-1]
+        assert seg.eni is not None
+        el1008 = seg.segment.slaves[1]
+        assert (el1008.sm_outputs, el1008.sm_inputs) == (1, 0)
+        master = Master(rig.clock, seg.segment)
+        infos = master.scan()
+        assert [sm[4] for sm in infos[1].sii.sync_managers] == [4]      # one SyncManager: inputs
+        master.set_state(AlState.PREOP)
+        for s in seg.eni.eni.slaves:
+            for c in s.coe_cmds:
+                master.sdo_download(s.position, c.index, c.subindex, c.data)
+        master.config_map()
+        for c in seg.eni.eni.slaves[1].init_cmds:
+            if "PS" in c.transitions and c.ado in (0x0800, 0x0600):          # set sm 0, set fmmu 0 (inputs)
+                master.fpwr(0x1002, c.ado, c.data)
+        master.set_state(AlState.SAFEOP)
+        master.set_state(AlState.OP)
+        assert master.al_status(1) == (AlState.OP, 0)
+
+
 def test_ethercat_states_lists_the_eni_slaves_with_their_origin(tmp_path: Path) -> None:
     """The control request ``ethercat-states`` (docs/faults.md) shows every slave of the segment: the rig's
     own devices and the slaves the ENI built, each of those with the file (or 'ENI only') it came from."""
