@@ -23,6 +23,7 @@ from gatewaylab.ethercat.eni import CoeInitCmd, EniError, EniSlave
 from gatewaylab.ethercat.errors import EtherCATConfigError
 from gatewaylab.ethercat.slave import Slave
 from gatewaylab.od import Access, DataType, ObjectCode, ObjectDictionary
+from gatewaylab.plugin.participant import NAME_MAX, name_problem
 
 __all__ = ["ENI_ONLY", "EsiCatalogue", "Origin", "build_eni_slave", "eni_only_device", "slave_name"]
 
@@ -47,12 +48,16 @@ class Origin:
 
 
 def slave_name(text: str, taken: set[str]) -> str:
-    """A rig-wide name from an ENI ``Info/Name`` (``Term 2 (EL2008)`` -> ``Term_2_EL2008``), unique in ``taken``."""
-    base = re.sub(r"[^A-Za-z0-9_.-]+", "_", text).strip("_.-") or "slave"
+    """A rig-wide name from an ENI ``Info/Name`` (``Term 2 (EL2008)`` -> ``Term_2_EL2008``), unique in ``taken``
+    and within the name rule every rig name follows (a name may become a file name in the rig's folder): the
+    file's text never reaches a path as it is."""
+    base = (re.sub(r"[^A-Za-z0-9_.-]+", "_", text).strip("_.-") or "slave")[:NAME_MAX - 4].rstrip("_.-") or "slave"
     name, n = base, 1
     while name in taken:
         n += 1
         name = f"{base}-{n}"
+    if name_problem(name) is not None:      # cannot happen by the rules above; a plain name if it ever did
+        name = f"slave{len(taken)}"
     taken.add(name)
     return name
 

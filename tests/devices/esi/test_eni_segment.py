@@ -178,3 +178,17 @@ def test_bad_files_exit_2_with_one_line(tmp_path: Path, case: str, message: str)
     assert __import__("re").search(message, lines[0]), lines[0]
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
         p.name for p in tmp_path.iterdir() if not p.name.startswith("gatewaylab-"))   # nothing left behind
+
+
+def test_slave_names_from_the_file_follow_the_name_rule() -> None:
+    """An ENI's ``Info/Name`` is the file's text: the slave's rig name keeps only what the name rule allows
+    (docs/rig.md "Names": a name may become a file name in the rig's folder), unique in the rig."""
+    from gatewaylab.devices.esi.eni_segment import slave_name
+    from gatewaylab.plugin.participant import name_problem
+
+    taken: set[str] = {"ecan1"}
+    names = [slave_name(text, taken) for text in ("Term 2 (EL2008)", "../../etc/passwd", "Term 2 (EL2008)",
+                                                  "x" * 80, "", ".hidden", "ecan1", "a/b\\c\0d")]
+    assert names[:3] == ["Term_2_EL2008", "etc_passwd", "Term_2_EL2008-2"]
+    assert names[6] == "ecan1-2"
+    assert all(name_problem(n) is None for n in names) and len(set(names)) == len(names)
