@@ -35,6 +35,8 @@ __all__ = [
 #: ETG.1000.4 datagram commands by number (ENI ``<Cmd>``).
 CMD_NAMES = {0: "NOP", 1: "APRD", 2: "APWR", 3: "APRW", 4: "FPRD", 5: "FPWR", 6: "FPRW", 7: "BRD", 8: "BWR",
              9: "BRW", 10: "LRD", 11: "LWR", 12: "LRW", 13: "ARMW", 14: "FRMW"}
+#: The most data one datagram carries (a 1,514-byte frame less its headers).
+MAX_DATA = 1486
 #: ETG.2000 base types an ENI's PDO entries name, besides the CoE names.
 _TYPES = {"BOOL": DataType.BOOLEAN, "BIT": DataType.BOOLEAN, "SINT": DataType.INTEGER8, "INT": DataType.INTEGER16,
           "DINT": DataType.INTEGER32, "LINT": DataType.INTEGER64, "USINT": DataType.UNSIGNED8,
@@ -154,14 +156,19 @@ class _Reader:
         at = f"line {line}: " if line else ""
         return EniError(f"{self.source}: {at}{where}: {what}")
 
-    def number(self, el: ET.Element | None, tag: str, where: str, default: int | None = None) -> int:
+    def number(self, el: ET.Element | None, tag: str, where: str, default: int | None = None,
+               hi: int = 0xFFFFFFFF, lo: int = 0) -> int:
+        """The number in ``el``'s child ``tag`` (``default`` when there is none), within ``lo..hi``."""
         child = el.find(tag) if el is not None else None
         text = child.text if child is not None else None
         if text is None or not text.strip():
             if default is None:
                 raise self.fail(el, f"{where}/{tag}", "missing")
             return default
-        return self.parse(text, child, f"{where}/{tag}")
+        value = self.parse(text, child, f"{where}/{tag}")
+        if not lo <= value <= hi:
+            raise self.fail(child, f"{where}/{tag}", f"{value} is out of range ({lo}..{hi})")
+        return value
 
     def parse(self, text: str, el: ET.Element | None, where: str) -> int:
         t = text.strip().lower()
@@ -216,14 +223,14 @@ def _transitions(el: ET.Element) -> tuple[str, ...]:
 
 
 def _register_cmd(r: _Reader, el: ET.Element, where: str) -> RegisterInitCmd:
-    cmd = r.number(el, "Cmd", where)
+    cmd = r.number(el, "Cmd", where, hi=0xFF)
     if cmd not in CMD_NAMES:
         raise r.fail(el, f"{where}/Cmd", f"{cmd} is not an EtherCAT command (0..14)")
     data_el = el.find("Data")
     if data_el is not None and (data_el.text or "").strip():
         data = r.hexdata(data_el, f"{where}/Data")
     else:
-        data = bytes(r.number(el, "DataLength", where, 0))
+        data = bytes(r.number(el, "DataLength", where, 0, hi=MAX_DATA))
     validate = el.find("Validate")
     check = mask = None
     timeout = r.number(el, "Timeout", where, 0)
@@ -233,16 +240,15 @@ def _register_cmd(r: _Reader, el: ET.Element, where: str) -> RegisterInitCmd:
         mask = r.hexdata(mask_el, f"{where}/Validate/DataMask") if mask_el is not None else None
         timeout = r.number(validate, "Timeout", f"{where}/Validate", timeout)
     cnt_el = el.find("Cnt")
-    return RegisterInitCmd(_transitions(el), _text(el, "Comment"), cmd, r.number(el, "Adp", where, 0) & 0xFFFF,
-                           r.number(el, "Ado", where, 0), data,
+    return RegisterInitCmd(_transitions(el), _text(el, "Comment"), cmd,
+                           r.number(el, "Adp", where, 0, lo=-0x8000, hi=0xFFFF) & 0xFFFF,
+                           r.number(el, "Ado", where, 0, hi=0xFFFF), data,
                            None if cnt_el is None else r.number(el, "Cnt", where), check, mask, timeout)
 
 
 def _coe_cmd(r: _Reader, el: ET.Element, where: str) -> CoeInitCmd:
-    index = r.number(el, "Index", where)
-    sub = r.number(el, "SubIndex", where, 0)
-    if not 0 <= index <= 0xFFFF or not 0 <= sub <= 0xFF:
-        raise r.fail(el, where, f"0x{index:X}:{sub} is not an object (index 0..0xFFFF, subindex 0..255)")
+    index = r.number(el, "Index", where, hi=0xFFFF)
+    sub = r.number(el, "SubIndex", where, 0, hi=0xFF)
     return CoeInitCmd(_transitions(el), _text(el, "Comment"), index, sub,
                       r.hexdata(el.find("Data"), f"{where} 0x{index:04X}:{sub:02X}/Data"),
                       _bool(el.get("CompleteAccess", ""), False), r.number(el, "Ccs", where, 1),
@@ -250,13 +256,13 @@ def _coe_cmd(r: _Reader, el: ET.Element, where: str) -> CoeInitCmd:
 
 
 def _pdo(r: _Reader, el: ET.Element, where: str) -> Pdo:
-    index = r.number(el, "Index", where)
+    index = r.number(el, "Index", where, hi=0xFFFF)
     w = f"{where} 0x{index:04X}"
     entries = []
     for i, e in enumerate(el.findall("Entry"), 1):
         ew = f"{w} Entry {i}"
-        eindex = r.number(e, "Index", ew)
-        bits = r.number(e, "BitLen", ew)
+        eindex = r.number(e, "Index", ew, hi=0xFFFF)
+        bits = r.number(e, "BitLen", ew, hi=0xFFFF)
         if not 0 < bits <= 255:
             raise r.fail(e, f"{ew}/BitLen", f"{bits} bits (1..255)")
         dtype = _TYPES.get(_text(e, "DataType").upper(), DataType.UNSIGNED8 if bits <= 8 else
@@ -264,8 +270,8 @@ def _pdo(r: _Reader, el: ET.Element, where: str) -> Pdo:
                            else DataType.UNSIGNED64)
         if bits == 1:
             dtype = DataType.BOOLEAN
-        entries.append(PdoEntry(eindex, r.number(e, "SubIndex", ew, 0) if eindex else 0, bits, _text(e, "Name"),
-                                dtype))
+        sub = r.number(e, "SubIndex", ew, 0, hi=0xFF) if eindex else 0
+        entries.append(PdoEntry(eindex, sub, bits, _text(e, "Name"), dtype))
     return Pdo(index, _text(el, "Name") or f"PDO 0x{index:04X}", tuple(entries), fixed=_bool(el.get("Fixed", ""),
                                                                                                False))
 
@@ -287,8 +293,8 @@ def _slave(r: _Reader, s: ET.Element, position: int) -> EniSlave:
         send, recv = mbx.find("Send"), mbx.find("Recv")
         if send is None or recv is None:
             raise r.fail(mbx, wm, "needs <Send> and <Recv>")
-        out = (r.number(send, "Start", f"{wm}/Send"), r.number(send, "Length", f"{wm}/Send"))
-        inp = (r.number(recv, "Start", f"{wm}/Recv"), r.number(recv, "Length", f"{wm}/Recv"))
+        out = (r.number(send, "Start", f"{wm}/Send", hi=0xFFFF), r.number(send, "Length", f"{wm}/Send", hi=0xFFFF))
+        inp = (r.number(recv, "Start", f"{wm}/Recv", hi=0xFFFF), r.number(recv, "Length", f"{wm}/Recv", hi=0xFFFF))
         for (start, length), tag in ((out, "Send"), (inp, "Recv")):
             if start < 0x1000 or length < 16 or start + length > 0x10000:
                 raise r.fail(mbx, f"{wm}/{tag}", f"a mailbox at 0x{start:04X} of {length} bytes is impossible "
@@ -316,10 +322,13 @@ def _slave(r: _Reader, s: ET.Element, position: int) -> EniSlave:
                 if kind not in ("Outputs", "Inputs"):
                     raise r.fail(child, f"{ws}/Type", f"{kind!r} is not Outputs or Inputs")
                 length_el = child.find("Length")
-                sms.append(EniSm(int(child.tag[2:]), kind, r.number(child, "StartAddress", ws),
-                                 r.number(child, "ControlByte", ws, 0x64 if kind == "Outputs" else 0x20),
+                number = int(child.tag[2:])
+                if number > 15:
+                    raise r.fail(child, ws, "an ESC has SyncManagers 0..15")
+                sms.append(EniSm(number, kind, r.number(child, "StartAddress", ws, hi=0xFFFF),
+                                 r.number(child, "ControlByte", ws, 0x64 if kind == "Outputs" else 0x20, hi=0xFF),
                                  _bool(_text(child, "Enable")),
-                                 None if length_el is None else r.number(child, "Length", ws),
+                                 None if length_el is None else r.number(child, "Length", ws, hi=0xFFFF),
                                  tuple(r.parse(p.text or "", p, f"{ws}/Pdo") for p in child.findall("Pdo"))))
         in_sm = {p: sm for sm in sms for p in sm.pdos}
         for tag, pdos, assign in (("RxPdo", rx, rx_assign), ("TxPdo", tx, tx_assign)):
@@ -342,8 +351,8 @@ def _slave(r: _Reader, s: ET.Element, position: int) -> EniSlave:
                                                           f"{total} bits of the process data")
     cmds = [_register_cmd(r, el, f"{here} InitCmds/InitCmd #{i}") for i, el in enumerate(s.findall("InitCmds/InitCmd"),
                                                                                             1)]
-    phys = r.number(info, "PhysAddr", wi, -1)
-    auto = r.number(info, "AutoIncAddr", wi, -0x10000)
+    phys = r.number(info, "PhysAddr", wi, -1, hi=0xFFFF)
+    auto = r.number(info, "AutoIncAddr", wi, -0x10000, lo=-0x8000, hi=0xFFFF)
     return EniSlave(position, name, r.lines.get(id(s), 0), r.number(info, "VendorId", wi),
                     r.number(info, "ProductCode", wi), r.number(info, "RevisionNo", wi, 0),
                     r.number(info, "SerialNo", wi, 0), None if phys < 0 else phys,

@@ -141,6 +141,11 @@ def test_trailing_garbage_is_one_line_naming_file_and_line() -> None:
     (("<Data>08</Data>", "<Data>0g</Data>"), r"InitCmd #2 0x6060:00/Data: '0g' is not hex bytes"),
     (("<Cmd>5</Cmd>", "<Cmd>15</Cmd>"), r"InitCmds/InitCmd #1/Cmd: 15 is not an EtherCAT command"),
     (("<Start>4096</Start>", "<Start>256</Start>"), r"Mailbox/Send: a mailbox at 0x0100"),
+    (("<DataLength>2</DataLength>", "<DataLength>99999999999</DataLength>"),
+     r"InitCmd #2/DataLength: 99999999999 is out of range \(0..1486\)"),
+    (("<ProductCode>0x02200001</ProductCode>", "<ProductCode>0x1FFFFFFFF</ProductCode>"),
+     r"Info/ProductCode: 8589934591 is out of range"),
+    (("<Index>#x1600</Index>", "<Index>-1</Index>"), r"RxPdo/Index: -1 is out of range"),
     (("<EtherCATConfig", "<EtherCATInfo"), None),
 ])
 def test_bad_elements_name_file_line_and_element(edit: tuple[str, str], match: str | None) -> None:

@@ -160,6 +160,11 @@ def eni_only_device(s: EniSlave, source: str) -> EsiDevice:
     mailbox_in = s.mailbox_in if has_mailbox and s.mailbox_in is not None else (0x1080, 128)
     out_bits = sum(p.bit_length for p in rx if p.index in s.rx_assign)
     in_bits = sum(p.bit_length for p in tx if p.index in s.tx_assign)
+    for label, sm, bits in (("Outputs", outputs, out_bits), ("Inputs", inputs, in_bits)):
+        size = max((bits + 7) // 8, (sm.length or 0) if sm is not None else 0)
+        if starts[label] + 3 * size > 0x10000:
+            raise EniError(f"{source}: line {s.line}: Slave #{s.position + 1} ({s.name}) ProcessData: the {label} "
+                           f"SyncManager at 0x{starts[label]:04X} with {size} bytes does not fit the ESC's 64 KB")
     try:
         desc = DeviceDescription(
             name=s.name, vendor_id=s.vendor_id, product_code=s.product_code, revision=s.revision, serial=s.serial,

@@ -10,6 +10,8 @@ import sys
 from pathlib import Path
 
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from gatewaylab.common.errors import ConfigError
 from gatewaylab.ethercat.esc import AlState
@@ -192,3 +194,42 @@ def test_slave_names_from_the_file_follow_the_name_rule() -> None:
     assert names[:3] == ["Term_2_EL2008", "etc_passwd", "Term_2_EL2008-2"]
     assert names[6] == "ecan1-2"
     assert all(name_problem(n) is None for n in names) and len(set(names)) == len(names)
+
+
+_SLAVE = """<EtherCATConfig><Config><Slave>
+<Info><Name>X</Name><VendorId>2</VendorId><ProductCode>{p}</ProductCode></Info>
+<ProcessData><Send><BitLength>{sb}</BitLength></Send><Recv><BitLength>{rb}</BitLength></Recv>
+<Sm2><Type>Outputs</Type><StartAddress>{o}</StartAddress><ControlByte>{oc}</ControlByte><Pdo>#x1600</Pdo></Sm2>
+<Sm3><Type>Inputs</Type><StartAddress>{i}</StartAddress><Pdo>#x1a00</Pdo></Sm3>
+<RxPdo Sm="2"><Index>#x1600</Index>
+  <Entry><Index>#x7000</Index><SubIndex>1</SubIndex><BitLen>{eb}</BitLen></Entry></RxPdo>
+<TxPdo Sm="3"><Index>#x1a00</Index>
+  <Entry><Index>#x6000</Index><SubIndex>{es}</SubIndex><BitLen>8</BitLen></Entry></TxPdo>
+</ProcessData>
+<Mailbox><Send><Start>{ms}</Start><Length>{ml}</Length></Send><Recv><Start>{mr}</Start><Length>128</Length></Recv>
+<CoE><InitCmds><InitCmd><Transition>PS</Transition><Index>{ci}</Index><SubIndex>{cs}</SubIndex><Data>{cd}</Data>
+</InitCmd></InitCmds></CoE></Mailbox>
+</Slave></Config></EtherCATConfig>"""
+
+
+_NUMBERS = st.one_of(st.integers(0, 0x40), st.integers(0, 0x1FFFF), st.sampled_from([0x1000, 0x1080, 0x1100, 0x1400,
+                                                                                      0xFFFF, 128, 16, 8]))
+
+
+@settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.fixed_dictionaries({k: _NUMBERS for k in ("p", "sb", "rb", "o", "oc", "i", "eb", "es", "ms",
+                                                                   "ml", "mr", "ci", "cs")},
+                             optional={"cd": st.binary(max_size=12).map(bytes.hex)}))
+def test_odd_numbers_build_a_slave_or_one_error(values: dict[str, object]) -> None:
+    """Any numbers in an ENI slave's fields: a slave from the ENI alone, or one ConfigError line (the file's
+    problem), never another exception."""
+    from gatewaylab.common.clock import SimulatedClock
+    from gatewaylab.devices.esi.eni_segment import EsiCatalogue, build_eni_slave
+    from gatewaylab.ethercat.eni import parse_eni_xml
+
+    text = _SLAVE.format(**{"cd": "00", **values})
+    try:
+        eni = parse_eni_xml(text, "odd.xml")
+        build_eni_slave(SimulatedClock(), eni.slaves[0], "x", EsiCatalogue([]), "odd.xml")
+    except ConfigError as exc:
+        assert "\n" not in str(exc)
