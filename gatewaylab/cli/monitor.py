@@ -116,7 +116,7 @@ class _ControlPoller:
         self.failed: str | None = None
 
     def _ask(self) -> dict[str, Any]:
-        from gatewaylab.cli.ask import ask, endpoint_address
+        from gatewaylab.common.ask import ask, endpoint_address
         from gatewaylab.common.endpoint import EndpointKind, parse_endpoint
 
         ep = parse_endpoint(self.endpoint, bare_path=EndpointKind.UNIX)

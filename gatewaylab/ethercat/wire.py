@@ -127,7 +127,7 @@ class WireTransport:
                  drive_clock: bool = False, pcap: PcapWriter | None = None, cpu: int | None = None,
                  spin_s: float = SPIN_AFTER_FRAME_S,
                  max_residence_ms: float = DEFAULT_MAX_RESIDENCE_MS,
-                 now_ns: Callable[[], int] = time.time_ns, realtime: bool = False) -> None:
+                 now_ns: Callable[[], int] = time.time_ns, realtime: bool = True) -> None:
         self.segment = segment
         self.interface = interface
         self.clock = clock
@@ -136,7 +136,8 @@ class WireTransport:
         self.drive_clock = drive_clock
         self.pcap = pcap
         self.cpu = cpu
-        #: Ask for SCHED_FIFO (``REALTIME_PRIORITY``) for the wire thread; ``realtime_granted`` says if it got it.
+        #: Ask for SCHED_FIFO (``REALTIME_PRIORITY``) for the wire thread, as the rig's ``[ethercat] realtime``
+        #: does by default; ``realtime_granted`` says if it got it.
         self.realtime = realtime
         self.realtime_granted = False
         self._sock: socket.socket | None = None

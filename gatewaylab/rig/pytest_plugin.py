@@ -15,6 +15,7 @@ their master software (docs/testing-your-master.md).
 
 from __future__ import annotations
 
+import json
 import os
 import tomllib
 from collections.abc import Callable, Iterator, Mapping
@@ -30,6 +31,8 @@ if TYPE_CHECKING:
     from gatewaylab.rig.process import RigProcess
     from gatewaylab.rig.runtime import Rig
 
+from gatewaylab.common.ask import ask, endpoint_address
+from gatewaylab.common.endpoint import EndpointKind, parse_endpoint
 from gatewaylab.common.errors import ConfigError
 from gatewaylab.rig.process import free_udp_ports, rig_toml
 
@@ -92,6 +95,21 @@ class RigHandle:
             made = can.Bus(interface="gatewaylab", channel=self.endpoint(bus), **kwargs)
         self._buses.append(made)
         return made
+
+    def fault(self, name: str, **arguments: Any) -> dict[str, Any]:
+        """Inject fault ``name`` (a ``gatewaylab fault`` verb, e.g. ``"ec-lose"``) with the control request's
+        arguments (docs/faults.md), in process or through the control endpoint; the rig's answer.
+        A refused fault raises :class:`~gatewaylab.rig.faults_core.FaultRefused` with the rig's reason."""
+        request = {"fault": name, **arguments}
+        if self.rig is not None:
+            return self.rig.faults.request(request)
+        endpoint = parse_endpoint(str(self.info["control"]), bare_path=EndpointKind.UNIX)
+        answer: dict[str, Any] = json.loads(ask(endpoint_address(endpoint), request, 10.0) or b"{}")
+        if not answer.get("ok"):
+            from gatewaylab.rig.faults_core import FaultRefused   # the plugin loads in every pytest run: light
+
+            raise FaultRefused(f"fault {name} refused: {answer.get('error', answer)}")
+        return answer
 
     def stop(self) -> None:
         """Shut down its python-can buses, then the rig (idempotent)."""
