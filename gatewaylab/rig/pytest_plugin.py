@@ -106,7 +106,7 @@ class RigHandle:
         endpoint = parse_endpoint(str(self.info["control"]), bare_path=EndpointKind.UNIX)
         answer: dict[str, Any] = json.loads(ask(endpoint_address(endpoint), request, 10.0) or b"{}")
         if not answer.get("ok"):
-            from gatewaylab.rig.faults_core import FaultRefused   # the plugin loads in every pytest run: light
+            from gatewaylab.rig.faults_core import FaultRefused  # the plugin loads in every pytest run: light
 
             raise FaultRefused(f"fault {name} refused: {answer.get('error', answer)}")
         return answer
