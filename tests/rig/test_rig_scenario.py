@@ -14,6 +14,7 @@ from typing import Any
 
 import pytest
 
+from gatewaylab.cli.monitor import EthercatWatcher
 from gatewaylab.common.errors import ConfigError
 from gatewaylab.ethercat.esc import AlState
 from gatewaylab.ethercat.milestones import sdo_index
@@ -152,6 +153,24 @@ def _run(tmp_path: Path) -> list[tuple[Any, ...]]:
     assert fired[3]["answer"]["al_status"] == AlState.INIT
     assert wkcs[0] == master.expected_wkc and wkcs[5] < master.expected_wkc
     return [(r["step"], r["at"], r["trigger"], r["fault"], r.get("ended_at")) for r in fired] + [tuple(wkcs)]
+
+
+def test_the_monitor_prints_each_step_once_as_it_fires_and_ends(tmp_path: Path) -> None:
+    """`gatewaylab monitor` reads ``ethercat-states`` twice a second: a step is one ``ethercat`` line when it
+    fired and one when ``end_after`` ended it, never repeated by a later answer."""
+    path = tmp_path / "rig.toml"
+    path.write_text(LINE + STEPS)
+    watcher = EthercatWatcher("unix:/nonexistent")
+    with Rig.from_file(path) as rig:
+        rig.start()
+        segment = next(p for p in rig.participants if p.name == "ethercat").segment  # type: ignore[attr-defined]
+        Master(rig.clock, segment).bring_up()
+        rig.clock.advance(0.006)
+        first = [e.text for e in watcher.changes(rig.faults.ethercat_states(), 1.0) if "scenario" in e.text]
+        rig.clock.advance(0.01)
+        again = [e.text for e in watcher.changes(rig.faults.ethercat_states(), 2.0) if "scenario" in e.text]
+    assert first == ["EtherCAT scenario step 1/4 (after io-c reached OP + 0.005 s) at 0.005 s: ethercat-unplug fired"]
+    assert again == ["EtherCAT scenario step 1/4 at 0.009 s: ethercat-unplug ended by ethercat-replug"]
 
 
 def test_the_same_scenario_fires_the_same_steps_at_the_same_times(tmp_path: Path) -> None:
