@@ -8,6 +8,7 @@ from __future__ import annotations
 import struct
 import subprocess
 import sys
+import time
 import tomllib
 from pathlib import Path
 from typing import Any
@@ -221,3 +222,23 @@ def test_the_marker_reads_a_file_next_to_the_test(gatewaylab_rig: Any) -> None:
     handle.clock.advance(0.5)
     fired = handle.rig.faults.ethercat_states()["scenario"]["fired"]
     assert [(r["step"], r["at"], r["fault"]) for r in fired] == [(1, 0.25, "ethercat-unplug")]
+
+
+CAN_RIG = {"bus": [{"name": "can0"}], "drive": [{"bus": "can0", "node_id": 2, "serial": 0x1002, "name": "axis2"}]}
+
+
+@pytest.mark.gatewaylab_scenario(steps=[{"at": 0.0, "fault": "can-unplug", "device": "axis2", "end_after": 60.0}])
+def test_the_marker_reaches_a_rig_in_a_child_process(gatewaylab_rig: Any) -> None:
+    """The default rig of gatewaylab_rig is `gatewaylab run` in a child: the marker's steps go to it as
+    ``--scenario`` (a file in the rig's work folder); an ``at`` step needs no EtherCAT segment. The child
+    unplugs axis2's CAN controller at once, and says so in ``ethercat-states``."""
+    handle = gatewaylab_rig(CAN_RIG)
+    assert handle.process is not None
+    fired: list[dict[str, Any]] = []
+    deadline = time.monotonic() + 30
+    while not fired and time.monotonic() < deadline:     # the child's loop runs the step after the ready file
+        fired = handle.fault("ethercat-states")["scenario"]["fired"]
+        if not fired:
+            time.sleep(0.05)
+    assert [(r["step"], r["fault"], r["answer"]["device"]) for r in fired] == [(1, "can-unplug", "axis2")]
+    assert handle.fault("can-states")["buses"]["can0"]["axis2"]["connected"] is False
