@@ -14,6 +14,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from gatewaylab.cli.monitor import EthercatWatcher
 from gatewaylab.common.errors import ConfigError
@@ -95,6 +97,27 @@ def test_a_bad_step_is_one_line_naming_step_and_key(step: str, expected: str) ->
     message = _error('[[scenario]]\nat = 0\nfault = "ec-clear"\n[[scenario]]\n' + step)
     assert "s.toml [[scenario]] #2" in message or "#2" in message
     assert expected.replace("#1", "#2") in message, message
+
+
+_VALUES = st.one_of(st.none(), st.booleans(), st.integers(-2, 0x10001), st.floats(allow_nan=True),
+                    st.sampled_from(["OP", "BOOT", "io-a", "ec-clear", "ethercat-unplug", "x"]),
+                    st.dictionaries(st.sampled_from(["device", "state", "index", "x"]),
+                                    st.one_of(st.integers(-1, 0x10000), st.sampled_from(["io-a", "OP", "y"]))))
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.dictionaries(st.sampled_from(["at", "after_state", "after_cycles", "after_sdo", "delay",
+                                                 "end_after", "fault", "device", "bus", "count", "zz"]),
+                                _VALUES), max_size=3))
+def test_any_steps_load_or_give_one_config_error_line(raw: list[dict[str, Any]]) -> None:
+    """Whatever the tables hold, loading gives steps or one ConfigError line naming the step, never
+    another exception (DEVELOPERS.md Standards: every parser)."""
+    try:
+        steps = parse_scenario(raw, "s.toml")
+    except ConfigError as exc:
+        assert "\n" not in str(exc) and str(exc).startswith("s.toml [[scenario]] #")
+    else:
+        assert [s.number for s in steps] == list(range(1, len(raw) + 1))
 
 
 def test_a_scenario_file_holds_scenario_steps_only(tmp_path: Path) -> None:
