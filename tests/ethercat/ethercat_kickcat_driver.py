@@ -6,16 +6,15 @@ Usage: python ethercat_kickcat_driver.py INTERFACE CYCLES
 
 from __future__ import annotations
 
-import contextlib
 import itertools
 import json
-import os
 import struct
 import sys
 import time
 from typing import Any
 
 import kickcat
+from kickcat_kit import run_as_kickcat_readme_says
 
 #: KickCAT's defaults (Link.h 2 ms, Bus.h 1 s per SDO); a step that fails on a lost frame runs again at most
 #: ATTEMPTS times, each failure printed with the result (tests/devices/ecanlite/ecanlite_kickcat_driver.py).
@@ -24,15 +23,6 @@ SDO_TIMEOUT_S = 1.0
 ATTEMPTS = 5
 OUT = struct.Struct("<Bhh")
 IN = struct.Struct("<BhhI")
-
-
-def run_as_kickcat_readme_says() -> None:
-    """SCHED_FIFO priority 3, as KickCAT's README (Performance Optimization: ``chrt -f 80``) runs a master:
-    its socket read sleeps 20 us between polls and gives up once a sleep overran the deadline without a last
-    look (Socket::read), so an ordinary process waiting for a CPU loses replies that came in time. Below the
-    emulator's wire thread (10) and loop (5): the line is hardware. Nothing without the privilege."""
-    with contextlib.suppress(OSError):
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(3))
 
 
 def main(iface: str, cycles: int) -> dict[str, Any]:

@@ -11,12 +11,11 @@ Usage: python ecanlite_kickcat_driver.py INTERFACE CYCLES
 
 from __future__ import annotations
 
-import contextlib
 import json
-import os
 import struct
 import sys
 import time
+from pathlib import Path
 from typing import Any
 
 import kickcat
@@ -32,6 +31,12 @@ from gatewaylab.devices.ecanlite.stream import (
     decode_stream,
 )
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))   # tests/: the kits by basename
+import kit_paths
+
+kit_paths.add_all()
+from kickcat_kit import run_as_kickcat_readme_says  # noqa: E402
+
 #: KickCAT's own defaults: the link's 2 ms (lib/master/include/kickcat/Link.h ``timeout_{2ms}``) for every
 #: datagram -- scan, mailbox, process data -- and 1 s for an SDO transfer (Bus.h readSDO/writeSDO). A step
 #: that fails on a lost frame (KickCAT gives up a scan or an SDO on the first reply later than 2 ms) is run
@@ -41,15 +46,6 @@ LINK_TIMEOUT_S = 0.002
 SDO_TIMEOUT_S = 1.0
 ATTEMPTS = 5
 RUNNING = kickcat.mailbox.request.MessageStatus.RUNNING
-
-
-def run_as_kickcat_readme_says() -> None:
-    """SCHED_FIFO priority 3, as KickCAT's README (Performance Optimization: ``chrt -f 80``) runs a master:
-    its socket read sleeps 20 us between polls and gives up once a sleep overran the deadline without a last
-    look (Socket::read), so an ordinary process waiting for a CPU loses replies that came in time. Below the
-    emulator's wire thread (10) and loop (5): the line is hardware. Nothing without the privilege."""
-    with contextlib.suppress(OSError):
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(3))
 
 
 def _u(data: bytes) -> int:

@@ -7,28 +7,24 @@ Usage: python ecdrive_kickcat_driver.py INTERFACE
 
 from __future__ import annotations
 
-import contextlib
 import json
-import os
 import struct
 import sys
 import time
+from pathlib import Path
 from typing import Any
 
 import kickcat
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))   # tests/: the kits by basename
+import kit_paths
+
+kit_paths.add_all()
+from kickcat_kit import run_as_kickcat_readme_says  # noqa: E402
+
 RX = struct.Struct("<HiihB")
 TX = struct.Struct("<HiihbH")
 CSP = 8
-
-
-def run_as_kickcat_readme_says() -> None:
-    """SCHED_FIFO priority 3, as KickCAT's README (Performance Optimization: ``chrt -f 80``) runs a master:
-    its socket read sleeps 20 us between polls and gives up once a sleep overran the deadline without a last
-    look (Socket::read), so an ordinary process waiting for a CPU loses replies that came in time. Below the
-    emulator's wire thread (10) and loop (5): the line is hardware. Nothing without the privilege."""
-    with contextlib.suppress(OSError):
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(3))
 
 
 def main(iface: str) -> dict[str, Any]:
