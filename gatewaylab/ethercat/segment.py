@@ -29,6 +29,7 @@ from typing import Final
 from gatewaylab.ethercat.datagram import ETH_HEADER_LEN, ETHERTYPE_ETHERCAT, LEN_MASK, MORE
 from gatewaylab.ethercat.errors import SlavePositionError
 from gatewaylab.ethercat.esc import REG_RX_ERROR, Esc
+from gatewaylab.ethercat.esc_dc import place_line
 from gatewaylab.ethercat.slave import Slave
 
 __all__ = ["LOG_EVERY", "LOG_FIRST", "Segment", "SegmentStats"]
@@ -76,6 +77,7 @@ class Segment:
         self._reached = self.slaves[:reach]
         for i, slave in enumerate(self._reached):
             slave.esc.set_downstream(reach - 1 - i)
+        place_line([s.esc.clocks for s in self._reached])   # DC: when a frame reaches each (cable lengths)
 
     def unplug(self, position: int) -> None:
         """Pull a slave out of the line: it and every slave behind it stop answering (the working
