@@ -14,8 +14,13 @@ import struct
 
 from gatewaylab.common.clock import SimulatedClock
 from gatewaylab.ethercat.datagram import Command, Datagram
-from gatewaylab.ethercat.esc import REG_DC_RECV_TIME, REG_DC_RECV_TIME_PU, REG_DC_SYSTEM_DELAY, REG_DC_SYSTEM_OFFSET
-from gatewaylab.ethercat.esc import REG_DC_SYSTEM_TIME
+from gatewaylab.ethercat.esc import (
+    REG_DC_RECV_TIME,
+    REG_DC_RECV_TIME_PU,
+    REG_DC_SYSTEM_DELAY,
+    REG_DC_SYSTEM_OFFSET,
+    REG_DC_SYSTEM_TIME,
+)
 from gatewaylab.ethercat.esc_dc import REG_DC_SPEED_START, REG_DC_TIME_DIFF
 from gatewaylab.hosts.ethercat.master import Master
 
@@ -64,5 +69,5 @@ def compensate(m: Master, clock: SimulatedClock, frames: int, period: float = 0.
 
 def time_difference(m: Master, position: int) -> int:
     """0x092C of the slave at ``position``, signed: positive when its local copy is ahead (bit 31 clear)."""
-    raw = struct.unpack("<I", m.fprd(m.slaves[position].station, REG_DC_TIME_DIFF, 4))[0]
+    raw: int = struct.unpack("<I", m.fprd(m.slaves[position].station, REG_DC_TIME_DIFF, 4))[0]
     return -(raw & 0x7FFFFFFF) if raw & 0x80000000 else raw

@@ -11,6 +11,7 @@ ET1100 data sheet section I "Distributed Clocks" / section II registers 0x0900-0
 
 from __future__ import annotations
 
+import itertools
 import struct
 from pathlib import Path
 
@@ -140,7 +141,7 @@ def test_a_drift_beyond_the_loop_makes_the_difference_grow(tmp_path: Path) -> No
         for _ in range(5):
             compensate(m, clock, 20)
             seen.append(time_difference(m, 2))
-        steps = [b - a for a, b in zip(seen, seen[1:], strict=False)]
+        steps = [b - a for a, b in itertools.pairwise(seen)]
         assert steps == [round(-(2000 - LOOP_LIMIT_PPM) * 20 * 1e-3 * 1e3)] * 4   # -30000 ns per 20 ms
         raw = struct.unpack("<I", m.fprd(m.slaves[2].station, REG_DC_TIME_DIFF, 4))[0]
         assert raw & 0x80000000 and raw & 0x7FFFFFFF == -seen[-1]
