@@ -18,7 +18,7 @@ from typing import Final
 
 from gatewaylab.common.clock import Clock, TimerHandle
 from gatewaylab.ethercat import esc_registers as reg
-from gatewaylab.ethercat.esc_dc_clock import DEFAULT_CABLE_M, LOOP_LIMIT_PPM, LocalClock, line_delays
+from gatewaylab.ethercat.esc_dc_clock import DEFAULT_CABLE_M, LOOP_LIMIT_PPM, FrameTime, LocalClock, line_delays
 from gatewaylab.ethercat.esc_registers import SYNC0_MIN_CYCLE_NS, U16, U32, U64
 
 __all__ = ["DC_ACT_CYCLIC", "DC_ACT_SYNC0", "DC_ACT_SYNC1", "REG_DC_DIFF_FILTER", "REG_DC_SPEED_DIFF",
@@ -42,7 +42,7 @@ class DistributedClocks:
     """The DC unit of one ESC over the shared register memory; ``on_sync0`` gets each pulse's time."""
 
     __slots__ = ("_sync0_cycle", "_sync0_next", "_sync0_timer", "arrival_ns", "cable_m", "clock", "downstream",
-                 "local", "mem", "on_sync0", "return_ns")
+                 "frame", "local", "mem", "on_sync0", "return_ns")
 
     def __init__(self, clock: Clock, mem: bytearray, on_sync0: Callable[[float], None]) -> None:
         self.clock = clock
@@ -58,6 +58,8 @@ class DistributedClocks:
         self.arrival_ns = 0.0
         #: How much later the frame comes back to port 1 from the slaves behind (0: none behind).
         self.return_ns = 0.0
+        #: When the frame being processed left the master (shared by a segment's ESCs, see :func:`place_line`).
+        self.frame = FrameTime()
         self._sync0_timer: TimerHandle | None = None
         self._sync0_next = 0.0
         self._sync0_cycle = 0.0
@@ -77,7 +79,11 @@ class DistributedClocks:
 
     def _frame_time(self) -> float:
         """Clock time at which the frame being processed reaches this ESC."""
-        return self.clock.now() + self.arrival_ns * 1e-9
+        frame = self.frame
+        t = frame.t
+        if t < 0:
+            t = frame.t = self.clock.now()
+        return t + self.arrival_ns * 1e-9
 
     # ------------------------------------------------------------------ settings the firmware reads
     @property
@@ -215,9 +221,11 @@ class DistributedClocks:
         self.on_sync0(t)
 
 
-def place_line(clocks: Sequence[DistributedClocks]) -> None:
+def place_line(clocks: Sequence[DistributedClocks], frame: FrameTime) -> None:
     """Set when a frame reaches each ESC of a line (in order, first next to the master) and returns to its
-    port 1, from the cable lengths (``cable_m``) of each (:func:`~gatewaylab.ethercat.esc_dc_clock.line_delays`)."""
+    port 1, from the cable lengths (``cable_m``) of each (:func:`~gatewaylab.ethercat.esc_dc_clock.line_delays`);
+    ``frame``: the line's frame time, which its segment clears around each frame."""
     for dc, (arrival, back) in zip(clocks, line_delays([c.cable_m for c in clocks]), strict=True):
         dc.arrival_ns = arrival
         dc.return_ns = back
+        dc.frame = frame

@@ -30,7 +30,8 @@ from typing import Final
 
 from gatewaylab.common.clock import Clock
 
-__all__ = ["CABLE_NS_PER_M", "DEFAULT_CABLE_M", "FORWARD_NS", "LOOP_LIMIT_PPM", "LocalClock", "line_delays"]
+__all__ = ["CABLE_NS_PER_M", "DEFAULT_CABLE_M", "FORWARD_NS", "LOOP_LIMIT_PPM", "FrameTime", "LocalClock",
+           "line_delays"]
 
 
 #: Signal speed in an Ethernet cable: about 5 ns per metre (two thirds of the speed of light).
@@ -49,6 +50,19 @@ _MAX_INTERVAL_NS: Final = 1e9
 _ESTIMATE_GAIN: Final = 0.125
 #: Share of the remaining difference the loop removes per write interval.
 _PHASE_GAIN: Final = 0.25
+
+
+class FrameTime:
+    """When the frame being processed left the master, shared by the ESCs of a line: a real ESC handles a frame
+    on the fly, so every ESC's DC accesses of one frame happen at the same time (plus the frame's travel to it),
+    however long the emulator takes over the frame. The segment clears it before and after each frame; the first
+    DC access of a frame stamps it."""
+
+    __slots__ = ("t",)
+
+    def __init__(self) -> None:
+        #: clock time of the frame (s); < 0: none stamped yet
+        self.t = -1.0
 
 
 def _clamp(value: float) -> float:
