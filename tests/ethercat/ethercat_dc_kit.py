@@ -58,13 +58,15 @@ def config_dc(m: Master) -> list[int]:
     return delays
 
 
-def compensate(m: Master, clock: SimulatedClock, frames: int, period: float = 0.001) -> None:
-    """``frames`` drift compensation frames ``period`` apart: FRMW 0x0910 (8 bytes) from the first slave."""
-    ref = m.slaves[0].station
+def compensate(m: Master, clock: SimulatedClock, frames: int, period: float = 0.001,
+               command: Command = Command.FRMW) -> None:
+    """``frames`` drift compensation frames ``period`` apart: FRMW 0x0910 (8 bytes) from the first slave (the one
+    SOEM adds to process data), or ARMW from position 0 (static drift compensation bursts)."""
+    adp = m.slaves[0].station if command == Command.FRMW else 0
     for _ in range(frames):
         clock.advance(period)
-        d = m.exchange([Datagram.physical(Command.FRMW, 0, ref, REG_DC_SYSTEM_TIME, bytes(8))])[0]
-        assert d.wkc == len(m.slaves), f"FRMW wkc {d.wkc}"
+        d = m.exchange([Datagram.physical(command, 0, adp, REG_DC_SYSTEM_TIME, bytes(8))])[0]
+        assert d.wkc == len(m.slaves), f"{command.name} wkc {d.wkc}"
 
 
 def time_difference(m: Master, position: int) -> int:

@@ -129,6 +129,21 @@ def test_a_drift_within_the_loop_converges_and_ec_clear_ends_it(tmp_path: Path) 
         assert struct.unpack("<h", m.fprd(m.slaves[1].station, REG_DC_SPEED_DIFF, 2))[0] == 0
 
 
+def test_static_drift_compensation_with_armw_bursts(tmp_path: Path) -> None:
+    """Static drift compensation as masters do it before the cycle starts (the QEC master's
+    StaticDriftCompensationFrames: many separate ARMW frames of 0x0910 from the reference): frames 100 us apart
+    bring a 300 ppm slave to |0x092C| <= 1 ns; ARMW reads the reference (position 0) and writes the others."""
+    rig, clock, _segment, m = _rig(tmp_path)
+    with rig:
+        rig.faults.ec_dc_drift("io2", 300.0)
+        clock.advance(0.5)
+        config_dc(m)                                           # offsets first, as masters do
+        compensate(m, clock, 1, period=0.010, command=Command.ARMW)
+        assert time_difference(m, 2) > 1000                    # 3000 ns gained in 10 ms, less its 1010 ns delay
+        compensate(m, clock, 2000, period=0.0001, command=Command.ARMW)
+        assert abs(time_difference(m, 2)) <= 1 and time_difference(m, 1) == 0
+
+
 def test_a_drift_beyond_the_loop_makes_the_difference_grow(tmp_path: Path) -> None:
     """ec-dc-drift io2 -2000: the loop speeds io2 up by at most LOOP_LIMIT_PPM, so 0x092C grows by the rest,
     (2000 - 500) ns per ms of compensation, negative (bit 31: io2's local copy is behind)."""

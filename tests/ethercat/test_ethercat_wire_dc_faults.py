@@ -26,7 +26,7 @@ from gatewaylab.cli.fault import send_request
 from gatewaylab.ethercat.esc_dc_clock import CABLE_NS_PER_M, FORWARD_NS
 from gatewaylab.rig.process import RigProcess
 
-pytestmark = [pytest.mark.net]
+pytestmark = [pytest.mark.net, pytest.mark.slow]
 DRIVER = Path(__file__).with_name("ethercat_dc_faults_driver.py")
 RIG = """
 [[device]]
