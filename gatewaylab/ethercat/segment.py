@@ -29,6 +29,8 @@ from typing import Final, Protocol
 from gatewaylab.ethercat.datagram import ETH_HEADER_LEN, ETHERTYPE_ETHERCAT, LEN_MASK, MORE
 from gatewaylab.ethercat.errors import SlavePositionError
 from gatewaylab.ethercat.esc import REG_RX_ERROR, Esc
+from gatewaylab.ethercat.esc_dc import place_line
+from gatewaylab.ethercat.esc_dc_clock import FrameTime
 from gatewaylab.ethercat.slave import Slave
 
 __all__ = ["LOG_EVERY", "LOG_FIRST", "FrameObserver", "Segment", "SegmentStats"]
@@ -78,6 +80,9 @@ class Segment:
         self._after_pending = False
         #: told of every frame served (None: nobody watches)
         self.observer: FrameObserver | None = None
+
+        #: DC: when the frame being processed left the master (one time for the whole frame, as on a wire)
+        self.frame_time = FrameTime()
         self._link()
 
     def _link(self) -> None:
@@ -87,6 +92,7 @@ class Segment:
         self._reached = self.slaves[:reach]
         for i, slave in enumerate(self._reached):
             slave.esc.set_downstream(reach - 1 - i)
+        place_line([s.esc.clocks for s in self._reached], self.frame_time)   # DC: when a frame reaches each
 
     def unplug(self, position: int) -> None:
         """Pull a slave out of the line: it and every slave behind it stop answering (the working
@@ -124,6 +130,8 @@ class Segment:
             return False
         self.stats.frames += 1
         self.stats.datagrams += len(parsed)
+        frame_time = self.frame_time
+        frame_time.t = -1.0               # stamped by the frame's first DC access
         for slave in self._reached:
             esc = slave.esc
             for pos, cmd, dlen in parsed:
@@ -133,6 +141,7 @@ class Segment:
                         slave.serve_events(events)
                 except Exception as exc:  # isolation boundary: one datagram never costs the frame
                     self._datagram_error(esc, cmd, exc)
+        frame_time.t = -1.0
         if len(frame) > ETH_HEADER_LEN:
             frame[6] |= 0x02  # the ESC marks the source MAC as locally administered on the way back
         if self.observer is not None:
