@@ -29,6 +29,7 @@ from typing import Final
 from gatewaylab.ethercat.datagram import ETH_HEADER_LEN, ETHERTYPE_ETHERCAT, LEN_MASK, MORE
 from gatewaylab.ethercat.errors import SlavePositionError
 from gatewaylab.ethercat.esc import REG_RX_ERROR, Esc
+from gatewaylab.ethercat.line_faults import LineFaults
 from gatewaylab.ethercat.slave import Slave
 
 __all__ = ["LOG_EVERY", "LOG_FIRST", "Segment", "SegmentStats"]
@@ -64,6 +65,9 @@ class Segment:
         self.stats = SegmentStats()
         #: positions of the slaves unplugged from the line (fault injection)
         self.unplugged: set[int] = set()
+        #: faults of the line to the master (ethercat/line_faults.py), put here when the rig arms the first
+        #: one; transports serve frames through it while it is ``engaged``
+        self.line_faults: LineFaults | None = None
         self._reached: list[Slave] = list(self.slaves)
         #: :meth:`process` left PDI work for :meth:`after_frame`
         self._after_pending = False
