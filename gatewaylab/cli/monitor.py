@@ -40,6 +40,7 @@ from gatewaylab.bus.signals import SignalDecoder, load_database
 from gatewaylab.bus.transport.trace import TraceError, read_trace
 from gatewaylab.bus.transport.trace_window import TimeWindow
 from gatewaylab.canopen.monitor import BusMonitor, ControllerWatch, MonitorEvent
+from gatewaylab.cli.monitor_faults import FaultWatch
 from gatewaylab.cli.monitor_order import TimeOrder, sender_node
 from gatewaylab.cli.target import USAGE, bus_target, exit_code, open_endpoint
 from gatewaylab.cli.terminal import QuitKey
@@ -149,13 +150,15 @@ class _ControlPoller:
 class EthercatWatcher(_ControlPoller):
     """The EtherCAT side of a rig as the monitor shows it: the AL state of each EtherCAT device, asked
     twice a second from the rig's control endpoint (request "ethercat-states", docs/faults.md); each
-    change is one log event ("EtherCAT ecan1: PREOP -> OP")."""
+    change is one log event ("EtherCAT ecan1: PREOP -> OP"), and so is each EtherCAT fault starting and
+    ending (the answer's "faults", ``monitor_faults.py``)."""
 
     request = "ethercat-states"
 
     def __init__(self, endpoint: str, period: float = 0.5) -> None:
         super().__init__(endpoint, period)
         self.states: dict[str, str] = {}
+        self.faults = FaultWatch()
 
     def changes(self, answer: dict[str, Any], now: float) -> list[MonitorEvent]:
         """What changed in the rig's device states since the last answer, as monitor events."""
@@ -167,7 +170,7 @@ class EthercatWatcher(_ControlPoller):
                 self.states[name] = text
                 events.append(MonitorEvent(now, "ethercat", f"EtherCAT {name}: {old + ' -> ' if old else ''}{text}",
                                            None, {"device": name, **st}))
-        return events
+        return events + self.faults.changes(answer.get("faults"), now)
 
 
 class CanWatcher(_ControlPoller):

@@ -141,7 +141,7 @@ def test_delay_holds_replies_in_order_with_seeded_jitter(segment: Segment) -> No
     assert line is not None
     assert line.due(a[0] - 1e-9) == []
     first = line.due(a[0])
-    assert [decode_frame(r).datagrams[0].index for r in first][0] == 0
+    assert first and decode_frame(first[0]).datagrams[0].index == 0
     rest = line.due(1.0)
     assert [decode_frame(r).datagrams[0].index for r in first + rest] == [0, 1, 2, 3, 4]
     assert line.engaged                                   # the delay stays until removed
