@@ -8,6 +8,7 @@ import argparse
 from collections.abc import Callable
 from typing import Any
 
+from gatewaylab.ethercat.errors import EtherCATConfigError
 from gatewaylab.ethercat.line_faults import parse_command
 
 __all__ = ["add_verbs"]
@@ -30,7 +31,7 @@ def _float(text: str) -> float:
 def _command(text: str) -> str:
     try:
         parse_command(text)
-    except ValueError as exc:
+    except EtherCATConfigError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
     return text.upper()
 

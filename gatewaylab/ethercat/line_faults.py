@@ -43,6 +43,7 @@ from gatewaylab.ethercat.datagram import (
     WKC,
     Command,
 )
+from gatewaylab.ethercat.errors import EtherCATConfigError
 
 if TYPE_CHECKING:
     from gatewaylab.ethercat.segment import Segment
@@ -69,7 +70,7 @@ LOGICAL_COMMANDS: Final = frozenset({Command.LRD, Command.LWR, Command.LRW})
 
 
 def parse_command(text: str | int) -> int:
-    """A datagram command by name (``LRW``, case-insensitive) or number (0..14); ValueError otherwise."""
+    """A datagram command by name (``LRW``, case-insensitive) or number (0..14); EtherCATConfigError otherwise."""
     if isinstance(text, int):
         value = text
     else:
@@ -79,10 +80,10 @@ def parse_command(text: str | int) -> int:
         try:
             value = int(name, 0)
         except ValueError:
-            raise ValueError(f"unknown datagram command {text!r} (one of {', '.join(Command.__members__)} "
+            raise EtherCATConfigError(f"unknown datagram command {text!r} (one of {', '.join(Command.__members__)} "
                              f"or 0..14)") from None
     if not 0 <= value <= 14:
-        raise ValueError(f"datagram command {value} is not 0..14")
+        raise EtherCATConfigError(f"datagram command {value} is not 0..14")
     return value
 
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from gatewaylab.ethercat.errors import EtherCATConfigError
 from gatewaylab.ethercat.line_faults import ANY_DATAGRAM, Kind, LineFault, LineFaults, Match, parse_command
 from gatewaylab.ethercat.segment import Segment
 from gatewaylab.rig.faults_core import FaultRefused, FaultsCore, check_count, check_seconds
@@ -47,7 +48,7 @@ def _commands(cmd: str | int | list[str | int] | None) -> frozenset[int] | None:
                               else list(cmd))
     try:
         return frozenset(parse_command(c) for c in items)
-    except ValueError as exc:
+    except EtherCATConfigError as exc:
         raise FaultRefused(str(exc)) from None
 
 

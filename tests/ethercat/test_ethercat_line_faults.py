@@ -15,6 +15,7 @@ from hypothesis import strategies as st
 from gatewaylab.common.clock import SimulatedClock
 from gatewaylab.common.errors import TimeoutError_
 from gatewaylab.ethercat.datagram import Command, Datagram, Frame, decode_frame, encode_frame
+from gatewaylab.ethercat.errors import EtherCATConfigError
 from gatewaylab.ethercat.line_faults import (
     REORDER_HOLD_S,
     Kind,
@@ -202,7 +203,7 @@ def test_datagrams_of_never_raises(raw: bytes) -> None:
 def test_parse_command_names_and_numbers() -> None:
     """Commands by name (any case) or number, as ETG.1000.4 numbers them; others refused."""
     assert parse_command("lrw") == 12 and parse_command("0x7") == Command.BRD and parse_command(5) == 5
-    with pytest.raises(ValueError):
+    with pytest.raises(EtherCATConfigError):
         parse_command("LRX")
-    with pytest.raises(ValueError):
+    with pytest.raises(EtherCATConfigError):
         parse_command(15)
