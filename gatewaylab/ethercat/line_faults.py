@@ -176,7 +176,7 @@ class LineFault:
     """One armed fault: its kind, what it matches, how many frames (datagrams, for WKC) it has left."""
 
     def __init__(self, kind: Kind, match: Match = ANY_DATAGRAM, count: int | None = None, *, offset: int = 0,
-                 delay_s: float = 0.0, jitter_s: float = 0.0, seed: int = 1,
+                 delay_s: float = 0.0, jitter_s: float = 0.0, seed: int = 1, hold_s: float = REORDER_HOLD_S,
                  details: dict[str, Any] | None = None, on_end: Callable[[], None] | None = None) -> None:
         self.kind = kind
         self.match = match
@@ -186,6 +186,8 @@ class LineFault:
         self.delay_s = delay_s
         self.jitter_s = jitter_s
         self.rng = random.Random(seed)
+        #: reorder: the longest a reply waits for the next one
+        self.hold_s = hold_s
         #: shown on the board as they are; "left" and "hits" follow the fault's progress
         self.details: dict[str, Any] = {} if details is None else details
         self.details.setdefault("hits", 0)
@@ -267,10 +269,12 @@ class LineFaults:
             elif kind is Kind.DUPLICATE:
                 self._hit(f)
                 self.held.append((now, bytes(frame)))
+                self.engaged = True     # a held reply keeps the line engaged once the fault is used up
             elif kind is Kind.REORDER and self._behind is None:
                 self._hit(f)
-                self._behind = (now + REORDER_HOLD_S, bytes(frame))
+                self._behind = (now + f.hold_s, bytes(frame))
                 self.held.append(self._behind)
+                self.engaged = True
                 return False
             elif kind is Kind.DELAY:
                 self._hit(f)

@@ -158,6 +158,7 @@ def test_duplicate_and_reorder(segment: Segment) -> None:
     line.add(LineFault(Kind.REORDER, count=1))
     a, b = _frame(Datagram(Command.BRD, 1, 0x130, b"\0\0")), _frame(Datagram(Command.BRD, 2, 0x130, b"\0\0"))
     assert not line.serve(segment, a, 1.0)                # A held
+    assert line.engaged and not line.faults               # the count is used up, A still waits for B
     assert line.serve(segment, b, 1.001)                  # B goes out ...
     assert line.due(1.001) == [bytes(a)]                  # ... and A after it
     line.add(LineFault(Kind.REORDER, count=1))
