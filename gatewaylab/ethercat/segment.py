@@ -31,6 +31,7 @@ from gatewaylab.ethercat.errors import SlavePositionError
 from gatewaylab.ethercat.esc import REG_RX_ERROR, Esc
 from gatewaylab.ethercat.esc_dc import place_line
 from gatewaylab.ethercat.esc_dc_clock import FrameTime
+from gatewaylab.ethercat.line_faults import LineFaults
 from gatewaylab.ethercat.slave import Slave
 
 __all__ = ["LOG_EVERY", "LOG_FIRST", "FrameObserver", "Segment", "SegmentStats"]
@@ -75,6 +76,9 @@ class Segment:
         self.stats = SegmentStats()
         #: positions of the slaves unplugged from the line (fault injection)
         self.unplugged: set[int] = set()
+        #: faults of the line to the master (ethercat/line_faults.py), put here when the rig arms the first
+        #: one; transports serve frames through it while it is ``engaged``
+        self.line_faults: LineFaults | None = None
         self._reached: list[Slave] = list(self.slaves)
         #: :meth:`process` left PDI work for :meth:`after_frame`
         self._after_pending = False

@@ -37,6 +37,7 @@ from gatewaylab.plugin.capabilities import (
 )
 from gatewaylab.rig.faults_core import FaultRefused, FaultsCore, check_seconds
 from gatewaylab.rig.faults_ec_dc import EC_DC_REQUESTS, EcDcFaults
+from gatewaylab.rig.faults_ec_frames import EC_FRAMES_REQUESTS, EcFramesFaults
 from gatewaylab.rig.segment import SegmentParticipant
 
 if TYPE_CHECKING:
@@ -52,7 +53,7 @@ DRIVE_FAULTS: dict[str, tuple[int, int]] = {
 }
 
 
-class Faults(EcDcFaults, FaultsCore):
+class Faults(EcFramesFaults, EcDcFaults, FaultsCore):
     """The faults of one rig (``rig.faults``); each call returns what it did as a dict. The EtherCAT
     families come from their own modules (``faults_ec_*.py``, each a :class:`FaultsCore` mixin)."""
 
@@ -359,6 +360,8 @@ def _accepts(want: str, value: object) -> bool:
         return isinstance(value, (int, float)) and not isinstance(value, bool)
     if want == "string":
         return isinstance(value, str)
+    if want == "bool":
+        return isinstance(value, bool)
     return (isinstance(value, int) and not isinstance(value, bool)) or isinstance(value, str)  # "device"
 
 
@@ -391,3 +394,4 @@ REQUESTS: dict[str, tuple[str, dict[str, tuple[str, bool]]]] = {
     "can-states": ("can_states", {}),
 }
 REQUESTS.update(EC_DC_REQUESTS)
+REQUESTS.update(EC_FRAMES_REQUESTS)
