@@ -20,6 +20,7 @@ from collections.abc import Callable
 from typing import Final
 
 from gatewaylab.ethercat.coe import COE_HEADER, CoeServer, CoeService, abort_message
+from gatewaylab.ethercat.errors import EtherCATConfigError
 from gatewaylab.ethercat.esc_registers import AlState
 from gatewaylab.ethercat.foe import FOE_HEADER, FoeOpcode, FoeServer, foe_packet
 
@@ -38,7 +39,7 @@ def _nothing() -> None:
 
 def parse_transition(text: str) -> tuple[AlState, AlState]:
     """An AL state transition as ETG.1000.6 names it (``PS``, ``SO``, ``IP`` ...) or by its states
-    (``PREOP-SAFEOP``, ``SAFEOP>OP``), case-insensitive; ValueError for anything else."""
+    (``PREOP-SAFEOP``, ``SAFEOP>OP``), case-insensitive; EtherCATConfigError for anything else."""
     t = text.strip().upper()
     if len(t) == 2 and t[0] in _INITIAL and t[1] in _INITIAL and t[0] != t[1]:
         return _INITIAL[t[0]], _INITIAL[t[1]]
@@ -46,7 +47,7 @@ def parse_transition(text: str) -> tuple[AlState, AlState]:
         a, found, b = t.partition(sep)
         if found and a in _NAMES and b in _NAMES and a != b:
             return _NAMES[a], _NAMES[b]
-    raise ValueError(f"not an AL transition: {text!r} (e.g. PS, SO, PREOP-SAFEOP)")
+    raise EtherCATConfigError(f"not an AL transition: {text!r} (e.g. PS, SO, PREOP-SAFEOP)")
 
 
 def transition_name(transition: tuple[AlState, AlState]) -> str:
@@ -207,7 +208,7 @@ class SiiHold:
 
     def __init__(self, mode: str) -> None:
         if mode not in ("busy", "stuck"):
-            raise ValueError(f"SII hold {mode!r}: busy or stuck")
+            raise EtherCATConfigError(f"SII hold {mode!r}: busy or stuck")
         self.mode = mode
         #: the control word of the command waiting (0: none)
         self.held = 0

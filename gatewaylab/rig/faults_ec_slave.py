@@ -13,7 +13,7 @@ from __future__ import annotations
 import struct
 from typing import Any
 
-from gatewaylab.ethercat.errors import AlStatusCode
+from gatewaylab.ethercat.errors import AlStatusCode, EtherCATConfigError
 from gatewaylab.ethercat.esc import AlState
 from gatewaylab.ethercat.slave import Slave
 from gatewaylab.ethercat.slave_faults import (
@@ -85,7 +85,7 @@ class EcSlaveFaults(FaultsCore):
         _code16("AL status code", code)
         try:
             transition = None if on is None else parse_transition(on)
-        except ValueError as exc:
+        except EtherCATConfigError as exc:
             raise FaultRefused(str(exc)) from None
 
         def act() -> dict[str, Any]:

@@ -19,7 +19,7 @@ import pytest
 
 from gatewaylab.common.errors import TimeoutError_
 from gatewaylab.ethercat.datagram import Command
-from gatewaylab.ethercat.errors import AlStatusError, FoeError
+from gatewaylab.ethercat.errors import AlStatusError, EtherCATConfigError, FoeError
 from gatewaylab.ethercat.esc import REG_SM, AlState
 from gatewaylab.ethercat.mailbox import MailboxMessage, MailboxType, decode_mailbox, encode_mailbox
 from gatewaylab.ethercat.slave_faults import parse_transition
@@ -68,7 +68,7 @@ def test_transition_names() -> None:
     assert parse_transition("SAFEOP-OP") == (AlState.SAFEOP, AlState.OP)
     assert parse_transition("INIT>PREOP") == (AlState.INIT, AlState.PREOP)
     for bad in ("PP", "X", "PREOP-", "OP-OP"):
-        with pytest.raises(ValueError):
+        with pytest.raises(EtherCATConfigError):
             parse_transition(bad)
 
 
