@@ -8,8 +8,9 @@ two steps of one master session (the master is never restarted):
 ``map``: config_map (SOEM requests SAFEOP) and the states read back; ``to_op``: config_map, SAFEOP, OP
 with process data; ``cycles`` N: N process data cycles 1 ms apart (working counters); ``state`` SLAVE
 STATE [ack]: request a state for one slave and read back state and AL status code (SOEM
-``ecx_readstate``); ``read_state``; ``sdo_read`` SLAVE INDEX SUB [timeout_us]; ``foe_write`` SLAVE NAME
-SIZE; ``emcy`` SLAVE: an SDO read with an emergency callback registered.
+``ecx_readstate``); ``read_state``; ``sdo_read`` SLAVE INDEX SUB [timeout_us, size]; ``sdo_write`` SLAVE INDEX SUB
+DATA (hex); ``eeprom_read`` SLAVE WORD (SOEM's 20 ms EEPROM timeout); ``foe_write`` SLAVE NAME SIZE; ``emcy``
+SLAVE: an SDO read with an emergency callback registered.
 """
 
 from __future__ import annotations
@@ -108,12 +109,24 @@ class Driver:
     def sdo_read(self, cmd: dict[str, Any]) -> dict[str, Any]:
         self.master.sdo_read_timeout = int(cmd.get("timeout_us", SDO_TIMEOUT_US))
         try:
-            data = self.master.slaves[int(cmd["slave"])].sdo_read(int(cmd["index"]), int(cmd["sub"]))
+            data = self.master.slaves[int(cmd["slave"])].sdo_read(int(cmd["index"]), int(cmd["sub"]),
+                                                                   int(cmd.get("size", 0)))
             return {"data": data.hex()}
         except Exception as exc:            # the test asserts what the master raised
             return _error(exc)
         finally:
             self.master.sdo_read_timeout = SDO_TIMEOUT_US
+
+    def sdo_write(self, cmd: dict[str, Any]) -> dict[str, Any]:
+        try:
+            self.master.slaves[int(cmd["slave"])].sdo_write(int(cmd["index"]), int(cmd["sub"]),
+                                                             bytes.fromhex(cmd["data"]))
+            return {"done": True}
+        except Exception as exc:
+            return _error(exc)
+
+    def eeprom_read(self, cmd: dict[str, Any]) -> dict[str, Any]:
+        return {"data": self.master.slaves[int(cmd["slave"])].eeprom_read(int(cmd["word"])).hex()}
 
     def foe_write(self, cmd: dict[str, Any]) -> dict[str, Any]:
         data = bytes(i & 0xFF for i in range(int(cmd["size"])))

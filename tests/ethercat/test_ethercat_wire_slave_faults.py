@@ -24,9 +24,6 @@ import pytest
 from wire_kit import net_capable, veth_namespace
 
 from gatewaylab.cli.fault import send_request
-from gatewaylab.ethercat.errors import AlStatusError
-from gatewaylab.ethercat.esc import AlState
-from gatewaylab.hosts.ethercat.master import Master as InProcessMaster
 from gatewaylab.rig.process import RigProcess
 
 DRIVER = Path(__file__).with_name("ethercat_slave_faults_driver.py")
@@ -209,17 +206,72 @@ def test_eeprom_wrong_product_is_what_config_init_reads(line: Line, master: Mast
     assert [s["id"] for s in master.do("config_init")["slaves"]] == [PRODUCT, PRODUCT]
 
 
-def test_plugin_fault_refuses_a_transition(gatewaylab_rig: Any) -> None:
-    """Through the pytest plugin: ``RigHandle.fault("ec-al-error", ...)`` on a simulated in-process rig; the
-    fault is on the board, then used by the next transition the master requests."""
-    handle = gatewaylab_rig({"device": [{"kind": "ethercat_io", "name": "io-a"}],
-                             "ethercat": {"interface": "gl-none"}}, clock="simulated")
-    assert handle.rig is not None
-    segment = next(p for p in handle.rig.participants if p.name == "ethercat").segment
-    m = InProcessMaster(handle.clock, segment)
-    m.bring_up()
-    answer = handle.fault("ec-al-error", device="io-a", code=0x0035, on="OS")
-    assert answer["fault"] == "ec-al-error" and answer["id"]
-    with pytest.raises(AlStatusError) as err:
-        m.request_state(0, AlState.SAFEOP)
-    assert err.value.code == 0x0035
+def test_drop_state_init_is_a_power_glitch_the_master_reconfigures(line: Line, master: Master) -> None:
+    """ec-drop-state io-b INIT: io-b powers on (station address lost): SOEM's working counter drops and its
+    state read shows io-b gone from OP; config_init and the bring-up again take both back to OP with the
+    full working counter."""
+    expected = _op(master)
+    answer = line.fault("ec-drop-state", "io-b", "INIT")
+    assert answer["reset"] is True and answer["from"] == "OP"
+    low = _wkcs(master)
+    assert low and all(w < expected for w in low)
+    assert master.do("read_state")["states"][1]["state"] != OP
+    assert master.do("config_init")["count"] == 2
+    assert _op(master) == expected
+    assert set(_wkcs(master)) == {expected}
+
+
+def test_sdo_abort_at_the_second_segment(line: Line, master: Master) -> None:
+    """--segment 2 on a 400-byte segmented download to 0x8000:01: SdoError with the code, the old value kept;
+    the same write then completes, and an upload aborted at its second segment raises too."""
+    before = master.do("sdo_read", slave=0, index=0x8000, sub=1, size=1024)["data"]
+    text = (bytes(range(32, 112)) * 5).hex()
+    line.fault("ec-sdo-abort", "io-a", "0x08000020", "--index", "0x8000", "--segment", "2")
+    aborted = master.do("sdo_write", slave=0, index=0x8000, sub=1, data=text)
+    assert aborted["error"] == "SdoError" and aborted["abort_code"] == 0x08000020, aborted
+    assert master.do("sdo_read", slave=0, index=0x8000, sub=1, size=1024)["data"] == before
+    assert master.do("sdo_write", slave=0, index=0x8000, sub=1, data=text) == {"done": True}
+    line.fault("ec-sdo-abort", "io-a", "0x08000021", "--segment", "2")
+    aborted = master.do("sdo_read", slave=0, index=0x8000, sub=1, size=1024)
+    assert aborted["error"] == "SdoError" and aborted["abort_code"] == 0x08000021, aborted
+    assert master.do("sdo_read", slave=0, index=0x8000, sub=1, size=1024)["data"] == text
+
+
+def test_eeprom_busy_and_stuck_reads(line: Line, master: Master) -> None:
+    """busy: SOEM's EEPROM read gives up after its 20 ms timeout (zeros) while 0x0502 shows busy; ended, the
+    read returns the product code. stuck: the same; cleared, the read fails once (acknowledge error) and
+    SOEM's next read, clearing the error bits first, returns the product code."""
+    product = PRODUCT.to_bytes(4, "little").hex()
+    line.fault("ec-eeprom", "io-a", "busy", "--seconds", "60")
+    assert master.do("eeprom_read", slave=0, word=0x0A)["data"] == "00000000"
+    line.fault("ec-clear", "io-a")
+    assert master.do("eeprom_read", slave=0, word=0x0A)["data"] == product
+    line.fault("ec-eeprom", "io-a", "stuck")
+    assert master.do("eeprom_read", slave=0, word=0x0A)["data"] == "00000000"
+    assert line.board() == ["ec-eeprom"]
+    line.fault("ec-clear", "io-a")
+    assert master.do("eeprom_read", slave=0, word=0x0A)["data"] == product
+
+
+def test_plugin_fault_through_a_running_rig(gatewaylab_rig: Any, tmp_path: Path) -> None:
+    """Through the pytest plugin: ``gatewaylab_rig(...)`` runs ``gatewaylab run`` as a child on a veth pair,
+    ``RigHandle.fault("ec-sdo-abort", ...)`` arms the fault through its control endpoint, and pysoem's next
+    SDO read raises ``SdoError`` with that code."""
+    reason = net_capable("pysoem")
+    if reason is not None:
+        pytest.skip(reason)
+    with veth_namespace("gl-sfp-", "glsp") as (ns, emu, mst):
+        rig = tmp_path / "rig.toml"
+        rig.write_text(RIG.format(iface=emu))
+        handle = gatewaylab_rig(rig, clock="realtime")
+        master = Master(Line(handle.process, ns, mst))
+        try:
+            assert master.do("init")["count"] == 2
+            answer = handle.fault("ec-sdo-abort", device="io-b", code=0x06010002, index=0x1018)
+            assert answer["fault"] == "ec-sdo-abort" and answer["id"]
+            aborted = master.do("sdo_read", slave=1, index=0x1018, sub=1)
+            assert aborted["error"] == "SdoError" and aborted["abort_code"] == 0x06010002, aborted
+            assert master.do("sdo_read", slave=1, index=0x1018, sub=1)["data"] == VENDOR.to_bytes(4, "little").hex()
+        finally:
+            master.close()
+            handle.stop()
