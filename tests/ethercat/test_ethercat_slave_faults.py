@@ -313,3 +313,28 @@ def test_sm_watchdog_follows_0x0400_and_0x0420_as_the_master_writes_them(rig: Ri
     assert m.al_status(1) == (AlState.OP, 0)
     clock.advance(0.001)  # type: ignore[attr-defined]
     assert m.al_status(1) == (AlState.SAFEOP | 0x10, 0x001B)
+
+
+def test_sdo_abort_of_a_complete_access(rig: Rig) -> None:
+    """A complete-access upload of 0x1018 (ETG.1000.6 complete access) is an SDO request like any other."""
+    m = _master(rig)
+    whole = m.sdo_upload(0, 0x1018, 0, complete=True)
+    rig.faults.ec_sdo_abort("io-a", 0x06010000, index=0x1018)
+    with pytest.raises(SdoAbort) as err:
+        m.sdo_upload(0, 0x1018, 0, complete=True)
+    assert err.value.code == 0x06010000
+    assert m.sdo_upload(0, 0x1018, 0, complete=True) == whole
+
+
+def test_refusals_of_the_rig(rig: Rig) -> None:
+    """Arguments out of range and a second fault of a kind a device already has are refused."""
+    _master(rig)
+    for call in (lambda: rig.faults.ec_al_error("io-a", 0x10000), lambda: rig.faults.ec_sdo_silent("io-a", 0),
+                 lambda: rig.faults.ec_foe_error("io-a", 0x8000, 0), lambda: rig.faults.ec_eeprom("io-a", "hot"),
+                 lambda: rig.faults.ec_emcy("nobody", 0x1000), lambda: rig.faults.ec_drop_state("io-a", "BOOT")):
+        with pytest.raises(FaultRefused):
+            call()
+    rig.faults.ec_sdo_silent("io-a", 2)
+    with pytest.raises(FaultRefused):
+        rig.faults.ec_sdo_silent("io-a", 1)
+    assert [f["n"] for f in rig.faults.ethercat_states()["faults"]] == [2]
