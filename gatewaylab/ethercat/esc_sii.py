@@ -56,7 +56,8 @@ class SiiInterface:
         image.extend(b"\xff" * (eeprom_size - len(image)))
         #: The EEPROM contents (a master's SII writes land here and survive a power cycle).
         self.eeprom = image
-        #: the last load of the configuration area failed its checksum (0x0502 bit 11 shows it)
+        #: the last load of the configuration area failed its checksum: 0x0502 bit 11 shows it until a load
+        #: succeeds or the master clears the error bits with a NOP
         self.checksum_bad = False
         #: a fault holding the interface busy (:class:`~gatewaylab.ethercat.slave_faults.SiiHold`)
         self.hold: SiiHold | None = None
@@ -106,8 +107,9 @@ class SiiInterface:
         # A master writes the whole word (KickCAT: 0x0100 for a read): the configuration bits stay what
         # the hardware says; errors, command and busy are cleared.
         status = self.config_bits()
-        if cmd == 0:
-            U16.pack_into(mem, REG_SII_CONTROL, status | (SII_ERR_CHECKSUM if self.checksum_bad else 0))
+        if cmd == 0:        # a NOP clears the error bits, the load's checksum error too (SOEM's "clear error bits")
+            self.checksum_bad = False
+            U16.pack_into(mem, REG_SII_CONTROL, status)
             return
         self.stats.sii_commands += 1
         word = U32.unpack_from(mem, REG_SII_ADDRESS)[0]

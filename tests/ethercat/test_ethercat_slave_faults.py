@@ -261,6 +261,12 @@ def test_eeprom_checksum_and_wrong_product(rig: Rig) -> None:
     s = m.slave(1)
     rig.faults.ec_eeprom("io-b", "checksum")
     assert _sii_status(m, s.station) & 0x0800
+    m.fpwr(s.station, 0x0502, struct.pack("<HI", 0x0100, 0x000A))
+    assert _sii_status(m, s.station) & 0x0800                 # a read does not clear the load's status
+    assert struct.unpack("<I", m.fprd(s.station, 0x0508, 4))[0] == 0x00010001   # but reads the data
+    m.fpwr(s.station, 0x0502, struct.pack("<H", 0))           # a NOP clears the error bits
+    assert not _sii_status(m, s.station) & 0x0800
+    m.fpwr(s.station, 0x0502, struct.pack("<HI", 0x0400, 0))  # a reload fails again
     m.fpwr(s.station, 0x0502, struct.pack("<HI", 0x0400, 0))
     assert _sii_status(m, s.station) & 0x0800
     with pytest.raises(FaultRefused):

@@ -204,6 +204,10 @@ def test_eeprom_wrong_product_is_what_config_init_reads(line: Line, master: Mast
     assert ids == [PRODUCT, 0x00BADBAD]
     line.fault("ec-clear", "io-b")
     assert [s["id"] for s in master.do("config_init")["slaves"]] == [PRODUCT, PRODUCT]
+    # a bad SII checksum: SOEM clears the error bits (NOP) before each EEPROM read and does not check the
+    # checksum itself, so it still reads the identity
+    line.fault("ec-eeprom", "io-b", "checksum")
+    assert [s["id"] for s in master.do("config_init")["slaves"]] == [PRODUCT, PRODUCT]
 
 
 def test_drop_state_init_is_a_power_glitch_the_master_reconfigures(line: Line, master: Master) -> None:
