@@ -527,6 +527,16 @@ class Esc:
         self._step = _IDLE
         return None
 
+    def lose_datagram(self) -> None:
+        """Fault injection, from the delivery of a paused datagram's events: the access happened in the
+        ESC (a mailbox read emptied the buffer) but the master gets nothing of it -- the datagram keeps
+        the working counter it arrived with and its data is cleared, as for a reply lost on its way."""
+        step = self._step
+        if step != _IDLE:
+            self._inc = 0
+            if step < _WRITES:  # a physical datagram is this slave's alone; a logical one carries others' data
+                self._buf[self._off:self._off + self._dlen] = bytes(self._dlen)
+
     def _finish(self) -> None:
         """The datagram is complete: add this slave's share to the working counter."""
         inc = self._inc

@@ -32,6 +32,7 @@ from gatewaylab.ethercat.esc_registers import (
     U16,
     AlState,
 )
+from gatewaylab.ethercat.slave_faults import AlRefusal
 
 __all__ = ["AlFirmware", "AlStateMachine"]
 
@@ -54,7 +55,7 @@ class AlFirmware(Protocol):
 class AlStateMachine:
     """AL status of one ESC over the shared register memory, and the SM watchdog that can drop it."""
 
-    __slots__ = ("_wd_timer", "clock", "firmware", "mem", "memory")
+    __slots__ = ("_wd_timer", "clock", "firmware", "mem", "memory", "refusal")
 
     def __init__(self, clock: Clock, memory: EscMemory, firmware: AlFirmware) -> None:
         self.clock = clock
@@ -62,6 +63,9 @@ class AlStateMachine:
         self.mem = memory.mem
         self.firmware = firmware
         self._wd_timer: TimerHandle | None = None
+        #: a fault: the next requested transition (or one) is refused with its code (``slave_faults``)
+        self.refusal: AlRefusal | None = None
+        memory.wd_changed = self.watchdog_written
 
     def reset(self) -> None:
         """Power-on: INIT without error, watchdog divider and times at their defaults (100 ms)."""
@@ -110,6 +114,12 @@ class AlStateMachine:
             return
         if (current, target) not in AL_TRANSITIONS:
             self._refuse(current, AlStatusCode.INVALID_STATE_CHANGE)
+            return
+        refusal = self.refusal
+        if refusal is not None and refusal.matches(current, target):
+            self.refusal = None
+            self._refuse(current, refusal.code)
+            refusal.on_used()
             return
         code = self.firmware.check_transition(current, target)
         if code:
@@ -161,6 +171,12 @@ class AlStateMachine:
             return
         self.memory.wd_last = self.clock.now()
         self._wd_timer = self.clock.call_at(self.memory.wd_last + period, self._wd_check)
+
+    def watchdog_written(self) -> None:
+        """The master wrote the watchdog divider or time: in OP the count starts again with the new time
+        (0: the watchdog stops), as the ET1100 restarts its counter from the registers."""
+        if self.state == AlState.OP:
+            self._start_watchdog()
 
     def stop_watchdog(self) -> None:
         """The watchdog stops watching (left OP, or powered off)."""

@@ -12,6 +12,8 @@ ones included. Register map: ET1100 data sheet section II; SyncManagers ETG.1000
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 from gatewaylab.common.clock import Clock
 from gatewaylab.ethercat.esc_dc import DistributedClocks
 from gatewaylab.ethercat.esc_events import SM_CHANGED, AlControlRequested, EscEvent, SmRead, SmWritten
@@ -27,7 +29,9 @@ from gatewaylab.ethercat.esc_registers import (
     REG_SII_CONTROL,
     REG_SM,
     REG_TYPE,
+    REG_WD_DIVIDER,
     REG_WD_STATUS_SM,
+    REG_WD_TIME_SM,
     SM_ACT_REPEAT,
     SM_CTRL_WATCHDOG,
     SM_PDI_DISABLE,
@@ -94,7 +98,7 @@ class EscMemory:
 
     __slots__ = ("_memlen", "_sms", "active_sms", "clock", "dc", "events", "firmware_sms",
                  "fmmus", "locked", "mbx_last", "mem", "n_fmmu", "n_sm", "output_sm", "outputs_stopped",
-                 "pdi_outputs", "ro", "sii", "stats", "wd_last")
+                 "pdi_outputs", "ro", "sii", "stats", "wd_changed", "wd_last")
 
     def __init__(self, clock: Clock, mem: bytearray, stats: EscStats, sii: SiiInterface, dc: DistributedClocks,
                  *, fmmus: int, sms: int, firmware_sms: int, output_sm: int = 2) -> None:
@@ -131,6 +135,8 @@ class EscMemory:
         self.pdi_outputs: dict[int, bytes] = {}
         #: Clock time of the last write to a SyncManager with the watchdog enabled.
         self.wd_last = 0.0
+        #: told when the master writes the watchdog divider (0x0400) or time (0x0420) (the AL state machine)
+        self.wd_changed: Callable[[], None] | None = None
         #: PDI events raised by the accesses since the ESC last handed them over.
         self.events: list[EscEvent] = []
 
@@ -303,6 +309,9 @@ class EscMemory:
             self.rebuild_sms(old, address)
         if end > 0x0900 and address < 0x09B0:
             self.dc.write(address, end, old)
+        if self.wd_changed is not None and ((end > REG_WD_DIVIDER and address < REG_WD_DIVIDER + 2)
+                                            or (end > REG_WD_TIME_SM and address < REG_WD_TIME_SM + 2)):
+            self.wd_changed()
 
     # ------------------------------------------------------------------ logical accesses (FMMUs)
     def fmmu_write(self, f: Fmmu, buf: bytearray, off: int, laddr: int, lend: int) -> bool:

@@ -38,6 +38,7 @@ from gatewaylab.plugin.capabilities import (
 from gatewaylab.rig.faults_core import FaultRefused, FaultsCore, check_seconds
 from gatewaylab.rig.faults_ec_dc import EC_DC_REQUESTS, EcDcFaults
 from gatewaylab.rig.faults_ec_frames import EC_FRAMES_REQUESTS, EcFramesFaults
+from gatewaylab.rig.faults_ec_slave import EC_SLAVE_REQUESTS, EcSlaveFaults
 from gatewaylab.rig.segment import SegmentParticipant
 
 if TYPE_CHECKING:
@@ -53,7 +54,7 @@ DRIVE_FAULTS: dict[str, tuple[int, int]] = {
 }
 
 
-class Faults(EcFramesFaults, EcDcFaults, FaultsCore):
+class Faults(EcFramesFaults, EcSlaveFaults, EcDcFaults, FaultsCore):
     """The faults of one rig (``rig.faults``); each call returns what it did as a dict. The EtherCAT
     families come from their own modules (``faults_ec_*.py``, each a :class:`FaultsCore` mixin)."""
 
@@ -395,3 +396,4 @@ REQUESTS: dict[str, tuple[str, dict[str, tuple[str, bool]]]] = {
 }
 REQUESTS.update(EC_DC_REQUESTS)
 REQUESTS.update(EC_FRAMES_REQUESTS)
+REQUESTS.update(EC_SLAVE_REQUESTS)
