@@ -29,6 +29,7 @@ from typing import Final
 from gatewaylab.ethercat.datagram import ETH_HEADER_LEN, ETHERTYPE_ETHERCAT, LEN_MASK, MORE
 from gatewaylab.ethercat.errors import SlavePositionError
 from gatewaylab.ethercat.esc import REG_RX_ERROR, Esc
+from gatewaylab.ethercat.ring import LOST, PORT_A, routes
 from gatewaylab.ethercat.slave import Slave
 
 __all__ = ["LOG_EVERY", "LOG_FIRST", "Segment", "SegmentStats"]
@@ -37,6 +38,8 @@ __all__ = ["LOG_EVERY", "LOG_FIRST", "Segment", "SegmentStats"]
 _U16: Final = struct.Struct("<H")
 _BE16: Final = struct.Struct("!H")
 _DG_HDR: Final = struct.Struct("<B5xH")  # cmd, (idx + address skipped), len/flags
+#: The circulating bit of a datagram's length field (ETG.1000.4 datagram header, bit 14), high byte.
+_CIRCULATING: Final = 0x40
 _log = logging.getLogger(__name__)
 #: Datagram errors logged one line each before only every ``LOG_EVERY``-th is.
 LOG_FIRST: Final = 10
@@ -64,18 +67,84 @@ class Segment:
         self.stats = SegmentStats()
         #: positions of the slaves unplugged from the line (fault injection)
         self.unplugged: set[int] = set()
+        #: the master's secondary interface is cabled to the last slave's port 1 (cable redundancy, ring.py)
+        self.redundant = False
+        #: open gaps (cables without a link, ring.py numbering): gap -> how many faults hold it open
+        self.cuts: dict[int, int] = {}
+        #: positions of the slaves of unplugged hot-connect groups (out of the line, neighbours joined)
+        self.detached: set[int] = set()
         self._reached: list[Slave] = list(self.slaves)
+        #: where a frame entering on the primary interface leaves (ring.PORT_A / PORT_B / LOST)
+        self.exit_a = PORT_A
+        #: the slaves a frame entering on the secondary interface reaches, where it leaves, the slave that turns it
+        self._reached_b: list[Slave] = []
+        self.exit_b = LOST
+        self._turn_b: Slave | None = None
         #: :meth:`process` left PDI work for :meth:`after_frame`
         self._after_pending = False
         self._link()
 
     def _link(self) -> None:
-        """The slaves a frame reaches: the line up to the first unplugged one, whose upstream
-        neighbour closes its port and returns the frame (ESC automatic port loop-back)."""
-        reach = min(self.unplugged, default=len(self.slaves))
-        self._reached = self.slaves[:reach]
-        for i, slave in enumerate(self._reached):
-            slave.esc.set_downstream(reach - 1 - i)
+        """The slaves a frame reaches from each end (ring.py): on a line, up to the first unplugged slave or open
+        port, whose upstream neighbour closes its port and returns the frame (ESC automatic port loop-back); each
+        ESC's DL status 0x0110 shows the links of its ports."""
+        r = routes(len(self.slaves), redundant=self.redundant, cuts=self.cuts, unplugged=self.unplugged,
+                   detached=self.detached)
+        self._reached = [self.slaves[p] for p in r.a]
+        self.exit_a = r.a_exit
+        self._reached_b = [self.slaves[p] for p in r.b]
+        self.exit_b = r.b_exit
+        self._turn_b = self.slaves[r.b_turn] if r.b_turn >= 0 else None
+        for p, slave in enumerate(self.slaves):
+            slave.esc.set_downstream(r.downstream[p], r.links[p])
+
+    @property
+    def reached(self) -> list[Slave]:
+        """The slaves a frame entering on the primary interface reaches, in order."""
+        return list(self._reached)
+
+    @property
+    def reached_secondary(self) -> list[Slave]:
+        """The slaves a frame entering on the secondary interface reaches, in order (cable redundancy)."""
+        return list(self._reached_b)
+
+    def cut(self, gap: int) -> None:
+        """Open gap ``gap`` (the cable into slave ``gap``'s port 0; ``len(slaves)``: the cable to the secondary
+        interface): both ports lose their link, and close."""
+        if not 0 <= gap <= len(self.slaves):
+            raise SlavePositionError(f"no cable {gap} in a line of {len(self.slaves)} slaves")
+        self.cuts[gap] = self.cuts.get(gap, 0) + 1
+        self._link()
+
+    def join(self, gap: int) -> None:
+        """Undo one :meth:`cut` of ``gap`` (the link comes back once no fault holds it open)."""
+        left = self.cuts.get(gap, 0) - 1
+        if left > 0:
+            self.cuts[gap] = left
+        else:
+            self.cuts.pop(gap, None)
+        self._link()
+
+    def set_redundant(self, redundant: bool) -> None:
+        """Cable the last slave's port 1 to the master's secondary interface (or not)."""
+        self.redundant = redundant
+        self._link()
+
+    def detach(self, positions: list[int]) -> None:
+        """Unplug a hot-connect group: its slaves leave the line, the slaves around it are joined."""
+        for p in positions:
+            if not 0 <= p < len(self.slaves):
+                raise SlavePositionError(f"no slave at position {p}")
+        self.detached.update(positions)
+        self._link()
+
+    def attach(self, positions: list[int]) -> None:
+        """Plug a hot-connect group back in: its slaves power on (AL status INIT, registers reset)."""
+        back = [p for p in positions if p in self.detached]
+        self.detached.difference_update(back)
+        for p in back:
+            self.slaves[p].esc.power_cycle()
+        self._link()
 
     def unplug(self, position: int) -> None:
         """Pull a slave out of the line: it and every slave behind it stop answering (the working
@@ -102,7 +171,7 @@ class Segment:
         pending runs before the next frame."""
         if self._after_pending:
             self.after_frame()
-        if not self._reached and self.unplugged:
+        if self.exit_a == LOST:
             return False
         parsed = self._parse(frame)
         if parsed is None:
@@ -141,6 +210,48 @@ class Segment:
                     slave.after_frame()
                 except Exception as exc:  # isolation boundary, as for a datagram
                     self._datagram_error(slave.esc, -1, exc)
+        for slave in self._reached_b:   # empty unless a frame may enter on the secondary interface
+            if slave.outputs_pending:
+                try:
+                    slave.after_frame()
+                except Exception as exc:  # isolation boundary, as for a datagram
+                    self._datagram_error(slave.esc, -1, exc)
+
+    def process_secondary(self, frame: bytearray, *, defer: bool = False) -> int:
+        """A frame entering on the secondary interface (cable redundancy, ring.py): executed in place by the
+        slaves behind the first open gap from that end; returns where it leaves (ring.PORT_A: it passed the
+        whole ring unprocessed, PORT_B, or LOST: not sent back)."""
+        if self._after_pending:
+            self.after_frame()
+        if self.exit_b == LOST:
+            return LOST
+        parsed = self._parse(frame)
+        if parsed is None:
+            self.stats.bad_frames += 1
+            return LOST
+        if self._turn_b is not None:
+            first = parsed[0][0] + 7    # high byte of the first datagram's length field
+            if frame[first] & _CIRCULATING:     # circulated once already: the ESC destroys it
+                return LOST
+            frame[first] |= _CIRCULATING
+        self.stats.frames += 1
+        self.stats.datagrams += len(parsed)
+        for slave in self._reached_b:
+            esc = slave.esc
+            for pos, cmd, dlen in parsed:
+                try:
+                    events = esc.process_datagram(frame, pos, cmd, dlen)
+                    if events is not None:
+                        slave.serve_events(events)
+                except Exception as exc:  # isolation boundary, as in process
+                    self._datagram_error(esc, cmd, exc)
+        if len(frame) > ETH_HEADER_LEN:
+            frame[6] |= 0x02
+        if defer:
+            self._after_pending = True
+        else:
+            self.after_frame()
+        return self.exit_b
 
     def _datagram_error(self, esc: Esc, cmd: int, exc: Exception) -> None:
         esc.stats.datagram_errors += 1

@@ -36,6 +36,7 @@ from gatewaylab.plugin.capabilities import (
     node_of,
 )
 from gatewaylab.rig.faults_core import FaultRefused, FaultsCore, check_seconds
+from gatewaylab.rig.faults_ec_ring import EC_RING_REQUESTS, EcRingFaults
 from gatewaylab.rig.segment import SegmentParticipant
 
 if TYPE_CHECKING:
@@ -51,7 +52,7 @@ DRIVE_FAULTS: dict[str, tuple[int, int]] = {
 }
 
 
-class Faults(FaultsCore):
+class Faults(EcRingFaults, FaultsCore):
     """The faults of one rig (``rig.faults``); each call returns what it did as a dict. The EtherCAT
     families come from their own modules (``faults_ec_*.py``, each a :class:`FaultsCore` mixin)."""
 
@@ -380,3 +381,4 @@ REQUESTS: dict[str, tuple[str, dict[str, tuple[str, bool]]]] = {
     "ethercat-states": ("ethercat_states", {}),
     "can-states": ("can_states", {}),
 }
+REQUESTS.update(EC_RING_REQUESTS)

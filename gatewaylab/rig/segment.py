@@ -10,6 +10,9 @@ Rig file::
     max_residence_ms = 2.0 # optional: frames older than this are dropped, never answered late (0: no limit)
     realtime = true        # optional: SCHED_FIFO for the wire thread and the rig's loop (root or CAP_SYS_NICE)
     switch_interval_us = 200  # the interpreter's thread switch interval while the wire runs (0: leave it)
+    redundant = "gl-ecat2" # optional: cable redundancy, the end cabled to the last slave's port 1 (a ring)
+    hot_connect = "io2, io4"  # optional: heads of hot-connect groups (a head and the devices after it, up to the
+                              # next head, are unplugged and plugged together: ec-hot-unplug / ec-hot-plug)
 
 Every device participant with ``is_ethercat = True`` and a ``slave`` attribute (an
 :class:`~gatewaylab.ethercat.slave.Slave`) joins the segment, in rig-file order (position 0 first).
@@ -24,6 +27,7 @@ import threading
 from collections.abc import Sequence
 from typing import Any
 
+from gatewaylab.common.errors import ConfigError
 from gatewaylab.ethercat.residence import DEFAULT_MAX_RESIDENCE_MS
 from gatewaylab.ethercat.segment import Segment
 from gatewaylab.ethercat.wire import REALTIME_PRIORITY, WireTransport, make_ordinary, make_realtime
@@ -38,6 +42,7 @@ __all__ = [
     "SWITCH_INTERVAL_US",
     "SegmentParticipant",
     "create_segment",
+    "hot_connect_groups",
 ]
 
 
@@ -62,6 +67,10 @@ SEGMENT_KEYS: dict[str, Key] = {
                                      "one log line when not allowed)"),
     "switch_interval_us": Key(float, SWITCH_INTERVAL_US, min=0.0, max=5000.0,
                               help="the interpreter's thread switch interval while the wire runs; 0 leaves it"),
+    "redundant": Key(str, help='cable redundancy: the second interface, cabled to the last slave\'s port 1, e.g. '
+                               'redundant = "gl-ecat2"'),
+    "hot_connect": Key(str, help='the heads of hot-connect groups, comma-separated device names, e.g. '
+                                 'hot_connect = "io2, io4"'),
 }
 
 
@@ -76,6 +85,13 @@ class SegmentParticipant:
         self.rig = rig
         self.devices = list(devices)
         self.segment = Segment([d.slave for d in self.devices])
+        #: cable redundancy: the interface cabled to the last slave's port 1, or None (a line)
+        self.redundant: str | None = cfg["redundant"]
+        if self.redundant is not None:
+            self.segment.set_redundant(True)
+        #: hot-connect groups: the head's name -> the positions of the group (the head and the devices after it,
+        #: up to the next head)
+        self.hot_groups: dict[str, list[int]] = hot_connect_groups(cfg["hot_connect"], [d.name for d in self.devices])
         self.pcap_path: str | None = cfg["pcap"]
         self.cpu: int | None = cfg["cpu"]
         self.busy_poll: bool = cfg["busy_poll"]
@@ -95,7 +111,7 @@ class SegmentParticipant:
             self.pcap = PcapWriter(str(self.pcap_path))
         self.wire = WireTransport(self.segment, self.interface, self.rig.clock, busy_poll=self.busy_poll,
                                   pcap=self.pcap, cpu=self.cpu, max_residence_ms=self.max_residence_ms,
-                                  realtime=self.realtime)
+                                  realtime=self.realtime, redundant=self.redundant)
         if self.switch_interval_s > 0:
             # the wire thread waits for the interpreter lock while the rig's loop runs Python (CAN buses,
             # drives): at most one switch interval (5 ms by default) each time
@@ -144,9 +160,24 @@ class SegmentParticipant:
 
     def ready_info(self) -> dict[str, Any]:
         """The interface and the slaves in position order, for the --ready-file."""
-        return {"ethercat": {"interface": self.interface, "slaves": [
+        return {"ethercat": {"interface": self.interface, "redundant": self.redundant, "slaves": [
             {"name": s.name, "position": i, "vendor_id": s.desc.vendor_id, "product_code": s.desc.product_code}
             for i, s in enumerate(self.segment.slaves)]}}
+
+
+def hot_connect_groups(heads: str | None, names: list[str]) -> dict[str, list[int]]:
+    """The hot-connect groups of ``[ethercat] hot_connect`` (comma-separated heads) over the devices ``names`` in
+    position order: head -> positions (the head and the devices after it up to the next head)."""
+    if not heads:
+        return {}
+    wanted = [h.strip() for h in heads.split(",") if h.strip()]
+    for head in wanted:
+        if head not in names:
+            raise ConfigError(f"[ethercat] hot_connect: {head!r} is not an EtherCAT device of this rig "
+                              f"(devices: {', '.join(names)})")
+    starts = sorted(names.index(h) for h in set(wanted))
+    ends = [*starts[1:], len(names)]
+    return {names[a]: list(range(a, b)) for a, b in zip(starts, ends, strict=True)}
 
 
 def create_segment(rig: RigContext, cfg: dict[str, Any],
