@@ -1,0 +1,102 @@
+"""ec-port-open, ec-ring-break / ec-ring-heal and ec-hot-unplug / ec-hot-plug through the pytest plugin's
+``RigHandle.fault`` on a simulated-clock rig (docs/faults.md, EtherCAT table), with the in-process master.
+
+ET1100 data sheet, register 0x0110 (DL status): bit 4+p physical link on port p, bit 8+2p loop closed, bit 9+2p
+communication; an open port closes and loops frames back, so a line loses the slaves behind it (ETG.1000.4: the
+working counter counts the slaves that executed the datagram). Hot-connect groups (ETG.1000 / Beckhoff
+hot-connect): the group hangs off a junction port, so the slaves after it stay in the line.
+"""
+
+from __future__ import annotations
+
+import struct
+from typing import Any
+
+import pytest
+
+from gatewaylab.ethercat.datagram import Command, Datagram, Frame, decode_frame, encode_frame
+from gatewaylab.ethercat.segment import Segment
+from gatewaylab.hosts.ethercat.master import Master
+from gatewaylab.rig.faults_core import FaultRefused
+
+
+def _rig(**ethercat: Any) -> dict[str, Any]:
+    devices = [{"kind": "ethercat_io", "name": f"io-{c}", "serial": 10 + i} for i, c in enumerate("abcd")]
+    return {"device": devices, "ethercat": {"interface": "gl-none", **ethercat}}
+
+
+def _segment(handle: Any) -> Segment:
+    segment: Segment = next(p for p in handle.rig.participants if p.name == "ethercat").segment
+    return segment
+
+
+def _dl(segment: Segment, position: int) -> int:
+    value: int = struct.unpack_from("<H", segment.slaves[position].esc.mem, 0x0110)[0]
+    return value
+
+
+def test_port_open_hides_the_slaves_behind_it_until_its_time_is_up(gatewaylab_rig: Any) -> None:
+    """ec-port-open io-b 1 --seconds 0.05 while the master cycles at 1 kHz: the LRW working counter drops by what
+    io-c and io-d contributed, io-b's DL status shows port 1 without link and closed (0x0400), ethercat-states lists
+    the fault; after 0.05 s the port has its link again and the full working counter is back without a restart."""
+    handle = gatewaylab_rig(_rig(), clock="simulated")
+    segment = _segment(handle)
+    master = Master(handle.clock, segment)
+    master.bring_up()
+    master.start_cyclic(0.001)     # outputs keep coming: the SM watchdogs of the slaves reached stay quiet
+    full = master.exchange_process_data()
+    assert full == master.expected_wkc
+    per_slave = full // 4
+    answer = handle.fault("ec-port-open", device="io-b", port=1, seconds=0.05)
+    assert answer["primary"] == ["io-a", "io-b"] and answer["primary_returns_on"] == "primary"
+    assert _dl(segment, 1) & 0x0F30 == 0x0610 and _dl(segment, 2) & 0x0F30 == 0x0920
+    assert master.exchange_process_data() == full - 2 * per_slave
+    states = handle.fault("ethercat-states")
+    assert [(f["fault"], f["target"], f["port"]) for f in states["faults"]] == [("ec-port-open", "io-b", 1)]
+    handle.clock.run_until(handle.clock.now() + 0.06)
+    assert _dl(segment, 1) & 0x0F30 == 0x0A30 and _dl(segment, 2) & 0x0F30 == 0x0A30
+    assert master.exchange_process_data() == full
+    assert handle.fault("ethercat-states")["faults"] == []
+    master.stop_cyclic()
+
+
+def test_ring_faults_need_a_ring_and_split_the_slaves_between_the_ports(gatewaylab_rig: Any) -> None:
+    """A line refuses ec-ring-break; a redundant rig broken after io-b answers io-a..io-b through the primary
+    interface and io-c..io-d through the secondary one; ec-ring-heal closes the ring (the primary frame passes
+    every slave and returns on the secondary interface); port 2 has no cable to open."""
+    line = gatewaylab_rig(_rig(), clock="simulated")
+    with pytest.raises(FaultRefused, match="line, not a ring"):
+        line.fault("ec-ring-break", after_device="io-b")
+    with pytest.raises(FaultRefused, match="no cable"):
+        line.fault("ec-port-open", device="io-b", port=2)
+    ring = gatewaylab_rig(_rig(redundant="gl-none2"), clock="simulated")
+    segment = _segment(ring)
+    assert _dl(segment, 3) & 0x0F30 == 0x0A30       # the last slave's port 1 is cabled to the secondary interface
+    answer = ring.fault("ec-ring-break", after_device="io-b")
+    assert (answer["primary"], answer["secondary"]) == (["io-a", "io-b"], ["io-c", "io-d"])
+    with pytest.raises(FaultRefused, match="already"):
+        ring.fault("ec-ring-break", after_device="io-b")
+    healed = ring.fault("ec-ring-heal")
+    assert healed["healed"] == ["io-b"] and healed["primary_returns_on"] == "secondary"
+    assert healed["primary"] == ["io-a", "io-b", "io-c", "io-d"] and healed["secondary"] == []
+
+
+def test_hot_connect_group_unplugged_by_its_head(gatewaylab_rig: Any) -> None:
+    """hot_connect = "io-b, io-d": io-b heads io-b + io-c. Unplugged, io-d answers right after io-a (positions one
+    group shorter) and the BRD a master counts slaves with counts 2; plugged back, the group is there again in INIT
+    (power-on: no station address) and a master re-initialising the line brings all 4 to OP."""
+    handle = gatewaylab_rig(_rig(hot_connect="io-b, io-d"), clock="simulated")
+    segment = _segment(handle)
+    master = Master(handle.clock, segment)
+    master.bring_up()
+    answer = handle.fault("ec-hot-unplug", head="io-b")
+    assert answer["group"] == ["io-b", "io-c"] and answer["primary"] == ["io-a", "io-d"]
+    frame = bytearray(encode_frame(Frame((Datagram.physical(Command.BRD, 1, 0, 0x0000, b"\0\0"),))))
+    assert segment.process(frame) and decode_frame(frame).datagrams[0].wkc == 2      # a master's slave count
+    with pytest.raises(FaultRefused, match="heads no hot-connect group"):
+        handle.fault("ec-hot-unplug", head="io-c")
+    handle.fault("ec-hot-plug", head="io-b")
+    assert [(s.esc.al_status & 0x0F, s.esc.station_address) for s in segment.slaves[1:3]] == [(1, 0), (1, 0)]
+    again = Master(handle.clock, segment)
+    again.bring_up()
+    assert again.exchange_process_data() == again.expected_wkc
