@@ -29,13 +29,14 @@ from __future__ import annotations
 
 from collections.abc import Collection
 from dataclasses import dataclass
+from typing import Final
 
 __all__ = ["LOST", "PORT_A", "PORT_B", "Routes", "routes"]
 
 #: A frame's exit: back on the primary interface, out on the secondary one, or never (no link).
-PORT_A = 0
-PORT_B = 1
-LOST = -1
+PORT_A: Final = 0
+PORT_B: Final = 1
+LOST: Final = -1
 
 
 @dataclass(frozen=True, slots=True)

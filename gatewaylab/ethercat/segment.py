@@ -171,7 +171,7 @@ class Segment:
         pending runs before the next frame."""
         if self._after_pending:
             self.after_frame()
-        if self.exit_a == LOST:
+        if self.exit_a < 0:     # ring.LOST: no link on the primary side
             return False
         parsed = self._parse(frame)
         if parsed is None:

@@ -7,24 +7,28 @@ secondary interface; with a break the slaves before it answer on the primary int
 again through the secondary one to the slaves after it -- the working counter stays whole. ET1100 register 0x0110:
 a port without a link is closed (0x0400 for port 1), and on a line the slaves behind an open port vanish.
 
-SOEM's own ``red_test`` sample (test/linux/red_test) as shipped in the pysoem 1.1.13 sdist calls ``ec_init`` with
-``ec_init_redundant`` commented out, so it never opens its second interface: pysoem's ``Master.open(IF_A, IF_B)``
-(``ecx_init_redundant``) is the redundant master here. Rule of the wire tests: a wrong working counter fails; a lost
-cycle (no frame within SOEM's 2 ms) is counted and tolerated up to 2 %.
+Two redundant masters: pysoem's ``Master.open(IF_A, IF_B)`` (``ecx_init_redundant``), counting every cycle, and
+SOEM's own ``red_test`` sample (soem_redundancy_kit.py: as shipped in the pysoem 1.1.13 sdist it has
+``ec_init_redundant`` commented out; the kit puts it back), whose printed working counters are sampled every
+20 ms. Rule of the wire tests: a wrong working counter fails; a lost cycle (no frame within SOEM's 2 ms) is
+counted and tolerated up to 2 %.
 """
 
 from __future__ import annotations
 
 import contextlib
 import json
+import os
+import re
 import subprocess
 import sys
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
+from soem_redundancy_kit import build_red_test
 from wire_kit import net_capable, veth_namespace, veth_namespace_two
 
 from gatewaylab.rig.process import RigProcess
@@ -109,7 +113,9 @@ def fault(rig: RigProcess, *args: str) -> dict[str, Any]:
 
 
 @contextlib.contextmanager
-def running(workdir: Path, redundant: bool) -> Iterator[tuple[RigProcess, Driver]]:
+def rig_on_veth(workdir: Path, redundant: bool) -> Iterator[tuple[RigProcess, str, str, str]]:
+    """The 4-slave rig run by ``gatewaylab run`` on one veth pair (or two, ``redundant``): (rig, namespace, the
+    master's end A, its end B or "-"); the rig must have logged no error."""
     reason = net_capable("pysoem")
     if reason is not None:
         pytest.skip(reason)
@@ -121,14 +127,21 @@ def running(workdir: Path, redundant: bool) -> Iterator[tuple[RigProcess, Driver
         path.write_text(RIG.format(a=emu_a, redundant=f'redundant = "{emu_b}"' if redundant else ""))
         with RigProcess(path, workdir=workdir, timeout=60) as rig:
             assert rig.info["ethercat"]["redundant"] == (emu_b or None)
-            driver = Driver(ns, mst_a, mst_b, workdir)
-            try:
-                yield rig, driver
-            finally:
-                driver.close()
-                log = rig.log_text()
-                bad = [line for line in log.splitlines() if line.startswith(("ERROR", "CRITICAL", "Traceback"))]
-                assert not bad, bad[:10]
+            yield rig, ns, mst_a, mst_b
+            log = rig.log_text()
+            bad = [line for line in log.splitlines() if line.startswith(("ERROR", "CRITICAL", "Traceback"))]
+            assert not bad, bad[:10]
+
+
+@contextlib.contextmanager
+def running(workdir: Path, redundant: bool) -> Iterator[tuple[RigProcess, Driver]]:
+    """:func:`rig_on_veth` with the pysoem master started on it."""
+    with rig_on_veth(workdir, redundant) as (rig, ns, mst_a, mst_b):
+        driver = Driver(ns, mst_a, mst_b, workdir)
+        try:
+            yield rig, driver
+        finally:
+            driver.close()
 
 
 def _only_full(event: dict[str, Any], expected: int) -> None:
@@ -186,3 +199,75 @@ def test_open_port_on_a_line_hides_the_slaves_behind_it_until_it_closes(tmp_path
         back = driver.phase("recover")
         _only_full(back, expected)
         assert back["states"] == [8, 8, 8, 8] and back["dl"][1] & 0x0F30 == 0x0A30
+
+
+#: red_test's cycle in microseconds (its third argument)
+RED_CYCLE_US = 1000
+#: red_test's status lines (one each 20 ms) to see in each state of the ring
+RED_SAMPLES = 40
+
+
+class RedTest:
+    """SOEM's red_test in the namespace, its output (status lines end in carriage returns) collected as it comes."""
+
+    def __init__(self, program: Path, ns: str, if_a: str, if_b: str) -> None:
+        self.proc = subprocess.Popen(["ip", "netns", "exec", ns, str(program), if_a, if_b, str(RED_CYCLE_US)],
+                                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+        self.text = ""
+        self.cond = threading.Condition()
+        threading.Thread(target=self._read, daemon=True).start()
+
+    def _read(self) -> None:
+        assert self.proc.stdout is not None
+        fd = self.proc.stdout.fileno()
+        while chunk := os.read(fd, 4096):
+            with self.cond:
+                self.text += chunk.decode("latin-1")
+                self.cond.notify_all()
+        with self.cond:
+            self.cond.notify_all()
+
+    def wait(self, done: Callable[[str], bool], timeout: float, what: str) -> None:
+        with self.cond:
+            ok = self.cond.wait_for(lambda: done(self.text) or self.proc.poll() is not None, timeout)
+            assert ok and done(self.text), f"red_test: no {what}: {self.text[-3000:]}"
+
+    def samples(self) -> list[int]:
+        """The working counters of red_test's status lines since all slaves reached OP, once its cycle thread has
+        received a frame (the line prints its cycle count: 1 until the first cycle completes, the counter then
+        still its initial 0)."""
+        with self.cond:
+            after = self.text.partition("Operational state reached for all slaves.")[2]
+        return [int(wkc) for cycle, wkc in re.findall(r"Processdata cycle\s+(\d+)\s*, Wck\s+(-?\d+)", after)
+                if int(cycle) > 1]
+
+    def stop(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+        self.proc.wait(30)
+
+
+def test_soem_red_test_keeps_its_working_counter_across_a_ring_break(tmp_path: Path) -> None:
+    """SOEM's red_test (cycle 1 ms, SOEM's own check thread) on a redundant rig of 4 slaves: the working counter it
+    prints is its calculated one in every sample with the ring closed, broken after io-b and healed, and its check
+    thread never finds a slave out of OP or lost."""
+    program = build_red_test()
+    with rig_on_veth(tmp_path, redundant=True) as (rig, ns, mst_a, mst_b):
+        red = RedTest(program, ns, mst_a, mst_b)
+        try:
+            red.wait(lambda t: "Operational state reached for all slaves." in t, 180, "OP")
+            expected = int(re.findall(r"Calculated workcounter (\d+)", red.text)[0])
+            assert "4 slaves found and configured" in red.text
+            red.wait(lambda t: len(red.samples()) >= RED_SAMPLES, 60, "status lines (closed ring)")
+            fault(rig, "ec-ring-break", "io-b")
+            red.wait(lambda t: len(red.samples()) >= 2 * RED_SAMPLES, 60, "status lines (broken ring)")
+            fault(rig, "ec-ring-heal")
+            red.wait(lambda t: len(red.samples()) >= 3 * RED_SAMPLES, 60, "status lines (healed ring)")
+        finally:
+            red.stop()
+        samples = red.samples()
+        lost = samples.count(-1)
+        print(f"red_test: {len(samples)} samples, expected working counter {expected}, lost {lost}")
+        assert [v for v in samples if v not in (expected, -1)] == [], samples
+        assert lost <= len(samples) * 2 // 100, f"{lost} of {len(samples)} samples lost"
+        assert not re.search(r"ERROR :|slave \d+ lost|SAFE_OP", red.text), red.text[-3000:]
