@@ -224,8 +224,9 @@ class Faults(EcRingFaults, FaultsCore):
         def act() -> dict[str, Any]:
             segment, position = self.ethercat_position(device)
             segment.unplug(position)
+            reached = {id(s) for s in segment.reached} | {id(s) for s in segment.reached_secondary}
             return {"fault": "ethercat-unplug", "device": device, "position": position,
-                    "unreachable": [s.name for s in segment.slaves[position:]]}
+                    "unreachable": [s.name for s in segment.slaves if id(s) not in reached]}
         return self.locked(act)
 
     def ethercat_replug(self, device: str) -> dict[str, Any]:

@@ -9,11 +9,13 @@ hot-connect): the group hangs off a junction port, so the slaves after it stay i
 
 from __future__ import annotations
 
+import argparse
 import struct
 from typing import Any
 
 import pytest
 
+from gatewaylab.cli.fault import add_subcommand, build_request
 from gatewaylab.ethercat.datagram import Command, Datagram, Frame, decode_frame, encode_frame
 from gatewaylab.ethercat.segment import Segment
 from gatewaylab.hosts.ethercat.master import Master
@@ -100,3 +102,36 @@ def test_hot_connect_group_unplugged_by_its_head(gatewaylab_rig: Any) -> None:
     again = Master(handle.clock, segment)
     again.bring_up()
     assert again.exchange_process_data() == again.expected_wkc
+
+
+def test_the_command_line_builds_the_control_requests() -> None:
+    """docs/faults.md: ``gatewaylab fault READY ec-port-open DEVICE PORT [--seconds S]``, ``ec-ring-break
+    AFTER-DEVICE``, ``ec-ring-heal``, ``ec-hot-unplug HEAD``, ``ec-hot-plug HEAD`` become the control requests of
+    the same names; a port outside 0..3 is a command-line error (exit 2)."""
+    parser = argparse.ArgumentParser()
+    add_subcommand(parser.add_subparsers())
+    def request(*argv: str) -> dict[str, Any]:
+        return build_request(parser.parse_args(["fault", "ready.json", *argv]))
+    assert request("ec-port-open", "io-b", "1", "--seconds", "2.5") == {
+        "fault": "ec-port-open", "device": "io-b", "port": 1, "seconds": 2.5}
+    assert request("ec-port-open", "io-b", "0") == {"fault": "ec-port-open", "device": "io-b", "port": 0}
+    assert request("ec-ring-break", "io-a") == {"fault": "ec-ring-break", "after_device": "io-a"}
+    assert request("ec-ring-heal") == {"fault": "ec-ring-heal"}
+    assert request("ec-hot-unplug", "io-b") == {"fault": "ec-hot-unplug", "head": "io-b"}
+    assert request("ec-hot-plug", "io-b") == {"fault": "ec-hot-plug", "head": "io-b"}
+    with pytest.raises(SystemExit) as exit_:
+        request("ec-port-open", "io-b", "4")
+    assert exit_.value.code == 2
+
+
+def test_unplugging_a_device_of_a_ring_leaves_the_devices_after_it_to_the_secondary_interface(
+        gatewaylab_rig: Any) -> None:
+    """ethercat-unplug io-b on a redundant rig: io-b's cables are gone on both sides, so io-a answers through the
+    primary interface and io-c, io-d through the secondary one (ETG.1000.4 cable redundancy); only io-b is
+    unreachable. On a line the same request cuts off io-b and everything behind it."""
+    ring = gatewaylab_rig(_rig(redundant="gl-none2"), clock="simulated")
+    assert ring.fault("ethercat-unplug", device="io-b")["unreachable"] == ["io-b"]
+    segment = _segment(ring)
+    assert [s.name for s in segment.reached_secondary] == ["io-c", "io-d"]
+    line = gatewaylab_rig(_rig(), clock="simulated")
+    assert line.fault("ethercat-unplug", device="io-b")["unreachable"] == ["io-b", "io-c", "io-d"]
