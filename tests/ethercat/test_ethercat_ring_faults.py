@@ -16,10 +16,13 @@ from typing import Any
 import pytest
 
 from gatewaylab.cli.fault import add_subcommand, build_request
+from gatewaylab.common.errors import ConfigError
 from gatewaylab.ethercat.datagram import Command, Datagram, Frame, decode_frame, encode_frame
 from gatewaylab.ethercat.segment import Segment
 from gatewaylab.hosts.ethercat.master import Master
+from gatewaylab.rig.config import parse_rig
 from gatewaylab.rig.faults_core import FaultRefused
+from gatewaylab.rig.runtime import Rig
 
 
 def _rig(**ethercat: Any) -> dict[str, Any]:
@@ -135,3 +138,11 @@ def test_unplugging_a_device_of_a_ring_leaves_the_devices_after_it_to_the_second
     assert [s.name for s in segment.reached_secondary] == ["io-c", "io-d"]
     line = gatewaylab_rig(_rig(), clock="simulated")
     assert line.fault("ethercat-unplug", device="io-b")["unreachable"] == ["io-b", "io-c", "io-d"]
+
+
+def test_a_hot_connect_head_must_be_a_device_of_the_segment(tmp_path: Any) -> None:
+    """docs/rig.md `[ethercat] hot_connect`: a head that is no EtherCAT device of the rig is a configuration error
+    naming the key and the devices there are, before anything runs."""
+    with pytest.raises(ConfigError, match=r"hot_connect: 'io-x' is not an EtherCAT device of this rig \(devices: "
+                                          r"io-a, io-b, io-c, io-d\)"):
+        Rig(parse_rig({"clock": "simulated", **_rig(hot_connect="io-b, io-x")}, "rig.toml"))
