@@ -50,8 +50,17 @@ def to_op(master: Any) -> int:
 
 
 def recover(master: Any) -> None:
-    """What SOEM's samples do (red_test's ecatcheck) for slaves that are not in OP: acknowledge an error, then
-    request OP again."""
+    """What SOEM's samples do (red_test's ecatcheck) for slaves that are not in OP: a slave that lost its station
+    address (powered on again) is found at its position and given it back (``ecx_recover_slave``), one in INIT or
+    PREOP is configured again (``ecx_reconfig_slave``), an error is acknowledged; then OP is requested."""
+    master.read_state()
+    for slave in master.slaves:
+        if slave.state == pysoem.NONE_STATE:
+            slave.recover(100_000)
+    master.read_state()
+    for slave in master.slaves:
+        if slave.state in (pysoem.INIT_STATE, pysoem.PREOP_STATE):
+            slave.reconfig(100_000)
     master.read_state()
     for slave in master.slaves:
         if slave.state == pysoem.SAFEOP_STATE + pysoem.STATE_ERROR:

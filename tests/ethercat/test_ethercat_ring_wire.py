@@ -113,7 +113,7 @@ def fault(rig: RigProcess, *args: str) -> dict[str, Any]:
 
 
 @contextlib.contextmanager
-def rig_on_veth(workdir: Path, redundant: bool) -> Iterator[tuple[RigProcess, str, str, str]]:
+def rig_on_veth(workdir: Path, redundant: bool, extra: str = "") -> Iterator[tuple[RigProcess, str, str, str]]:
     """The 4-slave rig run by ``gatewaylab run`` on one veth pair (or two, ``redundant``): (rig, namespace, the
     master's end A, its end B or "-"); the rig must have logged no error."""
     reason = net_capable("pysoem")
@@ -124,7 +124,7 @@ def rig_on_veth(workdir: Path, redundant: bool) -> Iterator[tuple[RigProcess, st
         ns, emu_a, mst_a = ends[:3]
         emu_b, mst_b = (ends[3], ends[4]) if redundant else ("", "-")
         path = workdir / "rig.toml"
-        path.write_text(RIG.format(a=emu_a, redundant=f'redundant = "{emu_b}"' if redundant else ""))
+        path.write_text(RIG.format(a=emu_a, redundant=f'redundant = "{emu_b}"' if redundant else "") + extra)
         with RigProcess(path, workdir=workdir, timeout=60) as rig:
             assert rig.info["ethercat"]["redundant"] == (emu_b or None)
             yield rig, ns, mst_a, mst_b
@@ -134,9 +134,9 @@ def rig_on_veth(workdir: Path, redundant: bool) -> Iterator[tuple[RigProcess, st
 
 
 @contextlib.contextmanager
-def running(workdir: Path, redundant: bool) -> Iterator[tuple[RigProcess, Driver]]:
+def running(workdir: Path, redundant: bool, extra: str = "") -> Iterator[tuple[RigProcess, Driver]]:
     """:func:`rig_on_veth` with the pysoem master started on it."""
-    with rig_on_veth(workdir, redundant) as (rig, ns, mst_a, mst_b):
+    with rig_on_veth(workdir, redundant, extra) as (rig, ns, mst_a, mst_b):
         driver = Driver(ns, mst_a, mst_b, workdir)
         try:
             yield rig, driver
@@ -199,6 +199,29 @@ def test_open_port_on_a_line_hides_the_slaves_behind_it_until_it_closes(tmp_path
         back = driver.phase("recover")
         _only_full(back, expected)
         assert back["states"] == [8, 8, 8, 8] and back["dl"][1] & 0x0F30 == 0x0A30
+
+
+
+def test_hot_connect_group_leaves_and_rejoins_under_a_cycling_master(tmp_path: Path) -> None:
+    """SOEM with one interface, ``hot_connect = "io-b, io-d"`` (io-b heads io-b + io-c): ec-hot-unplug io-b -- the
+    LRW working counter drops to io-a's and io-d's share while io-d keeps answering (the line joined around the
+    group), io-b and io-c answer no register read; ec-hot-plug io-b -- the group is back in INIT without station
+    address, and SOEM's own recovery (ecx_recover_slave: the address again by position, ecx_reconfig_slave) brings
+    all 4 to OP with the full working counter, the rig never restarted."""
+    with running(tmp_path, redundant=False, extra='hot_connect = "io-b, io-d"\n') as (rig, driver):
+        op = driver.event()
+        assert op["ev"] == "op" and op["count"] == 4 and op["op"] == 8, op
+        expected = op["expected_wkc"]
+        _only_full(driver.phase("line"), expected)
+        answer = fault(rig, "ec-hot-unplug", "io-b")
+        assert answer["group"] == ["io-b", "io-c"] and answer["primary"] == ["io-a", "io-d"]
+        out = driver.phase("unplugged")
+        assert set(out["wkc"]) == {str(expected // 2)}, out["wkc"]
+        assert out["dl"][1:3] == [None, None] and out["dl"][0] is not None and out["dl"][3] is not None
+        fault(rig, "ec-hot-plug", "io-b")
+        back = driver.phase("recover-hot")
+        _only_full(back, expected)
+        assert back["states"] == [8, 8, 8, 8]
 
 
 #: red_test's cycle in microseconds (its third argument)
