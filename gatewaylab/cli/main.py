@@ -260,6 +260,10 @@ def cmd_run(args: argparse.Namespace) -> int:
     web: RigWeb | None = None
     try:
         config = load_rig(args.rig)
+        if args.scenario:
+            from gatewaylab.rig.scenario import load_scenario
+
+            config = replace(config, scenario=load_scenario(args.scenario))   # replaces the rig file's steps
         if args.socketcand:
             config = replace(config, buses=tuple(replace(b, socketcand=True) for b in config.buses))
         rig = Rig(config)
@@ -383,6 +387,9 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--acker", action="store_true",
                      help="attach to every bus a passive node that only acknowledges frames, so a lone "
                           "client's frames are not ACK errors (see docs/bus.md)")
+    run.add_argument("--scenario", metavar="FILE",
+                     help="fire the [[scenario]] steps of FILE (a TOML file of [[scenario]] tables, instead of the "
+                          "rig file's): faults at times and milestones, see docs/faults.md 'Scenarios'")
     run.set_defaults(func=cmd_run)
 
     demo = sub.add_parser("demo", help="run the scripted demo (what `make demo` does)",

@@ -41,6 +41,7 @@ from gatewaylab.bus.transport.trace import TraceError, read_trace
 from gatewaylab.bus.transport.trace_window import TimeWindow
 from gatewaylab.canopen.monitor import BusMonitor, ControllerWatch, MonitorEvent
 from gatewaylab.cli.monitor_order import TimeOrder, sender_node
+from gatewaylab.cli.monitor_scenario import ScenarioSeen
 from gatewaylab.cli.target import USAGE, bus_target, exit_code, open_endpoint
 from gatewaylab.cli.terminal import QuitKey
 from gatewaylab.common.endpoint import EndpointError
@@ -156,6 +157,7 @@ class EthercatWatcher(_ControlPoller):
     def __init__(self, endpoint: str, period: float = 0.5) -> None:
         super().__init__(endpoint, period)
         self.states: dict[str, str] = {}
+        self.scenario = ScenarioSeen()    # the steps of a [[scenario]] as they fire
 
     def changes(self, answer: dict[str, Any], now: float) -> list[MonitorEvent]:
         """What changed in the rig's device states since the last answer, as monitor events."""
@@ -167,7 +169,7 @@ class EthercatWatcher(_ControlPoller):
                 self.states[name] = text
                 events.append(MonitorEvent(now, "ethercat", f"EtherCAT {name}: {old + ' -> ' if old else ''}{text}",
                                            None, {"device": name, **st}))
-        return events
+        return events + self.scenario.changes(answer, now)
 
 
 class CanWatcher(_ControlPoller):

@@ -24,7 +24,7 @@ import logging
 import struct
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Final
+from typing import Final, Protocol
 
 from gatewaylab.ethercat.datagram import ETH_HEADER_LEN, ETHERTYPE_ETHERCAT, LEN_MASK, MORE
 from gatewaylab.ethercat.errors import SlavePositionError
@@ -32,7 +32,7 @@ from gatewaylab.ethercat.esc import REG_RX_ERROR, Esc
 from gatewaylab.ethercat.ring import LOST, PORT_A, routes
 from gatewaylab.ethercat.slave import Slave
 
-__all__ = ["LOG_EVERY", "LOG_FIRST", "Segment", "SegmentStats"]
+__all__ = ["LOG_EVERY", "LOG_FIRST", "FrameObserver", "Segment", "SegmentStats"]
 
 
 _U16: Final = struct.Struct("<H")
@@ -59,6 +59,15 @@ class SegmentStats:
     errors: deque[str] = field(default_factory=lambda: deque(maxlen=20))
 
 
+class FrameObserver(Protocol):
+    """Told of every frame the segment served, once its datagrams ran (a scenario's milestones: a state
+    reached, process-data cycles, an SDO request; gatewaylab.ethercat.milestones). None -- the default --
+    costs the frame path one check."""
+
+    def frame_served(self, frame: bytearray, datagrams: list[tuple[int, int, int]]) -> None:
+        """``datagrams``: (offset of the datagram header in ``frame``, command, data length) of each."""
+
+
 class Segment:
     """The slaves of one EtherCAT line, in position order."""
 
@@ -82,6 +91,8 @@ class Segment:
         self._turn_b: Slave | None = None
         #: :meth:`process` left PDI work for :meth:`after_frame`
         self._after_pending = False
+        #: told of every frame served (None: nobody watches)
+        self.observer: FrameObserver | None = None
         self._link()
 
     def _link(self) -> None:
@@ -193,6 +204,8 @@ class Segment:
                     self._datagram_error(esc, cmd, exc)
         if len(frame) > ETH_HEADER_LEN:
             frame[6] |= 0x02  # the ESC marks the source MAC as locally administered on the way back
+        if self.observer is not None:
+            self.observer.frame_served(frame, parsed)
         if defer:
             self._after_pending = True
         else:

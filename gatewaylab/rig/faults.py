@@ -42,7 +42,7 @@ from gatewaylab.rig.segment import SegmentParticipant
 if TYPE_CHECKING:
     from gatewaylab.rig.runtime import Rig
 
-__all__ = ["DRIVE_FAULTS", "REQUESTS", "Faults"]
+__all__ = ["DRIVE_FAULTS", "REQUESTS", "Faults", "check_request"]
 
 
 #: CiA 402 drive faults: name -> (EMCY / 0x603F error code, error register bits).
@@ -282,6 +282,8 @@ class Faults(EcRingFaults, FaultsCore):
             for q in self.rig.participants:       # the [ethercat] wire's counters while it runs
                 if isinstance(q, SegmentParticipant) and (wire := q.wire_stats()) is not None:
                     out["wire"] = wire
+            if self.rig.scenario is not None:       # the steps of a [[scenario]], those fired so far
+                out["scenario"] = self.rig.scenario.as_json()
             return out
         return self.locked(act)
 
@@ -303,31 +305,38 @@ class Faults(EcRingFaults, FaultsCore):
     # -- the request table (control endpoint, CLI) -------------------------------------------------
     def request(self, req: Mapping[str, Any]) -> dict[str, Any]:
         """Run one control request ``{"fault": NAME, ...arguments}`` (docs/faults.md)."""
-        name = req.get("fault")
-        spec = REQUESTS.get(name) if isinstance(name, str) else None
-        if spec is None:
-            raise FaultRefused(f"unknown fault {name!r} (faults: {', '.join(REQUESTS)})")
-        method, params = spec
-        kwargs: dict[str, Any] = {}
-        for key, value in req.items():
-            if key == "fault":
-                continue
-            if key not in params:
-                raise FaultRefused(f"{name}: unknown argument {key!r} (arguments: {', '.join(params)})")
-            want, _required = params[key]
-            if not _accepts(want, value):
-                raise FaultRefused(f"{name}: {key} must be {want}, got {value!r}")
-            kwargs[_PY_NAMES.get(key, key)] = value
-        if "node" in params:
-            if "node" in req and "device" in req:
-                raise FaultRefused(f"{name}: give device or node, not both")
-            if "node" not in req and "device" not in req:
-                raise FaultRefused(f"{name}: missing device (a name) or node (a node-ID, with bus)")
-        missing = [k for k, (_, required) in params.items() if required and k not in req]
-        if missing:
-            raise FaultRefused(f"{name}: missing {', '.join(missing)}")
+        method, kwargs = check_request(req)
         result: dict[str, Any] = getattr(self, method)(**kwargs)
         return result
+
+
+def check_request(req: Mapping[str, Any]) -> tuple[str, dict[str, Any]]:
+    """Check a control request against :data:`REQUESTS` without running it (a scenario checks its steps
+    when it loads): the :class:`Faults` method and its keyword arguments, else :class:`FaultRefused`."""
+    name = req.get("fault")
+    spec = REQUESTS.get(name) if isinstance(name, str) else None
+    if spec is None:
+        raise FaultRefused(f"unknown fault {name!r} (faults: {', '.join(REQUESTS)})")
+    method, params = spec
+    kwargs: dict[str, Any] = {}
+    for key, value in req.items():
+        if key == "fault":
+            continue
+        if key not in params:
+            raise FaultRefused(f"{name}: unknown argument {key!r} (arguments: {', '.join(params)})")
+        want, _required = params[key]
+        if not _accepts(want, value):
+            raise FaultRefused(f"{name}: {key} must be {want}, got {value!r}")
+        kwargs[_PY_NAMES.get(key, key)] = value
+    if "node" in params:
+        if "node" in req and "device" in req:
+            raise FaultRefused(f"{name}: give device or node, not both")
+        if "node" not in req and "device" not in req:
+            raise FaultRefused(f"{name}: missing device (a name) or node (a node-ID, with bus)")
+    missing = [k for k, (_, required) in params.items() if required and k not in req]
+    if missing:
+        raise FaultRefused(f"{name}: missing {', '.join(missing)}")
+    return method, kwargs
 
 
 def _positive(what: str, value: float) -> None:

@@ -29,14 +29,12 @@ from typing import Any
 
 import pytest
 from soem_redundancy_kit import build_red_test
-from wire_kit import net_capable, veth_namespace, veth_namespace_two
+from wire_kit import lost_allowed, net_capable, veth_namespace, veth_namespace_two
 
 from gatewaylab.rig.process import RigProcess
 
 DRIVER = Path(__file__).with_name("ethercat_ring_driver.py")
 CYCLES = 300
-#: lost cycles tolerated per phase (the helpers' rule: 2 %)
-LOST_OK = CYCLES * 2 // 100
 
 RIG = """
 [[device]]
@@ -146,7 +144,8 @@ def running(workdir: Path, redundant: bool, extra: str = "") -> Iterator[tuple[R
 
 def _only_full(event: dict[str, Any], expected: int) -> None:
     assert set(event["wkc"]) <= {str(expected)}, f"wrong working counters in {event['name']}: {event['wkc']}"
-    assert event["lost"] <= LOST_OK, f"{event['lost']} of {event['cycles']} cycles lost in {event['name']}"
+    lost, cycles = event["lost"], event["cycles"]
+    assert lost <= lost_allowed(cycles), f"{lost} of {cycles} cycles lost in {event['name']}"
 
 
 def test_redundant_master_keeps_every_working_counter_across_a_ring_break(tmp_path: Path) -> None:
@@ -176,7 +175,7 @@ def test_redundant_master_keeps_every_working_counter_across_a_ring_break(tmp_pa
         print(f"every cycle since OP: {every}")
         total = sum(every.values())
         assert set(every) <= {str(expected), "-1"}, f"wrong working counters across break and heal: {every}"
-        assert every.get("-1", 0) <= total * 2 // 100, f"{every.get('-1')} of {total} cycles lost"
+        assert every.get("-1", 0) <= lost_allowed(total), f"{every.get('-1')} of {total} cycles lost"
 
 
 def test_open_port_on_a_line_hides_the_slaves_behind_it_until_it_closes(tmp_path: Path) -> None:
@@ -292,5 +291,5 @@ def test_soem_red_test_keeps_its_working_counter_across_a_ring_break(tmp_path: P
         lost = samples.count(-1)
         print(f"red_test: {len(samples)} samples, expected working counter {expected}, lost {lost}")
         assert [v for v in samples if v not in (expected, -1)] == [], samples
-        assert lost <= len(samples) * 2 // 100, f"{lost} of {len(samples)} samples lost"
+        assert lost <= lost_allowed(len(samples)), f"{lost} of {len(samples)} samples lost"
         assert not re.search(r"ERROR :|slave \d+ lost|SAFE_OP", red.text), red.text[-3000:]
