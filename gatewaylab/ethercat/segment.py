@@ -11,6 +11,10 @@ that datagram is left as it is for that slave (no working counter increment), th
 few, then every 1000th), and the frame's other datagrams and slaves are served as usual; a real
 ESC processes every datagram whatever its firmware does.
 
+Ports and cables (ethercat/ring.py): which slaves a frame reaches follows the links of their ports -- a line,
+or a ring whose last slave is cabled to the master's secondary interface (:meth:`Segment.process_secondary`
+serves frames from there), open ports (:meth:`Segment.cut`), hot-connect groups (:meth:`Segment.detach`).
+
 The frame path is the ESCs' work only where the applications allow it: outputs of an application with
 ``SlaveApplication.outputs_in_frame`` False (the drives) reach it after the frame, in
 :meth:`Segment.after_frame`, which a transport calls once it has sent the frame back (the wire thread)
@@ -159,7 +163,8 @@ class Segment:
 
     def unplug(self, position: int) -> None:
         """Pull a slave out of the line: it and every slave behind it stop answering (the working
-        counter of every datagram for them drops)."""
+        counter of every datagram for them drops); on a redundant ring the slaves behind it answer through
+        the secondary interface (ring.py)."""
         if not 0 <= position < len(self.slaves):
             raise SlavePositionError(f"no slave at position {position}")
         self.unplugged.add(position)
