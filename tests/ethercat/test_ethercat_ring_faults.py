@@ -23,6 +23,7 @@ from gatewaylab.hosts.ethercat.master import Master
 from gatewaylab.rig.config import parse_rig
 from gatewaylab.rig.faults_core import FaultRefused
 from gatewaylab.rig.runtime import Rig
+from gatewaylab.rig.segment import hot_connect_groups
 
 
 def _rig(**ethercat: Any) -> dict[str, Any]:
@@ -146,3 +147,12 @@ def test_a_hot_connect_head_must_be_a_device_of_the_segment(tmp_path: Any) -> No
     with pytest.raises(ConfigError, match=r"hot_connect: 'io-x' is not an EtherCAT device of this rig \(devices: "
                                           r"io-a, io-b, io-c, io-d\)"):
         Rig(parse_rig({"clock": "simulated", **_rig(hot_connect="io-b, io-x")}, "rig.toml"))
+
+
+def test_hot_connect_groups_follow_the_line_order_of_their_heads() -> None:
+    """docs/rig.md `hot_connect`: a head and the devices after it up to the next head form a group, whatever order
+    the heads are written in; devices before the first head belong to no group."""
+    names = ["io-a", "io-b", "io-c", "io-d", "io-e"]
+    assert hot_connect_groups("io-d, io-b", names) == {"io-b": [1, 2], "io-d": [3, 4]}
+    assert hot_connect_groups(" io-e ,", names) == {"io-e": [4]}
+    assert hot_connect_groups(None, names) == {}
