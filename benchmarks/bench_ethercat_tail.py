@@ -178,7 +178,7 @@ def kickcat_tries(iface: str, tries: int) -> list[dict[str, Any]]:
     import kickcat
 
     # SCHED_FIFO 3, as KickCAT's README runs a master (`chrt -f 80`): its Socket::read sleeps between polls
-    # and gives up once a sleep overran the deadline without a last look (docs/decisions.md, Issue 31)
+    # and gives up once a sleep overran the deadline without a last look (docs/decisions.md)
     with contextlib.suppress(OSError):
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(3))
     out = []

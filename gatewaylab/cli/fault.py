@@ -14,7 +14,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from gatewaylab.cli import fault_ec_ring
+from gatewaylab.cli import fault_ec_dc, fault_ec_frames, fault_ec_ring
 from gatewaylab.common.ask import ask, endpoint_address
 from gatewaylab.common.endpoint import EndpointKind, parse_endpoint
 from gatewaylab.common.errors import ConfigError, GatewaylabError
@@ -48,8 +48,11 @@ examples:
 
 #: the verbs of each family of EtherCAT faults: ``add_verbs(fault)`` gets the factory of a verb's parser
 #: (``fault(name, help, example) -> ArgumentParser``) and sets ``request=`` on each verb it adds
-FAULT_FAMILIES: tuple[Callable[[Callable[[str, str, str], argparse.ArgumentParser]], None], ...] = ()
-FAULT_FAMILIES += (fault_ec_ring.add_verbs,)
+FAULT_FAMILIES: tuple[Callable[[Callable[[str, str, str], argparse.ArgumentParser]], None], ...] = (
+    fault_ec_frames.add_verbs,
+    fault_ec_dc.add_verbs,
+    fault_ec_ring.add_verbs,
+)
 
 #: answer fields printed in hex (the --json output keeps JSON numbers)
 _HEX = ("can_id", "error_code", "al_status")

@@ -231,6 +231,7 @@ class Esc:
         old = self.al_state
         self.al.stop_watchdog()
         self.clocks.stop()
+        self.clocks.local.reset_loop()
         self.mem[:] = bytes(len(self.mem))
         self._step = _IDLE
         self._reset_registers()

@@ -33,6 +33,9 @@ from typing import Final, Protocol
 from gatewaylab.ethercat.datagram import ETH_HEADER_LEN, ETHERTYPE_ETHERCAT, LEN_MASK, MORE
 from gatewaylab.ethercat.errors import SlavePositionError
 from gatewaylab.ethercat.esc import REG_RX_ERROR, Esc
+from gatewaylab.ethercat.esc_dc import place_line
+from gatewaylab.ethercat.esc_dc_clock import FrameTime
+from gatewaylab.ethercat.line_faults import LineFaults
 from gatewaylab.ethercat.ring import LOST, PORT_A, routes
 from gatewaylab.ethercat.slave import Slave
 
@@ -80,6 +83,9 @@ class Segment:
         self.stats = SegmentStats()
         #: positions of the slaves unplugged from the line (fault injection)
         self.unplugged: set[int] = set()
+        #: faults of the line to the master (ethercat/line_faults.py), put here when the rig arms the first
+        #: one; transports serve frames through it while it is ``engaged``
+        self.line_faults: LineFaults | None = None
         #: the master's secondary interface is cabled to the last slave's port 1 (cable redundancy, ring.py)
         self.redundant = False
         #: open gaps (cables without a link, ring.py numbering): gap -> how many faults hold it open
@@ -97,6 +103,9 @@ class Segment:
         self._after_pending = False
         #: told of every frame served (None: nobody watches)
         self.observer: FrameObserver | None = None
+
+        #: DC: when the frame being processed left the master (one time for the whole frame, as on a wire)
+        self.frame_time = FrameTime()
         self._link()
 
     def _link(self) -> None:
@@ -112,6 +121,10 @@ class Segment:
         self._turn_b = self.slaves[r.b_turn] if r.b_turn >= 0 else None
         for p, slave in enumerate(self.slaves):
             slave.esc.set_downstream(r.downstream[p], r.links[p])
+        # DC: when a frame reaches each slave of either route
+        place_line([s.esc.clocks for s in self._reached], self.frame_time)
+        if self._reached_b:
+            place_line([s.esc.clocks for s in self._reached_b], self.frame_time)
 
     @property
     def reached(self) -> list[Slave]:
@@ -198,6 +211,8 @@ class Segment:
             return False
         self.stats.frames += 1
         self.stats.datagrams += len(parsed)
+        frame_time = self.frame_time
+        frame_time.t = -1.0               # stamped by the frame's first DC access
         for slave in self._reached:
             esc = slave.esc
             for pos, cmd, dlen in parsed:
@@ -207,6 +222,7 @@ class Segment:
                         slave.serve_events(events)
                 except Exception as exc:  # isolation boundary: one datagram never costs the frame
                     self._datagram_error(esc, cmd, exc)
+        frame_time.t = -1.0
         if len(frame) > ETH_HEADER_LEN:
             frame[6] |= 0x02  # the ESC marks the source MAC as locally administered on the way back
         if self.observer is not None:
@@ -254,6 +270,8 @@ class Segment:
             frame[first] |= _CIRCULATING
         self.stats.frames += 1
         self.stats.datagrams += len(parsed)
+        frame_time = self.frame_time
+        frame_time.t = -1.0               # stamped by the frame's first DC access, as in process
         for slave in self._reached_b:
             esc = slave.esc
             for pos, cmd, dlen in parsed:
@@ -263,6 +281,7 @@ class Segment:
                         slave.serve_events(events)
                 except Exception as exc:  # isolation boundary, as in process
                     self._datagram_error(esc, cmd, exc)
+        frame_time.t = -1.0
         if len(frame) > ETH_HEADER_LEN:
             frame[6] |= 0x02
         if defer:

@@ -332,6 +332,34 @@ class WireTransport:
         except BlockingIOError:
             return 1, sock_b.recvmsg_into([buf], ANCILLARY_BYTES)
 
+    def _send(self, sock: socket.socket, frame: bytes | bytearray) -> None:
+        """Send one reply (counted, captured); a failed send is kept in ``errors``."""
+        try:
+            sock.send(frame)
+        except OSError as exc:
+            if len(self.errors) < MAX_ERRORS_KEPT:  # a storm must not grow the list without end
+                self.errors.append(str(exc))
+        else:
+            self.frames_out += 1
+            if self.pcap is not None:
+                self.pcap.write(time.time(), frame)
+
+    def _send_held(self, sock: socket.socket, lock: Any) -> float | None:
+        """Send the replies a line fault held back whose time has come (a fault's deliberate delay is not
+        a late frame: ``max_residence_ms`` does not apply to it); seconds until the next one, or None."""
+        faults = self.segment.line_faults
+        if faults is None or not self._acquire(lock):
+            return None
+        try:
+            now = time.monotonic()
+            replies = faults.due(now)
+            due = faults.next_due()
+        finally:
+            lock.release()
+        for reply in replies:
+            self._send(sock, reply)
+        return None if due is None else max(0.0, due - now)
+
     def _run(self) -> None:
         self._schedule()
         sock, wake = self._sock, self._wake_r
@@ -388,6 +416,11 @@ class WireTransport:
                             DRIVE_MAX_WAIT_S, max(0.0, due - clock.now()))
                     else:
                         timeout = next_clock - now
+                faults = segment.line_faults
+                if faults is not None and faults.held:     # replies a line fault holds back, when due
+                    held_in = self._send_held(sock, lock)
+                    if held_in is not None:
+                        timeout = held_in if timeout is None else min(timeout, held_in)
                 if busy or now < spin_until:
                     continue
                 if report_in is not None:   # merged into a report due later: wake up for it
@@ -426,9 +459,14 @@ class WireTransport:
                         late.drop(t_ns - received)
                         continue
                     if port == 0:
-                        ok = segment.process(frame, defer=True)
+                        faults = segment.line_faults
+                        if faults is not None and faults.engaged:   # line faults armed (ethercat/line_faults.py)
+                            ok = faults.serve(segment, frame, time.monotonic(), defer=True)
+                        else:
+                            ok = segment.process(frame, defer=True)
                         out = segment.exit_a if sock_b is not None else 0
-                    else:
+                    else:   # the secondary interface: the line faults are those of the primary one
+                        faults = None
                         out = segment.process_secondary(frame, defer=True)
                         ok = out >= 0
                 finally:
@@ -437,15 +475,9 @@ class WireTransport:
                     continue
                 if late.pending:
                     self._report_late(now_ns())
-                try:
-                    (sock if out == 0 or sock_b is None else sock_b).send(frame)
-                except OSError as exc:
-                    if len(self.errors) < MAX_ERRORS_KEPT:  # a storm must not grow the list without end
-                        self.errors.append(str(exc))
-                else:
-                    self.frames_out += 1
-                    if pcap is not None:
-                        pcap.write(time.time(), frame)
+                self._send(sock if out == 0 or sock_b is None else sock_b, frame)
+                if faults is not None and faults.held:
+                    self._send_held(sock, lock)
                 # the applications' work (outputs to the drives) once the frame is on its way back
                 if not self._acquire(lock):
                     return

@@ -36,6 +36,8 @@ from gatewaylab.plugin.capabilities import (
     node_of,
 )
 from gatewaylab.rig.faults_core import FaultRefused, FaultsCore, check_seconds
+from gatewaylab.rig.faults_ec_dc import EC_DC_REQUESTS, EcDcFaults
+from gatewaylab.rig.faults_ec_frames import EC_FRAMES_REQUESTS, EcFramesFaults
 from gatewaylab.rig.faults_ec_ring import EC_RING_REQUESTS, EcRingFaults
 from gatewaylab.rig.segment import SegmentParticipant
 
@@ -52,7 +54,7 @@ DRIVE_FAULTS: dict[str, tuple[int, int]] = {
 }
 
 
-class Faults(EcRingFaults, FaultsCore):
+class Faults(EcFramesFaults, EcDcFaults, EcRingFaults, FaultsCore):
     """The faults of one rig (``rig.faults``); each call returns what it did as a dict. The EtherCAT
     families come from their own modules (``faults_ec_*.py``, each a :class:`FaultsCore` mixin)."""
 
@@ -360,6 +362,8 @@ def _accepts(want: str, value: object) -> bool:
         return isinstance(value, (int, float)) and not isinstance(value, bool)
     if want == "string":
         return isinstance(value, str)
+    if want == "bool":
+        return isinstance(value, bool)
     return (isinstance(value, int) and not isinstance(value, bool)) or isinstance(value, str)  # "device"
 
 
@@ -391,4 +395,6 @@ REQUESTS: dict[str, tuple[str, dict[str, tuple[str, bool]]]] = {
     "ethercat-states": ("ethercat_states", {}),
     "can-states": ("can_states", {}),
 }
+REQUESTS.update(EC_DC_REQUESTS)
+REQUESTS.update(EC_FRAMES_REQUESTS)
 REQUESTS.update(EC_RING_REQUESTS)

@@ -10,6 +10,8 @@ Rig file::
     max_residence_ms = 2.0 # optional: frames older than this are dropped, never answered late (0: no limit)
     realtime = true        # optional: SCHED_FIFO for the wire thread and the rig's loop (root or CAP_SYS_NICE)
     switch_interval_us = 200  # the interpreter's thread switch interval while the wire runs (0: leave it)
+    cable_m = 1.0          # optional: length of every cable (DC propagation delays, about 5 ns per metre)
+    cables_m = "io2=20"    # optional: other lengths of the cables into some devices (NAME=METRES ...)
     redundant = "gl-ecat2" # optional: cable redundancy, the end cabled to the last slave's port 1 (a ring)
     hot_connect = "io2, io4"  # optional: heads of hot-connect groups (a head and the devices after it, up to the
                               # next head, are unplugged and plugged together: ec-hot-unplug / ec-hot-plug)
@@ -28,6 +30,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from gatewaylab.common.errors import ConfigError
+from gatewaylab.ethercat.esc_dc_clock import DEFAULT_CABLE_M
 from gatewaylab.ethercat.residence import DEFAULT_MAX_RESIDENCE_MS
 from gatewaylab.ethercat.segment import Segment
 from gatewaylab.ethercat.wire import REALTIME_PRIORITY, WireTransport, make_ordinary, make_realtime
@@ -67,6 +70,9 @@ SEGMENT_KEYS: dict[str, Key] = {
                                      "one log line when not allowed)"),
     "switch_interval_us": Key(float, SWITCH_INTERVAL_US, min=0.0, max=5000.0,
                               help="the interpreter's thread switch interval while the wire runs; 0 leaves it"),
+    "cable_m": Key(float, DEFAULT_CABLE_M, min=0.0, max=100.0,
+                   help="length of every cable in metres (DC propagation delays: about 5 ns per metre)"),
+    "cables_m": Key(str, help='lengths of the cables into some devices, e.g. cables_m = "io2=20 io3=0.5"'),
     "redundant": Key(str, help='cable redundancy: the second interface, cabled to the last slave\'s port 1, e.g. '
                                'redundant = "gl-ecat2"'),
     "hot_connect": Key(str, help='the heads of hot-connect groups, comma-separated device names, e.g. '
@@ -84,6 +90,9 @@ class SegmentParticipant:
         self.interface: str = cfg["interface"]
         self.rig = rig
         self.devices = list(devices)
+        cables = _cables(cfg["cables_m"], [d.name for d in self.devices])
+        for d in self.devices:
+            d.slave.esc.clocks.cable_m = cables.get(d.name, float(cfg["cable_m"]))
         self.segment = Segment([d.slave for d in self.devices])
         #: cable redundancy: the interface cabled to the last slave's port 1, or None (a line)
         self.redundant: str | None = cfg["redundant"]
@@ -163,6 +172,24 @@ class SegmentParticipant:
         return {"ethercat": {"interface": self.interface, "redundant": self.redundant, "slaves": [
             {"name": s.name, "position": i, "vendor_id": s.desc.vendor_id, "product_code": s.desc.product_code}
             for i, s in enumerate(self.segment.slaves)]}}
+
+
+def _cables(text: str | None, names: list[str]) -> dict[str, float]:
+    """``cables_m``: "NAME=METRES ..." (spaces or commas between) -> {device name: metres}."""
+    out: dict[str, float] = {}
+    for item in (text or "").replace(",", " ").split():
+        name, eq, value = item.partition("=")
+        try:
+            metres = float(value)
+        except ValueError:
+            metres = -1.0
+        if not eq or not 0.0 <= metres <= 100.0:
+            raise ConfigError(f"[ethercat]: cables_m item {item!r} is not NAME=METRES (0..100)")
+        if name not in names:
+            raise ConfigError(f"[ethercat]: cables_m names {name!r}, not an EtherCAT device of this rig "
+                              f"({', '.join(names)})")
+        out[name] = metres
+    return out
 
 
 def hot_connect_groups(heads: str | None, names: list[str]) -> dict[str, list[int]]:
