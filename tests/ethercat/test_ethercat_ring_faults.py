@@ -156,3 +156,22 @@ def test_hot_connect_groups_follow_the_line_order_of_their_heads() -> None:
     assert hot_connect_groups("io-d, io-b", names) == {"io-b": [1, 2], "io-d": [3, 4]}
     assert hot_connect_groups(" io-e ,", names) == {"io-e": [4]}
     assert hot_connect_groups(None, names) == {}
+
+
+def test_a_scenario_breaks_and_heals_the_ring(tmp_path: Any) -> None:
+    """docs/faults.md "Scenarios": any verb as a step -- a redundant rig's ring broken after io-b 2 ms after the
+    start and, by the step's ``end_after``, mended 3 ms later (ending the step undoes its fault, as ec-clear)."""
+    path = tmp_path / "rig.toml"
+    path.write_text('clock = "simulated"\n' + "".join(
+        f'[[device]]\nkind = "ethercat_io"\nname = "io-{c}"\nserial = {10 + i}\n' for i, c in enumerate("abcd"))
+        + '[ethercat]\ninterface = "gl-none"\nredundant = "gl-none2"\n'
+        + '[[scenario]]\nat = 0.002\nfault = "ec-ring-break"\nafter_device = "io-b"\nend_after = 0.003\n')
+    with Rig.from_file(path) as rig:
+        rig.start()
+        segment = next(p for p in rig.participants if p.name == "ethercat").segment  # type: ignore[attr-defined]
+        rig.clock.advance(0.003)
+        assert [s.name for s in segment.reached_secondary] == ["io-c", "io-d"] and segment.cuts == {2: 1}
+        rig.clock.advance(0.005)
+        assert segment.reached_secondary == [] and segment.cuts == {}
+        fired = rig.faults.ethercat_states()["scenario"]["fired"]
+    assert [(r["fault"], r["answer"]["secondary"]) for r in fired] == [("ec-ring-break", ["io-c", "io-d"])]
