@@ -14,7 +14,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from gatewaylab.cli import fault_ec_dc, fault_ec_frames, fault_ec_slave
+from gatewaylab.cli import fault_ec_dc, fault_ec_frames, fault_ec_ring, fault_ec_slave
 from gatewaylab.common.ask import ask, endpoint_address
 from gatewaylab.common.endpoint import EndpointKind, parse_endpoint
 from gatewaylab.common.errors import ConfigError, GatewaylabError
@@ -52,6 +52,7 @@ FAULT_FAMILIES: tuple[Callable[[Callable[[str, str, str], argparse.ArgumentParse
     fault_ec_frames.add_verbs,
     fault_ec_dc.add_verbs,
     fault_ec_slave.add_verbs,
+    fault_ec_ring.add_verbs,
 )
 
 #: answer fields printed in hex (the --json output keeps JSON numbers)

@@ -219,10 +219,11 @@ class Esc:
         self.memory.update_dl_status(self.clocks.downstream)
 
     # ------------------------------------------------------------------ line and power
-    def set_downstream(self, count: int) -> None:
-        """How many slaves follow this one in the line (sets DL status ports and DC delays)."""
+    def set_downstream(self, count: int, links: int = -1) -> None:
+        """How many slaves follow this one in the line (DC delays) and, when given, which ports have a link
+        (bit p: port p; DL status 0x0110, kept across power cycles; -1: port 0, and port 1 when slaves follow)."""
         self.clocks.downstream = count
-        self.memory.update_dl_status(count)
+        self.memory.update_dl_status(count, links)
 
     def power_cycle(self) -> None:
         """Power-on reset (a device restarting after a firmware update): registers and process RAM

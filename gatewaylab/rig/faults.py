@@ -38,6 +38,7 @@ from gatewaylab.plugin.capabilities import (
 from gatewaylab.rig.faults_core import FaultRefused, FaultsCore, check_seconds
 from gatewaylab.rig.faults_ec_dc import EC_DC_REQUESTS, EcDcFaults
 from gatewaylab.rig.faults_ec_frames import EC_FRAMES_REQUESTS, EcFramesFaults
+from gatewaylab.rig.faults_ec_ring import EC_RING_REQUESTS, EcRingFaults
 from gatewaylab.rig.faults_ec_slave import EC_SLAVE_REQUESTS, EcSlaveFaults
 from gatewaylab.rig.segment import SegmentParticipant
 
@@ -54,7 +55,7 @@ DRIVE_FAULTS: dict[str, tuple[int, int]] = {
 }
 
 
-class Faults(EcFramesFaults, EcSlaveFaults, EcDcFaults, FaultsCore):
+class Faults(EcFramesFaults, EcSlaveFaults, EcDcFaults, EcRingFaults, FaultsCore):
     """The faults of one rig (``rig.faults``); each call returns what it did as a dict. The EtherCAT
     families come from their own modules (``faults_ec_*.py``, each a :class:`FaultsCore` mixin)."""
 
@@ -226,8 +227,9 @@ class Faults(EcFramesFaults, EcSlaveFaults, EcDcFaults, FaultsCore):
         def act() -> dict[str, Any]:
             segment, position = self.ethercat_position(device)
             segment.unplug(position)
+            reached = {id(s) for s in segment.reached} | {id(s) for s in segment.reached_secondary}
             return {"fault": "ethercat-unplug", "device": device, "position": position,
-                    "unreachable": [s.name for s in segment.slaves[position:]]}
+                    "unreachable": [s.name for s in segment.slaves if id(s) not in reached]}
         return self.locked(act)
 
     def ethercat_replug(self, device: str) -> dict[str, Any]:
@@ -397,3 +399,4 @@ REQUESTS: dict[str, tuple[str, dict[str, tuple[str, bool]]]] = {
 REQUESTS.update(EC_DC_REQUESTS)
 REQUESTS.update(EC_FRAMES_REQUESTS)
 REQUESTS.update(EC_SLAVE_REQUESTS)
+REQUESTS.update(EC_RING_REQUESTS)

@@ -12,6 +12,9 @@ Rig file::
     switch_interval_us = 200  # the interpreter's thread switch interval while the wire runs (0: leave it)
     cable_m = 1.0          # optional: length of every cable (DC propagation delays, about 5 ns per metre)
     cables_m = "io2=20"    # optional: other lengths of the cables into some devices (NAME=METRES ...)
+    redundant = "gl-ecat2" # optional: cable redundancy, the end cabled to the last slave's port 1 (a ring)
+    hot_connect = "io2, io4"  # optional: heads of hot-connect groups (a head and the devices after it, up to the
+                              # next head, are unplugged and plugged together: ec-hot-unplug / ec-hot-plug)
 
 Every device participant with ``is_ethercat = True`` and a ``slave`` attribute (an
 :class:`~gatewaylab.ethercat.slave.Slave`) joins the segment, in rig-file order (position 0 first).
@@ -42,6 +45,7 @@ __all__ = [
     "SWITCH_INTERVAL_US",
     "SegmentParticipant",
     "create_segment",
+    "hot_connect_groups",
 ]
 
 
@@ -69,6 +73,10 @@ SEGMENT_KEYS: dict[str, Key] = {
     "cable_m": Key(float, DEFAULT_CABLE_M, min=0.0, max=100.0,
                    help="length of every cable in metres (DC propagation delays: about 5 ns per metre)"),
     "cables_m": Key(str, help='lengths of the cables into some devices, e.g. cables_m = "io2=20 io3=0.5"'),
+    "redundant": Key(str, help='cable redundancy: the second interface, cabled to the last slave\'s port 1, e.g. '
+                               'redundant = "gl-ecat2"'),
+    "hot_connect": Key(str, help='the heads of hot-connect groups, comma-separated device names, e.g. '
+                                 'hot_connect = "io2, io4"'),
 }
 
 
@@ -86,6 +94,13 @@ class SegmentParticipant:
         for d in self.devices:
             d.slave.esc.clocks.cable_m = cables.get(d.name, float(cfg["cable_m"]))
         self.segment = Segment([d.slave for d in self.devices])
+        #: cable redundancy: the interface cabled to the last slave's port 1, or None (a line)
+        self.redundant: str | None = cfg["redundant"]
+        if self.redundant is not None:
+            self.segment.set_redundant(True)
+        #: hot-connect groups: the head's name -> the positions of the group (the head and the devices after it,
+        #: up to the next head)
+        self.hot_groups: dict[str, list[int]] = hot_connect_groups(cfg["hot_connect"], [d.name for d in self.devices])
         self.pcap_path: str | None = cfg["pcap"]
         self.cpu: int | None = cfg["cpu"]
         self.busy_poll: bool = cfg["busy_poll"]
@@ -105,7 +120,7 @@ class SegmentParticipant:
             self.pcap = PcapWriter(str(self.pcap_path))
         self.wire = WireTransport(self.segment, self.interface, self.rig.clock, busy_poll=self.busy_poll,
                                   pcap=self.pcap, cpu=self.cpu, max_residence_ms=self.max_residence_ms,
-                                  realtime=self.realtime)
+                                  realtime=self.realtime, redundant=self.redundant)
         if self.switch_interval_s > 0:
             # the wire thread waits for the interpreter lock while the rig's loop runs Python (CAN buses,
             # drives): at most one switch interval (5 ms by default) each time
@@ -154,7 +169,7 @@ class SegmentParticipant:
 
     def ready_info(self) -> dict[str, Any]:
         """The interface and the slaves in position order, for the --ready-file."""
-        return {"ethercat": {"interface": self.interface, "slaves": [
+        return {"ethercat": {"interface": self.interface, "redundant": self.redundant, "slaves": [
             {"name": s.name, "position": i, "vendor_id": s.desc.vendor_id, "product_code": s.desc.product_code}
             for i, s in enumerate(self.segment.slaves)]}}
 
@@ -175,6 +190,21 @@ def _cables(text: str | None, names: list[str]) -> dict[str, float]:
                               f"({', '.join(names)})")
         out[name] = metres
     return out
+
+
+def hot_connect_groups(heads: str | None, names: list[str]) -> dict[str, list[int]]:
+    """The hot-connect groups of ``[ethercat] hot_connect`` (comma-separated heads) over the devices ``names`` in
+    position order: head -> positions (the head and the devices after it up to the next head)."""
+    if not heads:
+        return {}
+    wanted = [h.strip() for h in heads.split(",") if h.strip()]
+    for head in wanted:
+        if head not in names:
+            raise ConfigError(f"[ethercat] hot_connect: {head!r} is not an EtherCAT device of this rig "
+                              f"(devices: {', '.join(names)})")
+    starts = sorted(names.index(h) for h in set(wanted))
+    ends = [*starts[1:], len(names)]
+    return {names[a]: list(range(a, b)) for a, b in zip(starts, ends, strict=True)}
 
 
 def create_segment(rig: RigContext, cfg: dict[str, Any],

@@ -65,6 +65,7 @@ class _Flaky:
     def __init__(self, segment: Segment, fail: int) -> None:
         self.segment = segment
         self.fail = fail
+        self.line_faults = None         # what the wire reads of a segment besides process/after_frame
 
     def process(self, frame: bytearray, *, defer: bool = False) -> bool:
         if self.fail:
