@@ -139,7 +139,8 @@ def soem_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any
             cyc = subprocess.run(["ip", "netns", "exec", ns, str(programs["simple_test"]), mst],
                                  capture_output=True, text=True, timeout=600, check=False)
             assert rig.proc.poll() is None, rig.log_text()[-2000:]
-    yield {"slaveinfo": info, "simple_test": cyc, "io_esi": work / "ethercat_io.xml"}
+            wire = [line for line in rig.log_text().splitlines() if "ethercat-wire" in line]
+    yield {"slaveinfo": info, "simple_test": cyc, "io_esi": work / "ethercat_io.xml", "wire": wire}
 
 
 def test_slaveinfo_prints_each_esis_pdo_map(soem_run: dict[str, Any]) -> None:
@@ -184,7 +185,8 @@ def test_simple_test_cycles_at_the_expected_working_counter(soem_run: dict[str, 
     bad_inputs = [c for c in cycles if bytes.fromhex(c[3]) != inputs]
     print(f"expected WKC {expected}; cycles printed {len(cycles)}, not printed (lost) {lost}, wrong WKC "
           f"{len(wrong)}, wrong inputs {len(bad_inputs)}; slave warnings: "
-          f"{[ln for ln in out.splitlines() if 'slave' in ln and ('ERROR' in ln or 'WARNING' in ln)][:8]}")
+          f"{[ln for ln in out.splitlines() if 'slave' in ln and ('ERROR' in ln or 'WARNING' in ln)][:8]}; the rig's "
+          f"wire (frames it dropped late: it was not scheduled): {soem_run['wire'][-5:]}")
     assert expected == 2 * 2 + 3        # EL2008 and ethercat_io write (2 each); EL3102, EL1008, io read
     assert not wrong
     assert not bad_inputs, bad_inputs[:3]
