@@ -12,19 +12,17 @@ cycle's inputs echo the previous cycle's outputs), slave 2 an EL1008, slave 3 th
 
 from __future__ import annotations
 
-import contextlib
 import json
-import os
 import sys
 import time
 from typing import Any
 
 import kickcat
+from kickcat_kit import run_as_kickcat_readme_says
 
 
 def main(iface: str, cycles: int) -> dict[str, Any]:
-    with contextlib.suppress(OSError):
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(3))
+    run_as_kickcat_readme_says()
     link = kickcat.create_link(iface, "")
     bus = kickcat.Bus(link)
     bus.init(0.1)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import os
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -21,6 +22,7 @@ pytestmark = [pytest.mark.net, pytest.mark.slow]
 
 DATA = Path(__file__).with_name("data")
 DRIVER = Path(__file__).with_name("esi_kickcat_driver.py")
+KITS = Path(__file__).resolve().parents[2] / "ethercat"      # kickcat_kit.py, for the driver
 CYCLES = 2000
 RIG = """
 clock = "realtime"
@@ -66,8 +68,9 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
         path = work / "rig.toml"
         path.write_text(RIG.format(data=DATA, echo=echo, interface=emu))
         with RigProcess(path, workdir=work, timeout=60) as rig:
+            env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(KITS), os.environ.get("PYTHONPATH")]))}
             done = subprocess.run(["ip", "netns", "exec", ns, sys.executable, str(DRIVER), mst, str(CYCLES)],
-                                  capture_output=True, text=True, timeout=600, check=False)
+                                  capture_output=True, text=True, timeout=600, check=False, env=env)
             assert rig.proc.poll() is None, rig.log_text()[-2000:]
     assert done.returncode == 0, done.stderr[-3000:]
     yield json.loads(done.stdout.strip().splitlines()[-1])
