@@ -34,7 +34,12 @@ from gatewaylab.ethercat.esc_registers import (
 )
 from gatewaylab.ethercat.slave_faults import AlRefusal
 
-__all__ = ["AlFirmware", "AlStateMachine"]
+__all__ = ["AL_PENDING", "AlFirmware", "AlStateMachine"]
+
+#: What :meth:`AlFirmware.check_transition` returns for a transition the firmware completes later (a slave
+#: stack's pending transition): AL status keeps the present state, without error, until the firmware calls
+#: :meth:`AlStateMachine.complete` or :meth:`AlStateMachine.refuse`.
+AL_PENDING = -1
 
 
 _RANK = {AlState.INIT: 0, AlState.PREOP: 1, AlState.BOOT: 1, AlState.SAFEOP: 2, AlState.OP: 3}
@@ -122,9 +127,22 @@ class AlStateMachine:
             refusal.on_used()
             return
         code = self.firmware.check_transition(current, target)
+        if code == AL_PENDING:
+            return
         if code:
             self._refuse(current, code)
             return
+        self._enter(current, target)
+
+    def complete(self, target: AlState) -> None:
+        """The firmware completes a pending transition (see :data:`AL_PENDING`)."""
+        self._enter(self.state, target)
+
+    def refuse(self, code: int) -> None:
+        """The firmware gives up a pending transition: the present state with the error flag and ``code``."""
+        self._refuse(self.state, code)
+
+    def _enter(self, current: AlState, target: AlState) -> None:
         U16.pack_into(self.mem, REG_AL_STATUS, int(target))
         U16.pack_into(self.mem, REG_AL_STATUS_CODE, 0)
         self.memory.start_outputs()  # the master took the slave through a state change
