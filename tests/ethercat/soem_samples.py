@@ -34,10 +34,14 @@ ROOT = Path(__file__).resolve().parents[2]
 CONFORMANCE = ROOT / ".venv" / "conformance"
 #: the sdists `make conformance` and the canopen_node tests cache too
 SDISTS = CONFORMANCE / "sdist"
-#: the samples of SOEM's test/linux folder this helper knows how to build (one C file each)
+#: the samples of SOEM's test/linux folder this helper knows how to build (one C file each);
+#: ``red_test_redundant`` is red_test with the call its name and usage promise put back: as shipped it opens
+#: only its first interface (``if (ec_init_redundant(ifname, ifname2))`` is commented out above ``ec_init``)
 SAMPLES = {"slaveinfo": "slaveinfo/slaveinfo.c", "simple_test": "simple_test/simple_test.c",
-           "eepromtool": "eepromtool/eepromtool.c", "red_test": "red_test/red_test.c"}
+           "eepromtool": "eepromtool/eepromtool.c", "red_test": "red_test/red_test.c",
+           "red_test_redundant": "red_test/red_test.c"}
 _FIX = re.compile(r"(&EcatError,[^\n]*\n)(\s*&ec_DCtime,)")
+_RED = re.compile(r"//\s*(if \(ec_init_redundant\(ifname, ifname2\)\))\s*\n\s*if \(ec_init\(ifname\)\)")
 
 
 def pysoem_sdist() -> Path:
@@ -108,10 +112,15 @@ def build_soem_sample(name: str) -> Path:
                 text, n = _FIX.subn(r"\g<1>    0, 0,               // .DCtO, .DCl (pysoem's fields)\n\g<2>", text)
                 assert n == 1, f"{main}: the ecx_context initializer is not where the notes say"
                 main.write_text(text, encoding="latin-1")
+            if name == "red_test_redundant":
+                red = soem / "test" / "linux" / source
+                text, n = _RED.subn(r"\g<1>", red.read_text(encoding="latin-1"))
+                assert n == 1, f"{red}: the commented-out ec_init_redundant call is not where it was"
+                red.write_text(text, encoding="latin-1")
             cmd = [cc, "-O2", "-w", "-Isoem", "-Iosal", "-Iosal/linux", "-Ioshw/linux",
                    *sorted(str(p.relative_to(soem)) for d in ("soem", "osal/linux", "oshw/linux")
                            for p in (soem / d).glob("*.c")),
-                   f"test/linux/{source}", "-o", str(out) + ".tmp", "-lpthread", "-lrt"]
+                   f"test/linux/{source}", "-o", str(out) + ".tmp", "-lpthread", "-lrt", "-lm"]
             done = subprocess.run(cmd, cwd=soem, capture_output=True, text=True, timeout=600, check=False)
             assert done.returncode == 0, f"{name} does not build: {done.stderr[-3000:]}"
             os.replace(str(out) + ".tmp", out)

@@ -8,7 +8,7 @@ again through the secondary one to the slaves after it -- the working counter st
 a port without a link is closed (0x0400 for port 1), and on a line the slaves behind an open port vanish.
 
 Two redundant masters: pysoem's ``Master.open(IF_A, IF_B)`` (``ecx_init_redundant``), counting every cycle, and
-SOEM's own ``red_test`` sample (soem_redundancy_kit.py: as shipped in the pysoem 1.1.13 sdist it has
+SOEM's own ``red_test`` sample (soem_samples.py red_test_redundant: as shipped in the pysoem 1.1.13 sdist it has
 ``ec_init_redundant`` commented out; the kit puts it back), whose printed working counters are sampled every
 20 ms. Rule of the wire tests: a wrong working counter fails; a lost cycle (no frame within SOEM's 2 ms) is
 counted and tolerated up to 2 %.
@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from soem_redundancy_kit import build_red_test
+from soem_samples import build_soem_sample
 from wire_kit import lost_allowed, net_capable, veth_namespace, veth_namespace_two
 
 from gatewaylab.rig.process import RigProcess
@@ -273,7 +273,7 @@ def test_soem_red_test_keeps_its_working_counter_across_a_ring_break(tmp_path: P
     """SOEM's red_test (cycle 1 ms, SOEM's own check thread) on a redundant rig of 4 slaves: the working counter it
     prints is its calculated one in every sample with the ring closed, broken after io-b and healed, and its check
     thread never finds a slave out of OP or lost."""
-    program = build_red_test()
+    program = build_soem_sample("red_test_redundant")
     with rig_on_veth(tmp_path, redundant=True) as (rig, ns, mst_a, mst_b):
         red = RedTest(program, ns, mst_a, mst_b)
         try:
