@@ -7,7 +7,11 @@ path (``Segment.process``: what the wire thread does between receiving a frame a
 the work after the reply (``Segment.after_frame`` and the clock events the cycle scheduled: the drives'
 control periods). The sum is what the wire thread spends per cycle; at 1 kHz on one CPU it must stay
 well below 1000 us. Printed, never asserted. ``python -m benchmarks.bench_ethercat_cycle [N ...]``;
-``--profile N`` prints a cProfile of the pure-Python parts at N drives.
+``--profile N`` prints a cProfile of the pure-Python parts at N drives; ``--scenario N`` (also the last row of
+a plain run) the frame path with and without an armed scenario that never fires, same run; ``--armed [N ...]``
+the cost of the EtherCAT line faults on the frame path (ethercat/line_faults.py), same run, rounds interleaved:
+the frame path as before (``Segment.process``), as the wire dispatches it with no fault armed, and with a
+fault armed that never matches (``ec-lose 1 --station 0xFFFE``).
 """
 
 from __future__ import annotations
@@ -260,6 +264,87 @@ def contention(drives: int = 8, seconds: float = 3.0, rounds: int = 3) -> None:
         thread.join(1.0)
 
 
+def faults_cost(drives: int, ios: int = IO_WITH, cycles: int = CYCLES, rounds: int = ROUNDS) -> dict[str, float]:
+    """Best-of-``rounds`` CPU us of the frame path per cycle: ``plain`` (``Segment.process``), ``none`` (the wire's
+    dispatch, nothing armed), ``armed`` (an armed fault that never matches: every frame parsed and matched)."""
+    from gatewaylab.ethercat.line_faults import Kind, LineFault, LineFaults, Match
+
+    clock, segment, frame, set_cycle = build(drives, ios)
+    armed = LineFaults()
+    armed.add(LineFault(Kind.LOSE, Match(station=0xFFFE), count=1))
+    best = {"plain": float("inf"), "none": float("inf"), "armed": float("inf")}
+    i = 100
+    for _ in range(rounds):
+        for variant in best:
+            segment.line_faults = armed if variant == "armed" else None
+            total = 0.0
+            for _ in range(cycles):
+                i += 1
+                set_cycle(i)
+                buf = bytearray(frame)
+                t0 = time.thread_time()
+                if variant == "plain":
+                    segment.process(buf, defer=True)
+                else:       # wire.py's dispatch
+                    faults = segment.line_faults
+                    if faults is not None and faults.engaged:
+                        faults.serve(segment, buf, 0.0, defer=True)
+                    else:
+                        segment.process(buf, defer=True)
+                total += time.thread_time() - t0
+                segment.after_frame()
+                clock.advance(0.001)
+            best[variant] = min(best[variant], total / cycles * 1e6)
+    if armed.faults[0].details["hits"]:
+        raise RuntimeError("the armed fault matched a frame")
+    segment.line_faults = None
+    return best
+
+
+def measure_scenario(drives: int, ios: int = IO_WITH, cycles: int = CYCLES,
+                     rounds: int = ROUNDS) -> dict[str, float]:
+    """The frame path (``Segment.process``) with and without an armed scenario whose milestones never come (a
+    MilestoneWatch on the segment waiting for cycle 10**9, a slave in BOOT and an SDO to 0x5FFF: each frame is
+    counted and scanned), same segment, rounds alternating; best-of-``rounds`` CPU us per cycle each way."""
+    from gatewaylab.ethercat.esc import AlState
+    from gatewaylab.ethercat.milestones import MilestoneWatch
+
+    clock, segment, frame, set_cycle = build(drives, ios)
+
+    def never() -> None:
+        raise AssertionError("the benchmark's scenario fired")
+
+    watch = MilestoneWatch(segment)
+    watch.on_cycles(10**9, never)
+    watch.on_state(segment.slaves[-1], AlState.BOOT, never)
+    watch.on_sdo(segment.slaves[0], 0x5FFF, never)
+    best = {"plain_us": float("inf"), "armed_us": float("inf")}
+    i = 100
+    for _ in range(rounds):
+        for key in best:
+            if key == "armed_us":
+                watch.attach()
+            t_frame = 0.0
+            for _ in range(cycles):
+                i += 1
+                set_cycle(i)
+                buf = bytearray(frame)
+                t0 = time.thread_time()
+                segment.process(buf, defer=True)
+                t_frame += time.thread_time() - t0
+                segment.after_frame()
+                clock.advance(0.001)
+            watch.detach()
+            best[key] = min(best[key], t_frame / cycles * 1e6)
+    return best
+
+
+def _scenario_row(n: int) -> None:
+    r = measure_scenario(n)
+    print(f"{n:>2} drives + {IO_WITH} io: frame path {r['plain_us']:7.1f} us, with an armed scenario that never "
+          f"fires {r['armed_us']:7.1f} us ({r['armed_us'] / r['plain_us']:.2f}x)", flush=True)
+
+
 def profile(drives: int) -> None:
     import cProfile
     import pstats
@@ -283,6 +368,18 @@ def main(argv: list[str]) -> None:
     if argv[:1] == ["--contention"]:
         contention(int(argv[1]) if len(argv) > 1 else 8)
         return
+    if argv[:1] == ["--armed"]:
+        print(f"EtherCAT frame path per 1 kHz cycle with the fault machinery, in process "
+              f"({build_info.summary()[:40]}...), best of {ROUNDS} x {CYCLES} cycles each, interleaved")
+        for n in [int(a) for a in argv[1:]] or [8, 32]:
+            r = faults_cost(n)
+            print(f"{n:>2} drives + {IO_WITH} io: frame path {r['plain']:7.1f} us plain, {r['none']:7.1f} us no fault "
+                  f"armed, {r['armed']:7.1f} us a fault armed that never matches "
+                  f"({r['armed'] - r['plain']:+.1f} us)", flush=True)
+        return
+    if argv[:1] == ["--scenario"]:
+        _scenario_row(int(argv[1]) if len(argv) > 1 else 8)
+        return
     if argv[:1] == ["--profile"]:
         profile(int(argv[1]) if len(argv) > 1 else 8)
         return
@@ -293,6 +390,7 @@ def main(argv: list[str]) -> None:
         r = measure(n)
         print(f"{n:>2} drives + {IO_WITH} io: frame path {r['frame_us']:7.1f} us  after the reply "
               f"{r['after_us']:7.1f} us  total {r['total_us']:7.1f} us", flush=True)
+    _scenario_row(counts[0])
 
 
 if __name__ == "__main__":

@@ -50,6 +50,7 @@ COMPILED_MODULES: tuple[str, ...] = (
     "gatewaylab.ethercat.esc_memory",
     "gatewaylab.ethercat.esc_al",
     "gatewaylab.ethercat.esc_dc",
+    "gatewaylab.ethercat.esc_dc_clock",
     "gatewaylab.ethercat.esc_sii",
     "gatewaylab.ethercat.esc_events",
     "gatewaylab.ethercat.esc_registers",

@@ -24,8 +24,8 @@ from pathlib import Path
 from typing import Any
 
 from gatewaylab.bus.transport.unix_file import bind_unix, remove_unix
-from gatewaylab.cli.ask import ask
 from gatewaylab.cli.ec_args import EcUsage
+from gatewaylab.common.ask import ask
 from gatewaylab.common.errors import GatewaylabError
 from gatewaylab.hosts.ethercat.backend import MasterBackend
 

@@ -64,6 +64,8 @@ def cmd_esi(args: argparse.Namespace) -> int:
     if not out.parent.is_dir():
         raise ConfigError(f"-o {args.output}: folder {out.parent} does not exist")
     d = slave.desc if args.name is None else replace(slave.desc, name=args.name)
+    if args.name is not None and (0x1008, 0) in slave.od.entries:
+        slave.od.set(0x1008, 0, args.name)      # the device name object carries it too, as the rig's slave does
     out.write_text(export_esi(d, slave.od), encoding="utf-8")
     print(f"{out}: ESI of {args.kind} ({d.name}, vendor 0x{d.vendor_id:X} product 0x{d.product_code:X} "
           f"revision 0x{d.revision:X}, {len(slave.od)} objects)")

@@ -10,15 +10,17 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from gatewaylab.cli.ask import ask, endpoint_address
+from gatewaylab.cli import fault_ec_dc, fault_ec_frames, fault_ec_ring, fault_ec_slave
+from gatewaylab.common.ask import ask, endpoint_address
 from gatewaylab.common.endpoint import EndpointKind, parse_endpoint
 from gatewaylab.common.errors import ConfigError, GatewaylabError
 from gatewaylab.rig.faults import DRIVE_FAULTS
 
-__all__ = ["FaultCliError", "add_subcommand", "build_request", "cmd_fault", "send_request"]
+__all__ = ["FAULT_FAMILIES", "FaultCliError", "add_subcommand", "build_request", "cmd_fault", "send_request"]
 
 
 _DESCRIPTION = """\
@@ -43,6 +45,15 @@ examples:
   gatewaylab fault ready.json usb-unplug idx1                 # the IDX's USB port drops its host
 """
 
+
+#: the verbs of each family of EtherCAT faults: ``add_verbs(fault)`` gets the factory of a verb's parser
+#: (``fault(name, help, example) -> ArgumentParser``) and sets ``request=`` on each verb it adds
+FAULT_FAMILIES: tuple[Callable[[Callable[[str, str, str], argparse.ArgumentParser]], None], ...] = (
+    fault_ec_frames.add_verbs,
+    fault_ec_dc.add_verbs,
+    fault_ec_slave.add_verbs,
+    fault_ec_ring.add_verbs,
+)
 
 #: answer fields printed in hex (the --json output keeps JSON numbers)
 _HEX = ("can_id", "error_code", "al_status")
@@ -96,6 +107,10 @@ def build_request(args: argparse.Namespace) -> dict[str, Any]:
     """The control request for parsed arguments (docs/faults.md lists the same fields)."""
     name = args.fault
     req: dict[str, Any] = {"fault": name}
+    builder = getattr(args, "request", None)
+    if builder is not None:         # a verb that builds its own request (the EtherCAT families)
+        req.update(builder(args))
+        return req
     if name in ("bus-errors", "stuck-dominant"):
         req.update(bus=args.bus_name, duration=args.seconds)
         if name == "bus-errors" and args.every != 1:
@@ -164,6 +179,8 @@ def add_subcommand(subparsers: Any) -> None:
     sub = top.add_subparsers(dest="fault", required=True, metavar="FAULT")
 
     def fault(name: str, help: str, example: str) -> argparse.ArgumentParser:
+        """A verb's parser; a verb whose request is not built by :func:`build_request` sets
+        ``request=FUNCTION(args) -> dict`` as a default."""
         p: argparse.ArgumentParser = sub.add_parser(
             name, help=help, description=help, epilog=f"example:\n  {example}",
             formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -216,3 +233,9 @@ def add_subcommand(subparsers: Any) -> None:
                        ("usb-replug", "plug the USB cable back in (prints the port's endpoints)")):
         p = fault(name, help, f"gatewaylab fault ready.json {name} {'io1' if 'ethercat' in name else 'idx1'}")
         p.add_argument("device", metavar="DEVICE")
+    for add_verbs in FAULT_FAMILIES:
+        add_verbs(fault)
+    p = fault("ec-clear", "end every active EtherCAT fault (of DEVICE only, when given)",
+              "gatewaylab fault ready.json ec-clear")
+    p.add_argument("device", metavar="DEVICE", nargs="?")
+    p.set_defaults(request=lambda a: {} if a.device is None else {"device": a.device})

@@ -294,6 +294,10 @@ def cmd_run(args: argparse.Namespace) -> int:
     web: RigWeb | None = None
     try:
         config = _eni_rig(args) if args.eni else load_rig(args.rig)
+        if args.scenario:
+            from gatewaylab.rig.scenario import load_scenario
+
+            config = replace(config, scenario=load_scenario(args.scenario))   # replaces the rig file's steps
         if args.socketcand:
             config = replace(config, buses=tuple(replace(b, socketcand=True) for b in config.buses))
         rig = Rig(config)
@@ -428,6 +432,9 @@ def build_parser() -> argparse.ArgumentParser:
                      "slaves (repeatable); slaves without one are built from the ENI alone")
     run.add_argument("--interface", metavar="NAME", help="with --eni: the segment's network interface (default: the "
                      "rig file's [ethercat] interface, else gl-ecat)")
+    run.add_argument("--scenario", metavar="FILE",
+                     help="fire the [[scenario]] steps of FILE (a TOML file of [[scenario]] tables, instead of the "
+                          "rig file's): faults at times and milestones, see docs/faults.md 'Scenarios'")
     run.set_defaults(func=cmd_run)
 
     demo = sub.add_parser("demo", help="run the scripted demo (what `make demo` does)",

@@ -40,7 +40,9 @@ from gatewaylab.bus.signals import SignalDecoder, load_database
 from gatewaylab.bus.transport.trace import TraceError, read_trace
 from gatewaylab.bus.transport.trace_window import TimeWindow
 from gatewaylab.canopen.monitor import BusMonitor, ControllerWatch, MonitorEvent
+from gatewaylab.cli.monitor_faults import FaultWatch
 from gatewaylab.cli.monitor_order import TimeOrder, sender_node
+from gatewaylab.cli.monitor_scenario import ScenarioSeen
 from gatewaylab.cli.target import USAGE, bus_target, exit_code, open_endpoint
 from gatewaylab.cli.terminal import QuitKey
 from gatewaylab.common.endpoint import EndpointError
@@ -116,7 +118,7 @@ class _ControlPoller:
         self.failed: str | None = None
 
     def _ask(self) -> dict[str, Any]:
-        from gatewaylab.cli.ask import ask, endpoint_address
+        from gatewaylab.common.ask import ask, endpoint_address
         from gatewaylab.common.endpoint import EndpointKind, parse_endpoint
 
         ep = parse_endpoint(self.endpoint, bare_path=EndpointKind.UNIX)
@@ -149,13 +151,16 @@ class _ControlPoller:
 class EthercatWatcher(_ControlPoller):
     """The EtherCAT side of a rig as the monitor shows it: the AL state of each EtherCAT device, asked
     twice a second from the rig's control endpoint (request "ethercat-states", docs/faults.md); each
-    change is one log event ("EtherCAT ecan1: PREOP -> OP")."""
+    change is one log event ("EtherCAT ecan1: PREOP -> OP"), and so is each EtherCAT fault starting and
+    ending (the answer's "faults", ``monitor_faults.py``)."""
 
     request = "ethercat-states"
 
     def __init__(self, endpoint: str, period: float = 0.5) -> None:
         super().__init__(endpoint, period)
         self.states: dict[str, str] = {}
+        self.faults = FaultWatch()
+        self.scenario = ScenarioSeen()    # the steps of a [[scenario]] as they fire
 
     def changes(self, answer: dict[str, Any], now: float) -> list[MonitorEvent]:
         """What changed in the rig's device states since the last answer, as monitor events."""
@@ -167,7 +172,7 @@ class EthercatWatcher(_ControlPoller):
                 self.states[name] = text
                 events.append(MonitorEvent(now, "ethercat", f"EtherCAT {name}: {old + ' -> ' if old else ''}{text}",
                                            None, {"device": name, **st}))
-        return events
+        return events + self.faults.changes(answer.get("faults"), now) + self.scenario.changes(answer, now)
 
 
 class CanWatcher(_ControlPoller):

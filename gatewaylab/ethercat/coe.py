@@ -193,6 +193,10 @@ class CoeServer:
             self.aborts_sent += 1
             return abort_message(index, sub, exc.code if exc.code is not None else SdoAbortCode.GENERAL_ERROR)
 
+    def cancel(self) -> None:
+        """Forget a segmented transfer in progress (it was aborted)."""
+        self._download = self._upload = None
+
     def _abort_request(self, cmd: int, index: int, sub: int, word: int, req: bytes) -> None:
         self._download = self._upload = None
 

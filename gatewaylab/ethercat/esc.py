@@ -219,10 +219,11 @@ class Esc:
         self.memory.update_dl_status(self.clocks.downstream)
 
     # ------------------------------------------------------------------ line and power
-    def set_downstream(self, count: int) -> None:
-        """How many slaves follow this one in the line (sets DL status ports and DC delays)."""
+    def set_downstream(self, count: int, links: int = -1) -> None:
+        """How many slaves follow this one in the line (DC delays) and, when given, which ports have a link
+        (bit p: port p; DL status 0x0110, kept across power cycles; -1: port 0, and port 1 when slaves follow)."""
         self.clocks.downstream = count
-        self.memory.update_dl_status(count)
+        self.memory.update_dl_status(count, links)
 
     def power_cycle(self) -> None:
         """Power-on reset (a device restarting after a firmware update): registers and process RAM
@@ -230,6 +231,7 @@ class Esc:
         old = self.al_state
         self.al.stop_watchdog()
         self.clocks.stop()
+        self.clocks.local.reset_loop()
         self.mem[:] = bytes(len(self.mem))
         self._step = _IDLE
         self._reset_registers()
@@ -525,6 +527,16 @@ class Esc:
         self._buf = _NO_BUF
         self._step = _IDLE
         return None
+
+    def lose_datagram(self) -> None:
+        """Fault injection, from the delivery of a paused datagram's events: the access happened in the
+        ESC (a mailbox read emptied the buffer) but the master gets nothing of it -- the datagram keeps
+        the working counter it arrived with and its data is cleared, as for a reply lost on its way."""
+        step = self._step
+        if step != _IDLE:
+            self._inc = 0
+            if step < _WRITES:  # a physical datagram is this slave's alone; a logical one carries others' data
+                self._buf[self._off:self._off + self._dlen] = bytes(self._dlen)
 
     def _finish(self) -> None:
         """The datagram is complete: add this slave's share to the working counter."""

@@ -32,8 +32,14 @@ from gatewaylab.ethercat.esc_registers import (
     U16,
     AlState,
 )
+from gatewaylab.ethercat.slave_faults import AlRefusal
 
-__all__ = ["AlFirmware", "AlStateMachine"]
+__all__ = ["AL_PENDING", "AlFirmware", "AlStateMachine"]
+
+#: What :meth:`AlFirmware.check_transition` returns for a transition the firmware completes later (a slave
+#: stack's pending transition): AL status keeps the present state, without error, until the firmware calls
+#: :meth:`AlStateMachine.complete` or :meth:`AlStateMachine.refuse`.
+AL_PENDING = -1
 
 
 _RANK = {AlState.INIT: 0, AlState.PREOP: 1, AlState.BOOT: 1, AlState.SAFEOP: 2, AlState.OP: 3}
@@ -54,7 +60,7 @@ class AlFirmware(Protocol):
 class AlStateMachine:
     """AL status of one ESC over the shared register memory, and the SM watchdog that can drop it."""
 
-    __slots__ = ("_wd_timer", "clock", "firmware", "mem", "memory")
+    __slots__ = ("_wd_timer", "clock", "firmware", "mem", "memory", "refusal")
 
     def __init__(self, clock: Clock, memory: EscMemory, firmware: AlFirmware) -> None:
         self.clock = clock
@@ -62,6 +68,9 @@ class AlStateMachine:
         self.mem = memory.mem
         self.firmware = firmware
         self._wd_timer: TimerHandle | None = None
+        #: a fault: the next requested transition (or one) is refused with its code (``slave_faults``)
+        self.refusal: AlRefusal | None = None
+        memory.wd_changed = self.watchdog_written
 
     def reset(self) -> None:
         """Power-on: INIT without error, watchdog divider and times at their defaults (100 ms)."""
@@ -111,10 +120,29 @@ class AlStateMachine:
         if (current, target) not in AL_TRANSITIONS:
             self._refuse(current, AlStatusCode.INVALID_STATE_CHANGE)
             return
+        refusal = self.refusal
+        if refusal is not None and refusal.matches(current, target):
+            self.refusal = None
+            self._refuse(current, refusal.code)
+            refusal.on_used()
+            return
         code = self.firmware.check_transition(current, target)
+        if code == AL_PENDING:
+            return
         if code:
             self._refuse(current, code)
             return
+        self._enter(current, target)
+
+    def complete(self, target: AlState) -> None:
+        """The firmware completes a pending transition (see :data:`AL_PENDING`)."""
+        self._enter(self.state, target)
+
+    def refuse(self, code: int) -> None:
+        """The firmware gives up a pending transition: the present state with the error flag and ``code``."""
+        self._refuse(self.state, code)
+
+    def _enter(self, current: AlState, target: AlState) -> None:
         U16.pack_into(self.mem, REG_AL_STATUS, int(target))
         U16.pack_into(self.mem, REG_AL_STATUS_CODE, 0)
         self.memory.start_outputs()  # the master took the slave through a state change
@@ -161,6 +189,12 @@ class AlStateMachine:
             return
         self.memory.wd_last = self.clock.now()
         self._wd_timer = self.clock.call_at(self.memory.wd_last + period, self._wd_check)
+
+    def watchdog_written(self) -> None:
+        """The master wrote the watchdog divider or time: in OP the count starts again with the new time
+        (0: the watchdog stops), as the ET1100 restarts its counter from the registers."""
+        if self.state == AlState.OP:
+            self._start_watchdog()
 
     def stop_watchdog(self) -> None:
         """The watchdog stops watching (left OP, or powered off)."""

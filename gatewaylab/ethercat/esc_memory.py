@@ -12,6 +12,8 @@ ones included. Register map: ET1100 data sheet section II; SyncManagers ETG.1000
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 from gatewaylab.common.clock import Clock
 from gatewaylab.ethercat.esc_dc import DistributedClocks
 from gatewaylab.ethercat.esc_events import SM_CHANGED, AlControlRequested, EscEvent, SmRead, SmWritten
@@ -27,7 +29,9 @@ from gatewaylab.ethercat.esc_registers import (
     REG_SII_CONTROL,
     REG_SM,
     REG_TYPE,
+    REG_WD_DIVIDER,
     REG_WD_STATUS_SM,
+    REG_WD_TIME_SM,
     SM_ACT_REPEAT,
     SM_CTRL_WATCHDOG,
     SM_PDI_DISABLE,
@@ -93,8 +97,8 @@ class EscMemory:
     """Registers + process RAM of one ESC, with its SyncManagers and FMMUs."""
 
     __slots__ = ("_memlen", "_sms", "active_sms", "clock", "dc", "events", "firmware_sms",
-                 "fmmus", "locked", "mbx_last", "mem", "n_fmmu", "n_sm", "output_sm", "outputs_stopped",
-                 "pdi_outputs", "ro", "sii", "stats", "wd_last")
+                 "fmmus", "links", "locked", "mbx_last", "mem", "n_fmmu", "n_sm", "output_sm", "outputs_stopped",
+                 "pdi_outputs", "ro", "sii", "stats", "wd_changed", "wd_last")
 
     def __init__(self, clock: Clock, mem: bytearray, stats: EscStats, sii: SiiInterface, dc: DistributedClocks,
                  *, fmmus: int, sms: int, firmware_sms: int, output_sm: int = 2) -> None:
@@ -131,8 +135,13 @@ class EscMemory:
         self.pdi_outputs: dict[int, bytes] = {}
         #: Clock time of the last write to a SyncManager with the watchdog enabled.
         self.wd_last = 0.0
+        #: told when the master writes the watchdog divider (0x0400) or time (0x0420) (the AL state machine)
+        self.wd_changed: Callable[[], None] | None = None
         #: PDI events raised by the accesses since the ESC last handed them over.
         self.events: list[EscEvent] = []
+        #: The ports with a physical link (bit p: port p), as the segment last set them; -1: not set (port 0,
+        #: and port 1 when slaves follow).
+        self.links = -1
 
     # ------------------------------------------------------------------ power-on
     def reset(self, dc: bool) -> None:
@@ -161,11 +170,19 @@ class EscMemory:
             self.ro[REG_SM + 8 * i + 5] = 1
             self.ro[REG_SM + 8 * i + 7] = 1
 
-    def update_dl_status(self, downstream: int) -> None:
-        """DL status ports: port 0 link and communication, port 1 open when slaves follow."""
+    def update_dl_status(self, downstream: int, links: int = -1) -> None:
+        """DL status 0x0110 (ET1100 data sheet, register 0x0110): bits 4-7 physical link on port 0-3; per port p
+        bit 8+2p loop closed and bit 9+2p communication established. A port with a link is open with
+        communication, one without is closed (auto close); ports 2 and 3 are not implemented (register 0x0007) and
+        show nothing. ``links``: the ports with
+        a link (bit p: port p), kept for later updates; -1 keeps the last, else port 0 and port 1 when slaves
+        follow."""
+        if links >= 0:
+            self.links = links
+        ports = self.links if self.links >= 0 else (0b11 if downstream else 0b01)
         status = U16.unpack_from(self.mem, REG_DL_STATUS)[0] & 0x0003
-        status |= 0x0010 | 0x0200  # port 0: link + communication
-        status |= (0x0020 | 0x0800) if downstream else 0x0400  # port 1 open or loop closed
+        for p in range(2):
+            status |= ((0x0010 << p) | (0x0200 << 2 * p)) if ports >> p & 1 else 0x0100 << 2 * p
         U16.pack_into(self.mem, REG_DL_STATUS, status)
 
     # ------------------------------------------------------------------ SyncManager / FMMU state
@@ -303,6 +320,9 @@ class EscMemory:
             self.rebuild_sms(old, address)
         if end > 0x0900 and address < 0x09B0:
             self.dc.write(address, end, old)
+        if self.wd_changed is not None and ((end > REG_WD_DIVIDER and address < REG_WD_DIVIDER + 2)
+                                            or (end > REG_WD_TIME_SM and address < REG_WD_TIME_SM + 2)):
+            self.wd_changed()
 
     # ------------------------------------------------------------------ logical accesses (FMMUs)
     def fmmu_write(self, f: Fmmu, buf: bytearray, off: int, laddr: int, lend: int) -> bool:

@@ -17,6 +17,7 @@ from gatewaylab.ethercat.esc_registers import (
     REG_SII_CONTROL,
     REG_SII_DATA,
     REG_STATION_ALIAS,
+    SII_BUSY,
     SII_ERR_ACK,
     SII_ERR_CHECKSUM,
     SII_ERR_WRITE_ENABLE,
@@ -26,6 +27,7 @@ from gatewaylab.ethercat.esc_registers import (
     U32,
     EscStats,
 )
+from gatewaylab.ethercat.slave_faults import SiiHold
 
 __all__ = ["SiiInterface", "sii_checksum"]
 
@@ -43,7 +45,7 @@ def sii_checksum(config_area: bytes) -> int:
 class SiiInterface:
     """The EEPROM image and the register interface a master reaches it through."""
 
-    __slots__ = ("eeprom", "mem", "stats")
+    __slots__ = ("checksum_bad", "eeprom", "hold", "mem", "stats")
 
     def __init__(self, mem: bytearray, stats: EscStats, eeprom: bytes, eeprom_size: int | None = None) -> None:
         self.mem = mem
@@ -54,6 +56,11 @@ class SiiInterface:
         image.extend(b"\xff" * (eeprom_size - len(image)))
         #: The EEPROM contents (a master's SII writes land here and survive a power cycle).
         self.eeprom = image
+        #: the last load of the configuration area failed its checksum: 0x0502 bit 11 shows it until a load
+        #: succeeds or the master clears the error bits with a NOP
+        self.checksum_bad = False
+        #: a fault holding the interface busy (:class:`~gatewaylab.ethercat.slave_faults.SiiHold`)
+        self.hold: SiiHold | None = None
 
     def config_bits(self) -> int:
         """0x0502 bits 5..7, fixed by the hardware: 8-byte reads, address bytes by EEPROM size."""
@@ -62,6 +69,7 @@ class SiiInterface:
     def reset(self) -> None:
         """Power-on: the control register shows the configuration bits only, then the ESC loads
         the configuration area."""
+        self.hold = None
         U16.pack_into(self.mem, REG_SII_CONTROL, self.config_bits())
         self.reload()
 
@@ -69,7 +77,8 @@ class SiiInterface:
         """Load the SII configuration area (words 0..7); False and no load on a bad checksum."""
         e = self.eeprom
         mem = self.mem
-        if sii_checksum(bytes(e[:14])) != e[14]:
+        self.checksum_bad = sii_checksum(bytes(e[:14])) != e[14]
+        if self.checksum_bad:
             ctrl = U16.unpack_from(mem, REG_SII_CONTROL)[0] | SII_ERR_CHECKSUM
             U16.pack_into(mem, REG_SII_CONTROL, ctrl)
             dl = U16.unpack_from(mem, REG_DL_STATUS)[0] & ~DL_STATUS_PDI_OPERATIONAL
@@ -78,6 +87,8 @@ class SiiInterface:
         mem[REG_PDI_CONTROL:REG_PDI_CONTROL + 2] = e[0:2]
         mem[0x0150:0x0152] = e[2:4]
         mem[REG_STATION_ALIAS:REG_STATION_ALIAS + 2] = e[8:10]
+        ctrl = U16.unpack_from(mem, REG_SII_CONTROL)[0] & ~SII_ERR_CHECKSUM
+        U16.pack_into(mem, REG_SII_CONTROL, ctrl)
         dl = U16.unpack_from(mem, REG_DL_STATUS)[0] | DL_STATUS_PDI_OPERATIONAL
         U16.pack_into(mem, REG_DL_STATUS, dl)
         return True
@@ -87,10 +98,17 @@ class SiiInterface:
         mem = self.mem
         ctrl = U16.unpack_from(mem, REG_SII_CONTROL)[0]
         cmd = (ctrl >> 8) & 0x07
+        hold = self.hold
+        if hold is not None and hold.takes(cmd):
+            if not hold.held:
+                hold.held = ctrl     # the first waiting command is the one that runs when the hold ends
+            U16.pack_into(mem, REG_SII_CONTROL, (hold.held & 0x07FF) | SII_BUSY)
+            return
         # A master writes the whole word (KickCAT: 0x0100 for a read): the configuration bits stay what
         # the hardware says; errors, command and busy are cleared.
         status = self.config_bits()
-        if cmd == 0:
+        if cmd == 0:        # a NOP clears the error bits, the load's checksum error too (SOEM's "clear error bits")
+            self.checksum_bad = False
             U16.pack_into(mem, REG_SII_CONTROL, status)
             return
         self.stats.sii_commands += 1
@@ -112,4 +130,28 @@ class SiiInterface:
                 status |= SII_ERR_CHECKSUM
         else:
             status |= SII_ERR_ACK
+        if self.checksum_bad:       # the status of the last load stays until a load succeeds
+            status |= SII_ERR_CHECKSUM
         U16.pack_into(mem, REG_SII_CONTROL, status)
+
+    def start_hold(self, hold: SiiHold) -> None:
+        """A fault holds the interface: busy at once (``busy``), or from the next read (``stuck``)."""
+        self.hold = hold
+        if hold.mode == "busy":
+            ctrl = U16.unpack_from(self.mem, REG_SII_CONTROL)[0]
+            U16.pack_into(self.mem, REG_SII_CONTROL, ctrl | SII_BUSY)
+
+    def end_hold(self) -> None:
+        """The hold ends: a busy interface runs the command that waited (or just clears busy); a stuck
+        read fails (acknowledge error, 0x0502 bit 13)."""
+        hold = self.hold
+        if hold is None:
+            return
+        self.hold = None
+        mem = self.mem
+        if hold.held and hold.mode == "busy":
+            U16.pack_into(mem, REG_SII_CONTROL, hold.held)
+            self.command()
+            return
+        status = self.config_bits() | (SII_ERR_CHECKSUM if self.checksum_bad else 0)
+        U16.pack_into(mem, REG_SII_CONTROL, status | (SII_ERR_ACK if hold.held else 0))

@@ -11,6 +11,10 @@ that datagram is left as it is for that slave (no working counter increment), th
 few, then every 1000th), and the frame's other datagrams and slaves are served as usual; a real
 ESC processes every datagram whatever its firmware does.
 
+Ports and cables (ethercat/ring.py): which slaves a frame reaches follows the links of their ports -- a line,
+or a ring whose last slave is cabled to the master's secondary interface (:meth:`Segment.process_secondary`
+serves frames from there), open ports (:meth:`Segment.cut`), hot-connect groups (:meth:`Segment.detach`).
+
 The frame path is the ESCs' work only where the applications allow it: outputs of an application with
 ``SlaveApplication.outputs_in_frame`` False (the drives) reach it after the frame, in
 :meth:`Segment.after_frame`, which a transport calls once it has sent the frame back (the wire thread)
@@ -24,19 +28,25 @@ import logging
 import struct
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Final
+from typing import Final, Protocol
 
 from gatewaylab.ethercat.datagram import ETH_HEADER_LEN, ETHERTYPE_ETHERCAT, LEN_MASK, MORE
 from gatewaylab.ethercat.errors import SlavePositionError
 from gatewaylab.ethercat.esc import REG_RX_ERROR, Esc
+from gatewaylab.ethercat.esc_dc import place_line
+from gatewaylab.ethercat.esc_dc_clock import FrameTime
+from gatewaylab.ethercat.line_faults import LineFaults
+from gatewaylab.ethercat.ring import LOST, PORT_A, routes
 from gatewaylab.ethercat.slave import Slave
 
-__all__ = ["LOG_EVERY", "LOG_FIRST", "Segment", "SegmentStats"]
+__all__ = ["LOG_EVERY", "LOG_FIRST", "FrameObserver", "Segment", "SegmentStats"]
 
 
 _U16: Final = struct.Struct("<H")
 _BE16: Final = struct.Struct("!H")
 _DG_HDR: Final = struct.Struct("<B5xH")  # cmd, (idx + address skipped), len/flags
+#: The circulating bit of a datagram's length field (ETG.1000.4 datagram header, bit 14), high byte.
+_CIRCULATING: Final = 0x40
 _log = logging.getLogger(__name__)
 #: Datagram errors logged one line each before only every ``LOG_EVERY``-th is.
 LOG_FIRST: Final = 10
@@ -56,6 +66,15 @@ class SegmentStats:
     errors: deque[str] = field(default_factory=lambda: deque(maxlen=20))
 
 
+class FrameObserver(Protocol):
+    """Told of every frame the segment served, once its datagrams ran (a scenario's milestones: a state
+    reached, process-data cycles, an SDO request; gatewaylab.ethercat.milestones). None -- the default --
+    costs the frame path one check."""
+
+    def frame_served(self, frame: bytearray, datagrams: list[tuple[int, int, int]]) -> None:
+        """``datagrams``: (offset of the datagram header in ``frame``, command, data length) of each."""
+
+
 class Segment:
     """The slaves of one EtherCAT line, in position order."""
 
@@ -64,22 +83,101 @@ class Segment:
         self.stats = SegmentStats()
         #: positions of the slaves unplugged from the line (fault injection)
         self.unplugged: set[int] = set()
+        #: faults of the line to the master (ethercat/line_faults.py), put here when the rig arms the first
+        #: one; transports serve frames through it while it is ``engaged``
+        self.line_faults: LineFaults | None = None
+        #: the master's secondary interface is cabled to the last slave's port 1 (cable redundancy, ring.py)
+        self.redundant = False
+        #: open gaps (cables without a link, ring.py numbering): gap -> how many faults hold it open
+        self.cuts: dict[int, int] = {}
+        #: positions of the slaves of unplugged hot-connect groups (out of the line, neighbours joined)
+        self.detached: set[int] = set()
         self._reached: list[Slave] = list(self.slaves)
+        #: where a frame entering on the primary interface leaves (ring.PORT_A / PORT_B / LOST)
+        self.exit_a = PORT_A
+        #: the slaves a frame entering on the secondary interface reaches, where it leaves, the slave that turns it
+        self._reached_b: list[Slave] = []
+        self.exit_b = LOST
+        self._turn_b: Slave | None = None
         #: :meth:`process` left PDI work for :meth:`after_frame`
         self._after_pending = False
+        #: told of every frame served (None: nobody watches)
+        self.observer: FrameObserver | None = None
+
+        #: DC: when the frame being processed left the master (one time for the whole frame, as on a wire)
+        self.frame_time = FrameTime()
         self._link()
 
     def _link(self) -> None:
-        """The slaves a frame reaches: the line up to the first unplugged one, whose upstream
-        neighbour closes its port and returns the frame (ESC automatic port loop-back)."""
-        reach = min(self.unplugged, default=len(self.slaves))
-        self._reached = self.slaves[:reach]
-        for i, slave in enumerate(self._reached):
-            slave.esc.set_downstream(reach - 1 - i)
+        """The slaves a frame reaches from each end (ring.py): on a line, up to the first unplugged slave or open
+        port, whose upstream neighbour closes its port and returns the frame (ESC automatic port loop-back); each
+        ESC's DL status 0x0110 shows the links of its ports."""
+        r = routes(len(self.slaves), redundant=self.redundant, cuts=self.cuts, unplugged=self.unplugged,
+                   detached=self.detached)
+        self._reached = [self.slaves[p] for p in r.a]
+        self.exit_a = r.a_exit
+        self._reached_b = [self.slaves[p] for p in r.b]
+        self.exit_b = r.b_exit
+        self._turn_b = self.slaves[r.b_turn] if r.b_turn >= 0 else None
+        for p, slave in enumerate(self.slaves):
+            slave.esc.set_downstream(r.downstream[p], r.links[p])
+        # DC: when a frame reaches each slave of either route
+        place_line([s.esc.clocks for s in self._reached], self.frame_time)
+        if self._reached_b:
+            place_line([s.esc.clocks for s in self._reached_b], self.frame_time)
+
+    @property
+    def reached(self) -> list[Slave]:
+        """The slaves a frame entering on the primary interface reaches, in order."""
+        return list(self._reached)
+
+    @property
+    def reached_secondary(self) -> list[Slave]:
+        """The slaves a frame entering on the secondary interface reaches, in order (cable redundancy)."""
+        return list(self._reached_b)
+
+    def cut(self, gap: int) -> None:
+        """Open gap ``gap`` (the cable into slave ``gap``'s port 0; ``len(slaves)``: the cable to the secondary
+        interface): both ports lose their link, and close."""
+        if not 0 <= gap <= len(self.slaves):
+            raise SlavePositionError(f"no cable {gap} in a line of {len(self.slaves)} slaves")
+        self.cuts[gap] = self.cuts.get(gap, 0) + 1
+        self._link()
+
+    def join(self, gap: int) -> None:
+        """Undo one :meth:`cut` of ``gap`` (the link comes back once no fault holds it open)."""
+        left = self.cuts.get(gap, 0) - 1
+        if left > 0:
+            self.cuts[gap] = left
+        else:
+            self.cuts.pop(gap, None)
+        self._link()
+
+    def set_redundant(self, redundant: bool) -> None:
+        """Cable the last slave's port 1 to the master's secondary interface (or not)."""
+        self.redundant = redundant
+        self._link()
+
+    def detach(self, positions: list[int]) -> None:
+        """Unplug a hot-connect group: its slaves leave the line, the slaves around it are joined."""
+        for p in positions:
+            if not 0 <= p < len(self.slaves):
+                raise SlavePositionError(f"no slave at position {p}")
+        self.detached.update(positions)
+        self._link()
+
+    def attach(self, positions: list[int]) -> None:
+        """Plug a hot-connect group back in: its slaves power on (AL status INIT, registers reset)."""
+        back = [p for p in positions if p in self.detached]
+        self.detached.difference_update(back)
+        for p in back:
+            self.slaves[p].esc.power_cycle()
+        self._link()
 
     def unplug(self, position: int) -> None:
         """Pull a slave out of the line: it and every slave behind it stop answering (the working
-        counter of every datagram for them drops)."""
+        counter of every datagram for them drops); on a redundant ring the slaves behind it answer through
+        the secondary interface (ring.py)."""
         if not 0 <= position < len(self.slaves):
             raise SlavePositionError(f"no slave at position {position}")
         self.unplugged.add(position)
@@ -102,7 +200,7 @@ class Segment:
         pending runs before the next frame."""
         if self._after_pending:
             self.after_frame()
-        if not self._reached and self.unplugged:
+        if self.exit_a < 0:     # ring.LOST: no link on the primary side
             return False
         parsed = self._parse(frame)
         if parsed is None:
@@ -113,6 +211,8 @@ class Segment:
             return False
         self.stats.frames += 1
         self.stats.datagrams += len(parsed)
+        frame_time = self.frame_time
+        frame_time.t = -1.0               # stamped by the frame's first DC access
         for slave in self._reached:
             esc = slave.esc
             for pos, cmd, dlen in parsed:
@@ -122,8 +222,11 @@ class Segment:
                         slave.serve_events(events)
                 except Exception as exc:  # isolation boundary: one datagram never costs the frame
                     self._datagram_error(esc, cmd, exc)
+        frame_time.t = -1.0
         if len(frame) > ETH_HEADER_LEN:
             frame[6] |= 0x02  # the ESC marks the source MAC as locally administered on the way back
+        if self.observer is not None:
+            self.observer.frame_served(frame, parsed)
         if defer:
             self._after_pending = True
         else:
@@ -141,6 +244,51 @@ class Segment:
                     slave.after_frame()
                 except Exception as exc:  # isolation boundary, as for a datagram
                     self._datagram_error(slave.esc, -1, exc)
+        for slave in self._reached_b:   # empty unless a frame may enter on the secondary interface
+            if slave.outputs_pending:
+                try:
+                    slave.after_frame()
+                except Exception as exc:  # isolation boundary, as for a datagram
+                    self._datagram_error(slave.esc, -1, exc)
+
+    def process_secondary(self, frame: bytearray, *, defer: bool = False) -> int:
+        """A frame entering on the secondary interface (cable redundancy, ring.py): executed in place by the
+        slaves behind the first open gap from that end; returns where it leaves (ring.PORT_A: it passed the
+        whole ring unprocessed, PORT_B, or LOST: not sent back)."""
+        if self._after_pending:
+            self.after_frame()
+        if self.exit_b == LOST:
+            return LOST
+        parsed = self._parse(frame)
+        if parsed is None:
+            self.stats.bad_frames += 1
+            return LOST
+        if self._turn_b is not None:
+            first = parsed[0][0] + 7    # high byte of the first datagram's length field
+            if frame[first] & _CIRCULATING:     # circulated once already: the ESC destroys it
+                return LOST
+            frame[first] |= _CIRCULATING
+        self.stats.frames += 1
+        self.stats.datagrams += len(parsed)
+        frame_time = self.frame_time
+        frame_time.t = -1.0               # stamped by the frame's first DC access, as in process
+        for slave in self._reached_b:
+            esc = slave.esc
+            for pos, cmd, dlen in parsed:
+                try:
+                    events = esc.process_datagram(frame, pos, cmd, dlen)
+                    if events is not None:
+                        slave.serve_events(events)
+                except Exception as exc:  # isolation boundary, as in process
+                    self._datagram_error(esc, cmd, exc)
+        frame_time.t = -1.0
+        if len(frame) > ETH_HEADER_LEN:
+            frame[6] |= 0x02
+        if defer:
+            self._after_pending = True
+        else:
+            self.after_frame()
+        return self.exit_b
 
     def _datagram_error(self, esc: Esc, cmd: int, exc: Exception) -> None:
         esc.stats.datagram_errors += 1

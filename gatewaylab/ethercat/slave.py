@@ -29,6 +29,7 @@ from gatewaylab.ethercat.esc_events import AlControlRequested, EscEvent, SmRead,
 from gatewaylab.ethercat.foe import FoeFiles, FoeHandler, FoeServer
 from gatewaylab.ethercat.mailbox import MailboxEndpoint, MailboxMessage, MailboxType, error_reply
 from gatewaylab.ethercat.sii import build_sii
+from gatewaylab.ethercat.slave_faults import MailboxFaults
 from gatewaylab.od import DataType, Entry, ObjectDictionary, SdoAbort, decode, encode
 
 __all__ = ["MappedEntry", "Slave", "SlaveApplication", "build_od"]
@@ -157,6 +158,8 @@ class Slave:
         self.coe = CoeServer(self.od, mbx_size, lambda: self.esc.al_state)
         self.foe_handler: FoeHandler = foe or FoeFiles()
         self.foe = FoeServer(self.foe_handler, mbx_size)
+        #: mailbox faults armed on this slave (None: none, the usual case)
+        self.mailbox_faults: MailboxFaults | None = None
         if desc.coe:
             self.mailbox.handlers[MailboxType.COE] = self._coe
         if desc.foe:
@@ -333,6 +336,9 @@ class Slave:
     def sm_read(self, sm: int) -> None:
         """PDI event: the master read a SyncManager buffer (mailbox or inputs)."""
         if sm == 1 and self.has_mailbox:
+            faults = self.mailbox_faults
+            if faults is not None and faults.take_lost_reply():
+                self.esc.lose_datagram()        # the master must repeat (SM1 repeat request, 0x0806)
             self.mailbox.pump()
         elif sm == self.sm_inputs:
             self.app.on_inputs_read(self)
@@ -387,9 +393,17 @@ class Slave:
 
     # ------------------------------------------------------------------ mailbox protocols
     def _coe(self, data: bytes) -> list[bytes]:
+        faults = self.mailbox_faults
+        if faults is not None:
+            replies = faults.coe(data, self.coe)
+            if replies is not None:
+                return replies
         return self.coe.handle(data)
 
     def _foe(self, data: bytes) -> list[bytes]:
+        faults = self.mailbox_faults
+        if faults is not None:
+            return faults.foe(data, self.foe)
         return self.foe.handle(data)
 
     def emergency(self, error_code: int, error_register: int = 0, data: bytes = b"") -> None:

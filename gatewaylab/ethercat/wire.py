@@ -22,6 +22,10 @@ stall of this process the master sees lost frames, never replies no real line wo
 
 :meth:`WireTransport.stop` wakes the thread wherever it waits (``select``, or ``clock.lock``, which
 the rig holds while it stops its participants) and returns within milliseconds.
+
+Cable redundancy (``redundant=`` a second interface): the thread serves a second socket on the interface cabled to
+the last slave's port 1 (ethercat/ring.py); a frame goes back out on the socket of the port it leaves the ring by
+(``Segment.exit_a`` for frames from the primary interface, ``Segment.process_secondary`` for the others).
 """
 
 from __future__ import annotations
@@ -127,19 +131,24 @@ class WireTransport:
                  drive_clock: bool = False, pcap: PcapWriter | None = None, cpu: int | None = None,
                  spin_s: float = SPIN_AFTER_FRAME_S,
                  max_residence_ms: float = DEFAULT_MAX_RESIDENCE_MS,
-                 now_ns: Callable[[], int] = time.time_ns, realtime: bool = False) -> None:
+                 now_ns: Callable[[], int] = time.time_ns, realtime: bool = True,
+                 redundant: str | None = None) -> None:
         self.segment = segment
         self.interface = interface
+        #: the master's secondary interface's peer (cable redundancy), or None
+        self.redundant = redundant
         self.clock = clock
         self.busy_poll = busy_poll
         self.spin_s = spin_s
         self.drive_clock = drive_clock
         self.pcap = pcap
         self.cpu = cpu
-        #: Ask for SCHED_FIFO (``REALTIME_PRIORITY``) for the wire thread; ``realtime_granted`` says if it got it.
+        #: Ask for SCHED_FIFO (``REALTIME_PRIORITY``) for the wire thread, as the rig's ``[ethercat] realtime``
+        #: does by default; ``realtime_granted`` says if it got it.
         self.realtime = realtime
         self.realtime_granted = False
         self._sock: socket.socket | None = None
+        self._sock_b: socket.socket | None = None
         self._wake_r: socket.socket | None = None
         self._wake_w: socket.socket | None = None
         self._thread: threading.Thread | None = None
@@ -169,17 +178,17 @@ class WireTransport:
         return {"frames_in": self.frames_in, "frames_out": self.frames_out,
                 "frames_dropped_late": self.frames_dropped_late, "frame_errors": self.frame_errors}
 
-    def start(self) -> None:
-        """Open the raw socket on the interface and start the wire thread serving the segment."""
+    def _open(self, interface: str) -> socket.socket:
+        """A non-blocking raw EtherCAT socket bound to ``interface``, with receive timestamps if it can."""
         try:
             sock = socket.socket(socket.AF_PACKET, socket.SOCK_RAW, socket.htons(ETHERTYPE_ETHERCAT))
         except PermissionError as exc:
             raise ConfigError(f"raw sockets need CAP_NET_RAW: {exc}") from exc
         try:
-            sock.bind((self.interface, ETHERTYPE_ETHERCAT))
+            sock.bind((interface, ETHERTYPE_ETHERCAT))
         except OSError as exc:
             sock.close()
-            raise ConfigError(f"cannot bind to interface {self.interface!r}: {exc}") from exc
+            raise ConfigError(f"cannot bind to interface {interface!r}: {exc}") from exc
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
         try:    # the kernel's receive time of each frame, the start of its age
             sock.setsockopt(SOL_SOCKET, SCM_TIMESTAMPNS, 1)
@@ -187,6 +196,17 @@ class WireTransport:
         except OSError:
             self.kernel_timestamps = False
         sock.setblocking(False)
+        return sock
+
+    def start(self) -> None:
+        """Open the raw socket(s) on the interface(s) and start the wire thread serving the segment."""
+        sock = self._open(self.interface)
+        if self.redundant is not None:
+            try:
+                self._sock_b = self._open(self.redundant)
+            except ConfigError:
+                sock.close()
+                raise
         self.clock.ensure_lock()  # this thread and the clock's owner share the state
         self._wake_r, self._wake_w = socket.socketpair()
         self._wake_r.setblocking(False)
@@ -212,7 +232,7 @@ class WireTransport:
                 _log.warning("ethercat-wire %s: the wire thread did not end within %.1f s", self.interface,
                              STOP_JOIN_S)
         self._report_late(self.now_ns(), final=True)
-        for name in ("_sock", "_wake_r", "_wake_w"):
+        for name in ("_sock", "_sock_b", "_wake_r", "_wake_w"):
             sock = getattr(self, name)
             if sock is not None:
                 sock.close()
@@ -270,7 +290,8 @@ class WireTransport:
 
     def _wait(self, sock: socket.socket, wake: socket.socket, timeout: float | None) -> None:
         """Block until a frame (or a wake-up from :meth:`stop`) arrives or ``timeout`` passed."""
-        ready, _, _ = select.select([sock, wake], [], [], timeout)
+        watched = [sock, wake] if self._sock_b is None else [sock, self._sock_b, wake]
+        ready, _, _ = select.select(watched, [], [], timeout)
         if wake in ready:
             try:
                 while wake.recv(64):
@@ -302,6 +323,43 @@ class WireTransport:
             _log.info("ethercat-wire %s: the wire thread runs SCHED_FIFO priority %d", self.interface,
                       REALTIME_PRIORITY)
 
+    @staticmethod
+    def _recv_either(sock: socket.socket, sock_b: socket.socket,
+                     buf: bytearray) -> tuple[int, tuple[int, list[tuple[int, int, bytes]], int, Any]]:
+        """(0 or 1, ``recvmsg_into``) of the primary socket, else the secondary; BlockingIOError when both are idle."""
+        try:
+            return 0, sock.recvmsg_into([buf], ANCILLARY_BYTES)
+        except BlockingIOError:
+            return 1, sock_b.recvmsg_into([buf], ANCILLARY_BYTES)
+
+    def _send(self, sock: socket.socket, frame: bytes | bytearray) -> None:
+        """Send one reply (counted, captured); a failed send is kept in ``errors``."""
+        try:
+            sock.send(frame)
+        except OSError as exc:
+            if len(self.errors) < MAX_ERRORS_KEPT:  # a storm must not grow the list without end
+                self.errors.append(str(exc))
+        else:
+            self.frames_out += 1
+            if self.pcap is not None:
+                self.pcap.write(time.time(), frame)
+
+    def _send_held(self, sock: socket.socket, lock: Any) -> float | None:
+        """Send the replies a line fault held back whose time has come (a fault's deliberate delay is not
+        a late frame: ``max_residence_ms`` does not apply to it); seconds until the next one, or None."""
+        faults = self.segment.line_faults
+        if faults is None or not self._acquire(lock):
+            return None
+        try:
+            now = time.monotonic()
+            replies = faults.due(now)
+            due = faults.next_due()
+        finally:
+            lock.release()
+        for reply in replies:
+            self._send(sock, reply)
+        return None if due is None else max(0.0, due - now)
+
     def _run(self) -> None:
         self._schedule()
         sock, wake = self._sock, self._wake_r
@@ -320,6 +378,8 @@ class WireTransport:
         limit = self.max_residence_ns
         late = self.late
         now_ns = self.now_ns
+        sock_b = self._sock_b   # cable redundancy: the secondary interface
+        port = 0                # the interface the frame came in on (0: primary, 1: secondary)
         while self._running:
             if drive and time.monotonic() - last_slice >= DRIVE_MAX_STARVE_S:
                 # no clock slice for that long: when an event is overdue by as much (frames back to back,
@@ -329,7 +389,10 @@ class WireTransport:
                     return
                 last_slice = time.monotonic()
             try:
-                n, anc, _flags, addr = sock.recvmsg_into([buf], ANCILLARY_BYTES)
+                if sock_b is None:
+                    n, anc, _flags, addr = sock.recvmsg_into([buf], ANCILLARY_BYTES)
+                else:
+                    port, (n, anc, _flags, addr) = self._recv_either(sock, sock_b, buf)
             except BlockingIOError:
                 if late.pending:    # the line is idle: the burst of late frames is over
                     t_ns = now_ns()
@@ -353,6 +416,11 @@ class WireTransport:
                             DRIVE_MAX_WAIT_S, max(0.0, due - clock.now()))
                     else:
                         timeout = next_clock - now
+                faults = segment.line_faults
+                if faults is not None and faults.held:     # replies a line fault holds back, when due
+                    held_in = self._send_held(sock, lock)
+                    if held_in is not None:
+                        timeout = held_in if timeout is None else min(timeout, held_in)
                 if busy or now < spin_until:
                     continue
                 if report_in is not None:   # merged into a report due later: wake up for it
@@ -390,22 +458,26 @@ class WireTransport:
                     if is_late(received, t_ns, limit):   # lost on its way in: not processed
                         late.drop(t_ns - received)
                         continue
-                    ok = segment.process(frame, defer=True)
+                    if port == 0:
+                        faults = segment.line_faults
+                        if faults is not None and faults.engaged:   # line faults armed (ethercat/line_faults.py)
+                            ok = faults.serve(segment, frame, time.monotonic(), defer=True)
+                        else:
+                            ok = segment.process(frame, defer=True)
+                        out = segment.exit_a if sock_b is not None else 0
+                    else:   # the secondary interface: the line faults are those of the primary one
+                        faults = None
+                        out = segment.process_secondary(frame, defer=True)
+                        ok = out >= 0
                 finally:
                     lock.release()
                 if not ok:
                     continue
                 if late.pending:
                     self._report_late(now_ns())
-                try:
-                    sock.send(frame)
-                except OSError as exc:
-                    if len(self.errors) < MAX_ERRORS_KEPT:  # a storm must not grow the list without end
-                        self.errors.append(str(exc))
-                else:
-                    self.frames_out += 1
-                    if pcap is not None:
-                        pcap.write(time.time(), frame)
+                self._send(sock if out == 0 or sock_b is None else sock_b, frame)
+                if faults is not None and faults.held:
+                    self._send_held(sock, lock)
                 # the applications' work (outputs to the drives) once the frame is on its way back
                 if not self._acquire(lock):
                     return

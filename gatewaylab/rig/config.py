@@ -6,11 +6,14 @@ import tomllib
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from gatewaylab.common.errors import ConfigError
 from gatewaylab.plugin import Key, name_problem, section_error, validate_table
 from gatewaylab.rig import kinds
+
+if TYPE_CHECKING:
+    from gatewaylab.rig.scenario import Step
 
 __all__ = ["BUS_KEYS", "CLOCK_MODES", "BusConfig", "RigConfig", "load_rig", "parse_rig"]
 
@@ -53,6 +56,8 @@ class RigConfig:
     source: str = "<memory>"
     #: Top-level sections of other installed kinds (a plugin's own ``[[name]]``), by name.
     extra: dict[str, Any] = field(default_factory=dict)
+    #: The ``[[scenario]]`` steps (gatewaylab.rig.scenario), validated; ``gatewaylab run --scenario`` replaces them.
+    scenario: tuple[Step, ...] = ()
 
 
 #: The keys of a ``[[bus]]`` section, checked by the same validator as every device section.
@@ -68,7 +73,7 @@ BUS_KEYS: dict[str, Key] = {
 }
 #: Top-level keys every rig file may have; kinds with a section of their own ([[drive]],
 #: [ethercat]) add theirs (gatewaylab.rig.kinds).
-_TOP_KEYS = {"clock", "bus", "device", "rig"}
+_TOP_KEYS = {"clock", "bus", "device", "rig", "scenario"}
 
 
 def _bus(raw: Any, where: str) -> BusConfig:
@@ -129,8 +134,13 @@ def parse_rig(data: dict[str, Any], source: str = "<memory>") -> RigConfig:
                                            f"(declared: {', '.join(names) or 'none'})")
             if section == "device" and "kind" not in entry:
                 raise section_error(where, "needs a kind (kind = \"...\", the device type)")
+    scenario: tuple[Step, ...] = ()
+    if "scenario" in data:
+        from gatewaylab.rig.scenario import parse_scenario  # the fault table: only for a rig with a scenario
+
+        scenario = parse_scenario(data["scenario"], source)
     config = RigConfig(clock, buses, tuple(data.get("drive", [])), tuple(data.get("device", [])),
-                       data.get("ethercat"), source, extra)
+                       data.get("ethercat"), source, extra, scenario)
     if not (buses or config.drives or config.devices or config.ethercat is not None or extra):
         raise ConfigError(f"{source}: the rig declares nothing to run (no [[bus]], no device); {MINIMAL_RIG}")
     kinds.plan(config)

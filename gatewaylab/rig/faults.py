@@ -21,16 +21,12 @@ so a plugin device only needs the members, nothing from here):
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
-from gatewaylab.bus.bus import VirtualBus
 from gatewaylab.bus.controller import Controller
 from gatewaylab.canopen.emcy import ERR_CURRENT, ERR_PROFILE
-from gatewaylab.common.clock import TimerHandle
-from gatewaylab.common.errors import GatewaylabError
 from gatewaylab.ethercat.esc import AlState
-from gatewaylab.ethercat.segment import Segment
 from gatewaylab.plugin.capabilities import (
     CanopenDrive,
     UsbPluggable,
@@ -38,18 +34,18 @@ from gatewaylab.plugin.capabilities import (
     drive_of,
     ethercat_devices,
     node_of,
-    segment_of,
 )
+from gatewaylab.rig.faults_core import FaultRefused, FaultsCore, check_seconds
+from gatewaylab.rig.faults_ec_dc import EC_DC_REQUESTS, EcDcFaults
+from gatewaylab.rig.faults_ec_frames import EC_FRAMES_REQUESTS, EcFramesFaults
+from gatewaylab.rig.faults_ec_ring import EC_RING_REQUESTS, EcRingFaults
+from gatewaylab.rig.faults_ec_slave import EC_SLAVE_REQUESTS, EcSlaveFaults
 from gatewaylab.rig.segment import SegmentParticipant
 
 if TYPE_CHECKING:
     from gatewaylab.rig.runtime import Rig
 
-__all__ = ["DRIVE_FAULTS", "FaultRefused", "Faults", "can_channels"]
-
-
-class FaultRefused(GatewaylabError):
-    """The rig cannot inject this fault (unknown bus or device, a device without that part)."""
+__all__ = ["DRIVE_FAULTS", "REQUESTS", "Faults", "check_request"]
 
 
 #: CiA 402 drive faults: name -> (EMCY / 0x603F error code, error register bits).
@@ -59,33 +55,19 @@ DRIVE_FAULTS: dict[str, tuple[int, int]] = {
 }
 
 
-class Faults:
-    """The faults of one rig (``rig.faults``); each call returns what it did as a dict."""
+class Faults(EcFramesFaults, EcSlaveFaults, EcDcFaults, EcRingFaults, FaultsCore):
+    """The faults of one rig (``rig.faults``); each call returns what it did as a dict. The EtherCAT
+    families come from their own modules (``faults_ec_*.py``, each a :class:`FaultsCore` mixin)."""
 
     def __init__(self, rig: Rig) -> None:
-        self._rig = rig
-        #: pending power-ons and fault ends, cancelled when the rig closes
-        self._timers: list[TimerHandle] = []
+        super().__init__(rig)
         self._powered_off: dict[str, CanopenDrive] = {}
 
     # -- lookup ---------------------------------------------------------------------------------
-    def _bus(self, name: str) -> VirtualBus:
-        bus = self._rig.buses.get(name)
-        if bus is None:
-            raise FaultRefused(f"no bus {name!r} in this rig (buses: {', '.join(sorted(self._rig.buses))})")
-        return bus
-
-    def _device(self, name: str) -> Any:
-        for p in self._rig.participants:
-            if p.name == name:
-                return p
-        names = ", ".join(p.name for p in self._rig.participants)
-        raise FaultRefused(f"no device {name!r} in this rig (devices: {names})")
-
     def _node_device(self, node_id: int, bus: str) -> Any:
         """The participant whose CANopen node has ``node_id`` on ``bus``."""
-        b = self._bus(bus)
-        for p in self._rig.participants:
+        b = self.bus(bus)
+        for p in self.rig.participants:
             node = node_of(p)
             if node is not None and node.bus is b and node.node_id == node_id:
                 return p
@@ -97,7 +79,7 @@ class Faults:
             if bus is None:
                 raise FaultRefused(f"node {device}: which bus? (give bus=...)")
             return self._node_device(device, bus)
-        return self._device(device)
+        return self.device(device)
 
     def _controller(self, device: str | int, bus: str | None, channel: str | None) -> tuple[Any, str, Controller]:
         p = self._target(device, bus)
@@ -120,76 +102,43 @@ class Faults:
             raise FaultRefused(f"{p.name} is not a drive")
         return p, drive
 
-    def _segment(self, device: str) -> tuple[Segment, int]:
-        p = self._device(device)
-        if not ethercat_devices([p]):
-            raise FaultRefused(f"{device} is not an EtherCAT device")
-        slave = p.slave
-        segment = segment_of(self._rig.participants)
-        if segment is None or slave not in segment.slaves:
-            raise FaultRefused(f"{device} is in no [ethercat] segment")
-        return segment, segment.slaves.index(slave)
-
     def _usb(self, device: str) -> UsbPluggable:
-        p = self._device(device)
+        p = self.device(device)
         if not isinstance(p, UsbPluggable):
             raise FaultRefused(f"{device} has no USB port")
         return p
 
-    def _locked(self, action: Callable[[], dict[str, Any]]) -> dict[str, Any]:
-        with self._rig.clock.lock:
-            if self._rig.closed:
-                raise FaultRefused("the rig is closed")
-            return action()
-
-    def _run(self, action: Callable[[], None], result: dict[str, Any]) -> dict[str, Any]:
-        def act() -> dict[str, Any]:
-            action()
-            return result
-        return self._locked(act)
-
-    def _later(self, delay: float, callback: Callable[[], None]) -> None:
-        self._timers = [t for t in self._timers if not t.cancelled]
-        handle = self._rig.clock.call_later(delay, callback)
-        self._timers.append(handle)
-
-    def cancel(self) -> None:
-        """Forget pending fault steps (the rig closes)."""
-        for t in self._timers:
-            t.cancel()
-        self._timers.clear()
-
     # -- bus faults -------------------------------------------------------------------------------
     def bus_errors(self, bus: str, duration: float, every: int = 1) -> dict[str, Any]:
         """Error frames on ``bus`` for ``duration`` s: one frame in ``every`` ends in a CRC error."""
-        b = self._bus(bus)
+        b = self.bus(bus)
         _positive("duration", duration)
         if every < 1:
             raise FaultRefused(f"every must be >= 1, got {every}")
-        return self._run(lambda: b.error_frames(duration, every), {
+        return self.run(lambda: b.error_frames(duration, every), {
             "fault": "bus-errors", "bus": bus, "duration": duration, "every": every})
 
     def stuck_dominant(self, bus: str, duration: float) -> dict[str, Any]:
         """Hold ``bus`` dominant for ``duration`` s: transmitters go bus-off, nothing completes."""
-        b = self._bus(bus)
+        b = self.bus(bus)
         _positive("duration", duration)
-        return self._run(lambda: b.stuck_dominant(duration), {
+        return self.run(lambda: b.stuck_dominant(duration), {
             "fault": "stuck-dominant", "bus": bus, "duration": duration})
 
     def drop(self, bus: str, can_id: int, count: int = 1) -> dict[str, Any]:
         """The next ``count`` frames of ``can_id`` on ``bus`` vanish (the sender sees success)."""
-        b = self._bus(bus)
+        b = self.bus(bus)
         _can_id(can_id)
         _count(count)
-        return self._run(lambda: b.drop_next(count, can_id), {
+        return self.run(lambda: b.drop_next(count, can_id), {
             "fault": "drop", "bus": bus, "can_id": can_id, "count": count})
 
     def corrupt(self, bus: str, can_id: int, count: int = 1) -> dict[str, Any]:
         """The next ``count`` frames of ``can_id`` on ``bus`` end in a CRC error (retransmitted)."""
-        b = self._bus(bus)
+        b = self.bus(bus)
         _can_id(can_id)
         _count(count)
-        return self._run(lambda: b.corrupt_next(count, can_id), {
+        return self.run(lambda: b.corrupt_next(count, can_id), {
             "fault": "corrupt", "bus": bus, "can_id": can_id, "count": count})
 
     # -- controller faults ------------------------------------------------------------------------
@@ -202,7 +151,7 @@ class Faults:
             ctrl.bus.force_error_passive(ctrl)
             return {"fault": "error-passive", "device": p.name, "channel": ch, "tec": ctrl.tec,
                     "state": ctrl.state.value}
-        return self._locked(act)
+        return self.locked(act)
 
     def bus_off(self, device: str | int, bus: str | None = None, channel: str | None = None) -> dict[str, Any]:
         """A device's CAN controller to bus-off (it recovers after 128 x 11 recessive bits)."""
@@ -210,7 +159,7 @@ class Faults:
             p, ch, ctrl = self._controller(device, bus, channel)
             ctrl.bus.force_bus_off(ctrl)
             return {"fault": "bus-off", "device": p.name, "channel": ch, "state": ctrl.state.value}
-        return self._locked(act)
+        return self.locked(act)
 
     def can_unplug(self, device: str | int, bus: str | None = None, channel: str | None = None) -> dict[str, Any]:
         """Pull a device's CAN connector: its controller neither sends nor receives."""
@@ -218,7 +167,7 @@ class Faults:
             p, ch, ctrl = self._controller(device, bus, channel)
             ctrl.bus.disconnect(ctrl)
             return {"fault": "can-unplug", "device": p.name, "channel": ch, "bus": ctrl.bus.name}
-        return self._locked(act)
+        return self.locked(act)
 
     def can_replug(self, device: str | int, bus: str | None = None, channel: str | None = None) -> dict[str, Any]:
         """Plug a device's CAN connector back in (frames it queued meanwhile go out)."""
@@ -226,7 +175,7 @@ class Faults:
             p, ch, ctrl = self._controller(device, bus, channel)
             ctrl.bus.reconnect(ctrl)
             return {"fault": "can-replug", "device": p.name, "channel": ch, "bus": ctrl.bus.name}
-        return self._locked(act)
+        return self.locked(act)
 
     # -- node faults --------------------------------------------------------------------------------
     def power_cycle(self, device: str | int, bus: str | None = None, off: float = 1.0) -> dict[str, Any]:
@@ -248,9 +197,9 @@ class Faults:
             if off == 0:
                 power_on()
             else:
-                self._later(off, power_on)
+                self.later(off, power_on)
             return {"fault": "power-cycle", "device": p.name, "off": off}
-        return self._locked(act)
+        return self.locked(act)
 
     def drive_fault(self, device: str | int, kind: str = "following-error", bus: str | None = None,
                     code: int | None = None) -> dict[str, Any]:
@@ -270,26 +219,36 @@ class Faults:
             drive.fault(error_code, register)
             return {"fault": "drive-fault", "device": p.name, "kind": kind, "error_code": error_code,
                     "state": drive.state.name}
-        return self._locked(act)
+        return self.locked(act)
 
     # -- EtherCAT ------------------------------------------------------------------------------------
     def ethercat_unplug(self, device: str) -> dict[str, Any]:
         """Pull an EtherCAT device out of its segment: it and the devices behind it stop answering."""
         def act() -> dict[str, Any]:
-            segment, position = self._segment(device)
+            segment, position = self.ethercat_position(device)
             segment.unplug(position)
+            reached = {id(s) for s in segment.reached} | {id(s) for s in segment.reached_secondary}
             return {"fault": "ethercat-unplug", "device": device, "position": position,
-                    "unreachable": [s.name for s in segment.slaves[position:]]}
-        return self._locked(act)
+                    "unreachable": [s.name for s in segment.slaves if id(s) not in reached]}
+        return self.locked(act)
 
     def ethercat_replug(self, device: str) -> dict[str, Any]:
         """Plug an EtherCAT device back in: it powers on in INIT."""
         def act() -> dict[str, Any]:
-            segment, position = self._segment(device)
+            segment, position = self.ethercat_position(device)
             segment.replug(position)
             return {"fault": "ethercat-replug", "device": device, "position": position,
                     "al_status": segment.slaves[position].esc.al_status}
-        return self._locked(act)
+        return self.locked(act)
+
+    def ec_clear(self, device: str | None = None) -> dict[str, Any]:
+        """End every active EtherCAT fault (of ``device`` only, when given); each is undone."""
+        def act() -> dict[str, Any]:
+            if device is not None:
+                self.device(device)
+            ended = self.board.end_all(device)
+            return {"fault": "ec-clear", "device": device, "ended": [e.as_json() for e in ended]}
+        return self.locked(act)
 
     # -- USB -----------------------------------------------------------------------------------------
     def usb_unplug(self, device: str) -> dict[str, Any]:
@@ -298,7 +257,7 @@ class Faults:
             p = self._usb(device)
             p.usb_unplug()
             return {"fault": "usb-unplug", "device": device}
-        return self._locked(act)
+        return self.locked(act)
 
     def usb_replug(self, device: str) -> dict[str, Any]:
         """Plug the USB cable back in; the answer gives the port's endpoints (a pty gets a new path)."""
@@ -306,14 +265,14 @@ class Faults:
             p = self._usb(device)
             p.usb_replug()
             return {"fault": "usb-replug", "device": device, **p.ready_info()}
-        return self._locked(act)
+        return self.locked(act)
 
     # -- status (not a fault: what `gatewaylab monitor` shows of the EtherCAT side) -------------------
     def ethercat_states(self) -> dict[str, Any]:
         """AL state and AL status code of every EtherCAT device of the rig (ETG.1000.6 AL status)."""
         def act() -> dict[str, Any]:
             states: dict[str, Any] = {}
-            for p in ethercat_devices(self._rig.participants):
+            for p in ethercat_devices(self.rig.participants):
                 esc = p.slave.esc
                 status = esc.al_status
                 try:
@@ -321,21 +280,24 @@ class Faults:
                 except ValueError:
                     state = f"0x{status & 0x0F:X}"
                 states[p.name] = {"state": state, "error": bool(status & 0x10), "code": esc.al_status_code}
-            out: dict[str, Any] = {"fault": "ethercat-states", "devices": states}
-            for q in self._rig.participants:       # the [ethercat] wire's counters while it runs
+            out: dict[str, Any] = {"fault": "ethercat-states", "devices": states,
+                                   "faults": [e.as_json() for e in self.board.entries()]}
+            for q in self.rig.participants:       # the [ethercat] wire's counters while it runs
                 if isinstance(q, SegmentParticipant) and (wire := q.wire_stats()) is not None:
                     out["wire"] = wire
                 if isinstance(q, SegmentParticipant) and q.eni is not None:     # the slaves an ENI built
                     states.update(q.eni.states())
+            if self.rig.scenario is not None:       # the steps of a [[scenario]], those fired so far
+                out["scenario"] = self.rig.scenario.as_json()
             return out
-        return self._locked(act)
+        return self.locked(act)
 
     def can_states(self) -> dict[str, Any]:
         """Every CAN controller of the rig's devices by bus: fault-confinement state, error counters and
         whether it is plugged in (what `gatewaylab monitor` and the --web page show of other nodes)."""
         def act() -> dict[str, Any]:
             buses: dict[str, Any] = {}
-            for p in self._rig.participants:
+            for p in self.rig.participants:
                 for ch, ctrl in can_channels(p).items():
                     name = p.name if ch == "can" else f"{p.name}.{ch}"
                     stats = ctrl.stats
@@ -343,41 +305,47 @@ class Faults:
                         "state": ctrl.state.value, "tec": ctrl.tec, "rec": ctrl.rec, "connected": ctrl.connected,
                         "bus_offs": stats.bus_offs, "error_frames": stats.error_frames}
             return {"fault": "can-states", "buses": buses}
-        return self._locked(act)
+        return self.locked(act)
 
     # -- the request table (control endpoint, CLI) -------------------------------------------------
     def request(self, req: Mapping[str, Any]) -> dict[str, Any]:
         """Run one control request ``{"fault": NAME, ...arguments}`` (docs/faults.md)."""
-        name = req.get("fault")
-        spec = REQUESTS.get(name) if isinstance(name, str) else None
-        if spec is None:
-            raise FaultRefused(f"unknown fault {name!r} (faults: {', '.join(REQUESTS)})")
-        method, params = spec
-        kwargs: dict[str, Any] = {}
-        for key, value in req.items():
-            if key == "fault":
-                continue
-            if key not in params:
-                raise FaultRefused(f"{name}: unknown argument {key!r} (arguments: {', '.join(params)})")
-            want, _required = params[key]
-            if not _accepts(want, value):
-                raise FaultRefused(f"{name}: {key} must be {want}, got {value!r}")
-            kwargs[_PY_NAMES.get(key, key)] = value
-        if "node" in params:
-            if "node" in req and "device" in req:
-                raise FaultRefused(f"{name}: give device or node, not both")
-            if "node" not in req and "device" not in req:
-                raise FaultRefused(f"{name}: missing device (a name) or node (a node-ID, with bus)")
-        missing = [k for k, (_, required) in params.items() if required and k not in req]
-        if missing:
-            raise FaultRefused(f"{name}: missing {', '.join(missing)}")
+        method, kwargs = check_request(req)
         result: dict[str, Any] = getattr(self, method)(**kwargs)
         return result
 
 
+def check_request(req: Mapping[str, Any]) -> tuple[str, dict[str, Any]]:
+    """Check a control request against :data:`REQUESTS` without running it (a scenario checks its steps
+    when it loads): the :class:`Faults` method and its keyword arguments, else :class:`FaultRefused`."""
+    name = req.get("fault")
+    spec = REQUESTS.get(name) if isinstance(name, str) else None
+    if spec is None:
+        raise FaultRefused(f"unknown fault {name!r} (faults: {', '.join(REQUESTS)})")
+    method, params = spec
+    kwargs: dict[str, Any] = {}
+    for key, value in req.items():
+        if key == "fault":
+            continue
+        if key not in params:
+            raise FaultRefused(f"{name}: unknown argument {key!r} (arguments: {', '.join(params)})")
+        want, _required = params[key]
+        if not _accepts(want, value):
+            raise FaultRefused(f"{name}: {key} must be {want}, got {value!r}")
+        kwargs[_PY_NAMES.get(key, key)] = value
+    if "node" in params:
+        if "node" in req and "device" in req:
+            raise FaultRefused(f"{name}: give device or node, not both")
+        if "node" not in req and "device" not in req:
+            raise FaultRefused(f"{name}: missing device (a name) or node (a node-ID, with bus)")
+    missing = [k for k, (_, required) in params.items() if required and k not in req]
+    if missing:
+        raise FaultRefused(f"{name}: missing {', '.join(missing)}")
+    return method, kwargs
+
+
 def _positive(what: str, value: float) -> None:
-    if not (value > 0 and math.isfinite(value)):
-        raise FaultRefused(f"{what} must be a finite number of seconds > 0, got {value}")
+    check_seconds(what, value)
 
 
 def _can_id(can_id: int) -> None:
@@ -397,6 +365,8 @@ def _accepts(want: str, value: object) -> bool:
         return isinstance(value, (int, float)) and not isinstance(value, bool)
     if want == "string":
         return isinstance(value, str)
+    if want == "bool":
+        return isinstance(value, bool)
     return (isinstance(value, int) and not isinstance(value, bool)) or isinstance(value, str)  # "device"
 
 
@@ -424,6 +394,11 @@ REQUESTS: dict[str, tuple[str, dict[str, tuple[str, bool]]]] = {
     "ethercat-replug": ("ethercat_replug", {"device": ("string", _R)}),
     "usb-unplug": ("usb_unplug", {"device": ("string", _R)}),
     "usb-replug": ("usb_replug", {"device": ("string", _R)}),
+    "ec-clear": ("ec_clear", {"device": ("string", _O)}),
     "ethercat-states": ("ethercat_states", {}),
     "can-states": ("can_states", {}),
 }
+REQUESTS.update(EC_DC_REQUESTS)
+REQUESTS.update(EC_FRAMES_REQUESTS)
+REQUESTS.update(EC_SLAVE_REQUESTS)
+REQUESTS.update(EC_RING_REQUESTS)

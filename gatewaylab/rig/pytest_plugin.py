@@ -11,10 +11,14 @@ their master software (docs/testing-your-master.md).
 * markers ``gatewaylab_root`` (the test needs root) and ``gatewaylab_veth`` (it needs veth pairs and
   raw sockets: root or CAP_NET_ADMIN + CAP_NET_RAW and iproute2): such tests are skipped, with the
   reason, where the process lacks it.
+* marker ``gatewaylab_scenario("steps.toml")`` (a scenario file, relative to the test file's folder) or
+  ``gatewaylab_scenario(steps=[{...}, ...])`` (the ``[[scenario]]`` tables as dicts): every rig the test
+  starts with ``gatewaylab_rig`` fires those steps (``scenario=`` of the factory overrides it).
 """
 
 from __future__ import annotations
 
+import json
 import os
 import tomllib
 from collections.abc import Callable, Iterator, Mapping
@@ -30,6 +34,8 @@ if TYPE_CHECKING:
     from gatewaylab.rig.process import RigProcess
     from gatewaylab.rig.runtime import Rig
 
+from gatewaylab.common.ask import ask, endpoint_address
+from gatewaylab.common.endpoint import EndpointKind, parse_endpoint
 from gatewaylab.common.errors import ConfigError
 from gatewaylab.rig.process import free_udp_ports, rig_toml
 
@@ -42,7 +48,13 @@ MARKERS = {
     "gatewaylab_root": "the test needs root (skipped otherwise)",
     "gatewaylab_veth": "the test needs veth pairs and raw sockets: root or CAP_NET_ADMIN + CAP_NET_RAW and "
                        "iproute2 (skipped otherwise)",
+    "gatewaylab_scenario": "gatewaylab_scenario(FILE) or gatewaylab_scenario(steps=[...]): the rigs the test starts "
+                           "with gatewaylab_rig fire these [[scenario]] steps (docs/faults.md 'Scenarios')",
 }
+#: How errors name steps given as dicts: "scenario steps [[scenario]] #2: needs a trigger ...".
+STEPS_SOURCE = "scenario steps"
+#: A scenario: a file (path) or the steps as dicts.
+ScenarioSpec = str | Path | list[Mapping[str, Any]] | tuple[Mapping[str, Any], ...]
 
 
 class RigHandle:
@@ -93,6 +105,21 @@ class RigHandle:
         self._buses.append(made)
         return made
 
+    def fault(self, name: str, **arguments: Any) -> dict[str, Any]:
+        """Inject fault ``name`` (a ``gatewaylab fault`` verb, e.g. ``"ec-lose"``) with the control request's
+        arguments (docs/faults.md), in process or through the control endpoint; the rig's answer.
+        A refused fault raises :class:`~gatewaylab.rig.faults_core.FaultRefused` with the rig's reason."""
+        request = {"fault": name, **arguments}
+        if self.rig is not None:
+            return self.rig.faults.request(request)
+        endpoint = parse_endpoint(str(self.info["control"]), bare_path=EndpointKind.UNIX)
+        answer: dict[str, Any] = json.loads(ask(endpoint_address(endpoint), request, 10.0) or b"{}")
+        if not answer.get("ok"):
+            from gatewaylab.rig.faults_core import FaultRefused  # the plugin loads in every pytest run: light
+
+            raise FaultRefused(f"fault {name} refused: {answer.get('error', answer)}")
+        return answer
+
     def stop(self) -> None:
         """Shut down its python-can buses, then the rig (idempotent)."""
         for made in self._buses:
@@ -107,8 +134,39 @@ class RigHandle:
             self.rig.close()
 
 
+def _scenario(workdir: Path, scenario: ScenarioSpec | None) -> tuple[tuple[Any, ...], Path | None]:
+    """The steps (checked here, in the test's process) and the file a ``gatewaylab run`` child reads them from."""
+    if scenario is None:
+        return (), None
+    from gatewaylab.rig.scenario import load_scenario, parse_scenario
+
+    if isinstance(scenario, (str, Path)):
+        path = Path(scenario).resolve()
+        return load_scenario(path), path
+    steps = parse_scenario([dict(step) for step in scenario], STEPS_SOURCE)
+    path = workdir / "scenario.toml"
+    path.write_text(rig_toml({"scenario": [step.as_json() for step in steps]}))
+    return steps, path
+
+
+def _marked_scenario(node: pytest.Item | None) -> ScenarioSpec | None:
+    """The ``gatewaylab_scenario`` marker's scenario (a file relative to the test file's folder), else None."""
+    marker = None if node is None else node.get_closest_marker("gatewaylab_scenario")
+    if marker is None or node is None:
+        return None
+    steps = marker.kwargs.get("steps")
+    if (steps is None) == (len(marker.args) != 1) or set(marker.kwargs) - {"steps"}:
+        raise ConfigError("gatewaylab_scenario takes a scenario file or steps=[...], one of them: "
+                          f"got args {marker.args!r}, kwargs {sorted(marker.kwargs)}")
+    if steps is not None:
+        if not isinstance(steps, (list, tuple)):
+            raise ConfigError(f"gatewaylab_scenario(steps=...) must be a list of step dicts, got {steps!r}")
+        return list(steps)
+    return Path(node.path).parent / Path(marker.args[0])
+
+
 def _start(workdir: Path, rig: str | Path | Mapping[str, Any] | None, clock: str, in_process: bool,
-           args: tuple[str, ...], timeout: float) -> RigHandle:
+           args: tuple[str, ...], timeout: float, scenario: ScenarioSpec | None = None) -> RigHandle:
     if clock not in ("realtime", "simulated"):
         raise ConfigError(f"clock must be 'realtime' or 'simulated', not {clock!r}")
     from gatewaylab.rig.config import load_rig, parse_rig
@@ -126,7 +184,10 @@ def _start(workdir: Path, rig: str | Path | Mapping[str, Any] | None, clock: str
     else:
         path = None if rig is None else Path(rig)
         config = load_rig(path)
+    steps, scenario_file = _scenario(workdir, scenario)
     if child:
+        if scenario_file is not None:
+            args = (*args, "--scenario", str(scenario_file))
         from gatewaylab.rig.process import RigProcess
 
         process = RigProcess(path, *args, workdir=workdir, timeout=timeout)
@@ -136,6 +197,10 @@ def _start(workdir: Path, rig: str | Path | Mapping[str, Any] | None, clock: str
     from gatewaylab.common.clock import RealTimeClock, SimulatedClock
     from gatewaylab.rig.runtime import Rig
 
+    if steps:
+        from dataclasses import replace
+
+        config = replace(config, scenario=steps)
     instance = Rig(config, clock=SimulatedClock() if clock == "simulated" else RealTimeClock())
     handle = RigHandle(workdir, {}, rig=instance)
     try:
@@ -150,15 +215,20 @@ def _start(workdir: Path, rig: str | Path | Mapping[str, Any] | None, clock: str
 
 
 @pytest.fixture
-def gatewaylab_rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Callable[..., RigHandle]]:
-    """``gatewaylab_rig(rig=None, *, clock="realtime", in_process=False, args=(), timeout=60.0)`` ->
-    :class:`RigHandle`; every rig it started is stopped when the test ends."""
+def gatewaylab_rig(tmp_path_factory: pytest.TempPathFactory,
+                   request: pytest.FixtureRequest) -> Iterator[Callable[..., RigHandle]]:
+    """``gatewaylab_rig(rig=None, *, clock="realtime", in_process=False, args=(), timeout=60.0,
+    scenario=None)`` -> :class:`RigHandle`; every rig it started is stopped when the test ends. ``scenario``
+    (a scenario file or a list of step dicts) defaults to the test's ``gatewaylab_scenario`` marker."""
     handles: list[RigHandle] = []
+    marked = _marked_scenario(request.node if isinstance(request.node, pytest.Item) else None)
 
     def start(rig: str | Path | Mapping[str, Any] | None = None, *, clock: str = "realtime",
-              in_process: bool = False, args: tuple[str, ...] | list[str] = (), timeout: float = 60.0) -> RigHandle:
+              in_process: bool = False, args: tuple[str, ...] | list[str] = (), timeout: float = 60.0,
+              scenario: ScenarioSpec | None = None) -> RigHandle:
         workdir = tmp_path_factory.mktemp("gatewaylab-rig")
-        handle = _start(workdir, rig, clock, in_process, tuple(args), timeout)
+        handle = _start(workdir, rig, clock, in_process, tuple(args), timeout,
+                        marked if scenario is None else scenario)
         handles.append(handle)
         return handle
 

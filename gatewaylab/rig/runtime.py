@@ -47,6 +47,7 @@ from gatewaylab.rig import kinds
 from gatewaylab.rig.config import CONTROL_SOCKET, RigConfig, load_rig
 from gatewaylab.rig.control import ControlServer
 from gatewaylab.rig.faults import Faults
+from gatewaylab.rig.scenario_run import ScenarioRun
 
 __all__ = ["GRACE", "Participant", "Rig", "RigStartError", "merge_info"]
 
@@ -161,6 +162,8 @@ class Rig:
         self.traces: list[Trace] = []
         #: fault injection (docs/faults.md); ``control`` serves it to other processes
         self.faults = Faults(self)
+        #: the ``[[scenario]]`` steps (docs/faults.md "Scenarios"), armed by start(); None without
+        self.scenario: ScenarioRun | None = None
         self.control: ControlServer | None = None
         self.callback_errors = 0
         self._started = False
@@ -194,6 +197,8 @@ class Rig:
             if with_endpoints:
                 self._open_endpoints()
             self._build_participants()
+            if config.scenario:
+                self.scenario = ScenarioRun(self, config.scenario)
         except BaseException:
             self.close()
             raise
@@ -381,6 +386,8 @@ class Rig:
                     hint = " (choose another port)" if exc.errno == errno.EADDRINUSE else ""
                     raise RigStartError(f"{section.where}: cannot start {p.name}: "
                                         f"{exc.strerror or exc}{hint}") from None
+            if self.scenario is not None:
+                self.scenario.arm()
 
     def ready_info(self) -> dict[str, Any]:
         """What the --ready-file holds: pid, the modules that run compiled (so a master's test log
@@ -496,6 +503,8 @@ class Rig:
         try:
             with self.clock.lock:
                 self.faults.cancel()
+                if self.scenario is not None:
+                    self.scenario.close()
                 if self.control is not None:
                     self.control.close()
                 for p in reversed(self.participants):

@@ -10,6 +10,11 @@ Rig file::
     max_residence_ms = 2.0 # optional: frames older than this are dropped, never answered late (0: no limit)
     realtime = true        # optional: SCHED_FIFO for the wire thread and the rig's loop (root or CAP_SYS_NICE)
     switch_interval_us = 200  # the interpreter's thread switch interval while the wire runs (0: leave it)
+    cable_m = 1.0          # optional: length of every cable (DC propagation delays, about 5 ns per metre)
+    cables_m = "io2=20"    # optional: other lengths of the cables into some devices (NAME=METRES ...)
+    redundant = "gl-ecat2" # optional: cable redundancy, the end cabled to the last slave's port 1 (a ring)
+    hot_connect = "io2, io4"  # optional: heads of hot-connect groups (a head and the devices after it, up to the
+                              # next head, are unplugged and plugged together: ec-hot-unplug / ec-hot-plug)
     eni = "machine.xml"    # optional: the segment an ENI describes, in its <Slave> order
     esi = ["esi/"]         # optional: ESI files or folders for the ENI's slaves (else built from the ENI alone)
 
@@ -27,6 +32,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from gatewaylab.common.errors import ConfigError
+from gatewaylab.ethercat.esc_dc_clock import DEFAULT_CABLE_M
 from gatewaylab.ethercat.residence import DEFAULT_MAX_RESIDENCE_MS
 from gatewaylab.ethercat.segment import Segment
 from gatewaylab.ethercat.wire import REALTIME_PRIORITY, WireTransport, make_ordinary, make_realtime
@@ -42,6 +48,7 @@ __all__ = [
     "SWITCH_INTERVAL_US",
     "SegmentParticipant",
     "create_segment",
+    "hot_connect_groups",
 ]
 
 
@@ -66,6 +73,13 @@ SEGMENT_KEYS: dict[str, Key] = {
                                      "one log line when not allowed)"),
     "switch_interval_us": Key(float, SWITCH_INTERVAL_US, min=0.0, max=5000.0,
                               help="the interpreter's thread switch interval while the wire runs; 0 leaves it"),
+    "cable_m": Key(float, DEFAULT_CABLE_M, min=0.0, max=100.0,
+                   help="length of every cable in metres (DC propagation delays: about 5 ns per metre)"),
+    "cables_m": Key(str, help='lengths of the cables into some devices, e.g. cables_m = "io2=20 io3=0.5"'),
+    "redundant": Key(str, help='cable redundancy: the second interface, cabled to the last slave\'s port 1, e.g. '
+                               'redundant = "gl-ecat2"'),
+    "hot_connect": Key(str, help='the heads of hot-connect groups, comma-separated device names, e.g. '
+                                 'hot_connect = "io2, io4"'),
     "eni": Key(str, help="an ENI file (relative to the rig file's folder): the segment in its <Slave> order"),
     "esi": Key(list, help='ESI files or folders for the ENI\'s slaves, e.g. esi = ["esi/"]'),
 }
@@ -88,7 +102,19 @@ class SegmentParticipant:
         elif cfg["esi"] is not None:
             raise ConfigError("[ethercat] esi = [...] names the ESI files of an ENI's slaves: give eni = \"PATH\" "
                               "too (a single ESI device is a [[device]] kind = \"esi\")")
-        self.segment = Segment(self.eni.slaves if self.eni is not None else [d.slave for d in self.devices])
+        slaves = self.eni.slaves if self.eni is not None else [d.slave for d in self.devices]
+        names = [o.name for o in self.eni.origins] if self.eni is not None else [d.name for d in self.devices]
+        cables = _cables(cfg["cables_m"], names)
+        for name, slave in zip(names, slaves, strict=True):
+            slave.esc.clocks.cable_m = cables.get(name, float(cfg["cable_m"]))
+        self.segment = Segment(slaves)
+        #: cable redundancy: the interface cabled to the last slave's port 1, or None (a line)
+        self.redundant: str | None = cfg["redundant"]
+        if self.redundant is not None:
+            self.segment.set_redundant(True)
+        #: hot-connect groups: the head's name -> the positions of the group (the head and the devices after it,
+        #: up to the next head)
+        self.hot_groups: dict[str, list[int]] = hot_connect_groups(cfg["hot_connect"], names)
         self.pcap_path: str | None = cfg["pcap"]
         self.cpu: int | None = cfg["cpu"]
         self.busy_poll: bool = cfg["busy_poll"]
@@ -108,7 +134,7 @@ class SegmentParticipant:
             self.pcap = PcapWriter(str(self.pcap_path))
         self.wire = WireTransport(self.segment, self.interface, self.rig.clock, busy_poll=self.busy_poll,
                                   pcap=self.pcap, cpu=self.cpu, max_residence_ms=self.max_residence_ms,
-                                  realtime=self.realtime)
+                                  realtime=self.realtime, redundant=self.redundant)
         if self.switch_interval_s > 0:
             # the wire thread waits for the interpreter lock while the rig's loop runs Python (CAN buses,
             # drives): at most one switch interval (5 ms by default) each time
@@ -157,12 +183,45 @@ class SegmentParticipant:
 
     def ready_info(self) -> dict[str, Any]:
         """The interface and the slaves in position order, for the --ready-file."""
-        info: dict[str, Any] = {"ethercat": {"interface": self.interface, "slaves": [
+        info: dict[str, Any] = {"ethercat": {"interface": self.interface, "redundant": self.redundant, "slaves": [
             {"name": s.name, "position": i, "vendor_id": s.desc.vendor_id, "product_code": s.desc.product_code}
             for i, s in enumerate(self.segment.slaves)]}}
         if self.eni is not None:
             info["eni"] = self.eni.info()
         return info
+
+
+def _cables(text: str | None, names: list[str]) -> dict[str, float]:
+    """``cables_m``: "NAME=METRES ..." (spaces or commas between) -> {device name: metres}."""
+    out: dict[str, float] = {}
+    for item in (text or "").replace(",", " ").split():
+        name, eq, value = item.partition("=")
+        try:
+            metres = float(value)
+        except ValueError:
+            metres = -1.0
+        if not eq or not 0.0 <= metres <= 100.0:
+            raise ConfigError(f"[ethercat]: cables_m item {item!r} is not NAME=METRES (0..100)")
+        if name not in names:
+            raise ConfigError(f"[ethercat]: cables_m names {name!r}, not an EtherCAT device of this rig "
+                              f"({', '.join(names)})")
+        out[name] = metres
+    return out
+
+
+def hot_connect_groups(heads: str | None, names: list[str]) -> dict[str, list[int]]:
+    """The hot-connect groups of ``[ethercat] hot_connect`` (comma-separated heads) over the devices ``names`` in
+    position order: head -> positions (the head and the devices after it up to the next head)."""
+    if not heads:
+        return {}
+    wanted = [h.strip() for h in heads.split(",") if h.strip()]
+    for head in wanted:
+        if head not in names:
+            raise ConfigError(f"[ethercat] hot_connect: {head!r} is not an EtherCAT device of this rig "
+                              f"(devices: {', '.join(names)})")
+    starts = sorted(names.index(h) for h in set(wanted))
+    ends = [*starts[1:], len(names)]
+    return {names[a]: list(range(a, b)) for a, b in zip(starts, ends, strict=True)}
 
 
 def create_segment(rig: RigContext, cfg: dict[str, Any],

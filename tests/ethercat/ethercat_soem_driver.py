@@ -106,7 +106,9 @@ def scenario_full(iface: str, cycles: int) -> dict[str, Any]:
     for s in master.slaves:
         s.dc_sync(True, 1_000_000)
     out.update(_to_op(master))
-    bad = 0
+    bad = lost = 0
+    last_good = -1
+    inputs: list[str] = []
     t0 = time.perf_counter()
     for i in range(cycles):
         for k, s in enumerate(master.slaves):
@@ -114,12 +116,18 @@ def scenario_full(iface: str, cycles: int) -> dict[str, Any]:
                 + (-k).to_bytes(2, "little", signed=True)
         master.send_processdata()
         wkc = master.receive_processdata(RX_TIMEOUT_US)
-        if wkc != master.expected_wkc:
+        if wkc < 0:         # EC_NOFRAME: no reply within SOEM's timeout -- a lost frame, not a wrong one
+            lost += 1
+        elif wkc != master.expected_wkc:
             bad += 1
+        else:
+            last_good = i
+            inputs = [s.input.hex() for s in master.slaves]
     out["elapsed"] = time.perf_counter() - t0
     out["bad_wkc"] = bad
-    out["inputs"] = [s.input.hex() for s in master.slaves]
-    out["last_i"] = cycles - 1
+    out["lost"] = lost
+    out["inputs"] = inputs
+    out["last_i"] = last_good
     # stop sending: the SM watchdog (1 s) takes the slaves to SAFEOP + error 0x001B; poll the AL
     # status (register reads do not trigger the process data watchdog) until it happened
     stopped = time.monotonic()
@@ -141,11 +149,17 @@ def scenario_mixed(iface: str) -> dict[str, Any]:
     out["image"] = master.config_map()
     out.update(_to_op(master))
     master.slaves[1].output = b"\x0f"
-    wkcs = []
-    for _ in range(3):
+    wkcs: list[int] = []
+    lost = 0
+    while len(wkcs) < 3 and lost < 3:       # three replies; a lost frame (EC_NOFRAME) is counted
         master.send_processdata()
-        wkcs.append(master.receive_processdata(RX_TIMEOUT_US))
+        wkc = master.receive_processdata(RX_TIMEOUT_US)
+        if wkc < 0:
+            lost += 1
+        else:
+            wkcs.append(wkc)
     out["wkcs"] = wkcs
+    out["lost"] = lost
     out["dio_input"] = master.slaves[1].input.hex()
     master.close()
     return out
@@ -160,14 +174,20 @@ def scenario_cycles(iface: str, cycles: int) -> dict[str, Any]:
     out.update(_to_op(master))
     s0 = master.slaves[0]
     size = len(s0.output)
-    bad = 0
+    bad = lost = 0
+    out["last_i"], out["input"] = -1, ""
     for i in range(cycles):
         s0.output = bytes([i & 0xFF]) * size
         master.send_processdata()
-        if master.receive_processdata(RX_TIMEOUT_US) != master.expected_wkc:
+        wkc = master.receive_processdata(RX_TIMEOUT_US)
+        if wkc < 0:         # EC_NOFRAME: a lost frame (counted), not a wrong answer
+            lost += 1
+        elif wkc != master.expected_wkc:
             bad += 1
+        else:
+            out["last_i"], out["input"] = i, s0.input.hex()
     out["bad_wkc"] = bad
-    out["input"] = s0.input.hex()
+    out["lost"] = lost
     out["sizes"] = [len(s0.output), len(s0.input)]
     master.close()
     return out

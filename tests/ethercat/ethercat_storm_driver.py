@@ -82,14 +82,19 @@ def soem_after_storm(iface: str, cycles: int, reset: Callable[[Any], None] = res
         if out["op"] == 8:
             break
     bad = 0 if out["op"] == 8 else cycles
+    lost = 0
     for i in range(cycles if out["op"] == 8 else 0):
         for k, s in enumerate(master.slaves):
             s.output = bytes([(i + k) & 0xFF]) + bytes(len(s.output) - 1)
         master.send_processdata()
-        if master.receive_processdata(RX_TIMEOUT_US) != master.expected_wkc:
+        wkc = master.receive_processdata(RX_TIMEOUT_US)
+        if wkc < 0:         # EC_NOFRAME: a lost frame (counted), not a wrong answer
+            lost += 1
+        elif wkc != master.expected_wkc:
             bad += 1
     master.read_state()
     out["bad_wkc"] = bad
+    out["lost"] = lost
     out["cycles"] = cycles
     out["states"] = [s.state for s in master.slaves]
     out["inputs"] = [s.input.hex() for s in master.slaves]

@@ -16,7 +16,7 @@ from gatewaylab.ethercat.datagram import Command
 from gatewaylab.ethercat.errors import WorkingCounterError
 from gatewaylab.ethercat.esc import REG_AL_STATUS, AlState
 from gatewaylab.hosts.ethercat.master import Master
-from gatewaylab.rig.faults import FaultRefused
+from gatewaylab.rig.faults_core import FaultRefused
 from gatewaylab.rig.runtime import Rig
 
 RIG = """

@@ -23,7 +23,8 @@ from gatewaylab.common.clock import RealTimeClock
 from gatewaylab.devices.canopen_drive.device import Drive
 from gatewaylab.rig.config import parse_rig
 from gatewaylab.rig.control import MAX_LINE, answer_line
-from gatewaylab.rig.faults import REQUESTS, FaultRefused
+from gatewaylab.rig.faults import REQUESTS
+from gatewaylab.rig.faults_core import FaultRefused
 from gatewaylab.rig.runtime import Rig, RigStartError
 
 TWO_DRIVES: dict[str, Any] = {

@@ -60,12 +60,6 @@ ECAN_N = 3
 #: ethercat_io process image (tests/ethercat/ethercat_kickcat_driver.py)
 IO_OUT = struct.Struct("<Bhh")
 IO_IN = struct.Struct("<BhhI")
-#: KickCAT's scan waits one whole link timeout after every broadcast (one per 4 SII bytes, see
-#: ecanlite_kickcat_driver.py): the driver's 30 ms first try scans the esd in 10 s. The rig's busy-polling wire
-#: thread mostly answers within a few milliseconds, but one answer later than the timeout anywhere in the SII
-#: read ends the scan (KickCAT's areEepromReady), and on a loaded machine one of the ~1000 frames often is:
-#: short timeouts, tried again (the test starts the whole master again after these).
-kc.INIT_TIMEOUTS_S = (0.01, 0.01, 0.02, 0.02, 0.05)
 
 
 def emit(event: str, **fields: Any) -> None:
@@ -137,13 +131,12 @@ class _KickcatSdo:
 
 
 class Kickcat:
-    """KickCAT: ecanlite_kickcat_driver's Session (scan with growing link timeouts, mailbox, OP)."""
+    """KickCAT: ecanlite_kickcat_driver's Session (scan and mailbox with KickCAT's default timeouts, OP)."""
 
     def __init__(self, iface: str) -> None:
         self.s = kc.Session(iface)
         self.slaves = list(self.s.bus.slaves())
         self.count = len(self.slaves)
-        self.s.link.set_timeout(kc.MAILBOX_TIMEOUT_S)
 
     def sdo_slave(self, k: int) -> Any:
         assert k == 0

@@ -25,7 +25,7 @@ from typing import Any
 import pytest
 from ethercat_userpath_kit import ethercat_rig
 
-from gatewaylab.cli.ask import ask, endpoint_address
+from gatewaylab.common.ask import ask, endpoint_address
 from gatewaylab.common.endpoint import EndpointKind, parse_endpoint
 
 pytestmark = [pytest.mark.net, pytest.mark.slow]

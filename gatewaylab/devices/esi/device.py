@@ -11,6 +11,7 @@ masters without changes.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -18,6 +19,7 @@ from typing import Any
 from mypy_extensions import mypyc_attr
 
 from gatewaylab.common.clock import Clock
+from gatewaylab.devices.esi.esm import EsmTimer
 from gatewaylab.devices.esi.reader import EsiDevice, EsiError, apply_dictionary, identity_overrides
 from gatewaylab.ethercat.description import DeviceDescription
 from gatewaylab.ethercat.esc import AlState
@@ -45,13 +47,16 @@ def esi_description(device: EsiDevice, serial: int | None = None, sii: bytes | N
 
 @mypyc_attr(allow_interpreted_subclasses=True)
 class EsiApplication(SlaveApplication):
-    """Behaviour rules once per cycle, PDO configuration checks (ETG.1000.6 PDO mapping / assignment)."""
+    """Behaviour rules once per cycle, PDO configuration checks (ETG.1000.6 PDO mapping / assignment), the
+    ESI's state machine timeouts for transitions the rig makes slow (:mod:`gatewaylab.devices.esi.esm`)."""
 
-    def __init__(self, device: EsiDevice, behaviour: Behaviour | None = None) -> None:
+    def __init__(self, device: EsiDevice, behaviour: Behaviour | None = None,
+                 transition_ms: Mapping[tuple[AlState, AlState], float] | None = None) -> None:
         self.device = device
         self.behaviour = behaviour
         self.clock: Clock | None = None
         self.has_outputs = bool(device.desc.rx_pdos)
+        self.esm = EsmTimer(device.timeouts, transition_ms or {})
 
     def setup_od(self, slave: Slave, od: ObjectDictionary) -> None:
         """Subindex 0 of a mapping or assignment object: the objects it enables must exist and fit the
@@ -115,6 +120,10 @@ class EsiApplication(SlaveApplication):
         if not self.has_outputs or slave.state != AlState.OP:
             self._tick()
 
+    def on_transition(self, slave: Slave, old: AlState, new: AlState) -> int:
+        """At once, or pending for the application's time (``transition_ms``) within the ESI's timeout."""
+        return self.esm.on_transition(slave.clock, slave, old, new)
+
     def on_state(self, slave: Slave, old: AlState, new: AlState, code: int) -> None:
         """Entering SAFEOP: the inputs the master reads first already follow the rules."""
         if new == AlState.SAFEOP and old == AlState.PREOP:
@@ -122,13 +131,16 @@ class EsiApplication(SlaveApplication):
 
 
 def esi_slave(clock: Clock, device: EsiDevice, name: str, *, serial: int | None = None,
-              sii_path: Path | None = None, behaviour: Behaviour | None = None) -> Slave:
+              sii_path: Path | None = None, behaviour: Behaviour | None = None,
+              transition_ms: Mapping[tuple[AlState, AlState], float] | None = None) -> Slave:
     """A slave of ``device`` (rules applied by its :class:`EsiApplication`; set ``behaviour`` later with
-    ``slave.app.behaviour`` when the rules need the slave's dictionary first)."""
+    ``slave.app.behaviour`` when the rules need the slave's dictionary first); ``transition_ms`` the
+    application's time per upward transition in seconds (:func:`gatewaylab.devices.esi.esm.parse_transition_ms`)."""
     sii = None
     if sii_path is not None:
         try:
             sii = sii_path.read_bytes()
         except OSError as exc:
             raise EsiError(f"{sii_path}: cannot read it ({exc.strerror or exc})") from None
-    return Slave(clock, esi_description(device, serial, sii), EsiApplication(device, behaviour), name=name)
+    return Slave(clock, esi_description(device, serial, sii), EsiApplication(device, behaviour, transition_ms),
+                 name=name)

@@ -114,7 +114,8 @@ class EsiDevice:
     sii: bytes | None
     #: Mailbox protocols the ESI declares (CoE, FoE, EoE, SoE, AoE, VoE).
     protocols: tuple[str, ...]
-    #: ``<Info><StateMachine><Timeout>`` in ms (PreopTimeout, SafeopOpTimeout, BackToInitTimeout, ...).
+    #: ``<Info><StateMachine><Timeout>`` in ms (PreopTimeout, SafeopOpTimeout, BackToInitTimeout, ...), and
+    #: ``<Info><Mailbox><Timeout>`` (RequestTimeout, ResponseTimeout).
     timeouts: dict[str, int] = field(default_factory=dict)
     #: Max size of the process data SyncManagers (``Sm MaxSize``), None when not given.
     outputs_max: int | None = None
@@ -348,9 +349,10 @@ def _device(ctx: _Ctx, dev: ET.Element, vendor_id: int, vendor_name: str) -> Esi
         device_type = (ctx.number(_text(profile, "ProfileNo"), f"{here} Profile/ProfileNo", 0) & 0xFFFF) | (
             (ctx.number(_text(profile, "AddInfo"), f"{here} Profile/AddInfo", 0) & 0xFFFF) << 16)
     timeouts: dict[str, int] = {}
-    for t in dev.findall("Info/StateMachine/Timeout/*"):
-        if t.text and t.text.strip():
-            timeouts[t.tag] = ctx.number(t.text, f"{here} Info/StateMachine/Timeout/{t.tag}")
+    for part in ("StateMachine", "Mailbox"):       # Mailbox: RequestTimeout, ResponseTimeout (kept, not timed)
+        for t in dev.findall(f"Info/{part}/Timeout/*"):
+            if t.text and t.text.strip():
+                timeouts[t.tag] = ctx.number(t.text, f"{here} Info/{part}/Timeout/{t.tag}")
     objects: tuple[EsiObject, ...] | None = None
     dictionary = profile.find("Dictionary") if profile is not None else None
     if dictionary is not None:

@@ -8,6 +8,7 @@ type = "EL2008"               # the ESI <Type>, when the file describes several 
 name = "do1"                  # optional (default: the type)
 serial = 0x1234               # optional: SII and 0x1018:04
 sii = "el2008.bin"            # optional: the EEPROM byte for byte (a dump)
+transition_ms = { PREOP_SAFEOP = 150 }   # optional: a slow application (see devices/esi/esm.py)
 [device.behaviour]
 "0x6000:01" = { echo = "0x7000:01" }
 ```
@@ -23,6 +24,7 @@ from typing import Any
 
 from gatewaylab.common.errors import ConfigError
 from gatewaylab.devices.esi.device import EsiApplication, esi_slave
+from gatewaylab.devices.esi.esm import parse_transition_ms
 from gatewaylab.devices.esi.reader import EsiDevice, read_esi_file
 from gatewaylab.ethercat.slave import Slave
 from gatewaylab.plugin.behaviour import Behaviour, load_hook, parse_behaviour
@@ -42,6 +44,8 @@ KEYS: dict[str, Key] = {
     "sii": Key(str, help="an EEPROM dump used byte for byte, relative to the rig file's folder"),
     "behaviour": Key(dict, help="rules per input entry: echo, counter, sine, ramp, value, random"),
     "hook": Key(str, help="package.module:function called once per cycle with (values, t)"),
+    "transition_ms": Key(dict, help="the application's time per transition (INIT_PREOP, INIT_BOOT, PREOP_SAFEOP, "
+                         "SAFEOP_OP), ms; longer than the ESI's timeout less 10 % refuses it"),
 }
 
 
@@ -67,7 +71,9 @@ class EsiParticipant:
         self.source = _path(rig, cfg["esi"])
         self.device: EsiDevice = read_esi_file(self.source, cfg["type"], cfg["product_code"], cfg["revision"])
         sii = _path(rig, cfg["sii"]) if cfg["sii"] else None
-        self.slave: Slave = esi_slave(rig.clock, self.device, self.name, serial=cfg["serial"], sii_path=sii)
+        slow = parse_transition_ms(cfg["transition_ms"] or {}, f"[[device]] {self.name}")
+        self.slave: Slave = esi_slave(rig.clock, self.device, self.name, serial=cfg["serial"], sii_path=sii,
+                                      transition_ms=slow)
         if cfg["behaviour"] or cfg["hook"]:
             try:
                 rules = parse_behaviour(cfg["behaviour"] or {}, self.slave.od)

@@ -50,7 +50,12 @@ class Port:
             self.capture(self.clock.now(), raw)
         if self.segment is not None:
             buf = bytearray(raw)
-            back: bytes | None = bytes(buf) if self.segment.process(buf) else None
+            faults = self.segment.line_faults
+            if faults is not None and faults.engaged:   # line faults armed (ethercat/line_faults.py)
+                ok = faults.serve_now(self.segment, buf, self.clock.now())
+            else:
+                ok = self.segment.process(buf)
+            back: bytes | None = bytes(buf) if ok else None
         elif self.link is not None:
             back = self.link(raw)
         else:  # __init__ refuses a port without either

@@ -74,13 +74,19 @@ class _MasterRegisters:
         return True
 
 
-def _locked_link(segment: Segment, lock: Any) -> Callable[[bytes], bytes | None]:
-    """A master link through ``segment`` under the clock's lock (a rig's loop may run the devices)."""
+def _locked_link(segment: Segment, clock: Clock) -> Callable[[bytes], bytes | None]:
+    """A master link through ``segment`` under the clock's lock (a rig's loop may run the devices), through
+    the line faults the rig armed (ethercat/line_faults.py)."""
+    lock: Any = clock.lock
 
     def link(raw: bytes) -> bytes | None:
         buf = bytearray(raw)
         with lock:
-            ok = segment.process(buf)
+            faults = segment.line_faults
+            if faults is not None and faults.engaged:
+                ok = faults.serve_now(segment, buf, clock.now())
+            else:
+                ok = segment.process(buf)
         return bytes(buf) if ok else None
 
     return link
@@ -118,7 +124,7 @@ class InProcessBackend:
             if not devices:
                 raise MasterError("the rig has no EtherCAT devices")
             segment = _Segment([d.slave for d in devices])
-        master = Master(rig.clock, link=_locked_link(segment, rig.clock.lock), timeout=timeout)
+        master = Master(rig.clock, link=_locked_link(segment, rig.clock), timeout=timeout)
         return cls(master, preop=preop)
 
     # -- helpers -----------------------------------------------------------------------------

@@ -155,7 +155,7 @@ def main(iface: str, cycles: int) -> dict[str, Any]:
     result["op"] = state
     result["expected_wkc"] = master.expected_wkc
     dio, ai = master.slaves[6], master.slaves[7]      # the rig's order: EL1859, then EL3102
-    bad_wkc = 0
+    bad_wkc = lost = 0
     echo: list[list[int]] = []
     values: list[int] = []
     for cycle in range(cycles):
@@ -163,14 +163,18 @@ def main(iface: str, cycles: int) -> dict[str, Any]:
         dio.output = bytes([pattern])
         master.send_processdata()
         wkc = master.receive_processdata(RX_TIMEOUT_US)
+        if wkc < 0:         # EC_NOFRAME: a lost frame (counted), not a wrong answer; its inputs are stale
+            lost += 1
+            time.sleep(0.001)
+            continue
         if wkc != master.expected_wkc:
             bad_wkc += 1
         echo.append([pattern, dio.input[0], wkc])
         values.append(struct.unpack_from("<h", ai.input, 2)[0])
         time.sleep(0.001)
     sizes = [[len(s.output), len(s.input)] for s in master.slaves]
-    result.update(foreign=len(FOREIGN), sdo_info_retries=len(RETRIES), bad_wkc=bad_wkc, echo=echo, values=values,
-                  sizes=sizes)
+    result.update(foreign=len(FOREIGN), sdo_info_retries=len(RETRIES), bad_wkc=bad_wkc, lost=lost, echo=echo,
+                  values=values, sizes=sizes)
     master.state = pysoem.INIT_STATE
     master.write_state()
     master.close()

@@ -32,12 +32,16 @@ class Bus:
         self.m.sdo_write_timeout = SLOW_US
         self.m.open(iface)
         self.bad_wkc = 0
+        self.lost = 0
         self.cycles = 0
         self.emergencies: list[list[int]] = []
 
     def cycle(self) -> None:
         self.m.send_processdata()
-        if self.m.receive_processdata(RX_TIMEOUT_US) != self.m.expected_wkc:
+        wkc = self.m.receive_processdata(RX_TIMEOUT_US)
+        if wkc < 0:         # EC_NOFRAME: a lost frame (counted), not a wrong answer
+            self.lost += 1
+        elif wkc != self.m.expected_wkc:
             self.bad_wkc += 1
         self.cycles += 1
 
@@ -232,6 +236,7 @@ def scenario_full(iface: str) -> dict[str, Any]:
     out["dc_end"] = {"al": [[s.state, s.al_status] for s in m.slaves], "sw": bus.inp(1)[0],
                      "too_small": rd(m.slaves[1], 0x1C32, 12), "limit": rd(m.slaves[1], 0x10F1, 2)}
     out["cycles"] = bus.cycles
+    out["lost"] = bus.lost
     m.close()
     return out
 

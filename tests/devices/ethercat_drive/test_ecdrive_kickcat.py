@@ -32,6 +32,8 @@ def run(drive_veth: DriveVeth) -> dict[str, Any]:
             break
     assert proc.returncode == 0, proc.stderr[-3000:]
     result: dict[str, Any] = json.loads(proc.stdout.strip().splitlines()[-1])
+    print("KickCAT (default 2 ms link timeout): scans run again after a lost frame:", result["retries"],
+          "cycles lost:", result["lost"])
     return result
 
 

@@ -9,6 +9,7 @@ from typing import Any
 
 import pytest
 from ecdrive_testkit import DriveVeth, serve
+from wire_kit import lost_allowed
 
 from gatewaylab.devices.ethercat_drive import PRODUCT_CODE
 from gatewaylab.devices.ethercat_io.device import VENDOR_ID
@@ -56,6 +57,8 @@ def test_soem_csp_ramp_for_2s_follows_within_the_window(run: dict[str, Any]) -> 
     assert all(abs(f - last) <= 10 for f, last in zip(csp["final"], csp["last"], strict=True))
     assert run["csp_position_sdo"] == csp["final"]
     assert run["bad_wkc_default"] == 0
+    print(f"lost frames (no reply within 2 ms) in {run['cycles']} cycles: {run['lost']}")
+    assert run["lost"] <= lost_allowed(run["cycles"])
 
 
 def test_soem_following_error_is_an_emcy_and_fault_reset_clears_it(run: dict[str, Any]) -> None:
