@@ -11,11 +11,15 @@ every LWR lacks its output share (INVALID_WKC each cycle) until KickCAT requests
 io1 0x06010000`` -> ``read_sdo`` fails with that abort, the next one works. Cycles lost to this loaded
 machine (a timeout) are counted and printed, tolerated up to 2 % (tests/wire_kit.py lost_allowed); a wrong
 working counter outside the injected cycles fails.
+
+The same rig against SOEM's own C ``simple_test`` (tests/ethercat/soem_samples.py): its printed working counter
+shows ``ec-wkc 3 -n 20`` for exactly those cycles, ``ec-lose 20`` leaves 20 cycles out, and it keeps running.
 """
 
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 import threading
@@ -25,6 +29,7 @@ from typing import Any
 
 import pytest
 from ethercat_userpath_kit import UserRig, module_rig
+from soem_samples import build_soem_sample
 from wire_kit import lost_allowed
 
 from gatewaylab.common.ask import ask, endpoint_address
@@ -215,3 +220,84 @@ def test_kickcat_reports_the_abort_code(user: UserRig) -> None:
     hit = kc.send("asdo 0 0x1018 1", "sdo")
     kc.end()
     assert hit["status"] == 0x06010000, hit
+
+
+# ------------------------------------------------------------------------------------ SOEM's C simple_test
+#: simple_test's line for a cycle whose working counter reached the one it calculated (it prints nothing for
+#: a lost cycle or a lower counter: its check thread then acknowledges and requests OP again)
+CYCLE = re.compile(r"Processdata cycle\s+(\d+), WKC (\d+)")
+
+
+class SimpleTest:
+    """SOEM's own ``simple_test IF`` (10000 cycles, 5 ms apart, EC_TIMEOUTRET) in the namespace, its
+    printed cycles collected as they come (block-buffered: in bursts)."""
+
+    def __init__(self, user: UserRig) -> None:
+        program = build_soem_sample("simple_test")
+        self.proc = subprocess.Popen(["ip", "netns", "exec", user.namespace, str(program), user.master_iface],
+                                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        self.wkc: dict[int, int] = {}
+        self.text: list[str] = []
+        self.expected = 0
+        self.cond = threading.Condition()
+        threading.Thread(target=self._read, daemon=True).start()
+
+    def _read(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:            # universal newlines: its "\r" ends a line too
+            found = CYCLE.search(line)
+            with self.cond:
+                if found:
+                    self.wkc[int(found[1])] = int(found[2])
+                else:
+                    self.text.append(line.rstrip())
+                    if line.startswith("Calculated workcounter"):
+                        self.expected = int(line.split()[-1])
+                self.cond.notify_all()
+        with self.cond:
+            self.cond.notify_all()
+
+    def reached(self, cycle: int, timeout: float = 90.0) -> int:
+        """Waits until simple_test printed a cycle >= ``cycle``; the highest printed so far."""
+        with self.cond:
+            ok = self.cond.wait_for(lambda: max(self.wkc, default=0) >= cycle or self.proc.poll() is not None,
+                                    timeout)
+            assert ok and self.wkc and max(self.wkc) >= cycle, (max(self.wkc, default=0), self.text[-30:])
+            return max(self.wkc)
+
+    def stop(self) -> None:
+        self.proc.kill()
+        self.proc.wait(10)
+
+
+def test_soem_simple_test_sees_wkc_and_lost_cycles_and_keeps_running(user: UserRig) -> None:
+    """SOEM's C simple_test: ``ec-wkc 3 -n 20 --cmd LRW`` -> 20 consecutive printed cycles read WKC + 3;
+    ``ec-lose 20 --cmd LRW`` -> at least 20 cycles missing from its printout (lost: longer than the slaves'
+    100 ms SM watchdog, so they may drop to SAFEOP + 0x001B and its check thread takes them back to OP);
+    then it prints cycles with its calculated WKC again, never any other WKC."""
+    soem = SimpleTest(user)
+    try:
+        c0 = soem.reached(300)
+        assert fault(user, "ec-wkc", "3", "-n", "20", "--cmd", "LRW")["left"] == 20
+        c1 = soem.reached(c0 + 300)
+        assert fault(user, "ec-lose", "20", "--cmd", "LRW")["left"] == 20
+        last = soem.reached(c1 + 800)
+    finally:
+        soem.stop()
+    exp, wkc = soem.expected, dict(soem.wkc)
+    print(f"expected {exp}; cycles printed {len(wkc)} of 1..{last}; wkc fault sent at {c0}, lose at {c1}")
+    print("\n".join(t for t in soem.text if t)[-3000:])
+    assert exp == 9, soem.text[:20]                          # 3 x (2 outputs + 1 inputs)
+    assert set(wkc.values()) <= {exp, exp + 3}, sorted(set(wkc.values()))
+    first = min(wkc)
+    offset = sorted(c for c, w in wkc.items() if w == exp + 3)
+    assert offset and offset[0] > c0 and offset[-1] < c1, (offset, c0, c1)
+    span = range(offset[0], offset[-1] + 1)
+    missing_in_span = sum(1 for c in span if c not in wkc)
+    assert 20 - missing_in_span <= len(offset) <= 20 and len(span) <= 20 + missing_in_span, offset
+    before = [c for c in range(first, c1 + 1) if c not in wkc]        # nothing injected lost here
+    assert len(before) <= lost_allowed(c1 - first + 1), before
+    after = [c for c in range(c1 + 1, last + 1) if c not in wkc]
+    assert len(after) >= 20, after                                    # the 20 lost, then what recovery took
+    assert max(wkc) == last and wkc[last] == exp                       # running at its WKC again
+    print(f"lost before the injected ones: {len(before)}; not printed after ec-lose: {len(after)}")
