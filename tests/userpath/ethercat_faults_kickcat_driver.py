@@ -133,8 +133,11 @@ class Master:
                 self.cycle()
                 try:
                     self.bus.process_mailboxes()
-                except RuntimeError as exc:
-                    self.phase["other"].append(f"mailbox: {exc}")
+                except RuntimeError as exc:     # a mailbox check frame not back in time: a lost frame
+                    if "LOST" in str(exc) or "imeout" in str(exc):
+                        self.phase["lost"] += 1
+                    else:
+                        self.phase["other"].append(f"mailbox: {exc}")
                 time.sleep(PERIOD_S)
             return {"ev": "sdo", "status": msg.status(), "data": bytes(msg.data[:msg.size]).hex(), "polls": polls}
         if word == "end":
