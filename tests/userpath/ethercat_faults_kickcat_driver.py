@@ -7,7 +7,10 @@ answers each with one JSON line:
 * ``state``: ``Bus.get_state`` of every slave -> ``{"ev": "state", "states": [...]}``
 * ``recover``: what a KickCAT user does after a slave left OP: ``request_state(OPERATIONAL)`` (KickCAT
   writes AL control with the acknowledge bit) and ``wait_for_state`` cycling -> ``{"ev": "recovered", ...}``
-* ``sdo SLAVE INDEX SUB``: ``Bus.read_sdo`` (KickCAT's default 1 s) -> ``{"ev": "sdo", "data"|"error": ...}``
+* ``asdo SLAVE INDEX SUB``: an SDO upload through KickCAT's mailbox (``slave.mailbox.read_sdo``, its 1 s),
+  driven by ``process_mailboxes`` between process data cycles until its status is no longer RUNNING (the
+  blocking ``Bus.read_sdo`` stops the cycle meanwhile: the slaves' 100 ms SM watchdogs would expire while an
+  SDO waits its timeout) -> ``{"ev": "sdo", "status": ..., "data": HEX}``
 * ``end``: ``{"ev": "done", "phases": {...}}``, the slaves to INIT.
 
 KickCAT 2.5's Python ``process_data`` is an LRD then an LWR (the LRW path is not bound); a datagram whose
@@ -117,13 +120,6 @@ class Master:
             except RuntimeError as exc:
                 error = str(exc)
             return {"ev": "recovered", "states": self.states(), "error": error}
-        if word == "sdo":
-            slave, index, sub = self.slaves[int(args[0])], int(args[1], 0), int(args[2], 0)
-            try:
-                data = self.bus.read_sdo(slave, index, sub, kickcat.Access.PARTIAL, 4, SDO_TIMEOUT_S)
-            except Exception as exc:
-                return {"ev": "sdo", "error": f"{type(exc).__name__}: {exc}"}
-            return {"ev": "sdo", "data": bytes(data).hex()}
         if word == "asdo":
             slave, index, sub = self.slaves[int(args[0])], int(args[1], 0), int(args[2], 0)
             msg = slave.mailbox.read_sdo(index, sub, False, SDO_TIMEOUT_S)
