@@ -115,14 +115,17 @@ def test_every_initcmd_answers_with_the_enis_working_counter(run: dict[str, Any]
 
 def test_cyclic_process_data_has_the_enis_working_counter(run: dict[str, Any]) -> None:
     """ETG.2100 Cyclic/Frame/Cmd Cnt: the LRW's working counter the master expects (2 per slave with outputs,
-    1 per slave with inputs: 14 here). A wrong counter always fails; a lost cycle (no reply on this loaded
-    machine) is counted and tolerated up to 2 %."""
+    1 per slave with inputs: 14 here). The image takes two frames (ETG.1000.4: a datagram ends at the frame's
+    1,486 data bytes) and SOEM adds up the counters of the frames that came back, so a cycle that lost one of
+    its frames reads a part of 14 (seen: 7). Lost cycles -- none or part of the frames back on this loaded
+    machine -- are counted and tolerated up to 2 % together; a counter above 14 always fails."""
     eni = parse_eni_xml(ENI.read_bytes())
     assert eni.cyclic_wkc == 14 == run["expected_wkc"]
-    print(f"cycles: {run['wkcs']}, lost {run['lost']} of {CYCLES}; final states {run['final']}, longest gap "
-          f"between cycles {run['max_gap_ms']:.1f} ms")
-    assert set(run["wkcs"]) == {"14"}
-    assert run["lost"] <= CYCLES * 0.02
+    partial = sum(n for wkc, n in run["wkcs"].items() if wkc != "14")
+    print(f"cycles: {run['wkcs']}, lost {run['lost']} and {partial} with a frame lost, of {CYCLES}; final states "
+          f"{run['final']}, longest gap between cycles {run['max_gap_ms']:.1f} ms")
+    assert "14" in run["wkcs"] and all(0 < int(wkc) <= 14 for wkc in run["wkcs"])
+    assert run["lost"] + partial <= CYCLES * 0.02
 
 
 def test_each_slave_says_where_it_came_from(run: dict[str, Any]) -> None:

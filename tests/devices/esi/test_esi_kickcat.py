@@ -91,7 +91,8 @@ def test_kickcat_cycles_and_sees_the_echo(run: dict[str, Any]) -> None:
     outputs of the cycle before (compared where that one was not lost)."""
     echo = run["echo"]
     bad = [(b, a) for a, b in itertools.pairwise(echo) if b[0] == a[0] + 1 and b[2] != a[1]]
-    print(f"cycles {CYCLES}: lost {run['lost']}, wrong WKC {run['bad_wkc']}, echo mismatches {len(bad)}: {bad[:10]}")
+    print(f"cycles {CYCLES}: lost {run['lost']}, wrong WKC {run['bad_wkc']}, echo mismatches {len(bad)}: {bad[:10]}; "
+          f"scans run again after a lost frame: {run['retries']}")
     assert run["bad_wkc"] == 0
     assert run["lost"] <= CYCLES // 50
     assert len(echo) == CYCLES - run["lost"] and not bad
