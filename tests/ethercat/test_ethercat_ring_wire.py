@@ -142,15 +142,26 @@ def running(workdir: Path, redundant: bool, extra: str = "") -> Iterator[tuple[R
             driver.close()
 
 
+def _partial(counts: dict[str, int], expected: int) -> int:
+    """Cycles that read a part of the expected counter: SOEM sends a cycle's frame out of both ports and adds up
+    the counters of the frames that came back, so while the ring is broken a frame lost on one side (dropped as
+    late on this loaded machine) leaves the other side's part (seen: 6 of 12) -- a lost frame, counted with the
+    lost cycles; a counter above the expected one, or none of them full, is a wrong answer."""
+    assert all(0 < int(wkc) <= expected for wkc in counts if wkc != "-1"), f"wrong working counters: {counts}"
+    return sum(n for wkc, n in counts.items() if wkc not in ("-1", str(expected)))
+
+
 def _only_full(event: dict[str, Any], expected: int) -> None:
-    assert set(event["wkc"]) <= {str(expected)}, f"wrong working counters in {event['name']}: {event['wkc']}"
-    lost, cycles = event["lost"], event["cycles"]
+    partial = _partial(event["wkc"], expected)
+    lost, cycles = event["lost"] + partial, event["cycles"]
+    assert str(expected) in event["wkc"], f"no full working counter in {event['name']}: {event['wkc']}"
     assert lost <= lost_allowed(cycles), f"{lost} of {cycles} cycles lost in {event['name']}"
 
 
 def test_redundant_master_keeps_every_working_counter_across_a_ring_break(tmp_path: Path) -> None:
     """SOEM with two interfaces on a redundant rig of 4 slaves: closed ring, broken after io-b, healed -- every
-    cycle has the full working counter (0 wrong), those while the ring breaks and heals included; while broken,
+    cycle that got its frames back has the full working counter (0 wrong), those while the ring breaks and heals
+    included (a frame lost on one side is a lost cycle, :func:`_partial`); while broken,
     io-b's port 1 and io-c's port 0 show no link and closed loops in DL status 0x0110, and all 4 slaves stay in
     OP."""
     with running(tmp_path, redundant=True) as (rig, driver):
@@ -174,8 +185,8 @@ def test_redundant_master_keeps_every_working_counter_across_a_ring_break(tmp_pa
         every = healed_phase["every"]
         print(f"every cycle since OP: {every}")
         total = sum(every.values())
-        assert set(every) <= {str(expected), "-1"}, f"wrong working counters across break and heal: {every}"
-        assert every.get("-1", 0) <= lost_allowed(total), f"{every.get('-1')} of {total} cycles lost"
+        lost = every.get("-1", 0) + _partial(every, expected)
+        assert lost <= lost_allowed(total), f"{lost} of {total} cycles lost: {every}"
 
 
 def test_open_port_on_a_line_hides_the_slaves_behind_it_until_it_closes(tmp_path: Path) -> None:
