@@ -11,12 +11,16 @@ tests/conftest.py).
 from __future__ import annotations
 
 import contextlib
+import json
 import subprocess
+import sys
 from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
 
 from gatewaylab.ethercat.wire_netns import net_unavailable, veth_namespace
 
-__all__ = ["lost_allowed", "net_capable", "veth_namespace", "veth_namespace_two"]
+__all__ = ["JsonMaster", "lost_allowed", "net_capable", "run_fault", "veth_namespace", "veth_namespace_two"]
 
 
 def net_capable(*modules: str) -> str | None:
@@ -53,3 +57,44 @@ def veth_namespace_two(ns_prefix: str, if_prefix: str) -> Iterator[tuple[str, st
             yield ns, emu_a, mst_a, emu_b, mst_b
         finally:
             subprocess.run(["ip", "link", "del", emu_b], check=False, capture_output=True)
+
+
+def run_fault(ready_file: str | Path, *args: str, timeout: float = 60.0) -> dict[str, Any]:
+    """``gatewaylab fault READY-FILE --json ARGS`` from another process, as a user types it; its JSON answer."""
+    done = subprocess.run([sys.executable, "-m", "gatewaylab", "fault", str(ready_file), "--json", *args],
+                          capture_output=True, text=True, timeout=timeout, check=False)
+    assert done.returncode == 0, done.stderr
+    answer: dict[str, Any] = json.loads(done.stdout)
+    return answer
+
+
+class JsonMaster:
+    """A master driver script in a namespace that takes one JSON command per stdin line (``{"do": WHAT, ...}``)
+    and answers each with one JSON line; ``{"do": "quit"}`` ends it."""
+
+    def __init__(self, namespace: str, driver: Path, *args: str) -> None:
+        self.proc = subprocess.Popen(["ip", "netns", "exec", namespace, sys.executable, str(driver), *args],
+                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+    def do(self, what: str, **args: Any) -> dict[str, Any]:
+        """Send one command; its answer (an answer with ``failed`` fails the test)."""
+        assert self.proc.stdin is not None and self.proc.stdout is not None
+        self.proc.stdin.write(json.dumps({"do": what, **args}) + "\n")
+        self.proc.stdin.flush()
+        text = self.proc.stdout.readline()
+        assert text, f"the master ended: {self.proc.stderr.read() if self.proc.stderr else ''}"
+        answer: dict[str, Any] = json.loads(text)
+        assert "failed" not in answer, answer
+        return answer
+
+    def close(self) -> None:
+        """Ask it to quit; killed when it does not within 20 s."""
+        if self.proc.poll() is None:
+            assert self.proc.stdin is not None
+            self.proc.stdin.write('{"do": "quit"}\n')
+            self.proc.stdin.flush()
+            try:
+                self.proc.wait(20)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(5)

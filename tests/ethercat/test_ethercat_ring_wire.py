@@ -29,7 +29,7 @@ from typing import Any
 
 import pytest
 from soem_samples import build_soem_sample
-from wire_kit import lost_allowed, net_capable, veth_namespace, veth_namespace_two
+from wire_kit import lost_allowed, net_capable, run_fault, veth_namespace, veth_namespace_two
 
 from gatewaylab.rig.process import RigProcess
 
@@ -103,11 +103,7 @@ class Driver:
 
 def fault(rig: RigProcess, *args: str) -> dict[str, Any]:
     """``gatewaylab fault READY-FILE ...`` from another process, its JSON answer."""
-    done = subprocess.run([sys.executable, "-m", "gatewaylab", "fault", str(rig.ready_file), "--json", *args],
-                          capture_output=True, text=True, timeout=60, check=False)
-    assert done.returncode == 0, done.stderr
-    answer: dict[str, Any] = json.loads(done.stdout)
-    return answer
+    return run_fault(rig.ready_file, *args)
 
 
 @contextlib.contextmanager

@@ -13,14 +13,12 @@ SOEM's DC re-initialisation (``config_dc`` again) every difference is small agai
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
-from wire_kit import net_capable, veth_namespace
+from wire_kit import JsonMaster, net_capable, run_fault, veth_namespace
 
 from gatewaylab.cli.fault import send_request
 from gatewaylab.ethercat.esc_dc_clock import CABLE_NS_PER_M, FORWARD_NS
@@ -49,33 +47,20 @@ cable_m = 10.0
 SMALL_NS = 50
 
 
-class Line:
+class Line(JsonMaster):
+    """The rig (``gatewaylab run`` child) and the pysoem driver in the namespace of the master's end."""
+
     def __init__(self, rig: RigProcess, namespace: str, iface: str) -> None:
+        super().__init__(namespace, DRIVER, iface)
         self.rig, self.namespace, self.iface = rig, namespace, iface
-        self.proc = subprocess.Popen(["ip", "netns", "exec", namespace, sys.executable, str(DRIVER), iface],
-                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
     def fault(self, *args: str) -> dict[str, Any]:
         """``gatewaylab fault READY-FILE --json ARGS`` as a user runs it; its answer."""
-        done = subprocess.run([sys.executable, "-m", "gatewaylab", "fault", str(self.rig.ready_file), "--json", *args],
-                              capture_output=True, text=True, timeout=60, check=False)
-        assert done.returncode == 0, done.stderr
-        answer: dict[str, Any] = json.loads(done.stdout)
-        return answer
+        return run_fault(self.rig.ready_file, *args)
 
     def board(self) -> list[dict[str, Any]]:
         faults: list[dict[str, Any]] = send_request(str(self.rig.ready_file), {"fault": "ethercat-states"})["faults"]
         return faults
-
-    def do(self, what: str, **args: Any) -> dict[str, Any]:
-        assert self.proc.stdin is not None and self.proc.stdout is not None
-        self.proc.stdin.write(json.dumps({"do": what, **args}) + "\n")
-        self.proc.stdin.flush()
-        text = self.proc.stdout.readline()
-        assert text, f"the master ended: {self.proc.stderr.read() if self.proc.stderr else ''}"
-        answer: dict[str, Any] = json.loads(text)
-        assert "failed" not in answer, answer
-        return answer
 
     def watch(self, n: int) -> dict[str, Any]:
         """``n`` cycles with DC; wrong working counters fail, lost cycles and reads are tolerated up to 2 %."""
@@ -88,17 +73,6 @@ class Line:
         assert r["lost"] <= 0.02 * n and r["lost_reads"] <= 0.02 * 3 * n, r
         assert r["idle_lost"] <= 0.02 * r["idle_cycles"] + 1, r
         return r
-
-    def close(self) -> None:
-        if self.proc.poll() is None:
-            assert self.proc.stdin is not None
-            self.proc.stdin.write('{"do": "quit"}\n')
-            self.proc.stdin.flush()
-            try:
-                self.proc.wait(20)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(5)
 
 
 @pytest.fixture

@@ -13,15 +13,12 @@ callback; a wrong product code in the SII is what ``config_init`` reads.
 
 from __future__ import annotations
 
-import json
-import subprocess
-import sys
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
-from wire_kit import net_capable, veth_namespace
+from wire_kit import JsonMaster, net_capable, run_fault, veth_namespace
 
 from gatewaylab.cli.fault import send_request
 from gatewaylab.rig.process import RigProcess
@@ -51,44 +48,18 @@ class Line:
 
     def fault(self, *args: str) -> dict[str, Any]:
         """``gatewaylab fault READY-FILE --json ARGS`` as a user runs it; its answer."""
-        done = subprocess.run([sys.executable, "-m", "gatewaylab", "fault", str(self.rig.ready_file), "--json", *args],
-                              capture_output=True, text=True, timeout=60, check=False)
-        assert done.returncode == 0, done.stderr
-        answer: dict[str, Any] = json.loads(done.stdout)
-        return answer
+        return run_fault(self.rig.ready_file, *args)
 
     def board(self) -> list[str]:
         states = send_request(str(self.rig.ready_file), {"fault": "ethercat-states"})
         return [f["fault"] for f in states["faults"]]
 
 
-class Master:
+class Master(JsonMaster):
     """The pysoem driver process; one command, one answer."""
 
     def __init__(self, line: Line) -> None:
-        self.proc = subprocess.Popen(["ip", "netns", "exec", line.namespace, sys.executable, str(DRIVER), line.iface],
-                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-
-    def do(self, what: str, **args: Any) -> dict[str, Any]:
-        assert self.proc.stdin is not None and self.proc.stdout is not None
-        self.proc.stdin.write(json.dumps({"do": what, **args}) + "\n")
-        self.proc.stdin.flush()
-        text = self.proc.stdout.readline()
-        assert text, f"the master ended: {self.proc.stderr.read() if self.proc.stderr else ''}"
-        answer: dict[str, Any] = json.loads(text)
-        assert "failed" not in answer, answer
-        return answer
-
-    def close(self) -> None:
-        if self.proc.poll() is None:
-            assert self.proc.stdin is not None
-            self.proc.stdin.write('{"do": "quit"}\n')
-            self.proc.stdin.flush()
-            try:
-                self.proc.wait(20)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(5)
+        super().__init__(line.namespace, DRIVER, line.iface)
 
 
 @pytest.fixture(scope="module")

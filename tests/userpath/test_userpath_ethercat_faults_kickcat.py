@@ -30,7 +30,7 @@ from typing import Any
 import pytest
 from ethercat_userpath_kit import UserRig, module_rig
 from soem_samples import build_soem_sample
-from wire_kit import lost_allowed
+from wire_kit import lost_allowed, run_fault
 
 from gatewaylab.common.ask import ask, endpoint_address
 from gatewaylab.common.endpoint import EndpointKind, parse_endpoint
@@ -60,11 +60,7 @@ def user(tmp_path_factory: pytest.TempPathFactory) -> Iterator[UserRig]:
 
 def fault(user: UserRig, *argv: str) -> dict[str, Any]:
     """``gatewaylab fault READY --json ...`` as a user types it; its answer."""
-    out = subprocess.run([sys.executable, "-m", "gatewaylab", "fault", str(user.rig.ready_file), "--json", *argv],
-                         capture_output=True, text=True, timeout=30)
-    assert out.returncode == 0, out.stderr
-    answer: dict[str, Any] = json.loads(out.stdout)
-    return answer
+    return run_fault(user.rig.ready_file, *argv, timeout=30)
 
 
 def wait(seconds: float) -> None:
