@@ -57,6 +57,11 @@ class TimerHandle:
         return f"<TimerHandle t={self.when:.9f} #{self.seq} {name}{' cancelled' if self.cancelled else ''}>"
 
 
+#: The longest :meth:`Clock.hand_over` steps aside for a waiting thread (it takes the lock within
+#: microseconds once it runs; a waiter that holds back longer is not waiting on this loop's lock).
+HAND_OVER_S = 0.0005
+
+
 class Clock:
     """Event queue shared by both clocks; subclasses decide what ``now`` means."""
 
@@ -75,6 +80,11 @@ class Clock:
         #: Serialises access to the protocol state when several threads touch it: a real lock once
         #: :meth:`ensure_lock` was called; single-threaded use needs none (a no-op context).
         self.lock: AbstractContextManager[Any] = nullcontext()
+        #: Threads blocked on :attr:`lock` that must not wait for a whole pass of the clock's events (the
+        #: EtherCAT wire thread, whose frames a line answers in microseconds): each raises it while it waits;
+        #: :meth:`RealTimeClock.run_due` ends its pass after the event that runs, and :meth:`hand_over` lets
+        #: them in before the loop takes the lock again.
+        self.waiting = 0
         #: Unix time (seconds since the epoch) of clock time 0: an event at clock time ``t``
         #: happened at ``wall_epoch + t``. The one time base of traces, client timestamps and the demo.
         self.wall_epoch: float = time.time()
@@ -172,6 +182,17 @@ class Clock:
             deadline = self.next_deadline()
             self._wake_before = math.inf if deadline is None else deadline
         return deadline
+
+    def hand_over(self, patience: float = HAND_OVER_S) -> None:
+        """For the loop that runs this clock, after it released :attr:`lock`: while a thread is
+        :attr:`waiting` for the lock, step aside (up to ``patience`` seconds) so that it takes the lock
+        before this thread takes it again -- a released lock goes to whoever asks first, and the thread
+        that just released it, still running, would. Returns at once when nobody waits."""
+        if not self.waiting:
+            return
+        deadline = time.monotonic() + patience
+        while self.waiting and time.monotonic() < deadline:
+            time.sleep(0)   # lets the waiting thread run (and take the lock) on this CPU or its own
 
     def end_wait(self) -> None:
         """The loop is awake again (see :meth:`begin_wait`): events it schedules itself wake nobody."""
@@ -373,7 +394,9 @@ class RealTimeClock(Clock):
 
         The limit bounds each pass, so the loop that calls it serves its sockets and signals
         between passes whatever the protocols schedule (frames that take no time, a callback
-        that schedules itself for now again and again); what is left runs in the next pass."""
+        that schedules itself for now again and again); what is left runs in the next pass. A pass
+        also ends after the running event when a thread is :attr:`waiting` for :attr:`lock`, which
+        then takes it first (:meth:`hand_over`)."""
         count = 0
         limit = self.pass_limit
         with self.lock:
@@ -397,5 +420,9 @@ class RealTimeClock(Clock):
                         raise
                     self.on_error(exc)
                 count += 1
+                if self.waiting:    # a thread that may not wait for the whole pass: the rest runs later
+                    break
                 self._drain_injected()
+        if self.waiting:
+            self.hand_over()
         return count

@@ -80,10 +80,14 @@ class LateBurst:
 class LateDrops:
     """The count of frames dropped late and the pending report of the current burst."""
 
-    __slots__ = ("_frames", "_last_report_ns", "_oldest_ns", "report_every_ns", "total")
+    __slots__ = ("_frames", "_last_report_ns", "_oldest_ns", "on_arrival", "report_every_ns", "total")
 
     def __init__(self, report_every_ns: int = REPORT_EVERY_NS) -> None:
         self.total = 0
+        #: Of ``total``: frames that were already too old when the idle wire thread got them (it waited for
+        #: frames since before they arrived): the kernel, the machine's scheduler or the interpreter lock held
+        #: them, not the emulator's work on other frames or its lock.
+        self.on_arrival = 0
         self.report_every_ns = report_every_ns
         self._frames = 0
         self._oldest_ns = 0
@@ -94,9 +98,11 @@ class LateDrops:
         """Drops not reported yet."""
         return self._frames > 0
 
-    def drop(self, age_ns: int) -> None:
-        """One frame dropped at ``age_ns``."""
+    def drop(self, age_ns: int, on_arrival: bool = False) -> None:
+        """One frame dropped at ``age_ns``; ``on_arrival``: it came to an idle wire thread already that old."""
         self.total += 1
+        if on_arrival:
+            self.on_arrival += 1
         self._frames += 1
         self._oldest_ns = max(self._oldest_ns, age_ns)
 

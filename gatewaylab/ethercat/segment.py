@@ -18,7 +18,8 @@ serves frames from there), open ports (:meth:`Segment.cut`), hot-connect groups 
 The frame path is the ESCs' work only where the applications allow it: outputs of an application with
 ``SlaveApplication.outputs_in_frame`` False (the drives) reach it after the frame, in
 :meth:`Segment.after_frame`, which a transport calls once it has sent the frame back (the wire thread)
-and :meth:`Segment.process` runs itself at its end unless asked to ``defer`` it. A raising application
+and :meth:`Segment.process` runs itself at its end unless asked to ``defer`` it (the wire then runs it
+once its socket holds no other frame). A raising application
 there is isolated per slave as a datagram is.
 """
 
@@ -196,9 +197,11 @@ class Segment:
         when the first slave is unplugged (no link: the frame never comes back).
 
         ``defer``: leave the applications' work after the frame (:meth:`after_frame`) to the caller,
-        who sends the frame back first; without it, it runs before this returns. Work a caller left
-        pending runs before the next frame."""
-        if self._after_pending:
+        who sends the frame back first and calls it once no other frame waits (the second frame of a
+        split process image is then answered without waiting for the first one's applications; a slave's
+        firmware reads the SyncManager's newest buffer whenever it gets to it). Without ``defer`` the work
+        runs before this returns, the work a deferring caller left first."""
+        if self._after_pending and not defer:
             self.after_frame()
         if self.exit_a < 0:     # ring.LOST: no link on the primary side
             return False
@@ -255,7 +258,7 @@ class Segment:
         """A frame entering on the secondary interface (cable redundancy, ring.py): executed in place by the
         slaves behind the first open gap from that end; returns where it leaves (ring.PORT_A: it passed the
         whole ring unprocessed, PORT_B, or LOST: not sent back)."""
-        if self._after_pending:
+        if self._after_pending and not defer:
             self.after_frame()
         if self.exit_b == LOST:
             return LOST

@@ -37,6 +37,7 @@ import socket
 import threading
 import time
 from collections.abc import Callable
+from time import thread_time_ns
 from typing import Any, cast
 
 from gatewaylab.common.clock import Clock, RealTimeClock
@@ -55,6 +56,7 @@ from gatewaylab.ethercat.segment import Segment
 from gatewaylab.ethercat.wire_pcap import PcapWriter
 
 __all__ = [
+    "AFTER_FRAME_MAX",
     "ANCILLARY_BYTES",
     "DRIVE_MAX_STARVE_S",
     "DRIVE_MAX_WAIT_S",
@@ -92,6 +94,9 @@ DRIVE_PASS_S = 0.0002
 #: taking most of that): frames first without a bound starved the clock for up to 28 ms, and the CAN
 #: controllers' TX FIFOs (32 frames, 1 frame/ms each) overflowed behind it (docs/performance.md, 4 kHz row).
 DRIVE_MAX_STARVE_S = 0.0005
+#: Frames answered back to back at most before the applications' work they left runs (it runs earlier,
+#: as soon as no other frame waits): a backlog still reaches the drives' outputs.
+AFTER_FRAME_MAX = 4
 #: How often a thread waiting for ``clock.lock`` looks whether it was asked to stop.
 LOCK_POLL_S = 0.002
 #: How long :meth:`WireTransport.stop` waits for the thread (it ends within ``LOCK_POLL_S``).
@@ -174,9 +179,12 @@ class WireTransport:
         return self.late.total
 
     def stats(self) -> dict[str, int]:
-        """The wire's counters (what the control request ``ethercat-states`` shows under ``wire``)."""
+        """The wire's counters (what the control request ``ethercat-states`` shows under ``wire``):
+        ``frames_late_on_arrival`` are the late drops that reached an idle wire thread already too old (the
+        machine held them), the rest of ``frames_dropped_late`` waited behind the emulator's own work."""
         return {"frames_in": self.frames_in, "frames_out": self.frames_out,
-                "frames_dropped_late": self.frames_dropped_late, "frame_errors": self.frame_errors}
+                "frames_dropped_late": self.frames_dropped_late,
+                "frames_late_on_arrival": self.late.on_arrival, "frame_errors": self.frame_errors}
 
     def _open(self, interface: str) -> socket.socket:
         """A non-blocking raw EtherCAT socket bound to ``interface``, with receive timestamps if it can."""
@@ -253,13 +261,19 @@ class WireTransport:
 
     def _acquire(self, lock: Any) -> bool:
         """Take ``clock.lock``; False once :meth:`stop` was called meanwhile (whoever stops this thread
-        may hold the lock while it waits for the thread to end)."""
+        may hold the lock while it waits for the thread to end). While it waits, ``clock.waiting`` says so:
+        the rig's loop ends its pass of events after the one that runs and lets this thread in first."""
         if lock.acquire(False):
             return True
-        while self._running:
-            if lock.acquire(True, LOCK_POLL_S):
-                return True
-        return False
+        clock = self.clock
+        clock.waiting += 1
+        try:
+            while self._running:
+                if lock.acquire(True, LOCK_POLL_S):
+                    return True
+            return False
+        finally:
+            clock.waiting -= 1
 
     def _clock_slice(self, clock: RealTimeClock, lock: Any, overdue: float = 0.0) -> tuple[int, float | None] | None:
         """With ``drive_clock``: take ``clock.lock`` and run passes of ``DRIVE_PASS_EVENTS`` due events for up
@@ -287,6 +301,19 @@ class WireTransport:
             clock.pass_limit = limit
             lock.release()
         return ran, due
+
+    def _after_frame(self, segment: Segment, lock: Any) -> bool:
+        """The applications' work the answered frames left (:meth:`Segment.after_frame`, under ``clock.lock``);
+        False once :meth:`stop` was called meanwhile."""
+        if not self._acquire(lock):
+            return False
+        try:
+            segment.after_frame()
+        except Exception as exc:
+            self._fault("the applications' work after a frame", exc)
+        finally:
+            lock.release()
+        return True
 
     def _wait(self, sock: socket.socket, wake: socket.socket, timeout: float | None) -> None:
         """Block until a frame (or a wake-up from :meth:`stop`) arrives or ``timeout`` passed."""
@@ -380,6 +407,8 @@ class WireTransport:
         now_ns = self.now_ns
         sock_b = self._sock_b   # cable redundancy: the secondary interface
         port = 0                # the interface the frame came in on (0: primary, 1: secondary)
+        after = 0               # frames answered whose applications' work (Segment.after_frame) is still due
+        idle_since = 0          # when the thread last found its socket empty (0: busy with frames since)
         while self._running:
             if drive and time.monotonic() - last_slice >= DRIVE_MAX_STARVE_S:
                 # no clock slice for that long: when an event is overdue by as much (frames back to back,
@@ -394,6 +423,13 @@ class WireTransport:
                 else:
                     port, (n, anc, _flags, addr) = self._recv_either(sock, sock_b, buf)
             except BlockingIOError:
+                if not idle_since:  # the line fell idle: a frame stamped after this found the thread waiting
+                    idle_since = now_ns()
+                if after:           # no other frame waits: the applications' work the frames left
+                    after = 0
+                    if not self._after_frame(segment, lock):
+                        return
+                    continue        # a look at the socket again before blocking
                 if late.pending:    # the line is idle: the burst of late frames is over
                     t_ns = now_ns()
                     self._report_late(t_ns)
@@ -444,6 +480,9 @@ class WireTransport:
                 received = now_ns()
             frame = buf[:n]
             self.frames_in += 1
+            # came to an idle thread already too old: the kernel or the machine held it, not our work
+            held_before = 0 < idle_since <= received and is_late(received, now_ns(), limit)
+            idle_since = 0
             try:
                 if pcap is not None:
                     pcap.write(received / 1e9, frame)
@@ -456,8 +495,9 @@ class WireTransport:
                     # holds a frame, and a master with a longer timeout must still get its answer)
                     t_ns = now_ns()
                     if is_late(received, t_ns, limit):   # lost on its way in: not processed
-                        late.drop(t_ns - received)
+                        late.drop(t_ns - received, on_arrival=held_before)
                         continue
+                    cpu_ns = thread_time_ns()
                     if port == 0:
                         faults = segment.line_faults
                         if faults is not None and faults.engaged:   # line faults armed (ethercat/line_faults.py)
@@ -473,18 +513,23 @@ class WireTransport:
                     lock.release()
                 if not ok:
                     continue
+                if limit:   # stopped while it held the frame (kill -STOP, a stalled VM): its age less our own
+                    t_out = now_ns()   # work on it (thread CPU time) is over the limit -- a line never does that
+                    if t_out - received - (thread_time_ns() - cpu_ns) > limit:
+                        late.drop(t_out - received)
+                        continue
                 if late.pending:
                     self._report_late(now_ns())
                 self._send(sock if out == 0 or sock_b is None else sock_b, frame)
                 if faults is not None and faults.held:
                     self._send_held(sock, lock)
-                # the applications' work (outputs to the drives) once the frame is on its way back
-                if not self._acquire(lock):
-                    return
-                try:
-                    segment.after_frame()
-                finally:
-                    lock.release()
+                # the applications' work (outputs to the drives) once the frame is on its way back and no
+                # other frame waits (the second frame of a split image), or after AFTER_FRAME_MAX frames
+                after += 1
+                if after >= AFTER_FRAME_MAX:
+                    after = 0
+                    if not self._after_frame(segment, lock):
+                        return
             except Exception as exc:
                 self._fault(f"frame {self.frames_in}", exc)
             finally:

@@ -421,6 +421,7 @@ class Rig:
             clock.end_wait()
         for key, events in ready:
             fd = key.fd
+            clock.hand_over()    # a thread waiting for the lock (the EtherCAT wire) goes first
             with clock.lock:
                 try:
                     if events & selectors.EVENT_READ and fd in self._readers:

@@ -1,5 +1,7 @@
 """The injected clock: deterministic ordering and time that moves only when told (DEVELOPERS.md, principle 2)."""
 
+import threading
+
 import pytest
 
 from gatewaylab.common.clock import RealTimeClock, SimulatedClock
@@ -127,3 +129,41 @@ def test_ensure_lock_installs_one_reentrant_lock_every_sharer_gets() -> None:
     assert clock.ensure_lock() is first
     with first, clock.lock:    # re-entrant: a callback may call code that takes it again
         pass
+
+
+def test_a_thread_waiting_for_the_lock_goes_before_the_rest_of_the_pass() -> None:
+    """docs/architecture.md 'Threads': the EtherCAT wire thread takes ``clock.lock`` for every frame, and a
+    line answers a frame in microseconds; a pass of the rig loop's due events (up to ``pass_limit``) must not
+    make it wait. A thread that raises ``clock.waiting`` while it blocks on the lock ends the running pass
+    after the event in progress (``run_due`` returns 1 of 3 due events), and :meth:`RealTimeClock.hand_over`
+    lets it take the lock before the loop's next pass runs the other two."""
+    clock = RealTimeClock()
+    lock = clock.ensure_lock()
+    order: list[str] = []
+    blocked = threading.Event()
+
+    def waiter() -> None:
+        clock.waiting += 1
+        blocked.set()
+        with lock:
+            order.append("waiter")
+        clock.waiting -= 1
+
+    thread = threading.Thread(target=waiter)
+
+    def first() -> None:
+        order.append("event")
+        thread.start()
+        assert blocked.wait(30)     # it waits for the lock this pass holds
+
+    with lock:
+        clock.call_at(clock.now() - 0.001, first)
+        for _ in range(2):
+            clock.call_at(clock.now() - 0.001, order.append, "event")
+    assert clock.run_due() == 1
+    clock.hand_over(patience=30.0)   # run_due stepped aside for HAND_OVER_S; a loaded machine may need longer
+    thread.join(30)
+    assert clock.waiting == 0
+    assert clock.run_due() == 2
+    assert order == ["event", "waiter", "event", "event"]
+

@@ -84,20 +84,40 @@ def test_process_without_defer_leaves_no_work_behind() -> None:
     assert line.drive.slave.od.values[(0x6040, 0)] == 0x06
 
 
-def test_work_a_caller_left_runs_before_the_next_frame() -> None:
-    """A caller that deferred and never called ``after_frame``: the next ``process`` delivers the outputs
-    it left first, so no outputs event is lost."""
+def test_work_a_caller_left_runs_before_the_next_frame_processed_without_defer() -> None:
+    """A caller that deferred and never called ``after_frame``, then a frame without ``defer`` (the in-process
+    master): it leaves no work behind, the pending outputs' included."""
+    line = _Line()
+    line.defer = True
+    m = line.master
+    m.pdo_write(0, 0, RX.pack(0x06, 0, 0, 0, 8))
+    m.exchange_process_data()
+    line.defer = False
+    m.pdo_write(0, 0, RX.pack(0x07, 0, 0, 0, 8))
+    cycles = line.drive.slave.cycles
+    m.exchange_process_data()      # delivers 0x06 first, then 0x07 at its end
+    assert line.drive.slave.cycles == cycles + 1
+    assert not line.drive.slave.outputs_pending
+    assert line.drive.slave.od.values[(0x6040, 0)] == 0x07
+
+
+def test_deferring_caller_gets_the_newest_outputs_when_it_runs_the_work() -> None:
+    """With ``defer`` (the wire thread, which answers every waiting frame first -- the second frame of a split
+    process image must not wait for the first one's applications): frames do not run the work left pending;
+    ``after_frame`` then hands each application the newest outputs of its SyncManager, as a slave's firmware
+    reads the 3-buffer SM's latest buffer whenever it gets to it (ETG.1000.4 / ET1100 data sheet,
+    'SyncManager: buffered mode': the ECAT side may write several times before the PDI reads)."""
     line = _Line()
     line.defer = True
     m = line.master
     m.pdo_write(0, 0, RX.pack(0x06, 0, 0, 0, 8))
     m.exchange_process_data()
     m.pdo_write(0, 0, RX.pack(0x07, 0, 0, 0, 8))
-    cycles = line.drive.slave.cycles
-    m.exchange_process_data()      # delivers 0x06 first, then takes 0x07 for later
-    assert line.drive.slave.cycles == cycles + 1
-    assert line.drive.slave.od.values[(0x6040, 0)] == 0x06
+    before = line.drive.slave.od.values[(0x6040, 0)]
+    m.exchange_process_data()
+    assert line.drive.slave.outputs_pending and line.drive.slave.od.values[(0x6040, 0)] == before
     line.segment.after_frame()
+    assert not line.drive.slave.outputs_pending
     assert line.drive.slave.od.values[(0x6040, 0)] == 0x07
 
 

@@ -23,7 +23,7 @@ from typing import Any, cast
 from gatewaylab.common.clock import RealTimeClock
 from gatewaylab.devices.ethercat_io.device import create_io_slave
 from gatewaylab.ethercat.segment import Segment
-from gatewaylab.ethercat.wire import WireTransport
+from gatewaylab.ethercat.wire import AFTER_FRAME_MAX, WireTransport
 from gatewaylab.ethercat.wire_pcap import PcapWriter
 from gatewaylab.rig.process import RigProcess
 
@@ -161,3 +161,50 @@ def test_a_backlog_of_frames_does_not_starve_the_clock(veth_ns: Any) -> None:
         wire.stop()
     assert wire.frames_out >= count
     assert seen_at and seen_at[0] < count, (seen_at, wire.frames_in)   # not after the whole backlog
+
+
+class _Recorder:
+    """A segment that records the order of frames (``P``) and applications' work (``A``) the wire asks of it."""
+
+    def __init__(self, segment: Segment) -> None:
+        self.segment = segment
+        self.line_faults = None         # what the wire reads of a segment besides process/after_frame
+        self.calls: list[str] = []
+
+    def process(self, frame: bytearray, *, defer: bool = False) -> bool:
+        self.calls.append("P")
+        return self.segment.process(frame, defer=defer)
+
+    def after_frame(self) -> None:
+        self.calls.append("A")
+        self.segment.after_frame()
+
+
+def test_waiting_frames_are_answered_before_the_applications_work(veth_ns: Any) -> None:
+    """A master's cycle whose process image needs two frames sends them back to back (SOEM splits an LRW at
+    the frame's size): the second waited for the first one's applications' work (the drives' outputs, the
+    gateways' CAN frames: up to 0.3 ms) before it was answered. The wire now answers every frame already
+    waiting first and runs ``Segment.after_frame`` once the socket is empty, or after AFTER_FRAME_MAX frames
+    of a backlog (so a backlog still reaches the applications)."""
+    count = 6
+    clock = RealTimeClock()
+    hold = _HoldFirstFrame()
+    recorder = _Recorder(Segment([create_io_slave(clock, "io")]))
+    wire = WireTransport(cast(Segment, recorder), veth_ns.emulator_iface, clock, drive_clock=True,
+                         pcap=cast(PcapWriter, hold), max_residence_ms=0)
+    wire.start()
+    try:
+        _send(veth_ns, 1)
+        assert hold.arrived.wait(30)            # the thread is inside frame 1
+        _send(veth_ns, count - 1)               # five more wait in the socket
+        hold.release.set()
+        deadline = time.monotonic() + 30
+        while (wire.frames_out < count or recorder.calls[-1:] != ["A"]) and time.monotonic() < deadline:
+            time.sleep(0.001)
+    finally:
+        hold.release.set()
+        wire.stop()
+    calls = "".join(recorder.calls)
+    assert wire.frames_out >= count
+    assert calls.startswith("P" * AFTER_FRAME_MAX + "A"), calls      # the backlog first, the work bounded
+    assert calls.endswith("A") and "AA" not in calls, calls           # the rest once the line is idle
