@@ -1,8 +1,8 @@
 """Soak of the EtherCAT wire under CAN load (``make soak-ethercat``): does a master's 1 kHz cycle stay clean?
 
-``gatewaylab run`` (as a user starts it) serves a mixed segment on one end of a veth pair: an ECAN-Lite
-(channel 0 on ``can0``, N = 1) with a CANopen drive (node 2) behind it on ``can0``, 2 ``ethercat_drive``
-and 2 ``ethercat_io``. SOEM (pysoem) in a namespace on the other end brings the line to OP, configures the
+``gatewaylab run`` (as a user starts it) serves a mixed segment on one end of a veth pair: 2 ``ethercat_io``,
+an ECAN-Lite (channel 0 on ``can0``, N = 1) with a CANopen drive (node 2) behind it on ``can0`` and 2
+``ethercat_drive``. SOEM (pysoem) in a namespace on the other end brings the line to OP, configures the
 ECAN-Lite over CoE (manual 5.4.3), enables the drives and runs them in CSP, and cycles at 1 kHz with
 SOEM's default 2 ms receive timeout and no retries, sending a SYNC through the ECAN-Lite every cycle. A
 python-can client on the rig's ``can0`` endpoint starts the CAN drive (NMT) and sends it RPDO1 at
@@ -40,7 +40,7 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import IO, Any
 
-from benchmarks.capture import Capture, Tail, tail_of
+from benchmarks.capture import Capture, Tail, cycle_tag, tail_of
 from benchmarks.wire import ROOT, CpuHog, pin, veth_namespace
 
 #: SOEM's default process-data receive timeout (EC_TIMEOUTRET, us): a later reply is a lost cycle
@@ -63,10 +63,11 @@ DRAIN_S = 0.5
 # ------------------------------------------------------------------------------------------------ the plan
 @dataclass(frozen=True)
 class Plan:
-    """A mixed segment: the ECAN-Lite first (``ecan_n`` chunks on ``ecan_channels`` CAN FD buses), then the esd,
-    the EtherCAT drives and the io; ``can_drive`` puts a CANopen drive on ``can0`` behind the ECAN-Lite;
-    ``frames_per_ms``: CAN frames the master puts in the ECAN-Lite's RxPDO per ms (one per channel; 0 = a
-    SYNC on channel 0), ``peer_rate``: frames/s each python-can peer sends on each ECAN-Lite bus."""
+    """A mixed segment: the io first (their outputs start the image and carry the master's cycle number,
+    capture.cycle_tag), then the ECAN-Lite (``ecan_n`` chunks on ``ecan_channels`` CAN FD buses), the esd
+    and the drives; ``can_drive`` puts a CANopen drive on ``can0`` behind the ECAN-Lite; ``frames_per_ms``:
+    CAN frames the master puts in the ECAN-Lite's RxPDO per ms (one per channel; 0 = a SYNC on channel 0),
+    ``peer_rate``: frames/s each python-can peer sends on each ECAN-Lite bus."""
 
     drives: int = 2
     ios: int = 2
@@ -81,21 +82,21 @@ class Plan:
 
     def kinds(self) -> list[str]:
         """The slaves in segment order."""
-        return (["ecanlite"] * bool(self.ecan_channels) + ["esd"] * self.esd + ["drive"] * self.drives
-                + ["io"] * self.ios)
+        return (["io"] * self.ios + ["ecanlite"] * bool(self.ecan_channels) + ["esd"] * self.esd
+                + ["drive"] * self.drives)
 
     def describe(self) -> str:
-        parts = []
+        parts = [f"{self.ios} ethercat_io"]
         if self.ecan_channels:
             parts.append(f"ECAN-Lite N={self.ecan_n} on {self.ecan_channels} CAN FD bus(es)"
                          + (" with a CANopen drive behind it" if self.can_drive else ""))
         if self.esd:
             parts.append("esd CAN-EtherCAT")
-        parts += [f"{self.drives} ethercat_drive", f"{self.ios} ethercat_io"]
+        parts.append(f"{self.drives} ethercat_drive")
         return " + ".join(parts)
 
 
-#: make soak-ethercat: 2 io, 2 drives, 1 ECAN-Lite with a CAN drive behind it (the issue's failing segment)
+#: make soak-ethercat: 2 io, 1 ECAN-Lite with a CAN drive behind it, 2 drives (the issue's failing segment)
 SOAK_PLAN = Plan()
 
 
@@ -117,14 +118,14 @@ def rig_toml(plan: Plan, interface: str, max_residence_ms: float | None = None,
         lines += ["[[bus]]", f'name = "{name}"', "bitrate = 1000000", "data_bitrate = 5000000", ""]
     if plan.esd:
         lines += ["[[bus]]", 'name = "esd0"', "bitrate = 500000", ""]
+    for i in range(plan.ios):
+        lines += ["[[device]]", 'kind = "ethercat_io"', f'name = "io{i + 1}"', f"revision = {i + 1}", ""]
     if plan.ecan_channels:
         lines += ["[[device]]", 'kind = "ecanlite"', 'name = "ecan"', f"channels = {json.dumps(buses)}", ""]
     if plan.esd:
         lines += ["[[device]]", 'kind = "esd_can_ethercat"', 'name = "esd"', 'bus = "esd0"', ""]
     for i in range(plan.drives):
         lines += ["[[device]]", 'kind = "ethercat_drive"', f'name = "axis{i + 1}"', f"serial = {0x3001 + i}", ""]
-    for i in range(plan.ios):
-        lines += ["[[device]]", 'kind = "ethercat_io"', f'name = "io{i + 1}"', f"revision = {i + 1}", ""]
     if plan.can_drive and plan.ecan_channels:
         lines += ["[[drive]]", 'bus = "can0"', f"node_id = {CAN_NODE}", "serial = 0x1002", 'name = "candrive"', ""]
     lines += ["[ethercat]", f'interface = "{interface}"']
@@ -390,8 +391,8 @@ def master_main(iface: str, plan: Plan, cycles: int) -> dict[str, Any]:
         data = csp_output(i)
         for s in drives:
             s.output = data
-        for s in ios:
-            s.output = bytes([i & 0xFF]) * len(s.output)
+        for s in ios:        # first in the image: the cycle makes the LRW's key unique (capture.pairs)
+            s.output = cycle_tag(i, len(s.output))
         master.send_processdata()
         ok = bool(master.receive_processdata(SOEM_TIMEOUT_US) == expected)
         if stream is not None:
