@@ -29,8 +29,8 @@ from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-__all__ = ["RECORD", "Capture", "Pair", "Record", "Tail", "cycle_tag", "frame_key", "pairs", "read_records",
-           "tail_of"]
+__all__ = ["RECORD", "Capture", "Pair", "Record", "Tail", "cycle_tag", "explain_late", "frame_key", "pairs",
+           "read_records", "tail_of"]
 
 ETH_P_ALL = 0x0003
 ETHERCAT_TYPE = b"\x88\xa4"
@@ -189,6 +189,38 @@ def tail_of(path: str | Path, requests_outgoing: bool, limits_us: tuple[float, .
         if p.t_request >= t0_ns and (t1_ns is None or p.t_request < t1_ns):
             tail.add(p)
     return tail
+
+
+def explain_late(master: str | Path, emulator: str | Path | None, limit_us: float, t0_ns: int, t1_ns: int,
+                 origin_ns: int, most: int = 5) -> list[str]:
+    """Up to ``most`` replies of the master's capture older than ``limit_us`` whose request lies in [t0_ns,
+    t1_ns), each with where it waited: the same frame on the emulator's end (its capture, same key, the
+    first seen after the master sent it) came in and left when -- a residence over the limit is the rig's
+    doing, a short one the VM's. Times in ms from ``origin_ns`` (a stall's start)."""
+    late = [p for p in pairs(read_records(master), True)
+            if t0_ns <= p.t_request < t1_ns and p.delay_us is not None and p.delay_us > limit_us][:most]
+    seen: dict[Pair, Pair] = {}
+    if emulator is not None and late:
+        for e in pairs(read_records(emulator), False):
+            for p in late:
+                if p not in seen and e.key == p.key and p.t_request <= e.t_request < p.t_request + 50_000_000:
+                    seen[p] = e
+
+    def ms(t: int) -> str:
+        return f"{(t - origin_ns) / 1e6:+.1f} ms"
+    out = []
+    for p in late:
+        line = f"reply older than {limit_us / 1000:g} ms: request sent at {ms(p.t_request)}, answered after " \
+               f"{(p.delay_us or 0.0) / 1000:.1f} ms"
+        there = seen.get(p)
+        if there is not None and there.t_reply is not None:
+            held = (there.delay_us or 0.0) > limit_us
+            line += f"; on the emulator's end in at {ms(there.t_request)}, out at {ms(there.t_reply)} (residence " \
+                    f"{(there.delay_us or 0.0) / 1000:.1f} ms: {'the rig held it' if held else 'the VM delayed it'})"
+        elif emulator is not None:
+            line += "; not found answered on the emulator's end"
+        out.append(line)
+    return out
 
 
 def _stamp(ancdata: list[tuple[int, int, bytes]]) -> int:

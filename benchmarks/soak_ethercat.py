@@ -40,7 +40,7 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import IO, Any
 
-from benchmarks.capture import Capture, Tail, cycle_tag, tail_of
+from benchmarks.capture import Capture, Tail, cycle_tag, explain_late, tail_of
 from benchmarks.wire import ROOT, CpuHog, pin, veth_namespace
 
 #: SOEM's default process-data receive timeout (EC_TIMEOUTRET, us): a later reply is a lost cycle
@@ -58,6 +58,8 @@ BRING_UP_ATTEMPTS = 10
 COUNTERS_S = 60.0
 #: how long the CAN client keeps listening after the run (frames still on their way to it)
 DRAIN_S = 0.5
+#: the stall's window (LineResult.stall_window) starts this long before the SIGSTOP
+STALL_LEAD_NS = 100_000_000
 
 
 # ------------------------------------------------------------------------------------------------ the plan
@@ -479,13 +481,17 @@ class LineResult:
     residence: Tail | None = None
     counters: dict[str, int] = field(default_factory=dict)
     can: dict[str, int] = field(default_factory=dict)
-    #: with a stall: its kernel-time window, and the master's round trips of the frames sent from its start
-    #: to one second after its end (the backlog the rig met when it ran again)
+    #: with a stall: its kernel-time span, and the master's round trips of the frames of :meth:`stall_window`
     stall: tuple[int, int] | None = None
     stall_tail: Tail | None = None
     #: slaves the rig reported out of OP while the master cycled: name -> state and when
     left_op: dict[str, str] = field(default_factory=dict)
     errors: list[str] = field(default_factory=list)
+
+    def stall_window(self) -> tuple[int, int] | None:
+        """The requests the stall counts (kernel ns): from just before it (a frame the rig held when it stopped
+        is answered after it) to a second after it (the backlog)."""
+        return None if self.stall is None else (self.stall[0] - STALL_LEAD_NS, self.stall[1] + 1_000_000_000)
 
     def limit_text(self) -> str:
         """The limit the stale replies are counted against, and where it comes from."""
@@ -640,9 +646,10 @@ def run_line(plan: Plan, cycles: int, load: str = "quiet", *, residence: bool = 
                     files = [c.stop() for c in caps]
                 t0_ns, t1_ns = result.master["t_start_ns"], result.master["t_end_ns"]
                 result.master_tail = tail_of(files[0], True, limits, keep, t0_ns, t1_ns)
-                if result.stall is not None:
-                    result.stall_tail = tail_of(files[0], True, limits, False, result.stall[0],
-                                                result.stall[1] + 1_000_000_000)
+                if (window := result.stall_window()) is not None:
+                    result.stall_tail = tail_of(files[0], True, limits, False, *window)
+                    result.errors += explain_late(files[0], files[1] if residence else None, limits[1], *window,
+                                                  window[0] + STALL_LEAD_NS)
                 if residence:
                     result.residence = tail_of(files[1], False, limits, keep, t0_ns, t1_ns)
                 result.counters = wire_counters(rig.ready_file)

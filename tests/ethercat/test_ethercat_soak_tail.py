@@ -12,7 +12,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from benchmarks.bench_ethercat_tail import MIXED_PLAN, classify
-from benchmarks.capture import Pair, Tail, cycle_tag, frame_key, pairs
+from benchmarks.capture import RECORD, Pair, Record, Tail, cycle_tag, explain_late, frame_key, pairs, tail_of
 from benchmarks.soak_ethercat import SOAK_PLAN, LineResult, parse_args, report, residence_limit_ms, rig_toml
 from gatewaylab.rig.config import parse_rig
 
@@ -133,6 +133,31 @@ def test_the_cycle_tag_is_unique_and_fits_an_io() -> None:
     assert len(tags) == 1 << 16 and all(len(t) == 5 for t in tags)
     assert cycle_tag(0x01020304, 5) == b"\x04\x03\x02\x01\x00" and cycle_tag(7, 2) == b"\x07\x00"
     assert SOAK_PLAN.kinds()[0] == MIXED_PLAN.kinds()[0] == "io"
+
+
+def _write(path: Path, records: list[Record]) -> Path:
+    path.write_bytes(b"".join(RECORD.pack(t, int(out), k) for t, out, k in records))
+    return path
+
+
+def test_a_frame_the_rig_held_when_it_stopped_counts_for_the_stall(tmp_path: Path) -> None:
+    """A request that reached the rig 0.3 ms before the SIGSTOP, taken by the wire thread and answered after
+    the SIGCONT, reaches the master 200 ms old (seen in a bench run): a stale reply of the stall, so the
+    stall's window starts before the stop, and explain_late says where it waited (the emulator's capture:
+    in before the stop, out after it -- the rig held it)."""
+    t0 = 10_000 * MS
+    k = key(5, _image_start(SOAK_PLAN, 9999))
+    master = _write(tmp_path / "m.cap", [(t0 - 300_000, True, k), (t0 + 200 * MS + 400_000, False, k)])
+    emulator = _write(tmp_path / "e.cap", [(t0 - 280_000, False, k), (t0 + 200 * MS + 380_000, True, k)])
+    r = LineResult(SOAK_PLAN, "quiet", 3000, 2.0, True, stall=(t0, t0 + 200 * MS))
+    window = r.stall_window()
+    assert window is not None
+    assert tail_of(master, True, (2000.0,), False, *window).over == {2000.0: 1}
+    notes = explain_late(master, emulator, 2000.0, *window, t0)
+    assert notes == ["reply older than 2 ms: request sent at -0.3 ms, answered after 200.7 ms; on the emulator's "
+                     "end in at -0.3 ms, out at +200.4 ms (residence 200.7 ms: the rig held it)"]
+    vm = _write(tmp_path / "v.cap", [(t0 - 280_000, False, k), (t0 - 180_000, True, k)])
+    assert explain_late(master, vm, 2000.0, *window, t0)[0].endswith("(residence 0.1 ms: the VM delayed it)")
 
 
 def test_classify_says_where_a_failed_bring_up_lost_its_frame() -> None:
