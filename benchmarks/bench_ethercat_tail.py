@@ -46,6 +46,7 @@ from benchmarks.capture import Capture, Pair, Tail, pairs, read_records
 from benchmarks.soak_ethercat import (
     SOAK_PLAN,
     SOEM_TIMEOUT_US,
+    STALL_LEAD_NS,
     LineResult,
     Plan,
     fmt_us,
@@ -300,19 +301,19 @@ def stall_run(load: str) -> LineResult:
 
 
 def print_stall(r: LineResult) -> bool:
-    """The stall's lines: replies older than the limit sent during the stall or the second after it (the
-    backlog), and in the whole run; True when none reached the master in the stall's window and every
-    pair there was exact (its request the only one waiting with its key, capture.pairs)."""
+    """The stall's lines: replies older than the limit of the frames of its window (LineResult.stall_window:
+    from just before it to a second after it, the backlog), each explained, and in the whole run; True when
+    none reached the master in the window and every pair there was exact (capture.pairs)."""
     limit = r.limit_text()
     w = r.stall_tail
     stale = w.over.get(r.limit_ms * 1000.0, 0) if w is not None else -1
     unsure = w.ambiguous if w is not None else -1
     met = stale == 0 and unsure == 0
     print(f"[{r.load}] {STALL_S * 1000:.0f} ms stall (SIGSTOP) under SOEM at 1 kHz, {SOAK_PLAN.describe()}: "
-          f"replies older than {limit} that reached the master, of the frames sent in the stall and the second "
-          f"after it: {stale} of {w.requests if w else '?'} (never answered {w.unanswered if w else '?'}, oldest "
-          f"reply {fmt_us(w.worst_us) if w else '?'}; target 0: {'met' if met else 'NOT met'}); in the whole run "
-          f"of {r.master.get('cycles', '?')} cycles: {r.stale}")
+          f"replies older than {limit} that reached the master, of the frames sent from {STALL_LEAD_NS / 1e6:g} ms "
+          f"before the stall to a second after it: {stale} of {w.requests if w else '?'} (never answered "
+          f"{w.unanswered if w else '?'}, oldest reply {fmt_us(w.worst_us) if w else '?'}; target 0: "
+          f"{'met' if met else 'NOT met'}); in the whole run of {r.master.get('cycles', '?')} cycles: {r.stale}")
     m = r.master_tail
     if unsure or (m is not None and m.ambiguous):
         print(f"    NOT exact: {unsure} pairs of the stall's window, {m.ambiguous if m else '?'} of the run, had "
