@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import multiprocessing as mp
 import os
 import select
 import signal
@@ -35,29 +34,24 @@ import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
-from multiprocessing.synchronize import Event
 from pathlib import Path
 from types import MappingProxyType
 from typing import IO, Any
 
 from benchmarks.capture import Capture, Tail, cycle_tag, explain_late, tail_of
+from benchmarks.soak_can import CAN_NODE, SYNC_ID, CanLoad
 from benchmarks.wire import ROOT, CpuHog, pin, veth_namespace
 
 #: SOEM's default process-data receive timeout (EC_TIMEOUTRET, us): a later reply is a lost cycle
 SOEM_TIMEOUT_US = 2000
 #: the limit replies are counted against where the rig has no ``max_residence_ms`` key (ms)
 FALLBACK_RESIDENCE_MS = 5.0
-#: the ids of the CAN traffic: the drive's RPDO1 (node 2) and the SYNC the master sends through the ECAN-Lite
-CAN_NODE = 2
-SYNC_ID = 0x080
 #: how long the parent waits for the master's bring-up (scan, CoE configuration, OP) on a loaded machine
 BRING_UP_S = 180.0
 #: whole bring-ups tried before the run gives up (each after a scan or mailbox answer lost to a stall)
 BRING_UP_ATTEMPTS = 10
 #: how long the master may take to read the ECAN-Lite's counters after the run
 COUNTERS_S = 60.0
-#: how long the CAN client keeps listening after the run (frames still on their way to it)
-DRAIN_S = 0.5
 #: the stall's window (LineResult.stall_window) starts this long before the SIGSTOP
 STALL_LEAD_NS = 100_000_000
 
@@ -174,87 +168,6 @@ def wire_counters(ready_file: str | Path) -> dict[str, int]:
         except Exception:
             continue
     return found
-
-
-# --------------------------------------------------------------------------------------------- CAN load
-def can_peer(endpoints: list[str], plan: Plan, stop: Event, results: Any) -> None:
-    """The python-can client(s) on the rig's buses: on ``can0`` NMT start + RPDO1 to the CAN drive at
-    ``plan.can_rate``; on every ECAN-Lite bus ``plan.peer_rate`` frames/s towards the master. Counts what it
-    sent, what the bus refused (a full transmit queue), what it heard from the master (the ECAN-Lite's
-    frames: SYNC and ids 0x100..) and other frames (the CAN drive's)."""
-    import can
-
-    buses = [can.Bus(interface="gatewaylab", channel=e, name=f"soak-peer-{k}") for k, e in enumerate(endpoints)]
-    counts = {"sent": 0, "refused": 0, "heard": 0, "other": 0}
-
-    def send(bus: Any, msg: Any) -> None:
-        try:
-            bus.send(msg, timeout=0)
-            counts["sent"] += 1
-        except can.CanOperationError:
-            counts["refused"] += 1
-    def take() -> None:
-        for bus in buses:
-            while (msg := bus.recv(0)) is not None:
-                master_frame = msg.arbitration_id == SYNC_ID or 0x100 <= msg.arbitration_id < 0x100 + len(buses)
-                counts["heard" if master_frame else "other"] += 1
-    results.put({"ready": True})
-    try:
-        if plan.can_drive:
-            send(buses[0], can.Message(arbitration_id=0x000, is_extended_id=False, data=[0x01, CAN_NODE]))
-        t0 = time.perf_counter()
-        rpdo = peer = 0
-        while not stop.is_set():
-            now = time.perf_counter() - t0
-            while plan.can_drive and rpdo < now * plan.can_rate:
-                send(buses[0], can.Message(arbitration_id=0x200 + CAN_NODE, is_extended_id=False,
-                                           data=struct.pack("<Hi", 0x0F, rpdo)))
-                rpdo += 1
-            while plan.peer_rate and peer < now * plan.peer_rate:
-                for k, bus in enumerate(buses):
-                    send(bus, can.Message(arbitration_id=0x300 + k, is_extended_id=False, data=struct.pack("<I", peer)))
-                peer += 1
-            take()
-            time.sleep(0.0005)
-        drain_end = time.monotonic() + DRAIN_S      # what the master's last cycles put on the buses
-        while time.monotonic() < drain_end:
-            take()
-            time.sleep(0.001)
-    finally:
-        results.put(counts)
-        for bus in buses:
-            bus.shutdown()
-
-
-class CanLoad:
-    """:func:`can_peer` in a child process for the plan's buses, returned once its buses are open (nothing
-    when the plan has no CAN side)."""
-
-    def __init__(self, plan: Plan, endpoints: list[str]) -> None:
-        ctx = mp.get_context("spawn")
-        self.stop_event = ctx.Event()
-        self.results: Any = ctx.Queue()
-        self.proc: Any = None
-        if endpoints and (plan.can_drive or plan.peer_rate):
-            self.proc = ctx.Process(target=can_peer, args=(endpoints, plan, self.stop_event, self.results),
-                                    name="soak-ethercat-can")
-            self.proc.start()
-            self.results.get(timeout=120)
-
-    def stop(self) -> dict[str, int]:
-        """End the client; its counts ({} without one)."""
-        if self.proc is None:
-            return {}
-        self.stop_event.set()
-        try:
-            result: dict[str, int] = self.results.get(timeout=30)
-        except Exception as exc:
-            result = {}
-            print(f"the CAN client gave no counts ({type(exc).__name__}, exit {self.proc.exitcode})", flush=True)
-        self.proc.join(10)
-        if self.proc.is_alive():
-            self.proc.kill()
-        return result
 
 
 # ------------------------------------------------------------------------------------------------ master
