@@ -20,10 +20,13 @@ namespace on the other end.
    emulator answered late or dropped it, or it answered in time and the VM delivered late.
 4. **Stall**: the soak segment under SOEM, the rig stopped (SIGSTOP) for 200 ms: replies older than the
    rig's ``max_residence_ms`` that reach the master (target 0; a rig without that key is measured
-   against 5 ms).
+   against 5 ms). The master writes its cycle number into the first output bytes of every LRW
+   (capture.cycle_tag), so each reply is paired with exactly its own request (capture.pairs).
 
 GL_BENCH_CYCLES_TAIL sets the cycles of parts 1-2 (default 100,000; else GL_BENCH_SECONDS x 1,000 when
-that is set), GL_BENCH_TRIES the KickCAT tries. Needs root (namespace + veth), pysoem and kickcat.
+that is set), GL_BENCH_TRIES the KickCAT tries, GL_BENCH_TAIL_PARTS the parts run (comma-separated of
+``residence`` (1 and 2), ``kickcat``, ``stall``; default all). Needs root (namespace + veth), pysoem and
+kickcat.
 """
 
 from __future__ import annotations
@@ -43,6 +46,7 @@ from benchmarks.capture import Capture, Pair, Tail, pairs, read_records
 from benchmarks.soak_ethercat import (
     SOAK_PLAN,
     SOEM_TIMEOUT_US,
+    STALL_LEAD_NS,
     LineResult,
     Plan,
     fmt_us,
@@ -67,6 +71,17 @@ KICKCAT_WATCHDOG_S = 0.1
 #: the devices brought up by KickCAT, each alone on a rig
 KICKCAT_KINDS = ("ecanlite", "esd", "io")
 STALL_S = 0.2
+#: the parts of GL_BENCH_TAIL_PARTS
+PARTS = ("residence", "kickcat", "stall")
+
+
+def parts() -> tuple[str, ...]:
+    """The parts to run (GL_BENCH_TAIL_PARTS, comma-separated, default all of :data:`PARTS`)."""
+    wanted = tuple(w.strip() for w in os.environ.get("GL_BENCH_TAIL_PARTS", ",".join(PARTS)).split(",") if w.strip())
+    unknown = [w for w in wanted if w not in PARTS]
+    if unknown:
+        raise ValueError(f"GL_BENCH_TAIL_PARTS: unknown part(s) {', '.join(unknown)} (known: {', '.join(PARTS)})")
+    return wanted
 
 
 def cycles() -> int:
@@ -286,21 +301,30 @@ def stall_run(load: str) -> LineResult:
 
 
 def print_stall(r: LineResult) -> bool:
-    """The stall's lines: replies older than the limit sent during the stall or the second after it (the
-    backlog), and in the whole run; True when none reached the master in the stall's window."""
+    """The stall's lines: replies older than the limit of the frames of its window (LineResult.stall_window:
+    from just before it to a second after it, the backlog), each explained, and in the whole run; True when
+    none reached the master in the window and every pair there was exact (capture.pairs)."""
     limit = r.limit_text()
     w = r.stall_tail
     stale = w.over.get(r.limit_ms * 1000.0, 0) if w is not None else -1
+    unsure = w.ambiguous if w is not None else -1
+    met = stale == 0 and unsure == 0
     print(f"[{r.load}] {STALL_S * 1000:.0f} ms stall (SIGSTOP) under SOEM at 1 kHz, {SOAK_PLAN.describe()}: "
-          f"replies older than {limit} that reached the master, of the frames sent in the stall and the second "
-          f"after it: {stale} of {w.requests if w else '?'} (target 0: {'met' if stale == 0 else 'NOT met'}); in "
-          f"the whole run of {r.master.get('cycles', '?')} cycles: {r.stale}")
+          f"replies older than {limit} that reached the master, of the frames sent from {STALL_LEAD_NS / 1e6:g} ms "
+          f"before the stall to a second after it: {stale} of {w.requests if w else '?'} (never answered "
+          f"{w.unanswered if w else '?'}, oldest reply {fmt_us(w.worst_us) if w else '?'}; target 0: "
+          f"{'met' if met else 'NOT met'}); in the whole run of {r.master.get('cycles', '?')} cycles: {r.stale}")
     m = r.master_tail
+    if unsure or (m is not None and m.ambiguous):
+        print(f"    NOT exact: {unsure} pairs of the stall's window, {m.ambiguous if m else '?'} of the run, had "
+              f"another request with the same key waiting (the cycle tag did not reach the first data bytes)")
     print(f"    SOEM wrong working counters {r.master.get('wrong_wkc', '?')}; never answered "
           f"{m.unanswered if m else '?'}; oldest reply {fmt_us(m.worst_us) if m else '?'}; dropped late by the rig "
           f"{r.counters.get('frames_dropped_late', 'not reported')}; left OP: "
           + (", ".join(f"{n} {st}" for n, st in r.left_op.items()) if r.left_op else "none"))
-    return stale == 0
+    for note in r.errors:
+        print(f"    note: {note}")
+    return met
 
 
 # ---------------------------------------------------------------------------------------------------- run
@@ -315,33 +339,37 @@ def main() -> None:
     if skip:
         print(skip)
         return
-    n, tries = cycles(), env_int("GL_BENCH_TRIES", 100)
+    n, tries, wanted = cycles(), env_int("GL_BENCH_TRIES", 100), parts()
     residence: dict[str, tuple[str, bool]] = {}
     soem: dict[str, tuple[str, bool]] = {}
     kick: dict[str, tuple[str, bool]] = {}
     stall: dict[str, tuple[str, bool]] = {}
     for load in loads():
-        try:
-            run = residence_run(load, n)
-            met_res, met_soem = print_residence(run)
-            p = run.line.residence.percentiles() if run.line.residence else {"p999_us": float("nan")}
-            echo_p = run.echo.residence.percentiles() if run.echo.residence else {"p999_us": float("nan")}
-            residence[load] = (f"p99.9 {fmt_us(p['p999_us'])} (C echo {fmt_us(echo_p['p999_us'])})", met_res)
-            soem[load] = (f"{run.line.master.get('wrong_wkc')} wrong WKC, C echo lost {run.echo.lost}", met_soem)
-        except RuntimeError as exc:
-            print(f"[{load}] residence run failed: {' '.join(str(exc).split())[-600:]}")
-            residence[load] = soem[load] = ("the run failed", False)
-        results = [kickcat_run(kind, load, tries) for kind in KICKCAT_KINDS]
-        met = [print_kickcat(r) for r in results]
-        kick[load] = (", ".join(f"{r.kind} {r.ok}/{r.tries}" for r in results), all(met))
-        try:
-            s = stall_run(load)
-            ok = print_stall(s)
-            stall[load] = (f"{s.stall_tail.over.get(s.limit_ms * 1000.0, 0) if s.stall_tail else '?'} stale replies "
-                           f"after the stall", ok)
-        except RuntimeError as exc:
-            print(f"[{load}] stall run failed: {' '.join(str(exc).split())[-600:]}")
-            stall[load] = ("the run failed", False)
+        if "residence" in wanted:
+            try:
+                run = residence_run(load, n)
+                met_res, met_soem = print_residence(run)
+                p = run.line.residence.percentiles() if run.line.residence else {"p999_us": float("nan")}
+                echo_p = run.echo.residence.percentiles() if run.echo.residence else {"p999_us": float("nan")}
+                residence[load] = (f"p99.9 {fmt_us(p['p999_us'])} (C echo {fmt_us(echo_p['p999_us'])})", met_res)
+                soem[load] = (f"{run.line.master.get('wrong_wkc')} wrong WKC, C echo lost {run.echo.lost}", met_soem)
+            except RuntimeError as exc:
+                print(f"[{load}] residence run failed: {' '.join(str(exc).split())[-600:]}")
+                residence[load] = soem[load] = ("the run failed", False)
+        if "kickcat" in wanted:
+            results = [kickcat_run(kind, load, tries) for kind in KICKCAT_KINDS]
+            met = [print_kickcat(r) for r in results]
+            kick[load] = (", ".join(f"{r.kind} {r.ok}/{r.tries}" for r in results), all(met))
+        if "stall" in wanted:
+            try:
+                s = stall_run(load)
+                ok = print_stall(s)
+                w = s.stall_tail
+                stall[load] = (f"{w.over.get(s.limit_ms * 1000.0, 0) if w else '?'} stale replies after the stall"
+                               + (f" ({w.ambiguous} pairs not exact)" if w and w.ambiguous else ""), ok)
+            except RuntimeError as exc:
+                print(f"[{load}] stall run failed: {' '.join(str(exc).split())[-600:]}")
+                stall[load] = ("the run failed", False)
     _record("residence", residence)
     _record("wkc_echo", soem)
     _record("kickcat", kick)

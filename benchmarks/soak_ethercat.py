@@ -1,8 +1,8 @@
 """Soak of the EtherCAT wire under CAN load (``make soak-ethercat``): does a master's 1 kHz cycle stay clean?
 
-``gatewaylab run`` (as a user starts it) serves a mixed segment on one end of a veth pair: an ECAN-Lite
-(channel 0 on ``can0``, N = 1) with a CANopen drive (node 2) behind it on ``can0``, 2 ``ethercat_drive``
-and 2 ``ethercat_io``. SOEM (pysoem) in a namespace on the other end brings the line to OP, configures the
+``gatewaylab run`` (as a user starts it) serves a mixed segment on one end of a veth pair: 2 ``ethercat_io``,
+an ECAN-Lite (channel 0 on ``can0``, N = 1) with a CANopen drive (node 2) behind it on ``can0`` and 2
+``ethercat_drive``. SOEM (pysoem) in a namespace on the other end brings the line to OP, configures the
 ECAN-Lite over CoE (manual 5.4.3), enables the drives and runs them in CSP, and cycles at 1 kHz with
 SOEM's default 2 ms receive timeout and no retries, sending a SYNC through the ECAN-Lite every cycle. A
 python-can client on the rig's ``can0`` endpoint starts the CAN drive (NMT) and sends it RPDO1 at
@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import multiprocessing as mp
 import os
 import select
 import signal
@@ -35,38 +34,36 @@ import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
-from multiprocessing.synchronize import Event
 from pathlib import Path
 from types import MappingProxyType
 from typing import IO, Any
 
-from benchmarks.capture import Capture, Tail, tail_of
+from benchmarks.capture import Capture, Tail, cycle_tag, explain_late, tail_of
+from benchmarks.soak_can import CAN_NODE, SYNC_ID, CanLoad
 from benchmarks.wire import ROOT, CpuHog, pin, veth_namespace
 
 #: SOEM's default process-data receive timeout (EC_TIMEOUTRET, us): a later reply is a lost cycle
 SOEM_TIMEOUT_US = 2000
 #: the limit replies are counted against where the rig has no ``max_residence_ms`` key (ms)
 FALLBACK_RESIDENCE_MS = 5.0
-#: the ids of the CAN traffic: the drive's RPDO1 (node 2) and the SYNC the master sends through the ECAN-Lite
-CAN_NODE = 2
-SYNC_ID = 0x080
 #: how long the parent waits for the master's bring-up (scan, CoE configuration, OP) on a loaded machine
 BRING_UP_S = 180.0
 #: whole bring-ups tried before the run gives up (each after a scan or mailbox answer lost to a stall)
 BRING_UP_ATTEMPTS = 10
 #: how long the master may take to read the ECAN-Lite's counters after the run
 COUNTERS_S = 60.0
-#: how long the CAN client keeps listening after the run (frames still on their way to it)
-DRAIN_S = 0.5
+#: the stall's window (LineResult.stall_window) starts this long before the SIGSTOP
+STALL_LEAD_NS = 100_000_000
 
 
 # ------------------------------------------------------------------------------------------------ the plan
 @dataclass(frozen=True)
 class Plan:
-    """A mixed segment: the ECAN-Lite first (``ecan_n`` chunks on ``ecan_channels`` CAN FD buses), then the esd,
-    the EtherCAT drives and the io; ``can_drive`` puts a CANopen drive on ``can0`` behind the ECAN-Lite;
-    ``frames_per_ms``: CAN frames the master puts in the ECAN-Lite's RxPDO per ms (one per channel; 0 = a
-    SYNC on channel 0), ``peer_rate``: frames/s each python-can peer sends on each ECAN-Lite bus."""
+    """A mixed segment: the io first (their outputs start the image and carry the master's cycle number,
+    capture.cycle_tag), then the ECAN-Lite (``ecan_n`` chunks on ``ecan_channels`` CAN FD buses), the esd
+    and the drives; ``can_drive`` puts a CANopen drive on ``can0`` behind the ECAN-Lite; ``frames_per_ms``:
+    CAN frames the master puts in the ECAN-Lite's RxPDO per ms (one per channel; 0 = a SYNC on channel 0),
+    ``peer_rate``: frames/s each python-can peer sends on each ECAN-Lite bus."""
 
     drives: int = 2
     ios: int = 2
@@ -81,21 +78,21 @@ class Plan:
 
     def kinds(self) -> list[str]:
         """The slaves in segment order."""
-        return (["ecanlite"] * bool(self.ecan_channels) + ["esd"] * self.esd + ["drive"] * self.drives
-                + ["io"] * self.ios)
+        return (["io"] * self.ios + ["ecanlite"] * bool(self.ecan_channels) + ["esd"] * self.esd
+                + ["drive"] * self.drives)
 
     def describe(self) -> str:
-        parts = []
+        parts = [f"{self.ios} ethercat_io"]
         if self.ecan_channels:
             parts.append(f"ECAN-Lite N={self.ecan_n} on {self.ecan_channels} CAN FD bus(es)"
                          + (" with a CANopen drive behind it" if self.can_drive else ""))
         if self.esd:
             parts.append("esd CAN-EtherCAT")
-        parts += [f"{self.drives} ethercat_drive", f"{self.ios} ethercat_io"]
+        parts.append(f"{self.drives} ethercat_drive")
         return " + ".join(parts)
 
 
-#: make soak-ethercat: 2 io, 2 drives, 1 ECAN-Lite with a CAN drive behind it (the issue's failing segment)
+#: make soak-ethercat: 2 io, 1 ECAN-Lite with a CAN drive behind it, 2 drives (the issue's failing segment)
 SOAK_PLAN = Plan()
 
 
@@ -117,14 +114,14 @@ def rig_toml(plan: Plan, interface: str, max_residence_ms: float | None = None,
         lines += ["[[bus]]", f'name = "{name}"', "bitrate = 1000000", "data_bitrate = 5000000", ""]
     if plan.esd:
         lines += ["[[bus]]", 'name = "esd0"', "bitrate = 500000", ""]
+    for i in range(plan.ios):
+        lines += ["[[device]]", 'kind = "ethercat_io"', f'name = "io{i + 1}"', f"revision = {i + 1}", ""]
     if plan.ecan_channels:
         lines += ["[[device]]", 'kind = "ecanlite"', 'name = "ecan"', f"channels = {json.dumps(buses)}", ""]
     if plan.esd:
         lines += ["[[device]]", 'kind = "esd_can_ethercat"', 'name = "esd"', 'bus = "esd0"', ""]
     for i in range(plan.drives):
         lines += ["[[device]]", 'kind = "ethercat_drive"', f'name = "axis{i + 1}"', f"serial = {0x3001 + i}", ""]
-    for i in range(plan.ios):
-        lines += ["[[device]]", 'kind = "ethercat_io"', f'name = "io{i + 1}"', f"revision = {i + 1}", ""]
     if plan.can_drive and plan.ecan_channels:
         lines += ["[[drive]]", 'bus = "can0"', f"node_id = {CAN_NODE}", "serial = 0x1002", 'name = "candrive"', ""]
     lines += ["[ethercat]", f'interface = "{interface}"']
@@ -171,87 +168,6 @@ def wire_counters(ready_file: str | Path) -> dict[str, int]:
         except Exception:
             continue
     return found
-
-
-# --------------------------------------------------------------------------------------------- CAN load
-def can_peer(endpoints: list[str], plan: Plan, stop: Event, results: Any) -> None:
-    """The python-can client(s) on the rig's buses: on ``can0`` NMT start + RPDO1 to the CAN drive at
-    ``plan.can_rate``; on every ECAN-Lite bus ``plan.peer_rate`` frames/s towards the master. Counts what it
-    sent, what the bus refused (a full transmit queue), what it heard from the master (the ECAN-Lite's
-    frames: SYNC and ids 0x100..) and other frames (the CAN drive's)."""
-    import can
-
-    buses = [can.Bus(interface="gatewaylab", channel=e, name=f"soak-peer-{k}") for k, e in enumerate(endpoints)]
-    counts = {"sent": 0, "refused": 0, "heard": 0, "other": 0}
-
-    def send(bus: Any, msg: Any) -> None:
-        try:
-            bus.send(msg, timeout=0)
-            counts["sent"] += 1
-        except can.CanOperationError:
-            counts["refused"] += 1
-    def take() -> None:
-        for bus in buses:
-            while (msg := bus.recv(0)) is not None:
-                master_frame = msg.arbitration_id == SYNC_ID or 0x100 <= msg.arbitration_id < 0x100 + len(buses)
-                counts["heard" if master_frame else "other"] += 1
-    results.put({"ready": True})
-    try:
-        if plan.can_drive:
-            send(buses[0], can.Message(arbitration_id=0x000, is_extended_id=False, data=[0x01, CAN_NODE]))
-        t0 = time.perf_counter()
-        rpdo = peer = 0
-        while not stop.is_set():
-            now = time.perf_counter() - t0
-            while plan.can_drive and rpdo < now * plan.can_rate:
-                send(buses[0], can.Message(arbitration_id=0x200 + CAN_NODE, is_extended_id=False,
-                                           data=struct.pack("<Hi", 0x0F, rpdo)))
-                rpdo += 1
-            while plan.peer_rate and peer < now * plan.peer_rate:
-                for k, bus in enumerate(buses):
-                    send(bus, can.Message(arbitration_id=0x300 + k, is_extended_id=False, data=struct.pack("<I", peer)))
-                peer += 1
-            take()
-            time.sleep(0.0005)
-        drain_end = time.monotonic() + DRAIN_S      # what the master's last cycles put on the buses
-        while time.monotonic() < drain_end:
-            take()
-            time.sleep(0.001)
-    finally:
-        results.put(counts)
-        for bus in buses:
-            bus.shutdown()
-
-
-class CanLoad:
-    """:func:`can_peer` in a child process for the plan's buses, returned once its buses are open (nothing
-    when the plan has no CAN side)."""
-
-    def __init__(self, plan: Plan, endpoints: list[str]) -> None:
-        ctx = mp.get_context("spawn")
-        self.stop_event = ctx.Event()
-        self.results: Any = ctx.Queue()
-        self.proc: Any = None
-        if endpoints and (plan.can_drive or plan.peer_rate):
-            self.proc = ctx.Process(target=can_peer, args=(endpoints, plan, self.stop_event, self.results),
-                                    name="soak-ethercat-can")
-            self.proc.start()
-            self.results.get(timeout=120)
-
-    def stop(self) -> dict[str, int]:
-        """End the client; its counts ({} without one)."""
-        if self.proc is None:
-            return {}
-        self.stop_event.set()
-        try:
-            result: dict[str, int] = self.results.get(timeout=30)
-        except Exception as exc:
-            result = {}
-            print(f"the CAN client gave no counts ({type(exc).__name__}, exit {self.proc.exitcode})", flush=True)
-        self.proc.join(10)
-        if self.proc.is_alive():
-            self.proc.kill()
-        return result
 
 
 # ------------------------------------------------------------------------------------------------ master
@@ -390,8 +306,8 @@ def master_main(iface: str, plan: Plan, cycles: int) -> dict[str, Any]:
         data = csp_output(i)
         for s in drives:
             s.output = data
-        for s in ios:
-            s.output = bytes([i & 0xFF]) * len(s.output)
+        for s in ios:        # first in the image: the cycle makes the LRW's key unique (capture.pairs)
+            s.output = cycle_tag(i, len(s.output))
         master.send_processdata()
         ok = bool(master.receive_processdata(SOEM_TIMEOUT_US) == expected)
         if stream is not None:
@@ -478,13 +394,17 @@ class LineResult:
     residence: Tail | None = None
     counters: dict[str, int] = field(default_factory=dict)
     can: dict[str, int] = field(default_factory=dict)
-    #: with a stall: its kernel-time window, and the master's round trips of the frames sent from its start
-    #: to one second after its end (the backlog the rig met when it ran again)
+    #: with a stall: its kernel-time span, and the master's round trips of the frames of :meth:`stall_window`
     stall: tuple[int, int] | None = None
     stall_tail: Tail | None = None
     #: slaves the rig reported out of OP while the master cycled: name -> state and when
     left_op: dict[str, str] = field(default_factory=dict)
     errors: list[str] = field(default_factory=list)
+
+    def stall_window(self) -> tuple[int, int] | None:
+        """The requests the stall counts (kernel ns): from just before it (a frame the rig held when it stopped
+        is answered after it) to a second after it (the backlog)."""
+        return None if self.stall is None else (self.stall[0] - STALL_LEAD_NS, self.stall[1] + 1_000_000_000)
 
     def limit_text(self) -> str:
         """The limit the stale replies are counted against, and where it comes from."""
@@ -639,9 +559,10 @@ def run_line(plan: Plan, cycles: int, load: str = "quiet", *, residence: bool = 
                     files = [c.stop() for c in caps]
                 t0_ns, t1_ns = result.master["t_start_ns"], result.master["t_end_ns"]
                 result.master_tail = tail_of(files[0], True, limits, keep, t0_ns, t1_ns)
-                if result.stall is not None:
-                    result.stall_tail = tail_of(files[0], True, limits, False, result.stall[0],
-                                                result.stall[1] + 1_000_000_000)
+                if (window := result.stall_window()) is not None:
+                    result.stall_tail = tail_of(files[0], True, limits, False, *window)
+                    result.errors += explain_late(files[0], files[1] if residence else None, limits[1], *window,
+                                                  window[0] + STALL_LEAD_NS)
                 if residence:
                     result.residence = tail_of(files[1], False, limits, keep, t0_ns, t1_ns)
                 result.counters = wire_counters(rig.ready_file)

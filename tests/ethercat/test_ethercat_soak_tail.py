@@ -12,7 +12,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from benchmarks.bench_ethercat_tail import MIXED_PLAN, classify
-from benchmarks.capture import Pair, Tail, frame_key, pairs
+from benchmarks.capture import RECORD, Pair, Record, Tail, cycle_tag, explain_late, frame_key, pairs, tail_of
 from benchmarks.soak_ethercat import SOAK_PLAN, LineResult, parse_args, report, residence_limit_ms, rig_toml
 from gatewaylab.rig.config import parse_rig
 
@@ -70,6 +70,94 @@ def test_a_read_reply_pairs_with_the_first_request_of_its_header() -> None:
     got = list(pairs(records, False))
     assert got == [Pair(0, MS // 10, req), Pair(2 * MS, None, req)]
     assert got[0].delay_us == 100.0
+
+
+def _image_start(plan: object, cycle: int) -> bytes:
+    """The first 8 bytes of the LRW the bench's master sends in ``cycle``: SOEM maps every slave's outputs
+    before the inputs, in segment order; an io's outputs (5 bytes) carry the cycle tag."""
+    assert isinstance(plan, type(SOAK_PLAN))
+    head = b""
+    for kind in plan.kinds():
+        if kind != "io" or len(head) >= 8:
+            break
+        head += cycle_tag(cycle, 5)
+    return head[:8]
+
+
+@pytest.mark.parametrize("plan", [SOAK_PLAN, MIXED_PLAN], ids=["soak", "mixed"])
+def test_after_a_stall_each_fresh_reply_pairs_with_its_own_request(plan: object) -> None:
+    """Issue 31 benchmark, 'after a 200 ms stall: 0 replies older than the configured limit reach the
+    master'. During the stall SOEM sends a request a cycle (its 16 frame indexes in turn) and the slaves
+    leave OP (SM watchdog, SAFEOP + 0x001B), so the ECAN-Lite's image and the slaves' inputs stay constant;
+    the rig drops what waited (never answered) and answers the fresh requests within 100 us. An LRW
+    carries its outputs back as written (ETG.1000.4 logical addressing: only the input areas are filled in
+    on the way), so the master's cycle number at the image's start makes each key unique: every fresh reply
+    pairs with its own request (100 us, exact), none with a request of the pause -- the old pairing took
+    the oldest request of the same index and data, and counted 1191 stale replies."""
+    records = []
+    for cycle in range(1000, 1100):                     # the stall: nothing answered
+        records.append((cycle * MS, True, key(cycle % 16, _image_start(plan, cycle))))
+    for cycle in range(1100, 1200):                     # after it: each answered in 100 us
+        k = key(cycle % 16, _image_start(plan, cycle))
+        records += [(cycle * MS, True, k), (cycle * MS + 100_000, False, k)]
+    got = list(pairs(records, True))
+    assert [p.t_request for p in got] == [c * MS for c in range(1000, 1200)]
+    assert all(p.t_reply is None for p in got[:100])
+    assert [p.delay_us for p in got[100:]] == [100.0] * 100
+    assert not any(p.ambiguous for p in got)
+    tail = Tail((2000.0,))
+    for p in got:
+        tail.add(p)
+    assert (tail.unanswered, tail.over.get(2000.0, 0), tail.ambiguous) == (100, 0, 0)
+
+
+def test_identical_waiting_requests_make_a_pair_ambiguous_not_stale() -> None:
+    """A master that writes no tag (a constant image after the stall): a fresh reply matches every waiting
+    request of its index and data, so which one it answers is not known; the pair is the oldest's but marked
+    ambiguous (counted by Tail), never taken as a measured stale reply."""
+    const = bytes(8)
+    records = [(c * MS, True, key(c % 16, const)) for c in range(0, 32)]
+    records += [(32 * MS, True, key(0, const)), (32 * MS + 100_000, False, key(0, const))]
+    got = list(pairs(records, True))
+    answered = [p for p in got if p.t_reply is not None]
+    assert len(answered) == 1 and answered[0].ambiguous
+    tail = Tail((2000.0,))
+    for p in got:
+        tail.add(p)
+    assert tail.ambiguous == 1
+
+
+def test_the_cycle_tag_is_unique_and_fits_an_io() -> None:
+    """capture.cycle_tag: 32 bits of the cycle in the io's 5 output bytes (digital u8 + two int16)."""
+    tags = {cycle_tag(n, 5) for n in range(0, 1 << 16)}
+    assert len(tags) == 1 << 16 and all(len(t) == 5 for t in tags)
+    assert cycle_tag(0x01020304, 5) == b"\x04\x03\x02\x01\x00" and cycle_tag(7, 2) == b"\x07\x00"
+    assert SOAK_PLAN.kinds()[0] == MIXED_PLAN.kinds()[0] == "io"
+
+
+def _write(path: Path, records: list[Record]) -> Path:
+    path.write_bytes(b"".join(RECORD.pack(t, int(out), k) for t, out, k in records))
+    return path
+
+
+def test_a_frame_the_rig_held_when_it_stopped_counts_for_the_stall(tmp_path: Path) -> None:
+    """A request that reached the rig 0.3 ms before the SIGSTOP, taken by the wire thread and answered after
+    the SIGCONT, reaches the master 200 ms old (seen in a bench run): a stale reply of the stall, so the
+    stall's window starts before the stop, and explain_late says where it waited (the emulator's capture:
+    in before the stop, out after it -- the rig held it)."""
+    t0 = 10_000 * MS
+    k = key(5, _image_start(SOAK_PLAN, 9999))
+    master = _write(tmp_path / "m.cap", [(t0 - 300_000, True, k), (t0 + 200 * MS + 400_000, False, k)])
+    emulator = _write(tmp_path / "e.cap", [(t0 - 280_000, False, k), (t0 + 200 * MS + 380_000, True, k)])
+    r = LineResult(SOAK_PLAN, "quiet", 3000, 2.0, True, stall=(t0, t0 + 200 * MS))
+    window = r.stall_window()
+    assert window is not None
+    assert tail_of(master, True, (2000.0,), False, *window).over == {2000.0: 1}
+    notes = explain_late(master, emulator, 2000.0, *window, t0)
+    assert notes == ["reply older than 2 ms: request sent at -0.3 ms, answered after 200.7 ms; on the emulator's "
+                     "end in at -0.3 ms, out at +200.4 ms (residence 200.7 ms: the rig held it)"]
+    vm = _write(tmp_path / "v.cap", [(t0 - 280_000, False, k), (t0 - 180_000, True, k)])
+    assert explain_late(master, vm, 2000.0, *window, t0)[0].endswith("(residence 0.1 ms: the VM delayed it)")
 
 
 def test_classify_says_where_a_failed_bring_up_lost_its_frame() -> None:
