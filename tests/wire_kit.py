@@ -18,9 +18,12 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from gatewaylab.common.ask import ask, endpoint_address
+from gatewaylab.common.endpoint import EndpointKind, parse_endpoint
 from gatewaylab.ethercat.wire_netns import net_unavailable, veth_namespace
 
-__all__ = ["JsonMaster", "lost_allowed", "net_capable", "run_fault", "veth_namespace", "veth_namespace_two"]
+__all__ = ["JsonMaster", "check_reruns", "lost_allowed", "net_capable", "rig_wire_stats", "run_fault", "veth_namespace",
+           "veth_namespace_two"]
 
 
 def net_capable(*modules: str) -> str | None:
@@ -39,6 +42,32 @@ def lost_allowed(cycles: int) -> int:
     data, a wrong state -- is never tolerated. docs/decisions.md says why the line is drawn here.
     """
     return max(1, cycles // 50)
+
+
+def check_reruns(reruns: list[str], wire: dict[str, int]) -> None:
+    """A master's step run again after a lost frame (a KickCAT scan, a mailbox read) is allowed only when the
+    machine lost the frame, never the emulator: printed with the wire's counters, and failing when the wire
+    dropped a frame it held itself past ``max_residence_ms`` (``frames_dropped_late`` less
+    ``frames_late_on_arrival``, the frames the kernel or the VM handed to the idle wire thread already late).
+
+    A rerun that a late emulator caused would hide exactly the defect a master's test run must show; a rerun
+    after the machine held a frame (a vCPU not scheduled: docs/decisions.md) is a lost frame, which a real line
+    has too. KickCAT's own give-ups with every frame answered in time (its ``Socket::read``) count as the
+    machine's: the wire then counts no late frame at all."""
+    own = wire.get("frames_dropped_late", 0) - wire.get("frames_late_on_arrival", 0)
+    print(f"steps run again after a lost frame: {len(reruns)} {reruns}; the wire: {wire}")
+    if reruns:
+        assert own == 0, (f"the emulator held {own} frame(s) past max_residence_ms and the master ran "
+                          f"{len(reruns)} step(s) again: {reruns}; {wire}")
+
+
+def rig_wire_stats(info: dict[str, Any]) -> dict[str, int]:
+    """The wire's counters of a running rig (its ready file's ``info``), from the control request
+    ``ethercat-states`` (what ``gatewaylab monitor`` polls)."""
+    endpoint = parse_endpoint(str(info["control"]), bare_path=EndpointKind.UNIX)
+    answer: dict[str, Any] = json.loads(ask(endpoint_address(endpoint), {"fault": "ethercat-states"}, 10.0))
+    wire: dict[str, int] = answer.get("wire") or {}
+    return wire
 
 
 @contextlib.contextmanager

@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from wire_kit import net_capable, veth_namespace
+from wire_kit import check_reruns, net_capable, veth_namespace
 
 from gatewaylab.common.clock import RealTimeClock
 from gatewaylab.devices.ethercat_io.device import PRODUCT_CODE, VENDOR_ID, create_io_slave
@@ -47,7 +47,7 @@ def run() -> Iterator[dict[str, Any]]:
     assert not wire.errors
     assert proc.returncode == 0, proc.stderr[-3000:]
     result: dict[str, Any] = json.loads(proc.stdout.strip().splitlines()[-1])
-    print("KickCAT retries after a late frame:", result["retries"])
+    check_reruns(result["retries"], wire.stats())
     yield result
 
 

@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from wire_kit import net_capable, veth_namespace
+from wire_kit import check_reruns, net_capable, veth_namespace
 
 from gatewaylab.bus import VirtualBus
 from gatewaylab.bus.frame import CanFrame
@@ -55,17 +55,19 @@ def run() -> Iterator[dict[str, Any]]:
             clock.call_later(0.002, talk)
 
         clock.call_soon(talk)
+        restarts: list[str] = []
         with veth_namespace("gl-eck-", "eck") as (ns, emu, mst):
             wire = WireTransport(Segment([device.slave]), emu, clock, drive_clock=True)
             gc.collect()
             gc.freeze()     # no full collection of the suite's objects stalls the wire thread
             wire.start()
             try:
-                for _attempt in range(3):   # a new master after a scan the loaded VM answered too late
+                for _attempt in range(3):   # a new master after a scan that lost frames five times
                     proc = subprocess.run(["ip", "netns", "exec", ns, sys.executable, str(DRIVER), mst, str(CYCLES)],
                                           capture_output=True, text=True, timeout=900, check=False)
                     if proc.returncode == 0 or "KickCAT init failed" not in proc.stderr:
                         break
+                    restarts.append("new master: " + " ".join(proc.stderr.split())[-300:])
             finally:
                 wire.stop()
                 gc.unfreeze()
@@ -73,7 +75,7 @@ def run() -> Iterator[dict[str, Any]]:
     assert proc.returncode == 0, proc.stderr[-3000:]
     result: dict[str, Any] = json.loads(proc.stdout.strip().splitlines()[-1])
     result["heard"] = heard
-    print("KickCAT retries after a late frame:", result["retries"])
+    check_reruns(restarts + result["retries"], wire.stats())
     yield result
 
 

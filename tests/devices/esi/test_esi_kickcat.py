@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from wire_kit import net_capable, veth_namespace
+from wire_kit import check_reruns, net_capable, rig_wire_stats, veth_namespace
 
 from gatewaylab.rig.process import RigProcess
 
@@ -72,8 +72,11 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
             done = subprocess.run(["ip", "netns", "exec", ns, sys.executable, str(DRIVER), mst, str(CYCLES)],
                                   capture_output=True, text=True, timeout=600, check=False, env=env)
             assert rig.proc.poll() is None, rig.log_text()[-2000:]
+            wire = rig_wire_stats(rig.info)
     assert done.returncode == 0, done.stderr[-3000:]
-    yield json.loads(done.stdout.strip().splitlines()[-1])
+    result: dict[str, Any] = json.loads(done.stdout.strip().splitlines()[-1])
+    check_reruns(result["retries"], wire)
+    yield result
 
 
 def test_kickcat_brings_the_esi_slaves_to_op(run: dict[str, Any]) -> None:

@@ -112,9 +112,10 @@ class DriveVeth:
                               check=False)
 
 
-def serve_raw(veth: DriveVeth, script: Path, *args: str,
-              n: int = 2) -> tuple[subprocess.CompletedProcess[str], list[EthercatDrive]]:
-    """``n`` drives on the emulator end while ``script`` runs as the master in the namespace."""
+def serve_raw(veth: DriveVeth, script: Path, *args: str, n: int = 2,
+              stats: dict[str, int] | None = None) -> tuple[subprocess.CompletedProcess[str], list[EthercatDrive]]:
+    """``n`` drives on the emulator end while ``script`` runs as the master in the namespace; the wire's
+    counters are added into ``stats`` when given."""
     clock = RealTimeClock()
     drives = [EthercatDrive(clock, f"GL-Drive #{i}", serial=0x3001 + i) for i in range(n)]
     wire = WireTransport(Segment([d.slave for d in drives]), veth.emulator_iface, clock, drive_clock=True,
@@ -134,6 +135,9 @@ def serve_raw(veth: DriveVeth, script: Path, *args: str,
             for d in drives:
                 d.stop()
     assert not wire.errors
+    if stats is not None:
+        for key, value in wire.stats().items():
+            stats[key] = stats.get(key, 0) + value
     return proc, drives
 
 
