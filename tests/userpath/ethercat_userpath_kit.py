@@ -39,7 +39,7 @@ from typing import IO, Any, ClassVar
 
 import can
 import pytest
-from wire_kit import net_capable, veth_namespace
+from wire_kit import check_reruns, net_capable, rig_wire_stats, veth_namespace
 
 from gatewaylab.rig.process import RigProcess
 
@@ -496,6 +496,8 @@ def exchange(user: UserRig, lib: str, kind: str, client: CanClient, seconds: flo
         client.stop()
     if done is not None:
         print(f"{lib} {kind}: {done['cycles']} cycles, {done['bad_wkc']} lost or wrong, {done['late']} late > 20 ms")
+        if user.rig.proc.poll() is None:    # (a test may have ended the rig meanwhile)
+            check_reruns(done.get("retries", []), rig_wire_stats(user.rig.info))
     tail = 0.2 if kill_after is None else 1.0
     print(f"{lib} {kind}: {describe(master, client)}")
     stalls = master.stalls()
