@@ -168,7 +168,8 @@ def print_residence(run: TailRun) -> tuple[bool, bool]:
     print(f"  SOEM wrong working counters {wrong}; C echo's raw master lost {echo.lost} of {echo.cycles}; "
           f"replies after 2 ms on the master's wire {line.late}, never answered "
           f"{line.master_tail.unanswered if line.master_tail else '?'}; dropped late by the rig "
-          f"{line.counters.get('frames_dropped_late', 'not reported')}")
+          f"{line.counters.get('frames_dropped_late', 'not reported')} (reached the idle wire thread already late: "
+          f"{line.counters.get('frames_late_on_arrival', 'not reported')})")
     print(f"  SOEM's own longest pause between two cycles {fmt_us(line.master.get('gap_max_us', float('nan')))} "
           f"({line.master.get('gaps_over_100ms', '?')} over 100 ms)")
     print("  slaves that left OP while SOEM cycled: "

@@ -133,7 +133,7 @@ def rig_toml(plan: Plan, interface: str, max_residence_ms: float | None = None,
 
 # ------------------------------------------------------------------------------------- the rig's counters
 #: the wire counters read from the rig, where its control endpoint reports them
-WIRE_COUNTERS = ("frames_dropped_late", "frames_in", "frames_out", "frame_errors")
+WIRE_COUNTERS = ("frames_dropped_late", "frames_late_on_arrival", "frames_in", "frames_out", "frame_errors")
 
 
 def _collect(obj: Any, found: dict[str, int]) -> None:
@@ -607,8 +607,10 @@ def report(r: LineResult) -> str:
                      f"{SOEM_TIMEOUT_US / 1000:g} ms {e.over.get(float(SOEM_TIMEOUT_US), 0)}{over}; not answered "
                      f"{e.unanswered}")
     dropped = r.counters.get("frames_dropped_late")
+    arrival = r.counters.get("frames_late_on_arrival")
     lines.append(f"  dropped late by the rig: {'not reported by this rig' if dropped is None else dropped} "
-                 f"(limit {r.limit_text()})")
+                 f"(limit {r.limit_text()})"
+                 + ("" if arrival is None else f", of which {arrival} reached the idle wire thread already late"))
     lines.append(f"  master round trip: p50 {fmt_us(m.get('rtt_p50_us', float('nan')))} "
                  f"p99 {fmt_us(m.get('rtt_p99_us', float('nan')))} max {fmt_us(m.get('rtt_max_us', float('nan')))}; "
                  f"its longest pause between two cycles {fmt_us(m.get('gap_max_us', float('nan')))} "
