@@ -159,18 +159,17 @@ class BehaviourValues:
         self._od.put(index, subindex, value)
 
 
-def _fit(entry: Entry, value: float) -> Any:
-    """A computed number as the entry's type holds it: rounded and wrapped into an integer range."""
+def _fitter(entry: Entry) -> Callable[[float], Any]:
+    """How a computed number is stored in ``entry``'s type: rounded and wrapped into an integer range."""
     if entry.data_type in FLOAT_TYPES:
-        return float(value)
+        return float
     if entry.data_type is DataType.BOOLEAN:
-        return bool(round(value) & 1)
+        return lambda value: bool(round(value) & 1)
     rng = type_range(entry.data_type)
-    number = round(value)
     if rng is None:
-        return number
-    low, high = rng
-    return (number - low) % (high - low + 1) + low
+        return round
+    low, span = rng[0], rng[1] - rng[0] + 1
+    return lambda value: (round(value) - low) % span + low
 
 
 class Behaviour:
@@ -183,6 +182,13 @@ class Behaviour:
         self.hook = hook
         self.values = BehaviourValues(od)
         self._random = {rule.address: random.Random(rule.address[0] << 8 | rule.address[1]) for rule in rules}
+        #: each rule with what it needs per tick worked out once: (index, subindex, kind, params, how a number
+        #: is stored in the entry's type, whether an echo wraps its value into an integer range)
+        self._plan: list[tuple[int, int, str, tuple[Any, ...], Callable[[float], Any], bool]] = []
+        for rule in rules:
+            entry = od.entries[rule.address]
+            wrap = type_range(entry.data_type) is not None
+            self._plan.append((*rule.address, rule.kind, rule.params, _fitter(entry), wrap))
         #: hook calls that raised (the device carries on and logs the first) and the last exception
         self.hook_errors = 0
         self.last_hook_error: Exception | None = None
@@ -190,26 +196,24 @@ class Behaviour:
     def apply(self, t: float) -> None:
         """Evaluate every rule at time ``t`` (seconds on the rig's clock) and store the results."""
         od = self.od
-        for rule in self.rules:
-            index, sub = rule.address
-            entry = od.entries[rule.address]
-            kind, p = rule.kind, rule.params
+        get, put = od.get, od.put
+        for index, sub, kind, p, fit, wrap in self._plan:
             if kind == "echo":
-                value: Any = od.get(*p[0])
-                if type_range(entry.data_type) is not None and isinstance(value, (int, float)):
-                    value = _fit(entry, value)
+                value: Any = get(*p[0])
+                if wrap and isinstance(value, (int, float)):
+                    value = fit(value)
             elif kind == "counter":
-                value = _fit(entry, float(od.get(index, sub)) + p[0])
+                value = fit(float(get(index, sub)) + p[0])
             elif kind == "sine":
-                value = _fit(entry, p[2] + p[0] * math.sin(2 * math.pi * t / p[1]))
+                value = fit(p[2] + p[0] * math.sin(2 * math.pi * t / p[1]))
             elif kind == "ramp":
-                value = _fit(entry, p[0] + (p[1] - p[0]) * ((t % p[2]) / p[2]))
+                value = fit(p[0] + (p[1] - p[0]) * ((t % p[2]) / p[2]))
             elif kind == "random":
-                value = _fit(entry, self._random[rule.address].uniform(p[0], p[1]))
+                value = fit(self._random[(index, sub)].uniform(p[0], p[1]))
             else:
                 value = p[0]
-            if od.get(index, sub) != value:
-                od.put(index, sub, value)
+            if get(index, sub) != value:
+                put(index, sub, value)
         if self.hook is not None:
             try:
                 self.hook(self.values, t)
