@@ -74,7 +74,7 @@ def test_initcmds_of_eni_only_slaves_are_accepted(tmp_path: Path) -> None:
         master.set_state(AlState.SAFEOP)
         master.set_state(AlState.OP)
         assert master.exchange_process_data() == master.expected_wkc    # its frames: every slave took part
-        assert eni.eni.cyclic_wkc == 14      # the ENI's two frames (outputs, inputs): 2 x 3 + 8
+        assert eni.eni.cyclic_wkc == 16      # the ENI's two frames (outputs, inputs): 2 x 4 + 8
         assert master.sdo_upload8(5, 0x1C12, 0) == 2 and master.sdo_upload8(6, 0x8000, 0x01) == 0
         assert master.sdo_upload16(5, 0x8000, 0x11) == 100
 
@@ -112,7 +112,7 @@ def test_ethercat_states_lists_the_eni_slaves_with_their_origin(tmp_path: Path) 
 
     with _rig(tmp_path, ENI, [str(DATA)], '[[device]]\nkind = "ecanlite"\nname = "ecan1"\n') as rig:
         states = Faults(rig).ethercat_states()["devices"]
-    assert len(states) == 11 and states["ecan1"]["state"] == "INIT"
+    assert len(states) == 12 and states["ecan1"]["state"] == "INIT"
     assert states["Term_1_EK1100"] == {"state": "INIT", "error": False, "code": 0, "from": "ENI only"}
     assert states["Term_2_EL1008"]["from"].endswith("GL-test-EL1xxx-EL2xxx.xml")
 
@@ -122,7 +122,7 @@ def test_a_missing_esi_falls_back_and_is_said_once(tmp_path: Path, caplog: pytes
     with caplog.at_level(logging.WARNING), _rig(tmp_path, ENI, None,
                                                 '[[device]]\nkind = "ecanlite"\nname = "ecan1"\n') as rig:
         rows = rig.ready_info()["eni"]["slaves"]
-    assert sum(r["match"] == "ENI only" for r in rows) == 10
+    assert sum(r["match"] == "ENI only" for r in rows) == 11
     said = [r.getMessage() for r in caplog.records if "product 0xC1E3052 revision 0x140000" in r.getMessage()]
     assert len(said) == 1 and "built from the ENI alone" in said[0]
 
