@@ -103,10 +103,14 @@ def test_identity_and_sii_from_the_esi(rig: tuple[Rig, SimulatedClock, Segment])
 def test_to_op_echo_and_sine_without_code(rig: tuple[Rig, SimulatedClock, Segment]) -> None:
     """PREOP, mapping, SAFEOP, OP with the expected working counter; the EL1859's inputs echo its outputs
     (rules run on the outputs SM event, so the same LRW reads the echo); the EL3102's channel 1 value draws
-    the sine (amplitude 10000, 0.1 s) and channel 2 counts one per cycle."""
+    the sine (amplitude 10000, 0.1 s) and channel 2 counts one per cycle. The EL2008's and the EL1859's
+    outputs SyncManager (SM0) runs where their ESI puts it, on the ESC's Digital I/O Output Data register
+    0x0F00 (ET1100 data sheet II), so the echo's outputs come from there."""
     _rig, clock, segment = rig
     m = Master(clock, segment)
     m.bring_up()
+    for do in (segment.slaves[0], segment.slaves[2]):
+        assert do.esc.sm_config(0).start == 0x0F00 and do.esc.sm_active(0)
     # image: outputs EL2008 (1 byte), EL1859 (1 byte); inputs EL1008 (1), EL1859 (1), EL3102 (8)
     assert m.outputs_size == 2
     dio_out, dio_in, ai_in = 1, 2 + 1, 2 + 2
