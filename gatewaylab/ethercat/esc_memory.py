@@ -328,7 +328,7 @@ class EscMemory:
     def watchdog_expired(self) -> None:
         """The SM watchdog expired: the digital outputs the ESC drives from 0x0F00 go to 0 (ET1100 data
         sheet I, digital outputs: reset when the process data watchdog expires); with no pins behind the
-        emulated ESC the register itself reads 0 (docs/decisions.md)."""
+        emulated ESC the register itself holds 0 (docs/decisions.md)."""
         for sm in self.io_sms:
             self.mem[sm.start:sm.end] = bytes(sm.end - sm.start)
 
