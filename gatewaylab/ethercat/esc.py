@@ -279,7 +279,8 @@ class Esc:
 
     def sm_active(self, index: int) -> bool:
         """The ESC runs this SyncManager: enabled by the master, not deactivated by the PDI, its
-        buffer in process RAM and clear of every lower SyncManager (``EscMemory.rebuild_sms``)."""
+        buffer in process RAM (or an output one on 0x0F00:0x0F03) and clear of every lower SyncManager
+        (``EscMemory.rebuild_sms``)."""
         return index in self.memory.active_sms
 
     @property

@@ -215,4 +215,5 @@ class AlStateMachine:
         self.memory.stats.watchdog_expiries += 1
         self.mem[REG_WD_STATUS_SM] = 0
         self.mem[REG_WD_COUNTER_SM] = min(0xFF, self.mem[REG_WD_COUNTER_SM] + 1)
+        self.memory.watchdog_expired()  # digital outputs on 0x0F00 go to 0
         self.force(AlState.SAFEOP, AlStatusCode.SM_WATCHDOG)

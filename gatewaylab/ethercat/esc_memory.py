@@ -22,6 +22,8 @@ from gatewaylab.ethercat.esc_registers import (
     RAM_START,
     REG_AL_CONTROL,
     REG_DC_SYNC0_STATUS,
+    REG_DIGITAL_OUT,
+    REG_DIGITAL_OUT_END,
     REG_DL_CONTROL,
     REG_DL_STATUS,
     REG_FEATURES,
@@ -96,9 +98,9 @@ class Fmmu:
 class EscMemory:
     """Registers + process RAM of one ESC, with its SyncManagers and FMMUs."""
 
-    __slots__ = ("_memlen", "_sms", "active_sms", "clock", "dc", "events", "firmware_sms",
-                 "fmmus", "links", "locked", "mbx_last", "mem", "n_fmmu", "n_sm", "output_sm", "outputs_stopped",
-                 "pdi_outputs", "ro", "sii", "stats", "wd_changed", "wd_last")
+    __slots__ = ("_memlen", "_sms", "active_sms", "clock", "dc", "events", "firmware_sms", "fmmus", "io_sms",
+                 "links", "locked", "mbx_last", "mem", "n_fmmu", "n_sm", "output_sm", "outputs_stopped", "pdi_outputs",
+                 "ro", "sii", "stats", "wd_changed", "wd_last")
 
     def __init__(self, clock: Clock, mem: bytearray, stats: EscStats, sii: SiiInterface, dc: DistributedClocks,
                  *, fmmus: int, sms: int, firmware_sms: int, output_sm: int = 2) -> None:
@@ -127,6 +129,10 @@ class EscMemory:
         #: The active FMMUs, in register order (a logical datagram runs them one access each).
         self.fmmus: tuple[Fmmu, ...] = ()
         self._sms: tuple[_Sm, ...] = ()
+        #: Output SyncManagers the ESC runs on the Digital I/O Output Data register 0x0F00:0x0F03 (an
+        #: EL2008's): apart from ``_sms`` so that an access to process RAM never looks at them; empty
+        #: on every slave whose SyncManagers all lie in process RAM.
+        self.io_sms: tuple[_Sm, ...] = ()
         #: SyncManagers the ESC runs (see :meth:`sm_active`).
         self.active_sms: frozenset[int] = frozenset()
         #: The last message put into the slave-to-master mailbox (served again on a repeat request).
@@ -149,6 +155,7 @@ class EscMemory:
         m = self.mem
         self.fmmus = ()
         self._sms = ()
+        self.io_sms = ()
         self.active_sms = frozenset()
         self.locked = ()
         self.outputs_stopped = False
@@ -193,7 +200,7 @@ class EscMemory:
 
     def any_watchdog(self) -> bool:
         """A running SyncManager has its watchdog enabled (0x0804 bit 6): the SM watchdog may run."""
-        return any(s.watchdog for s in self._sms)
+        return any(s.watchdog for s in self._sms) or any(s.watchdog for s in self.io_sms)
 
     # ------------------------------------------------------------------ PDI side
     def store(self, address: int, data: bytes | bytearray) -> None:
@@ -228,6 +235,9 @@ class EscMemory:
         if address < RAM_START:
             if end > 0x0900 and address < 0x09A0:
                 self.dc.refresh(address, end)
+            if self.locked and end > REG_DIGITAL_OUT and address < REG_DIGITAL_OUT_END and \
+                    self._locked(address, end):
+                return None
             if end > self._memlen:
                 return bytes(mem[address:self._memlen]).ljust(length, b"\x00")
             return bytes(mem[address:end])
@@ -258,7 +268,11 @@ class EscMemory:
         end = address + length
         mem = self.mem
         if address < RAM_START:
-            self._register_write(address, end, data)
+            if end > REG_DIGITAL_OUT and address < REG_DIGITAL_OUT_END and (self.io_sms or self.locked):
+                if not self._output_register_write(address, end, data):
+                    return False
+            else:
+                self._register_write(address, end, data)
             if end <= RAM_START:
                 return True
             data = bytes(data[RAM_START - address:])
@@ -290,6 +304,33 @@ class EscMemory:
                         mem[REG_WD_STATUS_SM] = 1
                     self.events.append(sm.write_event)
         return True
+
+    def _output_register_write(self, address: int, end: int, data: bytes | bytearray | memoryview) -> bool:
+        """A master write over the Digital I/O Output Data register while an output SyncManager runs or is
+        locked there: a complete buffer raises the same events as one in process RAM (write event in the
+        SM status, the newest buffer for the PDI, the SM watchdog triggered); a locked buffer refuses the
+        write. False: refused."""
+        hit = [sm for sm in self.io_sms if sm.start < end and address < sm.end]
+        if not hit and self.locked and self._locked(address, end):
+            return False
+        self._register_write(address, end, data)
+        mem = self.mem
+        for sm in hit:
+            if end >= sm.end:
+                mem[sm.status_addr] |= SM_STATUS_WRITE_EVENT
+                self.pdi_outputs[sm.index] = bytes(mem[sm.start:sm.end])
+                if sm.watchdog:
+                    self.wd_last = self.clock.now()
+                    mem[REG_WD_STATUS_SM] = 1
+                self.events.append(sm.write_event)
+        return True
+
+    def watchdog_expired(self) -> None:
+        """The SM watchdog expired: the digital outputs the ESC drives from 0x0F00 go to 0 (ET1100 data
+        sheet I, digital outputs: reset when the process data watchdog expires); with no pins behind the
+        emulated ESC the register itself holds 0 (docs/decisions.md)."""
+        for sm in self.io_sms:
+            self.mem[sm.start:sm.end] = bytes(sm.end - sm.start)
 
     def _locked(self, address: int, end: int) -> bool:
         """The access [address, end) touches no running SyncManager but the buffer of one the PDI
@@ -396,26 +437,30 @@ class EscMemory:
         An enabled SyncManager is activated only when its buffer starts in process RAM and does not
         overlap a lower activated SyncManager: registers and process RAM are separate (ET1100 data
         sheet II: 0x0000-0x0FFF registers, process RAM from 0x1000), so a buffer over the registers
-        would let mailbox data overwrite AL status and friends. The master sees
+        would let mailbox data overwrite AL status and friends. The one exception is a buffered output
+        SyncManager inside the Digital I/O Output Data register 0x0F00:0x0F03
+        (:attr:`SmConfig.on_output_register`, an EL2008's outputs): it runs as one in RAM. The master sees
         the refusal through the firmware (the SM-change event :class:`SmChanged`: AL status code
         0x0016 for the mailbox, 0x001D/0x001E for process data, as SOES does on its SM-change
         event); its next normal configuration of the SyncManager activates it again. ``master``: the
         write came from the master (the firmware gets the event); False for the PDI's own deactivation.
         """
         out: list[_Sm] = []
+        io: list[_Sm] = []
         locked: list[tuple[int, int]] = []
         mem = self.mem
         refused = 0
         for i in range(self.n_sm):
             base = REG_SM + 8 * i
             cfg = self.sm_config(i)
-            if cfg.enabled and mem[base + 7] & SM_PDI_DISABLE and cfg.start >= RAM_START:
+            on_io = cfg.start < RAM_START and cfg.on_output_register
+            if cfg.enabled and mem[base + 7] & SM_PDI_DISABLE and (on_io or cfg.start >= RAM_START):
                 locked.append((cfg.start, cfg.start + cfg.length))
             o = base + 6 - address
             old_act = old[o] if 0 <= o < len(old) else mem[base + 6]
             runs = cfg.enabled and not mem[base + 7] & SM_PDI_DISABLE
-            if runs and (cfg.start < RAM_START or any(s.start < cfg.start + cfg.length and cfg.start < s.end
-                                                      for s in out)):
+            if runs and ((cfg.start < RAM_START and not on_io) or any(
+                    s.start < cfg.start + cfg.length and cfg.start < s.end for s in (io if on_io else out))):
                 runs = False
                 refused += 1
             if not cfg.enabled or (not runs and not mem[base + 7] & SM_PDI_DISABLE):
@@ -423,10 +468,11 @@ class EscMemory:
             elif runs and cfg.mailbox and not cfg.ecat_writes and (cfg.activate ^ old_act) & SM_ACT_REPEAT:
                 self._mailbox_repeat(i, cfg)
             if runs:
-                out.append(_Sm(cfg))
+                (io if on_io else out).append(_Sm(cfg))
         self.stats.refused_sms += refused
         self._sms = tuple(out)
-        self.active_sms = frozenset(s.index for s in out)
+        self.io_sms = tuple(io)
+        self.active_sms = frozenset(s.index for s in out + io)
         self.locked = tuple(locked)
         if master:
             self.events.append(SM_CHANGED)

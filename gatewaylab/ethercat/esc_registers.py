@@ -34,6 +34,8 @@ __all__ = [
     "REG_DC_SYSTEM_DELAY",
     "REG_DC_SYSTEM_OFFSET",
     "REG_DC_SYSTEM_TIME",
+    "REG_DIGITAL_OUT",
+    "REG_DIGITAL_OUT_END",
     "REG_DL_CONTROL",
     "REG_DL_STATUS",
     "REG_FEATURES",
@@ -121,6 +123,11 @@ REG_DC_SYNC0_STATUS: Final = 0x098E
 REG_DC_START_TIME: Final = 0x0990
 REG_DC_SYNC0_CYCLE: Final = 0x09A0
 REG_DC_SYNC1_CYCLE: Final = 0x09A4
+#: Digital I/O Output Data (ET1100 data sheet II, 0x0F00:0x0F03, ECAT r/w): the one register area a
+#: process data SyncManager may cover (a digital output terminal's outputs, an EL2008's), see
+#: :attr:`SmConfig.on_output_register`.
+REG_DIGITAL_OUT: Final = 0x0F00
+REG_DIGITAL_OUT_END: Final = 0x0F04
 RAM_START: Final = 0x1000
 #: Shortest SYNC0 period the emulated firmware follows (a shorter 0x09A0 is raised to it): a Python
 #: PDI cannot take interrupts faster, and a 1 ns cycle would otherwise flood the clock (docs/decisions.md).
@@ -193,6 +200,14 @@ class SmConfig:
     def ecat_writes(self) -> bool:
         """The master writes this buffer (0x0804 bit 2), the PDI reads it: outputs, mailbox out."""
         return bool(self.control & SM_CTRL_ECAT_WRITE)
+
+    @property
+    def on_output_register(self) -> bool:
+        """A buffered (3-buffer) SyncManager the master writes whose buffer lies inside the Digital I/O
+        Output Data register 0x0F00:0x0F03 (ET1100 data sheet II): an output terminal without a
+        microcontroller (EL2008) drives its pins from there, so the ESC runs it as one in process RAM."""
+        return (self.start >= REG_DIGITAL_OUT and self.start + self.length <= REG_DIGITAL_OUT_END
+                and (self.control & 0x03) == 0 and bool(self.control & SM_CTRL_ECAT_WRITE))
 
 
 @dataclass(slots=True)

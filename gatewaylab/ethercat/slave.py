@@ -245,12 +245,13 @@ class Slave:
         return sm.enabled and sm.start == start and sm.length == length and (sm.control & 0x0F) == mode
 
     def _sms_disjoint(self) -> bool:
-        """Enabled SyncManagers must lie in the process RAM and must not overlap."""
+        """Enabled SyncManagers must lie in the process RAM, or be an output SyncManager on the Digital I/O
+        Output Data register 0x0F00:0x0F03 (an EL2008's), and must not overlap."""
         ranges = []
         for i in range(self.esc.n_sm):
             sm = self.esc.sm_config(i)
             if self.esc.sm_in_use(i):
-                if sm.start < 0x1000 or sm.start + sm.length > len(self.esc.mem):
+                if (sm.start < RAM_START and not sm.on_output_register) or sm.start + sm.length > len(self.esc.mem):
                     return False
                 ranges.append((sm.start, sm.start + sm.length))
         ranges.sort()

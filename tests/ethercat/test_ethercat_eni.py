@@ -171,10 +171,10 @@ def test_pdo_mapping_exceeding_its_sync_manager() -> None:
 
 
 def test_the_test_eni_reads_whole() -> None:
-    """The 11-slave TwinCAT-layout test ENI: every slave, its InitCmds and the cyclic working counter."""
+    """The 12-slave TwinCAT-layout test ENI: every slave, its InitCmds and the cyclic working counter."""
     eni = parse_eni_xml(ENI.read_bytes(), ENI.name)
-    assert len(eni.slaves) == 11 and eni.cyclic_wkc == 14
-    assert [s.phys_addr for s in eni.slaves] == [0x1001 + i for i in range(11)]
+    assert len(eni.slaves) == 12 and eni.cyclic_wkc == 16
+    assert [s.phys_addr for s in eni.slaves] == [0x1001 + i for i in range(12)]
     assert all(s.init_cmds for s in eni.slaves)
 
 

@@ -21,6 +21,7 @@ from gatewaylab.devices.esi.reader import EsiDevice, EsiError, apply_dictionary,
 from gatewaylab.ethercat.description import DeviceDescription
 from gatewaylab.ethercat.eni import CoeInitCmd, EniError, EniSlave
 from gatewaylab.ethercat.errors import EtherCATConfigError
+from gatewaylab.ethercat.esc_registers import RAM_START, SmConfig
 from gatewaylab.ethercat.slave import Slave
 from gatewaylab.od import Access, DataType, ObjectCode, ObjectDictionary
 from gatewaylab.plugin.participant import NAME_MAX, name_problem
@@ -140,15 +141,13 @@ def eni_only_device(s: EniSlave, source: str) -> EsiDevice:
     inputs = next((sm for sm in s.sms if sm.kind == "Inputs"), None)
     notes: list[str] = []
     starts = {}
-    top = max([0x1000, *(a + 3 * n for a, n in (s.mailbox_out or (0, 0), s.mailbox_in or (0, 0)) if a)])
     for label, sm, default in (("Outputs", outputs, 0x1100), ("Inputs", inputs, 0x1400)):
-        start = sm.start if sm is not None else default
-        if start < 0x1000:      # an ESC I/O register (an EL2008's 0x0F00): the emulated ESC has no pins
-            new = (top + 0x0F) & ~0x0F
-            top = new + 3 * max(sm.length or 1 if sm is not None else 1, 1)
-            notes.append(f"Sm {label} at 0x{start:04X} (ESC registers, no process RAM) runs at 0x{new:04X}")
-            start = new
-        starts[label] = start
+        # where the ENI puts it, an EL2008's outputs on the ESC's Digital I/O Output Data register 0x0F00 included
+        starts[label] = sm.start if sm is not None else default
+        if sm is not None and sm.start < RAM_START and not SmConfig(
+                sm.number, sm.start, max(sm.length or 1, 1), sm.control, 1).on_output_register:
+            notes.append(f"Sm {label} at 0x{sm.start:04X} lies on the ESC registers: the ESC refuses it "
+                         f"(AL status 0x0017 at PREOP -> SAFEOP)")
     protocols = set(s.protocols)
     other = sum(bit for tag, bit in (("AoE", 0x01), ("EoE", 0x02), ("SoE", 0x10), ("VoE", 0x20)) if tag in protocols)
     has_mailbox = s.mailbox_out is not None and s.mailbox_in is not None

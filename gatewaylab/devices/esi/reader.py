@@ -21,6 +21,7 @@ from typing import Any
 
 from gatewaylab.common.errors import ConfigError
 from gatewaylab.ethercat.description import DeviceDescription, Pdo, PdoEntry
+from gatewaylab.ethercat.esc_registers import RAM_START, SmConfig
 from gatewaylab.od import Access, DataType, Entry, ObjectCode, ObjectDictionary, SdoAbort, decode
 from gatewaylab.od.types import ESI_TYPE_NAMES, SIZED_TYPES
 
@@ -269,21 +270,6 @@ def _device(ctx: _Ctx, dev: ET.Element, vendor_id: int, vendor_name: str) -> Esi
     out_start, out_size, out_ctrl, out_max, _ = sm_row("Outputs", 0x1100, 0x64)
     in_start, in_size, in_ctrl, in_max, _ = sm_row("Inputs", 0x1400, 0x20)
     notes: list[str] = []
-    # A SyncManager on the ESC's digital I/O registers (an EL2008's outputs at 0x0F00) moves into the
-    # process RAM, behind every other SyncManager's buffers: the emulated ESC has no I/O pins.
-    taken = [(a, a + 3 * max(n, 1)) for a, n in (kwargs.get("mailbox_out", (0, 0)), kwargs.get("mailbox_in", (0, 0)),
-                                                 (out_start, out_size), (in_start, in_size)) if a >= 0x1000 and n]
-    for label in ("Outputs", "Inputs"):
-        start = out_start if label == "Outputs" else in_start
-        size = out_size if label == "Outputs" else in_size
-        if label in sms and start < 0x1000:
-            new = (max([0x1000, *(end for _a, end in taken)]) + 0x0F) & ~0x0F
-            taken.append((new, new + 3 * max(size, 1)))
-            notes.append(f"Sm {label} at 0x{start:04X} (ESC registers, no process RAM) runs at 0x{new:04X}")
-            if label == "Outputs":
-                out_start = new
-            else:
-                in_start = new
     rx = tuple(_pdo(ctx, p, here, DataType.UNSIGNED8) for p in dev.findall("RxPdo"))
     tx = tuple(_pdo(ctx, p, here, DataType.UNSIGNED8) for p in dev.findall("TxPdo"))
     rx_assign = tuple(p.index for p, el in zip(rx, dev.findall("RxPdo"), strict=True) if el.get("Sm") is not None)
@@ -301,6 +287,13 @@ def _device(ctx: _Ctx, dev: ET.Element, vendor_id: int, vendor_name: str) -> Esi
                            f"the assigned PDOs map {bits} bits, more than <Sm>{label}</Sm> holds "
                            f"({8 * limit} bits)")
     out_size, in_size = sizes
+    # A SyncManager runs where the file puts it, an EL2008's outputs on the ESC's Digital I/O Output Data
+    # register 0x0F00 included; anywhere else below the process RAM the ESC refuses it, as a real one does.
+    for label, start, size, ctrl in (("Outputs", out_start, out_size, out_ctrl),
+                                     ("Inputs", in_start, in_size, in_ctrl)):
+        if label in sms and start < RAM_START and not SmConfig(0, start, max(size, 1), ctrl, 1).on_output_register:
+            notes.append(f"Sm {label} at 0x{start:04X} lies on the ESC registers: the ESC refuses it "
+                         f"(AL status 0x0017 at PREOP -> SAFEOP)")
     # DC op modes
     dc_el = dev.find("Dc")
     op_modes = []

@@ -5,8 +5,9 @@ Usage: python esi_soem_driver.py INTERFACE CYCLES
 Per slave: identity, the SII words (EEPROM interface, 4 bytes per read as SOEM reads them), the PDO map read
 over CoE as SOEM's ``slaveinfo -map`` reads it (0x1C12/0x1C13, then each PDO's entries) and the dictionary
 through SDO information (``slave.od``: object list, object and entry descriptions). Then config_map, SAFEOP,
-OP and CYCLES process data cycles 1 ms apart: the outputs of the EL1859 (position EL1859) change each cycle,
-its inputs and the EL3102's values are recorded.
+OP and CYCLES process data cycles 1 ms apart: the outputs of the EL1859 and of the EL2008 (both on the ESC's
+Digital I/O Output Data register 0x0F00) change each cycle, the EL1859's inputs and the EL3102's values are
+recorded; at the end the SyncManager 0 registers of both and the EL2008's 0x0F00 as the master reads them.
 """
 
 from __future__ import annotations
@@ -154,13 +155,14 @@ def main(iface: str, cycles: int) -> dict[str, Any]:
             break
     result["op"] = state
     result["expected_wkc"] = master.expected_wkc
-    dio, ai = master.slaves[6], master.slaves[7]      # the rig's order: EL1859, then EL3102
+    do, dio, ai = master.slaves[4], master.slaves[6], master.slaves[7]      # the rig's order: EL2008 .. EL3102
     bad_wkc = lost = 0
     echo: list[list[int]] = []
     values: list[int] = []
     for cycle in range(cycles):
         pattern = (cycle * 37) & 0xFF
         dio.output = bytes([pattern])
+        do.output = bytes([pattern ^ 0xFF])
         master.send_processdata()
         wkc = master.receive_processdata(RX_TIMEOUT_US)
         if wkc < 0:         # EC_NOFRAME: a lost frame (counted), not a wrong answer; its inputs are stale
@@ -173,6 +175,19 @@ def main(iface: str, cycles: int) -> dict[str, Any]:
         values.append(struct.unpack_from("<h", ai.input, 2)[0])
         time.sleep(0.001)
     sizes = [[len(s.output), len(s.input)] for s in master.slaves]
+    # the last outputs once more until a cycle comes back (a lost one is counted), so they are surely in the ESC
+    for _ in range(10):
+        master.send_processdata()
+        wkc = master.receive_processdata(RX_TIMEOUT_US)
+        if wkc == master.expected_wkc:
+            break
+        if wkc < 0:
+            lost += 1
+        else:
+            bad_wkc += 1
+    result["digital_out"] = {"el2008_out": do.output.hex(), "el2008_0f00": do._fprd(0x0F00, 1, RX_TIMEOUT_US).hex(),
+                             "el2008_sm0": do._fprd(0x0800, 8, RX_TIMEOUT_US).hex(),
+                             "el1859_sm0": dio._fprd(0x0800, 8, RX_TIMEOUT_US).hex()}
     result.update(foreign=len(FOREIGN), sdo_info_retries=len(RETRIES), bad_wkc=bad_wkc, lost=lost, echo=echo,
                   values=values, sizes=sizes)
     master.state = pysoem.INIT_STATE

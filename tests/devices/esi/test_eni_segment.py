@@ -74,7 +74,7 @@ def test_initcmds_of_eni_only_slaves_are_accepted(tmp_path: Path) -> None:
         master.set_state(AlState.SAFEOP)
         master.set_state(AlState.OP)
         assert master.exchange_process_data() == master.expected_wkc    # its frames: every slave took part
-        assert eni.eni.cyclic_wkc == 14      # the ENI's two frames (outputs, inputs): 2 x 3 + 8
+        assert eni.eni.cyclic_wkc == 16      # the ENI's two frames (outputs, inputs): 2 x 4 + 8
         assert master.sdo_upload8(5, 0x1C12, 0) == 2 and master.sdo_upload8(6, 0x8000, 0x01) == 0
         assert master.sdo_upload16(5, 0x8000, 0x11) == 100
 
@@ -105,6 +105,31 @@ def test_an_inputs_only_terminal_has_its_inputs_on_sm0(tmp_path: Path) -> None:
         assert master.al_status(1) == (AlState.OP, 0)
 
 
+def test_an_eni_only_el2008_keeps_its_outputs_on_the_digital_output_register(tmp_path: Path) -> None:
+    """No ESI at all: the EL2008 (Term 11) is built from the ENI alone, with its outputs SyncManager where the
+    ENI's ``ProcessData/Sm0`` puts it (StartAddress 3840 = 0x0F00, the ESC's Digital I/O Output Data register,
+    ET1100 data sheet II); its SII says so, a master mapping from the SII programs SM0 there, and the whole
+    segment reaches OP with every slave in the working counter."""
+    with _rig(tmp_path, ENI, None, '[[device]]\nkind = "ecanlite"\nname = "ecan1"\n') as rig:
+        seg = rig.participants[-1]
+        assert seg.eni is not None
+        assert rig.ready_info()["eni"]["slaves"][10]["match"] == "ENI only"
+        master = Master(rig.clock, seg.segment)
+        infos = master.scan()
+        assert infos[10].sii.sync_managers[0][:3] == (0x0F00, 1, 0x44)
+        master.set_state(AlState.PREOP)
+        for s in seg.eni.eni.slaves:
+            for c in s.coe_cmds:
+                master.sdo_download(s.position, c.index, c.subindex, c.data)
+        master.config_map()
+        master.set_state(AlState.SAFEOP)
+        master.set_state(AlState.OP)
+        assert master.exchange_process_data() == master.expected_wkc
+        el2008 = seg.segment.slaves[10]
+        assert el2008.esc.sm_config(0).start == 0x0F00 and el2008.esc.sm_active(0)
+        assert master.al_status(10) == (AlState.OP, 0)
+
+
 def test_ethercat_states_lists_the_eni_slaves_with_their_origin(tmp_path: Path) -> None:
     """The control request ``ethercat-states`` (docs/faults.md) shows every slave of the segment: the rig's
     own devices and the slaves the ENI built, each of those with the file (or 'ENI only') it came from."""
@@ -112,7 +137,7 @@ def test_ethercat_states_lists_the_eni_slaves_with_their_origin(tmp_path: Path) 
 
     with _rig(tmp_path, ENI, [str(DATA)], '[[device]]\nkind = "ecanlite"\nname = "ecan1"\n') as rig:
         states = Faults(rig).ethercat_states()["devices"]
-    assert len(states) == 11 and states["ecan1"]["state"] == "INIT"
+    assert len(states) == 12 and states["ecan1"]["state"] == "INIT"
     assert states["Term_1_EK1100"] == {"state": "INIT", "error": False, "code": 0, "from": "ENI only"}
     assert states["Term_2_EL1008"]["from"].endswith("GL-test-EL1xxx-EL2xxx.xml")
 
@@ -122,7 +147,7 @@ def test_a_missing_esi_falls_back_and_is_said_once(tmp_path: Path, caplog: pytes
     with caplog.at_level(logging.WARNING), _rig(tmp_path, ENI, None,
                                                 '[[device]]\nkind = "ecanlite"\nname = "ecan1"\n') as rig:
         rows = rig.ready_info()["eni"]["slaves"]
-    assert sum(r["match"] == "ENI only" for r in rows) == 10
+    assert sum(r["match"] == "ENI only" for r in rows) == 11
     said = [r.getMessage() for r in caplog.records if "product 0xC1E3052 revision 0x140000" in r.getMessage()]
     assert len(said) == 1 and "built from the ENI alone" in said[0]
 

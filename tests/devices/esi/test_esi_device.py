@@ -17,7 +17,7 @@ import pytest
 from gatewaylab.common.clock import SimulatedClock
 from gatewaylab.devices.esi.device import esi_slave
 from gatewaylab.devices.esi.reader import EsiError, read_esi, read_esi_file
-from gatewaylab.ethercat.errors import FrameFormatError, MailboxErrorCode
+from gatewaylab.ethercat.errors import AlStatusError, FrameFormatError, MailboxErrorCode
 from gatewaylab.ethercat.esc import AlState
 from gatewaylab.ethercat.mailbox import MailboxType
 from gatewaylab.ethercat.segment import Segment
@@ -103,10 +103,14 @@ def test_identity_and_sii_from_the_esi(rig: tuple[Rig, SimulatedClock, Segment])
 def test_to_op_echo_and_sine_without_code(rig: tuple[Rig, SimulatedClock, Segment]) -> None:
     """PREOP, mapping, SAFEOP, OP with the expected working counter; the EL1859's inputs echo its outputs
     (rules run on the outputs SM event, so the same LRW reads the echo); the EL3102's channel 1 value draws
-    the sine (amplitude 10000, 0.1 s) and channel 2 counts one per cycle."""
+    the sine (amplitude 10000, 0.1 s) and channel 2 counts one per cycle. The EL2008's and the EL1859's
+    outputs SyncManager (SM0) runs where their ESI puts it, on the ESC's Digital I/O Output Data register
+    0x0F00 (ET1100 data sheet II), so the echo's outputs come from there."""
     _rig, clock, segment = rig
     m = Master(clock, segment)
     m.bring_up()
+    for do in (segment.slaves[0], segment.slaves[2]):
+        assert do.esc.sm_config(0).start == 0x0F00 and do.esc.sm_active(0)
     # image: outputs EL2008 (1 byte), EL1859 (1 byte); inputs EL1008 (1), EL1859 (1), EL3102 (8)
     assert m.outputs_size == 2
     dio_out, dio_in, ai_in = 1, 2 + 1, 2 + 2
@@ -329,3 +333,29 @@ interface = "gl-none"
         assert all(v in (0b01, 0b10) for v in seen), seen    # channel 2 = not channel 1 (the hook)
     finally:
         r.close()
+
+
+def test_an_inputs_sm_on_the_registers_stays_where_the_file_says_and_is_refused() -> None:
+    """Only a buffered output SyncManager inside 0x0F00:0x0F03 (the Digital I/O Output Data register, ET1100
+    data sheet II) runs below the process RAM: an EL1008 whose file put its inputs at 0x0F00 keeps them there
+    (its SII says 0x0F00, the reader notes once that the ESC refuses it), and a master programming that
+    SyncManager from the SII is refused SAFEOP with AL status code 0x0017 (invalid SyncManager configuration,
+    ETG.1000.6), as a real ESC would refuse it; nothing is moved."""
+    text = DIGITAL.read_text()
+    el1008 = text.index(">EL1008<")
+    old = 'StartAddress="#x1000">Inputs</Sm>'
+    at = text.index(old, el1008)
+    device = read_esi(text[:at] + old.replace("#x1000", "#x0f00") + text[at + len(old):], "moved.xml", "EL1008")
+    assert device.desc.inputs_start == 0x0F00
+    assert device.notes == ("Sm Inputs at 0x0F00 lies on the ESC registers: the ESC refuses it "
+                            "(AL status 0x0017 at PREOP -> SAFEOP)",)
+    clock = SimulatedClock()
+    slave = esi_slave(clock, device, "di")
+    m = Master(clock, Segment([slave]))
+    info = m.scan()[0]
+    assert info.sii.sync_managers[0][:2] == (0x0F00, 1)
+    m.set_state(AlState.PREOP)
+    m.fpwr(info.station, 0x0800, struct.pack("<HHBBBB", 0x0F00, 1, 0x00, 0, 1, 0))
+    with pytest.raises(AlStatusError):
+        m.request_state(0, AlState.SAFEOP)
+    assert m.al_status(0) == (AlState.PREOP | 0x10, 0x0017)

@@ -163,6 +163,16 @@ def test_slaveinfo_prints_each_esis_pdo_map(soem_run: dict[str, Any]) -> None:
         assert s["maps"] == want, s["name"]
 
 
+def test_slaveinfo_shows_the_el2008_outputs_on_the_digital_output_register(soem_run: dict[str, Any]) -> None:
+    """slaveinfo prints each slave's SyncManagers as SOEM's config_map programmed them from the SII's
+    SyncManager category (ETG.2010): the EL2008's SM0 where its ESI puts it, on the ESC's Digital I/O Output
+    Data register 0x0F00 (ET1100 data sheet II), 1 byte, control 0x44; every other one in process RAM."""
+    done = soem_run["slaveinfo"]
+    sms = re.findall(r" SM(\d) A:([0-9a-f]{4}) L:\s*(\d+) F:([0-9a-f]{8})", done.stdout)
+    low = [(n, a, length, int(f, 16) & 0xFF) for n, a, length, f in sms if int(a, 16) < 0x1000]
+    assert low == [("0", "0f00", "1", 0x44)], done.stdout[-3000:]
+
+
 def test_simple_test_cycles_at_the_expected_working_counter(soem_run: dict[str, Any]) -> None:
     """simple_test: SAFEOP, OP, then 10,000 cycles 5 ms apart, printing each cycle whose working counter
     reaches the one it calculated (outputsWKC * 2 + inputsWKC). A printed working counter other than that one
