@@ -63,6 +63,8 @@ class EsiFiles:
         self._devices: dict[tuple[FileKey, str, str | None, int | None, int | None], EsiDevice] = {}
         #: id(device) -> (the device, kept alive so the id stays its own; its dictionary)
         self._templates: dict[int, tuple[EsiDevice, ObjectDictionary]] = {}
+        #: devices whose notes were said (kept alive, as above)
+        self._said: dict[int, EsiDevice] = {}
 
     def text(self, path: Path) -> tuple[FileKey, bytes]:
         """The file's key and bytes, read once per version."""
@@ -109,3 +111,11 @@ class EsiFiles:
         if extend is not None:
             extend(od)
         return od
+
+    def unsaid_notes(self, device: EsiDevice) -> tuple[str, ...]:
+        """The device's notes (what its slaves do differently from the file) the first time it is asked for in
+        this build, then nothing: 50 slaves of one type say them once."""
+        if self._said.get(id(device)) is device:
+            return ()
+        self._said[id(device)] = device
+        return device.notes

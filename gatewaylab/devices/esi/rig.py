@@ -86,7 +86,7 @@ class EsiParticipant:
             app = self.slave.app
             assert isinstance(app, EsiApplication)
             app.behaviour = Behaviour(rules, self.slave.od, hook)
-        for note in self.device.notes:
+        for note in files.unsaid_notes(self.device):     # once per device type and build
             log.warning("%s: %s: %s", self.name, self.source.name, note)
         d = self.device.desc
         log.info("%s: %s from %s (vendor 0x%X product 0x%X revision 0x%X)%s", self.name, self.device.type_name,

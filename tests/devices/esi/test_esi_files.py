@@ -8,6 +8,7 @@ its own), and the outputs an LRW writes are stored in the objects of the slave t
 
 from __future__ import annotations
 
+import logging
 import os
 from pathlib import Path
 
@@ -56,6 +57,15 @@ def test_a_build_reads_and_parses_each_file_once(tmp_path: Path) -> None:
         files = cache.part(EsiFiles)
         assert (files.reads, files.parses, files.dictionaries) == (2, 2, 2)
         assert len(_segment(rig).slaves) == 6
+
+
+def test_a_note_about_a_device_type_is_said_once(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    """Three EL1859 (outputs SyncManager on the ESC's I/O registers 0x0F00, moved into the process RAM): the
+    note is logged once for the build, naming the first slave, not once per slave."""
+    text = "".join(_esi("EL1859", f"dio{i}") for i in range(3)) + '[ethercat]\ninterface = "gl-none"\n'
+    with caplog.at_level(logging.WARNING, logger="gatewaylab.devices.esi.rig"), _build(tmp_path, text):
+        said = [r.getMessage() for r in caplog.records if "0x0F00" in r.getMessage()]
+    assert said == [f"dio0: {DIGITAL.name}: Sm Outputs at 0x0F00 (ESC registers, no process RAM) runs at 0x1010"]
 
 
 def test_eni_sections_and_the_folder_scan_share_the_parse(tmp_path: Path) -> None:
