@@ -42,6 +42,9 @@ ANA = DATA / "GL-test-EL3102.xml"
 PAIRS = int(os.environ.get("GL_BENCH_ENI_PAIRS", "50"))      # 50 EL1859 + 50 EL3102
 P99_LIMIT_US = 500.0
 START_LIMIT_S = 2.0
+#: said with the start-up: without cached bytecode every start compiles gatewaylab's sources
+_BYTECODE = (" (PYTHONDONTWRITEBYTECODE is set: without a __pycache__ every start compiles the sources)"
+             if sys.dont_write_bytecode else "")
 
 
 def _eni(pairs: int) -> str:
@@ -167,7 +170,7 @@ def _start_only(folder: Path, build_s: float) -> None:
     builds = [build_s, *(_build_in_process(folder)[1] for _ in range(2))]
     print(f"ENI segment start-up only: {slaves} slaves; `gatewaylab run` to its ready file "
           f"{', '.join(f'{s:.2f}' for s in starts)} s (interpreter and imports included, target < {START_LIMIT_S:.0f} "
-          f"s); the rig's build in process {', '.join(f'{b:.2f}' for b in builds)} s; load average "
+          f"s){_BYTECODE}; the rig's build in process {', '.join(f'{b:.2f}' for b in builds)} s; load average "
           f"{os.getloadavg()[0]:.1f}")
 
 
@@ -198,7 +201,8 @@ def main() -> None:
                 "error": f"exit {proc.returncode}: {proc.stderr.strip()[-600:]}"}
     print(f"ENI segment: {slaves} slaves ({PAIRS} EL1859 echo + {PAIRS} EL3102 sine, behaviour rules on), "
           f"pysoem over veth, {seconds:.0f} s at 1 kHz")
-    print(f"start-up: `gatewaylab run` to its ready file {start_s:.2f} s (interpreter and imports included); "
+    print(f"start-up: `gatewaylab run` to its ready file {start_s:.2f} s (interpreter and imports included)"
+          f"{_BYTECODE}; "
           f"the rig's build in process {build_s:.2f} s, {first_s:.2f} s with the device kinds' imports "
           f"(target < {START_LIMIT_S:.0f} s)")
     if "error" in result:
