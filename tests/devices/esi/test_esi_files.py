@@ -1,9 +1,11 @@
 """One rig build reads and parses each ESI file once (:class:`EsiFiles`, the build's cache) and builds each
 device type's dictionary once; every slave still has a dictionary, outputs and identity of its own.
 
-What the slaves must keep (ETG.1000.6 5.6.7 / ETG.2000): each slave has its own object dictionary (0x1018:04
-its own serial number, a SDO download to one slave changes that slave only, its PDO assignment 0x1C12/0x1C13
-its own), and the outputs an LRW writes are stored in the objects of the slave the datagram addressed.
+What the slaves must keep (ETG.1000.6 CoE: every slave serves its own object dictionary; issue 33: "the ESI
+device for each slave still gets its own dictionary and state"): 0x1018:04 its own serial number, a SDO
+download to one slave changes that slave only, its PDO assignment 0x1C12/0x1C13 its own (ETG.1000.6 PDO
+assignment, checked against its own SyncManager), and the outputs an LRW writes are stored in the objects of
+the slave whose part of the image they are.
 """
 
 from __future__ import annotations
