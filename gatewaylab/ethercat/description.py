@@ -15,7 +15,7 @@ from typing import Any
 from gatewaylab.ethercat.errors import EtherCATConfigError
 from gatewaylab.od import Access, DataType, Entry, ObjectCode, ObjectDictionary, SdoAbort, SdoAbortCode
 
-__all__ = ["DeviceDescription", "ObjectDef", "Pdo", "PdoEntry", "build_od"]
+__all__ = ["DeviceDescription", "ObjectDef", "Pdo", "PdoEntry", "add_pdo_checks", "build_od"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -243,6 +243,15 @@ def _mapping_validators(od: ObjectDictionary, index: int, rx: bool, assignment: 
     od.add_validator(index, validator)
 
 
+def add_pdo_checks(od: ObjectDictionary, desc: DeviceDescription) -> None:
+    """The checks :func:`build_od` puts on the PDO mapping and assignment objects of ``desc`` (validators:
+    a dictionary copied with ``od.copy()`` has none and gets its own here)."""
+    for pdos, assign in ((desc.rx_pdos, 0x1C12), (desc.tx_pdos, 0x1C13)):
+        for pdo in pdos:
+            _mapping_validators(od, pdo.index, assign == 0x1C12, assignment=False)
+        _mapping_validators(od, assign, assign == 0x1C12, assignment=True)
+
+
 def _record(od: ObjectDictionary, index: int, name: str,
             entries: list[tuple[int, str, DataType, Any, Access]], *, pdo_mappable: bool = False,
             preop_only: bool = False, code: ObjectCode = ObjectCode.RECORD) -> None:
@@ -277,13 +286,12 @@ def build_od(desc: DeviceDescription) -> ObjectDictionary:
             od.add_array(pdo.index, pdo.name, u32, n, access, defaults=[e.mapping for e in pdo.entries],
                          sub0_access=access, sub0_default=len(pdo.entries), preop_only=True,
                          sub0_name="SubIndex 000", sub_names=[f"SubIndex {i:03d}" for i in range(1, n + 1)])
-            _mapping_validators(od, pdo.index, assign == 0x1C12, assignment=False)
         n = max(4, len(pdos))
         od.add_array(assign, "RxPDO assign" if assign == 0x1C12 else "TxPDO assign", u16, n, Access.RW,
                      defaults=[p.index for p in assigned], sub0_access=Access.RW, sub0_default=len(assigned),
                      preop_only=True, sub0_name="SubIndex 000",
                      sub_names=[f"SubIndex {i:03d}" for i in range(1, n + 1)])
-        _mapping_validators(od, assign, assign == 0x1C12, assignment=True)
+    add_pdo_checks(od, desc)
     for index, name in ((0x1C32, "SM output parameter"), (0x1C33, "SM input parameter")):
         od.add_record(index, name)
         od.add_sub(index, 1, "Sync mode", u16, Access.RW, 1, preop_only=True, sub0_name="SubIndex 000")

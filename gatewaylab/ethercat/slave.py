@@ -142,12 +142,15 @@ class Slave:
     """One slave in a segment: feed it datagrams through :meth:`process_datagram`."""
 
     def __init__(self, clock: Clock, desc: DeviceDescription, app: SlaveApplication | None = None,
-                 foe: FoeHandler | None = None, *, name: str | None = None, alias: int = 0) -> None:
+                 foe: FoeHandler | None = None, *, name: str | None = None, alias: int = 0,
+                 od: ObjectDictionary | None = None) -> None:
+        """``od``: the slave's own dictionary when the caller made it as ``build_od(desc)`` would (a copy of
+        one built for many slaves of a type); None builds it from ``desc``."""
         self.clock = clock
         self.desc = desc
         self.name = name or desc.name
         self.app = app or SlaveApplication()
-        self.od = build_od(desc)
+        self.od = od if od is not None else build_od(desc)
         self.sii = build_sii(desc, alias)
         #: Process data SyncManagers: 2/3 behind the mailbox SMs, 0/1 on a slave without mailbox.
         self.has_mailbox = desc.has_mailbox

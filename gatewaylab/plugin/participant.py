@@ -26,6 +26,7 @@ from typing import Any, Protocol
 
 from gatewaylab.bus.bus import VirtualBus
 from gatewaylab.bus.controller import Controller
+from gatewaylab.common.build_cache import BuildCache
 from gatewaylab.common.clock import Clock
 from gatewaylab.common.errors import ConfigError
 
@@ -116,6 +117,10 @@ class RigContext(Protocol):
     @property
     def participants(self) -> Sequence[Participant]:
         """The participants built so far, in rig-file order."""
+
+    @property
+    def build_cache(self) -> BuildCache:
+        """What the sections of this build share: files read and parsed once (``build_cache.part(cls)``)."""
 
     def bus(self, name: str) -> VirtualBus:
         """The bus of that name (a ConfigError naming the declared ones otherwise)."""

@@ -17,6 +17,7 @@ from typing import Any
 
 from gatewaylab.common.errors import ConfigError
 from gatewaylab.devices.esi.eni_segment import ENI_ONLY, EsiCatalogue, Origin, build_eni_slave, slave_name
+from gatewaylab.devices.esi.files import EsiFiles
 from gatewaylab.ethercat.eni import Eni, EniError, parse_eni_xml
 from gatewaylab.ethercat.slave import Slave
 from gatewaylab.plugin.capabilities import EthercatDevice
@@ -81,7 +82,7 @@ def build_eni_segment(rig: RigContext, eni_text: str, esi: Sequence[Any] | None,
     if esi is not None and not all(isinstance(e, str) and e for e in esi):
         raise ConfigError(f"[ethercat] esi must be a list of file or folder names, got {esi!r}")
     eni = read_eni_file(_path(rig.base_dir, eni_text))
-    catalogue = EsiCatalogue([_path(rig.base_dir, e) for e in esi or []])
+    catalogue = EsiCatalogue([_path(rig.base_dir, e) for e in esi or []], rig.build_cache.part(EsiFiles))
     free = list(devices)
     taken = {d.name for d in devices}
     slaves: list[Slave] = []

@@ -39,6 +39,7 @@ from gatewaylab.bus.transport.server import BusServer
 from gatewaylab.bus.transport.socketcand import SocketcandServer
 from gatewaylab.bus.transport.trace import Trace
 from gatewaylab.bus.transport.unix_file import UNIX_PATH_MAX, SocketPathError
+from gatewaylab.common.build_cache import BuildCache
 from gatewaylab.common.clock import Clock, RealTimeClock, SimulatedClock
 from gatewaylab.common.errors import ConfigError, GatewaylabError
 from gatewaylab.plugin import Participant
@@ -143,7 +144,8 @@ class Rig:
     """Buses, participants and (in real time) the loop that runs them."""
 
     def __init__(self, config: RigConfig, *, clock: Clock | None = None,
-                 state_dir: Path | None = None, endpoints: bool | None = None) -> None:
+                 state_dir: Path | None = None, endpoints: bool | None = None,
+                 build_cache: BuildCache | None = None) -> None:
         # every section is checked before anything exists: a bad rig file leaves nothing behind
         self._sections = kinds.plan(config)
         self.config = config
@@ -156,6 +158,8 @@ class Rig:
         self.base_dir = Path(config.source).resolve().parent if Path(config.source).is_file() else Path.cwd()
         self.buses: dict[str, VirtualBus] = {}
         self.participants: list[Participant] = []
+        #: files the sections read, parsed once for the build (emptied after it unless the caller gave it)
+        self.build_cache = build_cache if build_cache is not None else BuildCache()
         self.servers: dict[str, BusServer] = {}
         #: socketcand servers of the buses with ``socketcand = true`` (docs/endpoints.md)
         self.socketcand: dict[str, SocketcandServer] = {}
@@ -197,6 +201,8 @@ class Rig:
             if with_endpoints:
                 self._open_endpoints()
             self._build_participants()
+            if build_cache is None:
+                self.build_cache.clear()
             if config.scenario:
                 self.scenario = ScenarioRun(self, config.scenario)
         except BaseException:

@@ -20,6 +20,7 @@ from mypy_extensions import mypyc_attr
 
 from gatewaylab.common.clock import Clock
 from gatewaylab.devices.esi.esm import EsmTimer
+from gatewaylab.devices.esi.files import EsiFiles
 from gatewaylab.devices.esi.reader import EsiDevice, EsiError, apply_dictionary, identity_overrides
 from gatewaylab.ethercat.description import DeviceDescription
 from gatewaylab.ethercat.esc import AlState
@@ -132,15 +133,18 @@ class EsiApplication(SlaveApplication):
 
 def esi_slave(clock: Clock, device: EsiDevice, name: str, *, serial: int | None = None,
               sii_path: Path | None = None, behaviour: Behaviour | None = None,
-              transition_ms: Mapping[tuple[AlState, AlState], float] | None = None) -> Slave:
+              transition_ms: Mapping[tuple[AlState, AlState], float] | None = None,
+              files: EsiFiles | None = None) -> Slave:
     """A slave of ``device`` (rules applied by its :class:`EsiApplication`; set ``behaviour`` later with
     ``slave.app.behaviour`` when the rules need the slave's dictionary first); ``transition_ms`` the
-    application's time per upward transition in seconds (:func:`gatewaylab.devices.esi.esm.parse_transition_ms`)."""
+    application's time per upward transition in seconds (:func:`gatewaylab.devices.esi.esm.parse_transition_ms`);
+    ``files`` the rig build's ESI files: the dictionary is a copy of the one they built for ``device``."""
     sii = None
     if sii_path is not None:
         try:
             sii = sii_path.read_bytes()
         except OSError as exc:
             raise EsiError(f"{sii_path}: cannot read it ({exc.strerror or exc})") from None
-    return Slave(clock, esi_description(device, serial, sii), EsiApplication(device, behaviour, transition_ms),
-                 name=name)
+    desc = esi_description(device, serial, sii)
+    od = files.dictionary(device, desc, identity_overrides(serial)) if files is not None else None
+    return Slave(clock, desc, EsiApplication(device, behaviour, transition_ms), name=name, od=od)

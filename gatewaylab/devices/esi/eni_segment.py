@@ -10,14 +10,14 @@ entry, one per object the ENI's CoE InitCmds write), as acontis EC-Simulator bui
 from __future__ import annotations
 
 import re
-import xml.etree.ElementTree as ET
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 from gatewaylab.common.clock import Clock
 from gatewaylab.devices.esi.device import EsiApplication, esi_description
-from gatewaylab.devices.esi.reader import EsiDevice, EsiError, apply_dictionary, identity_overrides, read_esi
+from gatewaylab.devices.esi.files import EsiFiles
+from gatewaylab.devices.esi.reader import EsiDevice, EsiError, apply_dictionary, identity_overrides
 from gatewaylab.ethercat.description import DeviceDescription
 from gatewaylab.ethercat.eni import CoeInitCmd, EniError, EniSlave
 from gatewaylab.ethercat.errors import EtherCATConfigError
@@ -64,9 +64,11 @@ def slave_name(text: str, taken: set[str]) -> str:
 
 
 class EsiCatalogue:
-    """The ESI files given (files, or folders searched for ``*.xml``), indexed by device identity."""
+    """The ESI files given (files, or folders searched for ``*.xml``), indexed by device identity; ``cache``
+    the rig build's parsed files (each file read and parsed once however many slaves use it)."""
 
-    def __init__(self, paths: Sequence[Path]) -> None:
+    def __init__(self, paths: Sequence[Path], cache: EsiFiles | None = None) -> None:
+        self.cache = cache if cache is not None else EsiFiles()
         self.files: list[Path] = []
         for path in paths:
             if path.is_dir():
@@ -77,32 +79,19 @@ class EsiCatalogue:
                 raise EsiError(f"{path}: no such ESI file or folder")
         #: (vendor, product) -> [(revision, file, type name)]
         self.index: dict[tuple[int, int], list[tuple[int, Path, str]]] = {}
-        self.texts: dict[Path, bytes] = {}
-        self._devices: dict[tuple[Path, str, int, int], EsiDevice] = {}
         for path in self.files:
             self._scan(path)
 
     def _scan(self, path: Path) -> None:
-        try:
-            text = path.read_bytes()
-        except OSError as exc:
-            raise EsiError(f"{path}: cannot read it ({exc.strerror or exc})") from None
-        try:
-            root = ET.fromstring(text)
-        except ET.ParseError as exc:
-            line, col = exc.position
-            raise EsiError(f"{path}: line {line} column {col}: malformed XML") from None
-        if root.tag.split("}")[-1] != "EtherCATInfo":
+        _key, root = self.cache.root(path, str(path))
+        if root.tag != "EtherCATInfo":
             return                  # another XML file in the folder (an ENI, a project file): not an ESI
-        self.texts[path] = text
-        vendor = next((el for el in root.iter() if el.tag.split("}")[-1] == "Vendor"), None)
+        vendor = next(root.iter("Vendor"), None)
         vid = vendor.find("Id") if vendor is not None else None
         try:
             vendor_id = _number(vid.text if vid is not None else None)
-            for dev in root.iter():
-                if dev.tag.split("}")[-1] != "Device":
-                    continue
-                t = next((c for c in dev if c.tag.split("}")[-1] == "Type"), None)
+            for dev in root.iter("Device"):
+                t = dev.find("Type")
                 if t is None:
                     continue
                 key = (vendor_id, _number(t.get("ProductCode")))
@@ -123,10 +112,7 @@ class EsiCatalogue:
         else:
             return None
         rev, path, type_name = row
-        key = (path, type_name, product, rev)
-        if key not in self._devices:
-            self._devices[key] = read_esi(self.texts[path], str(path), type_name or None, product, rev)
-        return self._devices[key], how
+        return self.cache.device(path, str(path), type_name or None, product, rev), how
 
 
 def _number(text: str | None) -> int:
@@ -212,18 +198,27 @@ def build_eni_slave(clock: Clock, s: EniSlave, name: str, catalogue: EsiCatalogu
     if found is not None:
         device, how = found
         desc = esi_description(device, s.serial or None)
-        if desc.revision != s.revision:     # the lower revision's device, showing the ENI's identity
+        overlay = identity_overrides(s.serial or None)
+        revision = s.revision if desc.revision != s.revision else None
+
+        def own(od: ObjectDictionary) -> None:
+            """What this slave shows differently from its ESI: the serial, the ENI's revision."""
+            overlay(od)
+            if revision is not None and (0x1018, 3) in od.entries:
+                od.values[(0x1018, 3)] = revision
+                od.replace_entry(replace(od.entries[(0x1018, 3)], default=revision))
+
+        if revision is not None:     # the lower revision's device, showing the ENI's identity
             esi_extend = desc.extend_od
 
             def revised(od: ObjectDictionary) -> None:
                 if esi_extend is not None:
                     esi_extend(od)
-                if (0x1018, 3) in od.entries:
-                    od.values[(0x1018, 3)] = s.revision
-                    od.replace_entry(replace(od.entries[(0x1018, 3)], default=s.revision))
+                own(od)
 
-            desc = replace(desc, revision=s.revision, sii_image=None, extend_od=revised)
-        slave = Slave(clock, desc, EsiApplication(device), name=name)
+            desc = replace(desc, revision=revision, sii_image=None, extend_od=revised)
+        od = catalogue.cache.dictionary(device, desc, own)
+        slave = Slave(clock, desc, EsiApplication(device), name=name, od=od)
         return slave, Origin(s.position, name, how, device.source, device.type_name)
     device = eni_only_device(s, source)
     overlay = identity_overrides(s.serial or None)

@@ -25,9 +25,8 @@ from gatewaylab.ethercat.esc_registers import RAM_START, SmConfig
 from gatewaylab.od import Access, DataType, Entry, ObjectCode, ObjectDictionary, SdoAbort, decode
 from gatewaylab.od.types import ESI_TYPE_NAMES, SIZED_TYPES
 
-__all__ = ["EsiDevice", "EsiError", "EsiObject", "EsiSub", "apply_dictionary", "esi_types", "identity_overrides",
-           "read_esi",
-           "read_esi_file"]
+__all__ = ["EsiDevice", "EsiError", "EsiObject", "EsiSub", "apply_dictionary", "esi_device", "esi_types",
+           "identity_overrides", "parse_esi", "read_esi", "read_esi_file"]
 
 
 class EsiError(ConfigError):
@@ -180,7 +179,12 @@ def read_esi_file(path: Path, type_name: str | None = None, product_code: int | 
 def read_esi(text: bytes | str, source: str = "ESI", type_name: str | None = None,
              product_code: int | None = None, revision: int | None = None) -> EsiDevice:
     """Parse ESI text (``source`` names it in errors) and pick one device."""
-    ctx = _Ctx(source)
+    return esi_device(parse_esi(text, source), source, type_name, product_code, revision)
+
+
+def parse_esi(text: bytes | str, source: str = "ESI") -> ET.Element:
+    """The XML tree of an ESI file, namespaces dropped from its tags (any root element: the caller checks it).
+    Nothing changes the tree afterwards: one parse serves every device read from it."""
     try:
         root = ET.fromstring(text)
     except ET.ParseError as exc:
@@ -188,6 +192,13 @@ def read_esi(text: bytes | str, source: str = "ESI", type_name: str | None = Non
         raise EsiError(f"{source}: line {line} column {col}: malformed XML ({exc.msg if hasattr(exc, 'msg') else exc})"
                        ) from None
     _strip(root)
+    return root
+
+
+def esi_device(root: ET.Element, source: str = "ESI", type_name: str | None = None,
+               product_code: int | None = None, revision: int | None = None) -> EsiDevice:
+    """One device of a tree :func:`parse_esi` made (by ``<Type>`` text, or product code / revision)."""
+    ctx = _Ctx(source)
     if root.tag != "EtherCATInfo":
         raise ctx.fail(f"<{root.tag}>", "the root element must be <EtherCATInfo>")
     vendor = root.find("Vendor")

@@ -25,7 +25,8 @@ from typing import Any
 from gatewaylab.common.errors import ConfigError
 from gatewaylab.devices.esi.device import EsiApplication, esi_slave
 from gatewaylab.devices.esi.esm import parse_transition_ms
-from gatewaylab.devices.esi.reader import EsiDevice, read_esi_file
+from gatewaylab.devices.esi.files import EsiFiles
+from gatewaylab.devices.esi.reader import EsiDevice
 from gatewaylab.ethercat.slave import Slave
 from gatewaylab.plugin.behaviour import Behaviour, load_hook, parse_behaviour
 from gatewaylab.plugin.participant import DeviceKind, Key, RigContext
@@ -69,11 +70,13 @@ class EsiParticipant:
         cfg = KIND.validate(cfg, f"[[device]] {cfg.get('name', 'esi')}")
         self.name: str = KIND.name_of(cfg) or default_name(cfg)
         self.source = _path(rig, cfg["esi"])
-        self.device: EsiDevice = read_esi_file(self.source, cfg["type"], cfg["product_code"], cfg["revision"])
+        files = rig.build_cache.part(EsiFiles)      # each file read once for the whole build
+        self.device: EsiDevice = files.device(self.source, self.source.name, cfg["type"], cfg["product_code"],
+                                              cfg["revision"])
         sii = _path(rig, cfg["sii"]) if cfg["sii"] else None
         slow = parse_transition_ms(cfg["transition_ms"] or {}, f"[[device]] {self.name}")
         self.slave: Slave = esi_slave(rig.clock, self.device, self.name, serial=cfg["serial"], sii_path=sii,
-                                      transition_ms=slow)
+                                      transition_ms=slow, files=files)
         if cfg["behaviour"] or cfg["hook"]:
             try:
                 rules = parse_behaviour(cfg["behaviour"] or {}, self.slave.od)
@@ -83,7 +86,7 @@ class EsiParticipant:
             app = self.slave.app
             assert isinstance(app, EsiApplication)
             app.behaviour = Behaviour(rules, self.slave.od, hook)
-        for note in self.device.notes:
+        for note in files.unsaid_notes(self.device):     # once per device type and build
             log.warning("%s: %s: %s", self.name, self.source.name, note)
         d = self.device.desc
         log.info("%s: %s from %s (vendor 0x%X product 0x%X revision 0x%X)%s", self.name, self.device.type_name,
