@@ -62,16 +62,23 @@ def test_a_build_reads_and_parses_each_file_once(tmp_path: Path) -> None:
 
 
 def test_a_note_about_a_device_type_is_said_once(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
-    """Three EL1859 (outputs SyncManager on the ESC's I/O registers 0x0F00, moved into the process RAM): the
-    note is logged once for the build, naming the first slave, not once per slave."""
-    text = "".join(_esi("EL1859", f"dio{i}") for i in range(3)) + '[ethercat]\ninterface = "gl-none"\n'
-    with caplog.at_level(logging.WARNING, logger="gatewaylab.devices.esi.rig"), _build(tmp_path, text):
+    """Three EL1008 from a file that puts their inputs SyncManager on the ESC's registers (0x0F00: the ESC
+    refuses it, the reader notes it): the note is logged once for the build, naming the first slave, not once
+    per slave."""
+    text = DIGITAL.read_text()
+    old = 'StartAddress="#x1000">Inputs</Sm>'
+    at = text.index(old, text.index(">EL1008<"))
+    moved = tmp_path / "moved.xml"
+    moved.write_text(text[:at] + old.replace("#x1000", "#x0f00") + text[at + len(old):])
+    rig = "".join(_esi("EL1008", f"di{i}", moved) for i in range(3)) + '[ethercat]\ninterface = "gl-none"\n'
+    with caplog.at_level(logging.WARNING, logger="gatewaylab.devices.esi.rig"), _build(tmp_path, rig):
         said = [r.getMessage() for r in caplog.records if "0x0F00" in r.getMessage()]
-    assert said == [f"dio0: {DIGITAL.name}: Sm Outputs at 0x0F00 (ESC registers, no process RAM) runs at 0x1010"]
+    assert said == [f"di0: {moved.name}: Sm Inputs at 0x0F00 lies on the ESC registers: the ESC refuses it "
+                    "(AL status 0x0017 at PREOP -> SAFEOP)"]
 
 
 def test_eni_sections_and_the_folder_scan_share_the_parse(tmp_path: Path) -> None:
-    """An ENI of 11 slaves, the ESI folder scanned for it (two ESI files) and a ``kind = "esi"`` section the ENI
+    """An ENI of 12 slaves, the ESI folder scanned for it (two ESI files) and a ``kind = "esi"`` section the ENI
     places at position 2: each file read and parsed once. The three EL3102 slaves (two exact, one of the ENI's
     higher revision) come from one dictionary, yet each shows its own revision in 0x1018:03."""
     (tmp_path / "esi").mkdir()
@@ -84,8 +91,8 @@ def test_eni_sections_and_the_folder_scan_share_the_parse(tmp_path: Path) -> Non
     with _build(tmp_path, text, cache) as rig:
         files = cache.part(EsiFiles)
         assert (files.reads, files.parses) == (2, 2)
-        # EL1008 for the section, EL1008 and EL3102 (revision 0x00140000) for the ENI's slaves
-        assert files.dictionaries == 3
+        # EL1008 for the section; EL1008, EL3102 (revision 0x00140000) and EL2008 for the ENI's slaves
+        assert files.dictionaries == 4
         slaves = _segment(rig).slaves
         assert slaves[1].name == "di"
         assert [slaves[p].od.values[(0x1018, 3)] for p in (3, 4, 9)] == [0x00140000, 0x00150000, 0x00140000]
