@@ -295,15 +295,20 @@ class EscMemory:
         if hit is not None:
             for sm in hit:
                 if sm.ecat_writes and end >= sm.end:
-                    # The buffer is complete: 1-buffer mode marks it full until the PDI reads it,
-                    # 3-buffer mode hands the PDI the newest complete buffer.
-                    mem[sm.status_addr] |= SM_STATUS_FULL if sm.mailbox else SM_STATUS_WRITE_EVENT
-                    self.pdi_outputs[sm.index] = bytes(mem[sm.start:sm.end])
-                    if sm.watchdog:
-                        self.wd_last = self.clock.now()
-                        mem[REG_WD_STATUS_SM] = 1
-                    self.events.append(sm.write_event)
+                    self._buffer_written(sm)
         return True
+
+    def _buffer_written(self, sm: _Sm) -> None:
+        """The master completed ``sm``'s buffer: 1-buffer mode marks it full until the PDI reads it,
+        3-buffer mode hands the PDI the newest complete buffer; the SM watchdog is triggered and the
+        firmware gets the write event."""
+        mem = self.mem
+        mem[sm.status_addr] |= SM_STATUS_FULL if sm.mailbox else SM_STATUS_WRITE_EVENT
+        self.pdi_outputs[sm.index] = bytes(mem[sm.start:sm.end])
+        if sm.watchdog:
+            self.wd_last = self.clock.now()
+            mem[REG_WD_STATUS_SM] = 1
+        self.events.append(sm.write_event)
 
     def _output_register_write(self, address: int, end: int, data: bytes | bytearray | memoryview) -> bool:
         """A master write over the Digital I/O Output Data register while an output SyncManager runs or is
@@ -314,15 +319,9 @@ class EscMemory:
         if not hit and self.locked and self._locked(address, end):
             return False
         self._register_write(address, end, data)
-        mem = self.mem
         for sm in hit:
             if end >= sm.end:
-                mem[sm.status_addr] |= SM_STATUS_WRITE_EVENT
-                self.pdi_outputs[sm.index] = bytes(mem[sm.start:sm.end])
-                if sm.watchdog:
-                    self.wd_last = self.clock.now()
-                    mem[REG_WD_STATUS_SM] = 1
-                self.events.append(sm.write_event)
+                self._buffer_written(sm)     # a buffered SyncManager: the write event
         return True
 
     def watchdog_expired(self) -> None:
