@@ -16,7 +16,8 @@ or a ring whose last slave is cabled to the master's secondary interface (:meth:
 serves frames from there), open ports (:meth:`Segment.cut`), hot-connect groups (:meth:`Segment.detach`).
 
 The frame path is the ESCs' work only where the applications allow it: outputs of an application with
-``SlaveApplication.outputs_in_frame`` False (the drives) reach it after the frame, in
+``SlaveApplication.outputs_in_frame`` False (the drives, the ECAN-Lite) reach it after the frame, and so does
+the master's read of the inputs for one with ``inputs_read_in_frame`` False (the ECAN-Lite), in
 :meth:`Segment.after_frame`, which a transport calls once it has sent the frame back (the wire thread)
 and :meth:`Segment.process` runs itself at its end unless asked to ``defer`` it (the wire then runs it
 once its socket holds no other frame). A raising application
@@ -242,13 +243,13 @@ class Segment:
         delivery (counted and logged as a datagram error, see the module docstring)."""
         self._after_pending = False
         for slave in self._reached:
-            if slave.outputs_pending:
+            if slave.outputs_pending or slave.inputs_read_pending:
                 try:
                     slave.after_frame()
                 except Exception as exc:  # isolation boundary, as for a datagram
                     self._datagram_error(slave.esc, -1, exc)
         for slave in self._reached_b:   # empty unless a frame may enter on the secondary interface
-            if slave.outputs_pending:
+            if slave.outputs_pending or slave.inputs_read_pending:
                 try:
                     slave.after_frame()
                 except Exception as exc:  # isolation boundary, as for a datagram

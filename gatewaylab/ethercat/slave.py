@@ -59,6 +59,14 @@ class SlaveApplication:
     #: trip; its answer is in the inputs of the next frame.
     outputs_in_frame: ClassVar[bool] = True
 
+    #: True: :meth:`on_inputs_read` runs inside the frame, as the master's read of the inputs buffer
+    #: passes (``ethercat_io`` and the ESI rules refresh their inputs there). False: the ESC hands the
+    #: buffer over in the frame and the application hears of the read once the frame has passed
+    #: (:meth:`Slave.after_frame`), as a firmware does on the SM3 interrupt: a device that builds its
+    #: next inputs image from queues (the ECAN-Lite's TxPDO stream) does that work between frames, and
+    #: the next frame reads the image it staged.
+    inputs_read_in_frame: ClassVar[bool] = True
+
     def setup_od(self, slave: Slave, od: ObjectDictionary) -> None:
         """Bind the device's object hooks once the dictionary exists: ``od.on_read`` (status
         objects, counters), ``od.on_write`` / ``od.add_reaction`` ("apply" commands),
@@ -177,6 +185,9 @@ class Slave:
         #: Outputs taken in the frame whose delivery to the application waits for :meth:`after_frame`
         #: (``SlaveApplication.outputs_in_frame`` False).
         self.outputs_pending = False
+        #: The master read the inputs buffer in the frame; the application hears of it in
+        #: :meth:`after_frame` (``SlaveApplication.inputs_read_in_frame`` False).
+        self.inputs_read_pending = False
         self._inputs_one_buffer = False
         self.cycles = 0
         self._unbind: list[Callable[[], None]] = []
@@ -298,6 +309,8 @@ class Slave:
             self.outputs_valid = False
             self.outputs_pending = False
             self._store_outputs()
+        if new not in (AlState.SAFEOP, AlState.OP):
+            self.inputs_read_pending = False
         self.app.on_state(self, old, new, code)
 
     def sm_written(self, sm: int, data: bytes) -> None:
@@ -345,7 +358,11 @@ class Slave:
                 self.esc.lose_datagram()        # the master must repeat (SM1 repeat request, 0x0806)
             self.mailbox.pump()
         elif sm == self.sm_inputs:
-            self.app.on_inputs_read(self)
+            app = self.app
+            if app.inputs_read_in_frame:
+                app.on_inputs_read(self)
+            else:
+                self.inputs_read_pending = True     # told by after_frame, once the frame has passed
             if self._inputs_one_buffer:
                 self.esc.sm_set_full(sm)  # 1-buffer inputs: the application refreshes every cycle
 
@@ -378,18 +395,21 @@ class Slave:
             app.on_outputs(self, self._outputs)
 
     def after_frame(self) -> None:
-        """The PDI's work between frames: outputs taken in the last frame reach the application (an
-        application with ``outputs_in_frame`` False); nothing when none are pending. The outputs are
-        dropped when the slave left OP meanwhile (its safe state is already applied)."""
-        if not self.outputs_pending:
-            return
-        self.outputs_pending = False
-        if self.esc.mem[REG_AL_STATUS] & 0x0F != AlState.OP or not self.outputs_valid:
-            return
+        """The PDI's work between frames: outputs taken in the last frames reach the application (an
+        application with ``outputs_in_frame`` False), then the application hears that the master read its
+        inputs (``inputs_read_in_frame`` False); nothing when neither is pending. The outputs are dropped
+        when the slave left OP meanwhile (its safe state is already applied), the read when it left
+        SAFEOP and OP."""
         app = self.app
-        if app.store_outputs:
-            self._store_outputs()
-        app.on_outputs(self, self._outputs)
+        if self.outputs_pending:
+            self.outputs_pending = False
+            if self.esc.mem[REG_AL_STATUS] & 0x0F == AlState.OP and self.outputs_valid:
+                if app.store_outputs:
+                    self._store_outputs()
+                app.on_outputs(self, self._outputs)
+        if self.inputs_read_pending:
+            self.inputs_read_pending = False
+            app.on_inputs_read(self)
 
     def sync0(self, t: float) -> None:
         """The ESC's SYNC0 line (a clock timer, not an access): the application's SYNC0 hook."""

@@ -145,3 +145,54 @@ def test_an_application_raising_after_the_frame_costs_only_its_own_delivery(
     assert line.segment.stats.datagram_errors == errors + 1
     assert "defect in the device's application" in line.segment.stats.errors[-1]
     assert line.drive.slave.od.values[(0x6040, 0)] == 0x06
+
+
+class _ReadCounter(IoApplication):
+    """An io box that hears of the master's inputs read after the frame (the ECAN-Lite's choice), counting
+    the reads and the frame the counter was in when it heard of one."""
+
+    inputs_read_in_frame = False
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.reads = 0
+
+    def on_inputs_read(self, slave: Slave) -> None:
+        self.reads += 1
+        super().on_inputs_read(slave)
+
+
+def test_inputs_read_reaches_an_application_after_the_frame_when_it_asks() -> None:
+    """ET1100 data sheet section I, "SyncManager": the buffer-read event of the inputs SM (3-buffer mode) raises
+    the PDI interrupt and the firmware serves it between frames. With ``inputs_read_in_frame = False`` and
+    ``defer`` (the wire thread) the read is pending after the LRW and told by ``after_frame``, once per
+    ``after_frame`` however many reads came (the firmware sees the interrupt, not a count); without ``defer``
+    it is told before ``process`` returns."""
+    app = _ReadCounter()
+    line = _Line(app)
+    line.defer = True
+    slave = line.io
+    reads = app.reads
+    line.master.exchange_process_data()
+    assert slave.inputs_read_pending and app.reads == reads
+    line.master.exchange_process_data()
+    line.segment.after_frame()
+    assert not slave.inputs_read_pending and app.reads == reads + 1
+    line.defer = False
+    line.master.exchange_process_data()
+    assert not slave.inputs_read_pending and app.reads == reads + 2
+
+
+def test_a_pending_inputs_read_is_forgotten_when_the_slave_leaves_safeop_and_op() -> None:
+    """ETG.1000.6 (AL state machine): the process data exchange stops below SAFEOP, so a read left pending when
+    the master takes the slave to PREOP is not told to the application afterwards."""
+    app = _ReadCounter()
+    line = _Line(app)
+    line.defer = True
+    line.master.exchange_process_data()
+    assert line.io.inputs_read_pending
+    reads = app.reads
+    line.master.set_state(AlState.PREOP)      # still deferring: nothing ran the pending work
+    assert not line.io.inputs_read_pending
+    line.segment.after_frame()
+    assert app.reads == reads

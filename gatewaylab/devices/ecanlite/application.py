@@ -141,6 +141,13 @@ class EcanLiteApplication(SlaveApplication):
     #: of a unit decodes it from the outputs image (core, SlaveApplication.store_outputs).
     store_outputs = False
 
+    #: The firmware serves the SM2 and SM3 events on its PDI interrupt (0x9011:01 "PDI IRQ count"),
+    #: between frames: the RxPDO stream is parsed and the next TxPDO image staged once the frame has
+    #: passed (ESC core, Slave.after_frame), so neither is part of the frame's round trip; the next frame
+    #: reads the image staged after this one, as it did when both ran inside the frame.
+    outputs_in_frame = False
+    inputs_read_in_frame = False
+
     def __init__(self, device: EcanLiteDevice) -> None:
         self.device = device
         self.model = device.model
