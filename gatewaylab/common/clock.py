@@ -85,6 +85,11 @@ class Clock:
         #: :meth:`RealTimeClock.run_due` ends its pass after the event that runs, and :meth:`hand_over` lets
         #: them in before the loop takes the lock again.
         self.waiting = 0
+        #: Probes of input that must not wait for a whole pass either (the EtherCAT wire's: a frame is
+        #: in its socket): the loop asks them after each event and steps aside as for :attr:`waiting`,
+        #: so the wire thread, woken by its frame, need not wait for the interpreter lock until the
+        #: interpreter's switch interval forces the loop to give it up.
+        self.urgent: list[Callable[[], bool]] = []
         #: Unix time (seconds since the epoch) of clock time 0: an event at clock time ``t``
         #: happened at ``wall_epoch + t``. The one time base of traces, client timestamps and the demo.
         self.wall_epoch: float = time.time()
@@ -185,14 +190,22 @@ class Clock:
 
     def hand_over(self, patience: float = HAND_OVER_S) -> None:
         """For the loop that runs this clock, after it released :attr:`lock`: while a thread is
-        :attr:`waiting` for the lock, step aside (up to ``patience`` seconds) so that it takes the lock
-        before this thread takes it again -- a released lock goes to whoever asks first, and the thread
-        that just released it, still running, would. Returns at once when nobody waits."""
-        if not self.waiting:
+        :attr:`waiting` for the lock or an :attr:`urgent` probe has input, step aside (up to ``patience``
+        seconds) so that the thread takes the lock before this thread takes it again -- a released lock goes
+        to whoever asks first, and the thread that just released it, still running, would; ``time.sleep(0)``
+        also hands over the interpreter lock. Returns at once when nobody waits."""
+        if not self.waiting and not self.input_urgent():
             return
         deadline = time.monotonic() + patience
-        while self.waiting and time.monotonic() < deadline:
+        while (self.waiting or self.input_urgent()) and time.monotonic() < deadline:
             time.sleep(0)   # lets the waiting thread run (and take the lock) on this CPU or its own
+
+    def input_urgent(self) -> bool:
+        """True when one of the :attr:`urgent` probes has input waiting."""
+        for probe in self.urgent:  # noqa: SIM110 -- a plain loop compiles to less than any(generator)
+            if probe():
+                return True
+        return False
 
     def end_wait(self) -> None:
         """The loop is awake again (see :meth:`begin_wait`): events it schedules itself wake nobody."""
@@ -420,9 +433,9 @@ class RealTimeClock(Clock):
                         raise
                     self.on_error(exc)
                 count += 1
-                if self.waiting:    # a thread that may not wait for the whole pass: the rest runs later
-                    break
+                if self.waiting or (self.urgent and self.input_urgent()):
+                    break           # a thread that may not wait for the whole pass: the rest runs later
                 self._drain_injected()
-        if self.waiting:
+        if self.waiting or (self.urgent and self.input_urgent()):
             self.hand_over()
         return count

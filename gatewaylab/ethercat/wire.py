@@ -20,6 +20,11 @@ queue, a backlog, the wait for ``clock.lock``; the segment's own work on the fra
 dropped, counted (``frames_dropped_late``) and logged once per burst (ethercat/residence.py), so after a
 stall of this process the master sees lost frames, never replies no real line would deliver.
 
+The rig's loop runs the CAN side in another thread of this process: the thread holding the interpreter lock
+gives it up to a waiting one only after the interpreter's switch interval. So the loop asks
+:meth:`WireTransport.frame_waiting` (``Clock.urgent``) after each event and steps aside while a frame waits,
+and the wire thread raises ``clock.waiting`` from the moment it has a frame until it holds ``clock.lock``.
+
 :meth:`WireTransport.stop` wakes the thread wherever it waits (``select``, or ``clock.lock``, which
 the rig holds while it stops its participants) and returns within milliseconds.
 
@@ -157,6 +162,7 @@ class WireTransport:
         self._wake_r: socket.socket | None = None
         self._wake_w: socket.socket | None = None
         self._thread: threading.Thread | None = None
+        self._poller = select.poll()    # the sockets, for frame_waiting (registered when the thread starts)
         self._running = False
         self.frames_in = 0
         self.frames_out = 0
@@ -387,7 +393,30 @@ class WireTransport:
             self._send(sock, reply)
         return None if due is None else max(0.0, due - now)
 
+    def frame_waiting(self) -> bool:
+        """A frame waits in the socket(s): the rig's loop asks this after each event (``Clock.urgent``) and
+        steps aside, so this thread gets the interpreter lock and ``clock.lock`` at once instead of after the
+        interpreter's switch interval."""
+        try:
+            return bool(self._poller.poll(0))
+        except (RuntimeError, OSError):     # another thread's poll at this very moment; a socket closed
+            return False
+
     def _run(self) -> None:
+        if self.drive_clock:    # this thread runs the clock's events itself: nobody else to step aside
+            self._serve()
+            return
+        for s in (self._sock, self._sock_b):
+            if s is not None:
+                self._poller.register(s, select.POLLIN)
+        probe = self.frame_waiting
+        self.clock.urgent.append(probe)
+        try:
+            self._serve()
+        finally:
+            self.clock.urgent.remove(probe)
+
+    def _serve(self) -> None:
         self._schedule()
         sock, wake = self._sock, self._wake_r
         assert sock is not None and wake is not None
@@ -486,7 +515,12 @@ class WireTransport:
             try:
                 if pcap is not None:
                     pcap.write(received / 1e9, frame)
-                if not self._acquire(lock):
+                clock.waiting += 1      # the loop ends its pass at the running event (Clock.hand_over)
+                try:
+                    got = self._acquire(lock)
+                finally:
+                    clock.waiting -= 1
+                if not got:
                     return
                 try:
                     # its age when the segment could take it: the kernel's queue, our backlog and the wait

@@ -32,7 +32,6 @@ from gatewaylab.plugin.capabilities import (
     UsbPluggable,
     can_channels,
     drive_of,
-    ethercat_devices,
     node_of,
 )
 from gatewaylab.rig.faults_core import FaultRefused, FaultsCore, check_seconds
@@ -272,7 +271,7 @@ class Faults(EcFramesFaults, EcSlaveFaults, EcDcFaults, EcRingFaults, FaultsCore
         """AL state and AL status code of every EtherCAT device of the rig (ETG.1000.6 AL status)."""
         def act() -> dict[str, Any]:
             states: dict[str, Any] = {}
-            for p in ethercat_devices(self.rig.participants):
+            for p in self.ethercat_devices():
                 esc = p.slave.esc
                 status = esc.al_status
                 try:
@@ -297,8 +296,8 @@ class Faults(EcFramesFaults, EcSlaveFaults, EcDcFaults, EcRingFaults, FaultsCore
         whether it is plugged in (what `gatewaylab monitor` and the --web page show of other nodes)."""
         def act() -> dict[str, Any]:
             buses: dict[str, Any] = {}
-            for p in self.rig.participants:
-                for ch, ctrl in can_channels(p).items():
+            for p, channels in self.can_sides():
+                for ch, ctrl in channels.items():
                     name = p.name if ch == "can" else f"{p.name}.{ch}"
                     stats = ctrl.stats
                     buses.setdefault(ctrl.bus.name, {})[name] = {

@@ -167,3 +167,25 @@ def test_a_thread_waiting_for_the_lock_goes_before_the_rest_of_the_pass() -> Non
     assert clock.run_due() == 2
     assert order == ["event", "waiter", "event", "event"]
 
+
+
+def test_input_an_urgent_probe_reports_ends_the_pass_and_is_handed_over() -> None:
+    """docs/architecture.md 'Threads': a frame in the EtherCAT wire's socket must not wait for a pass of the loop's
+    events, nor for the interpreter's switch interval while the loop holds the interpreter lock. A probe in
+    ``clock.urgent`` (the wire's ``frame_waiting``) that reports input ends the pass after the running event
+    (``run_due`` returns 1 of 3 due events); :meth:`Clock.hand_over` steps aside while it reports input and returns
+    once the input is taken; with no probe reporting, the rest of the events run in one pass."""
+    clock = RealTimeClock()
+    clock.ensure_lock()
+    frame = threading.Event()
+    frame.set()
+    clock.urgent.append(frame.is_set)
+    for _ in range(3):
+        clock.call_at(clock.now() - 0.001, lambda: None)
+    assert clock.run_due() == 1
+    taker = threading.Timer(0.01, frame.clear)      # the wire thread takes its frame
+    taker.start()
+    clock.hand_over(patience=30.0)
+    assert not frame.is_set()       # hand_over returned because the input was taken, not by its patience
+    taker.join(30)
+    assert clock.run_due() == 2

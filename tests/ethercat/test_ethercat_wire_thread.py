@@ -208,3 +208,34 @@ def test_waiting_frames_are_answered_before_the_applications_work(veth_ns: Any) 
     assert wire.frames_out >= count
     assert calls.startswith("P" * AFTER_FRAME_MAX + "A"), calls      # the backlog first, the work bounded
     assert calls.endswith("A") and "AA" not in calls, calls           # the rest once the line is idle
+
+
+def test_a_waiting_frame_is_reported_to_the_loop_that_runs_the_clock(veth_ns: Any) -> None:
+    """docs/architecture.md 'Threads': in a rig the loop thread runs the clock and the CAN side; a frame must not
+    wait until the interpreter's switch interval takes the interpreter lock from the loop. While the wire runs
+    (without ``drive_clock``) its ``frame_waiting`` is one of ``clock.urgent``, True while a frame waits in the
+    socket (held here by the capture inside the first frame) and False once the backlog is answered; the probe
+    is gone after ``stop``."""
+    clock = RealTimeClock()
+    hold = _HoldFirstFrame()
+    wire = WireTransport(Segment([create_io_slave(clock, "io")]), veth_ns.emulator_iface, clock,
+                         pcap=cast(PcapWriter, hold), max_residence_ms=0)
+    wire.start()
+    try:
+        assert clock.urgent == [wire.frame_waiting]
+        assert not clock.input_urgent()
+        _send(veth_ns, 1)
+        assert hold.arrived.wait(30)            # the thread is inside frame 1
+        _send(veth_ns, 2)                       # two more wait in the socket
+        assert clock.input_urgent()
+        hold.release.set()
+        deadline = time.monotonic() + 30
+        while wire.frames_out < 3 and time.monotonic() < deadline:
+            time.sleep(0.001)
+        while clock.input_urgent() and time.monotonic() < deadline:     # its own replies' copies, read and skipped
+            time.sleep(0.001)
+        assert wire.frames_out == 3 and not clock.input_urgent()
+    finally:
+        hold.release.set()
+        wire.stop()
+    assert clock.urgent == []
