@@ -224,7 +224,8 @@ def test_a_frame_held_while_the_emulator_stopped_is_dropped_its_own_work_is_not(
     """Issue 31, the stall (benchmarks: a frame the wire thread had taken just before a 200 ms ``kill -STOP``
     was answered 208 ms late): the age is checked again before the reply is sent, less the thread's own CPU
     time on the frame. Held 100 ms without running (a stop): dropped and counted, never answered; 100 ms of its
-    own work (a state change in pure Python): answered, as a master with a long timeout must still get it."""
+    own work (a state change in pure Python): answered, as a master with a long timeout must still get it; over
+    the limit with more than half the limit spent waiting: dropped."""
     clock = RealTimeClock()
     held = _Held(Segment([create_io_slave(clock, "io")]))
     wire = WireTransport(cast(Segment, held), veth_ns.emulator_iface, clock, drive_clock=True,
@@ -237,6 +238,10 @@ def test_a_frame_held_while_the_emulator_stopped_is_dropped_its_own_work_is_not(
         assert wire.frames_dropped_late == 1 and wire.stats()["frames_late_on_arrival"] == 0
         held.blocked, held.busy = 0.0, 0.1
         assert _exchange(veth_ns, 20, 1) == [20]
+        # held 15 ms (under the limit) and then 8 ms of work: 23 ms old, of which 15 ms waiting (over half the
+        # limit): dropped (a master with SOEM's timeout of the limit would have seen a stale reply)
+        held.blocked, held.busy = 0.015, 0.008
+        assert _exchange(veth_ns, 30, 1) == []
     finally:
         wire.stop()
-    assert wire.frames_dropped_late == 1
+    assert wire.frames_dropped_late == 2
