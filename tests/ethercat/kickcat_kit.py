@@ -12,14 +12,15 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import re
 import sys
 from collections.abc import Callable
 from typing import TypeVar
 
 from gatewaylab.common.ask import ask
 
-__all__ = ["ATTEMPTS", "EMULATOR_LATE", "LOST_FRAME", "WIRE_COUNTERS_ENV", "WireCounters", "run_as_kickcat_readme_says",
-           "run_step"]
+__all__ = ["ATTEMPTS", "EMULATOR_LATE", "JUDGED", "LOST_FRAME", "WIRE_COUNTERS_ENV", "WireCounters",
+           "run_as_kickcat_readme_says", "run_step"]
 
 T = TypeVar("T")
 
@@ -40,6 +41,8 @@ LOST_FRAME = ("Timeout", "Invalid working counter", "Error while fetching", "Err
               "error while process", "LOST", "WriteThenRead")
 #: the text of the error that ends a step whose failed attempt the emulator caused (no rerun then)
 EMULATOR_LATE = "the emulator held"
+#: the end of a record entry whose failed attempt the wire's counters cleared (the machine's, not the emulator's)
+JUDGED = re.compile(r"\[machine held \d+, emulator late 0\]$")
 
 
 def run_as_kickcat_readme_says() -> None:
@@ -65,7 +68,8 @@ class WireCounters:
             return None
         try:
             answer = json.loads(ask(self.address, {"fault": "ethercat-states"}, 10.0) or b"{}")
-        except OSError:
+        except OSError as exc:
+            print(f"the wire's counters at {self.address} did not answer: {exc}", file=sys.stderr, flush=True)
             return None
         wire: dict[str, int] = answer.get("wire") or {}
         return wire
@@ -92,9 +96,12 @@ def run_step(name: str, step: Callable[[], T], lost: tuple[str, ...] = LOST_FRAM
     With the wire's counters (``WIRE_COUNTERS_ENV``) a failed attempt runs again only when the emulator held
     no frame past ``max_residence_ms`` during it (``frames_dropped_late`` grew no more than
     ``frames_late_on_arrival``, the frames the machine handed it already late); else the step ends at once
-    with ``EMULATOR_LATE`` in its error: a rerun would hide the emulator being late. A late drop counted
-    only after the reading (the wire thread busy) is left to the test's ``check_reruns`` over the whole run.
-    The error after the last attempt reads ``KickCAT NAME failed`` with the record."""
+    with ``EMULATOR_LATE`` in its error: a rerun would hide the emulator being late. A late drop of its own
+    the wire counts only after that reading (its thread still busy) shows in the attempt that then succeeds:
+    no frame of a successful attempt was lost, so it was the failed attempt's, and ends the step the same way
+    (one more reading after a success that followed failures). Such a judged failure ends in ``JUDGED``; the
+    test's ``check_reruns`` over the whole run checks only the reruns that were not. The error after the last
+    attempt reads ``KickCAT NAME failed`` with the record."""
     if attempts < 1:
         raise ValueError(f"attempts must be at least 1, not {attempts}")
     counters = counters if counters is not None else WireCounters()
@@ -102,7 +109,7 @@ def run_step(name: str, step: Callable[[], T], lost: tuple[str, ...] = LOST_FRAM
     before = counters.read()        # one reading per attempt: a failure's is the next attempt's start
     for attempt in range(attempts):
         try:
-            return step(), record
+            result = step()
         except RuntimeError as exc:
             text = str(exc)
             if not any(word in text for word in lost):
@@ -121,4 +128,10 @@ def run_step(name: str, step: Callable[[], T], lost: tuple[str, ...] = LOST_FRAM
                                    f"not run again: {record}") from exc
             if attempt == attempts - 1:
                 raise RuntimeError(f"KickCAT {name} failed {attempts} times: {record}") from exc
+            continue
+        window = _window(before, counters.read()) if record else None
+        if window is not None and window[0] > 0:
+            raise RuntimeError(f"KickCAT {name}: {EMULATOR_LATE} {window[0]} frame(s) past max_residence_ms, "
+                               f"counted after the failed attempt; it was run again: {record}")
+        return result, record
     raise AssertionError("the last attempt returns or raises")

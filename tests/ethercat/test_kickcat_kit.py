@@ -9,7 +9,7 @@ from collections.abc import Callable
 
 import pytest
 from kickcat_kit import EMULATOR_LATE, WIRE_COUNTERS_ENV, WireCounters, run_step
-from wire_kit import serve_wire_counters
+from wire_kit import check_reruns, serve_wire_counters
 
 
 class Scripted(WireCounters):
@@ -91,3 +91,22 @@ def test_the_driver_reads_the_counters_the_test_serves() -> None:
     now = wire(7, 2)
     with serve_wire_counters(lambda: now) as env:
         assert WireCounters(env[WIRE_COUNTERS_ENV]).read() == now
+
+
+def test_a_late_drop_counted_after_the_failure_ends_the_step_that_then_succeeded() -> None:
+    """The wire counts its own late drop only when its thread gets to the frame, which may be after the
+    driver's reading: the attempt that then succeeds lost no frame, so the drop was the failed attempt's."""
+    step, calls = failing("CoE.cc:13: error while checking mailboxes")
+    counters = Scripted([wire(0, 0), wire(1, 1), wire(2, 1)])
+    with pytest.raises(RuntimeError, match=EMULATOR_LATE):
+        run_step("read 1C13:0", step, counters=counters)
+    assert calls[0] == 2
+
+
+def test_check_reruns_leaves_the_judged_reruns_to_the_driver() -> None:
+    """A rerun the driver cleared with the counters of its own attempt passes whatever late drops the whole
+    run had (the cyclic phases' lost cycles); a rerun without them fails when the emulator dropped a frame."""
+    whole = wire(3, 1)
+    check_reruns(["read 1000:0: CoE.cc:13: error while checking mailboxes [machine held 1, emulator late 0]"], whole)
+    with pytest.raises(AssertionError, match="without the wire's counters"):
+        check_reruns(["init: Bus.cc:795: Timeout"], whole)
