@@ -14,43 +14,36 @@ import time
 from typing import Any
 
 import kickcat
-from kickcat_kit import run_as_kickcat_readme_says
+from kickcat_kit import run_as_kickcat_readme_says, run_step
 
-#: KickCAT's defaults (Link.h 2 ms, Bus.h 1 s per SDO); a step that fails on a lost frame runs again at most
-#: ATTEMPTS times, each failure printed with the result (tests/devices/ecanlite/ecanlite_kickcat_driver.py).
+#: KickCAT's defaults (Link.h 2 ms, Bus.h 1 s per SDO); a step that fails on a lost frame runs again
+#: (tests/ethercat/kickcat_kit.py run_step), each failure printed with the result under ``retries``
 LINK_TIMEOUT_S = 0.002
 SDO_TIMEOUT_S = 1.0
-ATTEMPTS = 5
 OUT = struct.Struct("<Bhh")
 IN = struct.Struct("<BhhI")
 
 
+def scan(iface: str) -> Any:
+    """A fresh link and bus, KickCAT's init (INIT -> PREOP)."""
+    link = kickcat.create_link(iface, "")
+    link.set_timeout(LINK_TIMEOUT_S)
+    bus = kickcat.Bus(link)
+    bus.init(0.5)           # the slaves' watchdog (not a timeout of the master)
+    return bus
+
+
 def main(iface: str, cycles: int) -> dict[str, Any]:
-    retries: list[str] = []
     run_as_kickcat_readme_says()
-    for attempt in range(ATTEMPTS):
-        link = kickcat.create_link(iface, "")
-        link.set_timeout(LINK_TIMEOUT_S)
-        try:
-            bus = kickcat.Bus(link)
-            bus.init(0.5)           # the slaves' watchdog (not a timeout of the master)
-            break
-        except RuntimeError as exc:     # a register read answered after the link timeout
-            retries.append(f"init: {exc}")
-            if attempt == ATTEMPTS - 1:
-                raise RuntimeError(f"KickCAT init failed: {retries}") from exc
+    bus, retries = run_step("init", lambda: scan(iface))
     slaves = bus.slaves()
     out: dict[str, Any] = {"count": len(slaves), "retries": retries}
 
     def sdo(slave: Any, index: int, sub: int, size: int) -> bytes:
-        for attempt in range(ATTEMPTS):
-            try:
-                return bytes(bus.read_sdo(slave, index, sub, kickcat.Access.PARTIAL, size, SDO_TIMEOUT_S))
-            except RuntimeError as exc:
-                retries.append(f"read {index:04X}:{sub}: {exc}")
-                if attempt == ATTEMPTS - 1:
-                    raise
-        return b""
+        data, failed = run_step(f"read {index:04X}:{sub}", lambda: bytes(
+            bus.read_sdo(slave, index, sub, kickcat.Access.PARTIAL, size, SDO_TIMEOUT_S)))
+        retries.extend(failed)
+        return data
 
     out["names"] = [sdo(s, 0x1008, 0, 32).decode().rstrip("\x00") for s in slaves]
     out["identity"] = [[int.from_bytes(sdo(s, 0x1018, k, 4), "little") for k in (1, 2, 3)] for s in slaves]

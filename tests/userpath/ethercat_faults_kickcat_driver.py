@@ -35,13 +35,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # tests/: the kit
 import kit_paths
 
 kit_paths.add_all()
-from kickcat_kit import run_as_kickcat_readme_says  # noqa: E402
+from kickcat_kit import run_as_kickcat_readme_says, run_step  # noqa: E402
 
 #: KickCAT's defaults: Link.h ``timeout_{2ms}``, Bus.h 1 s per SDO
 LINK_TIMEOUT_S = 0.002
 SDO_TIMEOUT_S = 1.0
-#: a scan whose register read came back after the link timeout (a stall of this VM) is started again
-ATTEMPTS = 5
 PERIOD_S = 0.001
 RUNNING = kickcat.mailbox.request.MessageStatus.RUNNING
 
@@ -49,22 +47,21 @@ RUNNING = kickcat.mailbox.request.MessageStatus.RUNNING
 class Master:
     def __init__(self, iface: str) -> None:
         run_as_kickcat_readme_says()
-        self.retries: list[str] = []
-        for attempt in range(ATTEMPTS):
-            self.link = kickcat.create_link(iface, "")
-            self.link.set_timeout(LINK_TIMEOUT_S)
-            try:
-                self.bus = kickcat.Bus(self.link)
-                self.bus.init(0.5)
-                self.bus.create_mapping(4096)
-                break
-            except RuntimeError as exc:
-                self.retries.append(f"init: {exc}")
-                if attempt == ATTEMPTS - 1:
-                    raise RuntimeError(f"KickCAT init failed: {self.retries}") from exc
+        self.iface = iface
+        # a scan whose frame came back after the link timeout (a stall of this VM) is started again, every
+        # failure printed with the result (kickcat_kit.run_step)
+        self.bus, self.retries = run_step("init", self._scan)
         self.slaves = self.bus.slaves()
         self.phases: dict[str, dict[str, Any]] = {}
         self.phase = self.start("bring-up")
+
+    def _scan(self) -> Any:
+        self.link = kickcat.create_link(self.iface, "")
+        self.link.set_timeout(LINK_TIMEOUT_S)
+        bus = kickcat.Bus(self.link)
+        bus.init(0.5)
+        bus.create_mapping(4096)
+        return bus
 
     def start(self, name: str) -> dict[str, Any]:
         self.phases[name] = {"cycles": 0, "lost": 0, "bad_wkc": 0, "other": [], "bad_at": [], "lost_at": []}

@@ -39,7 +39,7 @@ from typing import IO, Any, ClassVar
 
 import can
 import pytest
-from wire_kit import check_reruns, net_capable, rig_wire_stats, veth_namespace
+from wire_kit import check_reruns, net_capable, rig_counters_env, rig_wire_stats, veth_namespace
 
 from gatewaylab.rig.process import RigProcess
 
@@ -125,7 +125,8 @@ class MasterRun:
         with self.stderr_path.open("wb") as err:
             self.proc = subprocess.Popen(
                 ["ip", "netns", "exec", user.namespace, sys.executable, str(MASTER), user.master_iface, lib,
-                 kind, repr(seconds)], stdout=subprocess.PIPE, stderr=err, text=True)
+                 kind, repr(seconds)], stdout=subprocess.PIPE, stderr=err, text=True,
+                env=rig_counters_env(user.rig.info))     # KickCAT's reruns judged by the rig's counters
         self.events: list[dict[str, Any]] = []
         self._cond = threading.Condition()
         self._reader = threading.Thread(target=self._read, daemon=True)

@@ -30,7 +30,7 @@ from typing import Any
 import pytest
 from ethercat_userpath_kit import UserRig, module_rig
 from soem_samples import build_soem_sample
-from wire_kit import check_reruns, lost_allowed, rig_wire_stats, run_fault
+from wire_kit import check_reruns, lost_allowed, rig_counters_env, rig_wire_stats, run_fault
 
 from gatewaylab.common.ask import ask, endpoint_address
 from gatewaylab.common.endpoint import EndpointKind, parse_endpoint
@@ -75,7 +75,7 @@ class KickCAT:
         with self.err.open("wb") as err:
             self.proc = subprocess.Popen(["ip", "netns", "exec", user.namespace, sys.executable, str(DRIVER),
                                           user.master_iface], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                         stderr=err, text=True)
+                                         stderr=err, text=True, env=rig_counters_env(user.rig.info))
         self.timer = threading.Timer(180, self.proc.kill)
         self.timer.start()
         self.op = self.read("op")

@@ -15,8 +15,9 @@ import json
 import struct
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import kickcat
 
@@ -35,17 +36,18 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))   # tests/: the kit
 import kit_paths
 
 kit_paths.add_all()
-from kickcat_kit import run_as_kickcat_readme_says  # noqa: E402
+from kickcat_kit import run_as_kickcat_readme_says, run_step  # noqa: E402
 
 #: KickCAT's own defaults: the link's 2 ms (lib/master/include/kickcat/Link.h ``timeout_{2ms}``) for every
 #: datagram -- scan, mailbox, process data -- and 1 s for an SDO transfer (Bus.h readSDO/writeSDO). A step
 #: that fails on a lost frame (KickCAT gives up a scan or an SDO on the first reply later than 2 ms) is run
-#: again, at most ATTEMPTS times, and every failure is printed with the result (``retries``): the run shows
-#: how often this shared VM lost a frame instead of hiding it behind longer timeouts.
+#: again (tests/ethercat/kickcat_kit.py run_step), and every failure is printed with the result
+#: (``retries``): the run shows how often this shared VM lost a frame instead of hiding it behind longer
+#: timeouts.
 LINK_TIMEOUT_S = 0.002
 SDO_TIMEOUT_S = 1.0
-ATTEMPTS = 5
 RUNNING = kickcat.mailbox.request.MessageStatus.RUNNING
+T = TypeVar("T")
 
 
 def _u(data: bytes) -> int:
@@ -59,45 +61,40 @@ class Session:
 
     def __init__(self, iface: str) -> None:
         run_as_kickcat_readme_says()
-        for attempt in range(ATTEMPTS):
-            self.link = kickcat.create_link(iface, "")
-            self.link.set_timeout(LINK_TIMEOUT_S)
-            try:
-                self.bus = kickcat.Bus(self.link)
-                self.bus.init(0.5)          # the slaves' watchdog (not a timeout of the master)
-                break
-            except RuntimeError as exc:     # a register read answered after the link timeout
-                self.retries.append(f"init: {exc}")
-                if attempt == ATTEMPTS - 1:
-                    raise RuntimeError(f"KickCAT init failed: {self.retries}") from exc
+        self.iface = iface
+        self.bus = self.step("init", self._scan)
         self.slave = self.bus.slaves()[0]
         self.bad_wkc = 0
         self.lost = 0
 
+    def _scan(self) -> Any:
+        self.link = kickcat.create_link(self.iface, "")
+        self.link.set_timeout(LINK_TIMEOUT_S)
+        bus = kickcat.Bus(self.link)
+        bus.init(0.5)          # the slaves' watchdog (not a timeout of the master)
+        return bus
+
+    def step(self, name: str, step: Callable[[], T]) -> T:
+        """``step()`` through kickcat_kit's run_step, its failed attempts added to ``retries``."""
+        result, failed = run_step(name, step)
+        self.retries.extend(failed)
+        return result
+
     def read(self, index: int, sub: int, size: int = 4) -> bytes:
-        for attempt in range(ATTEMPTS):
-            try:
-                return bytes(self.bus.read_sdo(self.slave, index, sub, kickcat.Access.PARTIAL, size, SDO_TIMEOUT_S))
-            except RuntimeError as exc:
-                self.retries.append(f"read {index:04X}:{sub}: {exc}")
-                if attempt == ATTEMPTS - 1:
-                    raise
-        return b""
+        return self.step(f"read {index:04X}:{sub}", lambda: bytes(
+            self.bus.read_sdo(self.slave, index, sub, kickcat.Access.PARTIAL, size, SDO_TIMEOUT_S)))
 
     def write(self, index: int, sub: int, data: bytes) -> None:
         """SDO download through KickCAT's mailbox: queued, then driven by process_mailboxes."""
-        for _attempt in range(ATTEMPTS):
+        def download() -> int:
             msg = self.slave.mailbox.write_sdo(index, sub, False, data, SDO_TIMEOUT_S)
-            try:
-                while msg.status() == RUNNING:
-                    self.bus.process_mailboxes()
-            except RuntimeError as exc:
-                self.retries.append(f"write {index:04X}:{sub}: {exc}")
-                continue
-            if msg.status() == 0:
-                return
-            raise RuntimeError(f"SDO download {index:04X}:{sub} answered status {msg.status():#x}")
-        raise RuntimeError(f"SDO download {index:04X}:{sub} never answered")
+            while msg.status() == RUNNING:
+                self.bus.process_mailboxes()
+            return int(msg.status())
+
+        status = self.step(f"write {index:04X}:{sub}", download)
+        if status != 0:
+            raise RuntimeError(f"SDO download {index:04X}:{sub} answered status {status:#x}")
 
     def cycle(self) -> bool:
         """One process data exchange; False when a datagram came back with a wrong working counter
@@ -115,14 +112,7 @@ class Session:
     def to_op(self) -> str:
         """create_mapping (the assignment and the maps read over CoE: again after a lost mailbox frame),
         SAFEOP, OP with process data running."""
-        for attempt in range(ATTEMPTS):
-            try:
-                self.bus.create_mapping(4096)
-                break
-            except RuntimeError as exc:
-                self.retries.append(f"create_mapping: {exc}")
-                if attempt == ATTEMPTS - 1:
-                    raise
+        self.step("create_mapping", lambda: self.bus.create_mapping(4096))
         self.bus.request_state(kickcat.State.SAFE_OP)
         self.bus.wait_for_state(kickcat.State.SAFE_OP, 2.0)
         self.cycle()

@@ -18,25 +18,22 @@ import time
 from typing import Any
 
 import kickcat
-from kickcat_kit import run_as_kickcat_readme_says
+from kickcat_kit import run_as_kickcat_readme_says, run_step
+
+
+def scan(iface: str) -> Any:
+    """KickCAT's defaults (2 ms link timeout): a fresh link and bus, init and mapping."""
+    link = kickcat.create_link(iface, "")
+    bus = kickcat.Bus(link)
+    bus.init(0.1)
+    bus.create_mapping(4096)
+    return bus
 
 
 def main(iface: str, cycles: int) -> dict[str, Any]:
     run_as_kickcat_readme_says()
-    retries: list[str] = []
-    for attempt in range(5):
-        # KickCAT's defaults (2 ms link timeout); a scan that lost a frame runs again, every failure printed
-        # with the result (tests/devices/ecanlite/ecanlite_kickcat_driver.py)
-        link = kickcat.create_link(iface, "")
-        try:
-            bus = kickcat.Bus(link)
-            bus.init(0.1)
-            bus.create_mapping(4096)
-            break
-        except RuntimeError as exc:
-            retries.append(f"scan: {exc}")
-            if attempt == 4:
-                raise
+    # a scan that lost a frame runs again, every failure printed with the result (kickcat_kit.run_step)
+    bus, retries = run_step("scan", lambda: scan(iface))
     slaves = bus.slaves()
     out: dict[str, Any] = {"count": len(slaves), "retries": retries}
     out["sizes"] = [[s.output_size, s.input_size] for s in slaves]

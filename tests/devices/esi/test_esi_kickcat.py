@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from wire_kit import check_reruns, net_capable, rig_wire_stats, veth_namespace
+from wire_kit import check_reruns, net_capable, rig_counters_env, rig_wire_stats, veth_namespace
 
 from gatewaylab.rig.process import RigProcess
 
@@ -68,7 +68,8 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
         path = work / "rig.toml"
         path.write_text(RIG.format(data=DATA, echo=echo, interface=emu))
         with RigProcess(path, workdir=work, timeout=60) as rig:
-            env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(KITS), os.environ.get("PYTHONPATH")]))}
+            env = rig_counters_env(rig.info)    # the driver judges each rerun by the rig's wire counters
+            env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(KITS), os.environ.get("PYTHONPATH")]))
             done = subprocess.run(["ip", "netns", "exec", ns, sys.executable, str(DRIVER), mst, str(CYCLES)],
                                   capture_output=True, text=True, timeout=600, check=False, env=env)
             assert rig.proc.poll() is None, rig.log_text()[-2000:]

@@ -20,40 +20,34 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))   # tests/: the kit
 import kit_paths
 
 kit_paths.add_all()
-from kickcat_kit import run_as_kickcat_readme_says  # noqa: E402
+from kickcat_kit import run_as_kickcat_readme_says, run_step  # noqa: E402
 
 RX = struct.Struct("<HiihB")
 TX = struct.Struct("<HiihbH")
 CSP = 8
 
 
+def scan(iface: str) -> Any:
+    """KickCAT's default 2 ms per frame (Link.h): a fresh link and bus, init."""
+    link = kickcat.create_link(iface, "")
+    link.set_timeout(0.002)
+    bus = kickcat.Bus(link)
+    bus.init(0.5)
+    return bus
+
+
 def main(iface: str) -> dict[str, Any]:
-    bus = None
     run_as_kickcat_readme_says()
-    retries: list[str] = []
-    for attempt in range(5):
-        # KickCAT's default 2 ms per frame (Link.h); a scan that lost a frame runs again, printed
-        link = kickcat.create_link(iface, "")
-        link.set_timeout(0.002)
-        try:
-            bus = kickcat.Bus(link)
-            bus.init(0.5)
-            break
-        except RuntimeError as exc:
-            retries.append(f"init: {exc}")
-            if attempt == 4:
-                raise
-    assert bus is not None
+    # a step that lost a frame runs again, every failure printed with the result (kickcat_kit.run_step)
+    bus, retries = run_step("init", lambda: scan(iface))
     slaves = bus.slaves()
     out: dict[str, Any] = {"count": len(slaves), "retries": retries}
+
     def sdo(slave: Any, index: int, sub: int, size: int) -> int:
-        for attempt in range(3):
-            try:
-                return int.from_bytes(bus.read_sdo(slave, index, sub, kickcat.Access.PARTIAL, size, 1.0), "little")
-            except RuntimeError:
-                if attempt == 2:
-                    raise
-        return -1
+        data, failed = run_step(f"read {index:04X}:{sub}", lambda: bytes(
+            bus.read_sdo(slave, index, sub, kickcat.Access.PARTIAL, size, 1.0)))
+        retries.extend(failed)
+        return int.from_bytes(data, "little")
 
     out["device_type"] = [sdo(s, 0x1000, 0, 4) for s in slaves]
     out["assign"] = [[sdo(s, a, 1, 2) for a in (0x1C12, 0x1C13)] for s in slaves]

@@ -105,17 +105,19 @@ class DriveVeth:
     emulator_iface: str
     master_iface: str
 
-    def run(self, script: Path, *args: str, timeout: float = 180.0) -> subprocess.CompletedProcess[str]:
+    def run(self, script: Path, *args: str, timeout: float = 180.0,
+            env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
         """Run a Python script inside the namespace with the master interface as first argument."""
         return subprocess.run(["ip", "netns", "exec", self.namespace, sys.executable, str(script),
                                self.master_iface, *args], capture_output=True, text=True, timeout=timeout,
-                              check=False)
+                              check=False, env=env)
 
 
 def serve_raw(veth: DriveVeth, script: Path, *args: str, n: int = 2,
               stats: dict[str, int] | None = None) -> tuple[subprocess.CompletedProcess[str], list[EthercatDrive]]:
     """``n`` drives on the emulator end while ``script`` runs as the master in the namespace; the wire's
-    counters are added into ``stats`` when given."""
+    counters are added into ``stats`` when given, and the script can read them meanwhile (a KickCAT driver
+    judges each rerun by them: tests/ethercat/kickcat_kit.py run_step)."""
     clock = RealTimeClock()
     drives = [EthercatDrive(clock, f"GL-Drive #{i}", serial=0x3001 + i) for i in range(n)]
     wire = WireTransport(Segment([d.slave for d in drives]), veth.emulator_iface, clock, drive_clock=True,
@@ -127,7 +129,11 @@ def serve_raw(veth: DriveVeth, script: Path, *args: str, n: int = 2,
     gc.freeze()
     wire.start()
     try:
-        proc = veth.run(script, *args)
+        if stats is None:
+            proc = veth.run(script, *args)
+        else:
+            with wire_kit.serve_wire_counters(wire.stats) as env:
+                proc = veth.run(script, *args, env=env)
     finally:
         wire.stop()
         gc.unfreeze()
