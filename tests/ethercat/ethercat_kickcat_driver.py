@@ -14,7 +14,7 @@ import time
 from typing import Any
 
 import kickcat
-from kickcat_kit import run_as_kickcat_readme_says, run_step
+from kickcat_kit import MAILBOX_ATTEMPTS, run_as_kickcat_readme_says, run_step
 
 #: KickCAT's defaults (Link.h 2 ms, Bus.h 1 s per SDO); a step that fails on a lost frame runs again
 #: (tests/ethercat/kickcat_kit.py run_step), each failure printed with the result under ``retries``
@@ -41,7 +41,7 @@ def main(iface: str, cycles: int) -> dict[str, Any]:
 
     def sdo(slave: Any, index: int, sub: int, size: int) -> bytes:
         data, failed = run_step(f"read {index:04X}:{sub}", lambda: bytes(
-            bus.read_sdo(slave, index, sub, kickcat.Access.PARTIAL, size, SDO_TIMEOUT_S)))
+            bus.read_sdo(slave, index, sub, kickcat.Access.PARTIAL, size, SDO_TIMEOUT_S)), attempts=MAILBOX_ATTEMPTS)
         retries.extend(failed)
         return data
 

@@ -36,7 +36,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))   # tests/: the kit
 import kit_paths
 
 kit_paths.add_all()
-from kickcat_kit import run_as_kickcat_readme_says, run_step  # noqa: E402
+from kickcat_kit import ATTEMPTS, MAILBOX_ATTEMPTS, run_as_kickcat_readme_says, run_step  # noqa: E402
 
 #: KickCAT's own defaults: the link's 2 ms (lib/master/include/kickcat/Link.h ``timeout_{2ms}``) for every
 #: datagram -- scan, mailbox, process data -- and 1 s for an SDO transfer (Bus.h readSDO/writeSDO). A step
@@ -74,15 +74,15 @@ class Session:
         bus.init(0.5)          # the slaves' watchdog (not a timeout of the master)
         return bus
 
-    def step(self, name: str, step: Callable[[], T]) -> T:
+    def step(self, name: str, step: Callable[[], T], attempts: int = ATTEMPTS) -> T:
         """``step()`` through kickcat_kit's run_step, its failed attempts added to ``retries``."""
-        result, failed = run_step(name, step)
+        result, failed = run_step(name, step, attempts=attempts)
         self.retries.extend(failed)
         return result
 
     def read(self, index: int, sub: int, size: int = 4) -> bytes:
         return self.step(f"read {index:04X}:{sub}", lambda: bytes(
-            self.bus.read_sdo(self.slave, index, sub, kickcat.Access.PARTIAL, size, SDO_TIMEOUT_S)))
+            self.bus.read_sdo(self.slave, index, sub, kickcat.Access.PARTIAL, size, SDO_TIMEOUT_S)), MAILBOX_ATTEMPTS)
 
     def write(self, index: int, sub: int, data: bytes) -> None:
         """SDO download through KickCAT's mailbox: queued, then driven by process_mailboxes."""
@@ -92,7 +92,7 @@ class Session:
                 self.bus.process_mailboxes()
             return int(msg.status())
 
-        status = self.step(f"write {index:04X}:{sub}", download)
+        status = self.step(f"write {index:04X}:{sub}", download, MAILBOX_ATTEMPTS)
         if status != 0:
             raise RuntimeError(f"SDO download {index:04X}:{sub} answered status {status:#x}")
 

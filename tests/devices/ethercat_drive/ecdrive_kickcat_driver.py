@@ -20,7 +20,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))   # tests/: the kit
 import kit_paths
 
 kit_paths.add_all()
-from kickcat_kit import run_as_kickcat_readme_says, run_step  # noqa: E402
+from kickcat_kit import MAILBOX_ATTEMPTS, run_as_kickcat_readme_says, run_step  # noqa: E402
 
 RX = struct.Struct("<HiihB")
 TX = struct.Struct("<HiihbH")
@@ -45,7 +45,7 @@ def main(iface: str) -> dict[str, Any]:
 
     def sdo(slave: Any, index: int, sub: int, size: int) -> int:
         data, failed = run_step(f"read {index:04X}:{sub}", lambda: bytes(
-            bus.read_sdo(slave, index, sub, kickcat.Access.PARTIAL, size, 1.0)))
+            bus.read_sdo(slave, index, sub, kickcat.Access.PARTIAL, size, 1.0)), attempts=MAILBOX_ATTEMPTS)
         retries.extend(failed)
         return int.from_bytes(data, "little")
 
