@@ -7,7 +7,10 @@ the bytes that follow). Used by the sans-I/O storm and by the sender in the wire
 ``keep_eeprom``: a write-enabled SII write command (0x0502 bit 0 + command 2) reprograms the EEPROM
 of a real ESC too, after which no master finds the original slave; the storms that must leave a
 segment SOEM can re-initialise clear that bit and aim the FMMU configurations they shape at
-process RAM and FMMU0-2 (the ones SOEM's config_init clears).
+process RAM and FMMU0-2 (the ones SOEM's config_init clears). A writing FMMU over the EEPROM
+interface registers is such a write too (an FMMU reaches the registers, ET1100 data sheet I, FMMU:
+any physical address): a logical datagram through it writes 0x0502-0x050B like an FPWR, so every
+FMMU a storm write touches is kept from writing there (:func:`no_sii_fmmu`).
 """
 
 from __future__ import annotations
@@ -47,7 +50,11 @@ def _datagram(rng: random.Random, last: bool, keep_eeprom: bool) -> bytes:
                        rng.randrange(8), rng.randrange(1, 4), 1)
     if keep_eeprom and cmd in WRITES and ado >= 0 and ado <= 0x0502 < ado + dlen:
         data[0x0502 - ado] &= 0xFE  # no SII write enable
+    if keep_eeprom and cmd in WRITES and ado >= 0:
+        data[:] = no_sii_fmmu(ado, bytes(data))
     lie = rng.random()
+    if keep_eeprom and cmd in WRITES and ado >= 0 and _reaches_sii_or_fmmu(ado, dlen + 40):
+        lie = 1.0  # a lying length would write the bytes after the data there, unguarded
     if lie < 0.1:
         data = data[:rng.randrange(len(data) + 1)]  # shorter than announced
     elif lie < 0.15:
@@ -178,13 +185,68 @@ def _mutate(rng: random.Random, cmd: int, adp: int, ado: int, data: bytes) -> tu
     return cmd, adp, ado, data
 
 
+#: The EEPROM interface registers a write must not reach through an FMMU: control/status (0x0502, write enable
+#: and command), address (0x0504) and data (0x0508) -- ET1100 data sheet II, 0x0500-0x050F.
+SII_REGS = (0x0502, 0x050C)
+FMMU_AREA = (0x0600, 0x0700)
+
+
+def _reaches_sii_or_fmmu(ado: int, length: int) -> bool:
+    """[ado, ado + length) meets the EEPROM interface or the FMMU registers."""
+    return ado < FMMU_AREA[1] and ado + length > SII_REGS[0]
+
+
+def _may_reach(phys: int, length: int) -> bool:
+    """A writing FMMU at ``phys`` could reach :data:`SII_REGS`, now or once a later write changes the low
+    byte of its physical start: only a start of 0x0600 and above, or one whose 256-byte page ends with the
+    FMMU before 0x0502, is safe."""
+    return phys >> 8 <= SII_REGS[1] >> 8 and (phys & 0xFF00) + 0xFF + length > SII_REGS[0]
+
+
+def no_sii_fmmu(ado: int, data: bytes) -> bytes:
+    """``data`` written at ``ado`` with every FMMU entry it touches kept from writing the EEPROM interface.
+
+    An entry the write holds whole keeps writing only where it cannot reach :data:`SII_REGS`
+    (:func:`_may_reach`), else its write bit (type bit 1) is cleared. A write that changes an entry in
+    part keeps what it does not hold, so what it holds is made safe whatever the rest is: a physical start
+    (or its high byte) is moved to process RAM, a length byte is cut to 0, a type loses its write bit; the
+    low byte of a start alone cannot move a safe FMMU to the registers. No FMMU of the line then writes
+    0x0502-0x050B (the master's own FMMUs start in process RAM)."""
+    end = ado + len(data)
+    if end <= FMMU_AREA[0] or ado >= FMMU_AREA[1]:
+        return data
+    b = bytearray(data)
+    for base in range(max(ado, FMMU_AREA[0]) & ~0xF, min(end, FMMU_AREA[1]), 16):
+        at = base - ado
+
+        def held(off: int, n: int = 1, base: int = base) -> bool:
+            return ado <= base + off and base + off + n <= end
+
+        if held(0, 16):
+            _ls, length, _sb, _eb, phys, _pb, ftype, _act = FMMU.unpack_from(b, at)
+            if ftype & 2 and _may_reach(phys, length):
+                b[at + 11] &= ~2 & 0xFF
+            continue
+        if held(9) and b[at + 9] <= SII_REGS[1] >> 8:
+            b[at + 9] |= 0x10   # 0x1000 and above: process RAM
+        for off in (4, 5):      # the length, or a part of it
+            if held(off):
+                b[at + off] = 0
+        if held(11):
+            b[at + 11] &= ~2 & 0xFF
+    return bytes(b)
+
+
 def _no_sii_write(cmd: int, ado: int, data: bytes) -> bytes:
-    """Clear the SII write enable (0x0502 bit 0) a write would set: a real ESC reprograms its EEPROM too."""
-    if cmd in WRITES and ado <= 0x0502 < ado + len(data):
+    """Clear the SII write enable (0x0502 bit 0) a write would set, and keep every FMMU it programs from
+    writing the EEPROM interface (:func:`no_sii_fmmu`): a real ESC reprograms its EEPROM too."""
+    if cmd not in WRITES:
+        return data
+    if ado <= 0x0502 < ado + len(data):
         b = bytearray(data)
         b[0x0502 - ado] &= 0xFE
-        return bytes(b)
-    return data
+        data = bytes(b)
+    return no_sii_fmmu(ado, data)
 
 
 def mutated_frame(rng: random.Random, templates: MasterTemplates) -> bytes:
@@ -205,7 +267,10 @@ def mutated_frame(rng: random.Random, templates: MasterTemplates) -> bytes:
         data = _no_sii_write(cmd & 0xFF, ado, data[:1400 // n])
         raw = bytearray(_dg(cmd & 0xFF, adp, ado, data, i == n - 1))
         if rng.random() < 0.03:  # the datagram's announced length lies
-            struct.pack_into("<H", raw, 6, (rng.randrange(0x800)) | (0 if i == n - 1 else 0x8000))
+            lie = rng.randrange(0x800)
+            if cmd & 0xFF in WRITES and lie > len(data) and _reaches_sii_or_fmmu(ado, lie):
+                lie = len(data) // 2  # longer, it would write the bytes that follow there, unguarded
+            struct.pack_into("<H", raw, 6, lie | (0 if i == n - 1 else 0x8000))
         parts.append(bytes(raw))
     body = b"".join(parts)
     length = len(body) if rng.random() < 0.97 else rng.randrange(0x800)

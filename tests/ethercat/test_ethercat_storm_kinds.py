@@ -5,6 +5,7 @@ all slaves", for 3 seeds)."""
 
 from __future__ import annotations
 
+import random
 from pathlib import Path
 
 import pytest
@@ -56,5 +57,35 @@ def test_storm_of_mutated_frames_then_reinitialisation_reaches_op(tmp_path: Path
         reinitialise(clock, seg)
         assert [s.state for s in seg.slaves] == [AlState.OP, AlState.OP]
         assert seg.stats.datagram_errors == 0, list(seg.stats.errors)
+    finally:
+        rig.close()
+
+
+def test_storm_keeps_every_sii_whatever_frames_the_line_drops(tmp_path: Path) -> None:
+    """The user-path storm beside another real-time rig (the emulator drops the frames it could not answer
+    within ``max_residence_ms``): with a fifth of the frames lost, the earlier generator's FMMUs over the
+    EEPROM interface (0x0502 write enable + command, 0x0504 address, 0x0508 data) let a logical datagram
+    rewrite one word of a slave's SII -- the SyncManager category's length -- and SOEM then mapped that
+    slave's process data at physical 0x0000 and overwrote its station address and AL control (ECAN-Lite
+    unreachable, PREOP + 0x0012). ET1100 data sheet I (FMMU: any physical address) and II (0x0502: a
+    write command with write enable programs the EEPROM): a real ESC does the same, so a storm that must
+    leave a line SOEM can re-initialise keeps every FMMU from writing there; every SII stays as it was."""
+    rig, clock, seg = kind_rig(tmp_path, list(KINDS))
+    try:
+        Master(clock, seg).bring_up()
+        eeproms = [bytes(s.esc.eeprom) for s in seg.slaves]
+        mailboxes = [(*s.desc.mailbox_out, *s.desc.mailbox_in) if s.has_mailbox else (0, 0, 0, 0)
+                     for s in seg.slaves]
+        templates = MasterTemplates([FIRST_STATION + i for i in range(len(seg.slaves))], mailboxes)
+        lost = random.Random(0)
+        served = 0
+        for raw in mutated_storm(1, 6000, templates):
+            clock.advance(0.0005)
+            if lost.random() < 0.2:
+                continue  # dropped late: never reached the slaves
+            seg.process(bytearray(raw))
+            served += 1
+        assert served > 4000
+        assert [bytes(s.esc.eeprom) for s in seg.slaves] == eeproms
     finally:
         rig.close()
