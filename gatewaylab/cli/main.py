@@ -213,6 +213,10 @@ class _Signals:
 
     def __init__(self) -> None:
         self.code: int | None = None
+        #: The last signal taken. A handler's exception raised while the main thread runs a weakref callback
+        #: (an import's module lock, while the command's modules load) is printed as "Exception ignored" and
+        #: lost: the command looks here before it starts to run until stopped.
+        self.received: int | None = None
         self.previous: dict[int, Any] = {}
         try:
             for signum in STOP_SIGNALS:
@@ -223,7 +227,18 @@ class _Signals:
     def _on_signal(self, signum: int, frame: FrameType | None) -> None:
         if self.code is not None:
             os._exit(self.code)
+        self.stop_at_once(signum, frame)
+
+    def stop_at_once(self, signum: int, frame: FrameType | None) -> None:
+        """A handler that raises :class:`Interrupted` where the program is, and keeps the signal in
+        :attr:`received`."""
+        self.received = signum
         raise Interrupted(signum)
+
+    def check(self) -> None:
+        """Raise :class:`Interrupted` for a signal taken whose exception was lost (see :attr:`received`)."""
+        if self.received is not None:
+            raise Interrupted(self.received)
 
     def leave(self, code: int, restore: bool) -> None:
         """``main`` returns ``code``: put the previous handlers back (``restore``: main() was called by
@@ -287,8 +302,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         raise UsageError("--esi and --interface go with --eni (the segment an ENI describes)")
     # Until the loop runs (and again while it shuts down), SIGTERM/SIGINT unwind at once: a rig stopped
     # while it starts leaves no temporary folder, socket or thread behind either.
+    record: _Signals | None = getattr(args, "signals", None)
     for signum in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(signum, _stop_at_once)
+        signal.signal(signum, _stop_at_once if record is None else record.stop_at_once)
     rig: Rig | None = None
     ready_written = False
     web: RigWeb | None = None
@@ -346,7 +362,10 @@ def cmd_run(args: argparse.Namespace) -> int:
             elif key not in ("pid", "buses"):
                 print(f"  {key}: {json.dumps(value)}")
         sys.stdout.flush()
-        rig.run()      # its own handlers: the loop returns at its next pass (docs/rig.md)
+        if record is not None:      # a signal whose exception an import's weakref callback swallowed
+            record.check()
+        rig.run(until=None if record is None else lambda: record.received is not None)   # its own handlers:
+        # the loop returns at its next pass (docs/rig.md)
     except Interrupted:
         pass
     finally:
@@ -467,7 +486,7 @@ def main(argv: list[str] | None = None) -> int:
     code = 1
     try:
         try:
-            code = _main(argv)
+            code = _main(argv, signals)
         except SystemExit as exc:          # argparse: --help, --version, a usage error
             code = exc.code if isinstance(exc.code, int) else 0 if exc.code is None else 2
             raise
@@ -480,7 +499,7 @@ def main(argv: list[str] | None = None) -> int:
     return code
 
 
-def _main(argv: list[str] | None) -> int:
+def _main(argv: list[str] | None, signals: _Signals | None = None) -> int:
     try:
         parser = build_parser()
     except SubcommandError as exc:
@@ -492,6 +511,9 @@ def _main(argv: list[str] | None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
+    if signals is not None:
+        args.signals = signals      # the run command keeps recording the signals it takes there
+        signals.check()             # taken while the modules loaded, its exception lost
     try:
         result: int | None = args.func(args)
         return result if isinstance(result, int) else 0     # None: done (sys.exit(None) is 0 too)
