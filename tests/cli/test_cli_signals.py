@@ -254,3 +254,40 @@ def test_viewer_ends_on_sigterm_as_on_ctrl_c(rig: RigProcess) -> None:
     assert code == 0, (code, err)
     assert "Traceback" not in err, err
     assert b"322" in screen and b"error frames" in screen
+
+
+#: `gatewaylab run RIG` in-process, with a SIGTERM taken inside a weakref callback once `main` runs the command:
+#: CPython drops the handler's exception there ("Exception ignored in"), as it does when the signal comes while
+#: an import releases its module lock (the race this session's fresh-clone CI hit).
+SWALLOWED = """
+import os, signal, sys, weakref
+from gatewaylab.cli.main import main
+
+class Thing:
+    pass
+
+def swallow(event_frame, event, arg):
+    if event == "call" and event_frame.f_code.co_name == "_main":
+        sys.setprofile(None)
+        thing = Thing()
+        def callback(ref):
+            os.kill(os.getpid(), signal.SIGTERM)
+            for _ in range(1000):       # the handler runs here, inside the callback
+                pass
+        keep = weakref.ref(thing, callback)
+        del thing
+
+sys.setprofile(swallow)
+sys.exit(main(["run", sys.argv[1]]))
+"""
+
+
+def test_a_signal_whose_exception_python_drops_still_stops_run(workdir: Path) -> None:
+    """docs/cli.md "Signals": SIGTERM while `run` starts stops it quietly, exit 0, even when CPython drops the
+    handler's exception (raised inside a weakref callback: "Exception ignored in" on stderr); before, the rig
+    started and ran on until it was killed."""
+    proc = subprocess.run([sys.executable, "-c", SWALLOWED, str(workdir / "rig.toml")], capture_output=True,
+                          text=True, timeout=WAIT, check=False)
+    assert "Exception ignored in" in proc.stderr, proc.stderr[-2000:]      # the exception was dropped indeed
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "Traceback (most recent call last)" not in proc.stderr.split("Exception ignored in")[0]
