@@ -206,6 +206,25 @@ def _command_of(argv: list[str]) -> str | None:
     return next((word for word in argv if not word.startswith("-")), None)
 
 
+class _Received:
+    """Handlers that raise :class:`Interrupted` where the program is and keep the signal in :attr:`signum`: a
+    handler's exception raised while the main thread runs a weakref callback (an import's module lock, while a
+    command's modules load) is printed as "Exception ignored" and lost, so a command looks here too."""
+
+    def __init__(self) -> None:
+        self.signum: int | None = None
+
+    def stop_at_once(self, signum: int, frame: FrameType | None) -> None:
+        """The handler."""
+        self.signum = signum
+        raise Interrupted(signum)
+
+    def check(self) -> None:
+        """Raise :class:`Interrupted` for a signal taken whose exception was lost."""
+        if self.signum is not None:
+            raise Interrupted(self.signum)
+
+
 class _Signals:
     """SIGINT and SIGTERM for the time of :func:`main`: raise :class:`Interrupted` where the program is
     (from the first line of ``main``, so also while the command's modules load); once ``main`` has its
@@ -213,10 +232,8 @@ class _Signals:
 
     def __init__(self) -> None:
         self.code: int | None = None
-        #: The last signal taken. A handler's exception raised while the main thread runs a weakref callback
-        #: (an import's module lock, while the command's modules load) is printed as "Exception ignored" and
-        #: lost: the command looks here before it starts to run until stopped.
-        self.received: int | None = None
+        #: the signal taken (checked before the command runs: its exception may have been lost)
+        self.received = _Received()
         self.previous: dict[int, Any] = {}
         try:
             for signum in STOP_SIGNALS:
@@ -227,18 +244,7 @@ class _Signals:
     def _on_signal(self, signum: int, frame: FrameType | None) -> None:
         if self.code is not None:
             os._exit(self.code)
-        self.stop_at_once(signum, frame)
-
-    def stop_at_once(self, signum: int, frame: FrameType | None) -> None:
-        """A handler that raises :class:`Interrupted` where the program is, and keeps the signal in
-        :attr:`received`."""
-        self.received = signum
-        raise Interrupted(signum)
-
-    def check(self) -> None:
-        """Raise :class:`Interrupted` for a signal taken whose exception was lost (see :attr:`received`)."""
-        if self.received is not None:
-            raise Interrupted(self.received)
+        self.received.stop_at_once(signum, frame)
 
     def leave(self, code: int, restore: bool) -> None:
         """``main`` returns ``code``: put the previous handlers back (``restore``: main() was called by
@@ -302,9 +308,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         raise UsageError("--esi and --interface go with --eni (the segment an ENI describes)")
     # Until the loop runs (and again while it shuts down), SIGTERM/SIGINT unwind at once: a rig stopped
     # while it starts leaves no temporary folder, socket or thread behind either.
-    record: _Signals | None = getattr(args, "signals", None)
+    record = _Received()
     for signum in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(signum, _stop_at_once if record is None else record.stop_at_once)
+        signal.signal(signum, record.stop_at_once)
     rig: Rig | None = None
     ready_written = False
     web: RigWeb | None = None
@@ -362,10 +368,9 @@ def cmd_run(args: argparse.Namespace) -> int:
             elif key not in ("pid", "buses"):
                 print(f"  {key}: {json.dumps(value)}")
         sys.stdout.flush()
-        if record is not None:      # a signal whose exception an import's weakref callback swallowed
-            record.check()
-        rig.run(until=None if record is None else lambda: record.received is not None)   # its own handlers:
-        # the loop returns at its next pass (docs/rig.md)
+        record.check()      # a signal whose exception an import's weakref callback swallowed
+        rig.run(until=lambda: record.signum is not None)   # its own handlers: the loop returns at its next pass
+        # (docs/rig.md); ``until``: a signal taken before them whose exception was lost
     except Interrupted:
         pass
     finally:
@@ -512,8 +517,7 @@ def _main(argv: list[str] | None, signals: _Signals | None = None) -> int:
         parser.print_help()
         return 2
     if signals is not None:
-        args.signals = signals      # the run command keeps recording the signals it takes there
-        signals.check()             # taken while the modules loaded, its exception lost
+        signals.received.check()    # taken while the modules loaded, its exception lost
     try:
         result: int | None = args.func(args)
         return result if isinstance(result, int) else 0     # None: done (sys.exit(None) is 0 too)
