@@ -185,10 +185,6 @@ class Interrupted(KeyboardInterrupt):
         self.signum = signum
 
 
-def _stop_at_once(signum: int, frame: FrameType | None) -> None:
-    raise Interrupted(signum)
-
-
 #: The commands that run until they are stopped: a signal is their ordinary end, exit 0 at every moment.
 RUN_UNTIL_STOPPED = frozenset({"run", "monitor", "dump"})
 #: The signals that stop every command alike (docs/cli.md "Signals").
@@ -375,7 +371,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         pass
     finally:
         for signum in (signal.SIGINT, signal.SIGTERM):
-            signal.signal(signum, _stop_at_once)   # a second signal while closing: do not wait
+            signal.signal(signum, record.stop_at_once)   # a second signal while closing: do not wait
         try:
             if web is not None:
                 web.stop()

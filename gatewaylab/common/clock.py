@@ -436,6 +436,6 @@ class RealTimeClock(Clock):
                 if self.waiting or (self.urgent and self.input_urgent()):
                     break           # a thread that may not wait for the whole pass: the rest runs later
                 self._drain_injected()
-        if self.waiting or (self.urgent and self.input_urgent()):
-            self.hand_over()
+        if self.waiting or self.urgent:
+            self.hand_over()    # returns at once when nobody waits and no probe has input
         return count

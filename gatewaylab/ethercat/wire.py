@@ -163,7 +163,7 @@ class WireTransport:
         self._wake_r: socket.socket | None = None
         self._wake_w: socket.socket | None = None
         self._thread: threading.Thread | None = None
-        self._poller = select.poll()    # the sockets, for frame_waiting (registered when the thread starts)
+        self._poller = select.poll()    # the sockets, for frame_waiting (a new one each time the thread starts)
         self._running = False
         self.frames_in = 0
         self.frames_out = 0
@@ -407,6 +407,7 @@ class WireTransport:
         if self.drive_clock:    # this thread runs the clock's events itself: nobody else to step aside
             self._serve()
             return
+        self._poller = select.poll()    # this run's sockets only (a restarted wire has new ones)
         for s in (self._sock, self._sock_b):
             if s is not None:
                 self._poller.register(s, select.POLLIN)
